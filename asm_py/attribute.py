@@ -1,0 +1,147 @@
+"""The attribute: a shared value guarded as a monitor (paper section 2.1).
+
+``set`` makes the value valid, ``get`` consumes it. ``sync_get`` makes ``get`` wait for a valid value ("wait for a
+fresh value"); ``sync_set`` makes ``set`` wait until the last value was consumed ("wait until the last one was
+used"); both make a one-slot rendezvous between producers and consumers; neither is a plain shared variable. All
+three operations run in the caller's thread, under the attribute's single lock.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+from typing import Any
+
+from .clock import Clock, Monitor
+from .codec import Codec, parse_codec
+from .errors import AsmTimeout
+
+log = logging.getLogger("asm_py.attribute")
+
+ChangeCallback = Callable[[Any], None]
+
+
+class Attribute:
+    """A value shared among threads (and, through a node, among processors); see the module docstring."""
+
+    __slots__ = ("_name", "_initial", "_value", "_valid", "_changes", "_sync_get", "_sync_set", "_codec", "_mon",
+                 "_listeners", "__weakref__")  # fmt: skip
+
+    def __init__(
+        self,
+        name: str,
+        initial: Any = None,
+        *,
+        sync_get: bool = False,
+        sync_set: bool = False,
+        codec: Codec | str | None = None,
+        clock: Clock | None = None,
+    ) -> None:
+        self._name = name
+        self._codec = None if codec is None else parse_codec(codec)
+        if initial is not None and self._codec is not None:
+            initial = self._codec.normalize(initial)
+        self._initial = initial
+        self._value = initial
+        self._valid = False
+        self._changes = 0
+        self._sync_get = bool(sync_get)
+        self._sync_set = bool(sync_set)
+        self._mon = Monitor(clock)
+        self._listeners: tuple[ChangeCallback, ...] = ()
+
+    @property
+    def name(self) -> str:
+        return self._name
+
+    @property
+    def valid(self) -> bool:
+        """True between a ``set`` and the next ``get`` (or ``reset``)."""
+        return self._valid
+
+    @property
+    def sync_get(self) -> bool:
+        return self._sync_get
+
+    @property
+    def sync_set(self) -> bool:
+        return self._sync_set
+
+    @property
+    def codec(self) -> Codec | None:
+        return self._codec
+
+    @property
+    def clock(self) -> Clock:
+        return self._mon.clock
+
+    @property
+    def initial(self) -> Any:
+        return self._initial
+
+    def set(self, value: Any, timeout: float | None = None) -> None:
+        """Store ``value`` and make it valid; with sync_set, first wait until the previous value was consumed."""
+        if self._codec is not None:
+            value = self._codec.normalize(value)
+        mon = self._mon
+        with mon.lock:
+            if self._sync_set and self._valid and not mon.wait_for(self._consumed, timeout):
+                raise AsmTimeout(f"set on attribute {self._name!r} timed out after {timeout}s (last value unread)")
+            self._value = value
+            self._valid = True
+            self._changes += 1
+            if mon._waiters:
+                mon.notify_all()
+        for callback in self._listeners:
+            try:
+                callback(value)
+            except Exception:
+                log.exception("change callback %r of attribute %r failed", callback, self._name)
+
+    def get(self, timeout: float | None = None) -> Any:
+        """Return the value and make it invalid; with sync_get, first wait until a value is valid."""
+        mon = self._mon
+        with mon.lock:
+            if self._sync_get and not self._valid and not mon.wait_for(self._is_valid, timeout):
+                raise AsmTimeout(f"get on attribute {self._name!r} timed out after {timeout}s (no valid value)")
+            self._valid = False
+            if self._sync_set and mon._waiters:
+                mon.notify_all()
+            return self._value
+
+    def reset(self) -> None:
+        """Restore the initial value, make it invalid and release setters blocked by sync_set."""
+        mon = self._mon
+        with mon.lock:
+            self._value = self._initial
+            self._valid = False
+            mon.notify_all()
+
+    def peek(self) -> Any:
+        """The current value without consuming it: for monitors and displays, not for synchronization."""
+        return self._value
+
+    def on_change(self, callback: ChangeCallback) -> Callable[[], None]:
+        """Call ``callback(value)`` after every ``set`` (in the setter's thread, outside the lock).
+
+        ``reset`` is not reported: it returns the attribute to its initial state rather than producing a value.
+        Returns a function that removes the callback.
+        """
+        with self._mon.lock:
+            self._listeners = (*self._listeners, callback)
+
+        def remove() -> None:
+            with self._mon.lock:
+                self._listeners = tuple(c for c in self._listeners if c is not callback)
+
+        return remove
+
+    def _consumed(self) -> bool:
+        return not self._valid
+
+    def _is_valid(self) -> bool:
+        return self._valid
+
+    def __repr__(self) -> str:
+        flags = "".join(f for f, on in (("G", self._sync_get), ("S", self._sync_set)) if on) or "-"
+        return f"<{type(self).__name__} {self._name!r} {flags} valid={self._valid} value={self._value!r}>"

@@ -1,0 +1,494 @@
+"""Typed attribute values: one definition per type, from which the wire bytes, the GUI input and the docs derive.
+
+A codec does three things with a value: ``normalize`` (check it and bring it to canonical Python form — the form
+every reader gets back, local or remote), ``encode`` to bytes and ``decode`` from bytes. ``normalize`` is what
+``Attribute.set`` calls before touching anything, so a bad value raises ``TypeError`` (wrong kind) or ``ValueError``
+(out of range, wrong length, unknown field) and leaves the attribute unchanged.
+
+Byte order is little-endian throughout (the order of the ARM/x86 processors on modules and PCs). A top-level value
+of a variable-size type (str, bytes) is its raw bytes, its length being that of the message; inside a record, such
+a field is prefixed with its length as an unsigned LEB128 varint. ``descriptor()`` is a compact binary type tag that
+a lookup reply carries, so a client learns the type of a remote attribute; ``spec`` is the same type as text
+(``"float32"``, ``"float32[3]"``, ``"record{x:float32,ok:bool}"``), for files and docs.
+"""
+
+from __future__ import annotations
+
+import operator
+import struct
+from abc import ABC, abstractmethod
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+Buffer = bytes | bytearray | memoryview
+
+
+class Codec(ABC):
+    """The type of an attribute value; see the module docstring."""
+
+    spec: str
+    """Canonical text form of the type, parsed back by :func:`parse_codec`."""
+    size: int | None
+    """Encoded size in bytes when every value has the same size, else None."""
+
+    @abstractmethod
+    def normalize(self, value: Any) -> Any:
+        """Check ``value`` and return it in canonical form; TypeError or ValueError if it cannot be encoded."""
+
+    @abstractmethod
+    def descriptor(self) -> bytes:
+        """The binary type tag carried in lookup replies (see docs/protocol.md)."""
+
+    @abstractmethod
+    def describe(self) -> dict[str, Any]:
+        """What a GUI input or a doc needs: kind, bounds, lengths, fields."""
+
+    @abstractmethod
+    def _pack(self, out: bytearray, value: Any) -> None:
+        """Append the embedded form of an already normalized value."""
+
+    @abstractmethod
+    def _unpack(self, data: memoryview, offset: int) -> tuple[Any, int]:
+        """Read the embedded form at ``offset``; return the value and the offset after it."""
+
+    def encode(self, value: Any) -> bytes:
+        out = bytearray()
+        self._pack(out, self.normalize(value))
+        return bytes(out)
+
+    def decode(self, data: Buffer) -> Any:
+        view = memoryview(data)
+        try:
+            value, end = self._unpack(view, 0)
+        except (struct.error, IndexError) as exc:
+            raise ValueError(f"{self.spec}: cannot decode {len(view)} bytes: {exc}") from None
+        if end != len(view):
+            raise ValueError(f"{self.spec}: {len(view) - end} trailing byte(s) after the value")
+        return value
+
+    def __repr__(self) -> str:
+        return f"<codec {self.spec}>"
+
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, Codec) and other.spec == self.spec
+
+    def __hash__(self) -> int:
+        return hash(self.spec)
+
+
+class _Fixed(Codec):
+    """A scalar packed with one ``struct`` format."""
+
+    def __init__(self, spec: str, fmt: str, tag: int) -> None:
+        self.spec = spec
+        self._struct = struct.Struct("<" + fmt)
+        self.size = self._struct.size
+        self._tag = tag
+
+    def descriptor(self) -> bytes:
+        return bytes([self._tag])
+
+    def _pack(self, out: bytearray, value: Any) -> None:
+        out += self._struct.pack(value)
+
+    def _unpack(self, data: memoryview, offset: int) -> tuple[Any, int]:
+        end = offset + self.size
+        if end > len(data):
+            raise ValueError(f"{self.spec}: needs {self.size} bytes, {len(data) - offset} left")
+        return self._struct.unpack_from(data, offset)[0], end
+
+
+class BoolCodec(_Fixed):
+    def __init__(self) -> None:
+        super().__init__("bool", "B", 0x01)
+
+    def normalize(self, value: Any) -> bool:
+        if value is True or value is False:
+            return value
+        if type(value).__name__ == "bool_":  # numpy.bool_, without importing numpy
+            return bool(value)
+        raise TypeError(f"bool attribute needs True or False, got {type(value).__name__}")
+
+    def _unpack(self, data: memoryview, offset: int) -> tuple[Any, int]:
+        raw, end = super()._unpack(data, offset)
+        if raw > 1:
+            raise ValueError(f"bool: byte {raw:#04x} is neither 0 nor 1")
+        return raw == 1, end
+
+    def describe(self) -> dict[str, Any]:
+        return {"spec": self.spec, "kind": "bool", "size": 1}
+
+
+class IntCodec(_Fixed):
+    def __init__(self, bits: int, signed: bool) -> None:
+        fmt = {8: "b", 16: "h", 32: "i", 64: "q"}[bits]
+        spec = f"{'' if signed else 'u'}int{bits}"
+        tag = {8: 0x02, 16: 0x03, 32: 0x04, 64: 0x05}[bits] + (0 if signed else 4)
+        super().__init__(spec, fmt if signed else fmt.upper(), tag)
+        self.min = -(1 << (bits - 1)) if signed else 0
+        self.max = (1 << (bits - 1)) - 1 if signed else (1 << bits) - 1
+
+    def normalize(self, value: Any) -> int:
+        if isinstance(value, bool):
+            raise TypeError(f"{self.spec} attribute needs an integer, got bool")
+        try:
+            number = operator.index(value)
+        except TypeError:
+            raise TypeError(f"{self.spec} attribute needs an integer, got {type(value).__name__}") from None
+        if not self.min <= number <= self.max:
+            raise ValueError(f"{number} is outside {self.spec} range [{self.min}, {self.max}]")
+        return number
+
+    def describe(self) -> dict[str, Any]:
+        return {"spec": self.spec, "kind": "int", "size": self.size, "min": self.min, "max": self.max}
+
+
+class FloatCodec(_Fixed):
+    def __init__(self, bits: int) -> None:
+        super().__init__(f"float{bits}", "f" if bits == 32 else "d", 0x0A if bits == 32 else 0x0B)
+
+    def normalize(self, value: Any) -> float:
+        if isinstance(value, bool | str | bytes):
+            raise TypeError(f"{self.spec} attribute needs a number, got {type(value).__name__}")
+        try:
+            number = float(value)
+        except (TypeError, ValueError):
+            raise TypeError(f"{self.spec} attribute needs a number, got {type(value).__name__}") from None
+        if self.size == 4:
+            try:
+                return self._struct.unpack(self._struct.pack(number))[0]
+            except (OverflowError, struct.error):
+                raise ValueError(f"{number} is outside the float32 range") from None
+        return number
+
+    def describe(self) -> dict[str, Any]:
+        return {"spec": self.spec, "kind": "float", "size": self.size}
+
+
+def _pack_varint(out: bytearray, number: int) -> None:
+    while number >= 0x80:
+        out.append((number & 0x7F) | 0x80)
+        number >>= 7
+    out.append(number)
+
+
+def _unpack_varint(data: memoryview, offset: int) -> tuple[int, int]:
+    number = shift = 0
+    while True:
+        if offset >= len(data):
+            raise ValueError("varint runs past the end of the data")
+        byte = data[offset]
+        offset += 1
+        number |= (byte & 0x7F) << shift
+        if byte < 0x80:
+            return number, offset
+        shift += 7
+        if shift > 63:
+            raise ValueError("varint longer than 64 bits")
+
+
+class _Variable(Codec):
+    """str or bytes: raw at top level, varint-length-prefixed inside a record."""
+
+    size = None
+
+    def __init__(self, max_len: int | None) -> None:
+        self.max_len = max_len
+
+    @abstractmethod
+    def _to_bytes(self, value: Any) -> bytes: ...
+
+    @abstractmethod
+    def _from_bytes(self, raw: bytes) -> Any: ...
+
+    def _check_len(self, raw: bytes) -> None:
+        if self.max_len is not None and len(raw) > self.max_len:
+            raise ValueError(f"{self.spec}: {len(raw)} bytes exceed the maximum of {self.max_len}")
+
+    def encode(self, value: Any) -> bytes:
+        return self._to_bytes(self.normalize(value))
+
+    def decode(self, data: Buffer) -> Any:
+        raw = bytes(data)
+        self._check_len(raw)
+        return self._from_bytes(raw)
+
+    def _pack(self, out: bytearray, value: Any) -> None:
+        raw = self._to_bytes(value)
+        _pack_varint(out, len(raw))
+        out += raw
+
+    def _unpack(self, data: memoryview, offset: int) -> tuple[Any, int]:
+        length, offset = _unpack_varint(data, offset)
+        end = offset + length
+        if end > len(data):
+            raise ValueError(f"{self.spec}: field of {length} bytes runs past the end of the data")
+        raw = bytes(data[offset:end])
+        self._check_len(raw)
+        return self._from_bytes(raw), end
+
+    def descriptor(self) -> bytes:
+        out = bytearray([self._tag])
+        _pack_varint(out, 0 if self.max_len is None else self.max_len)
+        return bytes(out)
+
+
+class StrCodec(_Variable):
+    _tag = 0x0C
+
+    def __init__(self, max_len: int | None = None) -> None:
+        super().__init__(max_len)
+        self.spec = "str" if max_len is None else f"str<{max_len}>"
+
+    def normalize(self, value: Any) -> str:
+        if not isinstance(value, str):
+            raise TypeError(f"{self.spec} attribute needs a str, got {type(value).__name__}")
+        try:
+            self._check_len(value.encode("utf-8"))
+        except UnicodeEncodeError as exc:
+            raise ValueError(f"{self.spec}: not encodable as UTF-8: {exc.reason}") from None
+        return value
+
+    def _to_bytes(self, value: str) -> bytes:
+        return value.encode("utf-8")
+
+    def _from_bytes(self, raw: bytes) -> str:
+        try:
+            return raw.decode("utf-8")
+        except UnicodeDecodeError as exc:
+            raise ValueError(f"{self.spec}: invalid UTF-8: {exc.reason}") from None
+
+    def describe(self) -> dict[str, Any]:
+        return {"spec": self.spec, "kind": "str", "size": None, "max_len": self.max_len}
+
+
+class BytesCodec(_Variable):
+    _tag = 0x0D
+
+    def __init__(self, max_len: int | None = None) -> None:
+        super().__init__(max_len)
+        self.spec = "bytes" if max_len is None else f"bytes<{max_len}>"
+
+    def normalize(self, value: Any) -> bytes:
+        if not isinstance(value, bytes | bytearray | memoryview):
+            raise TypeError(f"{self.spec} attribute needs bytes, got {type(value).__name__}")
+        raw = bytes(value)
+        self._check_len(raw)
+        return raw
+
+    def _to_bytes(self, value: bytes) -> bytes:
+        return value
+
+    def _from_bytes(self, raw: bytes) -> bytes:
+        return raw
+
+    def describe(self) -> dict[str, Any]:
+        return {"spec": self.spec, "kind": "bytes", "size": None, "max_len": self.max_len}
+
+
+class FloatArrayCodec(Codec):
+    """A fixed number of float32 or float64 values; the canonical Python form is a tuple."""
+
+    def __init__(self, length: int, element: FloatCodec) -> None:
+        if length < 1:
+            raise ValueError(f"a float array needs at least one element, not {length}")
+        self.length = length
+        self.element = element
+        self.spec = f"{element.spec}[{length}]"
+        self._struct = struct.Struct(f"<{length}{'f' if element.size == 4 else 'd'}")
+        self.size = self._struct.size
+
+    def normalize(self, value: Any) -> tuple[float, ...]:
+        if isinstance(value, str | bytes | Mapping) or not hasattr(value, "__len__"):
+            raise TypeError(f"{self.spec} attribute needs a sequence of numbers, got {type(value).__name__}")
+        if len(value) != self.length:
+            raise ValueError(f"{self.spec} attribute needs {self.length} values, got {len(value)}")
+        return tuple(self.element.normalize(item) for item in value)
+
+    def descriptor(self) -> bytes:
+        out = bytearray([0x0E, self.element._tag])
+        _pack_varint(out, self.length)
+        return bytes(out)
+
+    def describe(self) -> dict[str, Any]:
+        return {"spec": self.spec, "kind": "float_array", "size": self.size, "length": self.length,
+                "element": self.element.describe()}  # fmt: skip
+
+    def _pack(self, out: bytearray, value: Any) -> None:
+        out += self._struct.pack(*value)
+
+    def _unpack(self, data: memoryview, offset: int) -> tuple[Any, int]:
+        end = offset + self.size
+        if end > len(data):
+            raise ValueError(f"{self.spec}: needs {self.size} bytes, {len(data) - offset} left")
+        return self._struct.unpack_from(data, offset), end
+
+
+class RecordCodec(Codec):
+    """Named fields of other codecs, in a fixed order; the canonical Python form is a dict in that order."""
+
+    def __init__(self, fields: Sequence[tuple[str, Codec]] | Mapping[str, Codec]) -> None:
+        items = list(fields.items() if isinstance(fields, Mapping) else fields)
+        if not items:
+            raise ValueError("a record needs at least one field")
+        names = [name for name, _ in items]
+        if len(set(names)) != len(names):
+            raise ValueError(f"record field names must be unique: {names}")
+        for name in names:
+            if not name.isidentifier():
+                raise ValueError(f"record field name {name!r} is not an identifier")
+        self.fields: tuple[tuple[str, Codec], ...] = tuple(items)
+        self.spec = "record{" + ",".join(f"{name}:{codec.spec}" for name, codec in items) + "}"
+        sizes = [codec.size for _, codec in items]
+        self.size = None if None in sizes else sum(s for s in sizes if s is not None)
+
+    def normalize(self, value: Any) -> dict[str, Any]:
+        if not isinstance(value, Mapping):
+            raise TypeError(f"{self.spec} attribute needs a mapping of its fields, got {type(value).__name__}")
+        unknown = set(value) - {name for name, _ in self.fields}
+        if unknown:
+            raise ValueError(f"unknown record field(s) {sorted(map(str, unknown))} for {self.spec}")
+        result = {}
+        for name, codec in self.fields:
+            if name not in value:
+                raise ValueError(f"record field {name!r} is missing for {self.spec}")
+            result[name] = codec.normalize(value[name])
+        return result
+
+    def descriptor(self) -> bytes:
+        out = bytearray([0x0F])
+        _pack_varint(out, len(self.fields))
+        for name, codec in self.fields:
+            raw = name.encode("utf-8")
+            _pack_varint(out, len(raw))
+            out += raw
+            out += codec.descriptor()
+        return bytes(out)
+
+    def describe(self) -> dict[str, Any]:
+        fields = [{"name": name, **codec.describe()} for name, codec in self.fields]
+        return {"spec": self.spec, "kind": "record", "size": self.size, "fields": fields}
+
+    def _pack(self, out: bytearray, value: Any) -> None:
+        for name, codec in self.fields:
+            codec._pack(out, value[name])
+
+    def _unpack(self, data: memoryview, offset: int) -> tuple[Any, int]:
+        result = {}
+        for name, codec in self.fields:
+            result[name], offset = codec._unpack(data, offset)
+        return result, offset
+
+
+BOOL = BoolCodec()
+INT8, INT16, INT32, INT64 = (IntCodec(bits, True) for bits in (8, 16, 32, 64))
+UINT8, UINT16, UINT32, UINT64 = (IntCodec(bits, False) for bits in (8, 16, 32, 64))
+FLOAT32 = FloatCodec(32)
+FLOAT64 = FloatCodec(64)
+STR = StrCodec()
+BYTES = BytesCodec()
+
+SCALARS: dict[str, Codec] = {
+    c.spec: c for c in (BOOL, INT8, INT16, INT32, INT64, UINT8, UINT16, UINT32, UINT64, FLOAT32, FLOAT64, STR, BYTES)
+}
+_BY_TAG: dict[int, Codec] = {c._tag: c for c in SCALARS.values() if isinstance(c, _Fixed)}
+
+
+def float_array(length: int, element: FloatCodec = FLOAT32) -> FloatArrayCodec:
+    return FloatArrayCodec(length, element)
+
+
+def record(fields: Sequence[tuple[str, Codec]] | Mapping[str, Codec]) -> RecordCodec:
+    return RecordCodec(fields)
+
+
+def parse_codec(spec: str | Codec) -> Codec:
+    """The codec named by ``spec`` (its ``.spec`` text); a Codec is returned as it is."""
+    if isinstance(spec, Codec):
+        return spec
+    codec, end = _parse(spec.replace(" ", ""), 0)
+    if end != len(spec.replace(" ", "")):
+        raise ValueError(f"unexpected text after position {end} in codec spec {spec!r}")
+    return codec
+
+
+def _parse(text: str, pos: int) -> tuple[Codec, int]:
+    if text.startswith("record{", pos):
+        pos += len("record{")
+        fields: list[tuple[str, Codec]] = []
+        while True:
+            colon = text.find(":", pos)
+            if colon < 0:
+                raise ValueError(f"record field without ':' in codec spec {text!r}")
+            name = text[pos:colon]
+            codec, pos = _parse(text, colon + 1)
+            fields.append((name, codec))
+            if pos < len(text) and text[pos] == ",":
+                pos += 1
+                continue
+            if pos < len(text) and text[pos] == "}":
+                return RecordCodec(fields), pos + 1
+            raise ValueError(f"record not closed with '}}' in codec spec {text!r}")
+    end = pos
+    while end < len(text) and (text[end].isalnum()):
+        end += 1
+    word = text[pos:end]
+    if word in ("str", "bytes") and text.startswith("<", end):
+        close = text.index(">", end)
+        max_len = int(text[end + 1 : close])
+        return (StrCodec(max_len) if word == "str" else BytesCodec(max_len)), close + 1
+    if word not in SCALARS:
+        raise ValueError(f"unknown type {word!r} in codec spec {text!r}")
+    codec = SCALARS[word]
+    if text.startswith("[", end):
+        close = text.index("]", end)
+        if not isinstance(codec, FloatCodec):
+            raise ValueError(f"arrays are of float32 or float64, not {word!r}")
+        return FloatArrayCodec(int(text[end + 1 : close]), codec), close + 1
+    return codec, end
+
+
+def codec_from_descriptor(data: Buffer) -> Codec:
+    """Rebuild a codec from its binary descriptor; ValueError if malformed."""
+    view = memoryview(data)
+    codec, end = _from_descriptor(view, 0, depth=0)
+    if end != len(view):
+        raise ValueError(f"{len(view) - end} trailing byte(s) after a codec descriptor")
+    return codec
+
+
+def _from_descriptor(data: memoryview, offset: int, depth: int) -> tuple[Codec, int]:
+    if depth > 8:
+        raise ValueError("codec descriptor nested too deeply")
+    if offset >= len(data):
+        raise ValueError("codec descriptor is truncated")
+    tag = data[offset]
+    offset += 1
+    if tag in _BY_TAG:
+        return _BY_TAG[tag], offset
+    if tag in (0x0C, 0x0D):
+        max_len, offset = _unpack_varint(data, offset)
+        limit = max_len or None
+        return (StrCodec(limit) if tag == 0x0C else BytesCodec(limit)), offset
+    if tag == 0x0E:
+        if offset >= len(data) or data[offset] not in (0x0A, 0x0B):
+            raise ValueError("float array descriptor without a float element type")
+        element = FLOAT32 if data[offset] == 0x0A else FLOAT64
+        length, offset = _unpack_varint(data, offset + 1)
+        if not 1 <= length <= 65535:
+            raise ValueError(f"float array length {length} out of range")
+        return FloatArrayCodec(length, element), offset
+    if tag == 0x0F:
+        count, offset = _unpack_varint(data, offset)
+        if not 1 <= count <= 255:
+            raise ValueError(f"record field count {count} out of range")
+        fields = []
+        for _ in range(count):
+            length, offset = _unpack_varint(data, offset)
+            name = bytes(data[offset : offset + length]).decode("utf-8", errors="strict")
+            offset += length
+            codec, offset = _from_descriptor(data, offset, depth + 1)
+            fields.append((name, codec))
+        return RecordCodec(fields), offset
+    raise ValueError(f"unknown codec tag {tag:#04x}")
+

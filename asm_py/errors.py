@@ -1,0 +1,46 @@
+"""Every exception asm_py raises, in one tree.
+
+The paper gives blocking calls a timeout and services a small state machine; those map onto Python's own
+exception types wherever a caller would naturally catch them, so code written against ``TimeoutError`` or
+``ValueError`` works unchanged on ASM objects, local or remote:
+
+- ``AsmError`` — base of everything specific to ASM.
+- ``AsmTimeout(AsmError, TimeoutError)`` — a blocking ``get``/``set``/``waiting``/``stop``, or a remote call,
+  did not complete within its deadline. Nothing changed on the object.
+- ``ServiceError(AsmError)`` — a service operation that its current state forbids: ``start`` while started,
+  ``reset`` while running, ``suspend`` while not started.
+- ``SimulationStalled(AsmTimeout)`` — a :class:`~asm_py.clock.SimClock` could not advance because a service
+  thread stayed busy (blocked outside ASM, or looping) longer than the clock's settle timeout.
+- Codec failures are plain ``TypeError`` (wrong kind of value) and ``ValueError`` (right kind, out of range or
+  malformed bytes), as the paper's "the attribute is left untouched" semantics only need the built-ins.
+- Lookups of unknown names or IDs raise ``LookupError``.
+
+``ServiceStopped`` is deliberately *not* an ``Exception``: it unwinds a service's ``run`` when ``stop()`` interrupts
+a blocking call inside it, and must not be swallowed by a routine's ``except Exception`` (the same reasoning that
+made ``asyncio.CancelledError`` a ``BaseException``). The service thread catches it; user code never needs to.
+"""
+
+from __future__ import annotations
+
+
+class AsmError(Exception):
+    """Base class of all ASM-specific errors."""
+
+
+class AsmTimeout(AsmError, TimeoutError):
+    """A blocking ASM call ran out of time; the object it was called on is unchanged."""
+
+
+class ServiceError(AsmError):
+    """A service was asked to do something its current state forbids."""
+
+
+class SimulationStalled(AsmTimeout):
+    """A simulation clock could not settle: some service thread did not return to an ASM wait in time."""
+
+
+class ServiceStopped(BaseException):
+    """Raised inside a service thread when ``stop()`` interrupts a blocking ASM call; ends ``run`` quietly."""
+
+
+__all__ = ["AsmError", "AsmTimeout", "ServiceError", "ServiceStopped", "SimulationStalled"]
