@@ -24,8 +24,19 @@ ChangeCallback = Callable[[Any], None]
 class Attribute:
     """A value shared among threads (and, through a node, among processors); see the module docstring."""
 
-    __slots__ = ("_name", "_initial", "_value", "_valid", "_changes", "_sync_get", "_sync_set", "_codec", "_mon",
-                 "_listeners", "__weakref__")  # fmt: skip
+    __slots__ = (
+        "__weakref__",
+        "_changes",
+        "_codec",
+        "_initial",
+        "_listeners",
+        "_mon",
+        "_name",
+        "_sync_get",
+        "_sync_set",
+        "_valid",
+        "_value",
+    )  # fmt: skip
 
     def __init__(
         self,

@@ -51,7 +51,7 @@ class Monitor:
     :class:`~asm_py.errors.ServiceStopped`.
     """
 
-    __slots__ = ("clock", "lock", "_cond", "_waiters", "_sim_waiters")
+    __slots__ = ("_cond", "_sim_waiters", "_waiters", "clock", "lock")
 
     def __init__(self, clock: Clock | None = None) -> None:
         self.clock: Clock = clock if clock is not None else WALL_CLOCK
@@ -67,9 +67,7 @@ class Monitor:
     def __exit__(self, *exc: object) -> None:
         self.lock.release()
 
-    def wait_for(
-        self, predicate: Callable[[], bool], timeout: float | None, *, interruptible: bool = True
-    ) -> bool:
+    def wait_for(self, predicate: Callable[[], bool], timeout: float | None, *, interruptible: bool = True) -> bool:
         """Block (lock held) until ``predicate()`` holds or ``timeout`` clock seconds pass; False on timeout.
 
         With ``interruptible`` and called from a service thread, a ``stop()`` of that service raises
@@ -110,12 +108,16 @@ class Clock(ABC):
     def now(self) -> float:
         """Seconds on this clock; only differences are meaningful."""
 
+    def reached(self, when: float) -> bool:
+        """True once clock time ``when`` has come (at this clock's resolution)."""
+        return self.now() >= when
+
     def sleep(self, seconds: float) -> None:
         """Let ``seconds`` of this clock pass (not interruptible; services use ``Service.sleep``)."""
         monitor = Monitor(self)
         deadline = self.now() + seconds
         with monitor:
-            monitor.wait_for(lambda: self.now() >= deadline, seconds, interruptible=False)
+            monitor.wait_for(lambda: self.reached(deadline), seconds, interruptible=False)
 
     @abstractmethod
     def _wait_for(self, monitor: Monitor, predicate: Callable[[], bool], deadline: float | None) -> bool: ...
@@ -160,9 +162,9 @@ WALL_CLOCK: Clock = WallClock()
 
 
 class _Deadline:
-    __slots__ = ("when", "seq", "monitor", "alive")
+    __slots__ = ("alive", "monitor", "seq", "when")
 
-    def __init__(self, when: float, seq: int, monitor: Monitor) -> None:
+    def __init__(self, when: int, seq: int, monitor: Monitor) -> None:
         self.when = when
         self.seq = seq
         self.monitor = monitor
@@ -172,11 +174,19 @@ class _Deadline:
         return (self.when, self.seq) < (other.when, other.seq)
 
 
+def _ns(seconds: float) -> int:
+    return round(seconds * 1_000_000_000)
+
+
 class SimClock(Clock):
-    """Simulated time, advanced by hand; ``advance`` waits until every service thread on it has settled."""
+    """Simulated time, advanced by hand; ``advance`` waits until every service thread on it has settled.
+
+    Time is kept in integer nanoseconds, so ``advance(0.1)`` three times reaches a deadline computed as
+    ``3 * 0.1`` (0.30000000000000004 in floating point) exactly, and ``now()`` reads 0.3.
+    """
 
     def __init__(self, start: float = 0.0, *, settle_timeout: float = 10.0) -> None:
-        self._now = float(start)
+        self._now = _ns(start)
         self.settle_timeout = settle_timeout
         self._lock = threading.Lock()
         self._idle = threading.Condition(self._lock)
@@ -185,7 +195,10 @@ class SimClock(Clock):
         self._seq = itertools.count()
 
     def now(self) -> float:
-        return self._now
+        return self._now / 1_000_000_000
+
+    def reached(self, when: float) -> bool:
+        return self._now >= _ns(when)
 
     @property
     def busy_threads(self) -> int:
@@ -196,10 +209,13 @@ class SimClock(Clock):
         """Move time forward by ``seconds``, waking every timed wait that falls due, in order."""
         if seconds < 0:
             raise ValueError(f"cannot advance a clock by a negative time ({seconds})")
-        self.advance_to(self._now + seconds)
+        self._advance_to_ns(self._now + _ns(seconds))
 
     def advance_to(self, when: float) -> None:
         """Move time to ``when``; each due deadline is reached in turn and the system settles after each."""
+        self._advance_to_ns(_ns(when))
+
+    def _advance_to_ns(self, when: int) -> None:
         if self._is_participant():
             raise RuntimeError("a service thread of this SimClock cannot advance it (it would wait for itself)")
         self.settle()
@@ -231,7 +247,7 @@ class SimClock(Clock):
                 remaining = end - time.monotonic()
                 if remaining <= 0:
                     raise SimulationStalled(
-                        f"SimClock at t={self._now}: {self._busy} service thread(s) still busy after "
+                        f"SimClock at t={self.now()}: {self._busy} service thread(s) still busy after "
                         f"{self.settle_timeout}s of real time (blocked outside ASM, or looping?)"
                     )
                 self._idle.wait(remaining)
@@ -253,10 +269,10 @@ class SimClock(Clock):
         try:
             while not predicate():
                 if deadline is not None:
-                    if self._now >= deadline:
+                    if self.reached(deadline):
                         return False
                     if entry is None:
-                        entry = _Deadline(deadline, next(self._seq), monitor)
+                        entry = _Deadline(_ns(deadline), next(self._seq), monitor)
                         with self._lock:
                             heapq.heappush(self._heap, entry)
                 monitor._waiters += 1

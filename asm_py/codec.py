@@ -491,4 +491,3 @@ def _from_descriptor(data: memoryview, offset: int, depth: int) -> tuple[Codec, 
             fields.append((name, codec))
         return RecordCodec(fields), offset
     raise ValueError(f"unknown codec tag {tag:#04x}")
-

@@ -75,9 +75,7 @@ class Service:
             self._last_error = None
             thread = None
             if self._is_software():
-                thread = threading.Thread(
-                    target=self._thread_main, args=params, name=f"asm:{self._name}", daemon=True
-                )
+                thread = threading.Thread(target=self._thread_main, args=params, name=f"asm:{self._name}", daemon=True)
             self._thread = thread
         try:
             self._starting(*params)
@@ -181,7 +179,7 @@ class Service:
         clock = self.clock
 
         def done() -> bool:
-            return self._stop_requested or (self._running and clock.now() >= when)
+            return self._stop_requested or (self._running and clock.reached(when))
 
         with mon:
             while not done():

@@ -1,0 +1,31 @@
+"""Shared fixtures. Every test is checked for leaked ASM service threads: a leaked thread is a bug."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import pytest
+
+
+def _asm_threads() -> set[threading.Thread]:
+    return {t for t in threading.enumerate() if t.name.startswith("asm:")}
+
+
+@pytest.fixture(autouse=True)
+def no_leaked_threads():
+    before = _asm_threads()
+    yield
+    deadline = time.monotonic() + 5.0
+    while (leaked := _asm_threads() - before) and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert not leaked, f"test leaked service threads: {sorted(t.name for t in leaked)}"
+
+
+@pytest.fixture
+def services():
+    """Services registered here are stopped at the end of the test, even when it fails."""
+    started: list = []
+    yield started
+    for service in reversed(started):
+        service.stop(timeout=None)

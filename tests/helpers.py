@@ -1,0 +1,31 @@
+"""Small helpers shared by the tests."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+
+def run_in_thread(target, *args) -> tuple[threading.Thread, dict]:
+    """Run ``target(*args)`` in a daemon thread; the dict gets 'result' or 'error'."""
+    box: dict = {}
+
+    def main() -> None:
+        try:
+            box["result"] = target(*args)
+        except BaseException as exc:
+            box["error"] = exc
+
+    thread = threading.Thread(target=main, daemon=True)
+    thread.start()
+    return thread, box
+
+
+def wait_until(predicate, timeout: float = 5.0, interval: float = 0.002) -> bool:
+    """Poll ``predicate`` in real time until it holds or ``timeout`` passes (a generous deadline, not a sleep)."""
+    deadline = time.monotonic() + timeout
+    while not predicate():
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(interval)
+    return True
