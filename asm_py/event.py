@@ -26,6 +26,11 @@ from .errors import AsmTimeout
 from .service import Service
 
 
+def _check_seconds(seconds: float, what: str) -> None:
+    if not (seconds > 0 and math.isfinite(seconds)):
+        raise ValueError(f"{what} must be a positive number of seconds, not {seconds}")
+
+
 class Event(Attribute):
     """An attribute that triggers set; see the module docstring."""
 
@@ -107,8 +112,7 @@ class TimerTrigger(Service, Trigger):
     def __init__(
         self, period: float, one_shot: bool = False, *, name: str | None = None, clock: Clock | None = None
     ) -> None:
-        if not period > 0 or not math.isfinite(period):
-            raise ValueError(f"a timer period must be a positive number of seconds, not {period}")
+        _check_seconds(period, "a timer period")
         name = name or f"timer({period:g}s)"
         Service.__init__(self, name, clock=clock)
         Trigger.__init__(self, name)
@@ -193,8 +197,7 @@ class ConditionTrigger(Service, Trigger):
         name: str | None = None,
         clock: Clock | None = None,
     ) -> None:
-        if not poll_period > 0 or not math.isfinite(poll_period):
-            raise ValueError(f"a poll period must be a positive number of seconds, not {poll_period}")
+        _check_seconds(poll_period, "a poll period")
         name = name or f"condition({getattr(predicate, '__name__', 'predicate')})"
         Service.__init__(self, name, clock=clock)
         Trigger.__init__(self, name)
