@@ -9,7 +9,9 @@ three operations run in the caller's thread, under the attribute's single lock.
 from __future__ import annotations
 
 import logging
+import math
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any
 
 from .clock import Clock, Monitor
@@ -21,22 +23,27 @@ log = logging.getLogger("asm_py.attribute")
 ChangeCallback = Callable[[Any], None]
 
 
+@dataclass(frozen=True)
+class PublishPolicy:
+    """When a published attribute sends its value; see :meth:`Attribute.publish`."""
+
+    rate: float | None = None
+    """Publications per second of the node's clock (a fixed rate, or the minimum rate with a deadband)."""
+    deadband: float | None = None
+    """Only a change larger than this (from the last publication) is published at once."""
+
+    def __post_init__(self) -> None:
+        if self.rate is not None and not (self.rate > 0 and math.isfinite(self.rate)):
+            raise ValueError(f"publication rate must be a positive number per second, not {self.rate}")
+        if self.deadband is not None and not (self.deadband >= 0 and math.isfinite(self.deadband)):
+            raise ValueError(f"deadband must be a non-negative number, not {self.deadband}")
+
+
 class Attribute:
     """A value shared among threads (and, through a node, among processors); see the module docstring."""
 
-    __slots__ = (
-        "__weakref__",
-        "_changes",
-        "_codec",
-        "_initial",
-        "_listeners",
-        "_mon",
-        "_name",
-        "_sync_get",
-        "_sync_set",
-        "_valid",
-        "_value",
-    )  # fmt: skip
+    __slots__ = ("__weakref__", "_changes", "_codec", "_initial", "_listeners", "_mon", "_name", "_policy",
+                 "_policy_hooks", "_subscription", "_sync_get", "_sync_set", "_valid", "_value")  # fmt: skip
 
     def __init__(
         self,
@@ -60,6 +67,9 @@ class Attribute:
         self._sync_set = bool(sync_set)
         self._mon = Monitor(clock)
         self._listeners: tuple[ChangeCallback, ...] = ()
+        self._policy: PublishPolicy | None = None
+        self._policy_hooks: tuple[Callable[[PublishPolicy | None], None], ...] = ()
+        self._subscription: Callable[[], None] | None = None
 
     @property
     def name(self) -> str:
@@ -103,6 +113,9 @@ class Attribute:
             self._changes += 1
             if mon._waiters:
                 mon.notify_all()
+        self._notify(value)
+
+    def _notify(self, value: Any) -> None:
         for callback in self._listeners:
             try:
                 callback(value)
@@ -144,6 +157,71 @@ class Attribute:
         def remove() -> None:
             with self._mon.lock:
                 self._listeners = tuple(c for c in self._listeners if c is not callback)
+
+        return remove
+
+    # -- publish/subscribe (paper section 3): the server decides when to publish ---------------------------------
+
+    def publish(self, rate: float | None = None, deadband: float | None = None) -> None:
+        """Publish this attribute through every node it is registered on.
+
+        No argument: every ``set``. ``deadband``: a set that changes the value by more than ``deadband`` from the
+        last publication. ``rate``: a fixed rate (``rate`` per second of the node's clock). Both: on a change larger
+        than the deadband, and at least every ``1/rate`` seconds.
+        """
+        policy = PublishPolicy(rate, deadband)
+        self._policy = policy
+        for hook in self._policy_hooks:
+            hook(policy)
+
+    def unpublish(self) -> None:
+        """Stop publishing."""
+        self._policy = None
+        for hook in self._policy_hooks:
+            hook(None)
+
+    @property
+    def publish_policy(self) -> PublishPolicy | None:
+        return self._policy
+
+    def subscribe(self, source: Any) -> None:
+        """Receive every publication of ``source`` (a remote attribute of the same type) into this attribute.
+
+        Each publication is stored as a set that never blocks (the newest publication wins over an unread one) and
+        wakes sync_get waiters and change callbacks. Replaces an earlier subscription of this attribute.
+        """
+        remote_codec = getattr(source, "codec", None)
+        if self._codec is not None and remote_codec is not None and remote_codec != self._codec:
+            raise TypeError(f"attribute {self._name!r} ({self._codec.spec}) cannot subscribe to {remote_codec.spec}")
+        self.unsubscribe()
+        self._subscription = source._subscribe(self._deliver)
+
+    def unsubscribe(self) -> None:
+        """End the subscription, if any."""
+        remove, self._subscription = self._subscription, None
+        if remove is not None:
+            remove()
+
+    def _deliver(self, value: Any) -> None:
+        """Store a publication: like ``set``, but never blocking on sync_set."""
+        if self._codec is not None:
+            value = self._codec.normalize(value)
+        mon = self._mon
+        with mon.lock:
+            self._value = value
+            self._valid = True
+            self._changes += 1
+            if mon._waiters:
+                mon.notify_all()
+        self._notify(value)
+
+    def _add_policy_hook(self, hook: Callable[[PublishPolicy | None], None]) -> Callable[[], None]:
+        with self._mon.lock:
+            self._policy_hooks = (*self._policy_hooks, hook)
+
+        def remove() -> None:
+            with self._mon.lock:
+                self._policy_hooks = tuple(h for h in self._policy_hooks if h is not hook)
 
         return remove
 

@@ -14,6 +14,7 @@ a lookup reply carries, so a client learns the type of a remote attribute; ``spe
 
 from __future__ import annotations
 
+import json
 import operator
 import struct
 from abc import ABC, abstractmethod
@@ -380,6 +381,60 @@ class RecordCodec(Codec):
         return result, offset
 
 
+class JsonCodec(Codec):
+    """Any JSON-representable value, as UTF-8 JSON text: how an attribute without a codec travels on the wire.
+
+    The canonical form is what JSON gives back (tuples become lists), so local and remote readers agree.
+    """
+
+    spec = "json"
+    size = None
+
+    def normalize(self, value: Any) -> Any:
+        try:
+            return json.loads(json.dumps(value, allow_nan=True))
+        except (TypeError, ValueError) as exc:
+            raise TypeError(f"json attribute needs a JSON-representable value: {exc}") from None
+
+    def descriptor(self) -> bytes:
+        return bytes([0x10])
+
+    def describe(self) -> dict[str, Any]:
+        return {"spec": self.spec, "kind": "json", "size": None}
+
+    def encode(self, value: Any) -> bytes:
+        return json.dumps(self.normalize(value), separators=(",", ":")).encode("utf-8")
+
+    def decode(self, data: Buffer) -> Any:
+        try:
+            return json.loads(bytes(data).decode("utf-8"))
+        except (UnicodeDecodeError, ValueError) as exc:
+            raise ValueError(f"json: cannot decode: {exc}") from None
+
+    def _pack(self, out: bytearray, value: Any) -> None:
+        raw = self.encode(value)
+        _pack_varint(out, len(raw))
+        out += raw
+
+    def _unpack(self, data: memoryview, offset: int) -> tuple[Any, int]:
+        length, offset = _unpack_varint(data, offset)
+        end = offset + length
+        if end > len(data):
+            raise ValueError("json: field runs past the end of the data")
+        return self.decode(data[offset:end]), end
+
+
+def to_json(value: Any) -> Any:
+    """A JSON-ready form of any codec's value (bytes as hex), for the JSON view of publications."""
+    if isinstance(value, bytes):
+        return value.hex()
+    if isinstance(value, tuple | list):
+        return [to_json(v) for v in value]
+    if isinstance(value, Mapping):
+        return {k: to_json(v) for k, v in value.items()}
+    return value
+
+
 BOOL = BoolCodec()
 INT8, INT16, INT32, INT64 = (IntCodec(bits, True) for bits in (8, 16, 32, 64))
 UINT8, UINT16, UINT32, UINT64 = (IntCodec(bits, False) for bits in (8, 16, 32, 64))
@@ -387,9 +442,11 @@ FLOAT32 = FloatCodec(32)
 FLOAT64 = FloatCodec(64)
 STR = StrCodec()
 BYTES = BytesCodec()
+JSON = JsonCodec()
 
 SCALARS: dict[str, Codec] = {
-    c.spec: c for c in (BOOL, INT8, INT16, INT32, INT64, UINT8, UINT16, UINT32, UINT64, FLOAT32, FLOAT64, STR, BYTES)
+    c.spec: c
+    for c in (BOOL, INT8, INT16, INT32, INT64, UINT8, UINT16, UINT32, UINT64, FLOAT32, FLOAT64, STR, BYTES, JSON)
 }
 _BY_TAG: dict[int, Codec] = {c._tag: c for c in SCALARS.values() if isinstance(c, _Fixed)}
 
@@ -466,6 +523,8 @@ def _from_descriptor(data: memoryview, offset: int, depth: int) -> tuple[Codec, 
     offset += 1
     if tag in _BY_TAG:
         return _BY_TAG[tag], offset
+    if tag == 0x10:
+        return JSON, offset
     if tag in (0x0C, 0x0D):
         max_len, offset = _unpack_varint(data, offset)
         limit = max_len or None

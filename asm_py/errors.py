@@ -14,6 +14,10 @@ exception types wherever a caller would naturally catch them, so code written ag
 - Codec failures are plain ``TypeError`` (wrong kind of value) and ``ValueError`` (right kind, out of range or
   malformed bytes), as the paper's "the attribute is left untouched" semantics only need the built-ins.
 - Lookups of unknown names or IDs raise ``LookupError``.
+- ``RemoteError(AsmError)`` — a remote node answered with a status that has no built-in equivalent: the method is
+  unsupported for that object, the message was malformed, the node is busy, or it failed internally. ``.status``
+  holds the protocol status code. Remote timeouts, service errors, TypeError, ValueError and LookupError are raised
+  as the same types as locally.
 
 ``ServiceStopped`` is deliberately *not* an ``Exception``: it unwinds a service's ``run`` when ``stop()`` interrupts
 a blocking call inside it, and must not be swallowed by a routine's ``except Exception`` (the same reasoning that
@@ -39,8 +43,16 @@ class SimulationStalled(AsmTimeout):
     """A simulation clock could not settle: some service thread did not return to an ASM wait in time."""
 
 
+class RemoteError(AsmError):
+    """A remote node answered with a failure status that maps to no built-in exception (see ``status``)."""
+
+    def __init__(self, message: str, status: int) -> None:
+        super().__init__(message)
+        self.status = status
+
+
 class ServiceStopped(BaseException):
     """Raised inside a service thread when ``stop()`` interrupts a blocking ASM call; ends ``run`` quietly."""
 
 
-__all__ = ["AsmError", "AsmTimeout", "ServiceError", "ServiceStopped", "SimulationStalled"]
+__all__ = ["AsmError", "AsmTimeout", "RemoteError", "ServiceError", "ServiceStopped", "SimulationStalled"]

@@ -1,0 +1,405 @@
+"""The node: the lookup table of local objects, the server side of the protocol, and the way to remote objects.
+
+``node.register(obj)`` gives an attribute, event or service a (class ID, object ID). The node then answers
+protocol requests for it from any transport (paper section 3, Figure 3). Requests that cannot block (lookups,
+plain gets and sets, start, suspend, …) are answered at once on the transport's receive thread. A request that
+may block — a get on a sync_get attribute without a valid value, a set on a sync_set attribute while valid, an
+event wait, a stop whose caller waits — is handed to a *server daemon* of its own (a service, interruptible by
+``close``), so one client's blocking call never stalls another client or another object. Each client may hold
+``max_daemons_per_client`` daemons at once; beyond that it gets BUSY.
+
+``node.lookup(remote, name)`` returns a client object with the local interface (asm_py.remote).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import threading
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+from .attribute import Attribute, PublishPolicy
+from .clock import WALL_CLOCK, Clock
+from .codec import JSON, Codec
+from .errors import AsmTimeout, RemoteError, ServiceError
+from .event import Event
+from .protocol import (
+    LOCAL_CLASS_BASE,
+    WELL_KNOWN_CLASSES,
+    Kind,
+    Message,
+    Method,
+    ObjectKind,
+    ProtocolError,
+    Status,
+    decode,
+    encode,
+    reply_to,
+)
+from .publisher import Publisher
+from .remote import Port, RemoteObject, describe_entry, make_client
+from .service import Service
+from .transport.base import Transport, check_name
+
+log = logging.getLogger("asm_py.node")
+
+Registrable = Attribute | Service
+
+
+@dataclass
+class Entry:
+    """One row of the lookup table."""
+
+    obj: Registrable
+    name: str
+    class_name: str
+    class_id: int
+    object_id: int
+    kind: ObjectKind
+    codec: Codec
+    """Codec of the value (attributes, events) or of the start parameters (services: JSON)."""
+    publisher: Publisher | None = None
+
+
+class Node:
+    """An ASM node on a transport; see the module docstring."""
+
+    def __init__(
+        self,
+        name: str,
+        transport: Transport,
+        *,
+        clock: Clock | None = None,
+        call_timeout: float = 2.0,
+        max_daemons_per_client: int = 8,
+    ) -> None:
+        self.name = check_name(name)
+        self.transport = transport
+        self.clock = clock if clock is not None else WALL_CLOCK
+        self.call_timeout = call_timeout
+        self.max_daemons_per_client = max_daemons_per_client
+        self._lock = threading.Lock()
+        self._by_id: dict[int, Entry] = {}
+        self._by_name: dict[str, Entry] = {}
+        self._local_classes: dict[str, int] = {}
+        self._ports: dict[str, Port] = {}
+        self._daemons: dict[str, set[Service]] = {}
+        self._closed = False
+        self.dropped = 0
+        transport.attach(name, self._on_message)
+        self._unpeer = transport.on_peer(self._peer_changed)
+
+    # -- registration ---------------------------------------------------------------------------------------------
+
+    def register(self, obj: Registrable, *, name: str | None = None, class_name: str | None = None) -> Entry:
+        """Enter ``obj`` in the lookup table; its class defaults to its name (the kind of object it is)."""
+        name = check_name(name or obj.name, "object name")
+        class_name = check_name(class_name or name, "class name")
+        if isinstance(obj, Event):
+            kind, codec = ObjectKind.EVENT, obj.codec or JSON
+        elif isinstance(obj, Attribute):
+            kind, codec = ObjectKind.ATTRIBUTE, obj.codec or JSON
+        elif isinstance(obj, Service):
+            kind, codec = ObjectKind.SERVICE, JSON
+        else:
+            raise TypeError(f"only attributes, events and services can be registered, not {type(obj).__name__}")
+        with self._lock:
+            if name in self._by_name:
+                raise ValueError(f"node {self.name!r} already has an object named {name!r}")
+            object_id = len(self._by_id) + 1
+            if object_id > 0xFF:
+                raise ValueError(f"node {self.name!r} is full: at most 255 objects")
+            class_id = self._class_id(class_name)
+            entry = Entry(obj, name, class_name, class_id, object_id, kind, codec)
+            self._by_id[object_id] = entry
+            self._by_name[name] = entry
+        if isinstance(obj, Attribute):
+            obj._add_policy_hook(lambda policy: self._set_policy(entry, policy))
+            if obj.publish_policy is not None:
+                self._set_policy(entry, obj.publish_policy)
+            elif kind == ObjectKind.EVENT:
+                self._set_policy(entry, PublishPolicy())  # every firing is published: remote waiters need them
+        return entry
+
+    def _class_id(self, class_name: str) -> int:
+        if class_name in WELL_KNOWN_CLASSES:
+            return WELL_KNOWN_CLASSES[class_name]
+        if class_name not in self._local_classes:
+            class_id = LOCAL_CLASS_BASE + len(self._local_classes)
+            if class_id > 0xFF:
+                raise ValueError(f"node {self.name!r} has too many classes")
+            self._local_classes[class_name] = class_id
+        return self._local_classes[class_name]
+
+    def entry(self, key: str | int) -> Entry:
+        """The lookup-table row for an object name or ID; LookupError if there is none."""
+        table: dict[Any, Entry] = self._by_name if isinstance(key, str) else self._by_id
+        try:
+            return table[key]
+        except KeyError:
+            raise LookupError(f"node {self.name!r} has no object {key!r}") from None
+
+    @property
+    def entries(self) -> list[Entry]:
+        with self._lock:
+            return list(self._by_id.values())
+
+    def _set_policy(self, entry: Entry, policy: PublishPolicy | None) -> None:
+        old, entry.publisher = entry.publisher, None
+        if old is not None:
+            old.close()
+        if policy is not None and not self._closed:
+            entry.publisher = Publisher(self, entry, policy)
+
+    # -- the client side ------------------------------------------------------------------------------------------
+
+    def port(self, remote: str) -> Port:
+        """The client port to node ``remote`` (one per remote node, shared by every client object and thread)."""
+        check_name(remote)
+        with self._lock:
+            port = self._ports.get(remote)
+            if port is None:
+                port = self._ports[remote] = Port(self, remote)
+            return port
+
+    def lookup(self, remote: str, object_name: str, *, timeout: float | None = None) -> RemoteObject:
+        """A client object for ``object_name`` on node ``remote``: RemoteAttribute, RemoteEvent or RemoteService."""
+        check_name(object_name, "object name")
+        port = self.port(remote)
+        reply = port.call(Method.LOOKUP, 0, 0, object_name.encode("utf-8"), timeout=timeout)
+        return make_client(port, reply.data)
+
+    def list_objects(self, remote: str, *, timeout: float | None = None) -> list[RemoteObject]:
+        """Client objects for everything node ``remote`` has registered (lookup by ID, 1, 2, … until not found)."""
+        port = self.port(remote)
+        found: list[RemoteObject] = []
+        for object_id in range(1, 256):
+            try:
+                reply = port.call(Method.LOOKUP, 0, object_id, timeout=timeout)
+            except LookupError:
+                break
+            found.append(make_client(port, reply.data))
+        return found
+
+    def discover(self) -> list[str]:
+        """The names of the live nodes reachable on the transport (this one included)."""
+        return self.transport.peers()
+
+    def on_discovery(self, callback: Callable[[str, bool], None]) -> Callable[[], None]:
+        """Call ``callback(node_name, alive)`` when a node joins or leaves; returns a remover."""
+        return self.transport.on_peer(callback)
+
+    def close(self) -> None:
+        """Stop publishing, stop the server daemons, fail pending calls, leave the transport."""
+        with self._lock:
+            if self._closed:
+                return
+            self._closed = True
+            entries = list(self._by_id.values())
+            daemons = [d for group in self._daemons.values() for d in group]
+            ports = list(self._ports.values())
+        for entry in entries:
+            if entry.publisher is not None:
+                entry.publisher.close()
+        for daemon in daemons:
+            daemon.stop(timeout=5)
+        for port in ports:
+            port.fail_all(f"node {self.name!r} closed")
+        self._unpeer()
+        self.transport.close()
+
+    def __enter__(self) -> Node:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # -- the server side ------------------------------------------------------------------------------------------
+
+    def _peer_changed(self, name: str, alive: bool) -> None:
+        if not alive:
+            port = self._ports.get(name)
+            if port is not None:
+                port.fail_all(f"node {name!r} left")
+
+    def _on_message(self, source: str, data: bytes) -> None:
+        try:
+            message = decode(data)
+        except ProtocolError as exc:
+            self.dropped += 1
+            log.debug("dropped a message from %r: %s", source, exc)
+            return
+        if message.kind == Kind.REPLY:
+            port = self._ports.get(source)
+            if port is not None:
+                port.deliver(message)
+            return
+        if message.kind == Kind.PUBLICATION:
+            return  # publications reach subscribers through transport.subscribe
+        self._serve(source, message)
+
+    def _send_reply(self, source: str, request: Message, status: int = Status.OK, data: bytes = b"") -> None:
+        if request.wants_reply:
+            self.transport.send(source, encode(reply_to(request, status, data)))
+
+    def _serve(self, source: str, request: Message) -> None:
+        try:
+            entry = self._target(request)
+            result = self._execute_now(source, entry, request)
+        except Exception as exc:  # every failure becomes a status; nothing escapes into the transport
+            self._send_reply(source, request, *self._failure(exc))
+            return
+        if result is not _DEFERRED:
+            self._send_reply(source, request, Status.OK, result)
+
+    def _target(self, request: Message) -> Entry | None:
+        if request.method == Method.LOOKUP and request.object_id == 0:
+            return None
+        if request.object_id == 0:  # group addressing: "the object of this class" on this node
+            for entry in self.entries:
+                if entry.class_id == request.class_id:
+                    return entry
+            raise LookupError(f"node {self.name!r} has no object of class {request.class_id:#04x}")
+        entry = self.entry(request.object_id)
+        if request.method != Method.LOOKUP and request.class_id != entry.class_id:
+            raise LookupError(
+                f"object {request.object_id} of node {self.name!r} is of class {entry.class_id:#04x}, "
+                f"not {request.class_id:#04x} (did the node restart with other objects?)"
+            )
+        return entry
+
+    def _execute_now(self, source: str, entry: Entry | None, request: Message) -> bytes | object:
+        """Run a request that cannot block and return its reply data, or hand it to a daemon (_DEFERRED)."""
+        method = request.method
+        if method == Method.LOOKUP:
+            if entry is None:
+                name = request.data.decode("utf-8", errors="strict") if request.data else ""
+                if not name:
+                    return bytes([len(self._by_id)]) + self.name.encode("utf-8")
+                entry = self.entry(name)
+            return describe_entry(entry)
+        assert entry is not None
+        obj = entry.obj
+        if isinstance(obj, Attribute):
+            if method == Method.GET:
+                try:
+                    return entry.codec.encode(obj.get(timeout=0))
+                except AsmTimeout:
+                    if request.timeout_seconds == 0:
+                        raise
+                return self._defer(source, entry, request, lambda: entry.codec.encode(obj.get(request.timeout_seconds)))
+            if method == Method.SET:
+                value = entry.codec.decode(request.data)
+                try:
+                    obj.set(value, timeout=0)
+                    return b""
+                except AsmTimeout:
+                    if request.timeout_seconds == 0:
+                        raise
+                return self._defer(source, entry, request, lambda: obj.set(value, request.timeout_seconds) or b"")
+            if method == Method.RESET:
+                obj.reset()
+                return b""
+            if method == Method.PEEK:
+                return entry.codec.encode(obj.peek())
+            if method == Method.STATUS:
+                return bytes([1 if obj.valid else 0])
+            if method == Method.WAIT and isinstance(obj, Event):
+                return self._defer(
+                    source, entry, request, lambda: entry.codec.encode(obj.waiting(request.timeout_seconds))
+                )
+        elif isinstance(obj, Service):
+            if method == Method.START:
+                params = json.loads(request.data.decode("utf-8")) if request.data else []
+                if not isinstance(params, list):
+                    raise ValueError("service parameters travel as a JSON array")
+                obj.start(*params)
+                return b""
+            if method == Method.STOP:
+                if request.wants_reply:
+                    return self._defer(source, entry, request, lambda: obj.stop(request.timeout_seconds) or b"")
+                try:
+                    obj.stop(timeout=0)
+                except AsmTimeout:
+                    pass  # asked to stop; it ends at its next checkpoint
+                return b""
+            if method == Method.SUSPEND:
+                obj.suspend()
+                return b""
+            if method == Method.RESUME:
+                obj.resume()
+                return b""
+            if method == Method.RESET:
+                obj.reset()
+                return b""
+            if method == Method.STATUS:
+                flags = (1 << 1 if obj.started else 0) | (1 << 2 if obj.running else 0)
+                error = obj.last_error
+                flags |= 1 << 3 if error is not None else 0
+                return bytes([flags]) + (repr(error).encode("utf-8")[:200] if error is not None else b"")
+        raise RemoteError(f"method {method} is not supported by {entry.kind.name.lower()} {entry.name!r}", 0)
+
+    def _defer(self, source: str, entry: Entry, request: Message, operation: Callable[[], bytes]) -> object:
+        with self._lock:
+            active = self._daemons.setdefault(source, set())
+            if len(active) >= self.max_daemons_per_client or self._closed:
+                raise _Busy(f"client {source!r} already has {len(active)} blocking requests on node {self.name!r}")
+            daemon = _ServerDaemon(self, source, request, operation)
+            active.add(daemon)
+        daemon.start()
+        return _DEFERRED
+
+    def _daemon_done(self, daemon: _ServerDaemon) -> None:
+        with self._lock:
+            self._daemons.get(daemon.source, set()).discard(daemon)
+
+    @staticmethod
+    def _failure(exc: Exception) -> tuple[int, bytes]:
+        text = str(exc).encode("utf-8")[:120]
+        if isinstance(exc, TimeoutError):
+            return Status.TIMEOUT, text
+        if isinstance(exc, ServiceError):
+            return Status.SERVICE_ERROR, text
+        if isinstance(exc, _Busy):
+            return Status.BUSY, text
+        if isinstance(exc, RemoteError | UnicodeDecodeError):
+            return (Status.UNSUPPORTED if isinstance(exc, RemoteError) else Status.BAD_MESSAGE), text
+        if isinstance(exc, TypeError):
+            return Status.TYPE_ERROR, text
+        if isinstance(exc, ValueError):
+            return Status.VALUE_ERROR, text
+        if isinstance(exc, LookupError):
+            return Status.NOT_FOUND, text
+        log.error("request failed inside the node", exc_info=exc)
+        return Status.INTERNAL, text
+
+
+_DEFERRED = object()
+
+
+class _Busy(Exception):
+    pass
+
+
+class _ServerDaemon(Service):
+    """Serves one blocking request of one client (the paper's server daemon), then ends."""
+
+    def __init__(self, node: Node, source: str, request: Message, operation: Callable[[], bytes]) -> None:
+        super().__init__(f"daemon:{node.name}:{source}:{request.txn}", clock=node.clock)
+        self.node = node
+        self.source = source
+        self.request = request
+        self.operation = operation
+
+    def run(self) -> None:
+        try:
+            data = self.operation()
+        except Exception as exc:
+            self.node._send_reply(self.source, self.request, *self.node._failure(exc))
+            return
+        self.node._send_reply(self.source, self.request, Status.OK, data or b"")
+
+    def on_stop(self) -> None:
+        self.node._daemon_done(self)

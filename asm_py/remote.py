@@ -1,0 +1,359 @@
+"""Client objects: remote attributes, events and services with the local interface (paper section 3).
+
+A client object is made by ``Node.lookup`` and talks through a :class:`Port`, the client port to one remote node,
+shared by every client object and thread of the node (transaction ids pair replies with requests, so any number of
+calls may be in flight at once). Gets, lookups and status reads always wait for their reply; ``set``, ``reset``,
+``start``, ``stop``, ``suspend`` and ``resume`` return at once unless the caller passes ``wait=True``.
+
+Errors come back as status codes and are raised as the local types: TimeoutError (``AsmTimeout``), ServiceError,
+TypeError, ValueError, LookupError; anything else as ``RemoteError``. A call whose peer is gone raises TimeoutError
+when its deadline passes, or as soon as discovery reports that the peer left.
+
+Location transparency has one price: ``valid``, ``started``, ``running`` and ``last_error`` are properties, as on
+local objects, but on a client object each read is a round trip (and may raise TimeoutError).
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+from .clock import WALL_CLOCK, Clock, Monitor
+from .codec import Codec, codec_from_descriptor
+from .errors import AsmTimeout, RemoteError, ServiceError
+from .protocol import (
+    MAX_TXN,
+    Kind,
+    Message,
+    Method,
+    ObjectKind,
+    ProtocolError,
+    Status,
+    decode,
+    encode,
+    encode_timeout,
+)
+
+if TYPE_CHECKING:
+    from .node import Entry, Node
+
+MAX_TIMEOUT_CODE = 0xFE
+REPLY_MARGIN = 1.0
+"""Seconds a client waits for a reply beyond the time the server may block."""
+
+
+@dataclass(frozen=True)
+class ObjectInfo:
+    """What a lookup reply tells about an object."""
+
+    class_id: int
+    object_id: int
+    kind: ObjectKind
+    sync_get: bool
+    sync_set: bool
+    published: bool
+    codec: Codec
+    name: str
+    class_name: str
+
+
+def describe_entry(entry: Entry) -> bytes:
+    """The data of a LOOKUP reply (docs/protocol.md, "Lookup")."""
+    obj = entry.obj
+    published = getattr(obj, "publish_policy", None) is not None or entry.kind == ObjectKind.EVENT
+    flags = int(getattr(obj, "sync_get", False)) | int(getattr(obj, "sync_set", False)) << 1 | int(published) << 2
+    descriptor = entry.codec.descriptor()
+    name = entry.name.encode("utf-8")
+    return (bytes([entry.class_id, entry.object_id, entry.kind, flags, len(descriptor)]) + descriptor
+            + bytes([len(name)]) + name + entry.class_name.encode("utf-8"))  # fmt: skip
+
+
+def parse_description(data: bytes) -> ObjectInfo:
+    try:
+        class_id, object_id, kind, flags, length = data[:5]
+        descriptor = data[5 : 5 + length]
+        offset = 5 + length
+        name_length = data[offset]
+        name = data[offset + 1 : offset + 1 + name_length].decode("utf-8")
+        class_name = data[offset + 1 + name_length :].decode("utf-8")
+        return ObjectInfo(class_id, object_id, ObjectKind(kind), bool(flags & 1), bool(flags & 2), bool(flags & 4),
+                          codec_from_descriptor(descriptor), name, class_name)  # fmt: skip
+    except (ValueError, IndexError) as exc:
+        raise ProtocolError(f"malformed lookup reply: {exc}") from None
+
+
+def make_client(port: Port, description: bytes) -> RemoteObject:
+    info = parse_description(description)
+    cls = {ObjectKind.ATTRIBUTE: RemoteAttribute, ObjectKind.EVENT: RemoteEvent, ObjectKind.SERVICE: RemoteService}
+    return cls[info.kind](port, info)
+
+
+_STATUS_ERRORS: dict[int, type[Exception]] = {
+    Status.TIMEOUT: AsmTimeout,
+    Status.SERVICE_ERROR: ServiceError,
+    Status.TYPE_ERROR: TypeError,
+    Status.VALUE_ERROR: ValueError,
+    Status.NOT_FOUND: LookupError,
+}
+
+
+def raise_for_status(reply: Message, what: str) -> None:
+    if reply.status == Status.OK:
+        return
+    text = f"{what}: {reply.data.decode('utf-8', errors='replace')}"
+    error = _STATUS_ERRORS.get(reply.status)
+    if error is not None:
+        raise error(text)
+    name = Status(reply.status).name if reply.status in Status._value2member_map_ else str(reply.status)
+    raise RemoteError(f"{text} (status {name})", reply.status)
+
+
+class _Call:
+    __slots__ = ("failure", "reply")
+
+    def __init__(self) -> None:
+        self.reply: Message | None = None
+        self.failure: str | None = None
+
+
+class Port:
+    """The client port from a node to one remote node."""
+
+    def __init__(self, node: Node, remote: str) -> None:
+        self.node = node
+        self.remote = remote
+        self._mon = Monitor(WALL_CLOCK)
+        self._pending: dict[int, _Call] = {}
+        self._next_txn = 0
+        self.stale_replies = 0
+
+    def send(
+        self, method: int, class_id: int, object_id: int, data: bytes = b"", *, timeout: int | None = None
+    ) -> None:
+        """Send a request that wants no reply."""
+        message = Message(Kind.REQUEST, method, 0, class_id, object_id, timeout=timeout, data=data)
+        self.node.transport.send(self.remote, encode(message))
+
+    def call(
+        self,
+        method: int,
+        class_id: int,
+        object_id: int,
+        data: bytes = b"",
+        *,
+        timeout: float | None = None,
+        blocking: bool = False,
+        what: str = "",
+    ) -> Message:
+        """Send a request and wait for its reply; raise the reply's error as its local exception type.
+
+        ``blocking``: the server may block up to ``timeout`` (None: without limit); the client waits that long plus
+        a margin. Otherwise the client waits ``timeout`` or the node's ``call_timeout``.
+        """
+        what = (
+            what
+            or f"{Method(method).name.lower() if method in Method._value2member_map_ else method} on {self.remote!r}"
+        )
+        if not blocking:
+            return self._round_trip(method, class_id, object_id, data, None, timeout or self.node.call_timeout, what)
+        deadline = None if timeout is None else WALL_CLOCK.now() + timeout
+        while True:
+            remaining = None if deadline is None else max(0.0, deadline - WALL_CLOCK.now())
+            code = None if remaining is None else encode_timeout(remaining)
+            wait = None if remaining is None else remaining + REPLY_MARGIN
+            try:
+                return self._round_trip(method, class_id, object_id, data, code, wait, what)
+            except AsmTimeout:
+                # A timeout beyond what one timeout byte holds (0xFE): the server gave up early; ask for the rest.
+                if code != MAX_TIMEOUT_CODE or deadline is None or deadline <= WALL_CLOCK.now():
+                    raise
+
+    def _round_trip(
+        self, method: int, class_id: int, object_id: int, data: bytes, code: int | None, wait: float | None, what: str
+    ) -> Message:
+        mon = self._mon
+        call = _Call()
+        with mon:
+            if not mon.wait_for(lambda: len(self._pending) <= MAX_TXN, wait):
+                raise AsmTimeout(f"{what}: all {MAX_TXN + 1} transaction ids of the port are in use")
+            txn = self._next_txn
+            while txn in self._pending:
+                txn = (txn + 1) & MAX_TXN
+            self._next_txn = (txn + 1) & MAX_TXN
+            self._pending[txn] = call
+        message = Message(Kind.REQUEST_REPLY, method, txn, class_id, object_id, timeout=code, data=data)
+        try:
+            self.node.transport.send(self.remote, encode(message))
+            with mon:
+                done = mon.wait_for(lambda: call.reply is not None or call.failure is not None, wait)
+        finally:
+            with mon:
+                if self._pending.get(txn) is call:
+                    del self._pending[txn]
+                mon.notify_all()
+        if call.reply is None:
+            reason = call.failure or f"no reply within {wait:.3g}s" if not done else call.failure
+            raise AsmTimeout(f"{what} timed out: {reason}")
+        raise_for_status(call.reply, what)
+        return call.reply
+
+    def deliver(self, reply: Message) -> None:
+        """A reply arrived for this port (from the node's receive path)."""
+        with self._mon:
+            call = self._pending.pop(reply.txn, None)
+            if call is None:
+                self.stale_replies += 1  # its caller gave up already
+                return
+            call.reply = reply
+            self._mon.notify_all()
+
+    def fail_all(self, reason: str) -> None:
+        """Fail every call in flight (the peer left, or the node closed)."""
+        with self._mon:
+            for call in self._pending.values():
+                call.failure = reason
+            self._pending.clear()
+            self._mon.notify_all()
+
+
+class RemoteObject:
+    """What every client object has: identity, and the port it talks through."""
+
+    def __init__(self, port: Port, info: ObjectInfo) -> None:
+        self._port = port
+        self.info = info
+
+    @property
+    def name(self) -> str:
+        return self.info.name
+
+    @property
+    def node(self) -> str:
+        """The name of the node the object lives on."""
+        return self._port.remote
+
+    @property
+    def clock(self) -> Clock:
+        """The local node's clock (what event-driven services built on this object run on)."""
+        return self._port.node.clock
+
+    def _call(
+        self, method: Method, data: bytes = b"", *, timeout: float | None = None, blocking: bool = False
+    ) -> bytes:
+        what = f"{method.name.lower()} on {self.node}/{self.name}"
+        info = self.info
+        return self._port.call(method, info.class_id, info.object_id, data, timeout=timeout, blocking=blocking,
+                               what=what).data  # fmt: skip
+
+    def _request(self, method: Method, data: bytes, wait: bool, *, timeout: float | None = None, blocks: bool = False):
+        """A request that replies only when the caller waits for it."""
+        if wait:
+            self._call(method, data, timeout=timeout, blocking=blocks)
+            return
+        code = encode_timeout(timeout) if blocks and timeout is not None else None
+        self._port.send(method, self.info.class_id, self.info.object_id, data, timeout=code)
+
+    def __repr__(self) -> str:
+        return (
+            f"<{type(self).__name__} {self.node}/{self.name} class={self.info.class_id:#04x} id={self.info.object_id}>"
+        )
+
+
+class RemoteAttribute(RemoteObject):
+    """An attribute on another node, with the Attribute interface; see the module docstring."""
+
+    @property
+    def codec(self) -> Codec:
+        return self.info.codec
+
+    @property
+    def sync_get(self) -> bool:
+        return self.info.sync_get
+
+    @property
+    def sync_set(self) -> bool:
+        return self.info.sync_set
+
+    def get(self, timeout: float | None = None) -> Any:
+        return self.codec.decode(self._call(Method.GET, timeout=timeout, blocking=self.sync_get))
+
+    def set(self, value: Any, timeout: float | None = None, *, wait: bool = False) -> None:
+        data = self.codec.encode(value)  # a bad value fails here, before anything is sent
+        self._request(Method.SET, data, wait, timeout=timeout, blocks=self.sync_set)
+
+    def reset(self, *, wait: bool = False) -> None:
+        self._request(Method.RESET, b"", wait)
+
+    @property
+    def valid(self) -> bool:
+        """Whether the remote value is valid (a round trip)."""
+        return bool(self._call(Method.STATUS)[0] & 1)
+
+    def peek(self) -> Any:
+        """The remote value without consuming it."""
+        return self.codec.decode(self._call(Method.PEEK))
+
+    def on_change(self, callback: Callable[[Any], None]) -> Callable[[], None]:
+        """Call ``callback(value)`` for every publication of the remote attribute; returns a remover."""
+        return self._subscribe(callback)
+
+    def _subscribe(self, deliver: Callable[[Any], None]) -> Callable[[], None]:
+        codec = self.codec
+
+        def on_publication(data: bytes) -> None:
+            try:
+                message = decode(data)
+            except ProtocolError:
+                return
+            if message.kind == Kind.PUBLICATION:
+                deliver(codec.decode(message.data))
+
+        return self._port.node.transport.subscribe(self.node, self.name, on_publication)
+
+
+class RemoteEvent(RemoteAttribute):
+    """An event on another node: ``waiting`` blocks until its next firing; ``on_change`` sees every firing."""
+
+    def waiting(self, timeout: float | None = None) -> Any:
+        return self.codec.decode(self._call(Method.WAIT, timeout=timeout, blocking=True))
+
+
+class RemoteService(RemoteObject):
+    """A service on another node, with the Service interface; parameters travel as a JSON array."""
+
+    def start(self, *params: Any, wait: bool = False) -> None:
+        data = json.dumps(list(params)).encode("utf-8") if params else b""
+        self._request(Method.START, data, wait)
+
+    def stop(self, timeout: float | None = None, *, wait: bool = False) -> None:
+        self._request(Method.STOP, b"", wait, timeout=timeout, blocks=True)
+
+    def suspend(self, *, wait: bool = False) -> None:
+        self._request(Method.SUSPEND, b"", wait)
+
+    def resume(self, *, wait: bool = False) -> None:
+        self._request(Method.RESUME, b"", wait)
+
+    continue_ = resume
+
+    def reset(self, *, wait: bool = False) -> None:
+        self._request(Method.RESET, b"", wait)
+
+    def _status(self) -> tuple[int, str | None]:
+        data = self._call(Method.STATUS)
+        return data[0], (data[1:].decode("utf-8", errors="replace") or None) if data[0] & 8 else None
+
+    @property
+    def started(self) -> bool:
+        return bool(self._status()[0] & 2)
+
+    @property
+    def running(self) -> bool:
+        return bool(self._status()[0] & 4)
+
+    @property
+    def last_error(self) -> str | None:
+        """The remote service's last error, as text (the exception itself stays on its node)."""
+        return self._status()[1]

@@ -1,0 +1,147 @@
+"""The transport base: what every medium shares, so that a medium only writes how bytes move.
+
+As python-can's ``BusABC`` does for buses, the base does the common work — attaching the node, shielding the
+transport's receive threads from a failing handler, fanning out peer (discovery) events, counting — and a concrete
+transport implements ``_open``, ``send``, ``send_group``, ``publish``, ``subscribe``, ``_join``, ``peers`` and
+``_close``. Every transport passes the same conformance suite (tests/test_transport_conformance.py).
+
+Addresses are node names (``[A-Za-z0-9_.-]``, at most 64 characters). The group ``"all"`` is every node: a
+message sent to it is the broadcast of the paper.
+"""
+
+from __future__ import annotations
+
+import logging
+import re
+import threading
+from abc import ABC, abstractmethod
+from collections.abc import Callable
+
+log = logging.getLogger("asm_py.transport")
+
+MessageHandler = Callable[[str, bytes], None]
+"""Called with (source node name, message bytes) for each message addressed to this node or its groups."""
+PeerHandler = Callable[[str, bool], None]
+"""Called with (node name, alive) when a node appears or disappears."""
+PublicationHandler = Callable[[bytes], None]
+
+BROADCAST = "all"
+_NAME = re.compile(r"^[A-Za-z0-9_.\-]{1,64}$")
+
+
+def check_name(name: str, what: str = "node name") -> str:
+    """``name`` if it is a valid node, group or object name (it becomes part of keys and logs)."""
+    if not isinstance(name, str) or not _NAME.match(name):
+        raise ValueError(f"{what} {name!r} must be 1-64 characters of letters, digits, '_', '.', '-'")
+    return name
+
+
+class Transport(ABC):
+    """Moves ASM messages between named nodes; see the module docstring."""
+
+    def __init__(self) -> None:
+        self._name: str | None = None
+        self._on_message: MessageHandler | None = None
+        self._peer_handlers: tuple[PeerHandler, ...] = ()
+        self._groups: set[str] = set()
+        self._lock = threading.Lock()
+        self.received = 0
+        self.handler_errors = 0
+
+    @property
+    def name(self) -> str:
+        if self._name is None:
+            raise RuntimeError("transport is not attached to a node yet")
+        return self._name
+
+    def attach(self, name: str, on_message: MessageHandler) -> None:
+        """Connect as node ``name``; ``on_message`` is called for every message to it, its groups or everyone."""
+        if self._name is not None:
+            raise RuntimeError(f"transport already attached as {self._name!r}")
+        self._name = check_name(name)
+        self._on_message = on_message
+        self._open(self._name)
+        self.join_group(BROADCAST)
+
+    def join_group(self, group: str) -> None:
+        """Receive what is sent to ``group`` from now on."""
+        check_name(group, "group name")
+        with self._lock:
+            if group in self._groups:
+                return
+            self._groups.add(group)
+        self._join(group)
+
+    @property
+    def groups(self) -> frozenset[str]:
+        return frozenset(self._groups)
+
+    def on_peer(self, callback: PeerHandler) -> Callable[[], None]:
+        """Call ``callback(name, alive)`` when a node joins or leaves; returns a function that removes it."""
+        with self._lock:
+            self._peer_handlers = (*self._peer_handlers, callback)
+
+        def remove() -> None:
+            with self._lock:
+                self._peer_handlers = tuple(h for h in self._peer_handlers if h is not callback)
+
+        return remove
+
+    def close(self) -> None:
+        """Leave the network; idempotent."""
+        if self._name is not None:
+            self._close()
+        self._on_message = None
+
+    # -- for concrete transports ----------------------------------------------------------------------------------
+
+    def _deliver(self, source: str, data: bytes) -> None:
+        """Hand a received message to the node; a failing handler is logged, never raised into the medium."""
+        handler = self._on_message
+        if handler is None:
+            return
+        self.received += 1
+        try:
+            handler(source, data)
+        except Exception:
+            self.handler_errors += 1
+            log.exception("node %r failed to handle a message from %r", self._name, source)
+
+    def _peer_changed(self, name: str, alive: bool) -> None:
+        for handler in self._peer_handlers:
+            try:
+                handler(name, alive)
+            except Exception:
+                log.exception("peer callback failed for %r", name)
+
+    @abstractmethod
+    def _open(self, name: str) -> None:
+        """Join the medium as ``name``."""
+
+    @abstractmethod
+    def _join(self, group: str) -> None:
+        """Start receiving messages sent to ``group``."""
+
+    @abstractmethod
+    def send(self, dest: str, data: bytes) -> None:
+        """Send a message to node ``dest`` (it arrives with this node's name as source)."""
+
+    @abstractmethod
+    def send_group(self, group: str, data: bytes) -> None:
+        """Send one message to every member of ``group`` (``"all"``: every node)."""
+
+    @abstractmethod
+    def publish(self, object_name: str, data: bytes, json_text: str | None = None) -> None:
+        """Publish a PUBLICATION message of this node's object ``object_name`` (and its JSON view, if given)."""
+
+    @abstractmethod
+    def subscribe(self, node: str, object_name: str, callback: PublicationHandler) -> Callable[[], None]:
+        """Receive the publications of ``node``'s ``object_name``, across restarts of that node; returns a remover."""
+
+    @abstractmethod
+    def peers(self) -> list[str]:
+        """The names of the live nodes, this one included."""
+
+    @abstractmethod
+    def _close(self) -> None:
+        """Leave the medium and release every resource (threads, sockets)."""
