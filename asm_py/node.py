@@ -41,7 +41,7 @@ from .protocol import (
 from .publisher import Publisher
 from .remote import Port, RemoteObject, describe_entry, make_client
 from .service import Service
-from .transport.base import Transport, check_name
+from .transport.base import Responder, Transport, check_name
 
 log = logging.getLogger("asm_py.node")
 
@@ -224,7 +224,7 @@ class Node:
             if port is not None:
                 port.fail_all(f"node {name!r} left")
 
-    def _on_message(self, source: str, data: bytes) -> None:
+    def _on_message(self, source: str, data: bytes, respond: Responder | None = None) -> None:
         try:
             message = decode(data)
         except ProtocolError as exc:
@@ -238,21 +238,28 @@ class Node:
             return
         if message.kind == Kind.PUBLICATION:
             return  # publications reach subscribers through transport.subscribe
-        self._serve(source, message)
+        if respond is None:
+            transport = self.transport
 
-    def _send_reply(self, source: str, request: Message, status: int = Status.OK, data: bytes = b"") -> None:
+            def respond(reply: bytes) -> None:
+                transport.send(source, reply)
+
+        self._serve(source, message, respond)
+
+    @staticmethod
+    def _reply(respond: Responder, request: Message, status: int = Status.OK, data: bytes = b"") -> None:
         if request.wants_reply:
-            self.transport.send(source, encode(reply_to(request, status, data)))
+            respond(encode(reply_to(request, status, data)))
 
-    def _serve(self, source: str, request: Message) -> None:
+    def _serve(self, source: str, request: Message, respond: Responder) -> None:
         try:
             entry = self._target(request)
-            result = self._execute_now(source, entry, request)
+            result = self._execute_now(source, entry, request, respond)
         except Exception as exc:  # every failure becomes a status; nothing escapes into the transport
-            self._send_reply(source, request, *self._failure(exc))
+            self._reply(respond, request, *self._failure(exc))
             return
         if result is not _DEFERRED:
-            self._send_reply(source, request, Status.OK, result)
+            self._reply(respond, request, Status.OK, result)
 
     def _target(self, request: Message) -> Entry | None:
         if request.method == Method.LOOKUP and request.object_id == 0:
@@ -270,7 +277,7 @@ class Node:
             )
         return entry
 
-    def _execute_now(self, source: str, entry: Entry | None, request: Message) -> bytes | object:
+    def _execute_now(self, source: str, entry: Entry | None, request: Message, respond: Responder) -> bytes | object:
         """Run a request that cannot block and return its reply data, or hand it to a daemon (_DEFERRED)."""
         method = request.method
         if method == Method.LOOKUP:
@@ -289,7 +296,9 @@ class Node:
                 except AsmTimeout:
                     if request.timeout_seconds == 0:
                         raise
-                return self._defer(source, entry, request, lambda: entry.codec.encode(obj.get(request.timeout_seconds)))
+                return self._defer(
+                    source, request, respond, lambda: entry.codec.encode(obj.get(request.timeout_seconds))
+                )
             if method == Method.SET:
                 value = entry.codec.decode(request.data)
                 try:
@@ -298,7 +307,7 @@ class Node:
                 except AsmTimeout:
                     if request.timeout_seconds == 0:
                         raise
-                return self._defer(source, entry, request, lambda: obj.set(value, request.timeout_seconds) or b"")
+                return self._defer(source, request, respond, lambda: obj.set(value, request.timeout_seconds) or b"")
             if method == Method.RESET:
                 obj.reset()
                 return b""
@@ -308,7 +317,7 @@ class Node:
                 return bytes([1 if obj.valid else 0])
             if method == Method.WAIT and isinstance(obj, Event):
                 return self._defer(
-                    source, entry, request, lambda: entry.codec.encode(obj.waiting(request.timeout_seconds))
+                    source, request, respond, lambda: entry.codec.encode(obj.waiting(request.timeout_seconds))
                 )
         elif isinstance(obj, Service):
             if method == Method.START:
@@ -319,7 +328,7 @@ class Node:
                 return b""
             if method == Method.STOP:
                 if request.wants_reply:
-                    return self._defer(source, entry, request, lambda: obj.stop(request.timeout_seconds) or b"")
+                    return self._defer(source, request, respond, lambda: obj.stop(request.timeout_seconds) or b"")
                 try:
                     obj.stop(timeout=0)
                 except AsmTimeout:
@@ -341,12 +350,12 @@ class Node:
                 return bytes([flags]) + (repr(error).encode("utf-8")[:200] if error is not None else b"")
         raise RemoteError(f"method {method} is not supported by {entry.kind.name.lower()} {entry.name!r}", 0)
 
-    def _defer(self, source: str, entry: Entry, request: Message, operation: Callable[[], bytes]) -> object:
+    def _defer(self, source: str, request: Message, respond: Responder, operation: Callable[[], bytes]) -> object:
         with self._lock:
             active = self._daemons.setdefault(source, set())
             if len(active) >= self.max_daemons_per_client or self._closed:
                 raise _Busy(f"client {source!r} already has {len(active)} blocking requests on node {self.name!r}")
-            daemon = _ServerDaemon(self, source, request, operation)
+            daemon = _ServerDaemon(self, source, request, respond, operation)
             active.add(daemon)
         daemon.start()
         return _DEFERRED
@@ -386,20 +395,23 @@ class _Busy(Exception):
 class _ServerDaemon(Service):
     """Serves one blocking request of one client (the paper's server daemon), then ends."""
 
-    def __init__(self, node: Node, source: str, request: Message, operation: Callable[[], bytes]) -> None:
+    def __init__(
+        self, node: Node, source: str, request: Message, respond: Responder, operation: Callable[[], bytes]
+    ) -> None:
         super().__init__(f"daemon:{node.name}:{source}:{request.txn}", clock=node.clock)
         self.node = node
         self.source = source
         self.request = request
+        self.respond = respond
         self.operation = operation
 
     def run(self) -> None:
         try:
             data = self.operation()
         except Exception as exc:
-            self.node._send_reply(self.source, self.request, *self.node._failure(exc))
+            self.node._reply(self.respond, self.request, *self.node._failure(exc))
             return
-        self.node._send_reply(self.source, self.request, Status.OK, data or b"")
+        self.node._reply(self.respond, self.request, Status.OK, data or b"")
 
     def on_stop(self) -> None:
         self.node._daemon_done(self)

@@ -157,7 +157,10 @@ class Port:
             or f"{Method(method).name.lower() if method in Method._value2member_map_ else method} on {self.remote!r}"
         )
         if not blocking:
-            return self._round_trip(method, class_id, object_id, data, None, timeout or self.node.call_timeout, what)
+            wait = timeout or self.node.call_timeout
+            if self.node.transport.direct_requests:
+                return self._direct(method, class_id, object_id, data, wait, what)
+            return self._round_trip(method, class_id, object_id, data, None, wait, what)
         deadline = None if timeout is None else WALL_CLOCK.now() + timeout
         while True:
             remaining = None if deadline is None else max(0.0, deadline - WALL_CLOCK.now())
@@ -198,6 +201,21 @@ class Port:
             raise AsmTimeout(f"{what} timed out: {reason}")
         raise_for_status(call.reply, what)
         return call.reply
+
+    def _direct(self, method: int, class_id: int, object_id: int, data: bytes, wait: float, what: str) -> Message:
+        """A round trip in the caller's thread, on transports that can (requests that cannot block)."""
+        with self._mon:
+            txn = self._next_txn
+            self._next_txn = (txn + 1) & MAX_TXN
+        message = Message(Kind.REQUEST_REPLY, method, txn, class_id, object_id, data=data)
+        raw = self.node.transport.request(self.remote, encode(message), wait)
+        if raw is None:
+            raise AsmTimeout(f"{what} timed out: no reply within {wait:.3g}s")
+        reply = decode(raw)
+        if reply.kind != Kind.REPLY or reply.txn != txn:
+            raise ProtocolError(f"{what}: answer is not the reply to transaction {txn}")
+        raise_for_status(reply, what)
+        return reply
 
     def deliver(self, reply: Message) -> None:
         """A reply arrived for this port (from the node's receive path)."""

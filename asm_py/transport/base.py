@@ -19,8 +19,11 @@ from collections.abc import Callable
 
 log = logging.getLogger("asm_py.transport")
 
-MessageHandler = Callable[[str, bytes], None]
-"""Called with (source node name, message bytes) for each message addressed to this node or its groups."""
+Responder = Callable[[bytes], None]
+"""Sends the reply to one received request back the way it came (e.g. as a Zenoh query's reply)."""
+MessageHandler = Callable[[str, bytes, Responder | None], None]
+"""Called with (source node name, message bytes, responder or None) for each message to this node or its groups;
+with None, a reply is sent with ``send(source, …)``."""
 PeerHandler = Callable[[str, bool], None]
 """Called with (node name, alive) when a node appears or disappears."""
 PublicationHandler = Callable[[bytes], None]
@@ -38,6 +41,9 @@ def check_name(name: str, what: str = "node name") -> str:
 
 class Transport(ABC):
     """Moves ASM messages between named nodes; see the module docstring."""
+
+    direct_requests = False
+    """True when :meth:`request` does a round trip in the caller's thread, faster than send + deliver."""
 
     def __init__(self) -> None:
         self._name: str | None = None
@@ -95,14 +101,14 @@ class Transport(ABC):
 
     # -- for concrete transports ----------------------------------------------------------------------------------
 
-    def _deliver(self, source: str, data: bytes) -> None:
+    def _deliver(self, source: str, data: bytes, respond: Responder | None = None) -> None:
         """Hand a received message to the node; a failing handler is logged, never raised into the medium."""
         handler = self._on_message
         if handler is None:
             return
         self.received += 1
         try:
-            handler(source, data)
+            handler(source, data, respond)
         except Exception:
             self.handler_errors += 1
             log.exception("node %r failed to handle a message from %r", self._name, source)
@@ -141,6 +147,13 @@ class Transport(ABC):
     @abstractmethod
     def peers(self) -> list[str]:
         """The names of the live nodes, this one included."""
+
+    def request(self, dest: str, data: bytes, wait: float) -> bytes | None:
+        """Send a request that wants a reply and return the reply, or None if none came within ``wait`` seconds.
+
+        Only for transports with ``direct_requests``; the others deliver replies as messages.
+        """
+        raise NotImplementedError(f"{type(self).__name__} delivers replies as messages")
 
     @abstractmethod
     def _close(self) -> None:

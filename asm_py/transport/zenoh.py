@@ -1,0 +1,215 @@
+"""ASM over Zenoh: peers on loopback by default, client mode towards a router for many machines.
+
+The payload of every Zenoh message is the ASM protocol message, byte for byte as on CAN, so a bridge forwards it
+without re-encoding. Key space (docs/protocol.md, "Zenoh key space"):
+
+    asm/<node>/req/<source>        queryable: requests that want a reply (the reply is the query's reply)
+    asm/<node>/msg/<source>        subscriber: requests that want no reply, and replies sent as messages
+    asm/@group/<group>/msg/<source> subscriber: one-to-many requests (group "all": every node)
+    asm/<node>/pub/<object>        publications of <node>'s attribute <object> (binary ASM message)
+    asm/<node>/json/<object>       the same publication as JSON text, for any Zenoh tool or language
+    asm/@alive/<node>              liveliness token: the node is up (discovery)
+
+Defaults are safe: peer mode, multicast scouting off, no listening unless endpoints are given (e.g.
+``tcp/127.0.0.1:7447``); ``connect`` lists the peers or router to reach.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import threading
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import zenoh
+
+from ..protocol import Kind, decode_timeout
+from .base import PublicationHandler, Transport
+
+log = logging.getLogger("asm_py.transport.zenoh")
+
+FOREVER_QUERY = 86_400.0
+"""Seconds a query for a request that may block forever stays open on the client (Zenoh needs a number)."""
+QUERY_MARGIN = 5.0
+
+
+def make_config(
+    *,
+    mode: str = "peer",
+    listen: Sequence[str] = (),
+    connect: Sequence[str] = (),
+    config_file: str | None = None,
+) -> zenoh.Config:
+    """A Zenoh configuration: ``mode`` peer/client/router, explicit endpoints, multicast scouting off."""
+    if mode not in ("peer", "client", "router"):
+        raise ValueError(f"zenoh mode must be 'peer', 'client' or 'router', not {mode!r}")
+    config = zenoh.Config.from_file(config_file) if config_file else zenoh.Config()
+    config.insert_json5("mode", json.dumps(mode))
+    config.insert_json5("scouting/multicast/enabled", "false")
+    if listen:
+        config.insert_json5("listen/endpoints", json.dumps(list(listen)))
+    if connect:
+        config.insert_json5("connect/endpoints", json.dumps(list(connect)))
+    return config
+
+
+class ZenohTransport(Transport):
+    """A node's Zenoh session; see the module docstring."""
+
+    direct_requests = True
+
+    def __init__(
+        self,
+        *,
+        mode: str = "peer",
+        listen: Sequence[str] = (),
+        connect: Sequence[str] = (),
+        config_file: str | None = None,
+    ) -> None:
+        super().__init__()
+        self._config = make_config(mode=mode, listen=listen, connect=connect, config_file=config_file)
+        self.mode = mode
+        self.listen = tuple(listen)
+        self.connect = tuple(connect)
+        self._session: zenoh.Session | None = None
+        self._keep: list[Any] = []  # declared entities, kept alive until close
+        self._publishers: dict[str, zenoh.Publisher] = {}
+        self._pub_lock = threading.Lock()
+
+    @property
+    def session(self) -> zenoh.Session:
+        if self._session is None:
+            raise RuntimeError("zenoh transport is not open")
+        return self._session
+
+    def _open(self, name: str) -> None:
+        session = self._session = zenoh.open(self._config)
+        self._keep += [
+            session.declare_queryable(f"asm/{name}/req/*", self._on_query),
+            session.declare_subscriber(f"asm/{name}/msg/*", self._on_sample),
+            session.liveliness().declare_token(f"asm/@alive/{name}"),
+            session.liveliness().declare_subscriber("asm/@alive/*", self._on_alive, history=True),
+        ]
+
+    def _join(self, group: str) -> None:
+        self._keep.append(self.session.declare_subscriber(f"asm/@group/{group}/msg/*", self._on_sample))
+
+    # -- receiving ------------------------------------------------------------------------------------------------
+
+    def _on_sample(self, sample: zenoh.Sample) -> None:
+        source = str(sample.key_expr).rsplit("/", 1)[-1]
+        if source != self._name:
+            self._deliver(source, sample.payload.to_bytes())
+
+    def _on_query(self, query: zenoh.Query) -> None:
+        source = str(query.key_expr).rsplit("/", 1)[-1]
+        key = query.key_expr
+        data = query.payload.to_bytes() if query.payload is not None else b""
+        answered = False
+
+        def respond(reply: bytes) -> None:
+            nonlocal answered
+            if not answered:
+                answered = True
+                try:
+                    query.reply(key, reply)
+                finally:
+                    query.drop()
+
+        self._deliver(source, data, respond)
+        if not answered and not self._expects_reply(data):
+            query.drop()
+
+    @staticmethod
+    def _expects_reply(data: bytes) -> bool:
+        return len(data) >= 1 and (data[0] >> 4) & 0x03 == Kind.REQUEST_REPLY
+
+    def _on_alive(self, sample: zenoh.Sample) -> None:
+        name = str(sample.key_expr).rsplit("/", 1)[-1]
+        if name != self._name:
+            self._peer_changed(name, sample.kind == zenoh.SampleKind.PUT)
+
+    # -- sending --------------------------------------------------------------------------------------------------
+
+    def _publisher(self, key: str, *, reliable: bool) -> zenoh.Publisher:
+        with self._pub_lock:
+            publisher = self._publishers.get(key)
+            if publisher is None:
+                if len(self._publishers) > 1024:  # bounded: forget the oldest declared publishers
+                    for old in list(self._publishers)[:256]:
+                        self._publishers.pop(old).undeclare()
+                congestion = zenoh.CongestionControl.BLOCK if reliable else zenoh.CongestionControl.DROP
+                publisher = self.session.declare_publisher(key, congestion_control=congestion, express=True)
+                self._publishers[key] = publisher
+            return publisher
+
+    def send(self, dest: str, data: bytes) -> None:
+        if self._expects_reply(data):
+            self._query(dest, data)
+        else:
+            self._publisher(f"asm/{dest}/msg/{self.name}", reliable=True).put(data)
+
+    def _query(self, dest: str, data: bytes) -> None:
+        has_timeout = len(data) > 4 and data[1] & 0x80
+        limit = decode_timeout(data[4]) if has_timeout else None
+        timeout = FOREVER_QUERY if limit is None else limit + QUERY_MARGIN
+
+        def on_reply(reply: zenoh.Reply) -> None:
+            if reply.ok is not None:
+                self._deliver(dest, reply.ok.payload.to_bytes())
+
+        self.session.get(f"asm/{dest}/req/{self.name}", on_reply, payload=data, timeout=timeout,
+                         congestion_control=zenoh.CongestionControl.BLOCK)  # fmt: skip
+
+    def request(self, dest: str, data: bytes, wait: float) -> bytes | None:
+        """A query answered in the caller's thread: the fast path for requests that cannot block."""
+        replies = self.session.get(f"asm/{dest}/req/{self.name}", payload=data, timeout=wait,
+                                   congestion_control=zenoh.CongestionControl.BLOCK)  # fmt: skip
+        for reply in replies:
+            if reply.ok is not None:
+                return reply.ok.payload.to_bytes()
+        return None
+
+    def send_group(self, group: str, data: bytes) -> None:
+        self._publisher(f"asm/@group/{group}/msg/{self.name}", reliable=True).put(data)
+
+    def publish(self, object_name: str, data: bytes, json_text: str | None = None) -> None:
+        self._publisher(f"asm/{self.name}/pub/{object_name}", reliable=False).put(data)
+        if json_text is not None:
+            self._publisher(f"asm/{self.name}/json/{object_name}", reliable=False).put(json_text)
+
+    def subscribe(self, node: str, object_name: str, callback: PublicationHandler) -> Callable[[], None]:
+        def on_sample(sample: zenoh.Sample) -> None:
+            try:
+                callback(sample.payload.to_bytes())
+            except Exception:
+                log.exception("subscriber of %s/%s failed", node, object_name)
+
+        subscriber = self.session.declare_subscriber(f"asm/{node}/pub/{object_name}", on_sample)
+
+        def remove() -> None:
+            if self._session is not None:
+                subscriber.undeclare()
+
+        return remove
+
+    def peers(self) -> list[str]:
+        names = set()
+        for reply in self.session.liveliness().get("asm/@alive/*", timeout=2.0):
+            if reply.ok is not None:
+                names.add(str(reply.ok.key_expr).rsplit("/", 1)[-1])
+        return sorted(names)
+
+    def _close(self) -> None:
+        session, self._session = self._session, None
+        if session is None:
+            return
+        for entity in reversed(self._keep):
+            try:
+                entity.undeclare()
+            except Exception:  # already gone with its session
+                log.debug("undeclare failed during close", exc_info=True)
+        self._keep.clear()
+        self._publishers.clear()
+        session.close()
