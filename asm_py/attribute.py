@@ -100,8 +100,12 @@ class Attribute:
     def initial(self) -> Any:
         return self._initial
 
-    def set(self, value: Any, timeout: float | None = None) -> None:
-        """Store ``value`` and make it valid; with sync_set, first wait until the previous value was consumed."""
+    def set(self, value: Any, timeout: float | None = None, *, wait: bool = True) -> None:
+        """Store ``value`` and make it valid; with sync_set, first wait until the previous value was consumed.
+
+        ``wait`` exists for location transparency (a remote set may return before it is done); a local set has
+        always completed when it returns.
+        """
         if self._codec is not None:
             value = self._codec.normalize(value)
         mon = self._mon
@@ -133,7 +137,7 @@ class Attribute:
                 mon.notify_all()
             return self._value
 
-    def reset(self) -> None:
+    def reset(self, *, wait: bool = True) -> None:
         """Restore the initial value, make it invalid and release setters blocked by sync_set."""
         mon = self._mon
         with mon.lock:

@@ -62,7 +62,7 @@ class PhaseAutomaton(EventDrivenService):
         self._next_state = next_state
         self._action = action
 
-    def start(self, phase: float = 0.0, direction: int | None = None) -> None:  # type: ignore[override]
+    def start(self, phase: float = 0.0, direction: int | None = None, *, wait: bool = True) -> None:  # type: ignore[override]
         """Start with initial phase delay ``phase`` ∈ [0, 1) and, if given, a new direction (±1)."""
         super().start(phase, direction)
 

@@ -297,9 +297,11 @@ class RemoteAttribute(RemoteObject):
     def get(self, timeout: float | None = None) -> Any:
         return self.codec.decode(self._call(Method.GET, timeout=timeout, blocking=self.sync_get))
 
-    def set(self, value: Any, timeout: float | None = None, *, wait: bool = False) -> None:
+    def set(self, value: Any, timeout: float | None = None, *, wait: bool | None = None) -> None:
+        """Set the remote value. Returns at once, unless ``wait`` — which a ``timeout`` implies: "up to this long"."""
         data = self.codec.encode(value)  # a bad value fails here, before anything is sent
-        self._request(Method.SET, data, wait, timeout=timeout, blocks=self.sync_set)
+        self._request(Method.SET, data, timeout is not None if wait is None else wait, timeout=timeout,
+                      blocks=self.sync_set)  # fmt: skip
 
     def reset(self, *, wait: bool = False) -> None:
         self._request(Method.RESET, b"", wait)

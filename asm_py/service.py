@@ -63,8 +63,12 @@ class Service:
         """The exception that ended the last run, if one did (also logged when it happened)."""
         return self._last_error
 
-    def start(self, *params: Any) -> None:
-        """Start the service with ``params``; returns at once. ServiceError if already started."""
+    def start(self, *params: Any, wait: bool = True) -> None:
+        """Start the service with ``params``; returns at once. ServiceError if already started.
+
+        ``wait`` (here and on stop/suspend/resume/reset) exists for location transparency: a remote call returns
+        before it is done unless it waits; a local one has always completed.
+        """
         mon = self._mon
         with mon:
             if self._started or self._thread is not None:
@@ -90,7 +94,7 @@ class Service:
             self.clock._thread_starting()
             thread.start()
 
-    def stop(self, timeout: float | None = None) -> None:
+    def stop(self, timeout: float | None = None, *, wait: bool = True) -> None:
         """Stop the service and wait (up to ``timeout`` seconds of its clock) for its thread to end.
 
         A blocking ASM call inside ``run`` is interrupted. Stopping a stopped service does nothing. Called from the
@@ -120,7 +124,7 @@ class Service:
         if thread.ident is not None:
             thread.join()
 
-    def suspend(self) -> None:
+    def suspend(self, *, wait: bool = True) -> None:
         """Pause the service; it holds at its next checkpoint or sleep. ServiceError if not started."""
         with self._mon:
             if not self._started:
@@ -130,7 +134,7 @@ class Service:
             self._running = False
         self.on_suspend()
 
-    def resume(self) -> None:
+    def resume(self, *, wait: bool = True) -> None:
         """Continue a suspended service (the paper's ``continue``). ServiceError if not started."""
         mon = self._mon
         with mon:
@@ -145,7 +149,7 @@ class Service:
 
     continue_ = resume
 
-    def reset(self) -> None:
+    def reset(self, *, wait: bool = True) -> None:
         """Return the service to its initial condition; ServiceError while it is running."""
         with self._mon:
             if self._started and self._running:

@@ -9,7 +9,7 @@ import pytest
 
 
 def _asm_threads() -> set[threading.Thread]:
-    return {t for t in threading.enumerate() if t.name.startswith("asm:")}
+    return {t for t in threading.enumerate() if t.name.startswith(("asm:", "asm-"))}
 
 
 @pytest.fixture(autouse=True)

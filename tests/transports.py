@@ -1,0 +1,40 @@
+"""Factories of connected transports for the conformance suite and the node tests: every transport, same tests."""
+
+from __future__ import annotations
+
+import socket
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+
+from asm_py.transport import MemoryNetwork, MemoryTransport, Transport
+from asm_py.transport.zenoh import ZenohTransport
+
+
+def free_port() -> int:
+    """A TCP port free on loopback right now (bind and release)."""
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return sock.getsockname()[1]
+
+
+@contextmanager
+def memory_transports() -> Iterator[Callable[[], Transport]]:
+    network = MemoryNetwork()
+    yield lambda: MemoryTransport(network)
+
+
+@contextmanager
+def zenoh_transports() -> Iterator[Callable[[], Transport]]:
+    """The first transport listens on a free loopback port; every later one connects to it (peer mode)."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    made: list[Transport] = []
+
+    def make() -> Transport:
+        transport = ZenohTransport(listen=[endpoint]) if not made else ZenohTransport(connect=[endpoint])
+        made.append(transport)
+        return transport
+
+    yield make
+
+
+FACTORIES = {"memory": memory_transports, "zenoh": zenoh_transports}
