@@ -25,9 +25,12 @@ from .codec import (
     record,
 )
 from .eds import EventDrivenService
-from .errors import AsmError, AsmTimeout, ServiceError, ServiceStopped, SimulationStalled
+from .errors import AsmError, AsmTimeout, RemoteError, ServiceError, ServiceStopped, SimulationStalled
 from .event import ConditionTrigger, Event, ThresholdTrigger, TimerTrigger, Trigger
+from .node import Node
+from .remote import RemoteAttribute, RemoteEvent, RemoteService
 from .service import Service
+from .transport import MemoryNetwork, MemoryTransport, Transport
 
 __version__ = "0.1.0"
 
@@ -37,4 +40,6 @@ __all__ = [
     "UINT8", "UINT16", "UINT32", "UINT64", "Codec", "codec_from_descriptor", "float_array", "parse_codec",
     "record", "EventDrivenService", "AsmError", "AsmTimeout", "ServiceError", "ServiceStopped",
     "SimulationStalled", "ConditionTrigger", "Event", "ThresholdTrigger", "TimerTrigger", "Trigger", "Service",
+    "RemoteError", "Node",
+    "RemoteAttribute", "RemoteEvent", "RemoteService", "MemoryNetwork", "MemoryTransport", "Transport",
 ]  # fmt: skip

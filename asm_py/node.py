@@ -95,8 +95,6 @@ class Node:
 
     def register(self, obj: Registrable, *, name: str | None = None, class_name: str | None = None) -> Entry:
         """Enter ``obj`` in the lookup table; its class defaults to its name (the kind of object it is)."""
-        name = check_name(name or obj.name, "object name")
-        class_name = check_name(class_name or name, "class name")
         if isinstance(obj, Event):
             kind, codec = ObjectKind.EVENT, obj.codec or JSON
         elif isinstance(obj, Attribute):
@@ -105,6 +103,8 @@ class Node:
             kind, codec = ObjectKind.SERVICE, JSON
         else:
             raise TypeError(f"only attributes, events and services can be registered, not {type(obj).__name__}")
+        name = check_name(name or obj.name, "object name")
+        class_name = check_name(class_name or name, "class name")
         with self._lock:
             if name in self._by_name:
                 raise ValueError(f"node {self.name!r} already has an object named {name!r}")
