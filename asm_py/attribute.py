@@ -198,7 +198,8 @@ class Attribute:
         if self._codec is not None and remote_codec is not None and remote_codec != self._codec:
             raise TypeError(f"attribute {self._name!r} ({self._codec.spec}) cannot subscribe to {remote_codec.spec}")
         self.unsubscribe()
-        self._subscription = source._subscribe(self._deliver)
+        codec = source.codec if remote_codec == self._codec else None
+        self._subscription = source._subscribe(lambda value: self._deliver(value, decoded_by=codec))
 
     def unsubscribe(self) -> None:
         """End the subscription, if any."""
@@ -206,9 +207,12 @@ class Attribute:
         if remove is not None:
             remove()
 
-    def _deliver(self, value: Any) -> None:
-        """Store a publication: like ``set``, but never blocking on sync_set."""
-        if self._codec is not None:
+    def _deliver(self, value: Any, *, decoded_by: Codec | None = None) -> None:
+        """Store a publication: like ``set``, but never blocking on sync_set.
+
+        A value ``decoded_by`` this attribute's own codec is canonical already and is not checked again.
+        """
+        if self._codec is not None and decoded_by != self._codec:
             value = self._codec.normalize(value)
         mon = self._mon
         with mon.lock:

@@ -87,6 +87,7 @@ class Node:
         self._ports: dict[str, Port] = {}
         self._daemons: dict[str, set[Service]] = {}
         self._closed = False
+        self._seen: set[str] = set()
         self.dropped = 0
         transport.attach(name, self._on_message)
         self._unpeer = transport.on_peer(self._peer_changed)
@@ -168,12 +169,27 @@ class Node:
         """A client object for ``object_name`` on node ``remote``: RemoteAttribute, RemoteEvent or RemoteService."""
         check_name(object_name, "object name")
         port = self.port(remote)
-        reply = port.call(Method.LOOKUP, 0, 0, object_name.encode("utf-8"), timeout=timeout)
+        self._await_peer(remote, self.call_timeout if timeout is None else timeout)
+        reply = port.call(
+            Method.LOOKUP, 0, 0, object_name.encode("utf-8"), timeout=timeout, subject=f"{remote}/{object_name}"
+        )
         return make_client(port, reply.data)
+
+    def _await_peer(self, remote: str, timeout: float) -> None:
+        """Give discovery up to ``timeout`` to see ``remote`` (a just-opened session may not have met it yet)."""
+        if remote in self._seen:
+            return
+        deadline = WALL_CLOCK.now() + timeout
+        while remote not in self.discover():
+            if WALL_CLOCK.now() >= deadline:
+                return  # the request itself will time out and say so
+            WALL_CLOCK.sleep(0.02)
+        self._seen.add(remote)
 
     def list_objects(self, remote: str, *, timeout: float | None = None) -> list[RemoteObject]:
         """Client objects for everything node ``remote`` has registered (lookup by ID, 1, 2, … until not found)."""
         port = self.port(remote)
+        self._await_peer(remote, self.call_timeout if timeout is None else timeout)
         found: list[RemoteObject] = []
         for object_id in range(1, 256):
             try:
@@ -220,6 +236,7 @@ class Node:
 
     def _peer_changed(self, name: str, alive: bool) -> None:
         if not alive:
+            self._seen.discard(name)
             port = self._ports.get(name)
             if port is not None:
                 port.fail_all(f"node {name!r} left")

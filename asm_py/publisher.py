@@ -57,6 +57,8 @@ class Publisher(Service):
         self._last_value: Any = _NOTHING
         self._last_time = -math.inf
         self._publish_lock = threading.Lock()
+        names = {"node": node.name, "object": entry.name, "class": entry.class_name}
+        self._json_prefix = json.dumps(names, separators=(",", ":"))[:-1] + ","  # the JSON view, less seq/t/value
         attribute = entry.obj
         assert isinstance(attribute, Attribute)
         self._attribute = attribute
@@ -104,6 +106,5 @@ class Publisher(Service):
             self.published += 1
         message = Message(Kind.PUBLICATION, Method.PUBLISH, seq, entry.class_id, entry.object_id,
                           data=entry.codec.encode(value))  # fmt: skip
-        view = json.dumps({"node": self.node.name, "object": entry.name, "class": entry.class_name, "seq": seq,
-                           "t": self._last_time, "value": to_json(value)})  # fmt: skip
+        view = f'{self._json_prefix}"seq":{seq},"t":{self._last_time!r},"value":{json.dumps(to_json(value))}}}'
         self.node.transport.publish(entry.name, encode(message), view)

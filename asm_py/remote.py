@@ -99,7 +99,21 @@ _STATUS_ERRORS: dict[int, type[Exception]] = {
 }
 
 
-def raise_for_status(reply: Message, what: str) -> None:
+class _What:
+    """Names a call in error messages; formatted only when an error is raised (off the hot path)."""
+
+    __slots__ = ("method", "subject")
+
+    def __init__(self, method: int, subject: str) -> None:
+        self.method = method
+        self.subject = subject
+
+    def __str__(self) -> str:
+        method = Method(self.method).name.lower() if self.method in Method._value2member_map_ else self.method
+        return f"{method} on {self.subject}"
+
+
+def raise_for_status(reply: Message, what: object) -> None:
     if reply.status == Status.OK:
         return
     text = f"{what}: {reply.data.decode('utf-8', errors='replace')}"
@@ -145,17 +159,14 @@ class Port:
         *,
         timeout: float | None = None,
         blocking: bool = False,
-        what: str = "",
+        subject: str = "",
     ) -> Message:
         """Send a request and wait for its reply; raise the reply's error as its local exception type.
 
         ``blocking``: the server may block up to ``timeout`` (None: without limit); the client waits that long plus
         a margin. Otherwise the client waits ``timeout`` or the node's ``call_timeout``.
         """
-        what = (
-            what
-            or f"{Method(method).name.lower() if method in Method._value2member_map_ else method} on {self.remote!r}"
-        )
+        what = _What(method, subject or self.remote)
         if not blocking:
             wait = timeout or self.node.call_timeout
             if self.node.transport.direct_requests:
@@ -174,7 +185,14 @@ class Port:
                     raise
 
     def _round_trip(
-        self, method: int, class_id: int, object_id: int, data: bytes, code: int | None, wait: float | None, what: str
+        self,
+        method: int,
+        class_id: int,
+        object_id: int,
+        data: bytes,
+        code: int | None,
+        wait: float | None,
+        what: object,
     ) -> Message:
         mon = self._mon
         call = _Call()
@@ -202,7 +220,7 @@ class Port:
         raise_for_status(call.reply, what)
         return call.reply
 
-    def _direct(self, method: int, class_id: int, object_id: int, data: bytes, wait: float, what: str) -> Message:
+    def _direct(self, method: int, class_id: int, object_id: int, data: bytes, wait: float, what: object) -> Message:
         """A round trip in the caller's thread, on transports that can (requests that cannot block)."""
         with self._mon:
             txn = self._next_txn
@@ -242,6 +260,7 @@ class RemoteObject:
     def __init__(self, port: Port, info: ObjectInfo) -> None:
         self._port = port
         self.info = info
+        self._subject = f"{port.remote}/{info.name}"
 
     @property
     def name(self) -> str:
@@ -260,10 +279,9 @@ class RemoteObject:
     def _call(
         self, method: Method, data: bytes = b"", *, timeout: float | None = None, blocking: bool = False
     ) -> bytes:
-        what = f"{method.name.lower()} on {self.node}/{self.name}"
         info = self.info
         return self._port.call(method, info.class_id, info.object_id, data, timeout=timeout, blocking=blocking,
-                               what=what).data  # fmt: skip
+                               subject=self._subject).data  # fmt: skip
 
     def _request(self, method: Method, data: bytes, wait: bool, *, timeout: float | None = None, blocks: bool = False):
         """A request that replies only when the caller waits for it."""

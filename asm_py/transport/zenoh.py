@@ -10,8 +10,9 @@ without re-encoding. Key space (docs/protocol.md, "Zenoh key space"):
     asm/<node>/json/<object>       the same publication as JSON text, for any Zenoh tool or language
     asm/@alive/<node>              liveliness token: the node is up (discovery)
 
-Defaults are safe: peer mode, multicast scouting off, no listening unless endpoints are given (e.g.
-``tcp/127.0.0.1:7447``); ``connect`` lists the peers or router to reach.
+Defaults are safe: peer mode, multicast scouting off, and a peer listens on a free loopback port
+(``tcp/127.0.0.1:0``) unless endpoints are given — never on every interface; ``connect`` lists the peers or
+router to reach. Peers that meet through a common peer connect to each other directly (gossip scouting).
 """
 
 from __future__ import annotations
@@ -47,8 +48,10 @@ def make_config(
     config = zenoh.Config.from_file(config_file) if config_file else zenoh.Config()
     config.insert_json5("mode", json.dumps(mode))
     config.insert_json5("scouting/multicast/enabled", "false")
-    if listen:
-        config.insert_json5("listen/endpoints", json.dumps(list(listen)))
+    # Never Zenoh's default listener (all interfaces): a peer or router listens on loopback unless told otherwise.
+    if not listen and mode != "client":
+        listen = ["tcp/127.0.0.1:0"]
+    config.insert_json5("listen/endpoints", json.dumps(list(listen)))
     if connect:
         config.insert_json5("connect/endpoints", json.dumps(list(connect)))
     return config
@@ -133,6 +136,9 @@ class ZenohTransport(Transport):
     # -- sending --------------------------------------------------------------------------------------------------
 
     def _publisher(self, key: str, *, reliable: bool) -> zenoh.Publisher:
+        publisher = self._publishers.get(key)  # the hot path: no lock once declared
+        if publisher is not None:
+            return publisher
         with self._pub_lock:
             publisher = self._publishers.get(key)
             if publisher is None:
