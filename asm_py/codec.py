@@ -381,14 +381,17 @@ class RecordCodec(Codec):
         return result, offset
 
 
-class JsonCodec(Codec):
+class JsonCodec(_Variable):
     """Any JSON-representable value, as UTF-8 JSON text: how an attribute without a codec travels on the wire.
 
     The canonical form is what JSON gives back (tuples become lists), so local and remote readers agree.
     """
 
     spec = "json"
-    size = None
+    _tag = 0x10
+
+    def __init__(self) -> None:
+        super().__init__(None)
 
     def normalize(self, value: Any) -> Any:
         try:
@@ -397,31 +400,19 @@ class JsonCodec(Codec):
             raise TypeError(f"json attribute needs a JSON-representable value: {exc}") from None
 
     def descriptor(self) -> bytes:
-        return bytes([0x10])
+        return bytes([self._tag])
 
     def describe(self) -> dict[str, Any]:
         return {"spec": self.spec, "kind": "json", "size": None}
 
-    def encode(self, value: Any) -> bytes:
-        return json.dumps(self.normalize(value), separators=(",", ":")).encode("utf-8")
+    def _to_bytes(self, value: Any) -> bytes:
+        return json.dumps(value, separators=(",", ":")).encode("utf-8")
 
-    def decode(self, data: Buffer) -> Any:
+    def _from_bytes(self, raw: bytes) -> Any:
         try:
-            return json.loads(bytes(data).decode("utf-8"))
+            return json.loads(raw.decode("utf-8"))
         except (UnicodeDecodeError, ValueError) as exc:
             raise ValueError(f"json: cannot decode: {exc}") from None
-
-    def _pack(self, out: bytearray, value: Any) -> None:
-        raw = self.encode(value)
-        _pack_varint(out, len(raw))
-        out += raw
-
-    def _unpack(self, data: memoryview, offset: int) -> tuple[Any, int]:
-        length, offset = _unpack_varint(data, offset)
-        end = offset + length
-        if end > len(data):
-            raise ValueError("json: field runs past the end of the data")
-        return self.decode(data[offset:end]), end
 
 
 def to_json(value: Any) -> Any:
