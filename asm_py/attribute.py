@@ -155,14 +155,7 @@ class Attribute:
         ``reset`` is not reported: it returns the attribute to its initial state rather than producing a value.
         Returns a function that removes the callback.
         """
-        with self._mon.lock:
-            self._listeners = (*self._listeners, callback)
-
-        def remove() -> None:
-            with self._mon.lock:
-                self._listeners = tuple(c for c in self._listeners if c is not callback)
-
-        return remove
+        return self._add_to("_listeners", callback)
 
     # -- publish/subscribe (paper section 3): the server decides when to publish ---------------------------------
 
@@ -224,12 +217,16 @@ class Attribute:
         self._notify(value)
 
     def _add_policy_hook(self, hook: Callable[[PublishPolicy | None], None]) -> Callable[[], None]:
+        return self._add_to("_policy_hooks", hook)
+
+    def _add_to(self, field: str, item: Callable[..., None]) -> Callable[[], None]:
+        """Append ``item`` to the copy-on-write tuple ``field`` (read without the lock); return its remover."""
         with self._mon.lock:
-            self._policy_hooks = (*self._policy_hooks, hook)
+            setattr(self, field, (*getattr(self, field), item))
 
         def remove() -> None:
             with self._mon.lock:
-                self._policy_hooks = tuple(h for h in self._policy_hooks if h is not hook)
+                setattr(self, field, tuple(i for i in getattr(self, field) if i is not item))
 
         return remove
 

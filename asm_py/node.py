@@ -383,21 +383,11 @@ class Node:
 
     @staticmethod
     def _failure(exc: Exception) -> tuple[int, bytes]:
+        """The status for a failed request (the inverse of remote.py's status-to-exception table)."""
         text = str(exc).encode("utf-8")[:120]
-        if isinstance(exc, TimeoutError):
-            return Status.TIMEOUT, text
-        if isinstance(exc, ServiceError):
-            return Status.SERVICE_ERROR, text
-        if isinstance(exc, _Busy):
-            return Status.BUSY, text
-        if isinstance(exc, RemoteError | UnicodeDecodeError):
-            return (Status.UNSUPPORTED if isinstance(exc, RemoteError) else Status.BAD_MESSAGE), text
-        if isinstance(exc, TypeError):
-            return Status.TYPE_ERROR, text
-        if isinstance(exc, ValueError):
-            return Status.VALUE_ERROR, text
-        if isinstance(exc, LookupError):
-            return Status.NOT_FOUND, text
+        for kind, status in _FAILURE_STATUS:
+            if isinstance(exc, kind):
+                return status, text
         log.error("request failed inside the node", exc_info=exc)
         return Status.INTERNAL, text
 
@@ -407,6 +397,19 @@ _DEFERRED = object()
 
 class _Busy(Exception):
     pass
+
+
+# First match wins: UnicodeDecodeError is a ValueError, so it must come before it.
+_FAILURE_STATUS: tuple[tuple[type[Exception], int], ...] = (
+    (TimeoutError, Status.TIMEOUT),
+    (ServiceError, Status.SERVICE_ERROR),
+    (_Busy, Status.BUSY),
+    (RemoteError, Status.UNSUPPORTED),
+    (UnicodeDecodeError, Status.BAD_MESSAGE),
+    (TypeError, Status.TYPE_ERROR),
+    (ValueError, Status.VALUE_ERROR),
+    (LookupError, Status.NOT_FOUND),
+)
 
 
 class _ServerDaemon(Service):

@@ -208,14 +208,14 @@ class Port:
         try:
             self.node.transport.send(self.remote, encode(message))
             with mon:
-                done = mon.wait_for(lambda: call.reply is not None or call.failure is not None, wait)
+                mon.wait_for(lambda: call.reply is not None or call.failure is not None, wait)
         finally:
             with mon:
                 if self._pending.get(txn) is call:
                     del self._pending[txn]
                 mon.notify_all()
         if call.reply is None:
-            reason = call.failure or f"no reply within {wait:.3g}s" if not done else call.failure
+            reason = call.failure or f"no reply within {wait:.3g}s"  # done without a reply means a failure
             raise AsmTimeout(f"{what} timed out: {reason}")
         raise_for_status(call.reply, what)
         return call.reply
