@@ -27,6 +27,7 @@ from .codec import (
 from .eds import EventDrivenService
 from .errors import AsmError, AsmTimeout, RemoteError, ServiceError, ServiceStopped, SimulationStalled
 from .event import ConditionTrigger, Event, ThresholdTrigger, TimerTrigger, Trigger
+from .group import GroupAttribute, GroupPort, GroupService
 from .node import Node
 from .remote import RemoteAttribute, RemoteEvent, RemoteService
 from .service import Service
@@ -40,6 +41,6 @@ __all__ = [
     "UINT8", "UINT16", "UINT32", "UINT64", "Codec", "codec_from_descriptor", "float_array", "parse_codec",
     "record", "EventDrivenService", "AsmError", "AsmTimeout", "ServiceError", "ServiceStopped",
     "SimulationStalled", "ConditionTrigger", "Event", "ThresholdTrigger", "TimerTrigger", "Trigger", "Service",
-    "RemoteError", "Node",
+    "RemoteError", "Node", "GroupPort", "GroupAttribute", "GroupService",
     "RemoteAttribute", "RemoteEvent", "RemoteService", "MemoryNetwork", "MemoryTransport", "Transport",
 ]  # fmt: skip

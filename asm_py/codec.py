@@ -57,6 +57,12 @@ class Codec(ABC):
         self._pack(out, self.normalize(value))
         return bytes(out)
 
+    def encode_canonical(self, value: Any) -> bytes:
+        """Encode a value that went through :meth:`normalize` already (an attribute's stored value): no check."""
+        out = bytearray()
+        self._pack(out, value)
+        return bytes(out)
+
     def decode(self, data: Buffer) -> Any:
         view = memoryview(data)
         try:
@@ -91,6 +97,9 @@ class _Fixed(Codec):
 
     def _pack(self, out: bytearray, value: Any) -> None:
         out += self._struct.pack(value)
+
+    def encode_canonical(self, value: Any) -> bytes:
+        return self._struct.pack(value)
 
     def _unpack(self, data: memoryview, offset: int) -> tuple[Any, int]:
         end = offset + self.size

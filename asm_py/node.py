@@ -25,8 +25,10 @@ from .clock import WALL_CLOCK, Clock
 from .codec import JSON, Codec
 from .errors import AsmTimeout, RemoteError, ServiceError
 from .event import Event
+from .group import GroupPort
 from .protocol import (
     LOCAL_CLASS_BASE,
+    VERSION,
     WELL_KNOWN_CLASSES,
     Kind,
     Message,
@@ -35,13 +37,11 @@ from .protocol import (
     ProtocolError,
     Status,
     decode,
-    encode,
-    reply_to,
 )
 from .publisher import Publisher
 from .remote import Port, RemoteObject, describe_entry, make_client
 from .service import Service
-from .transport.base import Responder, Transport, check_name
+from .transport.base import BROADCAST, Responder, Transport, check_name
 
 log = logging.getLogger("asm_py.node")
 
@@ -186,6 +186,14 @@ class Node:
             WALL_CLOCK.sleep(0.02)
         self._seen.add(remote)
 
+    def group(self, group: str = BROADCAST) -> GroupPort:
+        """The one-to-many port to ``group`` (default "all": every node); see asm_py.group."""
+        return GroupPort(self, group)
+
+    def join_group(self, group: str) -> None:
+        """Receive the group messages sent to ``group`` from now on (every node is in "all")."""
+        self.transport.join_group(group)
+
     def list_objects(self, remote: str, *, timeout: float | None = None) -> list[RemoteObject]:
         """Client objects for everything node ``remote`` has registered (lookup by ID, 1, 2, … until not found)."""
         port = self.port(remote)
@@ -265,8 +273,9 @@ class Node:
 
     @staticmethod
     def _reply(respond: Responder, request: Message, status: int = Status.OK, data: bytes = b"") -> None:
-        if request.wants_reply:
-            respond(encode(reply_to(request, status, data)))
+        if request.wants_reply:  # the reply header in place (protocol.reply_to + encode, without re-validation)
+            head = bytes((_REPLY_HEAD | request.method, request.txn, status, request.object_id))
+            respond(head + data)
 
     def _serve(self, source: str, request: Message, respond: Responder) -> None:
         try:
@@ -393,6 +402,7 @@ class Node:
 
 
 _DEFERRED = object()
+_REPLY_HEAD = (VERSION << 6) | (Kind.REPLY << 4)
 
 
 class _Busy(Exception):

@@ -2,7 +2,8 @@
 
 Prints (ratios, measured in the same run, best of interleaved rounds):
 - remote get round trip of a float32 attribute vs. a raw Zenoh get/queryable round trip (lower is better);
-- published updates received per second vs. raw Zenoh put/subscribe (higher is better).
+- published updates received per second vs. raw Zenoh put/subscribe (higher is better); both sides carry a
+  changing float32: the raw publisher packs it and the raw subscriber unpacks it, as any raw Zenoh user must.
 
 Run: .venv/bin/python bench/remote.py      (it starts its own server process)
 """
@@ -12,6 +13,7 @@ from __future__ import annotations
 import argparse
 import os
 import socket
+import struct
 import subprocess
 import sys
 import threading
@@ -25,10 +27,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from asm_py import Attribute, Node, Service
 from asm_py.transport.zenoh import ZenohTransport
 
-ROUNDS = 5
-GETS = 1000
-BURST = 5000
+ROUNDS = 10
+GETS = 500
+BURST = 20000
 PAYLOAD = b"\x00\x00\xc0\x3f"
+FLOAT32 = struct.Struct("<f")
 
 
 class Burst(Service):
@@ -40,9 +43,10 @@ class Burst(Service):
         self.attribute = attribute
 
     def run(self, count: int, mode: str) -> None:
-        if mode == "raw":
-            for _ in range(count):
-                self.raw.put(PAYLOAD)
+        if mode == "raw":  # what a raw Zenoh user publishing a float does: pack the value, put it
+            pack = FLOAT32.pack
+            for i in range(count):
+                self.raw.put(pack(float(i)))
         else:
             for i in range(count):
                 self.attribute.set(float(i))
@@ -133,7 +137,12 @@ def main() -> None:
                 pass
 
         def raw_subscribe(callback):
-            subscriber = session.declare_subscriber("bench/raw/pub", callback)
+            unpack = FLOAT32.unpack
+
+            def on_sample(sample: zenoh.Sample) -> None:
+                callback(unpack(sample.payload.to_bytes())[0])
+
+            subscriber = session.declare_subscriber("bench/raw/pub", on_sample)
             return subscriber.undeclare
 
         def asm_subscribe(callback):
@@ -152,7 +161,7 @@ def main() -> None:
         for _ in range(ROUNDS):
             raw_rtt = min(raw_rtt, timed_gets(raw_get))
             asm_rtt = min(asm_rtt, timed_gets(angle.get))
-        for _ in range(3):
+        for _ in range(ROUNDS):
             raw_rate, raw_count = max((raw_rate, raw_count), receive_rate(start("raw"), raw_subscribe))
             asm_rate, asm_count = max((asm_rate, asm_count), receive_rate(start("asm"), asm_subscribe))
         node.close()

@@ -29,3 +29,17 @@ def wait_until(predicate, timeout: float = 5.0, interval: float = 0.002) -> bool
             return False
         time.sleep(interval)
     return True
+
+
+def mutations(valid: list[bytes], max_index: int = 63, max_flips: int = 4):
+    """A hypothesis strategy: one of the ``valid`` messages with a few bytes replaced and its tail cut."""
+    from hypothesis import strategies as st
+
+    def mutate(base: bytes, flips: list[tuple[int, int]], cut: int) -> bytes:
+        raw = bytearray(base)
+        for index, value in flips:
+            raw[index % len(raw)] = value
+        return bytes(raw[: max(0, len(raw) - cut)])
+
+    flips = st.lists(st.tuples(st.integers(0, max_index), st.integers(0, 255)), max_size=max_flips)
+    return st.builds(mutate, st.sampled_from(valid), flips, st.integers(0, 3))

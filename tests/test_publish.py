@@ -169,8 +169,8 @@ def test_json_view_of_publications() -> None:
     seen: list[str] = []
 
     class Recording(MemoryTransport):
-        def publish(self, object_name: str, data: bytes, json_text: str | None = None) -> None:
-            seen.append(json_text or "")
+        def publish(self, object_name: str, data: bytes, json_text=None) -> None:
+            seen.append(json_text() if json_text is not None else "")
             super().publish(object_name, data, json_text)
 
     node = Node("module", Recording(MemoryNetwork()))

@@ -87,7 +87,9 @@ def test_publish_subscribe(network: Callable) -> None:
     assert connected(a, b)
     received: list[bytes] = []
     remove = b.subscribe("a", "joint.angle", received.append)
-    assert wait_until(lambda: (a.publish("joint.angle", b"\xf0\x00\x11\x01", '{"value": 1}'), received)[1], timeout=10)
+    assert wait_until(
+        lambda: (a.publish("joint.angle", b"\xf0\x00\x11\x01", lambda: '{"value": 1}'), received)[1], timeout=10
+    )
     a.publish("other", b"\xf0\x00\x11\x02")
     remove()
     a.publish("joint.angle", b"\xf0\x01\x11\x01")

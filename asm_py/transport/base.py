@@ -137,8 +137,12 @@ class Transport(ABC):
         """Send one message to every member of ``group`` (``"all"``: every node)."""
 
     @abstractmethod
-    def publish(self, object_name: str, data: bytes, json_text: str | None = None) -> None:
-        """Publish a PUBLICATION message of this node's object ``object_name`` (and its JSON view, if given)."""
+    def publish(self, object_name: str, data: bytes, json_text: Callable[[], str] | None = None) -> None:
+        """Publish a PUBLICATION message of this node's object ``object_name``.
+
+        ``json_text`` makes the JSON view of the publication; a transport with a JSON view calls it only when
+        someone watches that view, so an unwatched view costs nothing.
+        """
 
     @abstractmethod
     def subscribe(self, node: str, object_name: str, callback: PublicationHandler) -> Callable[[], None]:

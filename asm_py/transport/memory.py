@@ -80,7 +80,7 @@ class MemoryTransport(Transport):
             if target is not self:
                 target._post(lambda t=target: t._deliver(source, data))
 
-    def publish(self, object_name: str, data: bytes, json_text: str | None = None) -> None:
+    def publish(self, object_name: str, data: bytes, json_text: Callable[[], str] | None = None) -> None:
         with self.network.lock:
             subscribers = list(self.network.subscriptions.get((self.name, object_name), ()))
         for transport, callback in subscribers:

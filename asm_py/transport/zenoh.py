@@ -78,6 +78,9 @@ class ZenohTransport(Transport):
         self._session: zenoh.Session | None = None
         self._keep: list[Any] = []  # declared entities, kept alive until close
         self._publishers: dict[str, zenoh.Publisher] = {}
+        self._queriers: dict[tuple[str, float], zenoh.Querier] = {}
+        self._pub_keys: dict[str, tuple[str, str]] = {}  # object -> its publication and JSON view keys
+        self._watched: dict[str, bool] = {}  # JSON key -> a subscriber matches it (kept by matching listeners)
         self._pub_lock = threading.Lock()
 
     @property
@@ -135,7 +138,7 @@ class ZenohTransport(Transport):
 
     # -- sending --------------------------------------------------------------------------------------------------
 
-    def _publisher(self, key: str, *, reliable: bool) -> zenoh.Publisher:
+    def _publisher(self, key: str, *, reliable: bool, express: bool = True) -> zenoh.Publisher:
         publisher = self._publishers.get(key)  # the hot path: no lock once declared
         if publisher is not None:
             return publisher
@@ -146,7 +149,7 @@ class ZenohTransport(Transport):
                     for old in list(self._publishers)[:256]:
                         self._publishers.pop(old).undeclare()
                 congestion = zenoh.CongestionControl.BLOCK if reliable else zenoh.CongestionControl.DROP
-                publisher = self.session.declare_publisher(key, congestion_control=congestion, express=True)
+                publisher = self.session.declare_publisher(key, congestion_control=congestion, express=express)
                 self._publishers[key] = publisher
             return publisher
 
@@ -169,10 +172,23 @@ class ZenohTransport(Transport):
                          congestion_control=zenoh.CongestionControl.BLOCK)  # fmt: skip
 
     def request(self, dest: str, data: bytes, wait: float) -> bytes | None:
-        """A query answered in the caller's thread: the fast path for requests that cannot block."""
-        replies = self.session.get(f"asm/{dest}/req/{self.name}", payload=data, timeout=wait,
-                                   congestion_control=zenoh.CongestionControl.BLOCK)  # fmt: skip
-        for reply in replies:
+        """A query answered in the caller's thread: the fast path for requests that cannot block.
+
+        Goes through a Querier declared once per destination and deadline (Zenoh resolves its key once).
+        """
+        querier = self._queriers.get((dest, wait))
+        if querier is None:
+            with self._pub_lock:
+                querier = self._queriers.get((dest, wait))
+                if querier is None:
+                    if len(self._queriers) > 256:  # bounded: forget the oldest
+                        for old in list(self._queriers)[:64]:
+                            self._queriers.pop(old).undeclare()
+                    querier = self.session.declare_querier(
+                        f"asm/{dest}/req/{self.name}", timeout=wait, congestion_control=zenoh.CongestionControl.BLOCK
+                    )
+                    self._queriers[(dest, wait)] = querier
+        for reply in querier.get(payload=data):
             if reply.ok is not None:
                 return reply.ok.payload.to_bytes()
         return None
@@ -180,10 +196,33 @@ class ZenohTransport(Transport):
     def send_group(self, group: str, data: bytes) -> None:
         self._publisher(f"asm/@group/{group}/msg/{self.name}", reliable=True).put(data)
 
-    def publish(self, object_name: str, data: bytes, json_text: str | None = None) -> None:
-        self._publisher(f"asm/{self.name}/pub/{object_name}", reliable=False).put(data)
+    def publish(self, object_name: str, data: bytes, json_text: Callable[[], str] | None = None) -> None:
+        keys = self._pub_keys.get(object_name)
+        if keys is None:
+            keys = self._pub_keys[object_name] = (f"asm/{self.name}/pub/{object_name}",
+                                                  f"asm/{self.name}/json/{object_name}")  # fmt: skip
+        binary, view = keys
+        publisher = self._publishers.get(binary) or self._publisher(binary, reliable=False, express=False)
+        publisher.put(data)
         if json_text is not None:
-            self._publisher(f"asm/{self.name}/json/{object_name}", reliable=False).put(json_text)
+            watched = self._watched.get(view)
+            if watched is None:
+                watched = self._watch(view)
+            if watched:
+                self._publisher(view, reliable=False, express=False).put(json_text())
+
+    def _watch(self, key: str) -> bool:
+        """Follow whether anyone subscribes to the JSON view ``key``: nobody watching costs no formatting."""
+        publisher = self._publisher(key, reliable=False, express=False)
+
+        def on_matching(status: zenoh.MatchingStatus) -> None:
+            self._watched[key] = status.matching
+
+        with self._pub_lock:
+            if key not in self._watched:
+                self._watched[key] = publisher.matching_status.matching
+                self._keep.append(publisher.declare_matching_listener(on_matching))
+            return self._watched[key]
 
     def subscribe(self, node: str, object_name: str, callback: PublicationHandler) -> Callable[[], None]:
         def on_sample(sample: zenoh.Sample) -> None:
@@ -218,4 +257,5 @@ class ZenohTransport(Transport):
                 log.debug("undeclare failed during close", exc_info=True)
         self._keep.clear()
         self._publishers.clear()
+        self._queriers.clear()
         session.close()
