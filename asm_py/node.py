@@ -215,6 +215,14 @@ class Node:
         """Call ``callback(node_name, alive)`` when a node joins or leaves; returns a remover."""
         return self.transport.on_peer(callback)
 
+    def estop(self, reason: str = "") -> None:
+        """Emergency stop: every node on the transport (this one included) runs its e-stop handlers at once."""
+        self.transport.estop(reason)
+
+    def on_estop(self, callback: Callable[[str, str], None]) -> Callable[[], None]:
+        """Call ``callback(source, reason)`` on every emergency stop; returns a remover."""
+        return self.transport.on_estop(callback)
+
     def close(self) -> None:
         """Stop publishing, stop the server daemons, fail pending calls, leave the transport."""
         with self._lock:

@@ -355,7 +355,7 @@ class RemoteAttribute(RemoteObject):
                     return  # a malformed value is dropped, like any malformed message
                 deliver(value)
 
-        return self._port.node.transport.subscribe(self.node, self.name, on_publication)
+        return self._port.node.transport.subscribe(self.node, self.name, on_publication, object_id=self.info.object_id)
 
 
 class RemoteEvent(RemoteAttribute):

@@ -12,7 +12,7 @@ import threading
 
 from _common import open_node, parser
 
-from asm_py import Attribute, Event, Service, TimerTrigger
+from asm_py import Attribute, Event, Node, Service, TimerTrigger
 
 
 class Servo(Service):
@@ -28,11 +28,8 @@ class Servo(Service):
             self.angle.set(current + 0.3 * (self.goal.peek() - current))
 
 
-def main() -> int:
-    cli = parser(__doc__.splitlines()[0])
-    cli.add_argument("--name", default="m1")
-    args = cli.parse_args()
-    node = open_node(args.name, args)
+def populate(node: Node) -> list[Service]:
+    """Register the module's objects on ``node``; start and return its running services."""
     goal = Attribute("joint.goal", 0.0, codec="float32")
     angle = Attribute("joint.angle", 0.0, codec="float32")
     angle.publish(rate=50, deadband=0.001)
@@ -48,16 +45,31 @@ def main() -> int:
         node.register(obj)
     servo.start()
     timer.start()
+    return [timer, servo]
+
+
+def serve(name: str, node: Node, services: list[Service], *closing: object) -> None:
+    """Print the ready line, run until SIGTERM or Ctrl-C, then stop everything in order."""
     done = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: done.set())
-    print(f"READY {args.name}", flush=True)
+    print(f"READY {name}", flush=True)
     try:
         done.wait()
     except KeyboardInterrupt:
         pass
-    for service in (timer, servo):
+    for service in services:
         service.stop(timeout=5)
     node.close()
+    for other in closing:
+        other.close()  # type: ignore[attr-defined]
+
+
+def main() -> int:
+    cli = parser(__doc__.splitlines()[0])
+    cli.add_argument("--name", default="m1")
+    args = cli.parse_args()
+    node = open_node(args.name, args)
+    serve(args.name, node, populate(node))
     return 0
 
 

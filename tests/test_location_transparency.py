@@ -60,7 +60,7 @@ def remote_world(kind: str) -> Iterator[Callable]:
                     entry.obj.stop(timeout=5)
 
 
-@pytest.fixture(params=["local", "memory", "zenoh"])
+@pytest.fixture(params=["local", *sorted(FACTORIES)])
 def expose(request) -> Iterator[Callable]:
     world = local_world() if request.param == "local" else remote_world(request.param)
     with world as expose:

@@ -1,4 +1,4 @@
-"""The conformance suite every transport passes (memory, Zenoh; CAN joins it with its own factory)."""
+"""The conformance suite every transport passes: memory, Zenoh and CAN (python-can's virtual bus)."""
 
 from __future__ import annotations
 
@@ -86,7 +86,7 @@ def test_publish_subscribe(network: Callable) -> None:
     b, _ = network("b")
     assert connected(a, b)
     received: list[bytes] = []
-    remove = b.subscribe("a", "joint.angle", received.append)
+    remove = b.subscribe("a", "joint.angle", received.append, object_id=1)
     assert wait_until(
         lambda: (a.publish("joint.angle", b"\xf0\x00\x11\x01", lambda: '{"value": 1}'), received)[1], timeout=10
     )
@@ -94,6 +94,16 @@ def test_publish_subscribe(network: Callable) -> None:
     remove()
     a.publish("joint.angle", b"\xf0\x01\x11\x01")
     assert not wait_until(lambda: set(received) != {b"\xf0\x00\x11\x01"}, timeout=0.5), received
+
+
+def test_emergency_stop_reaches_every_node_and_the_sender(network: Callable) -> None:
+    transports = [network(name)[0] for name in ("a", "b", "c")]
+    assert connected(*transports)
+    stops: dict[str, list[tuple[str, str]]] = {t.name: [] for t in transports}
+    for t in transports:
+        t.on_estop(lambda source, reason, name=t.name: stops[name].append((source, reason)))
+    transports[1].estop("operator")
+    assert wait_until(lambda: all(s == [("b", "operator")] for s in stops.values()), timeout=10), stops
 
 
 def test_peers_and_discovery_events(network: Callable) -> None:

@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import itertools
 import socket
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 
 from asm_py.transport import MemoryNetwork, MemoryTransport, Transport
+from asm_py.transport.can import CanTransport
 from asm_py.transport.zenoh import ZenohTransport
 
 
@@ -37,4 +39,15 @@ def zenoh_transports() -> Iterator[Callable[[], Transport]]:
     yield make
 
 
-FACTORIES = {"memory": memory_transports, "zenoh": zenoh_transports}
+@contextmanager
+def can_transports(**options) -> Iterator[Callable[[], Transport]]:
+    """Transports with node IDs 1, 2, … on a fresh python-can virtual channel (fast heartbeats for the tests)."""
+    channel = f"asm-test-{next(_channels)}"
+    ids = itertools.count(1)
+    settings = {"heartbeat_period": 0.05, "missed_heartbeats": 4, **options}
+    yield lambda: CanTransport(next(ids), interface="virtual", channel=channel, **settings)
+
+
+_channels = itertools.count()
+
+FACTORIES = {"memory": memory_transports, "zenoh": zenoh_transports, "can": can_transports}

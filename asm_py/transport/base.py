@@ -27,6 +27,8 @@ with None, a reply is sent with ``send(source, …)``."""
 PeerHandler = Callable[[str, bool], None]
 """Called with (node name, alive) when a node appears or disappears."""
 PublicationHandler = Callable[[bytes], None]
+EstopHandler = Callable[[str, str], None]
+"""Called with (source node name, reason) when an emergency stop arrives."""
 
 BROADCAST = "all"
 _NAME = re.compile(r"^[A-Za-z0-9_.\-]{1,64}$")
@@ -49,10 +51,12 @@ class Transport(ABC):
         self._name: str | None = None
         self._on_message: MessageHandler | None = None
         self._peer_handlers: tuple[PeerHandler, ...] = ()
+        self._estop_handlers: tuple[EstopHandler, ...] = ()
         self._groups: set[str] = set()
         self._lock = threading.Lock()
         self.received = 0
         self.handler_errors = 0
+        self.estops = 0
 
     @property
     def name(self) -> str:
@@ -84,14 +88,31 @@ class Transport(ABC):
 
     def on_peer(self, callback: PeerHandler) -> Callable[[], None]:
         """Call ``callback(name, alive)`` when a node joins or leaves; returns a function that removes it."""
+        return self._add_handler("_peer_handlers", callback)
+
+    def on_estop(self, callback: EstopHandler) -> Callable[[], None]:
+        """Call ``callback(source, reason)`` on every emergency stop, this node's own included; returns a remover.
+
+        Handlers run on the transport's receive thread, the moment the stop arrives: keep them short (stop
+        actuators, set a flag), never blocking.
+        """
+        return self._add_handler("_estop_handlers", callback)
+
+    def _add_handler(self, field: str, callback: Callable[..., None]) -> Callable[[], None]:
+        """Append to the copy-on-write tuple ``field`` (read without the lock by receive threads); return a remover."""
         with self._lock:
-            self._peer_handlers = (*self._peer_handlers, callback)
+            setattr(self, field, (*getattr(self, field), callback))
 
         def remove() -> None:
             with self._lock:
-                self._peer_handlers = tuple(h for h in self._peer_handlers if h is not callback)
+                setattr(self, field, tuple(h for h in getattr(self, field) if h is not callback))
 
         return remove
+
+    def estop(self, reason: str = "") -> None:
+        """Send an emergency stop to every node at the medium's highest priority, and act on it here too."""
+        self._send_estop(reason[:200])
+        self._estop_received(self.name, reason[:200])
 
     def close(self) -> None:
         """Leave the network; idempotent."""
@@ -112,6 +133,14 @@ class Transport(ABC):
         except Exception:
             self.handler_errors += 1
             log.exception("node %r failed to handle a message from %r", self._name, source)
+
+    def _estop_received(self, source: str, reason: str) -> None:
+        self.estops += 1
+        for handler in self._estop_handlers:
+            try:
+                handler(source, reason)
+            except Exception:
+                log.exception("e-stop handler failed")
 
     def _peer_changed(self, name: str, alive: bool) -> None:
         for handler in self._peer_handlers:
@@ -145,8 +174,17 @@ class Transport(ABC):
         """
 
     @abstractmethod
-    def subscribe(self, node: str, object_name: str, callback: PublicationHandler) -> Callable[[], None]:
-        """Receive the publications of ``node``'s ``object_name``, across restarts of that node; returns a remover."""
+    def subscribe(
+        self, node: str, object_name: str, callback: PublicationHandler, *, object_id: int | None = None
+    ) -> Callable[[], None]:
+        """Receive the publications of ``node``'s ``object_name``, across restarts of that node; returns a remover.
+
+        ``object_id`` (from the lookup) is for media that address objects by ID only, such as CAN.
+        """
+
+    @abstractmethod
+    def _send_estop(self, reason: str) -> None:
+        """Broadcast an emergency stop (every other node calls its e-stop handlers)."""
 
     @abstractmethod
     def peers(self) -> list[str]:

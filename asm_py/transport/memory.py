@@ -74,6 +74,13 @@ class MemoryTransport(Transport):
         if target is not None:
             target._post(lambda: target._deliver(source, data))
 
+    def _send_estop(self, reason: str) -> None:
+        source = self.name
+        with self.network.lock:
+            others = [t for t in self.network.nodes.values() if t is not self]
+        for target in others:
+            target._post(lambda t=target: t._estop_received(source, reason))
+
     def send_group(self, group: str, data: bytes) -> None:
         source = self.name
         for target in self.network.members(group):
@@ -86,7 +93,9 @@ class MemoryTransport(Transport):
         for transport, callback in subscribers:
             transport._post(lambda c=callback: c(data))
 
-    def subscribe(self, node: str, object_name: str, callback: PublicationHandler) -> Callable[[], None]:
+    def subscribe(
+        self, node: str, object_name: str, callback: PublicationHandler, *, object_id: int | None = None
+    ) -> Callable[[], None]:
         entry = (self, callback)
         with self.network.lock:
             self.network.subscriptions[(node, object_name)].append(entry)

@@ -9,6 +9,7 @@ without re-encoding. Key space (docs/protocol.md, "Zenoh key space"):
     asm/<node>/pub/<object>        publications of <node>'s attribute <object> (binary ASM message)
     asm/<node>/json/<object>       the same publication as JSON text, for any Zenoh tool or language
     asm/@alive/<node>              liveliness token: the node is up (discovery)
+    asm/@estop/<source>            emergency stop from <source>, at Zenoh's real-time priority (data: reason)
 
 Defaults are safe: peer mode, multicast scouting off, and a peer listens on a free loopback port
 (``tcp/127.0.0.1:0``) unless endpoints are given — never on every interface; ``connect`` lists the peers or
@@ -96,6 +97,7 @@ class ZenohTransport(Transport):
             session.declare_subscriber(f"asm/{name}/msg/*", self._on_sample),
             session.liveliness().declare_token(f"asm/@alive/{name}"),
             session.liveliness().declare_subscriber("asm/@alive/*", self._on_alive, history=True),
+            session.declare_subscriber("asm/@estop/*", self._on_estop),
         ]
 
     def _join(self, group: str) -> None:
@@ -130,6 +132,11 @@ class ZenohTransport(Transport):
     @staticmethod
     def _expects_reply(data: bytes) -> bool:
         return len(data) >= 1 and (data[0] >> 4) & 0x03 == Kind.REQUEST_REPLY
+
+    def _on_estop(self, sample: zenoh.Sample) -> None:
+        source = str(sample.key_expr).rsplit("/", 1)[-1]
+        if source != self._name:
+            self._estop_received(source, sample.payload.to_bytes().decode("utf-8", errors="replace"))
 
     def _on_alive(self, sample: zenoh.Sample) -> None:
         name = str(sample.key_expr).rsplit("/", 1)[-1]
@@ -193,6 +200,10 @@ class ZenohTransport(Transport):
                 return reply.ok.payload.to_bytes()
         return None
 
+    def _send_estop(self, reason: str) -> None:
+        self.session.put(f"asm/@estop/{self.name}", reason.encode("utf-8"), priority=zenoh.Priority.REAL_TIME,
+                         congestion_control=zenoh.CongestionControl.BLOCK, express=True)  # fmt: skip
+
     def send_group(self, group: str, data: bytes) -> None:
         self._publisher(f"asm/@group/{group}/msg/{self.name}", reliable=True).put(data)
 
@@ -224,7 +235,9 @@ class ZenohTransport(Transport):
                 self._keep.append(publisher.declare_matching_listener(on_matching))
             return self._watched[key]
 
-    def subscribe(self, node: str, object_name: str, callback: PublicationHandler) -> Callable[[], None]:
+    def subscribe(
+        self, node: str, object_name: str, callback: PublicationHandler, *, object_id: int | None = None
+    ) -> Callable[[], None]:
         def on_sample(sample: zenoh.Sample) -> None:
             try:
                 callback(sample.payload.to_bytes())

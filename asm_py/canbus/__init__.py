@@ -1,0 +1,1 @@
+"""ASM over CAN: the identifier layout, fragmentation, fault injection, DBC generation and bus load."""

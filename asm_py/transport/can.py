@@ -1,0 +1,366 @@
+"""ASM over CAN with python-can: 29-bit identifiers in the spirit of MDCN (asm_py/canbus/ids.py, docs/protocol.md).
+
+Any python-can interface works (socketcan, pcan, kvaser, slcan, virtual, …), configured as python-can users expect:
+``CanTransport(3, interface="socketcan", channel="can0", bitrate=1_000_000)``, or ``CanTransport(3)`` alone to use
+python-can's configuration file / environment, or an already open ``bus=``. ``fd=True`` uses CAN FD frames of up to
+64 bytes. Node IDs are 1..254; nodes learn each other's names from heartbeats, and a node not yet heard is
+addressed as ``can.<id>`` (e.g. replies to a client that has not sent its first heartbeat).
+
+One thread reads the bus (``asm-can:<name>``): acceptance filters pass frames to this node, its groups, broadcasts
+and system frames; fragments are reassembled with bounded memory; requests go to the node, publications to
+subscribers (matched by source node and object ID), e-stops to the e-stop handlers at once. A second thread
+(``asm-can-timer:<name>``) sends heartbeats, reports nodes lost after ``missed_heartbeats`` silent periods (and
+found again when they return), and expires stale partial messages. Sends are serialised per transport, so the
+fragments of one message are contiguous on the bus.
+
+``record="session.blf"`` (or .asc, .log for candump, .csv, …) writes every frame sent and received with python-can's
+``Logger``; replay it with ``python -m can.player``.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+import zlib
+from collections.abc import Callable, Mapping
+from pathlib import Path
+from typing import Any
+
+import can
+
+from ..canbus.fragments import Reassembler, fragment
+from ..canbus.ids import CanId, Dest, Priority, SystemCode, check_node_id, dest_filter
+from ..protocol import Kind
+from .base import BROADCAST, PublicationHandler, Transport
+
+log = logging.getLogger("asm_py.transport.can")
+
+ALIAS_PREFIX = "can."
+
+
+def group_id(group: str, table: Mapping[str, int] | None = None) -> int:
+    """The 8-bit CAN group ID of a group name: from ``table`` if it names it, else a CRC-32 of the name mod 256.
+
+    Two names may hash alike; a bus with many groups should give every node the same explicit table.
+    """
+    if table and group in table:
+        return table[group]
+    return zlib.crc32(group.encode("utf-8")) & 0xFF
+
+
+class CanTransport(Transport):
+    """A node's attachment to a CAN bus; see the module docstring."""
+
+    def __init__(
+        self,
+        node_id: int,
+        *,
+        bus: can.BusABC | None = None,
+        interface: str | None = None,
+        channel: Any = None,
+        bitrate: int | None = None,
+        fd: bool = False,
+        heartbeat_period: float = 0.5,
+        missed_heartbeats: int = 3,
+        groups: Mapping[str, int] | None = None,
+        max_message: int = 4096,
+        max_partials: int = 64,
+        reassembly_timeout: float = 1.0,
+        record: str | Path | None = None,
+        send_timeout: float = 0.1,
+        **bus_options: Any,
+    ) -> None:
+        super().__init__()
+        self.node_id = check_node_id(node_id)
+        self.fd = fd
+        self.frame_size = 64 if fd else 8
+        self.heartbeat_period = heartbeat_period
+        self.missed_heartbeats = missed_heartbeats
+        self.group_table = dict(groups or {})
+        self.send_timeout = send_timeout
+        self.reassembler = Reassembler(max_message, max_partials, reassembly_timeout)
+        self._bus = bus
+        self._own_bus = bus is None
+        self._bus_config = {"interface": interface, "channel": channel, "bitrate": bitrate, "fd": fd, **bus_options}
+        self._record = record
+        self._logger: can.Listener | None = None
+        self._send_lock = threading.Lock()
+        self._rx_lock = threading.Lock()
+        self._log_lock = threading.Lock()
+        self._names: dict[int, str] = {}
+        self._ids: dict[str, int] = {}
+        self._last_heard: dict[int, float] = {}
+        self._alive: set[int] = set()
+        self._subscriptions: dict[tuple[str, int], tuple[PublicationHandler, ...]] = {}
+        self._accept_ids: set[int] = {self.node_id}
+        self._group_ids: set[int] = set()
+        self._stop = threading.Event()
+        self._threads: list[threading.Thread] = []
+        self.frames_sent = 0
+        self.frames_received = 0
+        self.send_errors = 0
+
+    @property
+    def bus(self) -> can.BusABC:
+        if self._bus is None:
+            raise RuntimeError("CAN transport is not open")
+        return self._bus
+
+    # -- opening and closing --------------------------------------------------------------------------------------
+
+    def _open(self, name: str) -> None:
+        if self._bus is None:
+            config = {k: v for k, v in self._bus_config.items() if v is not None and v is not False}
+            self._bus = can.Bus(**config)
+        if self._record is not None:
+            self._logger = can.Logger(str(self._record))
+        self._apply_filters()
+        self._names[self.node_id] = name
+        self._ids[name] = self.node_id
+        for target, label in ((self._read_loop, "asm-can"), (self._timer_loop, "asm-can-timer")):
+            thread = threading.Thread(target=target, name=f"{label}:{name}", daemon=True)
+            thread.start()
+            self._threads.append(thread)
+        self._send_heartbeat()
+
+    def _join(self, group: str) -> None:
+        if group != BROADCAST:
+            self._group_ids.add(group_id(group, self.group_table))
+            self._apply_filters()
+
+    def accept_node_id(self, node_id: int) -> None:
+        """Also receive frames addressed to ``node_id`` (a gateway answering for other node IDs)."""
+        self._accept_ids.add(check_node_id(node_id))
+        self._apply_filters()
+
+    def _apply_filters(self) -> None:
+        if self._bus is None:
+            return
+        filters = [dest_filter(Dest.NODE, i) for i in sorted(self._accept_ids)]
+        filters += [dest_filter(Dest.GROUP, g) for g in sorted(self._group_ids)]
+        filters += [dest_filter(Dest.BROADCAST, 0), {"can_id": Dest.SYSTEM << 24, "can_mask": 0x3 << 24,
+                                                     "extended": True}]  # fmt: skip
+        self._bus.set_filters(filters)
+
+    def _close(self) -> None:
+        if self._bus is None:
+            return
+        try:
+            self._send_system(SystemCode.LEAVE, b"", Priority.HEARTBEAT)
+        except Exception:
+            log.debug("leave notice not sent", exc_info=True)
+        self._stop.set()
+        for thread in self._threads:
+            if thread is not threading.current_thread():
+                thread.join(5)
+        self._threads.clear()
+        if self._own_bus:
+            self._bus.shutdown()
+        self._bus = None
+        with self._log_lock:
+            if self._logger is not None:
+                self._logger.stop()
+                self._logger = None
+
+    # -- names ----------------------------------------------------------------------------------------------------
+
+    def resolve(self, name: str) -> int | None:
+        """The node ID of a node name (learned from heartbeats, or a ``can.<id>`` alias); None if unknown."""
+        node_id = self._ids.get(name)
+        if node_id is None and name.startswith(ALIAS_PREFIX) and name[len(ALIAS_PREFIX) :].isdigit():
+            node_id = int(name[len(ALIAS_PREFIX) :])
+        return node_id
+
+    def name_of(self, node_id: int) -> str:
+        return self._names.get(node_id) or f"{ALIAS_PREFIX}{node_id}"
+
+    def peers(self) -> list[str]:
+        return sorted({self.name, *(self.name_of(i) for i in self._alive)})
+
+    # -- sending --------------------------------------------------------------------------------------------------
+
+    def send(self, dest: str, data: bytes) -> None:
+        node_id = self.resolve(dest)
+        if node_id is None:
+            self.send_errors += 1
+            log.debug("no CAN node named %r is known yet; message dropped", dest)
+            return
+        kind = (data[0] >> 4) & 0x3 if data else Kind.REQUEST
+        priority = Priority.REPLY if kind == Kind.REPLY else Priority.REQUEST
+        self.send_message(Dest.NODE, node_id, data, priority)
+
+    def send_group(self, group: str, data: bytes) -> None:
+        if group == BROADCAST:
+            self.send_message(Dest.BROADCAST, 0, data, Priority.REQUEST)
+        else:
+            self.send_message(Dest.GROUP, group_id(group, self.group_table), data, Priority.REQUEST)
+
+    def publish(self, object_name: str, data: bytes, json_text: Callable[[], str] | None = None) -> None:
+        self.send_message(Dest.BROADCAST, 0, data, Priority.PUBLICATION)
+
+    def _send_estop(self, reason: str) -> None:
+        self._send_system(SystemCode.ESTOP, reason.encode("utf-8")[:200], Priority.ESTOP)
+
+    def _send_heartbeat(self) -> None:
+        self._send_system(SystemCode.HEARTBEAT, self.name.encode("utf-8"), Priority.HEARTBEAT)
+
+    def _send_system(self, code: int, data: bytes, priority: int) -> None:
+        self.send_message(Dest.SYSTEM, code, data, priority)
+
+    def send_message(self, dest_kind: int, dest: int, data: bytes, priority: int, *, source: int | None = None) -> int:
+        """Send one message as its frames (fragmented if long: at BULK priority unless more urgent); the frame count.
+
+        ``source`` other than this node's ID is for gateways sending on behalf of a node they represent.
+        """
+        src = self.node_id if source is None else source
+        frames = list(fragment(data, frame_size=self.frame_size))
+        if len(frames) > 1 and priority != Priority.ESTOP:
+            priority = max(priority, Priority.BULK)
+        with self._send_lock:
+            for frame_type, counter, chunk in frames:
+                arbitration_id = CanId(priority, dest_kind, dest, src, frame_type, counter).pack()
+                message = can.Message(arbitration_id=arbitration_id, is_extended_id=True, data=chunk, is_fd=self.fd,
+                                      bitrate_switch=self.fd)  # fmt: skip
+                try:
+                    self.bus.send(message, timeout=self.send_timeout)
+                except (can.CanError, RuntimeError) as exc:
+                    self.send_errors += 1
+                    log.warning("CAN send failed (%s); message of %d bytes dropped", exc, len(data))
+                    return 0
+                self.frames_sent += 1
+                if self._logger is not None:
+                    message.timestamp = time.time()
+                    message.is_rx = False
+                    self._log(message)
+        return len(frames)
+
+    # -- receiving ------------------------------------------------------------------------------------------------
+
+    def subscribe(
+        self, node: str, object_name: str, callback: PublicationHandler, *, object_id: int | None = None
+    ) -> Callable[[], None]:
+        if object_id is None:
+            raise ValueError("a CAN subscription needs the object ID (publications carry IDs, not names)")
+        key = (node, object_id)
+        with self._lock:
+            self._subscriptions[key] = (*self._subscriptions.get(key, ()), callback)
+
+        def remove() -> None:
+            with self._lock:
+                left = tuple(c for c in self._subscriptions.get(key, ()) if c is not callback)
+                if left:
+                    self._subscriptions[key] = left
+                else:
+                    self._subscriptions.pop(key, None)
+
+        return remove
+
+    def _read_loop(self) -> None:
+        while not self._stop.is_set():
+            try:
+                frame = self.bus.recv(timeout=0.05)
+            except (can.CanError, RuntimeError, ValueError) as exc:
+                if self._stop.is_set():
+                    return
+                log.warning("CAN receive failed: %s", exc)
+                time.sleep(0.05)
+                continue
+            if frame is None:
+                continue
+            try:
+                self.on_frame(frame)
+            except Exception:
+                log.exception("a CAN frame could not be handled: %s", frame)
+
+    def on_frame(self, frame: can.Message) -> None:
+        """Handle one received frame (the read loop calls this; a replay or a test may too)."""
+        if not frame.is_extended_id or frame.is_error_frame or frame.is_remote_frame:
+            return
+        self.frames_received += 1
+        if self._logger is not None:
+            self._log(frame)
+        cid = CanId.unpack(frame.arbitration_id)
+        if cid.source == self.node_id or not 1 <= cid.source <= 254:
+            return  # our own frame (a loopback interface), or a forged source
+        if not self._accepts(cid):
+            return
+        with self._rx_lock:
+            message = self.reassembler.feed((cid.source, cid.dest_kind, cid.dest), cid.frame, cid.counter,
+                                            bytes(frame.data), time.monotonic())  # fmt: skip
+        if message is not None:
+            self.on_message(cid.source, cid.dest_kind, cid.dest, message)
+
+    def _log(self, frame: can.Message) -> None:
+        with self._log_lock:
+            if self._logger is not None:
+                self._logger.on_message_received(frame)
+
+    def _accepts(self, cid: CanId) -> bool:
+        """Software acceptance (interfaces without hardware filters, and replays)."""
+        if cid.dest_kind == Dest.NODE:
+            return cid.dest in self._accept_ids
+        if cid.dest_kind == Dest.GROUP:
+            return cid.dest in self._group_ids
+        return True
+
+    def on_message(self, source_id: int, dest_kind: int, dest: int, data: bytes) -> None:
+        """A complete message arrived: dispatch it (a gateway overrides this to forward)."""
+        if dest_kind == Dest.SYSTEM:
+            self._on_system(source_id, dest, data)
+            return
+        self._heard(source_id)
+        source = self.name_of(source_id)
+        if len(data) >= 4 and (data[0] >> 4) & 0x3 == Kind.PUBLICATION:
+            for callback in self._subscriptions.get((source, data[3]), ()):
+                try:
+                    callback(data)
+                except Exception:
+                    log.exception("subscriber of %s/%d failed", source, data[3])
+            return
+        self._deliver(source, data)
+
+    def _on_system(self, source_id: int, code: int, data: bytes) -> None:
+        if code == SystemCode.ESTOP:
+            self._estop_received(self.name_of(source_id), data.decode("utf-8", errors="replace"))
+        elif code == SystemCode.HEARTBEAT:
+            name = data.decode("utf-8", errors="replace")
+            with self._lock:
+                old = self._names.get(source_id)
+                if old != name:
+                    if old is not None:
+                        self._ids.pop(old, None)
+                    self._names[source_id] = name
+                    self._ids[name] = source_id
+            self._heard(source_id)
+        elif code == SystemCode.LEAVE:
+            self._lost(source_id)
+
+    def _heard(self, source_id: int) -> None:
+        self._last_heard[source_id] = time.monotonic()
+        if source_id not in self._alive and source_id in self._names:
+            self._alive.add(source_id)
+            self._peer_changed(self._names[source_id], True)
+
+    def _lost(self, source_id: int) -> None:
+        self._last_heard.pop(source_id, None)
+        if source_id in self._alive:
+            self._alive.discard(source_id)
+            self._peer_changed(self.name_of(source_id), False)
+
+    def _timer_loop(self) -> None:
+        next_beat = time.monotonic() + self.heartbeat_period
+        tick = min(self.heartbeat_period / 2, 0.05)
+        while not self._stop.wait(tick):
+            now = time.monotonic()
+            if now >= next_beat:
+                next_beat += self.heartbeat_period * max(1, int((now - next_beat) / self.heartbeat_period) + 1)
+                try:
+                    self._send_heartbeat()
+                except Exception:
+                    log.exception("heartbeat failed")
+            limit = self.heartbeat_period * self.missed_heartbeats
+            for source_id in [i for i in list(self._alive) if now - self._last_heard.get(i, 0.0) > limit]:
+                self._lost(source_id)
+            with self._rx_lock:
+                self.reassembler.expire(now)
