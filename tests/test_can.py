@@ -4,10 +4,12 @@ bounded reassembly, and hostile frames. (The transport also runs the conformance
 from __future__ import annotations
 
 import itertools
+import json
 import os
 import struct
 import time
 from collections.abc import Iterator
+from pathlib import Path
 
 import can
 import pytest
@@ -16,7 +18,7 @@ from hypothesis import strategies as st
 
 from asm_py import Attribute, Service
 from asm_py.canbus.fragments import FD_SIZES, Reassembler, fragment, frame_count, wire_bytes
-from asm_py.canbus.ids import CanId, Dest, FrameType, Priority, SystemCode
+from asm_py.canbus.ids import CanId, Dest, FrameType, Priority, SystemCode, frame_priority
 from asm_py.node import Node
 from asm_py.transport.can import CanTransport, group_id
 
@@ -334,3 +336,36 @@ def test_node_answers_after_random_frames_and_a_sender_killed_mid_message(target
         assert tool.lookup("m1", "joint.angle", timeout=5).get() == 0.5
     finally:
         raw.shutdown()
+
+
+# -- golden vectors (tests/vectors/can_frames.json), shared with firmware implementations -------------------------
+
+VECTORS = json.loads((Path(__file__).parent / "vectors" / "can_frames.json").read_text())["frames"]
+
+
+@pytest.mark.parametrize("vector", VECTORS, ids=[v["name"][:40] for v in VECTORS])
+def test_golden_can_frames(vector: dict) -> None:
+    message = bytes.fromhex(vector["message_hex"])
+    size = 64 if vector["fd"] else 8
+    parts = list(fragment(message, frame_size=size))
+    priority = frame_priority(vector["priority"], len(parts))
+    made = [{"id": f"{CanId(priority, vector['dest_kind'], vector['dest'], vector['source'], t, c).pack():08x}",
+             "data": d.hex()} for t, c, d in parts]  # fmt: skip
+    assert made == vector["frames"]
+    r = Reassembler()
+    out = []
+    for frame in vector["frames"]:
+        cid = CanId.unpack(int(frame["id"], 16))
+        key = (cid.source, cid.dest_kind, cid.dest)
+        out.append(r.feed(key, cid.frame, cid.counter, bytes.fromhex(frame["data"]), 0))
+    assert out[-1] == message
+
+
+def test_the_transport_puts_the_golden_frames_on_the_bus(bus: Bus) -> None:
+    vector = next(v for v in VECTORS if v["name"].startswith("lookup of"))
+    node = bus.node("tool", vector["source"])
+    bus.drain()
+    node.transport.send_message(vector["dest_kind"], vector["dest"], bytes.fromhex(vector["message_hex"]),  # type: ignore[attr-defined]
+                                vector["priority"])  # fmt: skip
+    seen = [{"id": f"{f.arbitration_id:08x}", "data": bytes(f.data).hex()} for f in bus.drain() if not_heartbeat(f)]
+    assert seen == vector["frames"]

@@ -58,6 +58,14 @@ class Priority(IntEnum):
     HEARTBEAT = 6
 
 
+def frame_priority(priority: int, frames: int) -> int:
+    """The priority a message's frames go out at: a fragmented message at BULK at best (a long transfer never
+    delays a short control message), except an e-stop, which always goes at its own."""
+    if frames > 1 and priority != Priority.ESTOP:
+        return max(priority, Priority.BULK)
+    return priority
+
+
 class CanId(NamedTuple):
     priority: int
     dest_kind: int

@@ -30,7 +30,7 @@ from typing import Any
 import can
 
 from ..canbus.fragments import Reassembler, fragment
-from ..canbus.ids import CanId, Dest, Priority, SystemCode, check_node_id, dest_filter
+from ..canbus.ids import CanId, Dest, FrameType, Priority, SystemCode, check_node_id, dest_filter, frame_priority
 from ..protocol import Kind
 from .base import BROADCAST, PublicationHandler, Transport
 
@@ -215,13 +215,12 @@ class CanTransport(Transport):
         """
         src = self.node_id if source is None else source
         frames = list(fragment(data, frame_size=self.frame_size))
-        if len(frames) > 1 and priority != Priority.ESTOP:
-            priority = max(priority, Priority.BULK)
+        # Packing validates every field once; each frame then only adds its type and counter.
+        base = CanId(frame_priority(priority, len(frames)), dest_kind, dest, src, FrameType.SINGLE).pack()
         with self._send_lock:
             for frame_type, counter, chunk in frames:
-                arbitration_id = CanId(priority, dest_kind, dest, src, frame_type, counter).pack()
-                message = can.Message(arbitration_id=arbitration_id, is_extended_id=True, data=chunk, is_fd=self.fd,
-                                      bitrate_switch=self.fd)  # fmt: skip
+                message = can.Message(arbitration_id=base | frame_type << 6 | counter, is_extended_id=True,
+                                      data=chunk, is_fd=self.fd, bitrate_switch=self.fd)  # fmt: skip
                 try:
                     self.bus.send(message, timeout=self.send_timeout)
                 except (can.CanError, RuntimeError) as exc:
@@ -284,6 +283,9 @@ class CanTransport(Transport):
         if cid.source == self.node_id or not 1 <= cid.source <= 254:
             return  # our own frame (a loopback interface), or a forged source
         if not self._accepts(cid):
+            return
+        if cid.frame == FrameType.SINGLE:  # most traffic: no reassembly, no lock
+            self.on_message(cid.source, cid.dest_kind, cid.dest, bytes(frame.data))
             return
         with self._rx_lock:
             message = self.reassembler.feed((cid.source, cid.dest_kind, cid.dest), cid.frame, cid.counter,

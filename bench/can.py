@@ -1,0 +1,125 @@
+"""CAN benchmark, on python-can's virtual bus, in one process.
+
+Prints:
+- frames per remote get and per remote set of a float32 (counted on the bus; target exactly 1 each way);
+- payload efficiency of a 1 KiB message, classic CAN and CAN FD (targets >= 7/8 and >= 62/64);
+- remote gets per second through two ASM nodes against raw python-can: the same request and reply frames sent and
+  answered by a bare echo thread on the same virtual bus, in the same run (ratio, higher is better);
+- the worst-case bus load of 100 modules publishing a float32 angle at 50 Hz on 1 Mbit/s, with their heartbeats.
+
+Run: .venv/bin/python bench/can.py
+"""
+
+from __future__ import annotations
+
+import sys
+import threading
+import time
+from pathlib import Path
+
+# This file is bench/can.py: keep its directory off the path, or "import can" would import this script.
+sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != Path(__file__).resolve().parent]
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+import can
+
+from asm_py import Attribute, Node
+from asm_py.canbus.busload import bus_load
+from asm_py.canbus.fragments import wire_bytes
+from asm_py.canbus.ids import CanId, Dest, FrameType, Priority, SystemCode
+from asm_py.transport.can import CanTransport
+
+ROUNDS = 5
+GETS = 500
+
+
+def counted(sniffer: can.BusABC) -> int:
+    """Frames seen until 0.2 s of silence other than heartbeats."""
+    count = 0
+    last = time.monotonic()
+    while time.monotonic() - last < 0.2:
+        frame = sniffer.recv(timeout=0.02)
+        if frame is None:
+            continue
+        cid = CanId.unpack(frame.arbitration_id)
+        if not (cid.dest_kind == Dest.SYSTEM and cid.dest == SystemCode.HEARTBEAT):
+            count += 1
+            last = time.monotonic()
+    return count
+
+
+def raw_round_trips(channel: str, request: can.Message, reply: can.Message) -> float:
+    """Round trips per second of bare python-can: send the request frame, an echo thread answers with the reply."""
+    client = can.Bus(interface="virtual", channel=channel)
+    server = can.Bus(interface="virtual", channel=channel)
+    stop = threading.Event()
+
+    def echo() -> None:
+        while not stop.is_set():
+            if server.recv(timeout=0.05) is not None:
+                server.send(reply)
+
+    thread = threading.Thread(target=echo, daemon=True)
+    thread.start()
+    best = 0.0
+    for _ in range(ROUNDS):
+        began = time.perf_counter()
+        for _ in range(GETS):
+            client.send(request)
+            client.recv(timeout=1.0)
+        best = max(best, GETS / (time.perf_counter() - began))
+    stop.set()
+    thread.join(5)
+    client.shutdown()
+    server.shutdown()
+    return best
+
+
+def main() -> None:
+    channel = "bench-can"
+    module = Node("m1", CanTransport(1, interface="virtual", channel=channel))
+    tool = Node("tool", CanTransport(2, interface="virtual", channel=channel))
+    sniffer = can.Bus(interface="virtual", channel=channel)
+    angle = Attribute("joint.angle", 1.5, codec="float32")
+    module.register(angle)
+    remote = tool.lookup("m1", "joint.angle", timeout=5)
+    counted(sniffer)
+    remote.get()
+    get_frames = counted(sniffer)
+    remote.set(0.5, wait=True)
+    set_frames = counted(sniffer)
+    sniffer.shutdown()
+
+    asm_rate = 0.0
+    for _ in range(ROUNDS):
+        began = time.perf_counter()
+        for _ in range(GETS):
+            remote.get()
+        asm_rate = max(asm_rate, GETS / (time.perf_counter() - began))
+    tool.close()
+    module.close()
+    request = can.Message(arbitration_id=CanId(Priority.REQUEST, Dest.NODE, 1, 2, FrameType.SINGLE).pack(),
+                          data=bytes([0x51, 0x01, 0x11, 0x01]))  # fmt: skip
+    reply = can.Message(arbitration_id=CanId(Priority.REPLY, Dest.NODE, 2, 1, FrameType.SINGLE).pack(),
+                        data=bytes([0x61, 0x01, 0x00, 0x01, 0, 0, 0xC0, 0x3F]))  # fmt: skip
+    raw_rate = raw_round_trips("bench-can-raw", request, reply)
+
+    classic = 1024 / wire_bytes(1024, frame_size=8)
+    fd = 1024 / wire_bytes(1024, frame_size=64)
+    modules, rate = 100, 50
+    load = bus_load([(8, modules * rate), (2, modules * 2)], 1_000_000)  # angles, and heartbeats ("m1".."m99")
+
+    print("# bench/can.py: python-can virtual bus, one process")
+    print(f"frames per remote get: {get_frames}, per remote set (reply wanted): {set_frames}")
+    print(f"remote gets: ASM {asm_rate:,.0f}/s, raw python-can send/recv of the same frames {raw_rate:,.0f}/s")
+    print(f"1 KiB message: classic {wire_bytes(1024)} data bytes, FD {wire_bytes(1024, frame_size=64)}")
+    print(f"ratio can_frames_per_get {get_frames / 2:.2f} (target == 1)")
+    print(f"ratio can_frames_per_set {set_frames / 2:.2f} (target == 1)")
+    print(f"ratio can_payload_efficiency_classic {classic:.3f} (target >= 0.875)")
+    print(f"ratio can_payload_efficiency_fd {fd:.3f} (target >= 0.969)")
+    print(f"ratio can_remote_gets_vs_raw_python_can {asm_rate / raw_rate:.2f} (target >= 0.5)")
+    print(f"ratio can_busload_100_modules_50hz_1mbit {load:.3f} (target <= 1.0)")
+
+
+if __name__ == "__main__":
+    main()
