@@ -369,3 +369,19 @@ def test_the_transport_puts_the_golden_frames_on_the_bus(bus: Bus) -> None:
                                 vector["priority"])  # fmt: skip
     seen = [{"id": f"{f.arbitration_id:08x}", "data": bytes(f.data).hex()} for f in bus.drain() if not_heartbeat(f)]
     assert seen == vector["frames"]
+
+
+def test_bus_configured_from_python_can_environment(monkeypatch: pytest.MonkeyPatch) -> None:
+    """With no interface given, python-can's own configuration (file or CAN_* environment) chooses the bus."""
+    channel = f"asm-env-{os.getpid()}"
+    monkeypatch.setenv("CAN_INTERFACE", "virtual")
+    monkeypatch.setenv("CAN_CHANNEL", channel)
+    module = Node("m1", CanTransport(1))
+    tool = Node("tool", CanTransport(2, interface="virtual", channel=channel))
+    try:
+        module.register(Attribute("joint.angle", 0.5, codec="float32"))
+        assert tool.lookup("m1", "joint.angle", timeout=5).get() == 0.5
+        assert module.transport.bus.channel_info.endswith(channel)  # type: ignore[attr-defined]
+    finally:
+        tool.close()
+        module.close()
