@@ -127,6 +127,28 @@ class PhaseState:
             raise ValueError(f"state target must be finite numbers, not {self.target!r}")
 
 
+def state_starts(states: Sequence[PhaseState]) -> list[float]:
+    """Phase time at which each state begins (seconds into the period)."""
+    return [math.fsum(s.duration for s in states[:i]) for i in range(len(states))]
+
+
+def reference_at(
+    states: Sequence[PhaseState], starts: Sequence[float], period: float, tau: float
+) -> float | tuple[float, ...]:
+    """The reference trajectory of periodic states at phase time ``tau``: what a PeriodicAutomaton outputs, and
+    what a gait table is expanded from (one function, so preview and modules agree)."""
+    tau %= period
+    index = bisect.bisect_right(starts, tau) - 1
+    state = states[index]
+    if state.interpolation == "step":
+        return state.target
+    previous = states[index - 1].target
+    frac = (tau - starts[index]) / state.duration
+    if isinstance(state.target, tuple):
+        return tuple(p + frac * (t - p) for p, t in zip(previous, state.target, strict=True))  # type: ignore[arg-type]
+    return previous + frac * (state.target - previous)  # type: ignore[operator]
+
+
 class PeriodicAutomaton(PhaseAutomaton):
     """A time-driven phase automaton over :class:`PhaseState` s; see the module docstring."""
 
@@ -147,7 +169,7 @@ class PeriodicAutomaton(PhaseAutomaton):
             raise ValueError(f"all states of {name!r} need targets of the same shape")
         width = widths.pop()
         self.period = math.fsum(s.duration for s in self.states)
-        self._starts = [math.fsum(s.duration for s in self.states[:i]) for i in range(len(self.states))]
+        self._starts = state_starts(self.states)
         codec = FLOAT64 if width is None else float_array(width, FLOAT64)
         self.output = output if output is not None else Attribute(f"{name}.output", codec=codec, clock=self.clock)
         self.tau = 0.0
@@ -162,16 +184,7 @@ class PeriodicAutomaton(PhaseAutomaton):
 
     def reference(self, tau: float) -> float | tuple[float, ...]:
         """The reference trajectory: the output at phase time ``tau``."""
-        tau %= self.period
-        index = self.state_at(tau)
-        state = self.states[index]
-        if state.interpolation == "step":
-            return state.target
-        previous = self.states[index - 1].target
-        frac = (tau - self._starts[index]) / state.duration
-        if isinstance(state.target, tuple):
-            return tuple(p + frac * (t - p) for p, t in zip(previous, state.target, strict=True))
-        return previous + frac * (state.target - previous)
+        return reference_at(self.states, self._starts, self.period, tau)
 
     def initialize(self, phase: float) -> None:
         self.tau = phase * self.period
