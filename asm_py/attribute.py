@@ -112,12 +112,16 @@ class Attribute:
         with mon.lock:
             if self._sync_set and self._valid and not mon.wait_for(self._consumed, timeout):
                 raise AsmTimeout(f"set on attribute {self._name!r} timed out after {timeout}s (last value unread)")
-            self._value = value
-            self._valid = True
-            self._changes += 1
-            if mon._waiters:
-                mon.notify_all()
+            self._store(value)
         self._notify(value)
+
+    def _store(self, value: Any) -> None:
+        """Make ``value`` the valid value and wake the waiters (monitor lock held); then the caller notifies."""
+        self._value = value
+        self._valid = True
+        self._changes += 1
+        if self._mon._waiters:
+            self._mon.notify_all()
 
     def _notify(self, value: Any) -> None:
         for callback in self._listeners:
@@ -207,13 +211,8 @@ class Attribute:
         """
         if self._codec is not None and decoded_by != self._codec:
             value = self._codec.normalize(value)
-        mon = self._mon
-        with mon.lock:
-            self._value = value
-            self._valid = True
-            self._changes += 1
-            if mon._waiters:
-                mon.notify_all()
+        with self._mon.lock:
+            self._store(value)
         self._notify(value)
 
     def _add_policy_hook(self, hook: Callable[[PublishPolicy | None], None]) -> Callable[[], None]:

@@ -28,7 +28,6 @@ from .event import Event
 from .group import GroupPort
 from .protocol import (
     LOCAL_CLASS_BASE,
-    VERSION,
     WELL_KNOWN_CLASSES,
     Kind,
     Message,
@@ -37,6 +36,7 @@ from .protocol import (
     ProtocolError,
     Status,
     decode,
+    first_byte,
 )
 from .publisher import Publisher
 from .remote import Port, RemoteObject, describe_entry, make_client
@@ -282,7 +282,7 @@ class Node:
     @staticmethod
     def _reply(respond: Responder, request: Message, status: int = Status.OK, data: bytes = b"") -> None:
         if request.wants_reply:  # the reply header in place (protocol.reply_to + encode, without re-validation)
-            head = bytes((_REPLY_HEAD | request.method, request.txn, status, request.object_id))
+            head = bytes((first_byte(Kind.REPLY, request.method), request.txn, status, request.object_id))
             respond(head + data)
 
     def _serve(self, source: str, request: Message, respond: Responder) -> None:
@@ -410,7 +410,6 @@ class Node:
 
 
 _DEFERRED = object()
-_REPLY_HEAD = (VERSION << 6) | (Kind.REPLY << 4)
 
 
 class _Busy(Exception):

@@ -150,6 +150,16 @@ class Message(NamedTuple):
         return None if self.timeout is None else decode_timeout(self.timeout)
 
 
+def first_byte(kind: int, method: int) -> int:
+    """Byte 0 of a message — version, kind, method — laid out in this one place (hot paths build headers in place)."""
+    return (VERSION << 6) | (kind << 4) | method
+
+
+def kind_of(raw: bytes) -> int | None:
+    """The kind of a message, read from its first byte without decoding the rest (None for no bytes)."""
+    return (raw[0] >> 4) & 0x03 if raw else None
+
+
 def encode(message: Message) -> bytes:
     """The wire bytes of ``message``; ValueError if a field is out of range."""
     if not 0 <= message.method <= 0x0F:
@@ -162,7 +172,7 @@ def encode(message: Message) -> bytes:
     has_timeout = message.timeout is not None
     head = bytes(
         (
-            (VERSION << 6) | (int(message.kind) << 4) | message.method,
+            first_byte(int(message.kind), message.method),
             (0x80 if has_timeout else 0) | message.txn,
             third,
             message.object_id,
@@ -183,7 +193,7 @@ def decode(data: bytes | bytearray | memoryview) -> Message:
     version = raw[0] >> 6
     if version != VERSION:
         raise ProtocolError(f"protocol version {version} is not supported (this node speaks {VERSION})")
-    kind = (raw[0] >> 4) & 0x03
+    kind = kind_of(raw)
     method = raw[0] & 0x0F
     has_timeout = bool(raw[1] & 0x80)
     offset = HEADER_SIZE

@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Any
 
 from .attribute import Attribute, PublishPolicy
 from .codec import to_json
-from .protocol import MAX_TXN, VERSION, Kind, Method
+from .protocol import MAX_TXN, Kind, Method, first_byte
 from .service import Service
 
 if TYPE_CHECKING:
@@ -60,7 +60,7 @@ class Publisher(Service):
         self._last_time = -math.inf
         names = {"node": node.name, "object": entry.name, "class": entry.class_name}
         self._json_prefix = json.dumps(names, separators=(",", ":"))[:-1] + ","  # the JSON view, less seq/t/value
-        self._head0 = (VERSION << 6) | (Kind.PUBLICATION << 4) | Method.PUBLISH
+        self._head0 = first_byte(Kind.PUBLICATION, Method.PUBLISH)
         self._class_id = entry.class_id
         self._object_id = entry.object_id
         self._encode = entry.codec.encode_canonical

@@ -27,7 +27,6 @@ from .errors import AsmTimeout, RemoteError, ServiceError
 from .protocol import (
     HEADER_SIZE,
     MAX_TXN,
-    VERSION,
     Kind,
     Message,
     Method,
@@ -36,6 +35,7 @@ from .protocol import (
     Status,
     encode,
     encode_timeout,
+    first_byte,
 )
 
 if TYPE_CHECKING:
@@ -229,11 +229,11 @@ class Port:
         The hot path of a remote get: the 4-byte header is built in place and the reply checked by its header bytes.
         """
         txn = next(self._direct_txns) & MAX_TXN  # atomic; these replies never pass through _pending
-        head = bytes(((VERSION << 6) | (Kind.REQUEST_REPLY << 4) | method, txn, class_id, object_id))
+        head = bytes((first_byte(Kind.REQUEST_REPLY, method), txn, class_id, object_id))
         raw = self.node.transport.request(self.remote, head + data, wait)
         if raw is None:
             raise AsmTimeout(f"{what} timed out: no reply within {wait:.3g}s")
-        if len(raw) < HEADER_SIZE or raw[0] != (VERSION << 6) | (Kind.REPLY << 4) | method or raw[1] != txn:
+        if len(raw) < HEADER_SIZE or raw[0] != first_byte(Kind.REPLY, method) or raw[1] != txn:
             raise ProtocolError(f"{what}: answer is not the reply to transaction {txn}")
         reply = Message(Kind.REPLY, method, txn, 0, raw[3], raw[2], None, raw[HEADER_SIZE:])
         if reply.status:
@@ -344,7 +344,7 @@ class RemoteAttribute(RemoteObject):
 
     def _subscribe(self, deliver: Callable[[Any], None]) -> Callable[[], None]:
         decode_value = self.codec.decode
-        head0 = (VERSION << 6) | (Kind.PUBLICATION << 4) | Method.PUBLISH
+        head0 = first_byte(Kind.PUBLICATION, Method.PUBLISH)
 
         def on_publication(data: bytes) -> None:
             # A publication never carries a timeout byte: header byte 0 says all, the value starts at byte 4.

@@ -170,8 +170,11 @@ def from_dict(data: dict[str, Any], *, source: str = "<gait>", text: str = "") -
     def bad(path: str, message: str) -> None:
         problems.append(Problem(path, message, locate(text, path)))
 
-    for key in sorted(set(data) - _TOP):
-        bad(key, "unknown field")
+    def unknown_fields(table: dict[str, Any], allowed: set[str], prefix: str = "") -> None:
+        for key in sorted(set(table) - allowed):
+            bad(f"{prefix}{key}", "unknown field")
+
+    unknown_fields(data, _TOP)
     name = data.get("name")
     if not isinstance(name, str) or not name:
         bad("name", "missing: a gait needs a name")
@@ -179,8 +182,7 @@ def from_dict(data: dict[str, Any], *, source: str = "<gait>", text: str = "") -
     if not isinstance(robot_data, dict):
         bad("robot", "must be a table")
         robot_data = {}
-    for key in sorted(set(robot_data) - _ROBOT):
-        bad(f"robot.{key}", "unknown field")
+    unknown_fields(robot_data, _ROBOT, "robot.")
     robot = Robot(**{k: v for k, v in robot_data.items() if k in _ROBOT})
     if robot.shape not in SHAPES:
         bad("robot.shape", f"must be one of {', '.join(SHAPES)}, not {robot.shape!r}")
@@ -198,8 +200,7 @@ def from_dict(data: dict[str, Any], *, source: str = "<gait>", text: str = "") -
 
     limits_data = data.get("limits", {"min": -90.0, "max": 90.0})
     low, high = limits_data.get("min", -90.0), limits_data.get("max", 90.0)
-    for key in sorted(set(limits_data) - {"min", "max"}):
-        bad(f"limits.{key}", "unknown field")
+    unknown_fields(limits_data, {"min", "max"}, "limits.")
     if not (_finite(low) and _finite(high) and -180 <= low < high <= 180):
         bad("limits", f"min < max, both finite degrees within ±180, not {low!r}..{high!r}")
         low, high = -90.0, 90.0
@@ -213,8 +214,7 @@ def from_dict(data: dict[str, Any], *, source: str = "<gait>", text: str = "") -
         base = f"automata.{auto_name}"
         states_data = auto.get("states") if isinstance(auto, dict) else None
         if isinstance(auto, dict):
-            for key in sorted(set(auto) - {"states"}):
-                bad(f"{base}.{key}", "unknown field")
+            unknown_fields(auto, {"states"}, f"{base}.")
         if not isinstance(states_data, list) or not states_data:
             bad(f"{base}.states", "missing: at least one state")
             continue
@@ -224,8 +224,7 @@ def from_dict(data: dict[str, Any], *, source: str = "<gait>", text: str = "") -
             if not isinstance(st, dict):
                 bad(path, "must be a table")
                 continue
-            for key in sorted(set(st) - _STATE):
-                bad(f"{path}.{key}", "unknown field")
+            unknown_fields(st, _STATE, f"{path}.")
             angle, duration, until = st.get("angle"), st.get("duration"), st.get("until")
             interpolation = st.get("interpolation", "linear")
             if not _finite(angle):
@@ -257,8 +256,7 @@ def from_dict(data: dict[str, Any], *, source: str = "<gait>", text: str = "") -
         if not isinstance(md, dict):
             bad(path, "must be a table")
             continue
-        for key in sorted(set(md) - _MODULE):
-            bad(f"{path}.{key}", "unknown field")
+        unknown_fields(md, _MODULE, f"{path}.")
         mid, auto, phase, direction = md.get("id"), md.get("automaton"), md.get("phase", 0.0), md.get("direction", 1)
         if not isinstance(mid, int) or isinstance(mid, bool) or not 1 <= mid <= robot.modules:
             bad(f"{path}.id", f"must be a module ID 1..{robot.modules}, not {mid!r}")

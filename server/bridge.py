@@ -30,12 +30,12 @@ from typing import Any
 
 import zenoh
 
-from asm_py.canbus.ids import Dest, Priority, check_node_id
+from asm_py.canbus.ids import Dest, check_node_id
 from asm_py.codec import to_json
 from asm_py.node import Node
-from asm_py.protocol import Kind, decode_timeout
+from asm_py.protocol import Kind, decode_timeout, kind_of
 from asm_py.remote import RemoteObject
-from asm_py.transport.can import CanTransport, group_id
+from asm_py.transport.can import CanTransport, group_id, message_priority
 from asm_py.transport.zenoh import make_config
 
 log = logging.getLogger("server.bridge")
@@ -53,7 +53,7 @@ class _GatewayTransport(CanTransport):
         if dest_kind == Dest.NODE and dest != self.node_id:
             self.bridge._from_can_to_alias(source_id, dest, data)
             return
-        if dest_kind == Dest.BROADCAST and len(data) >= 4 and (data[0] >> 4) & 0x3 == Kind.PUBLICATION:
+        if dest_kind == Dest.BROADCAST and len(data) >= 4 and kind_of(data) == Kind.PUBLICATION:
             self.bridge._publication_from_can(source_id, data)
         super().on_message(source_id, dest_kind, dest, data)
 
@@ -183,7 +183,7 @@ class CanZenohBridge:
             query.drop()
             return
         alias = self._alias(client)
-        if (data[0] >> 4) & 0x3 == Kind.REQUEST_REPLY:
+        if kind_of(data) == Kind.REQUEST_REPLY:
             limit = decode_timeout(data[4]) if data[1] & 0x80 and len(data) > 4 else 0.0
             deadline = time.monotonic() + (limit if limit is not None else 86_400.0) + REPLY_MARGIN
             with self._lock:
@@ -210,9 +210,7 @@ class CanZenohBridge:
             self._to_can(Dest.GROUP, gid, sample.payload.to_bytes(), self._alias(client))
 
     def _to_can(self, dest_kind: int, dest: int, data: bytes, source: int) -> None:
-        kind = (data[0] >> 4) & 0x3 if data else Kind.REQUEST
-        priority = Priority.REPLY if kind == Kind.REPLY else Priority.REQUEST
-        self.can.send_message(dest_kind, dest, data, priority, source=source)
+        self.can.send_message(dest_kind, dest, data, message_priority(data), source=source)
         self.forwarded["to_can"] += 1
 
     def _estop_from_zenoh(self, sample: zenoh.Sample) -> None:
@@ -224,7 +222,7 @@ class CanZenohBridge:
     # -- CAN -> Zenoh ---------------------------------------------------------------------------------------------
 
     def _from_can_to_alias(self, source_id: int, alias: int, data: bytes) -> None:
-        if len(data) < 4 or (data[0] >> 4) & 0x3 != Kind.REPLY:
+        if len(data) < 4 or kind_of(data) != Kind.REPLY:
             return
         with self._lock:
             waiting = self._pending.pop((alias, source_id, data[1] & 0x7F), None)

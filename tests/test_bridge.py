@@ -17,9 +17,7 @@ from server.bridge import CanZenohBridge, parse_can
 
 from .helpers import wait_until
 from .processes import Process
-from .transports import free_port
-
-_channels = itertools.count()
+from .transports import free_port, fresh_name
 
 
 class Gait(Service):
@@ -32,7 +30,7 @@ class Gait(Service):
 @pytest.fixture
 def can_world() -> Iterator[tuple[Node, Node, CanZenohBridge, dict]]:
     """Two modules on a virtual CAN bus, a bridge, and a Zenoh client node connected to the bridge."""
-    channel = f"asm-bridge-{os.getpid()}-{next(_channels)}"
+    channel = fresh_name("asm-bridge")
     can_options = {"interface": "virtual", "channel": channel, "heartbeat_period": 0.05, "missed_heartbeats": 4}
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     modules = [Node(f"m{i}", CanTransport(i, **can_options)) for i in (1, 2)]

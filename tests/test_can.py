@@ -23,8 +23,7 @@ from asm_py.node import Node
 from asm_py.transport.can import CanTransport, group_id
 
 from .helpers import wait_until
-
-_channels = itertools.count()
+from .transports import fresh_name
 
 
 class Gait(Service):
@@ -37,7 +36,7 @@ class Bus:
     """A virtual CAN channel with a sniffer that sees every frame, and nodes on it (closed at the end)."""
 
     def __init__(self, **options) -> None:
-        self.channel = f"asm-can-{os.getpid()}-{next(_channels)}"
+        self.channel = fresh_name("asm-can")
         self.options = {"heartbeat_period": 0.05, "missed_heartbeats": 4, **options}
         self.sniffer = can.Bus(interface="virtual", channel=self.channel)
         self.nodes: list[Node] = []

@@ -6,8 +6,6 @@ test); the reassembly buffers stay bounded and drain once the faults stop.
 
 from __future__ import annotations
 
-import itertools
-import os
 import time
 
 import can
@@ -19,14 +17,14 @@ from asm_py.node import Node
 from asm_py.transport.can import CanTransport
 
 from .helpers import wait_until
+from .transports import fresh_name
 
-_channels = itertools.count()
 CALL_TIMEOUT = 0.3
 MARGIN = 1.0
 
 
 def faulty_pair(**faults):
-    channel = f"asm-faults-{os.getpid()}-{next(_channels)}"
+    channel = fresh_name("asm-faults")
     buses = [FaultyBus(can.Bus(interface="virtual", channel=channel), seed=i, **faults) for i in (1, 2)]
     options = {"heartbeat_period": 0.05, "missed_heartbeats": 20, "reassembly_timeout": 0.3}
     module = Node("m1", CanTransport(1, bus=buses[0], **options))

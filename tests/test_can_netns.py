@@ -4,7 +4,6 @@ multicast "bus"; a Zenoh client process in the same namespace drives the module 
 
 from __future__ import annotations
 
-import itertools
 import os
 import shutil
 import subprocess
@@ -13,9 +12,9 @@ from collections.abc import Iterator
 import pytest
 
 from .processes import Process, run
+from .transports import fresh_name
 
 GROUP = "239.74.163.2"
-_names = itertools.count()
 
 
 def _ip(*args: str) -> subprocess.CompletedProcess[str]:
@@ -27,7 +26,7 @@ def netns() -> Iterator[str]:
     """A loopback-only network namespace with multicast routed to lo; removed afterwards."""
     if os.geteuid() != 0 or shutil.which("ip") is None:
         pytest.skip("needs root and iproute2 to create a private network namespace for udp_multicast")
-    name = f"asm-test-{os.getpid()}-{next(_names)}"
+    name = fresh_name("asm-test")
     made = _ip("netns", "add", name)
     if made.returncode != 0:
         pytest.skip(f"cannot create a network namespace here: {made.stderr.strip()}")

@@ -3,8 +3,6 @@ recorded traffic with, and a bus-load calculator (function and CLI)."""
 
 from __future__ import annotations
 
-import itertools
-import os
 import struct
 import subprocess
 import sys
@@ -21,13 +19,12 @@ from asm_py.node import Node
 from asm_py.transport.can import CanTransport
 
 from .helpers import wait_until
-
-_channels = itertools.count()
+from .transports import fresh_name
 
 
 def record_session(path: Path) -> list[float]:
     """A module (ID 1) publishing its angle, a tool (ID 2) setting and reading it; the tool records the bus."""
-    channel = f"asm-rec-{os.getpid()}-{next(_channels)}"
+    channel = fresh_name("asm-rec")
     module = Node("m1", CanTransport(1, interface="virtual", channel=channel, heartbeat_period=0.05))
     tool = Node("tool", CanTransport(2, interface="virtual", channel=channel, heartbeat_period=0.05, record=path))
     values = [0.25, 0.5, 1.0]
@@ -65,7 +62,7 @@ def test_traffic_is_recorded_in_python_can_formats_and_replays(tmp_path: Path, s
 def test_a_replayed_log_drives_a_fresh_module(tmp_path: Path) -> None:
     path = tmp_path / "session.log"
     record_session(path)
-    channel = f"asm-replay-{os.getpid()}-{next(_channels)}"
+    channel = fresh_name("asm-replay")
     module = Node("m1", CanTransport(1, interface="virtual", channel=channel))
     try:
         angle = Attribute("joint.angle", 0.0, codec="float32")

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import itertools
+import os
 import socket
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -10,6 +11,13 @@ from contextlib import contextmanager
 from asm_py.transport import MemoryNetwork, MemoryTransport, Transport
 from asm_py.transport.can import CanTransport
 from asm_py.transport.zenoh import ZenohTransport
+
+_names = itertools.count()
+
+
+def fresh_name(prefix: str) -> str:
+    """A name no other test of this run has used (a python-can virtual channel, a network namespace)."""
+    return f"{prefix}-{os.getpid()}-{next(_names)}"
 
 
 def free_port() -> int:
@@ -42,12 +50,10 @@ def zenoh_transports() -> Iterator[Callable[[], Transport]]:
 @contextmanager
 def can_transports(**options) -> Iterator[Callable[[], Transport]]:
     """Transports with node IDs 1, 2, … on a fresh python-can virtual channel (fast heartbeats for the tests)."""
-    channel = f"asm-test-{next(_channels)}"
+    channel = fresh_name("asm-test")
     ids = itertools.count(1)
     settings = {"heartbeat_period": 0.05, "missed_heartbeats": 4, **options}
     yield lambda: CanTransport(next(ids), interface="virtual", channel=channel, **settings)
 
-
-_channels = itertools.count()
 
 FACTORIES = {"memory": memory_transports, "zenoh": zenoh_transports, "can": can_transports}

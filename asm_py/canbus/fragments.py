@@ -43,11 +43,16 @@ def fd_size(length: int) -> int:
     raise ValueError(f"{length} bytes do not fit one CAN FD frame")
 
 
+def fits_one_frame(length: int, frame_size: int = 8) -> bool:
+    """Whether a message of ``length`` bytes travels as one SINGLE frame (on FD: only at a valid FD length)."""
+    return length <= frame_size and (frame_size == 8 or length in FD_SIZES)
+
+
 def fragment(message: bytes, *, frame_size: int = 8) -> Iterator[tuple[int, int, bytes]]:
     """Yield (frame type, counter, data) for each frame of ``message``; ``frame_size`` 8 (classic) or 64 (FD)."""
     fd = frame_size > 8
     length = len(message)
-    if length <= frame_size and (not fd or length in FD_SIZES):
+    if fits_one_frame(length, frame_size):
         yield FrameType.SINGLE, 0, message
         return
     if length > MAX_MESSAGE:
@@ -71,7 +76,7 @@ def _pad(data: bytes, fd: bool) -> bytes:
 
 def frame_count(length: int, *, frame_size: int = 8) -> int:
     """How many frames a message of ``length`` bytes takes."""
-    if length <= frame_size and (frame_size == 8 or length in FD_SIZES):
+    if fits_one_frame(length, frame_size):
         return 1
     rest = max(0, length - (frame_size - PREAMBLE))
     return 1 + -(-rest // frame_size)

@@ -31,12 +31,18 @@ import can
 
 from ..canbus.fragments import Reassembler, fragment
 from ..canbus.ids import CanId, Dest, FrameType, Priority, SystemCode, check_node_id, dest_filter, frame_priority
-from ..protocol import Kind
+from ..protocol import Kind, kind_of
 from .base import BROADCAST, PublicationHandler, Transport
 
 log = logging.getLogger("asm_py.transport.can")
 
 ALIAS_PREFIX = "can."
+
+
+def message_priority(data: bytes) -> int:
+    """The priority an ASM message goes out at: replies before new requests (publications and system frames have
+    their own)."""
+    return Priority.REPLY if kind_of(data) == Kind.REPLY else Priority.REQUEST
 
 
 def group_id(group: str, table: Mapping[str, int] | None = None) -> int:
@@ -186,9 +192,7 @@ class CanTransport(Transport):
             self.send_errors += 1
             log.debug("no CAN node named %r is known yet; message dropped", dest)
             return
-        kind = (data[0] >> 4) & 0x3 if data else Kind.REQUEST
-        priority = Priority.REPLY if kind == Kind.REPLY else Priority.REQUEST
-        self.send_message(Dest.NODE, node_id, data, priority)
+        self.send_message(Dest.NODE, node_id, data, message_priority(data))
 
     def send_group(self, group: str, data: bytes) -> None:
         if group == BROADCAST:
@@ -313,7 +317,7 @@ class CanTransport(Transport):
             return
         self._heard(source_id)
         source = self.name_of(source_id)
-        if len(data) >= 4 and (data[0] >> 4) & 0x3 == Kind.PUBLICATION:
+        if len(data) >= 4 and kind_of(data) == Kind.PUBLICATION:
             for callback in self._subscriptions.get((source, data[3]), ()):
                 try:
                     callback(data)

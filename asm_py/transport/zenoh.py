@@ -26,7 +26,7 @@ from typing import Any
 
 import zenoh
 
-from ..protocol import Kind, decode_timeout
+from ..protocol import Kind, decode_timeout, kind_of
 from .base import PublicationHandler, Transport
 
 log = logging.getLogger("asm_py.transport.zenoh")
@@ -131,7 +131,7 @@ class ZenohTransport(Transport):
 
     @staticmethod
     def _expects_reply(data: bytes) -> bool:
-        return len(data) >= 1 and (data[0] >> 4) & 0x03 == Kind.REQUEST_REPLY
+        return kind_of(data) == Kind.REQUEST_REPLY
 
     def _on_estop(self, sample: zenoh.Sample) -> None:
         source = str(sample.key_expr).rsplit("/", 1)[-1]
@@ -213,8 +213,7 @@ class ZenohTransport(Transport):
             keys = self._pub_keys[object_name] = (f"asm/{self.name}/pub/{object_name}",
                                                   f"asm/{self.name}/json/{object_name}")  # fmt: skip
         binary, view = keys
-        publisher = self._publishers.get(binary) or self._publisher(binary, reliable=False, express=False)
-        publisher.put(data)
+        self._publisher(binary, reliable=False, express=False).put(data)  # lock-free once declared
         if json_text is not None:
             watched = self._watched.get(view)
             if watched is None:
