@@ -24,6 +24,7 @@ from .attribute import Attribute
 from .clock import Clock
 from .codec import FLOAT64, INT8, UINT16, float_array
 from .eds import EventDrivenService, SuspendedPolicy
+from .errors import ServiceError
 
 
 def _check_direction(direction: int) -> int:
@@ -47,13 +48,16 @@ class PhaseAutomaton(EventDrivenService):
         action: Callable[[PhaseAutomaton, int, Any], None] | None = None,
         while_suspended: SuspendedPolicy = "drop",
         max_pending: int = 64,
+        inline: bool = False,
         clock: Clock | None = None,
     ) -> None:
         if not states:
             raise ValueError(f"phase automaton {name!r} needs at least one state")
         if len(states) > UINT16.max:
             raise ValueError(f"phase automaton {name!r} has {len(states)} states; at most {UINT16.max}")
-        super().__init__(name, event, while_suspended=while_suspended, max_pending=max_pending, clock=clock)
+        super().__init__(
+            name, event, while_suspended=while_suspended, max_pending=max_pending, inline=inline, clock=clock
+        )
         self.states: tuple[Any, ...] = tuple(states)
         self.state = Attribute(f"{name}.state", 0, codec=UINT16, clock=self.clock)
         self.direction = Attribute(f"{name}.direction", _check_direction(direction), codec=INT8, clock=self.clock)
@@ -161,13 +165,13 @@ class PeriodicAutomaton(PhaseAutomaton):
         output: Attribute | None = None,
         direction: int = 1,
         while_suspended: SuspendedPolicy = "drop",
+        inline: bool = False,
         clock: Clock | None = None,
     ) -> None:
-        super().__init__(name, event, states, direction=direction, while_suspended=while_suspended, clock=clock)
-        widths = {len(s.target) if isinstance(s.target, tuple) else None for s in self.states}
-        if len(widths) != 1:
-            raise ValueError(f"all states of {name!r} need targets of the same shape")
-        width = widths.pop()
+        super().__init__(
+            name, event, states, direction=direction, while_suspended=while_suspended, inline=inline, clock=clock
+        )
+        width = self._check_shape(self.states)
         self.period = math.fsum(s.duration for s in self.states)
         self._starts = state_starts(self.states)
         codec = FLOAT64 if width is None else float_array(width, FLOAT64)
@@ -177,6 +181,30 @@ class PeriodicAutomaton(PhaseAutomaton):
         # summed tick by tick, so rounding does not accumulate over long runs.
         self._anchor = (0.0, 0.0, 1)
         self._last_tick = 0.0
+
+    def _check_shape(self, states: Sequence[PhaseState]) -> int | None:
+        widths = {len(s.target) if isinstance(s.target, tuple) else None for s in states}
+        if len(widths) != 1:
+            raise ValueError(f"all states of {self.name!r} need targets of the same shape")
+        return widths.pop()
+
+    def load(self, states: Sequence[PhaseState]) -> None:
+        """Replace the states (a new gait table); only while stopped, so a running gait never changes mid-cycle.
+
+        ServiceError while started; ValueError if the new targets differ in shape from the output's.
+        """
+        states = tuple(states)
+        if not states:
+            raise ValueError(f"phase automaton {self.name!r} needs at least one state")
+        with self._mon:
+            if self._started:
+                raise ServiceError(f"{self.name!r} is started; stop it before loading new states")
+            old = self._check_shape(self.states)
+            if self._check_shape(states) != old:
+                raise ValueError(f"the new states of {self.name!r} must have targets of the same shape as before")
+            self.states = states
+            self.period = math.fsum(s.duration for s in states)
+            self._starts = state_starts(states)
 
     def state_at(self, tau: float) -> int:
         """The index of the state in effect at phase time ``tau`` (seconds into the period)."""

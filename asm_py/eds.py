@@ -15,10 +15,18 @@ Firings that arrive while the service is *suspended* follow ``while_suspended``:
 - ``"queue"``: all are kept (within ``max_pending``) and handled in order on resume.
 
 Firings before ``start`` or after ``stop`` are never handled.
+
+``inline=True`` runs ``handle`` in the thread that fires the event when the service is running and nothing is
+queued, instead of handing the firing to the service thread. The semantics above are unchanged (one firing, one
+``handle``, in order, never two at once; firings while suspended follow the policy and are handled by the service
+thread on resume); what changes is the cost: a simulator ticking 128 module automata on a SimClock pays a function
+call per module instead of a thread handoff. ``handle`` must then be short and must not block.
 """
 
 from __future__ import annotations
 
+import logging
+import threading
 from collections import deque
 from collections.abc import Callable
 from typing import Any, Literal
@@ -26,6 +34,8 @@ from typing import Any, Literal
 from .attribute import Attribute
 from .clock import Clock
 from .service import Service
+
+log = logging.getLogger("asm_py.eds")
 
 SuspendedPolicy = Literal["drop", "coalesce", "queue"]
 
@@ -41,6 +51,7 @@ class EventDrivenService(Service):
         handler: Callable[[Any], None] | None = None,
         while_suspended: SuspendedPolicy = "drop",
         max_pending: int = 64,
+        inline: bool = False,
         clock: Clock | None = None,
     ) -> None:
         if while_suspended not in ("drop", "coalesce", "queue"):
@@ -55,6 +66,8 @@ class EventDrivenService(Service):
         self._pending: deque[Any] = deque()
         self._unlisten: Callable[[], None] | None = None
         self._tail_is_coalesced = False  # the newest pending firing arrived while suspended (coalesce policy)
+        self.inline = inline
+        self._handling = threading.Lock()  # one handle() at a time, whichever thread runs it
         self.dropped = 0
         self.overruns = 0
         self.handled = 0
@@ -77,9 +90,11 @@ class EventDrivenService(Service):
                 mon.wait_for(ready, None, interruptible=False)
                 if self._stop_requested:
                     return
-                value = pending.popleft()
-            self.handle(value)
-            self.handled += 1
+            with self._handling:  # taken before popping, so an inline firing cannot overtake this one
+                with mon:
+                    value = pending.popleft()
+                self.handle(value)
+                self.handled += 1
 
     def _starting(self, *params: Any) -> None:
         self._pending.clear()
@@ -93,6 +108,26 @@ class EventDrivenService(Service):
         if self._unlisten is not None:
             self._unlisten()
             self._unlisten = None
+        with self._handling:  # an inline handle() in flight finishes before the service counts as stopped
+            pass
+
+    def _handle_inline(self, value: Any) -> bool:
+        """Handle a firing in this thread; False if the service was suspended meanwhile (then it is queued)."""
+        with self._handling:
+            if self._stop_requested:
+                return True
+            if not self._running or self._pending:
+                return False
+            try:
+                self.handle(value)
+                self.handled += 1
+            except Exception as exc:
+                self._last_error = exc
+                log.exception("service %r failed and stopped", self.name)
+            else:
+                return True
+        self.stop(wait=False)
+        return True
 
     def _on_firing(self, value: Any) -> None:
         mon = self._mon
@@ -100,6 +135,12 @@ class EventDrivenService(Service):
             if not self._started or self._stop_requested:
                 return
             pending = self._pending
+            inline = self.inline and self._running and not pending
+        if inline and self._handle_inline(value):
+            return
+        with mon:
+            if not self._started or self._stop_requested:
+                return
             if not self._running:
                 if self.while_suspended == "drop":
                     self.dropped += 1

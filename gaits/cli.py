@@ -2,6 +2,8 @@
 
 gaits validate FILE...        exit 1 and list every problem (with its line) if a file is bad
 gaits expand FILE [--samples 16]
+gaits simulate FILE [--seconds 10] [--warmup 2] [--direction -1] [--push-at 6] [--mjcf OUT.xml]
+                               run it in MuJoCo (headless, on the modules' own runtime) and print the metrics
 """
 
 from __future__ import annotations
@@ -21,7 +23,16 @@ def main(argv: list[str] | None = None) -> int:
     expand = commands.add_parser("expand", help="print the module x time table")
     expand.add_argument("file")
     expand.add_argument("--samples", type=int, default=16, help="samples per period (default 16)")
+    simulate = commands.add_parser("simulate", help="run the gait in MuJoCo and print the metrics")
+    simulate.add_argument("file")
+    simulate.add_argument("--seconds", type=float, default=10.0, help="measured simulated time (default 10)")
+    simulate.add_argument("--warmup", type=float, default=2.0, help="simulated seconds before measuring (default 2)")
+    simulate.add_argument("--direction", type=int, choices=(1, -1), default=1, help="-1 runs every automaton backwards")
+    simulate.add_argument("--push-at", type=float, help="push the robot sideways (1 N, 0.1 s) at this time")
+    simulate.add_argument("--mjcf", metavar="OUT.xml", help="also write the model as MJCF (opens in MuJoCo's viewer)")
     args = cli.parse_args(argv)
+    if args.command == "simulate":
+        return _simulate(args)
     if args.command == "validate":
         failed = 0
         for path in args.files:
@@ -42,6 +53,35 @@ def main(argv: list[str] | None = None) -> int:
     except (GaitError, OSError, ValueError) as exc:
         print(f"{args.file}: {exc}", file=sys.stderr)
         return 1
+    return 0
+
+
+def _simulate(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from .sim import Simulation  # MuJoCo loads only for this command
+
+    try:
+        gait = load(args.file)
+    except (GaitError, OSError) as exc:
+        print(f"{args.file}: {exc}", file=sys.stderr)
+        return 1
+    with Simulation(gait, direction=args.direction) as sim:
+        if args.mjcf:
+            Path(args.mjcf).write_text(sim.mjcf, encoding="utf-8")
+            print(f"model written to {args.mjcf}")
+        metrics = sim.run(args.seconds, warmup=args.warmup, push_at=args.push_at)
+    robot = gait.robot
+    print(f"{gait.name}: {robot.modules}-module {robot.shape}, period {gait.period:g} s, direction {args.direction:+d}")
+    print(
+        f"distance     {metrics.distance:.3f} m ({metrics.body_lengths:.2f} body lengths of {metrics.body_length:g} m)"
+    )
+    print(f"mean speed   {metrics.speed:.3f} m/s ({metrics.body_lengths / metrics.seconds * 10:.2f} BL per 10 s)")
+    print(f"heading      {metrics.heading:.1f} degrees from +x")
+    print(f"peak torque  {metrics.peak_torque:.2f} N·m")
+    print(f"fell         {'yes' if metrics.fell else 'no'}")
+    print(f"stuck        {'yes' if metrics.stuck else 'no'}")
+    print(f"speed-up     {metrics.real_time_factor:.1f}x real time")
     return 0
 
 

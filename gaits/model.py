@@ -117,6 +117,16 @@ class Robot:
 
 
 @dataclass
+class Ground:
+    """The surface the robot is simulated on (a real robot meets whatever floor it is on)."""
+
+    friction: float = 1.0
+    """Coulomb friction μ between modules and the ground."""
+    anisotropic: tuple[float, float] | None = None
+    """(μ along each module, μ across it): snake skin or passive wheels, which lateral undulation needs."""
+
+
+@dataclass
 class Gait:
     name: str
     robot: Robot
@@ -124,6 +134,7 @@ class Gait:
     modules: list[Assignment]
     limits: tuple[float, float] = (-90.0, 90.0)
     description: str = ""
+    ground: Ground = field(default_factory=Ground)
     extra: dict[str, Any] = field(default_factory=dict)
 
     @property
@@ -139,7 +150,7 @@ class Gait:
 
 # -- loading and validation -----------------------------------------------------------------------------------------
 
-_TOP = {"name", "description", "robot", "limits", "automata", "modules"}
+_TOP = {"name", "description", "robot", "limits", "ground", "automata", "modules"}
 _ROBOT = {"shape", "modules", "axes", "module_size", "legs"}
 _STATE = {"name", "angle", "duration", "until", "interpolation"}
 _MODULE = {"id", "automaton", "phase", "direction"}
@@ -204,6 +215,24 @@ def from_dict(data: dict[str, Any], *, source: str = "<gait>", text: str = "") -
     if not (_finite(low) and _finite(high) and -180 <= low < high <= 180):
         bad("limits", f"min < max, both finite degrees within ±180, not {low!r}..{high!r}")
         low, high = -90.0, 90.0
+
+    ground_data = data.get("ground", {})
+    if not isinstance(ground_data, dict):
+        bad("ground", "must be a table")
+        ground_data = {}
+    unknown_fields(ground_data, {"friction", "anisotropic"}, "ground.")
+    ground = Ground()
+    friction = ground_data.get("friction", 1.0)
+    if not _finite(friction) or not 0 < friction <= 10:
+        bad("ground.friction", f"must be a number in (0, 10], not {friction!r}")
+    else:
+        ground.friction = float(friction)
+    aniso = ground_data.get("anisotropic")
+    if aniso is not None:
+        if not (isinstance(aniso, list) and len(aniso) == 2 and all(_finite(v) and 0 < v <= 10 for v in aniso)):
+            bad("ground.anisotropic", f"must be [μ along, μ across], two numbers in (0, 10], not {aniso!r}")
+        else:
+            ground.anisotropic = (float(aniso[0]), float(aniso[1]))
 
     automata: dict[str, Automaton] = {}
     automata_data = data.get("automata", {})
@@ -279,7 +308,7 @@ def from_dict(data: dict[str, Any], *, source: str = "<gait>", text: str = "") -
     if problems:
         raise GaitError(source, problems)
     return Gait(name, robot, automata, sorted(assignments, key=lambda m: m.id), (float(low), float(high)),
-                data.get("description", ""))  # fmt: skip
+                data.get("description", ""), ground)  # fmt: skip
 
 
 def locate(text: str, path: str) -> int | None:
@@ -310,7 +339,7 @@ def locate(text: str, path: str) -> int | None:
             braces = [n for n in range(header + 1, len(lines)) if "{" in lines[n]]
             return braces[index] + 1 if index < len(braces) else header + 1
         return header + 1
-    if parts and parts[0] in ("robot", "limits"):
+    if parts and parts[0] in ("robot", "limits", "ground"):
         header = next((n for n, line in enumerate(lines) if re.match(rf"\s*\[{parts[0]}\]", line)), None)
         if header is None:
             return None
@@ -354,6 +383,13 @@ def to_dict(gait: Gait) -> dict[str, Any]:
     out |= {
         "robot": robot,
         "limits": {"min": gait.limits[0], "max": gait.limits[1]},
+    }
+    if gait.ground != Ground():
+        ground: dict[str, Any] = {"friction": gait.ground.friction}
+        if gait.ground.anisotropic is not None:
+            ground["anisotropic"] = list(gait.ground.anisotropic)
+        out["ground"] = ground
+    out |= {
         "automata": {a.name: {"states": [state(s) for s in a.states]} for a in gait.automata.values()},
         "modules": [
             {"id": m.id, "automaton": m.automaton, "phase": m.phase, "direction": m.direction} for m in gait.modules

@@ -11,7 +11,7 @@ import math
 from collections.abc import Callable
 from pathlib import Path
 
-from .model import Assignment, Automaton, Gait, Robot, State, dumps
+from .model import Assignment, Automaton, Gait, Ground, Robot, State, dumps
 
 SAMPLES = 16
 LIBRARY = Path(__file__).resolve().parent / "library"
@@ -54,7 +54,7 @@ def wave_gait(
 def library() -> dict[str, Gait]:
     chain8 = Robot("chain", 8, "pitch")
     chain12 = Robot("chain", 12, "alternating")
-    gaits = {
+    gaits: dict[str, Gait] = {
         "caterpillar": wave_gait(
             "caterpillar",
             "A vertical travelling wave along a chain of pitch joints (A 50°, wavelength 7 modules).",
@@ -74,11 +74,12 @@ def library() -> dict[str, Gait]:
         ),
         "sidewinding": wave_gait(
             "sidewinding",
-            "Sidewinding: yaw 60°, pitch 10°, wavelength 16 joints, yaw leads pitch by a quarter period.",
+            "Sidewinding: yaw 60°, pitch 10°, one wave along the body, yaw leads pitch by a quarter period. "
+            "It moves at an angle to its body; direction -1 moves it back the other way.",
             chain12,
             {"pitch": (sine(10.0), 0.0), "yaw": (sine(60.0), 0.25)},
             role_of=lambda n: "pitch" if n % 2 == 0 else "yaw",
-            offset_of=lambda n: -n / 16,
+            offset_of=lambda n: -n / 12,
         ),
         "rolling_loop": wave_gait(
             "rolling_loop",
@@ -98,13 +99,18 @@ def library() -> dict[str, Gait]:
         ),
         "legged_walk": wave_gait(
             "legged_walk",
-            "A trot: a body with four legs of two modules (hip yaw, knee pitch); diagonal legs together.",
+            "A trot: a body with four legs of two modules (hip yaw 40°, knee pitch 30°); diagonal legs together. "
+            "Legs are numbered counter-clockwise from the front left; a left hip swings back while a right one "
+            "swings forward, and each knee lowers its foot while its hip pushes backwards.",
             Robot("legged", 8, "alternating", legs=4),
-            {"hip": (sine(30.0), 0.0), "knee": (sine(30.0, 0.0), 0.25)},
+            {"hip": (sine(40.0), 0.0), "knee": (sine(30.0), 0.0)},
             role_of=lambda n: "hip" if n % 2 == 0 else "knee",
-            offset_of=lambda n: 0.5 * ((n // 2) in (1, 2)),
+            # per leg (FL, BL, BR, FR): hip phase, knee phase; see the description
+            offset_of=lambda n: ((0.25, 0.0), (0.75, 0.5), (0.75, 0.0), (0.25, 0.5))[n // 2][n % 2],
         ),
     }
+    # Snake skin: slides along the body ten times more easily than across it (SIMULATION.md).
+    gaits["lateral_undulation"].ground = Ground(1.0, (0.1, 1.0))
     return gaits
 
 

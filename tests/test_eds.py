@@ -20,10 +20,11 @@ class Recorder(EventDrivenService):
         self.values.append(value)
 
 
-def test_handle_runs_once_per_firing_in_order(services) -> None:
+@pytest.mark.parametrize("inline", [False, True])
+def test_handle_runs_once_per_firing_in_order(services, inline: bool) -> None:
     clock = SimClock()
     event = Event("e", clock=clock)
-    service = Recorder(event, max_pending=128)
+    service = Recorder(event, max_pending=128, inline=inline)
     services.append(service)
     event.set("before start")
     service.start()
@@ -76,14 +77,15 @@ def test_queue_is_bounded_and_overruns_are_counted() -> None:
         service.stop(timeout=5)
 
 
+@pytest.mark.parametrize("inline", [False, True])
 @pytest.mark.parametrize(
     ("policy", "expected", "dropped"),
     [("drop", [1, 5], 3), ("coalesce", [1, 4, 5], 2), ("queue", [1, 2, 3, 4, 5], 0)],
 )
-def test_firings_while_suspended(services, policy: str, expected: list[int], dropped: int) -> None:
+def test_firings_while_suspended(services, policy: str, expected: list[int], dropped: int, inline: bool) -> None:
     clock = SimClock()
     event = Event("e", clock=clock)
-    service = Recorder(event, while_suspended=policy)
+    service = Recorder(event, while_suspended=policy, inline=inline)
     services.append(service)
     service.start()
     event.set(1)
@@ -123,12 +125,13 @@ def test_coalesce_keeps_firings_queued_before_the_suspension() -> None:
         service.stop(timeout=5)
 
 
-def test_firings_after_stop_are_not_handled(services) -> None:
+@pytest.mark.parametrize("inline", [False, True])
+def test_firings_after_stop_are_not_handled(services, inline: bool) -> None:
     clock = SimClock()
     event = Event("e", clock=clock)
     trigger = Trigger()
     event.add_trigger(trigger)
-    service = Recorder(event)
+    service = Recorder(event, inline=inline)
     services.append(service)
     service.start()
     trigger.fire(1)
@@ -139,13 +142,14 @@ def test_firings_after_stop_are_not_handled(services) -> None:
     assert service.values == [1]
 
 
-def test_a_failing_handler_stops_the_service() -> None:
+@pytest.mark.parametrize("inline", [False, True])
+def test_a_failing_handler_stops_the_service(inline: bool) -> None:
     event = Event("e")
 
     def explode(value: object) -> None:
         raise KeyError(value)
 
-    service = EventDrivenService("fragile", event, handler=explode)
+    service = EventDrivenService("fragile", event, handler=explode, inline=inline)
     service.start()
     event.set("x")
     assert service.join(timeout=5)
@@ -165,3 +169,35 @@ def test_bad_options_are_refused() -> None:
         EventDrivenService("x", Event("e"), while_suspended="later")  # type: ignore[arg-type]
     with pytest.raises(ValueError):
         EventDrivenService("x", Event("e"), max_pending=0)
+
+
+def test_inline_handles_in_the_firing_thread_one_at_a_time() -> None:
+    event = Event("e")
+    threads: set[int] = set()
+    active = [0]
+    overlaps = [0]
+    seen: list[int] = []
+
+    def handle(value: int) -> None:
+        active[0] += 1
+        overlaps[0] += active[0] > 1
+        threads.add(threading.get_ident())
+        seen.append(value)
+        active[0] -= 1
+
+    service = EventDrivenService("inline", event, handler=handle, inline=True)
+    service.start()
+    try:
+        event.set(-1)
+        assert threads == {threading.get_ident()} and seen == [-1]  # handled before set() returned
+        workers = [threading.Thread(target=lambda k=k: [event.set(k * 1000 + i) for i in range(500)]) for k in range(4)]
+        for worker in workers:
+            worker.start()
+        for worker in workers:
+            worker.join()
+        assert len(seen) == 2001 and overlaps[0] == 0
+        for k in range(4):  # each firing thread's values stay in its order
+            mine = [v for v in seen if v // 1000 == k and v >= 0]
+            assert mine == sorted(mine)
+    finally:
+        service.stop(timeout=5)

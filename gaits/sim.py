@@ -1,0 +1,281 @@
+"""A gait in MuJoCo, run by the modules' own runtime on the simulation clock.
+
+Every module is a :class:`server.module.ModuleRuntime` — the program a real module runs — with a MuJoCo actuator as
+its joint driver. Its gait table arrives as the bytes a deploying tool would send, and its PeriodicAutomaton runs on
+a :class:`~asm_py.clock.SimClock` that this loop advances: one ``gait.tick`` per control period (every module's
+automaton and servo react to it, inline, before the physics continues), then the physics steps of that period. The
+joint goals MuJoCo sees are therefore exactly what the modules command; nothing here computes a trajectory.
+
+:class:`Simulation` owns the model, the data and the loop; drawing it (viser, MuJoCo's viewer) only reads ``data``.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import mujoco
+import numpy as np
+
+from asm_py import Event
+from asm_py.clock import SimClock
+from server.module import JointDriver, JointReading, ModuleRuntime
+
+from .mjcf import Physics, build_mjcf
+from .model import Gait
+from .table import phase_states
+from .wire import encode_table
+
+
+@dataclass
+class Metrics:
+    """What a run achieved, measured on the centre of mass after the warm-up."""
+
+    seconds: float
+    """Simulated seconds measured (after the warm-up)."""
+    displacement: tuple[float, float]
+    """Centre-of-mass travel (x, y), metres."""
+    body_length: float
+    """Modules × module size, metres."""
+    peak_torque: float
+    """Largest absolute actuator torque seen, N·m."""
+    fell: bool
+    """The robot ended on its side (chains, loops) or upside down (legged)."""
+    real_time_factor: float = 0.0
+    """Simulated seconds per wall-clock second of the whole run."""
+
+    @property
+    def distance(self) -> float:
+        return math.hypot(*self.displacement)
+
+    @property
+    def body_lengths(self) -> float:
+        return self.distance / self.body_length
+
+    @property
+    def speed(self) -> float:
+        """Mean speed, m/s."""
+        return self.distance / self.seconds if self.seconds > 0 else 0.0
+
+    @property
+    def heading(self) -> float:
+        """Direction of travel, degrees from +x (the chain's axis, the legged body's front) counter-clockwise."""
+        return math.degrees(math.atan2(self.displacement[1], self.displacement[0]))
+
+    @property
+    def stuck(self) -> bool:
+        """Less than half a body length of progress over the run."""
+        return self.body_lengths < 0.5
+
+    def along(self, heading_deg: float) -> float:
+        """Progress along a direction, metres (negative: it went the other way)."""
+        a = math.radians(heading_deg)
+        return self.displacement[0] * math.cos(a) + self.displacement[1] * math.sin(a)
+
+    def across(self, heading_deg: float) -> float:
+        """Drift across a direction, metres (absolute)."""
+        a = math.radians(heading_deg)
+        return abs(-self.displacement[0] * math.sin(a) + self.displacement[1] * math.cos(a))
+
+    def summary(self) -> str:
+        return (f"distance {self.distance:.3f} m = {self.body_lengths:.2f} BL in {self.seconds:g} s, "
+                f"speed {self.speed:.3f} m/s, heading {self.heading:.1f}°, peak torque {self.peak_torque:.2f} N·m, "
+                f"fell {'yes' if self.fell else 'no'}, stuck {'yes' if self.stuck else 'no'}, "
+                f"real-time factor {self.real_time_factor:.1f}")  # fmt: skip
+
+
+class MujocoJoint(JointDriver):
+    """A module's joint as a MuJoCo position actuator (degrees in, radians to MuJoCo)."""
+
+    def __init__(self, sim: Simulation, module_id: int) -> None:
+        self._sim = sim
+        model = sim.model
+        self._actuator = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_ACTUATOR, f"m{module_id}")
+        joint = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, f"m{module_id}")
+        self._qpos = model.jnt_qposadr[joint]
+        self._module = module_id
+        self._gains = (
+            float(model.actuator_gainprm[self._actuator, 0]),
+            float(model.actuator_biasprm[self._actuator, 2]),
+        )
+        self._relaxed = False
+
+    def command(self, degrees: float) -> None:
+        self._sim.data.ctrl[self._actuator] = math.radians(degrees)
+        if self._relaxed:
+            self._power(*self._gains)
+
+    def read(self) -> JointReading:
+        data = self._sim.data
+        return JointReading(math.degrees(data.qpos[self._qpos]), float(data.actuator_force[self._actuator]),
+                            self._module in self._sim.touching)  # fmt: skip
+
+    def relax(self) -> None:
+        self._power(0.0, 0.0)
+
+    def _power(self, kp: float, damping: float) -> None:
+        """A position actuator with zero gains exerts no torque: the servo is off."""
+        model = self._sim.model
+        model.actuator_gainprm[self._actuator, 0] = kp
+        model.actuator_biasprm[self._actuator, 1] = -kp
+        model.actuator_biasprm[self._actuator, 2] = damping
+        self._relaxed = kp == 0.0
+
+
+@dataclass
+class Trace:
+    """Every module's joint goal at every control tick (for comparing preview and deployment)."""
+
+    times: list[float] = field(default_factory=list)
+    goals: list[list[float]] = field(default_factory=list)
+
+
+class Simulation:
+    """A gait's robot in MuJoCo, driven by one ModuleRuntime per module; see the module docstring.
+
+    ``direction`` -1 runs every module's automaton backwards (the gait's own directions, negated).
+    """
+
+    def __init__(
+        self,
+        gait: Gait,
+        *,
+        physics: Physics | None = None,
+        control_rate: float = 50.0,
+        ramp: float = 1.0,
+        direction: int = 1,
+        trace: bool = False,
+    ) -> None:
+        self.gait = gait
+        self.physics = physics or Physics(friction=gait.ground.friction, anisotropic=gait.ground.anisotropic)
+        self.mjcf = build_mjcf(gait.robot, self.physics, name=gait.name)
+        self.model = mujoco.MjModel.from_xml_string(self.mjcf)
+        self.data = mujoco.MjData(self.model)
+        self.clock = SimClock()
+        self.tick = Event("gait.tick", codec="float64", clock=self.clock)
+        self.steps_per_tick = max(1, round(1.0 / (control_rate * self.model.opt.timestep)))
+        self.direction = direction
+        self.touching: set[int] = set()
+        self.trace = Trace() if trace else None
+        self._floor = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_GEOM, "floor")
+        self._module_of_body = self._module_bodies()
+        self._root = self.model.body("body" if gait.robot.shape == "legged" else f"b{self._root_index()}").id
+        self.modules: dict[int, ModuleRuntime] = {}
+        self._push: tuple[float, np.ndarray] | None = None
+        self.peak_torque = 0.0
+        self._started = False
+        for assignment in gait.modules:
+            runtime = ModuleRuntime(MujocoJoint(self, assignment.id), clock=self.clock, tick=self.tick,
+                                    limits=gait.limits, ramp=ramp, inline=True)  # fmt: skip
+            self.modules[assignment.id] = runtime
+        mujoco.mj_forward(self.model, self.data)
+
+    def _root_index(self) -> int:
+        return 0 if self.gait.robot.shape == "loop" else self.gait.robot.modules // 2
+
+    def _module_bodies(self) -> np.ndarray:
+        """Body id → the module it belongs to (0: none), for the contact sensors."""
+        owner = np.zeros(self.model.nbody, dtype=np.int32)
+        shape = self.gait.robot.shape
+        for i in range(1, self.gait.robot.modules + 1):
+            owner[self.model.body(f"b{i}").id] = i  # the distal half of module i (and the proximal of i + 1)
+        if shape != "legged":
+            owner[self.model.body("b0").id] = 1
+        return owner
+
+    # -- running ------------------------------------------------------------------------------------------------
+
+    def start(self) -> None:
+        """Load every module's table, phase and direction as a deployment would, then start all gaits at t."""
+        for assignment in self.gait.modules:
+            runtime = self.modules[assignment.id]
+            runtime.table.set(encode_table(phase_states(self.gait.automata[assignment.automaton])))
+            runtime.phase.set(assignment.phase)
+            runtime.gait.direction.set(assignment.direction * self.direction)
+        for runtime in self.modules.values():
+            runtime.gait.start()
+        self.clock.settle()
+        self._started = True
+
+    def push(self, force: tuple[float, float, float], seconds: float) -> None:
+        """Apply ``force`` (N, world frame) at the root body's centre of mass for ``seconds`` from now."""
+        self._push = (self.data.time + seconds, np.asarray(force, dtype=float))
+        self.data.xfrc_applied[self._root, :3] = self._push[1]
+
+    def step_tick(self) -> None:
+        """One control period: the tick (every module reacts), then the physics steps of the period."""
+        self._sense_contacts()
+        self.clock.advance_to(self.data.time)
+        self.tick.set(self.data.time)
+        if self.trace is not None:
+            self.trace.times.append(self.data.time)
+            self.trace.goals.append([r.goal.peek() for r in self.modules.values()])
+        mujoco.mj_step(self.model, self.data, self.steps_per_tick)
+        self.peak_torque = max(self.peak_torque, float(np.abs(self.data.actuator_force).max(initial=0.0)))
+        if self._push is not None and self.data.time >= self._push[0]:
+            self.data.xfrc_applied[self._root, :3] = 0.0
+            self._push = None
+        if not np.isfinite(self.data.qpos).all():
+            raise FloatingPointError(f"the simulation diverged at t = {self.data.time:.3f} s")
+
+    def advance(self, seconds: float) -> None:
+        end = self.data.time + seconds - 1e-9
+        while self.data.time < end:
+            self.step_tick()
+
+    def _sense_contacts(self) -> None:
+        ncon = self.data.ncon
+        if ncon == 0:
+            self.touching = set()
+            return
+        geoms = self.data.contact.geom[:ncon]
+        floor = (geoms == self._floor).any(axis=1)
+        other = np.where(geoms[:, 0] == self._floor, geoms[:, 1], geoms[:, 0])[floor]
+        self.touching = set(self._module_of_body[self.model.geom_bodyid[other]].tolist()) - {0}
+
+    def center_of_mass(self) -> np.ndarray:
+        return self.data.subtree_com[0].copy()
+
+    def fell(self) -> bool:
+        xmat = self.data.xmat[self._root].reshape(3, 3)
+        if self.gait.robot.shape == "legged":
+            return bool(xmat[2, 2] < 0.5)  # the body's up axis no longer points up
+        return bool(abs(xmat[2, 1]) > 0.7)  # the pitch axis (body y) stands up: lying on its side
+
+    def run(self, seconds: float, *, warmup: float = 2.0, push_at: float | None = None,
+            push: tuple[float, float, float] = (0.0, 1.0, 0.0), push_seconds: float = 0.1) -> Metrics:  # fmt: skip
+        """Start (if needed), run ``warmup`` + ``seconds``, and measure the last ``seconds``."""
+        wall = time.perf_counter()
+        if not self._started:
+            self.start()
+        self.advance(warmup)
+        start = self.center_of_mass()
+        self.peak_torque = 0.0
+        if push_at is not None and push_at > warmup:
+            self.advance(push_at - warmup)
+            self.push(push, push_seconds)
+            self.advance(seconds - (push_at - warmup))
+        else:
+            self.advance(seconds)
+        end = self.center_of_mass()
+        wall = time.perf_counter() - wall
+        return Metrics(seconds, (float(end[0] - start[0]), float(end[1] - start[1])),
+                       self.gait.robot.modules * self.gait.robot.module_size, self.peak_torque, self.fell(),
+                       (warmup + seconds) / wall if wall > 0 else 0.0)  # fmt: skip
+
+    def close(self) -> None:
+        for runtime in self.modules.values():
+            runtime.close()
+
+    def __enter__(self) -> Simulation:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def simulate(gait: Gait, seconds: float = 10.0, *, warmup: float = 2.0, **options: object) -> Metrics:
+    """Run ``gait`` headless and return its metrics (options as for :class:`Simulation`)."""
+    with Simulation(gait, **options) as sim:  # type: ignore[arg-type]
+        return sim.run(seconds, warmup=warmup)

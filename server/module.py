@@ -1,0 +1,348 @@
+"""The module runtime: the ASM node a PolyBot-like module runs, whether its joint is simulated or real.
+
+What a module has is what it exposes (well-known classes, so groups and tools address them on every module):
+
+    joint.goal      float32  the commanded angle, degrees — clamped to joint.limits whatever is sent
+    joint.angle     float32  the measured angle, published
+    joint.torque    float32  the measured torque, N·m, published
+    joint.limits    float32[2]  (min, max) degrees; settable only within the hardware's range
+    servo.service   the servo loop: running = joint powered and following joint.goal; stopped = limp
+    gait.table      bytes    this module's automaton (gaits.wire); settable only while the gait is stopped
+    gait.checksum   uint32   CRC-32 of gait.table, for a deploying tool to verify the transfer
+    gait.phase      float32  the initial phase delay φ ∈ [0, 1) used when the gait starts without one
+    gait.direction  int8     +1 forward, -1 backward (the automaton's direction)
+    gait.state      uint16   the automaton's current state
+    gait.service    the PeriodicAutomaton running the table on gait.tick; its output drives joint.goal
+    gait.tick       float64  the control tick event (a timer on a real module; the simulator's steps in preview)
+    sensor.contact  bool     the module touches the ground, published
+    estop           bool     latched emergency stop: the gait stops, the joint holds where it is, and nothing
+                             starts again until it is set back to false
+
+The same class drives a simulated joint (a MuJoCo actuator, gaits.sim) or a real one behind :class:`JointDriver`;
+:class:`FakeDriver` is a servo model for tests and for running without hardware.
+
+When the gait starts, the goal ramps from where it was to the automaton's reference over ``ramp`` seconds: a jump to
+full amplitude can throw a long chain about (SIMULATION.md). The ramp is part of the module, so a preview shows it.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+from abc import ABC, abstractmethod
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+from asm_py import Attribute, Event, Node, PeriodicAutomaton, PhaseState, TimerTrigger
+from asm_py.clock import WALL_CLOCK, Clock
+from asm_py.codec import BOOL, BYTES, FLOAT32, FLOAT64, UINT32, float_array
+from asm_py.eds import EventDrivenService
+from asm_py.errors import ServiceError
+from gaits.wire import checksum, decode_table, encode_table
+
+HOLD = [PhaseState(0.0, 1.0, "step")]
+"""The table of a module that has not been given a gait: hold 0°."""
+
+
+@dataclass(frozen=True)
+class JointReading:
+    angle: float
+    """Measured joint angle, degrees."""
+    torque: float = 0.0
+    """Measured joint torque, N·m."""
+    contact: bool = False
+    """The module touches the ground."""
+
+
+class JointDriver(ABC):
+    """The joint of one module in degrees: what a simulated or real module plugs into the runtime."""
+
+    @abstractmethod
+    def command(self, degrees: float) -> None:
+        """Drive the joint towards ``degrees`` (already within the module's limits)."""
+
+    @abstractmethod
+    def read(self) -> JointReading:
+        """The joint's measured state now."""
+
+    def relax(self) -> None:
+        """Stop driving the joint (servo off)."""
+
+
+class FakeDriver(JointDriver):
+    """A position servo model: the angle follows the command as a first-order lag with time constant ``tau``
+    seconds of ``clock``, computed when read (no thread of its own, so it is deterministic on a SimClock)."""
+
+    def __init__(self, *, tau: float = 0.05, stiffness: float = 0.02, clock: Clock | None = None) -> None:
+        self.tau = tau
+        self.stiffness = stiffness  # N·m per degree of error, for the torque estimate
+        self.clock = clock or WALL_CLOCK
+        self._lock = threading.Lock()
+        self._goal = 0.0
+        self._angle = 0.0
+        self._powered = True
+        self._time = self.clock.now()
+
+    def _advance(self) -> None:
+        now = self.clock.now()
+        if self._powered:
+            self._angle = self._goal + (self._angle - self._goal) * math.exp(-(now - self._time) / self.tau)
+        self._time = now
+
+    def command(self, degrees: float) -> None:
+        with self._lock:
+            self._advance()
+            self._goal = degrees
+            self._powered = True
+
+    def read(self) -> JointReading:
+        with self._lock:
+            self._advance()
+            torque = self.stiffness * (self._goal - self._angle) if self._powered else 0.0
+            return JointReading(self._angle, max(-1.5, min(1.5, torque)), False)
+
+    def relax(self) -> None:
+        with self._lock:
+            self._advance()
+            self._powered = False
+
+
+class _Goal(Attribute):
+    """joint.goal: every value, however it arrives (set, remote set, publication), is clamped to the limits."""
+
+    def __init__(self, runtime: ModuleRuntime) -> None:
+        super().__init__("joint.goal", 0.0, codec=FLOAT32, clock=runtime.clock)
+        self._runtime = runtime
+
+    def _clamp(self, value: Any) -> float:
+        if type(value) is not float:
+            value = FLOAT32.normalize(value)  # type errors here; float32 rounding happens once, in set()
+        if math.isnan(value):
+            raise ValueError("joint.goal cannot be NaN")
+        lo, hi = self._runtime.limits.peek()
+        return min(max(value, lo), hi)
+
+    def set(self, value: Any, timeout: float | None = None, *, wait: bool = True) -> None:
+        super().set(self._clamp(value), timeout, wait=wait)
+
+    def _deliver(self, value: Any, *, decoded_by: Any = None) -> None:
+        super()._deliver(self._clamp(value))
+
+
+class _Checked(Attribute):
+    """An attribute whose sets pass ``check`` first (which may transform the value or raise)."""
+
+    def __init__(self, name: str, initial: Any, codec: Any, check: Callable[[Any], Any], clock: Clock) -> None:
+        super().__init__(name, initial, codec=codec, clock=clock)
+        self._check = check
+
+    def set(self, value: Any, timeout: float | None = None, *, wait: bool = True) -> None:
+        value = self.codec.normalize(value) if self.codec is not None else value
+        super().set(self._check(value), timeout, wait=wait)
+
+    def _deliver(self, value: Any, *, decoded_by: Any = None) -> None:
+        self.set(value)
+
+
+class ModuleGait(PeriodicAutomaton):
+    """gait.service: started without a phase, it starts at the module's gait.phase; refuses to start in e-stop."""
+
+    def __init__(self, runtime: ModuleRuntime, tick: Event, *, inline: bool) -> None:
+        self._runtime = runtime
+        self.reference_out = Attribute("gait.reference", 0.0, codec=FLOAT64, clock=runtime.clock)
+        super().__init__("gait.service", tick, HOLD, output=self.reference_out, inline=inline, clock=runtime.clock)
+
+    def start(self, phase: float | None = None, direction: int | None = None, *, wait: bool = True) -> None:  # type: ignore[override]
+        if self._runtime.estop.peek():
+            raise ServiceError("the module is in emergency stop; set estop to false before starting the gait")
+        if phase is None:
+            phase = float(self._runtime.phase.peek())
+        self._runtime._begin_ramp()
+        super().start(phase, direction)
+
+
+class _Servo(EventDrivenService):
+    """servo.service: on every control tick, read the joint into joint.angle/torque and sensor.contact."""
+
+    def __init__(self, runtime: ModuleRuntime, tick: Event, *, inline: bool) -> None:
+        super().__init__("servo.service", tick, inline=inline, clock=runtime.clock)
+        self._runtime = runtime
+
+    def handle(self, value: Any) -> None:
+        self._runtime.sense()
+
+    def on_start(self, *params: Any) -> None:
+        self._runtime.driver.command(self._runtime.goal.peek())
+
+    def on_stop(self) -> None:
+        self._runtime.driver.relax()
+
+
+class ModuleRuntime:
+    """One module's objects and behaviour; see the module docstring. ``close`` stops everything it started."""
+
+    def __init__(
+        self,
+        driver: JointDriver,
+        *,
+        node: Node | None = None,
+        clock: Clock | None = None,
+        limits: tuple[float, float] = (-90.0, 90.0),
+        hardware_range: tuple[float, float] = (-90.0, 90.0),
+        tick: Event | None = None,
+        control_rate: float = 50.0,
+        ramp: float = 1.0,
+        inline: bool = False,
+        publish_rate: float = 50.0,
+    ) -> None:
+        self.driver = driver
+        self.node = node
+        self.clock = clock or (node.clock if node is not None else WALL_CLOCK)
+        self.hardware_range = hardware_range
+        self.ramp = ramp
+        self.limits = _Checked("joint.limits", self._check_limits(limits), float_array(2), self._check_limits,
+                               self.clock)  # fmt: skip
+        self.goal = _Goal(self)
+        self.angle = Attribute("joint.angle", 0.0, codec=FLOAT32, clock=self.clock)
+        self.torque = Attribute("joint.torque", 0.0, codec=FLOAT32, clock=self.clock)
+        self.contact = Attribute("sensor.contact", False, codec=BOOL, clock=self.clock)
+        self.estop = _Checked("estop", False, BOOL, self._check_estop, self.clock)
+        self.phase = _Checked("gait.phase", 0.0, FLOAT32, self._check_phase, self.clock)
+        self._own_timer: TimerTrigger | None = None
+        if tick is None:
+            tick = Event("gait.tick", codec=FLOAT64, clock=self.clock)
+            self._own_timer = TimerTrigger(1.0 / control_rate, name="tick.timer", clock=self.clock)
+            tick.add_trigger(self._own_timer)
+        self.tick = tick
+        self.gait = ModuleGait(self, tick, inline=inline)
+        table = encode_table(HOLD)
+        self.table = _Checked("gait.table", table, BYTES, self._load_table, self.clock)
+        self.checksum = Attribute("gait.checksum", checksum(table), codec=UINT32, clock=self.clock)
+        self.servo = _Servo(self, tick, inline=inline)
+        self._ramp_from = 0.0
+        self._ramp_start = 0.0
+        self._unlisten = [self.gait.reference_out.on_change(self._follow), self.limits.on_change(self._reclamp),
+                          self.goal.on_change(self._command)]  # fmt: skip
+        if node is not None:
+            self._register(node, publish_rate)
+        self.servo.start()
+        if self._own_timer is not None:
+            self._own_timer.start()
+
+    # -- wiring -------------------------------------------------------------------------------------------------
+
+    def _register(self, node: Node, publish_rate: float) -> None:
+        for obj in (self.goal, self.angle, self.torque, self.limits, self.servo, self.table, self.checksum,
+                    self.phase, self.gait, self.tick, self.contact, self.estop):  # fmt: skip
+            node.register(obj)
+        node.register(self.gait.direction, name="gait.direction")
+        node.register(self.gait.state, name="gait.state")
+        self.angle.publish(rate=publish_rate, deadband=0.1)
+        self.torque.publish(rate=publish_rate / 5, deadband=0.05)
+        self.contact.publish()
+        self.gait.state.publish()
+        self._unlisten.append(node.on_estop(lambda source, reason: self.emergency_stop(reason)))
+
+    # -- behaviour ----------------------------------------------------------------------------------------------
+
+    def _check_limits(self, value: Any) -> tuple[float, float]:
+        lo, hi = (float(v) for v in value)
+        hw_lo, hw_hi = self.hardware_range
+        if not (hw_lo <= lo < hi <= hw_hi):
+            raise ValueError(f"joint limits must satisfy {hw_lo} <= min < max <= {hw_hi}, not ({lo}, {hi})")
+        return (lo, hi)
+
+    def _check_phase(self, value: float) -> float:
+        if not 0.0 <= value < 1.0:
+            raise ValueError(f"gait.phase must be in [0, 1), not {value}")
+        return value
+
+    def _check_estop(self, value: bool) -> bool:
+        if value:
+            self._halt()
+        return value
+
+    def _load_table(self, data: bytes) -> bytes:
+        states = decode_table(data)
+        lo, hi = self.limits.peek()
+        outside = [s.target for s in states if not lo <= s.target <= hi]  # type: ignore[operator]
+        if outside:
+            raise ValueError(f"gait table angles {outside[:4]} lie outside the joint limits ({lo}, {hi})")
+        self.gait.load(states)  # ServiceError while the gait runs: a table never changes mid-cycle
+        self.checksum.set(checksum(data))
+        return data
+
+    def _follow(self, reference: float) -> None:
+        """The automaton's reference becomes the goal, ramped in from the goal held when the gait started."""
+        s = 1.0 if self.ramp <= 0 else min(1.0, (self.clock.now() - self._ramp_start) / self.ramp)
+        self.goal.set(self._ramp_from + s * (reference - self._ramp_from))
+
+    def _reclamp(self, limits: Any) -> None:
+        self.goal.set(self.goal.peek())
+
+    def _command(self, goal: float) -> None:
+        if self.servo.running:
+            self.driver.command(goal)
+
+    def sense(self) -> None:
+        reading = self.driver.read()
+        self.angle.set(reading.angle)
+        self.torque.set(reading.torque)
+        if reading.contact != self.contact.peek():
+            self.contact.set(reading.contact)
+
+    def _begin_ramp(self) -> None:
+        self._ramp_from = float(self.goal.peek())
+        self._ramp_start = self.clock.now()
+
+    def _halt(self) -> None:
+        self.gait.stop(wait=False)
+        self.goal.set(self.driver.read().angle)
+
+    def emergency_stop(self, reason: str = "") -> None:
+        """Stop the gait and hold the joint where it is; latched until ``estop`` is set to false."""
+        self.estop.set(True)
+
+    def close(self) -> None:
+        if self._own_timer is not None:
+            self._own_timer.stop(timeout=5)
+        self.gait.stop(timeout=5)
+        self.servo.stop(timeout=5)
+        for unlisten in self._unlisten:
+            unlisten()
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``asm-module --can INTERFACE:CHANNEL --node-id N``: one module on a CAN bus (a Linux-based module)."""
+    import argparse
+    import signal
+
+    from asm_py.transport.can import CanTransport
+    from server.bridge import parse_can
+
+    cli = argparse.ArgumentParser(prog="asm-module", description=main.__doc__.splitlines()[0] if main.__doc__ else "")
+    cli.add_argument("--can", type=parse_can, required=True, metavar="INTERFACE:CHANNEL")
+    cli.add_argument("--bitrate", type=int)
+    cli.add_argument("--node-id", type=int, required=True, help="CAN node ID 1..254; also names the node m<ID>")
+    cli.add_argument("--name", help="node name (default m<node-id>, what gaits.deploy expects)")
+    cli.add_argument("--driver", choices=["fake"], default="fake", help="joint driver (fake: a servo model)")
+    cli.add_argument("--limits", type=float, nargs=2, default=(-90.0, 90.0), metavar=("MIN", "MAX"))
+    cli.add_argument("--rate", type=float, default=50.0, help="control ticks per second (default 50)")
+    args = cli.parse_args(argv)
+    options = {**args.can, **({"bitrate": args.bitrate} if args.bitrate else {})}
+    name = args.name or f"m{args.node_id}"
+    node = Node(name, CanTransport(args.node_id, **options))
+    runtime = ModuleRuntime(FakeDriver(), node=node, limits=tuple(args.limits), control_rate=args.rate)
+    done = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: done.set())
+    signal.signal(signal.SIGINT, lambda *_: done.set())
+    print(f"READY {name}", flush=True)
+    done.wait()
+    runtime.close()
+    node.close()
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

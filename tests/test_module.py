@@ -1,0 +1,197 @@
+"""The module runtime (server/module.py): what a module exposes, and how it protects its joint whatever it is sent."""
+
+from __future__ import annotations
+
+import math
+import subprocess
+import sys
+
+import pytest
+
+from asm_py import Node
+from asm_py.automaton import PhaseState
+from asm_py.clock import SimClock
+from asm_py.errors import RemoteError, ServiceError
+from asm_py.transport import MemoryNetwork, MemoryTransport
+from asm_py.transport.can import CanTransport
+from gaits.deploy import DeployError, deploy, start_all, stop_all
+from gaits.model import load
+from gaits.wire import checksum, decode_table, encode_table
+from server.module import FakeDriver, ModuleRuntime
+from tests.helpers import wait_until
+from tests.transports import fresh_name
+
+pytestmark = pytest.mark.timeout(60)
+LIBRARY = "gaits/library"
+WAVE = [PhaseState(float(a), 0.25, "linear") for a in (30, 60, 30, 0)]
+
+
+@pytest.fixture
+def pair():
+    """A module runtime on a memory network and a client node next to it."""
+    network = MemoryNetwork()
+    module_node = Node("m1", MemoryTransport(network))
+    runtime = ModuleRuntime(FakeDriver(), node=module_node, limits=(-45.0, 45.0))
+    client = Node("tool", MemoryTransport(network))
+    yield runtime, client
+    runtime.close()
+    client.close()
+    module_node.close()
+
+
+def test_goal_is_clamped_to_the_limits_however_it_arrives(pair):
+    runtime, client = pair
+    goal = client.lookup("m1", "joint.goal", timeout=2)
+    goal.set(80.0, wait=True)
+    assert goal.peek() == 45.0
+    goal.set(-1e9, wait=True)
+    assert goal.peek() == -45.0
+    with pytest.raises((RemoteError, ValueError)):
+        goal.set(math.nan, wait=True)
+    assert runtime.goal.peek() == -45.0
+    runtime.goal.set(12.5)
+    assert runtime.goal.peek() == 12.5
+
+
+def test_limits_can_only_narrow_within_the_hardware_range_and_reclamp_the_goal(pair):
+    runtime, client = pair
+    limits = client.lookup("m1", "joint.limits", timeout=2)
+    client.lookup("m1", "joint.goal", timeout=2).set(40.0, wait=True)
+    limits.set((-20.0, 20.0), wait=True)
+    assert tuple(limits.peek()) == (-20.0, 20.0)
+    assert runtime.goal.peek() == 20.0
+    for bad in ((-120.0, 0.0), (10.0, -10.0), (5.0, 5.0)):
+        with pytest.raises((RemoteError, ValueError)):
+            limits.set(bad, wait=True)
+    assert tuple(runtime.limits.peek()) == (-20.0, 20.0)
+
+
+def test_table_checksum_phase_and_refusals(pair):
+    runtime, client = pair
+    table = client.lookup("m1", "gait.table", timeout=2)
+    data = encode_table([*WAVE[:1], PhaseState(40.0, 0.5, "step")])
+    table.set(data, wait=True)
+    assert client.lookup("m1", "gait.checksum", timeout=2).peek() == checksum(data)
+    assert [s.target for s in runtime.gait.states] == [30.0, 40.0]
+    with pytest.raises((RemoteError, ValueError)):  # 60° is outside the module's ±45° limits
+        table.set(encode_table(WAVE), wait=True)
+    with pytest.raises((RemoteError, ValueError)):
+        table.set(b"GT\x01garbage", wait=True)
+    with pytest.raises((RemoteError, ValueError)):
+        client.lookup("m1", "gait.phase", timeout=2).set(1.0, wait=True)
+    assert client.lookup("m1", "gait.checksum", timeout=2).peek() == checksum(data)  # nothing half applied
+    client.lookup("m1", "gait.service", timeout=2).start(wait=True)
+    with pytest.raises((RemoteError, ServiceError)):  # never a new table under a running gait
+        table.set(encode_table([PhaseState(0.0, 1.0)]), wait=True)
+    client.lookup("m1", "gait.service", timeout=2).stop(wait=True)
+
+
+def test_estop_stops_the_gait_holds_the_joint_and_latches(pair):
+    runtime, client = pair
+    runtime.table.set(encode_table([PhaseState(40.0, 0.5, "linear"), PhaseState(-40.0, 0.5, "linear")]))
+    gait = client.lookup("m1", "gait.service", timeout=2)
+    gait.start(wait=True)
+    assert wait_until(lambda: runtime.gait.state.peek() == 1 or runtime.goal.peek() != 0.0)
+    client.estop("test")
+    assert wait_until(lambda: not runtime.gait.started)
+    held = runtime.goal.peek()
+    assert runtime.estop.peek() is True
+    with pytest.raises((RemoteError, ServiceError)):
+        gait.start(wait=True)
+    assert runtime.goal.peek() == held
+    client.lookup("m1", "estop", timeout=2).set(False, wait=True)
+    gait.start(wait=True)
+    assert wait_until(lambda: runtime.goal.peek() != held)
+    gait.stop(wait=True)
+
+
+def test_servo_follows_publishes_the_angle_and_goes_limp_when_stopped(pair):
+    runtime, client = pair
+    seen: list[float] = []
+    client.lookup("m1", "joint.angle", timeout=2).on_change(seen.append)
+    client.lookup("m1", "joint.goal", timeout=2).set(30.0, wait=True)
+    assert wait_until(lambda: seen and abs(seen[-1] - 30.0) < 0.5)
+    client.lookup("m1", "servo.service", timeout=2).stop(wait=True)
+    assert runtime.driver.read().torque == 0.0
+    client.lookup("m1", "joint.goal", timeout=2).set(-30.0, wait=True)
+    assert abs(runtime.driver.read().angle - 30.0) < 0.5  # limp: a goal does not move the joint
+    client.lookup("m1", "servo.service", timeout=2).start(wait=True)
+    runtime.goal.set(-30.0)
+    assert wait_until(lambda: abs(runtime.angle.peek() + 30.0) < 0.5)
+
+
+def test_gait_ramps_in_and_then_follows_the_table_on_a_sim_clock():
+    clock = SimClock()
+    runtime = ModuleRuntime(FakeDriver(clock=clock), clock=clock, ramp=1.0)
+    try:
+        runtime.table.set(encode_table([PhaseState(60.0, 1.0, "step")]))
+        runtime.gait.start()
+        clock.advance(0.5)
+        clock.settle()
+        assert runtime.goal.peek() == pytest.approx(30.0, abs=1.0)  # half way through the ramp
+        clock.advance(1.0)
+        clock.settle()
+        assert runtime.goal.peek() == 60.0
+    finally:
+        runtime.close()
+
+
+def test_table_wire_format_round_trips_and_rejects_damage():
+    data = encode_table(WAVE)
+    assert decode_table(data) == WAVE
+    # the example in docs/protocol.md §9
+    assert encode_table([PhaseState(30.0, 1.0, "linear")]).hex(" ") == "47 54 01 01 00 00 00 f0 41 00 00 80 3f 01"
+    assert len(data) == 5 + 9 * len(WAVE)
+    for bad in (data[:-1], b"XX" + data[2:], data[:2] + b"\x02" + data[3:], data + b"\x00"):
+        with pytest.raises(ValueError):
+            decode_table(bad)
+
+
+def test_deploy_over_can_verifies_checksums_and_starts_all_with_one_broadcast():
+    gait = load(f"{LIBRARY}/caterpillar.toml")
+    channel = fresh_name("asm-deploy")
+    runtimes, nodes = [], []
+    try:
+        for a in gait.modules:
+            node = Node(f"m{a.id}", CanTransport(a.id, interface="virtual", channel=channel, heartbeat_period=0.05))
+            nodes.append(node)
+            runtimes.append(ModuleRuntime(FakeDriver(), node=node))
+        tool = Node("tool", CanTransport(200, interface="virtual", channel=channel, heartbeat_period=0.05))
+        nodes.append(tool)
+        steps: list[tuple[int, int]] = []
+        verified = deploy(tool, gait, progress=lambda done, total, _: steps.append((done, total)))
+        assert steps[-1] == (8, 8) and len(verified) == 8
+        for runtime, a in zip(runtimes, gait.modules, strict=True):
+            assert runtime.phase.peek() == pytest.approx(a.phase, abs=1e-6)
+            assert not runtime.gait.started
+        start_all(tool)
+        assert wait_until(lambda: all(r.gait.started for r in runtimes))
+        stop_all(tool)
+        assert wait_until(lambda: not any(r.gait.started for r in runtimes))
+        runtimes[3].limits.set((-10.0, 10.0))  # module 4 can no longer take ±50°: nothing may start
+        with pytest.raises(DeployError, match="module 4"):
+            deploy(tool, gait)
+    finally:
+        for runtime in runtimes:
+            runtime.close()
+        for node in nodes:
+            node.close()
+
+
+def test_asm_module_command_starts_and_stops_cleanly_on_sigterm():
+    channel = fresh_name("asm-cli")
+    # python-can's virtual bus is per process: the command runs in this process's interpreter via runpy.
+    code = (
+        "import sys, threading, runpy; from server import module; "
+        "threading.Timer(8.0, lambda: __import__('os').kill(__import__('os').getpid(), 15)).start(); "
+        f"sys.exit(module.main(['--can', 'virtual:{channel}', '--node-id', '7']))"
+    )
+    proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout is not None
+        assert proc.stdout.readline().strip() == "READY m7"
+        assert proc.wait(timeout=30) == 0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
