@@ -14,7 +14,13 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 run: $(STAMP)
-	$(PY) -m asm_py.demo
+	$(VENV)/bin/asm-studio
+
+# The browser tests drive Debian's Chromium (never a browser downloaded by a tool).
+CHROMIUM := /usr/bin/chromium
+$(CHROMIUM):
+	if [ "$$(id -u)" = 0 ]; then apt-get update && apt-get install -y chromium; \
+	else sudo apt-get update && sudo apt-get install -y chromium; fi
 
 lint: $(STAMP)
 	$(PY) -m ruff check .
@@ -24,8 +30,8 @@ format: $(STAMP)
 	$(PY) -m ruff format .
 	$(PY) -m ruff check --fix .
 
-test: lint
-	$(PY) -m pytest -m "not slow"
+test: lint $(CHROMIUM)
+	PLAYWRIGHT_SKIP_BROWSER_DOWNLOAD=1 $(PY) -m pytest -m "not slow"
 
 bench: $(STAMP)
 	for script in bench/*.py; do $(PY) $$script || exit 1; done

@@ -184,6 +184,11 @@ class CanTransport(Transport):
     def peers(self) -> list[str]:
         return sorted({self.name, *(self.name_of(i) for i in self._alive)})
 
+    def last_heard(self, name: str) -> float | None:
+        """``time.monotonic()`` when node ``name`` was last heard (any frame), or None if never."""
+        node_id = self.resolve(name)
+        return None if node_id is None else self._last_heard.get(node_id)
+
     # -- sending --------------------------------------------------------------------------------------------------
 
     def send(self, dest: str, data: bytes) -> None:

@@ -1,0 +1,147 @@
+"""``asm-studio``: the modules, the bridge and the dashboard, started with one command.
+
+By default everything runs in this process on loopback: one module runtime per module of the opened gait's robot,
+each an ASM node on an in-process python-can virtual bus (what ``asm-module`` runs on a real module), a CAN↔Zenoh
+bridge (a Zenoh peer listening on a free loopback port, or the endpoints given), and the dashboard at
+http://127.0.0.1:8080. ``--can INTERFACE:CHANNEL`` attaches to a real bus instead of starting simulated modules.
+
+The dashboard is an ordinary ASM node on the bus (node ID 250, named ``studio``): it reaches the modules only by
+lookup, get/set, services and subscriptions, like any client.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import os
+import signal
+import threading
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from asm_py import Node
+from asm_py.transport.can import CanTransport
+from gaits.deploy import module_name
+from gaits.model import Gait, load
+
+from .bridge import CanZenohBridge, parse_can
+from .module import FakeDriver, ModuleRuntime
+
+log = logging.getLogger("asm_studio")
+LIBRARY = Path(__file__).resolve().parent.parent / "gaits" / "library"
+STUDIO_NODE_ID = 250
+
+
+@dataclass
+class StudioOptions:
+    gait: Path = LIBRARY / "caterpillar.toml"
+    """The gait opened at start; its robot sets how many simulated modules run."""
+    can: dict[str, Any] | None = None
+    """python-can options of a real bus; None: simulated modules on an in-process virtual bus."""
+    bitrate: int | None = None
+    zenoh_listen: tuple[str, ...] = ()
+    zenoh_connect: tuple[str, ...] = ()
+    zenoh: bool = True
+    """Bridge the bus to Zenoh (so tools on other machines see the modules)."""
+    host: str = "127.0.0.1"
+    port: int = 8080
+    heartbeat_period: float = 0.5
+
+
+class Studio:
+    """The backend: modules (simulated or on a real bus), the bridge, the dashboard's node and the web app."""
+
+    def __init__(self, options: StudioOptions) -> None:
+        self.options = options
+        self.gait: Gait = load(options.gait)
+        self.simulated = options.can is None
+        channel = f"asm-studio-{os.getpid()}-{id(self)}"
+        self.can_options: dict[str, Any] = dict(options.can) if options.can else {"interface": "virtual",
+                                                                                "channel": channel}  # fmt: skip
+        if options.bitrate:
+            self.can_options["bitrate"] = options.bitrate
+        self.module_nodes: list[Node] = []
+        self.modules: dict[int, ModuleRuntime] = {}
+        self.bridge: CanZenohBridge | None = None
+        self.node: Node | None = None
+        self.app: Any = None
+        try:
+            if self.simulated:
+                self.start_modules(self.gait.robot.modules)
+            self.node = Node("studio", self._transport(STUDIO_NODE_ID))
+            if options.zenoh:
+                self.bridge = CanZenohBridge(self.can_options, zenoh_listen=options.zenoh_listen,
+                                             zenoh_connect=options.zenoh_connect)  # fmt: skip
+            from web.app import Dashboard  # viser loads only for the studio
+
+            self.app = Dashboard(self, host=options.host, port=options.port)
+        except BaseException:
+            self.close()
+            raise
+
+    def _transport(self, node_id: int) -> CanTransport:
+        return CanTransport(node_id, heartbeat_period=self.options.heartbeat_period, **self.can_options)
+
+    def start_modules(self, count: int) -> None:
+        """Simulated modules m1..m<count> (node IDs 1..count), replacing any running ones."""
+        self.stop_modules()
+        for module_id in range(1, count + 1):
+            node = Node(module_name(module_id), self._transport(module_id))
+            self.module_nodes.append(node)
+            self.modules[module_id] = ModuleRuntime(FakeDriver(), node=node)
+
+    def stop_modules(self) -> None:
+        for runtime in self.modules.values():
+            runtime.close()
+        for node in self.module_nodes:
+            node.close()
+        self.modules.clear()
+        self.module_nodes.clear()
+
+    @property
+    def port(self) -> int:
+        return self.app.port if self.app is not None else self.options.port
+
+    def close(self) -> None:
+        if self.app is not None:
+            self.app.close()
+            self.app = None
+        if self.bridge is not None:
+            self.bridge.close()
+            self.bridge = None
+        if self.node is not None:
+            self.node.close()
+            self.node = None
+        self.stop_modules()
+
+
+def main(argv: list[str] | None = None) -> int:
+    cli = argparse.ArgumentParser(prog="asm-studio", description=__doc__.splitlines()[0] if __doc__ else "")
+    cli.add_argument("--gait", type=Path, default=StudioOptions.gait, help="gait file to open (default: caterpillar)")
+    cli.add_argument("--can", type=parse_can, metavar="INTERFACE:CHANNEL", help="a real CAN bus instead of simulated "
+                     "modules, e.g. socketcan:can0")  # fmt: skip
+    cli.add_argument("--bitrate", type=int)
+    cli.add_argument("--zenoh-listen", action="append", default=[], metavar="ENDPOINT")
+    cli.add_argument("--zenoh-connect", action="append", default=[], metavar="ENDPOINT")
+    cli.add_argument("--no-zenoh", action="store_true", help="do not bridge the bus to Zenoh")
+    cli.add_argument("--host", default="127.0.0.1", help="address to serve on (default 127.0.0.1, this machine only)")
+    cli.add_argument("--port", type=int, default=8080, help="HTTP port (default 8080; 0 picks a free one)")
+    args = cli.parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
+    options = StudioOptions(gait=args.gait, can=args.can, bitrate=args.bitrate,
+                            zenoh_listen=tuple(args.zenoh_listen), zenoh_connect=tuple(args.zenoh_connect),
+                            zenoh=not args.no_zenoh, host=args.host, port=args.port)  # fmt: skip
+    studio = Studio(options)
+    done = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: done.set())
+    signal.signal(signal.SIGINT, lambda *_: done.set())
+    where = "simulated modules" if studio.simulated else f"CAN {args.can}"
+    print(f"READY studio http://{args.host}:{studio.port} ({where})", flush=True)
+    done.wait()
+    studio.close()
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,75 @@
+"""The studio's parts without a browser: the edited document (validation, undo/redo) and the preview loop."""
+
+from __future__ import annotations
+
+import time
+
+import pytest
+
+from gaits.model import GaitError, dumps, load
+from web.document import GaitDocument
+from web.monitor import format_value
+from web.preview import PreviewLoop
+
+pytestmark = pytest.mark.timeout(60)
+CATERPILLAR = "gaits/library/caterpillar.toml"
+
+
+def test_an_invalid_edit_is_kept_with_its_problem_and_undo_restores():
+    doc = GaitDocument(load(CATERPILLAR))
+    doc.set_state("wave", 2, "angle", 120.0)  # beyond the ±90° limits
+    assert [p.path for p in doc.problems] == ["automata.wave.states[2].angle"]
+    assert doc.problem_at("automata.wave.states[2]")
+    with pytest.raises(GaitError):
+        doc.gait()
+    assert doc.undo() and not doc.problems
+    assert doc.gait().automata["wave"].states[2].angle == pytest.approx(46.194)
+    assert doc.redo() and doc.problems
+    assert not doc.redo()
+
+
+def test_edits_reach_the_gait_and_the_file():
+    doc = GaitDocument(load(CATERPILLAR))
+    doc.set_module(3, "phase", 0.5)
+    doc.set_module(3, "direction", -1)
+    doc.set_robot("friction", 0.6)
+    doc.add_state("wave", 0)
+    gait = doc.gait()
+    assert gait.assignment(3).phase == 0.5 and gait.assignment(3).direction == -1
+    assert gait.ground.friction == 0.6
+    assert len(gait.automata["wave"].states) == 17
+    assert "friction = 0.6" in doc.text()
+    with pytest.raises(GaitError):
+        doc.load_text("name = 'x'\n[robot]\nshape = 'blob'\n")
+    assert doc.gait() == gait  # a bad upload changes nothing
+    doc.load_text(dumps(load("gaits/library/inchworm.toml")))
+    assert doc.gait().name == "inchworm" and doc.undo() and doc.gait().name == "caterpillar"
+
+
+def test_preview_loop_plays_steps_scrubs_and_reloads():
+    loop = PreviewLoop(load(CATERPILLAR))
+    try:
+        loop.request("speed", 4.0)
+        deadline = time.monotonic() + 20
+        while len(loop.frames) < 30 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert len(loop.frames) >= 30
+        loop.request("seek", 5)
+        time.sleep(0.2)
+        assert not loop.playing and loop.shown() is loop.frames[5]
+        loop.request("step", -1)
+        time.sleep(0.2)
+        assert loop.shown() is loop.frames[4]
+        loop.request("load", load("gaits/library/rolling_loop.toml"))
+        loop.request("play", True)
+        deadline = time.monotonic() + 20
+        while (loop.generation < 1 or not loop.frames) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert loop.sim.gait.name == "rolling_loop" and len(loop.frames[-1].goals) == 12
+    finally:
+        loop.close()
+
+
+def test_values_are_formatted_for_the_page():
+    assert format_value(b"\x01\x02") == "01 02"
+    assert format_value((1.0, 2.5)) == "[1, 2.5]"

@@ -1,0 +1,133 @@
+"""The gait being edited: its data, every edit as one undoable step, and its validation after each edit.
+
+The document keeps the plain data of a gait file (gaits.model.to_dict's shape), not a Gait: an edit may make it
+invalid — a user types an angle beyond the limits — and the editor must show that problem where it occurs rather
+than refuse the keystroke. :attr:`problems` lists what is wrong now; :meth:`gait` returns the validated gait, and
+only a valid document reaches the preview or the modules.
+"""
+
+from __future__ import annotations
+
+import copy
+import threading
+from typing import Any
+
+from gaits.model import Gait, GaitError, Problem, dumps, from_dict, loads, to_dict
+
+HISTORY = 200
+
+
+class GaitDocument:
+    """An editable gait with undo/redo; thread-safe (viser runs GUI callbacks on a thread pool)."""
+
+    def __init__(self, gait: Gait) -> None:
+        self._lock = threading.Lock()
+        self._data = to_dict(gait)
+        self._undo: list[dict[str, Any]] = []
+        self._redo: list[dict[str, Any]] = []
+        self._valid: Gait | None = gait
+        self.problems: list[Problem] = []
+        self.version = 0
+
+    # -- reading ------------------------------------------------------------------------------------------------
+
+    def data(self) -> dict[str, Any]:
+        with self._lock:
+            return copy.deepcopy(self._data)
+
+    def gait(self) -> Gait:
+        """The document as a validated gait; GaitError if it has problems."""
+        with self._lock:
+            if self._valid is None:
+                raise GaitError("edited gait", list(self.problems))
+            return self._valid
+
+    def text(self) -> str:
+        """The document as a TOML gait file (the last valid state if it has problems now)."""
+        return dumps(self.gait())
+
+    def problem_at(self, prefix: str) -> list[Problem]:
+        return [p for p in self.problems if p.path == prefix or p.path.startswith(prefix + ".")]
+
+    # -- editing ------------------------------------------------------------------------------------------------
+
+    def replace(self, gait: Gait) -> None:
+        """Open another gait (undoable)."""
+        self._apply(lambda data: data.clear() or data.update(to_dict(gait)))
+
+    def load_text(self, text: str, source: str = "upload") -> None:
+        """Open a TOML file's text; GaitError (nothing changes) if it is not a valid gait."""
+        self.replace(loads(text, source=source))
+
+    def set_state(self, automaton: str, index: int, field: str, value: Any) -> None:
+        """Set ``angle``, ``duration`` or ``interpolation`` of one state of an automaton."""
+        if field not in ("angle", "duration", "interpolation"):
+            raise ValueError(f"a state has no editable field {field!r}")
+
+        def edit(data: dict[str, Any]) -> None:
+            data["automata"][automaton]["states"][index][field] = value
+
+        self._apply(edit)
+
+    def add_state(self, automaton: str, index: int) -> None:
+        """Duplicate state ``index`` right after it."""
+        self._apply(lambda d: d["automata"][automaton]["states"].insert(
+            index + 1, dict(d["automata"][automaton]["states"][index])))  # fmt: skip
+
+    def remove_state(self, automaton: str, index: int) -> None:
+        self._apply(lambda d: d["automata"][automaton]["states"].pop(index))
+
+    def set_module(self, module_id: int, field: str, value: Any) -> None:
+        """Set ``phase``, ``direction`` or ``automaton`` of one module's assignment."""
+        if field not in ("phase", "direction", "automaton"):
+            raise ValueError(f"a module assignment has no editable field {field!r}")
+
+        def edit(data: dict[str, Any]) -> None:
+            next(m for m in data["modules"] if m["id"] == module_id)[field] = value
+
+        self._apply(edit)
+
+    def set_robot(self, field: str, value: Any) -> None:
+        """Edit the robot: ``module_size``, ``axes`` or ``shape``; the ground's ``friction``."""
+        if field == "friction":
+            self._apply(lambda d: d.setdefault("ground", {}).__setitem__("friction", value))
+        elif field in ("module_size", "axes", "shape"):
+            self._apply(lambda d: d["robot"].__setitem__(field, value))
+        else:
+            raise ValueError(f"the robot has no editable field {field!r}")
+
+    def undo(self) -> bool:
+        with self._lock:
+            if not self._undo:
+                return False
+            self._redo.append(self._data)
+            self._data = self._undo.pop()
+            self._revalidate()
+            return True
+
+    def redo(self) -> bool:
+        with self._lock:
+            if not self._redo:
+                return False
+            self._undo.append(self._data)
+            self._data = self._redo.pop()
+            self._revalidate()
+            return True
+
+    def _apply(self, edit: Any) -> None:
+        with self._lock:
+            before = copy.deepcopy(self._data)
+            edit(self._data)
+            self._undo.append(before)
+            del self._undo[:-HISTORY]
+            self._redo.clear()
+            self._revalidate()
+
+    def _revalidate(self) -> None:
+        try:
+            self._valid = from_dict(copy.deepcopy(self._data), source="edited gait")
+            self.problems = []
+        except GaitError as exc:
+            self._valid = None
+            self.problems = list(exc.problems)
+        self.version += 1

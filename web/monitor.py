@@ -1,0 +1,168 @@
+"""Live monitoring through the dashboard's own ASM node: who is there, what their attributes hold, how they move.
+
+Everything here goes through lookups, gets/sets and subscriptions of ``node``; nothing reaches into a module object.
+Publications arrive on transport threads and only append to bounded buffers; the refresh thread formats them.
+"""
+
+from __future__ import annotations
+
+import json
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from asm_py import Node
+from asm_py.remote import RemoteAttribute, RemoteObject
+
+PLOT_SECONDS = 10.0
+PLOT_POINTS = 2000
+
+
+class Roster:
+    """Nodes seen by discovery: alive or lost, and when they were last heard."""
+
+    def __init__(self, node: Node) -> None:
+        self.node = node
+        self._lock = threading.Lock()
+        self.entries: dict[str, dict[str, Any]] = {}
+        for name in node.discover():
+            self._changed(name, True)
+        self._unlisten = node.on_discovery(self._changed)
+
+    def _changed(self, name: str, alive: bool) -> None:
+        if name == self.node.name:
+            return
+        with self._lock:
+            self.entries[name] = {"alive": alive, "since": time.monotonic()}
+
+    def poll_gaits(self, timeout: float = 0.3) -> None:
+        """Ask each live module whether its gait runs and in which state (a STATUS and a PEEK each)."""
+        for name in self.alive():
+            try:
+                service = self.node.lookup(name, "gait.service", timeout=timeout)
+                state = self.node.lookup(name, "gait.state", timeout=timeout)
+                running, index = bool(service.running), state.peek()  # type: ignore[union-attr]
+            except Exception:  # not a module (a bridge, a tool) or gone: no gait column
+                continue
+            with self._lock:
+                if name in self.entries:
+                    self.entries[name]["gait"] = f"gait {'running' if running else 'stopped'} · state {index}"
+
+    def gait(self, name: str) -> str:
+        with self._lock:
+            return self.entries.get(name, {}).get("gait", "")
+
+    def rows(self) -> list[tuple[str, bool, float | None]]:
+        """(name, alive, seconds since last heard or since the change) sorted by name (m2 before m10)."""
+        heard = getattr(self.node.transport, "last_heard", None)
+        now = time.monotonic()
+        with self._lock:
+            items = sorted(self.entries.items(), key=lambda kv: (len(kv[0]), kv[0]))
+        out = []
+        for name, entry in items:
+            last = heard(name) if heard is not None else None
+            out.append((name, entry["alive"], now - (last if last is not None else entry["since"])))
+        return out
+
+    def alive(self) -> list[str]:
+        return [name for name, alive, _ in self.rows() if alive]
+
+    def close(self) -> None:
+        self._unlisten()
+
+
+class LivePlot:
+    """Bounded time series of remote attributes, filled by their publications."""
+
+    def __init__(self, node: Node) -> None:
+        self.node = node
+        self._lock = threading.Lock()
+        self.series: dict[tuple[str, str], deque[tuple[float, float]]] = {}
+        self._unsubscribe: dict[tuple[str, str], Callable[[], None]] = {}
+        self.t0 = time.monotonic()
+        self.received = 0
+
+    def watch(self, module: str, attribute: str, timeout: float = 2.0) -> None:
+        key = (module, attribute)
+        if key in self._unsubscribe:
+            return
+        remote = self.node.lookup(module, attribute, timeout=timeout)
+        buffer: deque[tuple[float, float]] = deque(maxlen=PLOT_POINTS)
+        with self._lock:
+            self.series[key] = buffer
+
+        def arrived(value: Any) -> None:
+            buffer.append((time.monotonic() - self.t0, float(value)))
+            self.received += 1
+
+        self._unsubscribe[key] = remote.on_change(arrived)  # type: ignore[union-attr]
+
+    def unwatch_all(self) -> None:
+        for remove in self._unsubscribe.values():
+            remove()
+        self._unsubscribe.clear()
+        with self._lock:
+            self.series.clear()
+
+    def data(self) -> tuple[list[str], tuple[np.ndarray, ...]]:
+        """Labels and uPlot data (a shared time axis, one array per series, NaN where a series has no sample)."""
+        with self._lock:
+            items = [(f"{m} {a}", list(buf)) for (m, a), buf in sorted(self.series.items())]
+        horizon = time.monotonic() - self.t0 - PLOT_SECONDS
+        times = sorted({t for _, points in items for t, _ in points if t >= horizon})
+        if not items or not times:
+            return [label for label, _ in items], (np.zeros(1), *(np.full(1, np.nan) for _ in items))
+        index = {t: k for k, t in enumerate(times)}
+        columns = []
+        for _, points in items:
+            column = np.full(len(times), np.nan)
+            for t, v in points:
+                if t >= horizon:
+                    column[index[t]] = v
+            columns.append(column)
+        return [label for label, _ in items], (np.asarray(times), *columns)
+
+    def close(self) -> None:
+        self.unwatch_all()
+
+
+def describe(obj: RemoteObject) -> str:
+    """One line about a remote object: its kind and type."""
+    info = obj.info
+    codec = getattr(info, "codec", None)
+    return f"{info.kind.name.lower()} {codec.spec if codec is not None else ''}".strip()
+
+
+def parse_value(obj: RemoteAttribute, text: str) -> Any:
+    """A value typed in the page for ``obj``'s codec: numbers, booleans, arrays as JSON, text and bytes (hex)."""
+    kind = obj.codec.describe().get("kind")
+    text = text.strip()
+    if kind == "bool":
+        if text.lower() in ("1", "true", "yes", "on"):
+            return True
+        if text.lower() in ("0", "false", "no", "off"):
+            return False
+        raise ValueError(f"{text!r} is not a boolean (true/false)")
+    if kind == "int":
+        return int(text, 0)
+    if kind == "float":
+        return float(text)
+    if kind == "bytes":
+        return bytes.fromhex(text)
+    if kind == "str":
+        return text
+    return json.loads(text)
+
+
+def format_value(value: Any) -> str:
+    if isinstance(value, bytes | bytearray):
+        return value.hex(" ") if len(value) <= 48 else value[:48].hex(" ") + f" … ({len(value)} bytes)"
+    if isinstance(value, float):
+        return f"{value:.4g}"
+    if isinstance(value, tuple | list):
+        return "[" + ", ".join(format_value(v) for v in value) + "]"
+    return str(value)

@@ -1,0 +1,256 @@
+"""The MuJoCo preview: a loop thread that owns the simulation, and a view that draws frames of it in viser.
+
+As in mjviser, the loop that owns MjData is the only code that touches it: GUI callbacks only queue requests
+(:meth:`PreviewLoop.request`), and the loop records frames (time, qpos, goals, angles) into a bounded history that the
+view and the timeline read. Scrubbing and stepping back show recorded frames; play continues from the live end.
+"""
+
+from __future__ import annotations
+
+import math
+import queue
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass
+from typing import Any
+
+import mujoco
+import numpy as np
+import viser
+
+from gaits.model import Gait
+from gaits.sim import Metrics, Simulation
+
+FRAME_RATE = 30.0
+"""Recorded frames per simulated second (the timeline's resolution)."""
+HISTORY_SECONDS = 60.0
+
+
+@dataclass(frozen=True)
+class Frame:
+    time: float
+    qpos: np.ndarray
+    goals: tuple[float, ...]
+    """Each module's joint.goal (degrees) at this time."""
+    angles: tuple[float, ...]
+    """Each module's measured joint angle (degrees)."""
+
+
+class PreviewLoop:
+    """Runs a gait's Simulation in real time × ``speed`` on its own thread; see the module docstring."""
+
+    def __init__(self, gait: Gait) -> None:
+        self._requests: queue.Queue[tuple[str, Any]] = queue.Queue()
+        self._lock = threading.Lock()
+        self.frames: deque[Frame] = deque(maxlen=int(HISTORY_SECONDS * FRAME_RATE))
+        self.cursor: int | None = None
+        """Index into ``frames`` shown while scrubbing; None: the live end."""
+        self.playing = True
+        self.speed = 1.0
+        self.error: str | None = None
+        self.generation = 0
+        """Incremented whenever a new gait is loaded (the view rebuilds its meshes)."""
+        self.sim = self._new_sim(gait)
+        self._start_com = self.sim.center_of_mass()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="preview-loop", daemon=True)
+        self._thread.start()
+
+    def _new_sim(self, gait: Gait) -> Simulation:
+        sim = Simulation(gait)
+        sim.start()
+        return sim
+
+    # -- what GUI callbacks call ----------------------------------------------------------------------------------
+
+    def request(self, kind: str, value: Any = None) -> None:
+        """Queue ``load`` (a Gait), ``play`` (bool), ``speed``, ``seek`` (frame index), ``step`` (±1), ``reset``."""
+        self._requests.put((kind, value))
+
+    def shown(self) -> Frame | None:
+        with self._lock:
+            if not self.frames:
+                return None
+            index = len(self.frames) - 1 if self.cursor is None else min(self.cursor, len(self.frames) - 1)
+            return self.frames[index]
+
+    def metrics(self) -> Metrics:
+        """Distance and speed since the gait (re)started, on the centre of mass."""
+        with self._lock:
+            sim = self.sim
+            com = sim.center_of_mass()
+            elapsed = sim.data.time
+            start = self._start_com
+        robot = sim.gait.robot
+        return Metrics(elapsed, (float(com[0] - start[0]), float(com[1] - start[1])),
+                       robot.modules * robot.module_size, sim.peak_torque, sim.fell())  # fmt: skip
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=10)
+        self.sim.close()
+
+    # -- the loop -------------------------------------------------------------------------------------------------
+
+    def _run(self) -> None:
+        last = time.monotonic()
+        owed = 0.0
+        while not self._stop.is_set():
+            try:
+                while True:
+                    self._handle(*self._requests.get_nowait())
+            except queue.Empty:
+                pass
+            now = time.monotonic()
+            if self.playing and self.error is None:
+                owed = min(owed + (now - last) * self.speed, 0.25)  # never try to catch up more than 0.25 s
+                tick = self.sim.steps_per_tick * self.sim.model.opt.timestep
+                try:
+                    while owed >= tick:
+                        self._tick()
+                        owed -= tick
+                except Exception as exc:  # a diverging model is shown, not fatal
+                    self.error = f"simulation stopped: {exc}"
+            last = now
+            time.sleep(1 / 120)
+
+    def _tick(self) -> None:
+        sim = self.sim
+        with self._lock:
+            sim.step_tick()
+            if not self.frames or sim.data.time - self.frames[-1].time >= 1 / FRAME_RATE - 1e-9:
+                goals = tuple(float(r.goal.peek()) for r in sim.modules.values())
+                angles = tuple(float(r.angle.peek()) for r in sim.modules.values())
+                self.frames.append(Frame(sim.data.time, sim.data.qpos.copy(), goals, angles))
+
+    def _handle(self, kind: str, value: Any) -> None:
+        if kind == "load" or kind == "reset":
+            gait = value if kind == "load" else self.sim.gait
+            try:
+                new = self._new_sim(gait)
+            except Exception as exc:
+                self.error = f"cannot simulate this gait: {exc}"
+                return
+            with self._lock:
+                old, self.sim = self.sim, new
+                self.frames.clear()
+                self.cursor = None
+                self._start_com = new.center_of_mass()
+                self.error = None
+                self.generation += 1
+            old.close()
+        elif kind == "play":
+            self.playing = bool(value)
+            if self.playing:
+                self.cursor = None
+        elif kind == "speed":
+            self.speed = max(0.05, min(float(value), 8.0))
+        elif kind == "seek":
+            self.playing = False
+            with self._lock:
+                self.cursor = max(0, min(int(value), len(self.frames) - 1))
+        elif kind == "step":
+            self.playing = False
+            with self._lock:
+                end = len(self.frames) - 1
+                cursor = end if self.cursor is None else self.cursor
+            if value > 0 and cursor >= end:
+                before = len(self.frames)
+                while len(self.frames) == before or self.frames[-1].time == self.frames[before - 1].time:
+                    self._tick()
+                self.cursor = None
+            else:
+                with self._lock:
+                    self.cursor = max(0, min(cursor + (1 if value > 0 else -1), end))
+
+
+_BOX_FACES = np.array([[0, 2, 1], [0, 3, 2], [4, 5, 6], [4, 6, 7], [0, 1, 5], [0, 5, 4],
+                       [2, 3, 7], [2, 7, 6], [1, 2, 6], [1, 6, 5], [0, 4, 7], [0, 7, 3]], dtype=np.uint32)  # fmt: skip
+
+
+def _box(half: np.ndarray) -> np.ndarray:
+    x, y, z = half
+    return np.array([[-x, -y, -z], [x, -y, -z], [x, y, -z], [-x, y, -z],
+                     [-x, -y, z], [x, -y, z], [x, y, z], [-x, y, z]], dtype=np.float32)  # fmt: skip
+
+
+class SceneView:
+    """Draws frames of a PreviewLoop in viser's scene: one batched mesh per distinct module shape."""
+
+    def __init__(self, server: viser.ViserServer, loop: PreviewLoop) -> None:
+        self.server = server
+        self.loop = loop
+        self._data: mujoco.MjData | None = None
+        self._batches: list[tuple[Any, np.ndarray]] = []
+        self._generation = -1
+        self.frames_drawn = 0
+        server.scene.add_grid("/ground", width=4.0, height=4.0, cell_size=0.1, plane="xy")
+
+    def _build(self) -> None:
+        model = self.loop.sim.model
+        for handle, _ in self._batches:
+            handle.remove()
+        self._batches = []
+        self._data = mujoco.MjData(model)
+        groups: dict[tuple[float, float, float], list[int]] = {}
+        # capsule chains collide with capsules but show their modules as the boxes of their visual geoms
+        visual_bodies = {int(model.geom_bodyid[g]) for g in range(model.ngeom) if model.geom_group[g] == 1}
+        for g in range(model.ngeom):
+            body, kind = int(model.geom_bodyid[g]), model.geom_type[g]
+            if body == 0:
+                continue  # the floor
+            if model.geom_group[g] != 1 and body in visual_bodies:
+                continue
+            size = model.geom_size[g]
+            if kind == mujoco.mjtGeom.mjGEOM_BOX:
+                half = (float(size[0]), float(size[1]), float(size[2]))
+            elif kind == mujoco.mjtGeom.mjGEOM_CAPSULE:
+                half = (float(size[0]), float(size[0]), float(size[1] + size[0]))
+            else:
+                continue
+            groups.setdefault(tuple(round(h, 5) for h in half), []).append(g)  # type: ignore[arg-type]
+        for n, (half, geoms) in enumerate(groups.items()):
+            ids = np.array(geoms)
+            handle = self.server.scene.add_batched_meshes_simple(
+                f"/robot/shape{n}", _box(np.array(half)), _BOX_FACES,
+                batched_wxyzs=np.tile([1.0, 0, 0, 0], (len(ids), 1)), batched_positions=np.zeros((len(ids), 3)),
+                batched_colors=(217, 140, 38),
+            )  # fmt: skip
+            self._batches.append((handle, ids))
+        self._generation = self.loop.generation
+
+    def draw(self) -> bool:
+        """Draw the loop's shown frame; False if there is none yet."""
+        if self._generation != self.loop.generation or self._data is None:
+            self._build()
+        frame = self.loop.shown()
+        if frame is None or self._data is None or len(frame.qpos) != self._data.qpos.shape[0]:
+            return False
+        model = self.loop.sim.model
+        data = self._data
+        data.qpos[:] = frame.qpos
+        mujoco.mj_kinematics(model, data)
+        quat = np.empty(4)
+        with self.server.atomic():
+            for handle, ids in self._batches:
+                wxyz = np.empty((len(ids), 4))
+                for k, g in enumerate(ids):
+                    mujoco.mju_mat2Quat(quat, data.geom_xmat[g])
+                    wxyz[k] = quat
+                handle.batched_positions = data.geom_xpos[ids].astype(np.float32)
+                handle.batched_wxyzs = wxyz.astype(np.float32)
+        self.frames_drawn += 1
+        return True
+
+
+def angle_series(loop: PreviewLoop, module_index: int, seconds: float = 5.0) -> tuple[np.ndarray, ...]:
+    """Time, commanded and measured angle of one module over the last ``seconds`` of recorded frames."""
+    with loop._lock:
+        frames = [f for f in loop.frames if loop.frames and f.time >= loop.frames[-1].time - seconds]
+    if not frames:
+        return (np.zeros(1), np.zeros(1), np.zeros(1))
+    t = np.array([f.time for f in frames])
+    goal = np.array([f.goals[module_index] if module_index < len(f.goals) else math.nan for f in frames])
+    angle = np.array([f.angles[module_index] if module_index < len(f.angles) else math.nan for f in frames])
+    return (t, goal, angle)
