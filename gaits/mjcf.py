@@ -74,19 +74,25 @@ class _Writer:
         self.lines: list[str] = []
         self.pairs: list[str] = []
         self.excludes: list[tuple[str, str]] = []
-        self.actuators: list[str] = []
+        self.actuators: dict[int, str] = {}
+        """Module number → its actuator (written in module order, so actuator i - 1 drives module i)."""
+        self.capsules = physics.capsules
+        if self.capsules is None:
+            self.capsules = physics.anisotropic is not None or robot.modules >= 32
 
     def emit(self, depth: int, text: str) -> None:
         self.lines.append("  " * depth + text)
+
+    def close_bodies(self, depth: int, count: int) -> None:
+        """End ``count`` nested bodies opened at depths ``depth`` … ``depth + count - 1``."""
+        for level in reversed(range(count)):
+            self.emit(depth + level, "</body>")
 
     def segment(self, depth: int, name: str, length: float, mass: float, sign: float) -> None:
         """The geometry of one body: a box of ``length`` along ±x (``sign``) from the body frame."""
         h = self.s / 2
         cx = sign * length / 2
-        capsules = self.p.capsules
-        if capsules is None:
-            capsules = self.p.anisotropic is not None or self.robot.modules >= 32
-        if not capsules:
+        if not self.capsules:
             self.emit(depth, f'<geom name="{name}" type="box" size="{_v(length / 2, h, h)}" pos="{_f(cx)} 0 0" '
                              f'mass="{_f(mass)}" class="module"/>')  # fmt: skip
         else:
@@ -107,7 +113,7 @@ class _Writer:
     def hinge(self, depth: int, module: int, axis: tuple[float, float, float], limits: tuple[float, float]) -> None:
         lo, hi = (math.radians(v) for v in limits)
         self.emit(depth, f'<joint name="m{module}" type="hinge" axis="{_v(*axis)}" range="{_v(lo, hi)}"/>')
-        self.actuators.append(f'<position name="m{module}" joint="m{module}" kp="{_f(self.p.kp)}" '
+        self.actuators[module] = (f'<position name="m{module}" joint="m{module}" kp="{_f(self.p.kp)}" '
                               f'kv="{_f(self.p.kv)}" ctrlrange="{_v(lo, hi)}" '
                               f'forcerange="{_v(-self.p.torque, self.p.torque)}"/>')  # fmt: skip
 
@@ -132,32 +138,24 @@ class _Writer:
         self.emit(depth + 1, '<freejoint name="root"/>')
         self.segment(depth + 1, f"b{root}", lengths[root], masses[root], 1.0)
         # forward branch: b(k) is a child of b(k-1), framed at hinge k, extending +x
-        closing = 0
-        for k in range(root + 1, n + 1):
-            d = depth + closing + 1
+        forward = range(root + 1, n + 1)
+        for level, k in enumerate(forward, start=depth + 1):
             rotation = f' quat="{_quat_y(-bend)}"' if bend else ""
-            self.emit(d, f'<body name="b{k}" pos="{_f(lengths[k - 1])} 0 0"{rotation}>')
-            self.hinge(d + 1, k, self.axis(k - 1), limits)
-            self.segment(d + 1, f"b{k}", lengths[k], masses[k], 1.0)
-            closing += 1
-        if bend:
-            self.emit(depth + closing + 1, f'<site name="loop_end" pos="{_f(lengths[n])} 0 0"/>')
-        for _ in range(closing):
-            closing -= 1
-            self.emit(depth + closing + 1, "</body>")
+            self.emit(level, f'<body name="b{k}" pos="{_f(lengths[k - 1])} 0 0"{rotation}>')
+            self.hinge(level + 1, k, self.axis(k - 1), limits)
+            self.segment(level + 1, f"b{k}", lengths[k], masses[k], 1.0)
+        if bend:  # where the loop's last half ends: the weld brings it onto b0's start
+            self.emit(depth + len(forward) + 1, f'<site name="loop_end" pos="{_f(lengths[n])} 0 0"/>')
+        self.close_bodies(depth + 1, len(forward))
         # backward branch: b(k-1) is a child of b(k), framed at hinge k, extending -x, axis negated
-        opened = 0
-        for k in range(root, 0, -1):
-            d = depth + opened + 1
+        backward = range(root, 0, -1)
+        for level, k in enumerate(backward, start=depth + 1):
             back = 0.0 if k == root else -lengths[k]  # b(k) is framed at hinge k + 1, except the root
-            self.emit(d, f'<body name="b{k - 1}" pos="{_f(back)} 0 0">')
+            self.emit(level, f'<body name="b{k - 1}" pos="{_f(back)} 0 0">')
             axis = tuple(-a for a in self.axis(k - 1))
-            self.hinge(d + 1, k, axis, limits)  # type: ignore[arg-type]
-            self.segment(d + 1, f"b{k - 1}", lengths[k - 1], masses[k - 1], -1.0)
-            opened += 1
-        for _ in range(opened):
-            opened -= 1
-            self.emit(depth + opened + 1, "</body>")
+            self.hinge(level + 1, k, axis, limits)  # type: ignore[arg-type]
+            self.segment(level + 1, f"b{k - 1}", lengths[k - 1], masses[k - 1], -1.0)
+        self.close_bodies(depth + 1, len(backward))
         self.emit(depth, "</body>")
 
     # -- legged -------------------------------------------------------------------------------------------------
@@ -198,9 +196,7 @@ class _Writer:
                     self.emit(d + 1, f'<geom name="foot{leg}" type="capsule" size="{_f(s / 4)}" '
                                      f'fromto="{_v(s / 2, 0, 0, s / 2, 0, -foot + s / 4)}" mass="0.01" '
                                      f'class="module"/>')  # fmt: skip
-            for _ in range(per_leg + 1):
-                self.emit(d, "</body>")
-                d -= 1
+            self.close_bodies(depth + 1, per_leg + 1)
         self.emit(depth, "</body>")
 
 
@@ -252,6 +248,6 @@ def build_mjcf(robot: Robot, physics: Physics | None = None, *, name: str = "rob
     if contact:
         parts += ["  <contact>", *contact, "  </contact>"]
     parts += extras
-    actuators = sorted(w.actuators, key=lambda a: int(a.split('"')[1][1:]))  # actuator i-1 drives module i
-    parts += ["  <actuator>", *(f"    {a}" for a in actuators), "  </actuator>", "</mujoco>"]
+    actuators = (f"    {w.actuators[module]}" for module in sorted(w.actuators))
+    parts += ["  <actuator>", *actuators, "  </actuator>", "</mujoco>"]
     return "\n".join(parts) + "\n"

@@ -185,14 +185,18 @@ def from_dict(data: dict[str, Any], *, source: str = "<gait>", text: str = "") -
         for key in sorted(set(table) - allowed):
             bad(f"{prefix}{key}", "unknown field")
 
+    def section(key: str, default: dict[str, Any] | None = None) -> dict[str, Any]:
+        table = data.get(key, default if default is not None else {})
+        if not isinstance(table, dict):
+            bad(key, "must be a table")
+            return {}
+        return table
+
     unknown_fields(data, _TOP)
     name = data.get("name")
     if not isinstance(name, str) or not name:
         bad("name", "missing: a gait needs a name")
-    robot_data = data.get("robot", {})
-    if not isinstance(robot_data, dict):
-        bad("robot", "must be a table")
-        robot_data = {}
+    robot_data = section("robot")
     unknown_fields(robot_data, _ROBOT, "robot.")
     robot = Robot(**{k: v for k, v in robot_data.items() if k in _ROBOT})
     if robot.shape not in SHAPES:
@@ -209,17 +213,14 @@ def from_dict(data: dict[str, Any], *, source: str = "<gait>", text: str = "") -
     if robot.shape == "loop" and isinstance(robot.modules, int) and robot.modules < 4:
         bad("robot.modules", "a closed loop needs at least 4 modules")
 
-    limits_data = data.get("limits", {"min": -90.0, "max": 90.0})
+    limits_data = section("limits", {"min": -90.0, "max": 90.0})
     low, high = limits_data.get("min", -90.0), limits_data.get("max", 90.0)
     unknown_fields(limits_data, {"min", "max"}, "limits.")
     if not (_finite(low) and _finite(high) and -180 <= low < high <= 180):
         bad("limits", f"min < max, both finite degrees within ±180, not {low!r}..{high!r}")
         low, high = -90.0, 90.0
 
-    ground_data = data.get("ground", {})
-    if not isinstance(ground_data, dict):
-        bad("ground", "must be a table")
-        ground_data = {}
+    ground_data = section("ground")
     unknown_fields(ground_data, {"friction", "anisotropic"}, "ground.")
     ground = Ground()
     friction = ground_data.get("friction", 1.0)

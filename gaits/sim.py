@@ -22,10 +22,9 @@ from asm_py import Event
 from asm_py.clock import SimClock
 from server.module import JointDriver, JointReading, ModuleRuntime
 
+from .deploy import module_tables
 from .mjcf import Physics, build_mjcf
 from .model import Gait
-from .table import phase_states
-from .wire import encode_table
 
 
 @dataclass
@@ -160,7 +159,7 @@ class Simulation:
         self.trace = Trace() if trace else None
         self._floor = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_GEOM, "floor")
         self._module_of_body = self._module_bodies()
-        self._root = self.model.body("body" if gait.robot.shape == "legged" else f"b{self._root_index()}").id
+        self._root = int(self.model.joint("root").bodyid[0])  # the body with the free joint (mjcf chose it)
         self.modules: dict[int, ModuleRuntime] = {}
         self._push: tuple[float, np.ndarray] | None = None
         self.peak_torque = 0.0
@@ -170,9 +169,6 @@ class Simulation:
                                     limits=gait.limits, ramp=ramp, inline=True)  # fmt: skip
             self.modules[assignment.id] = runtime
         mujoco.mj_forward(self.model, self.data)
-
-    def _root_index(self) -> int:
-        return 0 if self.gait.robot.shape == "loop" else self.gait.robot.modules // 2
 
     def _module_bodies(self) -> np.ndarray:
         """Body id → the module it belongs to (0: none), for the contact sensors."""
@@ -188,9 +184,10 @@ class Simulation:
 
     def start(self) -> None:
         """Load every module's table, phase and direction as a deployment would, then start all gaits at t."""
+        tables = module_tables(self.gait)
         for assignment in self.gait.modules:
             runtime = self.modules[assignment.id]
-            runtime.table.set(encode_table(phase_states(self.gait.automata[assignment.automaton])))
+            runtime.table.set(tables[assignment.id])
             runtime.phase.set(assignment.phase)
             runtime.gait.direction.set(assignment.direction * self.direction)
         for runtime in self.modules.values():
@@ -237,6 +234,13 @@ class Simulation:
     def center_of_mass(self) -> np.ndarray:
         return self.data.subtree_com[0].copy()
 
+    def measure(self, start: np.ndarray, seconds: float, real_time_factor: float = 0.0) -> Metrics:
+        """Metrics of the ``seconds`` since the centre of mass was at ``start``."""
+        end = self.center_of_mass()
+        robot = self.gait.robot
+        return Metrics(seconds, (float(end[0] - start[0]), float(end[1] - start[1])),
+                       robot.modules * robot.module_size, self.peak_torque, self.fell(), real_time_factor)  # fmt: skip
+
     def fell(self) -> bool:
         xmat = self.data.xmat[self._root].reshape(3, 3)
         if self.gait.robot.shape == "legged":
@@ -258,11 +262,8 @@ class Simulation:
             self.advance(seconds - (push_at - warmup))
         else:
             self.advance(seconds)
-        end = self.center_of_mass()
         wall = time.perf_counter() - wall
-        return Metrics(seconds, (float(end[0] - start[0]), float(end[1] - start[1])),
-                       self.gait.robot.modules * self.gait.robot.module_size, self.peak_torque, self.fell(),
-                       (warmup + seconds) / wall if wall > 0 else 0.0)  # fmt: skip
+        return self.measure(start, seconds, (warmup + seconds) / wall if wall > 0 else 0.0)
 
     def close(self) -> None:
         for runtime in self.modules.values():
@@ -273,9 +274,3 @@ class Simulation:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
-
-
-def simulate(gait: Gait, seconds: float = 10.0, *, warmup: float = 2.0, **options: object) -> Metrics:
-    """Run ``gait`` headless and return its metrics (options as for :class:`Simulation`)."""
-    with Simulation(gait, **options) as sim:  # type: ignore[arg-type]
-        return sim.run(seconds, warmup=warmup)

@@ -108,30 +108,9 @@ class FakeDriver(JointDriver):
             self._powered = False
 
 
-class _Goal(Attribute):
-    """joint.goal: every value, however it arrives (set, remote set, publication), is clamped to the limits."""
-
-    def __init__(self, runtime: ModuleRuntime) -> None:
-        super().__init__("joint.goal", 0.0, codec=FLOAT32, clock=runtime.clock)
-        self._runtime = runtime
-
-    def _clamp(self, value: Any) -> float:
-        if type(value) is not float:
-            value = FLOAT32.normalize(value)  # type errors here; float32 rounding happens once, in set()
-        if math.isnan(value):
-            raise ValueError("joint.goal cannot be NaN")
-        lo, hi = self._runtime.limits.peek()
-        return min(max(value, lo), hi)
-
-    def set(self, value: Any, timeout: float | None = None, *, wait: bool = True) -> None:
-        super().set(self._clamp(value), timeout, wait=wait)
-
-    def _deliver(self, value: Any, *, decoded_by: Any = None) -> None:
-        super()._deliver(self._clamp(value))
-
-
 class _Checked(Attribute):
-    """An attribute whose sets pass ``check`` first (which may transform the value or raise)."""
+    """An attribute whose every value, however it arrives (set, remote set, publication), passes ``check`` first,
+    which may transform it (joint.goal is clamped to the limits) or raise (nothing is stored then)."""
 
     def __init__(self, name: str, initial: Any, codec: Any, check: Callable[[Any], Any], clock: Clock) -> None:
         super().__init__(name, initial, codec=codec, clock=clock)
@@ -203,7 +182,7 @@ class ModuleRuntime:
         self.ramp = ramp
         self.limits = _Checked("joint.limits", self._check_limits(limits), float_array(2), self._check_limits,
                                self.clock)  # fmt: skip
-        self.goal = _Goal(self)
+        self.goal = _Checked("joint.goal", 0.0, FLOAT32, self._clamp_goal, self.clock)
         self.angle = Attribute("joint.angle", 0.0, codec=FLOAT32, clock=self.clock)
         self.torque = Attribute("joint.torque", 0.0, codec=FLOAT32, clock=self.clock)
         self.contact = Attribute("sensor.contact", False, codec=BOOL, clock=self.clock)
@@ -252,6 +231,12 @@ class ModuleRuntime:
         if not (hw_lo <= lo < hi <= hw_hi):
             raise ValueError(f"joint limits must satisfy {hw_lo} <= min < max <= {hw_hi}, not ({lo}, {hi})")
         return (lo, hi)
+
+    def _clamp_goal(self, value: float) -> float:
+        if math.isnan(value):
+            raise ValueError("joint.goal cannot be NaN")
+        lo, hi = self.limits.peek()
+        return min(max(value, lo), hi)
 
     def _check_phase(self, value: float) -> float:
         if not 0.0 <= value < 1.0:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import os
 import re
+import struct
 import subprocess
 import sys
 import threading
@@ -102,7 +103,7 @@ def test_edit_preview_deploy_watch_and_estop(studio):
                                           for i in range(1, 9)), timeout=15)  # fmt: skip
             # the deployed (edited) table is what module 1 holds: its first state is 42°
             table = client.lookup("m1", "gait.table", timeout=2).peek()
-            assert abs(__import__("struct").unpack_from("<f", table, 5)[0] - 42.0) < 1e-4
+            assert abs(struct.unpack_from("<f", table, 5)[0] - 42.0) < 1e-4
             # roster and a live plot
             page.get_by_role("tab", name="Monitor").click()
             expect(page.get_by_text(re.compile(r"m8\s*live")).first).to_be_visible(timeout=15_000)

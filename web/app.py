@@ -11,10 +11,11 @@ exception becomes a notification in the page, never a dead server.
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import logging
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -27,7 +28,7 @@ from gaits.table import expand
 
 from .document import GaitDocument
 from .monitor import LivePlot, Roster, describe, format_value, parse_value
-from .preview import PreviewLoop, SceneView, angle_series
+from .preview import PreviewLoop, SceneView
 
 if TYPE_CHECKING:
     from server.studio import Studio
@@ -50,7 +51,6 @@ class Dashboard:
         self.view = SceneView(self.server, self.loop)
         self.roster = Roster(self.node)  # type: ignore[arg-type]
         self.plot = LivePlot(self.node)  # type: ignore[arg-type]
-        self.events: list[str] = []
         self._stop = threading.Event()
         self._syncing = False
         self._rebuild_lock = threading.RLock()
@@ -77,8 +77,6 @@ class Dashboard:
         return wrapped
 
     def notify(self, title: str, body: str, *, error: bool = False) -> None:
-        self.events.append(f"{title}: {body}")
-        del self.events[:-50]
         self.status.content = f"**{title}**: {body}"
         for client in self.server.get_clients().values():
             client.add_notification(title, body, color="red" if error else "blue", auto_close_seconds=6.0)
@@ -254,13 +252,22 @@ class Dashboard:
             return
         self.loop.request("load", self.doc.gait())  # an edit re-previews at once
 
-    def _refresh_editor(self, table: bool = True) -> None:
+    @contextlib.contextmanager
+    def _programmatic(self) -> Iterator[None]:
+        """Controls set by the server (not the user) inside this block: their update callbacks do nothing.
+
+        viser calls a control's callbacks synchronously when the server sets its value; the flag tells them apart,
+        and the lock keeps the editor's resync and the 20 Hz refresh from clearing each other's flag."""
         with self._rebuild_lock:
             self._syncing = True
             try:
-                self._sync_controls(table)
+                yield
             finally:
                 self._syncing = False
+
+    def _refresh_editor(self, table: bool = True) -> None:
+        with self._programmatic():
+            self._sync_controls(table)
 
     def _sync_controls(self, table: bool) -> None:
         data = self.doc.data()
@@ -306,7 +313,7 @@ class Dashboard:
         self.loop.request("reset" if kind == "Reset" else "play", kind == "Play")
 
     def _on_seek(self, event: Any) -> None:
-        if (not self._syncing and self.loop.cursor is not None) or not self.loop.playing:
+        if not self._syncing:  # a user's drag scrubs (and pauses); the refresh moving the slider does not
             self.loop.request("seek", int(event.target.value))
 
     def _on_estop(self, _: Any) -> None:
@@ -399,14 +406,11 @@ class Dashboard:
         self.metrics.content = (f"t = {m.seconds:.2f} s · distance **{m.distance:.3f} m** "
                                 f"({m.body_lengths:.2f} BL) · speed **{m.speed:.3f} m/s** · heading {m.heading:.0f}° · "
                                 f"peak torque {m.peak_torque:.2f} N·m{warning}")  # fmt: skip
-        self._syncing = True
-        try:
+        with self._programmatic():
             self.timeline.max = max(1, frames - 1)
             if loop.cursor is None:
                 self.timeline.value = max(0, frames - 1)
-        finally:
-            self._syncing = False
-        t, goal, angle = angle_series(loop, int(self.plot_module.value) - 1)
+        t, goal, angle = loop.series(int(self.plot_module.value) - 1)
         self.angles.data = (t, goal, angle)
         rows = self.roster.rows()
         names = [n for n, _, _ in rows]

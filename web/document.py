@@ -97,20 +97,18 @@ class GaitDocument:
             raise ValueError(f"the robot has no editable field {field!r}")
 
     def undo(self) -> bool:
-        with self._lock:
-            if not self._undo:
-                return False
-            self._redo.append(self._data)
-            self._data = self._undo.pop()
-            self._revalidate()
-            return True
+        return self._travel(self._undo, self._redo)
 
     def redo(self) -> bool:
+        return self._travel(self._redo, self._undo)
+
+    def _travel(self, source: list[dict[str, Any]], target: list[dict[str, Any]]) -> bool:
+        """Go back to the newest state of ``source``, keeping the present on ``target``; False if none."""
         with self._lock:
-            if not self._redo:
+            if not source:
                 return False
-            self._undo.append(self._data)
-            self._data = self._redo.pop()
+            target.append(self._data)
+            self._data = source.pop()
             self._revalidate()
             return True
 

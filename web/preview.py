@@ -78,13 +78,19 @@ class PreviewLoop:
     def metrics(self) -> Metrics:
         """Distance and speed since the gait (re)started, on the centre of mass."""
         with self._lock:
-            sim = self.sim
-            com = sim.center_of_mass()
-            elapsed = sim.data.time
-            start = self._start_com
-        robot = sim.gait.robot
-        return Metrics(elapsed, (float(com[0] - start[0]), float(com[1] - start[1])),
-                       robot.modules * robot.module_size, sim.peak_torque, sim.fell())  # fmt: skip
+            return self.sim.measure(self._start_com, self.sim.data.time)
+
+    def series(self, module_index: int, seconds: float = 5.0) -> tuple[np.ndarray, ...]:
+        """Time, commanded and measured angle (degrees) of one module over the last ``seconds`` of frames."""
+        with self._lock:
+            frames = list(self.frames)
+        frames = [f for f in frames if f.time >= frames[-1].time - seconds] if frames else []
+        if not frames:
+            return (np.zeros(1), np.zeros(1), np.zeros(1))
+        t = np.array([f.time for f in frames])
+        goal = np.array([f.goals[module_index] if module_index < len(f.goals) else math.nan for f in frames])
+        angle = np.array([f.angles[module_index] if module_index < len(f.angles) else math.nan for f in frames])
+        return (t, goal, angle)
 
     def close(self) -> None:
         self._stop.set()
@@ -155,9 +161,9 @@ class PreviewLoop:
             with self._lock:
                 end = len(self.frames) - 1
                 cursor = end if self.cursor is None else self.cursor
-            if value > 0 and cursor >= end:
-                before = len(self.frames)
-                while len(self.frames) == before or self.frames[-1].time == self.frames[before - 1].time:
+            if value > 0 and cursor >= end:  # at the live end: simulate until the next frame is recorded
+                last = self.frames[-1].time if self.frames else None
+                while not self.frames or self.frames[-1].time == last:
                     self._tick()
                 self.cursor = None
             else:
@@ -184,7 +190,6 @@ class SceneView:
         self._data: mujoco.MjData | None = None
         self._batches: list[tuple[Any, np.ndarray]] = []
         self._generation = -1
-        self.frames_drawn = 0
         server.scene.add_grid("/ground", width=4.0, height=4.0, cell_size=0.1, plane="xy")
 
     def _build(self) -> None:
@@ -240,17 +245,4 @@ class SceneView:
                     wxyz[k] = quat
                 handle.batched_positions = data.geom_xpos[ids].astype(np.float32)
                 handle.batched_wxyzs = wxyz.astype(np.float32)
-        self.frames_drawn += 1
         return True
-
-
-def angle_series(loop: PreviewLoop, module_index: int, seconds: float = 5.0) -> tuple[np.ndarray, ...]:
-    """Time, commanded and measured angle of one module over the last ``seconds`` of recorded frames."""
-    with loop._lock:
-        frames = [f for f in loop.frames if loop.frames and f.time >= loop.frames[-1].time - seconds]
-    if not frames:
-        return (np.zeros(1), np.zeros(1), np.zeros(1))
-    t = np.array([f.time for f in frames])
-    goal = np.array([f.goals[module_index] if module_index < len(f.goals) else math.nan for f in frames])
-    angle = np.array([f.angles[module_index] if module_index < len(f.angles) else math.nan for f in frames])
-    return (t, goal, angle)
