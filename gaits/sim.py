@@ -154,6 +154,8 @@ class Simulation:
         self.clock = SimClock()
         self.tick = Event("gait.tick", codec="float64", clock=self.clock)
         self.steps_per_tick = max(1, round(1.0 / (control_rate * self.model.opt.timestep)))
+        self._into_tick = 0
+        """Physics steps taken since the last control tick."""
         self.direction = direction
         self.touching: set[int] = set()
         self.trace = Trace() if trace else None
@@ -201,20 +203,35 @@ class Simulation:
         self.data.xfrc_applied[self._root, :3] = self._push[1]
 
     def step_tick(self) -> None:
-        """One control period: the tick (every module reacts), then the physics steps of the period."""
+        """The rest of the current control period (a whole one when at a period's start)."""
+        self.step_physics(self.steps_per_tick - self._into_tick)
+
+    def step_physics(self, steps: int) -> None:
+        """``steps`` physics steps; each control period begins with the tick (every module reacts).
+
+        Stepping by fewer steps than a period is what lets the preview record frames at 60 Hz while the modules
+        keep their own 50 Hz tick: the modules see exactly the same ticks either way."""
+        while steps > 0:
+            if self._into_tick == 0:
+                self._control_tick()
+            n = min(steps, self.steps_per_tick - self._into_tick)
+            mujoco.mj_step(self.model, self.data, n)
+            self._into_tick = (self._into_tick + n) % self.steps_per_tick
+            steps -= n
+            self.peak_torque = max(self.peak_torque, float(np.abs(self.data.actuator_force).max(initial=0.0)))
+            if self._push is not None and self.data.time >= self._push[0]:
+                self.data.xfrc_applied[self._root, :3] = 0.0
+                self._push = None
+            if not np.isfinite(self.data.qpos).all():
+                raise FloatingPointError(f"the simulation diverged at t = {self.data.time:.3f} s")
+
+    def _control_tick(self) -> None:
         self._sense_contacts()
         self.clock.advance_to(self.data.time)
         self.tick.set(self.data.time)
         if self.trace is not None:
             self.trace.times.append(self.data.time)
             self.trace.goals.append([r.goal.peek() for r in self.modules.values()])
-        mujoco.mj_step(self.model, self.data, self.steps_per_tick)
-        self.peak_torque = max(self.peak_torque, float(np.abs(self.data.actuator_force).max(initial=0.0)))
-        if self._push is not None and self.data.time >= self._push[0]:
-            self.data.xfrc_applied[self._root, :3] = 0.0
-            self._push = None
-        if not np.isfinite(self.data.qpos).all():
-            raise FloatingPointError(f"the simulation diverged at t = {self.data.time:.3f} s")
 
     def advance(self, seconds: float) -> None:
         end = self.data.time + seconds - 1e-9

@@ -31,6 +31,8 @@ from .module import FakeDriver, ModuleRuntime
 log = logging.getLogger("asm_studio")
 LIBRARY = Path(__file__).resolve().parent.parent / "gaits" / "library"
 STUDIO_NODE_ID = 250
+MODULE_IDS = range(1, 200)
+"""Node IDs simulated modules may take: 200-253 are the bridge's aliases for Zenoh clients, 254 the bridge."""
 
 
 @dataclass
@@ -61,7 +63,7 @@ class Studio:
                                                                                 "channel": channel}  # fmt: skip
         if options.bitrate:
             self.can_options["bitrate"] = options.bitrate
-        self.module_nodes: list[Node] = []
+        self.module_nodes: dict[int, Node] = {}
         self.modules: dict[int, ModuleRuntime] = {}
         self.bridge: CanZenohBridge | None = None
         self.node: Node | None = None
@@ -71,7 +73,8 @@ class Studio:
                 self.start_modules(self.gait.robot.modules)
             self.node = Node("studio", self._transport(STUDIO_NODE_ID))
             if options.zenoh:
-                self.bridge = CanZenohBridge(self.can_options, zenoh_listen=options.zenoh_listen,
+                aliases = [a for a in range(200, 254) if a != STUDIO_NODE_ID]  # 250 is the dashboard's own ID
+                self.bridge = CanZenohBridge(self.can_options, aliases=aliases, zenoh_listen=options.zenoh_listen,
                                              zenoh_connect=options.zenoh_connect)  # fmt: skip
             from web.app import Dashboard  # viser loads only for the studio
 
@@ -83,18 +86,30 @@ class Studio:
     def _transport(self, node_id: int) -> CanTransport:
         return CanTransport(node_id, heartbeat_period=self.options.heartbeat_period, **self.can_options)
 
-    def start_modules(self, count: int) -> None:
-        """Simulated modules m1..m<count> (node IDs 1..count), replacing any running ones."""
-        self.stop_modules()
+    def start_modules(self, count: int) -> list[str]:
+        """Run simulated modules m1..m<count> (node IDs 1..count): start the missing ones, close those beyond.
+
+        Modules that stay keep running untouched. Returns the names of the modules closed, so the dashboard can
+        tell a module it removed from one that was lost."""
+        if count not in MODULE_IDS:
+            raise ValueError(f"the studio simulates 1..{MODULE_IDS[-1]} modules, not {count}")
+        closed = []
+        for module_id in sorted(set(self.modules) - set(range(1, count + 1))):
+            self.modules.pop(module_id).close()
+            node = self.module_nodes.pop(module_id)
+            node.close()
+            closed.append(node.name)
         for module_id in range(1, count + 1):
-            node = Node(module_name(module_id), self._transport(module_id))
-            self.module_nodes.append(node)
-            self.modules[module_id] = ModuleRuntime(FakeDriver(), node=node)
+            if module_id not in self.modules:
+                node = Node(module_name(module_id), self._transport(module_id))
+                self.module_nodes[module_id] = node
+                self.modules[module_id] = ModuleRuntime(FakeDriver(), node=node)
+        return closed
 
     def stop_modules(self) -> None:
         for runtime in self.modules.values():
             runtime.close()
-        for node in self.module_nodes:
+        for node in self.module_nodes.values():
             node.close()
         self.modules.clear()
         self.module_nodes.clear()

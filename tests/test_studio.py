@@ -73,3 +73,42 @@ def test_preview_loop_plays_steps_scrubs_and_reloads():
 def test_values_are_formatted_for_the_page():
     assert format_value(b"\x01\x02") == "01 02"
     assert format_value((1.0, 2.5)) == "[1, 2.5]"
+
+
+def test_the_robot_grows_shrinks_and_changes_shape_from_the_document():
+    doc = GaitDocument(load(CATERPILLAR))
+    doc.set_robot("modules", 12)
+    gait = doc.gait()
+    assert gait.robot.modules == 12 and [m.id for m in gait.modules] == list(range(1, 13))
+    # the new modules continue the travelling wave: the same phase step as modules 7 → 8
+    step = (gait.assignment(8).phase - gait.assignment(7).phase) % 1.0
+    for k in range(9, 13):
+        assert (gait.assignment(k).phase - gait.assignment(k - 1).phase) % 1.0 == pytest.approx(step, abs=1e-5)
+    doc.set_module(3, "phase", 0.25)
+    doc.set_module(11, "direction", -1)
+    doc.set_robot("modules", 1)  # typing "12" over "1" passes through one module
+    assert [m.id for m in doc.gait().modules] == [1]
+    doc.set_robot("modules", 12)
+    assert doc.gait().assignment(3).phase == 0.25 and doc.gait().assignment(11).direction == -1
+    doc.set_robot("shape", "legged")
+    assert doc.gait().robot.legs == 4  # 12 modules: four legs of three
+    doc.set_robot("modules", 10)
+    assert [p.path for p in doc.problems] == ["robot.legs"]  # 10 modules do not split into 4 legs
+    doc.set_robot("legs", 2)
+    assert not doc.problems
+    doc.set_robot("shape", "loop")
+    assert "legs" not in doc.data()["robot"] and doc.gait().robot.shape == "loop"
+    with pytest.raises(ValueError):
+        doc.set_robot("modules", 0)
+    assert doc.undo() and doc.gait().robot.shape == "legged"
+
+
+def test_a_grid_row_is_one_undoable_edit():
+    doc = GaitDocument(load(CATERPILLAR))
+    doc.update_state("wave", 4, {"angle": 10.0, "duration": 0.07})
+    state = doc.gait().automata["wave"].states[4]
+    assert (state.angle, state.duration) == (10.0, 0.07)
+    assert not doc.problems
+    assert doc.undo() and doc.gait().automata["wave"].states[4].angle == pytest.approx(46.194)
+    with pytest.raises(ValueError):
+        doc.update_state("wave", 0, {"until": "contact"})

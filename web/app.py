@@ -16,26 +16,28 @@ import functools
 import logging
 import threading
 from collections.abc import Callable, Iterator
-from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import viser
 
 from gaits.deploy import deploy, module_name, start_all, stop_all
-from gaits.model import GaitError, load
-from gaits.table import expand
 
 from .document import GaitDocument
-from .monitor import LivePlot, Roster, describe, format_value, parse_value
+from .editor import GaitEditor
+from .inputs import ValueInput
+from .monitor import LivePlot, Roster, describe, format_value
 from .preview import PreviewLoop, SceneView
 
 if TYPE_CHECKING:
     from server.studio import Studio
 
 log = logging.getLogger("asm_studio.web")
-LIBRARY = Path(__file__).resolve().parent.parent / "gaits" / "library"
 FRAME_PERIOD = 1 / 60
+
+
+def _zeros(count: int) -> tuple[np.ndarray, ...]:
+    return (np.array([0.0, 1.0]), *(np.zeros(2) for _ in range(count - 1)))
 
 
 class Dashboard:
@@ -52,7 +54,9 @@ class Dashboard:
         self.roster = Roster(self.node)  # type: ignore[arg-type]
         self.plot = LivePlot(self.node)  # type: ignore[arg-type]
         self._stop = threading.Event()
-        self._syncing = False
+        self.syncing = False
+        """True while the server sets controls (see :meth:`programmatic`)."""
+        self._value_input: ValueInput | None = None
         self._rebuild_lock = threading.RLock()
         self._build()
         self.server.on_client_connect(self._frame_camera)
@@ -63,7 +67,7 @@ class Dashboard:
 
     # -- helpers --------------------------------------------------------------------------------------------------
 
-    def _safe(self, fn: Callable[..., Any]) -> Callable[[Any], None]:
+    def safe(self, fn: Callable[..., Any]) -> Callable[[Any], None]:
         """A callback whose failure is shown as a notification instead of escaping into viser's thread pool."""
 
         @functools.wraps(fn)
@@ -83,7 +87,8 @@ class Dashboard:
 
     def _frame_camera(self, client: Any) -> None:
         """Look at the robot from close enough to see its modules move."""
-        size = self.doc.gait().robot.modules * self.doc.gait().robot.module_size
+        robot = self.doc.data()["robot"]
+        size = float(robot.get("modules", 8)) * float(robot.get("module_size", 0.05))
         client.camera.position = (0.4 * size + 0.3, -0.9 * size - 0.4, 0.4 * size + 0.3)
         client.camera.look_at = (0.0, 0.0, 0.05)
 
@@ -93,107 +98,29 @@ class Dashboard:
         gui = self.server.gui
         gui.configure_theme(control_width="large")
         self.estop = gui.add_button("E-STOP", color="red", hint="stop every module's gait and hold its joint")
-        self.estop.on_click(self._safe(self._on_estop))
+        self.estop.on_click(self.safe(self._on_estop))
         self.status = gui.add_markdown("Ready.")
         tabs = gui.add_tab_group()
         with tabs.add_tab("Gait"):
-            self._build_editor()
+            self.editor = GaitEditor(self, initial=self.studio.gait.name)
         with tabs.add_tab("Preview"):
             self._build_preview()
         with tabs.add_tab("Deploy"):
             self._build_deploy()
         with tabs.add_tab("Monitor"):
             self._build_monitor()
-        self._refresh_editor()
-
-    def _build_editor(self) -> None:
-        gui = self.server.gui
-        names = sorted(p.stem for p in LIBRARY.glob("*.toml"))
-        self.library = gui.add_dropdown("Library", names, initial_value=self.studio.gait.name
-                                        if self.studio.gait.name in names else names[0])  # fmt: skip
-        self.open_button = gui.add_button("Open from library")
-        self.open_button.on_click(self._safe(lambda _: self._open(load(LIBRARY / f"{self.library.value}.toml"))))
-        self.upload = gui.add_upload_button("Upload gait file", mime_type=".toml")
-        self.upload.on_upload(self._safe(self._on_upload))
-        with gui.add_folder("State"):
-            self.automaton = gui.add_dropdown("Automaton", ["-"])
-            self.state_index = gui.add_slider("State", min=1, max=2, step=1, initial_value=1)
-            self.angle = gui.add_number("Angle (deg)", initial_value=0.0, step=0.5)
-            self.duration = gui.add_number("Duration (s)", initial_value=0.1, step=0.005, min=0.0)
-            self.interp = gui.add_dropdown("Interpolation", ["linear", "step"])
-            self.state_problem = gui.add_markdown("")
-            row = gui.add_button_group("Edit states", ["Insert after", "Remove"])
-        with gui.add_folder("Module"):
-            self.module_index = gui.add_slider("Module", min=1, max=2, step=1, initial_value=1)
-            self.phase = gui.add_number("Phase", initial_value=0.0, min=0.0, max=0.999999, step=0.01)
-            self.direction = gui.add_dropdown("Direction", ["1", "-1"])
-            self.module_automaton = gui.add_dropdown("Runs", ["-"])
-            self.module_problem = gui.add_markdown("")
-        with gui.add_folder("Robot", expand_by_default=False):
-            self.friction = gui.add_number("Friction", initial_value=1.0, min=0.01, max=10.0, step=0.05)
-            self.module_size = gui.add_number("Module size (m)", initial_value=0.05, min=0.01, max=1.0, step=0.005)
-        history = gui.add_button_group("History", ["Undo", "Redo"])
-        self.download = gui.add_button("Download .toml")
-        self.problems = gui.add_markdown("")
-        self.table_html = gui.add_html("")
-        self.expanded = gui.add_uplot(data=_zeros(2), series=({"label": "t"}, {"label": "m1"}),
-                                      title="Expanded table: commanded angle per module", aspect=1.6)  # fmt: skip
-
-        def field(setter: Callable[[Any], None]) -> Callable[[Any], None]:
-            def callback(event: Any) -> None:
-                if not self._syncing:
-                    setter(event.target.value)
-                    self._after_edit()
-
-            return self._safe(callback)
-
-        def state_field(name: str, convert: Callable[[Any], Any]) -> Callable[[Any], None]:
-            return field(lambda v: self.doc.set_state(self.automaton.value, int(self.state_index.value) - 1, name,
-                                                      convert(v)))  # fmt: skip
-
-        self.angle.on_update(state_field("angle", float))
-        self.duration.on_update(state_field("duration", float))
-        self.interp.on_update(state_field("interpolation", str))
-        self.phase.on_update(field(lambda v: self.doc.set_module(int(self.module_index.value), "phase", float(v))))
-        self.direction.on_update(field(lambda v: self.doc.set_module(int(self.module_index.value), "direction",
-                                                                      int(v))))  # fmt: skip
-        self.module_automaton.on_update(field(lambda v: self.doc.set_module(int(self.module_index.value),
-                                                                             "automaton", v)))  # fmt: skip
-        self.friction.on_update(field(lambda v: self.doc.set_robot("friction", float(v))))
-        self.module_size.on_update(field(lambda v: self.doc.set_robot("module_size", float(v))))
-        for control in (self.automaton, self.state_index, self.module_index):
-            control.on_update(self._safe(lambda _: None if self._syncing else self._refresh_editor()))
-
-        def edit_states(event: Any) -> None:
-            index = int(self.state_index.value) - 1
-            if event.target.value == "Insert after":
-                self.doc.add_state(self.automaton.value, index)
-            else:
-                self.doc.remove_state(self.automaton.value, index)
-            self._after_edit()
-
-        row.on_click(self._safe(edit_states))
-
-        def undo_redo(event: Any) -> None:
-            moved = self.doc.undo() if event.target.value == "Undo" else self.doc.redo()
-            if not moved:
-                self.notify("History", f"nothing to {event.target.value.lower()}")
-            self._after_edit()
-
-        history.on_click(self._safe(undo_redo))
-        self.download.on_click(self._safe(lambda e: e.client.send_file_download(
-            f"{self.doc.gait().name}.toml", self.doc.text().encode())))  # fmt: skip
+        self.editor.sync()
 
     def _build_preview(self) -> None:
         gui = self.server.gui
         self.play = gui.add_button_group("Playback", ["Play", "Pause", "Reset"])
-        self.play.on_click(self._safe(self._on_play))
+        self.play.on_click(self.safe(self._on_play))
         self.speed = gui.add_slider("Speed", min=0.1, max=4.0, step=0.1, initial_value=1.0)
-        self.speed.on_update(self._safe(lambda e: self.loop.request("speed", e.target.value)))
+        self.speed.on_update(self.safe(lambda e: self.loop.request("speed", e.target.value)))
         self.timeline = gui.add_slider("Timeline (frame)", min=0, max=1, step=1, initial_value=0)
-        self.timeline.on_update(self._safe(self._on_seek))
+        self.timeline.on_update(self.safe(self._on_seek))
         steps = gui.add_button_group("Step", ["◀ back", "forward ▶"])
-        steps.on_click(self._safe(lambda e: self.loop.request("step", -1 if "back" in e.target.value else 1)))
+        steps.on_click(self.safe(lambda e: self.loop.request("step", -1 if "back" in e.target.value else 1)))
         self.metrics = gui.add_markdown("")
         self.plot_module = gui.add_slider("Plot module", min=1, max=max(2, self.doc.gait().robot.modules), step=1,
                                           initial_value=1)  # fmt: skip
@@ -208,11 +135,11 @@ class Dashboard:
         gui.add_markdown(f"Deploy the edited gait to {target}: validate, transfer, verify each checksum, then start "
                          "all modules with one broadcast.")  # fmt: skip
         self.deploy_button = gui.add_button("Deploy")
-        self.deploy_button.on_click(self._safe(self._on_deploy))
+        self.deploy_button.on_click(self.safe(self._on_deploy))
         self.progress = gui.add_progress_bar(0.0)
         self.deploy_log = gui.add_markdown("")
         self.run_buttons = gui.add_button_group("Modules", ["Start all", "Stop all"])
-        self.run_buttons.on_click(self._safe(self._on_run))
+        self.run_buttons.on_click(self.safe(self._on_run))
 
     def _build_monitor(self) -> None:
         gui = self.server.gui
@@ -220,91 +147,27 @@ class Dashboard:
         with gui.add_folder("Attribute browser"):
             self.browse_module = gui.add_dropdown("Node", ["-"])
             self.browse_object = gui.add_dropdown("Object", ["-"])
+            self.browse_object.on_update(self.safe(lambda _: None if self.syncing else self._choose()))
             self.browse_value = gui.add_markdown("")
-            self.browse_input = gui.add_text("New value", initial_value="")
+            self.value_folder = gui.add_folder("Value")
             actions = gui.add_button_group("Browse", ["List", "Get", "Set", "Plot"])
-            actions.on_click(self._safe(self._on_browse))
+            actions.on_click(self.safe(self._on_browse))
         self.live = gui.add_uplot(data=_zeros(2), series=({"label": "t"}, {"label": "-"}),
                                   title="Live attributes", aspect=2.0)  # fmt: skip
         self._live_labels: list[str] = ["-"]
 
-    # -- editor ---------------------------------------------------------------------------------------------------
-
-    def _open(self, gait: Any) -> None:
-        self.doc.replace(gait)
-        self._after_edit()
-        self.notify("Opened", f"{gait.name}: {gait.robot.modules}-module {gait.robot.shape}")
-
-    def _on_upload(self, event: Any) -> None:
-        file = event.target.value
-        try:
-            self.doc.load_text(file.content.decode("utf-8"), source=file.name)
-        except GaitError as exc:
-            self.notify("Invalid gait file", "; ".join(str(p) for p in exc.problems[:5]), error=True)
-            return
-        self._after_edit()
-        self.notify("Opened", file.name)
-
-    def _after_edit(self) -> None:
-        self._refresh_editor()
-        if self.doc.problems:
-            self.notify("Invalid", str(self.doc.problems[0]), error=True)
-            return
-        self.loop.request("load", self.doc.gait())  # an edit re-previews at once
-
     @contextlib.contextmanager
-    def _programmatic(self) -> Iterator[None]:
+    def programmatic(self) -> Iterator[None]:
         """Controls set by the server (not the user) inside this block: their update callbacks do nothing.
 
         viser calls a control's callbacks synchronously when the server sets its value; the flag tells them apart,
         and the lock keeps the editor's resync and the 20 Hz refresh from clearing each other's flag."""
         with self._rebuild_lock:
-            self._syncing = True
+            self.syncing = True
             try:
                 yield
             finally:
-                self._syncing = False
-
-    def _refresh_editor(self, table: bool = True) -> None:
-        with self._programmatic():
-            self._sync_controls(table)
-
-    def _sync_controls(self, table: bool) -> None:
-        data = self.doc.data()
-        automata = list(data["automata"])
-        if list(self.automaton.options) != automata:
-            self.automaton.options = automata
-            self.module_automaton.options = automata
-        if self.automaton.value not in automata:
-            self.automaton.value = automata[0]
-        states = data["automata"][self.automaton.value]["states"]
-        self.state_index.max = max(2, len(states))
-        index = min(int(self.state_index.value), len(states)) - 1
-        state = states[index]
-        self.angle.value = float(state.get("angle", 0.0))
-        self.duration.value = float(state.get("duration") or 0.0)
-        self.interp.value = state.get("interpolation", "linear")
-        path = f"automata.{self.automaton.value}.states[{index}]"
-        self.state_problem.content = "".join(f"⚠ {p.message}  \n" for p in self.doc.problem_at(path))
-        modules = data["modules"]
-        self.module_index.max = max(2, len(modules))
-        m_index = min(int(self.module_index.value), len(modules)) - 1
-        module = modules[m_index]
-        self.phase.value = float(module.get("phase", 0.0))
-        self.direction.value = str(module.get("direction", 1))
-        if module.get("automaton") in automata:
-            self.module_automaton.value = module["automaton"]
-        self.module_problem.content = "".join(f"⚠ {p.message}  \n" for p in self.doc.problem_at(f"modules[{m_index}]"))
-        self.friction.value = float(data.get("ground", {}).get("friction", 1.0))
-        self.module_size.value = float(data["robot"].get("module_size", 0.05))
-        self.problems.content = ("**Problems**  \n" + "".join(f"- {p}\n" for p in self.doc.problems)
-                                 if self.doc.problems else f"✓ valid ({data['name']})")  # fmt: skip
-        if table:
-            self.table_html.content = _states_table(data, self.automaton.value, index)
-            if not self.doc.problems:
-                times, rows = expand(self.doc.gait(), samples=32)
-                self.expanded.data = (np.asarray(times), *(np.asarray(r) for r in rows))
-                self.expanded.series = ({"label": "t"}, *({"label": f"m{k + 1}"} for k in range(len(rows))))
+                self.syncing = False
 
     # -- preview, deploy, monitor ---------------------------------------------------------------------------------
 
@@ -313,7 +176,7 @@ class Dashboard:
         self.loop.request("reset" if kind == "Reset" else "play", kind == "Play")
 
     def _on_seek(self, event: Any) -> None:
-        if not self._syncing:  # a user's drag scrubs (and pauses); the refresh moving the slider does not
+        if not self.syncing:  # a user's drag scrubs (and pauses); the refresh moving the slider does not
             self.loop.request("seek", int(event.target.value))
 
     def _on_estop(self, _: Any) -> None:
@@ -328,15 +191,20 @@ class Dashboard:
         self._deploy(gait)
 
     def _confirm_real(self, event: Any, gait: Any) -> None:
+        wanted = {module_name(a.id) for a in gait.modules}
+        others = [n for n in self.roster.alive() if n.startswith("m") and n[1:].isdigit() and n not in wanted]
         with event.client.gui.add_modal("Deploy to the real robot?") as modal:
             event.client.gui.add_markdown(f"{gait.name} will be written to {gait.robot.modules} modules on the bus.")
+            if others:
+                event.client.gui.add_markdown(f"⚠ {', '.join(others)} on the bus are not in this gait; the broadcast "
+                                              "start starts them too, with the table they already hold.")  # fmt: skip
             go = event.client.gui.add_button("Yes, deploy", color="red")
             cancel = event.client.gui.add_button("Cancel")
 
             @go.on_click
             def _(_: Any) -> None:
                 modal.close()
-                self._safe(lambda __: self._deploy(gait))(None)
+                self.safe(lambda __: self._deploy(gait))(None)
 
             cancel.on_click(lambda _: modal.close())
 
@@ -349,6 +217,12 @@ class Dashboard:
             self.deploy_log.content = "  \n".join(lines[-8:])
 
         self.progress.value = 0.0
+        if self.studio.simulated and len(self.studio.modules) != gait.robot.modules:
+            before = len(self.studio.modules)
+            removed = self.studio.start_modules(gait.robot.modules)  # the simulated robot becomes the edited one
+            self.roster.forget(removed)
+            self.plot.forget(removed)
+            lines.append(f"simulated modules: {before} → {gait.robot.modules}")
         deploy(self.node, gait, progress=progress)  # type: ignore[arg-type]
         start_all(self.node)  # type: ignore[arg-type]
         self.notify("Deployed", f"{gait.name} verified on {gait.robot.modules} modules and started")
@@ -363,20 +237,37 @@ class Dashboard:
         self.notify("Modules", event.target.value.lower())
 
     def _on_browse(self, event: Any) -> None:
-        action, name = event.target.value, self.browse_module.value
-        if action == "List" or self.browse_object.value == "-":
-            objects = self.node.list_objects(name, timeout=2.0)  # type: ignore[union-attr]
-            self.browse_object.options = [o.name for o in objects]
-            self.browse_value.content = "  \n".join(f"`{o.name}` {describe(o)}" for o in objects)
+        action = event.target.value
+        if action == "List" or self._value_input is None:
+            self._list()
             return
-        obj = self.node.lookup(name, self.browse_object.value, timeout=2.0)  # type: ignore[union-attr]
+        value = self._value_input
         if action == "Get":
-            self.browse_value.content = f"`{obj.name}` ({describe(obj)}) = **{format_value(obj.peek())}**"
+            self.browse_value.content = (
+                f"`{value.obj.name}` ({describe(value.obj)}) = **{format_value(value.refresh())}**"
+            )
         elif action == "Set":
-            obj.set(parse_value(obj, self.browse_input.value), wait=True)
-            self.browse_value.content = f"`{obj.name}` set to **{format_value(obj.peek())}**"
+            self.browse_value.content = f"`{value.obj.name}` set to **{format_value(value.write())}**"
         else:
-            self.plot.watch(name, obj.name)
+            self.plot.watch(self.browse_module.value, value.obj.name)
+
+    def _list(self) -> None:
+        """List the chosen node's objects and choose the first."""
+        objects = self.node.list_objects(self.browse_module.value, timeout=2.0)  # type: ignore[union-attr]
+        with self.programmatic():
+            self.browse_object.options = [o.name for o in objects] or ["-"]
+        self.browse_value.content = "  \n".join(f"`{o.name}` {describe(o)}" for o in objects)
+        if objects:
+            self._choose()
+
+    def _choose(self) -> None:
+        """Show an input that fits the chosen object's type, holding its current value."""
+        if self._value_input is not None:
+            self._value_input.remove()
+            self._value_input = None
+        obj = self.node.lookup(self.browse_module.value, self.browse_object.value, timeout=2.0)  # type: ignore[union-attr]
+        with self.value_folder:
+            self._value_input = ValueInput(self.server.gui, obj)
 
     # -- threads --------------------------------------------------------------------------------------------------
 
@@ -406,7 +297,10 @@ class Dashboard:
         self.metrics.content = (f"t = {m.seconds:.2f} s · distance **{m.distance:.3f} m** "
                                 f"({m.body_lengths:.2f} BL) · speed **{m.speed:.3f} m/s** · heading {m.heading:.0f}° · "
                                 f"peak torque {m.peak_torque:.2f} N·m{warning}")  # fmt: skip
-        with self._programmatic():
+        with self.programmatic():
+            modules = max(2, loop.sim.gait.robot.modules)
+            if self.plot_module.max != modules:
+                self.plot_module.max = modules
             self.timeline.max = max(1, frames - 1)
             if loop.cursor is None:
                 self.timeline.value = max(0, frames - 1)
@@ -436,23 +330,3 @@ class Dashboard:
         self.roster.close()
         self.loop.close()
         self.server.stop()
-
-
-def _states_table(data: dict[str, Any], selected: str, index: int) -> str:
-    """The automata as an HTML table (states across, one row per automaton; the selected cell highlighted)."""
-    rows = []
-    for name, automaton in data["automata"].items():
-        cells = []
-        for k, state in enumerate(automaton["states"]):
-            mark = ' style="background:#ffe8a8"' if name == selected and k == index else ""
-            duration = state.get("duration")
-            cells.append(
-                f"<td{mark}>{state.get('angle', 0):.1f}°<br><small>{duration if duration else '…'}s</small></td>"
-            )
-        rows.append(f"<tr><th>{name}</th>{''.join(cells)}</tr>")
-    return ('<div style="overflow-x:auto;font-size:0.75em"><table border="1" cellpadding="2" '
-            f'style="border-collapse:collapse">{"".join(rows)}</table></div>')  # fmt: skip
-
-
-def _zeros(count: int) -> tuple[np.ndarray, ...]:
-    return (np.array([0.0, 1.0]), *(np.zeros(2) for _ in range(count - 1)))

@@ -28,6 +28,9 @@ class GaitDocument:
         self._valid: Gait | None = gait
         self.problems: list[Problem] = []
         self.version = 0
+        self._spare: dict[int, dict[str, Any]] = {}
+        """Assignments of modules removed by shrinking the robot, given back if it grows again: a module count
+        typed as 1 then 12 passes through one module on the way."""
 
     # -- reading ------------------------------------------------------------------------------------------------
 
@@ -53,6 +56,7 @@ class GaitDocument:
 
     def replace(self, gait: Gait) -> None:
         """Open another gait (undoable)."""
+        self._spare.clear()
         self._apply(lambda data: data.clear() or data.update(to_dict(gait)))
 
     def load_text(self, text: str, source: str = "upload") -> None:
@@ -61,11 +65,16 @@ class GaitDocument:
 
     def set_state(self, automaton: str, index: int, field: str, value: Any) -> None:
         """Set ``angle``, ``duration`` or ``interpolation`` of one state of an automaton."""
-        if field not in ("angle", "duration", "interpolation"):
-            raise ValueError(f"a state has no editable field {field!r}")
+        self.update_state(automaton, index, {field: value})
+
+    def update_state(self, automaton: str, index: int, changes: dict[str, Any]) -> None:
+        """Set several fields of one state as one undoable step (a grid row sends angle and duration together)."""
+        wrong = set(changes) - {"angle", "duration", "interpolation"}
+        if wrong:
+            raise ValueError(f"a state has no editable field {sorted(wrong)[0]!r}")
 
         def edit(data: dict[str, Any]) -> None:
-            data["automata"][automaton]["states"][index][field] = value
+            data["automata"][automaton]["states"][index].update(changes)
 
         self._apply(edit)
 
@@ -88,10 +97,15 @@ class GaitDocument:
         self._apply(edit)
 
     def set_robot(self, field: str, value: Any) -> None:
-        """Edit the robot: ``module_size``, ``axes`` or ``shape``; the ground's ``friction``."""
+        """Edit the robot: ``modules`` (the assignments follow), ``shape``, ``axes``, ``legs``, ``module_size``;
+        the ground's ``friction``."""
         if field == "friction":
             self._apply(lambda d: d.setdefault("ground", {}).__setitem__("friction", value))
-        elif field in ("module_size", "axes", "shape"):
+        elif field == "modules":
+            self._apply(lambda d: _resize(d, value, self._spare))
+        elif field == "shape":
+            self._apply(lambda d: _reshape(d, value))
+        elif field in ("module_size", "axes", "legs"):
             self._apply(lambda d: d["robot"].__setitem__(field, value))
         else:
             raise ValueError(f"the robot has no editable field {field!r}")
@@ -129,3 +143,42 @@ class GaitDocument:
             self._valid = None
             self.problems = list(exc.problems)
         self.version += 1
+
+
+def _resize(data: dict[str, Any], count: int, spare: dict[int, dict[str, Any]]) -> None:
+    """Give the robot ``count`` modules: assignments beyond it go to ``spare``, new modules continue the pattern.
+
+    A module that was in ``spare`` comes back as it was. Otherwise a new module runs the last module's automaton
+    and direction, and its phase continues the last two modules' phase step (a travelling wave keeps its wavelength
+    as the chain grows), or repeats the last phase if there is one module."""
+    if not isinstance(count, int) or isinstance(count, bool) or count < 1:
+        raise ValueError(f"a robot needs 1 or more modules, not {count!r}")
+    modules = sorted((m for m in data["modules"] if isinstance(m.get("id"), int)), key=lambda m: m["id"])
+    spare.update((m["id"], m) for m in modules if m["id"] > count)
+    modules = [m for m in modules if m["id"] <= count]
+    data["robot"]["modules"] = count
+    if not modules:
+        first = next(iter(data["automata"]), "")
+        modules = [{"id": 1, "automaton": first, "phase": 0.0, "direction": 1}]
+    step = (modules[-1]["phase"] - modules[-2]["phase"]) if len(modules) > 1 else 0.0
+    while len(modules) < count:
+        last = modules[-1]
+        if last["id"] + 1 in spare:
+            modules.append(spare.pop(last["id"] + 1))
+            continue
+        phase = round((last["phase"] + step) % 1.0, 6) % 1.0
+        modules.append({"id": last["id"] + 1, "automaton": last["automaton"], "phase": phase,
+                        "direction": last.get("direction", 1)})  # fmt: skip
+    data["modules"] = modules[:count]
+
+
+def _reshape(data: dict[str, Any], shape: str) -> None:
+    """Change the robot's shape; a legged robot gets the most legs (up to 4) that share its modules evenly."""
+    robot = data["robot"]
+    robot["shape"] = shape
+    if shape == "legged":
+        modules = robot.get("modules", 0)
+        if not isinstance(robot.get("legs"), int) or robot["legs"] < 2:
+            robot["legs"] = next((n for n in (4, 2, 3) if isinstance(modules, int) and modules % n == 0), 2)
+    else:
+        robot.pop("legs", None)

@@ -29,6 +29,7 @@ class Roster:
         self.node = node
         self._lock = threading.Lock()
         self.entries: dict[str, dict[str, Any]] = {}
+        self._forgotten: set[str] = set()
         for name in node.discover():
             self._changed(name, True)
         self._unlisten = node.on_discovery(self._changed)
@@ -37,6 +38,10 @@ class Roster:
         if name == self.node.name:
             return
         with self._lock:
+            if name in self._forgotten:
+                if not alive:
+                    return  # its loss, reported late
+                self._forgotten.discard(name)
             self.entries[name] = {"alive": alive, "since": time.monotonic()}
 
     def poll_gaits(self, timeout: float = 0.3) -> None:
@@ -51,6 +56,13 @@ class Roster:
             with self._lock:
                 if name in self.entries:
                     self.entries[name]["gait"] = f"gait {'running' if running else 'stopped'} · state {index}"
+
+    def forget(self, names: list[str]) -> None:
+        """Drop nodes that were closed on purpose (the studio removed them), so they do not show as lost."""
+        with self._lock:
+            for name in names:
+                self.entries.pop(name, None)
+                self._forgotten.add(name)
 
     def gait(self, name: str) -> str:
         with self._lock:
@@ -100,6 +112,13 @@ class LivePlot:
             self.received += 1
 
         self._unsubscribe[key] = remote.on_change(arrived)  # type: ignore[union-attr]
+
+    def forget(self, modules: list[str]) -> None:
+        """Stop plotting every attribute of ``modules``."""
+        for key in [k for k in self._unsubscribe if k[0] in modules]:
+            self._unsubscribe.pop(key)()
+            with self._lock:
+                self.series.pop(key, None)
 
     def unwatch_all(self) -> None:
         for remove in self._unsubscribe.values():

@@ -22,8 +22,8 @@ import viser
 from gaits.model import Gait
 from gaits.sim import Metrics, Simulation
 
-FRAME_RATE = 30.0
-"""Recorded frames per simulated second (the timeline's resolution)."""
+FRAME_RATE = 60.0
+"""Recorded frames per simulated second: the timeline's resolution, and what the view draws at speed 1."""
 HISTORY_SECONDS = 60.0
 
 
@@ -52,6 +52,8 @@ class PreviewLoop:
         self.generation = 0
         """Incremented whenever a new gait is loaded (the view rebuilds its meshes)."""
         self.sim = self._new_sim(gait)
+        self._next_frame = 0.0
+        """Simulated time at which the next frame is due."""
         self._start_com = self.sim.center_of_mass()
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="preview-loop", daemon=True)
@@ -103,29 +105,44 @@ class PreviewLoop:
         last = time.monotonic()
         owed = 0.0
         while not self._stop.is_set():
-            try:
-                while True:
-                    self._handle(*self._requests.get_nowait())
-            except queue.Empty:
-                pass
+            for kind, value in self._pending():
+                self._handle(kind, value)
             now = time.monotonic()
             if self.playing and self.error is None:
                 owed = min(owed + (now - last) * self.speed, 0.25)  # never try to catch up more than 0.25 s
-                tick = self.sim.steps_per_tick * self.sim.model.opt.timestep
+                dt = self.sim.model.opt.timestep
                 try:
-                    while owed >= tick:
-                        self._tick()
-                        owed -= tick
+                    while owed >= dt:
+                        steps = min(self._steps_to_next_frame(), int(owed / dt + 1e-9))
+                        self._advance(steps)
+                        owed -= steps * dt
                 except Exception as exc:  # a diverging model is shown, not fatal
                     self.error = f"simulation stopped: {exc}"
             last = now
-            time.sleep(1 / 120)
+            time.sleep(1 / 240)
 
-    def _tick(self) -> None:
+    def _pending(self) -> list[tuple[str, Any]]:
+        """The queued requests, of which only the newest ``load`` counts (typing 12 loads 1, then 12)."""
+        requests: list[tuple[str, Any]] = []
+        try:
+            while True:
+                requests.append(self._requests.get_nowait())
+        except queue.Empty:
+            pass
+        loads = [k for k, (kind, _) in enumerate(requests) if kind == "load"]
+        return [r for k, r in enumerate(requests) if r[0] != "load" or k == loads[-1]]
+
+    def _steps_to_next_frame(self) -> int:
+        due = self._next_frame - self.sim.data.time
+        return max(1, math.ceil(due / self.sim.model.opt.timestep - 1e-6))
+
+    def _advance(self, steps: int) -> None:
         sim = self.sim
         with self._lock:
-            sim.step_tick()
-            if not self.frames or sim.data.time - self.frames[-1].time >= 1 / FRAME_RATE - 1e-9:
+            sim.step_physics(steps)
+            if sim.data.time >= self._next_frame - 1e-9:  # frames on a 1/60 s grid of simulated time
+                while self._next_frame <= sim.data.time + 1e-9:
+                    self._next_frame += 1 / FRAME_RATE
                 goals = tuple(float(r.goal.peek()) for r in sim.modules.values())
                 angles = tuple(float(r.angle.peek()) for r in sim.modules.values())
                 self.frames.append(Frame(sim.data.time, sim.data.qpos.copy(), goals, angles))
@@ -141,6 +158,7 @@ class PreviewLoop:
             with self._lock:
                 old, self.sim = self.sim, new
                 self.frames.clear()
+                self._next_frame = 0.0
                 self.cursor = None
                 self._start_com = new.center_of_mass()
                 self.error = None
@@ -164,7 +182,7 @@ class PreviewLoop:
             if value > 0 and cursor >= end:  # at the live end: simulate until the next frame is recorded
                 last = self.frames[-1].time if self.frames else None
                 while not self.frames or self.frames[-1].time == last:
-                    self._tick()
+                    self._advance(self._steps_to_next_frame())
                 self.cursor = None
             else:
                 with self._lock:

@@ -1,0 +1,129 @@
+"""The dashboard in this process, without a browser: a Studio on port 0 (no Zenoh), its controls set from here.
+
+viser runs a control's callbacks when the server sets its value, so setting a handle's value here goes through the
+same callback a user's edit in the page does (the browser path itself is test_studio_e2e.py's)."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import pytest
+
+from gaits.model import load
+from server.studio import Studio, StudioOptions
+from tests.helpers import wait_until
+
+pytestmark = pytest.mark.timeout(120)
+
+
+def _click(value: str) -> SimpleNamespace:
+    """What viser hands a button group's callback when the button ``value`` is clicked."""
+    return SimpleNamespace(target=SimpleNamespace(value=value), client=None)
+
+
+@pytest.fixture
+def studio():
+    studio = Studio(StudioOptions(port=0, zenoh=False, heartbeat_period=0.2))
+    try:
+        yield studio
+    finally:
+        studio.close()
+
+
+def test_a_grid_row_edits_its_state_selects_it_and_re_previews(studio):
+    app = studio.app
+    grid = app.editor.grid
+    assert len(grid.rows) == 16  # the caterpillar's one automaton: 16 states
+    generation = app.loop.generation
+    grid.rows[("wave", 5)].value = (-12.5, 0.0625)
+    state = app.doc.gait().automata["wave"].states[5]
+    assert state.angle == -12.5 and state.duration == 0.0625
+    assert app.editor.automaton.value == "wave" and app.editor.state_index.value == 6
+    assert app.editor.angle.value == -12.5  # the cell editor shows the same state
+    assert wait_until(lambda: app.loop.generation > generation, timeout=20)
+    assert app.loop.sim.gait.automata["wave"].states[5].angle == -12.5
+    # a beyond-limits angle is kept with its problem shown, and never reaches the preview
+    grid.rows[("wave", 0)].value = (95.0, 0.0625)
+    assert "outside the joint limits" in app.editor.state_problem.content
+    assert "Problems" in app.editor.problems.content
+    app.editor._on_history(_click("Undo"))
+    assert grid.rows[("wave", 0)].value[0] == pytest.approx(19.134)
+    assert not app.doc.problems
+
+
+def test_a_row_never_rounds_what_it_did_not_change(studio):
+    app = studio.app
+    app.doc.update_state("wave", 0, {"duration": 1 / 12})  # shown as 0.0833 in the page
+    app.editor.after_edit()
+    row = app.editor.grid.rows[("wave", 0)]
+    assert tuple(row.value) == (19.134, 0.0833)
+    row.value = (20.0, 0.0833)
+    state = app.doc.gait().automata["wave"].states[0]
+    assert state.angle == 20.0 and state.duration == 1 / 12
+
+
+def test_the_grid_follows_the_table_shape(studio):
+    app = studio.app
+    app.editor.open(load("gaits/library/legged_walk.toml"))
+    automata = app.doc.gait().automata
+    assert set(app.editor.grid.rows) == {(n, k) for n, a in automata.items() for k in range(len(a.states))}
+    app.doc.add_state("hip", 0)
+    app.editor.after_edit()
+    assert ("hip", len(automata["hip"].states)) in app.editor.grid.rows
+
+
+def test_deploying_another_robot_resizes_the_simulated_modules(studio):
+    app = studio.app
+    app.editor.modules.value = 12  # the Robot folder's module count, as typed in the page
+    assert app.doc.gait().robot.modules == 12
+    app._deploy(app.doc.gait())
+    assert sorted(studio.modules) == list(range(1, 13))
+    assert wait_until(lambda: all(app.node.lookup(f"m{i}", "gait.service", timeout=2).running for i in (1, 12)), 20)
+    app.editor.modules.value = 6
+    app._deploy(app.doc.gait())
+    assert sorted(studio.modules) == list(range(1, 7))
+    assert "simulated modules: 12 → 6" in app.deploy_log.content
+    assert wait_until(lambda: [n for n, _, _ in app.roster.rows()] == [f"m{i}" for i in range(1, 7)], 10)
+
+
+def test_the_attribute_browser_gives_each_type_its_input(studio):
+    app = studio.app
+    assert wait_until(lambda: "m1" in app.browse_module.options, timeout=10)
+    app.browse_module.value = "m1"
+    app._list()
+    kinds = {}
+    for name in ("joint.goal", "estop", "joint.limits", "gait.table", "gait.service", "gait.checksum"):
+        app.browse_object.value = name  # the user's choice builds the input
+        kinds[name] = (type(app._value_input.handle).__name__, app._value_input.kind)
+    assert kinds == {
+        "joint.goal": ("GuiNumberHandle", "float"),
+        "estop": ("GuiCheckboxHandle", "bool"),
+        "joint.limits": ("GuiVector2Handle", "float_array"),
+        "gait.table": ("GuiTextHandle", "text"),
+        "gait.service": ("GuiCheckboxHandle", "service"),
+        "gait.checksum": ("GuiNumberHandle", "int"),
+    }
+    module = studio.modules[1]
+    app.browse_object.value = "joint.limits"
+    app._value_input.handle.value = (-30.0, 45.0)
+    app._value_input.write()
+    assert module.limits.peek() == (-30.0, 45.0)
+    app.browse_object.value = "joint.goal"
+    app._value_input.handle.value = 60.0
+    app._value_input.write()
+    assert module.goal.peek() == 45.0  # the module clamps to its limits, whatever the page sends
+    assert app._value_input.refresh() == 45.0 and app._value_input.handle.value == 45.0
+    app.browse_object.value = "gait.service"
+    app._value_input.handle.value = True
+    app._value_input.write()
+    assert module.gait.running
+    app._value_input.handle.value = False
+    app._value_input.write()
+    assert not module.gait.started
+
+
+def test_a_failing_action_becomes_a_notification(studio):
+    app = studio.app
+    app.browse_module.value = "nobody"
+    app.safe(lambda _: app._list())(None)
+    assert app.status.content.startswith("**Error**")

@@ -1,0 +1,231 @@
+"""The Gait tab: open or upload a gait, edit its states, modules and robot, see its problems and its table.
+
+Layout, top to bottom: library/open/upload, undo/redo and download, the problems (or "valid"), the state grid (every
+automaton's states as rows of inputs, web/grid.py), the selected state (interpolation, insert/remove), the selected
+module (phase, direction, automaton), the robot (module count, shape, axes, legs, size, friction), then an HTML view of
+the table and a plot of the expanded module × time table.
+
+Every edit goes through the GaitDocument (one undoable step, validated after it); a valid document is queued to the
+preview at once. Controls the server sets are set inside the dashboard's ``programmatic()`` block so their callbacks
+do not take them for user edits.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from gaits.model import AXES, SHAPES, GaitError, load
+from gaits.table import expand
+
+from .grid import StateGrid
+
+if TYPE_CHECKING:
+    from .app import Dashboard
+
+LIBRARY = Path(__file__).resolve().parent.parent / "gaits" / "library"
+MAX_MODULES = 199
+"""Module count the editor offers (the studio simulates modules on node IDs 1..199)."""
+
+
+class GaitEditor:
+    """The controls of the Gait tab of ``app``; see the module docstring."""
+
+    def __init__(self, app: Dashboard, initial: str) -> None:
+        self.app = app
+        self.doc = app.doc
+        gui = app.server.gui
+        safe = app.safe
+        names = sorted(p.stem for p in LIBRARY.glob("*.toml"))
+        self.library = gui.add_dropdown("Library", names, initial_value=initial if initial in names else names[0])
+        gui.add_button("Open from library").on_click(
+            safe(lambda _: self.open(load(LIBRARY / f"{self.library.value}.toml")))
+        )
+        self.upload = gui.add_upload_button("Upload gait file", mime_type=".toml")
+        self.upload.on_upload(safe(self._on_upload))
+        history = gui.add_button_group("History", ["Undo", "Redo"])
+        history.on_click(safe(self._on_history))
+        gui.add_button("Download .toml").on_click(safe(lambda e: e.client.send_file_download(
+            f"{self.doc.gait().name}.toml", self.doc.text().encode())))  # fmt: skip
+        self.problems = gui.add_markdown("")
+        grid_folder = gui.add_folder("States")
+        self.grid = StateGrid(app.server, grid_folder, on_edit=self._on_grid, syncing=lambda: app.syncing)
+        with gui.add_folder("Selected state"):
+            self.automaton = gui.add_dropdown("Automaton", ["-"])
+            self.state_index = gui.add_slider("State", min=1, max=2, step=1, initial_value=1)
+            self.angle = gui.add_number("Angle (deg)", initial_value=0.0, step=0.5)
+            self.duration = gui.add_number("Duration (s)", initial_value=0.1, step=0.005, min=0.0)
+            self.interp = gui.add_dropdown("Interpolation", ["linear", "step"])
+            self.state_problem = gui.add_markdown("")
+            states = gui.add_button_group("Edit states", ["Insert after", "Remove"])
+        with gui.add_folder("Module"):
+            self.module_index = gui.add_slider("Module", min=1, max=2, step=1, initial_value=1)
+            self.phase = gui.add_number("Phase", initial_value=0.0, min=0.0, max=0.999999, step=0.01)
+            self.direction = gui.add_dropdown("Direction", ["1", "-1"])
+            self.module_automaton = gui.add_dropdown("Runs", ["-"])
+            self.module_problem = gui.add_markdown("")
+        with gui.add_folder("Robot"):
+            self.modules = gui.add_number("Modules", initial_value=8, min=1, max=MAX_MODULES, step=1)
+            self.shape = gui.add_dropdown("Shape", SHAPES)
+            self.axes = gui.add_dropdown("Axes", AXES)
+            self.legs = gui.add_number("Legs", initial_value=4, min=2, max=MAX_MODULES, step=1)
+            self.module_size = gui.add_number("Module size (m)", initial_value=0.05, min=0.01, max=1.0, step=0.005)
+            self.friction = gui.add_number("Friction", initial_value=1.0, min=0.01, max=10.0, step=0.05)
+            self.robot_problem = gui.add_markdown("")
+        self.table_html = gui.add_html("")
+        self.expanded = gui.add_uplot(data=_zeros(2), series=({"label": "t"}, {"label": "m1"}),
+                                      title="Expanded table: commanded angle per module", aspect=1.6)  # fmt: skip
+
+        def field(setter: Callable[[Any], None]) -> Callable[[Any], None]:
+            def callback(event: Any) -> None:
+                if not app.syncing:
+                    setter(event.target.value)
+                    self.after_edit()
+
+            return safe(callback)
+
+        def state_field(name: str, convert: Callable[[Any], Any]) -> Callable[[Any], None]:
+            return field(lambda v: self.doc.set_state(self.automaton.value, int(self.state_index.value) - 1, name,
+                                                      convert(v)))  # fmt: skip
+
+        def module_field(name: str, convert: Callable[[Any], Any]) -> Callable[[Any], None]:
+            return field(lambda v: self.doc.set_module(int(self.module_index.value), name, convert(v)))
+
+        self.angle.on_update(state_field("angle", float))
+        self.duration.on_update(state_field("duration", float))
+        self.interp.on_update(state_field("interpolation", str))
+        self.phase.on_update(module_field("phase", float))
+        self.direction.on_update(module_field("direction", int))
+        self.module_automaton.on_update(module_field("automaton", str))
+        robot_fields = ((self.modules, "modules", int), (self.shape, "shape", str), (self.axes, "axes", str),
+                        (self.legs, "legs", int), (self.module_size, "module_size", float),
+                        (self.friction, "friction", float))  # fmt: skip
+        for control, name, convert in robot_fields:
+            control.on_update(field(lambda v, name=name, convert=convert: self.doc.set_robot(name, convert(v))))
+        for control in (self.automaton, self.state_index, self.module_index):
+            control.on_update(safe(lambda _: None if app.syncing else self.sync()))
+        states.on_click(safe(self._on_states))
+
+    # -- actions --------------------------------------------------------------------------------------------------
+
+    def open(self, gait: Any) -> None:
+        self.doc.replace(gait)
+        self.after_edit()
+        self.app.notify("Opened", f"{gait.name}: {gait.robot.modules}-module {gait.robot.shape}")
+
+    def _on_upload(self, event: Any) -> None:
+        file = event.target.value
+        try:
+            self.doc.load_text(file.content.decode("utf-8"), source=file.name)
+        except GaitError as exc:
+            self.app.notify("Invalid gait file", "; ".join(str(p) for p in exc.problems[:5]), error=True)
+            return
+        self.after_edit()
+        self.app.notify("Opened", file.name)
+
+    def _on_history(self, event: Any) -> None:
+        moved = self.doc.undo() if event.target.value == "Undo" else self.doc.redo()
+        if not moved:
+            self.app.notify("History", f"nothing to {event.target.value.lower()}")
+        self.after_edit()
+
+    def _on_states(self, event: Any) -> None:
+        index = int(self.state_index.value) - 1
+        if event.target.value == "Insert after":
+            self.doc.add_state(self.automaton.value, index)
+        else:
+            self.doc.remove_state(self.automaton.value, index)
+        self.after_edit()
+
+    def _on_grid(self, automaton: str, index: int, changes: dict[str, float]) -> None:
+        """A grid row changed: select that state in the cell editor too, and apply the change."""
+        with self.app.programmatic():
+            self.automaton.value = automaton
+            self.state_index.max = max(2, index + 1, int(self.state_index.max))
+            self.state_index.value = index + 1
+        self.doc.update_state(automaton, index, changes)
+        self.after_edit()
+
+    def after_edit(self) -> None:
+        self.sync()
+        if self.doc.problems:
+            self.app.notify("Invalid", str(self.doc.problems[0]), error=True)
+            return
+        self.app.loop.request("load", self.doc.gait())  # an edit re-previews at once
+
+    # -- showing the document -------------------------------------------------------------------------------------
+
+    def sync(self) -> None:
+        """Set every control from the document."""
+        with self.app.programmatic():
+            self._sync_controls()
+
+    def _sync_controls(self) -> None:
+        data = self.doc.data()
+        automata = list(data["automata"])
+        if list(self.automaton.options) != automata:
+            self.automaton.options = automata
+            self.module_automaton.options = automata
+        if self.automaton.value not in automata:
+            self.automaton.value = automata[0]
+        states = data["automata"][self.automaton.value]["states"]
+        self.state_index.max = max(2, len(states))
+        index = min(int(self.state_index.value), len(states)) - 1
+        state = states[index]
+        self.angle.value = float(state.get("angle", 0.0))
+        self.duration.value = float(state.get("duration") or 0.0)
+        self.interp.value = state.get("interpolation", "linear")
+        self.state_problem.content = _problems(self.doc.problem_at(f"automata.{self.automaton.value}.states[{index}]"))
+        modules = data["modules"]
+        self.module_index.max = max(2, len(modules))
+        m_index = min(int(self.module_index.value), len(modules)) - 1
+        module = modules[m_index]
+        self.phase.value = float(module.get("phase", 0.0))
+        self.direction.value = str(module.get("direction", 1))
+        if module.get("automaton") in automata:
+            self.module_automaton.value = module["automaton"]
+        self.module_problem.content = _problems(self.doc.problem_at(f"modules[{m_index}]"))
+        robot = data["robot"]
+        self.modules.value = int(robot.get("modules", 1))
+        self.shape.value = robot.get("shape", "chain")
+        self.axes.value = robot.get("axes", "pitch")
+        self.legs.value = int(robot.get("legs") or 4)
+        self.legs.disabled = robot.get("shape") != "legged"
+        self.module_size.value = float(robot.get("module_size", 0.05))
+        self.friction.value = float(data.get("ground", {}).get("friction", 1.0))
+        self.robot_problem.content = _problems(self.doc.problem_at("robot") + self.doc.problem_at("modules"))
+        self.problems.content = ("**Problems**  \n" + "".join(f"- {p}\n" for p in self.doc.problems)
+                                 if self.doc.problems else f"✓ valid ({data['name']})")  # fmt: skip
+        self.grid.sync(data, self.automaton.value)
+        self.table_html.content = _states_table(data, self.automaton.value, index)
+        if not self.doc.problems:
+            times, rows = expand(self.doc.gait(), samples=32)
+            self.expanded.data = (np.asarray(times), *(np.asarray(r) for r in rows))
+            self.expanded.series = ({"label": "t"}, *({"label": f"m{k + 1}"} for k in range(len(rows))))
+
+
+def _problems(problems: list[Any]) -> str:
+    return "".join(f"⚠ {p.message}  \n" for p in problems)
+
+
+def _states_table(data: dict[str, Any], selected: str, index: int) -> str:
+    """The automata as an HTML table (states across, one row per automaton; the selected cell highlighted)."""
+    rows = []
+    for name, automaton in data["automata"].items():
+        cells = []
+        for k, state in enumerate(automaton["states"]):
+            mark = ' style="background:#ffe8a8"' if name == selected and k == index else ""
+            duration = state.get("duration")
+            cells.append(
+                f"<td{mark}>{state.get('angle', 0):.1f}°<br><small>{duration if duration else '…'}s</small></td>"
+            )
+        rows.append(f"<tr><th>{name}</th>{''.join(cells)}</tr>")
+    return ('<div style="overflow-x:auto;font-size:0.75em"><table border="1" cellpadding="2" '
+            f'style="border-collapse:collapse">{"".join(rows)}</table></div>')  # fmt: skip
+
+
+def _zeros(count: int) -> tuple[np.ndarray, ...]:
+    return (np.array([0.0, 1.0]), *(np.zeros(2) for _ in range(count - 1)))

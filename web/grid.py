@@ -1,0 +1,102 @@
+"""The state grid: every automaton's states as rows of inputs, so a 16-module × 8-state gait is edited in place.
+
+viser has no table widget. Each automaton gets a folder; each of its states one row, a pair of number inputs
+(target angle in degrees, duration in seconds). The grid is rebuilt only when the table's shape changes (an
+automaton or a state added or removed, another gait opened); otherwise only the inputs whose values changed are
+sent, so the page does not flicker while someone types.
+
+An input shows a rounded number (viser formats it to a fixed precision). When the page sends a row back, a component
+that still equals the document's value as shown is kept as the document has it, so editing an angle never rounds the
+duration of the same state.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import viser
+
+PRECISION = 4
+"""Decimal places shown (0.0625 s survives; a change smaller than half a unit of the last place is no change)."""
+STEP = 10.0**-PRECISION
+
+
+class StateGrid:
+    """One folder per automaton, one (angle, duration) row per state, inside ``parent``."""
+
+    def __init__(
+        self,
+        server: viser.ViserServer,
+        parent: viser.GuiFolderHandle,
+        *,
+        on_edit: Callable[[str, int, dict[str, float]], None],
+        syncing: Callable[[], bool],
+    ) -> None:
+        self.server = server
+        self.parent = parent
+        self._on_edit = on_edit
+        """Called with (automaton, state index, {field: value}) for what the user changed."""
+        self._syncing = syncing
+        """True while the server itself is setting inputs (their callbacks must not edit the document)."""
+        self._shape: tuple[tuple[str, int], ...] = ()
+        self._folders: list[Any] = []
+        self.rows: dict[tuple[str, int], Any] = {}
+        """(automaton, state index) → its row's input handle."""
+        self._shown: dict[tuple[str, int], tuple[float, float]] = {}
+
+    def sync(self, data: dict[str, Any], selected: str) -> None:
+        """Show ``data``'s automata (the document's plain data); the ``selected`` automaton's folder is open."""
+        automata = data["automata"]
+        shape = tuple((name, len(a["states"])) for name, a in automata.items())
+        if shape != self._shape:
+            self._rebuild(automata, selected)
+            self._shape = shape
+            return
+        for name, automaton in automata.items():
+            for k, state in enumerate(automaton["states"]):
+                value = _row_value(state)
+                if self._shown.get((name, k)) != value:
+                    self.rows[(name, k)].value = value
+                    self._shown[(name, k)] = value
+
+    def _rebuild(self, automata: dict[str, Any], selected: str) -> None:
+        for folder in self._folders:
+            folder.remove()
+        self._folders, self.rows, self._shown = [], {}, {}
+        gui = self.server.gui
+        with self.parent:
+            for name, automaton in automata.items():
+                folder = gui.add_folder(f"{name} ({len(automaton['states'])} states)",
+                                        expand_by_default=name == selected or len(automata) <= 2)  # fmt: skip
+                self._folders.append(folder)
+                with folder:
+                    for k, state in enumerate(automaton["states"]):
+                        value = _row_value(state)
+                        row = gui.add_vector2(f"{name} S{k + 1} (°, s)", value, step=STEP,
+                                              hint="target angle in degrees, duration in seconds")  # fmt: skip
+                        row.on_update(self._callback(name, k))
+                        self.rows[(name, k)] = row
+                        self._shown[(name, k)] = value
+
+    def _callback(self, name: str, index: int) -> Callable[[Any], None]:
+        def update(event: Any) -> None:
+            if self._syncing():
+                return
+            angle, duration = (float(v) for v in event.target.value)
+            shown_angle, shown_duration = self._shown.get((name, index), (None, None))
+            changes: dict[str, float] = {}
+            if shown_angle is None or abs(angle - shown_angle) >= STEP / 2:
+                changes["angle"] = angle
+            if shown_duration is None or abs(duration - shown_duration) >= STEP / 2:
+                changes["duration"] = duration
+            self._shown[(name, index)] = (angle, duration)
+            if changes:
+                self._on_edit(name, index, changes)
+
+        return update
+
+
+def _row_value(state: dict[str, Any]) -> tuple[float, float]:
+    """What a row shows: the angle and the duration (0 for a state that waits for its event)."""
+    return (round(float(state.get("angle", 0.0)), PRECISION), round(float(state.get("duration") or 0.0), PRECISION))
