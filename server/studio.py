@@ -20,7 +20,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from asm_py import Node
+from asm_py import Event, Node
+from asm_py.codec import FLOAT64
+from asm_py.event import TimerTrigger
 from asm_py.transport.can import CanTransport
 from gaits.deploy import module_name
 from gaits.model import Gait, load
@@ -31,6 +33,8 @@ from .module import FakeDriver, ModuleRuntime
 log = logging.getLogger("asm_studio")
 LIBRARY = Path(__file__).resolve().parent.parent / "gaits" / "library"
 STUDIO_NODE_ID = 250
+CONTROL_RATE = 50.0
+"""Ticks per second of the simulated modules (a module runtime's default)."""
 MODULE_IDS = range(1, 200)
 """Node IDs simulated modules may take: 200-253 are the bridge's aliases for Zenoh clients, 254 the bridge."""
 
@@ -64,6 +68,8 @@ class Studio:
         if options.bitrate:
             self.can_options["bitrate"] = options.bitrate
         self.module_nodes: dict[int, Node] = {}
+        self._tick: Event | None = None
+        self._tick_timer: TimerTrigger | None = None
         self.modules: dict[int, ModuleRuntime] = {}
         self.bridge: CanZenohBridge | None = None
         self.node: Node | None = None
@@ -86,6 +92,17 @@ class Studio:
     def _transport(self, node_id: int) -> CanTransport:
         return CanTransport(node_id, heartbeat_period=self.options.heartbeat_period, **self.can_options)
 
+    def _shared_tick(self) -> Event:
+        """One 50 Hz tick for every simulated module, as if their clocks were synchronised: 32 modules each waking
+        their own timer thread 50 times a second crowd out the dashboard's threads (Python runs one at a time)."""
+        if self._tick is None:
+            self._tick = Event("gait.tick", codec=FLOAT64)
+            self._tick.publish(rate=1.0)  # published once a second, as a module's own tick is
+            self._tick_timer = TimerTrigger(1.0 / CONTROL_RATE, name="studio.tick")
+            self._tick.add_trigger(self._tick_timer)
+            self._tick_timer.start()
+        return self._tick
+
     def start_modules(self, count: int) -> list[str]:
         """Run simulated modules m1..m<count> (node IDs 1..count): start the missing ones, close those beyond.
 
@@ -103,7 +120,8 @@ class Studio:
             if module_id not in self.modules:
                 node = Node(module_name(module_id), self._transport(module_id))
                 self.module_nodes[module_id] = node
-                self.modules[module_id] = ModuleRuntime(FakeDriver(), node=node)
+                self.modules[module_id] = ModuleRuntime(FakeDriver(), node=node, tick=self._shared_tick(),
+                                                        inline=True)  # fmt: skip
         return closed
 
     def stop_modules(self) -> None:
@@ -128,6 +146,9 @@ class Studio:
         if self.node is not None:
             self.node.close()
             self.node = None
+        if self._tick_timer is not None:
+            self._tick_timer.stop(timeout=5)
+            self._tick_timer = None
         self.stop_modules()
 
 

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 from types import SimpleNamespace
 
+import numpy as np
 import pytest
 
 from gaits.model import load
@@ -127,3 +128,16 @@ def test_a_failing_action_becomes_a_notification(studio):
     app.browse_module.value = "nobody"
     app.safe(lambda _: app._list())(None)
     assert app.status.content.startswith("**Error**")
+
+
+def test_the_view_follows_the_robot_and_the_ground_moves_under_it(studio):
+    app = studio.app
+    assert wait_until(lambda: app.loop.metrics().distance > 0.05, timeout=30)  # the caterpillar has crawled away
+    assert wait_until(lambda: app.view._drawn is not None and app.view._drawn.time > 1.0, timeout=10)
+    positions = np.concatenate([np.asarray(handle.batched_positions) for handle, _ in app.view._batches])
+    assert np.abs(positions[:, :2].mean(axis=0)).max() < 1e-3  # drawn around the origin
+    ground = np.asarray(app.view._ground.position)
+    assert -0.1 <= ground[0] <= 0.0 and -0.1 <= ground[1] <= 0.0
+    app.view.follow = False
+    assert wait_until(lambda: np.abs(np.concatenate([np.asarray(h.batched_positions) for h, _ in app.view._batches])
+                                     [:, :2].mean(axis=0)).max() > 0.04, timeout=10)  # fmt: skip

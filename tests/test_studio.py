@@ -112,3 +112,19 @@ def test_a_grid_row_is_one_undoable_edit():
     assert doc.undo() and doc.gait().automata["wave"].states[4].angle == pytest.approx(46.194)
     with pytest.raises(ValueError):
         doc.update_state("wave", 0, {"until": "contact"})
+
+
+def test_live_series_are_continuous_on_a_shared_time_axis():
+    from collections import deque
+
+    from web.monitor import LivePlot
+
+    plot = LivePlot(node=None)  # type: ignore[arg-type]  # filled by hand: no subscriptions
+    now = time.monotonic() - plot.t0
+    plot.series[("m1", "joint.angle")] = deque([(now - 1.0, 0.0), (now - 0.5, 10.0), (now, 20.0)])
+    plot.series[("m2", "joint.angle")] = deque([(now - 0.75, 5.0), (now - 0.25, 7.0)])
+    labels, (t, a, b) = plot.data()
+    assert labels == ["m1 joint.angle", "m2 joint.angle"]
+    assert list(t) == sorted(t) and len(t) == 5
+    assert list(a) == pytest.approx([0.0, 5.0, 10.0, 15.0, 20.0])  # m1 between its own samples
+    assert list(b) == pytest.approx([5.0, 5.0, 6.0, 7.0, 7.0])  # held outside m2's samples, no NaN (uPlot)

@@ -6,9 +6,6 @@ from __future__ import annotations
 import os
 import re
 import struct
-import subprocess
-import sys
-import threading
 import time
 from pathlib import Path
 
@@ -17,6 +14,7 @@ import pytest
 from asm_py import Node
 from asm_py.transport.zenoh import ZenohTransport
 from tests.helpers import wait_until
+from tests.processes import Process
 from tests.transports import free_port
 
 CHROMIUM = "/usr/bin/chromium"
@@ -31,31 +29,38 @@ pytestmark = [
 def studio():
     port, zenoh_port = free_port(), free_port()
     endpoint = f"tcp/127.0.0.1:{zenoh_port}"
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "server.studio", "--port", str(port), "--zenoh-listen", endpoint],
-        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"},
-    )  # fmt: skip
-    lines: list[str] = []
-    ready = threading.Event()
-
-    def read() -> None:
-        assert proc.stdout is not None
-        for line in proc.stdout:
-            lines.append(line)
-            if line.startswith("READY studio"):
-                ready.set()
-
-    threading.Thread(target=read, daemon=True).start()
+    proc = Process("-m", "server.studio", "--port", str(port), "--zenoh-listen", endpoint)
     try:
-        assert ready.wait(60), "".join(lines[-30:])
-        yield f"http://127.0.0.1:{port}", endpoint, lines
+        proc.wait_for_line("READY studio", timeout=60)
+        yield f"http://127.0.0.1:{port}", endpoint, proc.output
     finally:
-        proc.terminate()
-        try:
-            proc.wait(timeout=20)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
+        proc.stop()
+
+
+def _open(pw, url: str):
+    """Chromium on the studio's page, once the page is up (its E-STOP shows)."""
+    from playwright.sync_api import expect
+
+    browser = pw.chromium.launch(executable_path=CHROMIUM, args=["--no-sandbox"])
+    page = browser.new_page(viewport={"width": 1400, "height": 900})
+    page.goto(url)
+    expect(page.get_by_role("button", name="E-STOP")).to_be_visible(timeout=30_000)
+    return browser, page
+
+
+LINE_COLOR = (0x1F, 0x77, 0xB4)
+"""The first series' colour in the page's plots (web.monitor.PALETTE)."""
+
+
+def _pixels(png: bytes, rgb: tuple[int, int, int], tolerance: int = 40) -> int:
+    """How many pixels of a screenshot are close to ``rgb`` (a drawn line, not just moving axis labels)."""
+    import io
+
+    import numpy as np
+    from PIL import Image
+
+    image = np.asarray(Image.open(io.BytesIO(png)).convert("RGB"), dtype=int)
+    return int((np.abs(image - np.array(rgb)).sum(axis=2) < tolerance).sum())
 
 
 def _number(text: str, pattern: str) -> float:
@@ -72,11 +77,7 @@ def test_edit_preview_deploy_watch_and_estop(studio):
     client = Node("e2e-client", ZenohTransport(connect=[endpoint]))
     try:
         with sync_playwright() as pw:
-            browser = pw.chromium.launch(executable_path=CHROMIUM, args=["--no-sandbox"])
-            page = browser.new_page(viewport={"width": 1400, "height": 900})
-            page.goto(url)
-            # open the page, load a gait
-            expect(page.get_by_role("button", name="E-STOP")).to_be_visible(timeout=30_000)
+            browser, page = _open(pw, url)  # open the page, load a gait
             page.get_by_role("button", name="Open from library").click()
             expect(page.get_by_text("Opened", exact=False).first).to_be_visible(timeout=15_000)
             # change a cell: state 1 of the wave automaton to 42°; the table view shows it
@@ -109,6 +110,7 @@ def test_edit_preview_deploy_watch_and_estop(studio):
             expect(page.get_by_text(re.compile(r"m8\s*live")).first).to_be_visible(timeout=15_000)
             expect(page.get_by_text("gait running", exact=False).first).to_be_visible(timeout=15_000)
             plot = page.locator("canvas").last
+            assert wait_until(lambda: _pixels(plot.screenshot(), LINE_COLOR) > 50, timeout=15), "no line drawn"
             before = plot.screenshot()
             time.sleep(1.0)
             assert plot.screenshot() != before, "the live plot did not change"
@@ -122,6 +124,74 @@ def test_edit_preview_deploy_watch_and_estop(studio):
             browser.close()
         # a browser that disconnected leaves the server and the modules alive
         assert client.lookup("m1", "joint.angle", timeout=5).peek() is not None
+    finally:
+        client.close()
+    assert not any("Traceback" in line for line in log), "".join(log[-40:])
+
+
+def test_upload_grid_history_robot_size_and_attribute_browser(studio, tmp_path):
+    from playwright.sync_api import expect, sync_playwright
+
+    from gaits.model import dumps, load
+    from gaits.wire import decode_table
+
+    url, endpoint, log = studio
+    ARTIFACTS.mkdir(exist_ok=True)
+    worm = load("gaits/library/inchworm.toml")
+    worm.name = "uploaded_worm"
+    upload = tmp_path / "uploaded_worm.toml"
+    upload.write_text(dumps(worm))
+    client = Node("e2e-client-2", ZenohTransport(connect=[endpoint]))
+    try:
+        with sync_playwright() as pw:
+            browser, page = _open(pw, url)
+            # upload a gait file: the page validates it and shows its states in the grid
+            with page.expect_file_chooser() as chooser:
+                page.get_by_role("button", name="Upload gait file").click()
+            chooser.value.set_files(str(upload))
+            expect(page.get_by_text("✓ valid (uploaded_worm)")).to_be_visible(timeout=15_000)
+            expect(page.get_by_text(re.compile(r"hump S1 \(°, s\)")).first).to_be_visible(timeout=15_000)
+            # undo goes back to the gait opened before, redo returns to the upload
+            page.get_by_role("button", name="Undo").click()
+            expect(page.get_by_text("✓ valid (caterpillar)")).to_be_visible(timeout=15_000)
+            page.get_by_role("button", name="Redo").click()
+            expect(page.get_by_text("✓ valid (uploaded_worm)")).to_be_visible(timeout=15_000)
+            page.get_by_role("button", name="Undo").click()
+            expect(page.get_by_text("✓ valid (caterpillar)")).to_be_visible(timeout=15_000)
+            # a grid row: state 3 of the wave to -33°; the table view and the cell editor follow
+            cell = page.get_by_label("wave S3 (°, s)")
+            cell.fill("-33")
+            cell.press("Enter")
+            expect(page.locator("td", has_text="-33.0°").first).to_be_visible(timeout=15_000)
+            expect(page.get_by_label("Angle (deg)")).to_have_value(re.compile(r"^-33(\.0+)?$"), timeout=15_000)
+            # the robot grows to 10 modules; deploying starts two more simulated modules, all verified
+            modules = page.get_by_label("Modules").first
+            modules.fill("10")
+            modules.press("Enter")
+            expect(page.get_by_text("✓ valid (caterpillar)")).to_be_visible(timeout=15_000)
+            page.screenshot(path=str(ARTIFACTS / "studio-grid.png"))
+            page.get_by_role("tab", name="Deploy").click()
+            page.get_by_role("button", name="Deploy", exact=True).click()
+            expect(page.get_by_text("module 10 verified", exact=False)).to_be_visible(timeout=30_000)
+            assert wait_until(lambda: client.lookup("m10", "gait.service", timeout=2).running, timeout=15)
+            table = client.lookup("m1", "gait.table", timeout=2).peek()
+            assert abs(decode_table(table)[2].target + 33.0) < 1e-4  # state 3's angle, as deployed
+            # the attribute browser: m2's joint.limits as a pair of numbers, set from the page
+            page.get_by_role("tab", name="Monitor").click()
+            page.get_by_label("Node").click()
+            page.get_by_role("option", name="m2", exact=True).click()
+            page.get_by_role("button", name="List").click()
+            page.get_by_label("Object").click()
+            page.get_by_role("option", name="joint.limits", exact=True).click()
+            low = page.get_by_label("joint.limits (float32[2])")
+            expect(low).to_be_visible(timeout=15_000)
+            low.fill("-45")
+            low.press("Enter")
+            page.get_by_role("button", name="Set").click()
+            assert wait_until(lambda: client.lookup("m2", "joint.limits", timeout=2).peek() == (-45.0, 90.0), 15)
+            expect(page.get_by_text("set to", exact=False).first).to_be_visible(timeout=15_000)
+            page.screenshot(path=str(ARTIFACTS / "studio-browser.png"))
+            browser.close()
     finally:
         client.close()
     assert not any("Traceback" in line for line in log), "".join(log[-40:])

@@ -15,6 +15,7 @@ import contextlib
 import functools
 import logging
 import threading
+import time
 from collections.abc import Callable, Iterator
 from typing import TYPE_CHECKING, Any
 
@@ -26,14 +27,14 @@ from gaits.deploy import deploy, module_name, start_all, stop_all
 from .document import GaitDocument
 from .editor import GaitEditor
 from .inputs import ValueInput
-from .monitor import LivePlot, Roster, describe, format_value
+from .monitor import LivePlot, Roster, describe, format_value, stroke
 from .preview import PreviewLoop, SceneView
 
 if TYPE_CHECKING:
     from server.studio import Studio
 
 log = logging.getLogger("asm_studio.web")
-FRAME_PERIOD = 1 / 60
+MIN_DRAW_INTERVAL = 1 / 100
 
 
 def _zeros(count: int) -> tuple[np.ndarray, ...]:
@@ -121,6 +122,12 @@ class Dashboard:
         self.timeline.on_update(self.safe(self._on_seek))
         steps = gui.add_button_group("Step", ["◀ back", "forward ▶"])
         steps.on_click(self.safe(lambda e: self.loop.request("step", -1 if "back" in e.target.value else 1)))
+        rich = gui.add_checkbox("Shadows and reflections", initial_value=False,
+                                hint="nicer, but slow in a browser without a GPU")  # fmt: skip
+        rich.on_update(self.safe(lambda e: self.view.set_rich(bool(e.target.value))))
+        follow = gui.add_checkbox("Follow the robot", initial_value=True,
+                                  hint="keep the robot in the middle; the ground moves under it")  # fmt: skip
+        follow.on_update(self.safe(lambda e: setattr(self.view, "follow", bool(e.target.value))))
         self.metrics = gui.add_markdown("")
         self.plot_module = gui.add_slider("Plot module", min=1, max=max(2, self.doc.gait().robot.modules), step=1,
                                           initial_value=1)  # fmt: skip
@@ -272,7 +279,17 @@ class Dashboard:
     # -- threads --------------------------------------------------------------------------------------------------
 
     def _render(self) -> None:
-        while not self._stop.wait(FRAME_PERIOD):
+        """Draw each frame the preview records, as it is recorded: at speed 1 the loop records 60 frames a second
+        and each is drawn once (a fixed 60 Hz clock beating against the loop's would skip some and repeat others);
+        faster playback is drawn at most every MIN_DRAW_INTERVAL."""
+        last = 0.0
+        while not self._stop.is_set():
+            if not self.loop.wait_changed(timeout=0.1):
+                continue
+            pause = last + MIN_DRAW_INTERVAL - time.monotonic()
+            if pause > 0 and self._stop.wait(pause):
+                return
+            last = time.monotonic()
             try:
                 self.view.draw()
             except Exception:
@@ -318,7 +335,8 @@ class Dashboard:
         labels, data = self.plot.data()
         if labels:
             if labels != self._live_labels:
-                self.live.series = ({"label": "t"}, *({"label": label} for label in labels))
+                self.live.series = ({"label": "t"}, *({"label": label, "stroke": stroke(k)}
+                                                      for k, label in enumerate(labels)))  # fmt: skip
                 self._live_labels = labels
             self.live.data = data
 

@@ -22,6 +22,7 @@ from gaits.model import AXES, SHAPES, GaitError, load
 from gaits.table import expand
 
 from .grid import StateGrid
+from .monitor import stroke
 
 if TYPE_CHECKING:
     from .app import Dashboard
@@ -204,7 +205,8 @@ class GaitEditor:
         if not self.doc.problems:
             times, rows = expand(self.doc.gait(), samples=32)
             self.expanded.data = (np.asarray(times), *(np.asarray(r) for r in rows))
-            self.expanded.series = ({"label": "t"}, *({"label": f"m{k + 1}"} for k in range(len(rows))))
+            self.expanded.series = ({"label": "t"}, *({"label": f"m{k + 1}", "stroke": stroke(k)}
+                                                      for k in range(len(rows))))  # fmt: skip
 
 
 def _problems(problems: list[Any]) -> str:

@@ -30,6 +30,7 @@ class Roster:
         self._lock = threading.Lock()
         self.entries: dict[str, dict[str, Any]] = {}
         self._forgotten: set[str] = set()
+        self._gait_objects: dict[str, tuple[Any, Any]] = {}
         for name in node.discover():
             self._changed(name, True)
         self._unlisten = node.on_discovery(self._changed)
@@ -48,10 +49,13 @@ class Roster:
         """Ask each live module whether its gait runs and in which state (a STATUS and a PEEK each)."""
         for name in self.alive():
             try:
-                service = self.node.lookup(name, "gait.service", timeout=timeout)
-                state = self.node.lookup(name, "gait.state", timeout=timeout)
+                if name not in self._gait_objects:  # looked up once: a lookup by name is a few frames each way
+                    self._gait_objects[name] = (self.node.lookup(name, "gait.service", timeout=timeout),
+                                                self.node.lookup(name, "gait.state", timeout=timeout))  # fmt: skip
+                service, state = self._gait_objects[name]
                 running, index = bool(service.running), state.peek()  # type: ignore[union-attr]
-            except Exception:  # not a module (a bridge, a tool) or gone: no gait column
+            except Exception:  # not a module (a bridge, a tool) or gone: no gait column, look it up again next time
+                self._gait_objects.pop(name, None)
                 continue
             with self._lock:
                 if name in self.entries:
@@ -63,6 +67,7 @@ class Roster:
             for name in names:
                 self.entries.pop(name, None)
                 self._forgotten.add(name)
+                self._gait_objects.pop(name, None)
 
     def gait(self, name: str) -> str:
         with self._lock:
@@ -128,25 +133,40 @@ class LivePlot:
             self.series.clear()
 
     def data(self) -> tuple[list[str], tuple[np.ndarray, ...]]:
-        """Labels and uPlot data (a shared time axis, one array per series, NaN where a series has no sample)."""
+        """Labels and uPlot data: a shared time axis (every sample's time), one array per series.
+
+        Publications of different attributes arrive at different times, so each series is interpolated linearly
+        between its own samples onto the shared axis, and held at its first and last value outside them. No NaN:
+        uPlot takes only null as a gap, and one NaN leaves its whole scale (and every line on it) undrawn."""
         with self._lock:
             items = [(f"{m} {a}", list(buf)) for (m, a), buf in sorted(self.series.items())]
         horizon = time.monotonic() - self.t0 - PLOT_SECONDS
-        times = sorted({t for _, points in items for t, _ in points if t >= horizon})
-        if not items or not times:
-            return [label for label, _ in items], (np.zeros(1), *(np.full(1, np.nan) for _ in items))
-        index = {t: k for k, t in enumerate(times)}
+        recent = [(label, [(t, v) for t, v in points if t >= horizon]) for label, points in items]
+        items_last = {label: float(np.nan_to_num(points[-1][1])) for label, points in items if points}
+        times = np.unique(np.array([t for _, points in recent for t, _ in points], dtype=float))
+        if not items or not len(times):
+            return [label for label, _ in items], (np.zeros(1), *(np.zeros(1) for _ in items))
         columns = []
-        for _, points in items:
-            column = np.full(len(times), np.nan)
-            for t, v in points:
-                if t >= horizon:
-                    column[index[t]] = v
-            columns.append(column)
-        return [label for label, _ in items], (np.asarray(times), *columns)
+        for label, points in recent:
+            if not points:  # nothing recent: flat at its last value, or zero
+                last = items_last.get(label, 0.0)
+                columns.append(np.full(len(times), last))
+                continue
+            t, v = np.array(points, dtype=float).T
+            columns.append(np.interp(times, t, np.nan_to_num(v)))
+        return [label for label, _ in items], (times, *columns)
 
     def close(self) -> None:
         self.unwatch_all()
+
+
+PALETTE = ("#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2", "#7f7f7f", "#bcbd22",
+           "#17becf")  # fmt: skip
+
+
+def stroke(index: int) -> str:
+    """The colour of a plot's ``index``-th series (uPlot draws no line without one)."""
+    return PALETTE[index % len(PALETTE)]
 
 
 def describe(obj: RemoteObject) -> str:

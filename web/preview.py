@@ -25,6 +25,8 @@ from gaits.sim import Metrics, Simulation
 FRAME_RATE = 60.0
 """Recorded frames per simulated second: the timeline's resolution, and what the view draws at speed 1."""
 HISTORY_SECONDS = 60.0
+GRID_CELL = 0.1
+"""Metres between the ground grid's lines."""
 
 
 @dataclass(frozen=True)
@@ -56,6 +58,7 @@ class PreviewLoop:
         """Simulated time at which the next frame is due."""
         self._start_com = self.sim.center_of_mass()
         self._stop = threading.Event()
+        self._changed = threading.Event()
         self._thread = threading.Thread(target=self._run, name="preview-loop", daemon=True)
         self._thread.start()
 
@@ -69,6 +72,12 @@ class PreviewLoop:
     def request(self, kind: str, value: Any = None) -> None:
         """Queue ``load`` (a Gait), ``play`` (bool), ``speed``, ``seek`` (frame index), ``step`` (±1), ``reset``."""
         self._requests.put((kind, value))
+
+    def wait_changed(self, timeout: float) -> bool:
+        """Wait until what :meth:`shown` returns may have changed (a frame recorded, a request handled)."""
+        changed = self._changed.wait(timeout)
+        self._changed.clear()
+        return changed
 
     def shown(self) -> Frame | None:
         with self._lock:
@@ -107,6 +116,7 @@ class PreviewLoop:
         while not self._stop.is_set():
             for kind, value in self._pending():
                 self._handle(kind, value)
+                self._changed.set()
             now = time.monotonic()
             if self.playing and self.error is None:
                 owed = min(owed + (now - last) * self.speed, 0.25)  # never try to catch up more than 0.25 s
@@ -146,6 +156,7 @@ class PreviewLoop:
                 goals = tuple(float(r.goal.peek()) for r in sim.modules.values())
                 angles = tuple(float(r.angle.peek()) for r in sim.modules.values())
                 self.frames.append(Frame(sim.data.time, sim.data.qpos.copy(), goals, angles))
+                self._changed.set()
 
     def _handle(self, kind: str, value: Any) -> None:
         if kind == "load" or kind == "reset":
@@ -200,15 +211,36 @@ def _box(half: np.ndarray) -> np.ndarray:
 
 
 class SceneView:
-    """Draws frames of a PreviewLoop in viser's scene: one batched mesh per distinct module shape."""
+    """Draws frames of a PreviewLoop in viser's scene: one batched mesh per distinct module shape.
 
-    def __init__(self, server: viser.ViserServer, loop: PreviewLoop) -> None:
+    Lighting is plain by default — no shadows, no environment map: a browser without a GPU (software WebGL) draws a
+    moving 32-module robot about 4× faster that way (bench/studio.py). ``rich=True`` turns both on.
+
+    With ``follow`` (the default) the robot stays in the middle of the view and the ground moves under it: a gait
+    crawls out of a fixed camera's view in seconds. The ground grid is shifted by the robot's position modulo one
+    grid cell, so its lines move exactly as the floor would."""
+
+    def __init__(self, server: viser.ViserServer, loop: PreviewLoop, *, rich: bool = False) -> None:
         self.server = server
         self.loop = loop
         self._data: mujoco.MjData | None = None
         self._batches: list[tuple[Any, np.ndarray]] = []
         self._generation = -1
-        server.scene.add_grid("/ground", width=4.0, height=4.0, cell_size=0.1, plane="xy")
+        self._drawn: Frame | None = None
+        self.rich = rich
+        self.follow = True
+        self._ground = server.scene.add_grid("/ground", width=4.0, height=4.0, cell_size=GRID_CELL, plane="xy")
+        self.set_rich(rich)
+
+    def set_rich(self, rich: bool) -> None:
+        """Shadows and the environment map on or off (the meshes are rebuilt at the next draw)."""
+        self.rich = rich
+        self.server.scene.configure_default_lights(cast_shadow=rich)
+        if rich:
+            self.server.scene.configure_environment_map()
+        else:
+            self.server.scene.configure_environment_map(None)
+        self._generation = -1
 
     def _build(self) -> None:
         model = self.loop.sim.model
@@ -238,29 +270,35 @@ class SceneView:
             handle = self.server.scene.add_batched_meshes_simple(
                 f"/robot/shape{n}", _box(np.array(half)), _BOX_FACES,
                 batched_wxyzs=np.tile([1.0, 0, 0, 0], (len(ids), 1)), batched_positions=np.zeros((len(ids), 3)),
-                batched_colors=(217, 140, 38),
+                batched_colors=(217, 140, 38), cast_shadow=self.rich, receive_shadow=self.rich, lod="off",
             )  # fmt: skip
             self._batches.append((handle, ids))
         self._generation = self.loop.generation
 
     def draw(self) -> bool:
-        """Draw the loop's shown frame; False if there is none yet."""
+        """Draw the loop's shown frame; False if there is none yet or it is the one already drawn."""
         if self._generation != self.loop.generation or self._data is None:
             self._build()
+            self._drawn = None
         frame = self.loop.shown()
-        if frame is None or self._data is None or len(frame.qpos) != self._data.qpos.shape[0]:
+        if frame is None or frame is self._drawn or self._data is None or len(frame.qpos) != self._data.qpos.shape[0]:
             return False
+        self._drawn = frame
         model = self.loop.sim.model
         data = self._data
         data.qpos[:] = frame.qpos
         mujoco.mj_kinematics(model, data)
         quat = np.empty(4)
+        shift = np.zeros(3)
+        if self.follow and self._batches:
+            shift[:2] = data.geom_xpos[np.concatenate([ids for _, ids in self._batches]), :2].mean(axis=0)
         with self.server.atomic():
             for handle, ids in self._batches:
                 wxyz = np.empty((len(ids), 4))
                 for k, g in enumerate(ids):
                     mujoco.mju_mat2Quat(quat, data.geom_xmat[g])
                     wxyz[k] = quat
-                handle.batched_positions = data.geom_xpos[ids].astype(np.float32)
+                handle.batched_positions = (data.geom_xpos[ids] - shift).astype(np.float32)
                 handle.batched_wxyzs = wxyz.astype(np.float32)
+            self._ground.position = (-(shift[0] % GRID_CELL), -(shift[1] % GRID_CELL), 0.0)
         return True

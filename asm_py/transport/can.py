@@ -267,7 +267,7 @@ class CanTransport(Transport):
     def _read_loop(self) -> None:
         while not self._stop.is_set():
             try:
-                frame = self.bus.recv(timeout=0.05)
+                frame = self.bus.recv(timeout=0.1)  # also how long close() waits for this thread
             except (can.CanError, RuntimeError, ValueError) as exc:
                 if self._stop.is_set():
                     return
@@ -361,7 +361,7 @@ class CanTransport(Transport):
 
     def _timer_loop(self) -> None:
         next_beat = time.monotonic() + self.heartbeat_period
-        tick = min(self.heartbeat_period / 2, 0.05)
+        tick = self.heartbeat_period / 4  # beats and losses within a quarter period, without waking needlessly
         while not self._stop.wait(tick):
             now = time.monotonic()
             if now >= next_beat:

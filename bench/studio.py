@@ -1,0 +1,149 @@
+"""The preview's frame rate for a 32-module robot, seen from a browser, against the 60 frames/s the view aims for.
+
+    .venv/bin/python bench/studio.py
+
+`asm-studio` runs in its own process with a 32-module caterpillar (simulated modules, no Zenoh). For 8 s of playing
+preview it counts:
+- the scene updates a client that keeps up receives: a websocket client speaking viser's protocol, counting the
+  messages that carry the modules' batched poses (what the server delivers);
+- the frames Debian's Chromium draws with the page open (requestAnimationFrame callbacks, through Playwright).
+  Headless Chromium on this VM renders WebGL in software (SwiftShader), so this is the no-GPU worst case.
+Both are compared with 60/s. In this process, the cost of one SceneView.draw for the same robot is compared with the
+1/60 s frame budget.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != ROOT / "bench"]  # bench/can.py is not python-can
+sys.path.insert(0, str(ROOT))
+
+from gaits.model import dumps, load  # noqa: E402
+from tests.processes import Process  # noqa: E402
+from tests.transports import free_port  # noqa: E402
+from web.document import GaitDocument  # noqa: E402
+
+CHROMIUM = "/usr/bin/chromium"
+MODULES = 32
+SECONDS = 8.0
+
+
+def gait_file(directory: str) -> Path:
+    doc = GaitDocument(load(ROOT / "gaits" / "library" / "caterpillar.toml"))
+    doc.set_robot("modules", MODULES)
+    path = Path(directory) / "caterpillar32.toml"
+    path.write_text(dumps(doc.gait()))
+    return path
+
+
+def draw_cost(path: Path) -> float:
+    """Seconds per SceneView.draw of the 32-module robot (viser server in this process, nobody connected)."""
+    import viser
+
+    from web.preview import PreviewLoop, SceneView
+
+    server = viser.ViserServer(host="127.0.0.1", port=free_port(), verbose=False)
+    loop = PreviewLoop(load(path))
+    try:
+        view = SceneView(server, loop)
+        while loop.shown() is None:
+            time.sleep(0.01)
+        view.draw()
+        count, start = 0, time.perf_counter()
+        while time.perf_counter() - start < 2.0:
+            view._drawn = None  # draw even if the loop has not recorded a new frame meanwhile
+            view.draw()
+            count += 1
+        return (time.perf_counter() - start) / count
+    finally:
+        loop.close()
+        server.stop()
+
+
+def studio(path: Path) -> tuple[Process, int]:
+    """`asm-studio` on ``path`` in its own process, once it is ready; and its port."""
+    port = free_port()
+    proc = Process("-m", "server.studio", "--gait", str(path), "--port", str(port), "--no-zenoh")
+    try:
+        proc.wait_for_line("READY studio", timeout=60)
+    except BaseException:
+        proc.stop()
+        raise
+    return proc, port
+
+
+def delivered(port: int) -> float:
+    """Scene updates per second received by a websocket client that reads as fast as they come."""
+    import viser
+    from websockets.sync.client import connect
+
+    with connect(f"ws://127.0.0.1:{port}", subprotocols=[f"viser-v{viser.__version__}"], max_size=None) as ws:  # type: ignore[list-item]
+        end = time.monotonic() + 2.0  # the scene is built and the preview plays
+        while time.monotonic() < end:
+            ws.recv(timeout=5)
+        count, start = 0, time.monotonic()
+        while time.monotonic() - start < SECONDS:
+            message = ws.recv(timeout=5)
+            if isinstance(message, bytes) and carries_poses(message):
+                count += 1
+        return count / (time.monotonic() - start)
+
+
+def carries_poses(window: bytes) -> bool:
+    """Whether a viser websocket window updates batched poses. Its layout (viser/infra/_infra.py): 8 bytes
+    decompressed size, 8 bytes compressed size, zstd-compressed msgpack {"messages": [...]}, raw buffers."""
+    import msgspec
+    import zstandard
+
+    size = int.from_bytes(window[8:16], "little")
+    inner = msgspec.msgpack.decode(zstandard.ZstdDecompressor().decompress(window[16 : 16 + size]))
+    return any("batched_positions" in str(message) for message in inner.get("messages", ()))
+
+
+def drawn_in_browser(port: int) -> float:
+    """Frames per second Chromium draws with the page open while the preview plays."""
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as pw:
+        browser = pw.chromium.launch(executable_path=CHROMIUM, args=["--no-sandbox"])
+        page = browser.new_page(viewport={"width": 1280, "height": 800})
+        page.goto(f"http://127.0.0.1:{port}")
+        page.get_by_role("button", name="E-STOP").wait_for(timeout=30_000)
+        time.sleep(2.0)
+        page.evaluate("window.__frames = 0; (function f() { window.__frames++; requestAnimationFrame(f); })()")
+        start = time.monotonic()
+        time.sleep(SECONDS)
+        frames = page.evaluate("window.__frames")
+        elapsed = time.monotonic() - start
+        browser.close()
+    return frames / elapsed
+
+
+def main() -> None:
+    with tempfile.TemporaryDirectory() as directory:
+        path = gait_file(directory)
+        cost = draw_cost(path)
+        print(f"scene draw, {MODULES} modules: {cost * 1e3:.2f} ms per frame")
+        proc, port = studio(path)
+        try:
+            received = delivered(port)
+            print(f"websocket client, {MODULES} modules: {received:.1f} scene updates/s received")
+            drawn = drawn_in_browser(port) if os.path.exists(CHROMIUM) else None
+        finally:
+            proc.stop()
+    print(f"ratio studio_scene_updates_{MODULES}_vs_60fps {received / 60:.2f} (target >= 0.9)")
+    print(f"ratio studio_draw_time_{MODULES}_vs_frame_budget {cost * 60:.3f} (target <= 0.25)")
+    if drawn is None:
+        print(f"no {CHROMIUM}: browser frame rate skipped (make test installs it)")
+    else:
+        print(f"ratio studio_browser_frames_{MODULES}_vs_60fps {drawn / 60:.2f} (target >= 0.9)")
+
+
+if __name__ == "__main__":
+    main()
