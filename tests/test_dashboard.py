@@ -141,3 +141,12 @@ def test_the_view_follows_the_robot_and_the_ground_moves_under_it(studio):
     app.view.follow = False
     assert wait_until(lambda: np.abs(np.concatenate([np.asarray(h.batched_positions) for h, _ in app.view._batches])
                                      [:, :2].mean(axis=0)).max() > 0.04, timeout=10)  # fmt: skip
+
+
+def test_a_failing_grid_edit_becomes_a_notification(studio):
+    app = studio.app
+    last = app.editor.grid.rows[("wave", 15)]
+    app.doc.remove_state("wave", 15)  # the table shrank (another tab, say) before this row was rebuilt
+    last.value = (10.0, 0.0625)
+    assert app.status.content.startswith("**Error**")
+    assert len(app.doc.gait().automata["wave"].states) == 15  # nothing half applied

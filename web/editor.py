@@ -53,7 +53,7 @@ class GaitEditor:
             f"{self.doc.gait().name}.toml", self.doc.text().encode())))  # fmt: skip
         self.problems = gui.add_markdown("")
         grid_folder = gui.add_folder("States")
-        self.grid = StateGrid(app.server, grid_folder, on_edit=self._on_grid, syncing=lambda: app.syncing)
+        self.grid = StateGrid(app.server, grid_folder, on_edit=self._on_grid, syncing=lambda: app.syncing, safe=safe)
         with gui.add_folder("Selected state"):
             self.automaton = gui.add_dropdown("Automaton", ["-"])
             self.state_index = gui.add_slider("State", min=1, max=2, step=1, initial_value=1)

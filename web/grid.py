@@ -32,6 +32,7 @@ class StateGrid:
         *,
         on_edit: Callable[[str, int, dict[str, float]], None],
         syncing: Callable[[], bool],
+        safe: Callable[[Callable[[Any], None]], Callable[[Any], None]] = lambda fn: fn,
     ) -> None:
         self.server = server
         self.parent = parent
@@ -39,6 +40,8 @@ class StateGrid:
         """Called with (automaton, state index, {field: value}) for what the user changed."""
         self._syncing = syncing
         """True while the server itself is setting inputs (their callbacks must not edit the document)."""
+        self._safe = safe
+        """Wraps each input's callback (the dashboard's: an error becomes a notification)."""
         self._shape: tuple[tuple[str, int], ...] = ()
         self._folders: list[Any] = []
         self.rows: dict[tuple[str, int], Any] = {}
@@ -75,7 +78,7 @@ class StateGrid:
                         value = _row_value(state)
                         row = gui.add_vector2(f"{name} S{k + 1} (°, s)", value, step=STEP,
                                               hint="target angle in degrees, duration in seconds")  # fmt: skip
-                        row.on_update(self._callback(name, k))
+                        row.on_update(self._safe(self._callback(name, k)))
                         self.rows[(name, k)] = row
                         self._shown[(name, k)] = value
 
