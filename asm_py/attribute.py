@@ -31,12 +31,17 @@ class PublishPolicy:
     """Publications per second of the node's clock (a fixed rate, or the minimum rate with a deadband)."""
     deadband: float | None = None
     """Only a change larger than this (from the last publication) is published at once."""
+    limit: float | None = None
+    """With a deadband: at most this many publications per second. A change that comes sooner is published with
+    the next change after the gap, or by the refresh (``rate``) if none comes."""
 
     def __post_init__(self) -> None:
         if self.rate is not None and not (self.rate > 0 and math.isfinite(self.rate)):
             raise ValueError(f"publication rate must be a positive number per second, not {self.rate}")
         if self.deadband is not None and not (self.deadband >= 0 and math.isfinite(self.deadband)):
             raise ValueError(f"deadband must be a non-negative number, not {self.deadband}")
+        if self.limit is not None and (self.deadband is None or not (self.limit > 0 and math.isfinite(self.limit))):
+            raise ValueError(f"a publication limit is a positive number per second, with a deadband, not {self.limit}")
 
 
 class Attribute:
@@ -163,14 +168,16 @@ class Attribute:
 
     # -- publish/subscribe (paper section 3): the server decides when to publish ---------------------------------
 
-    def publish(self, rate: float | None = None, deadband: float | None = None) -> None:
+    def publish(self, rate: float | None = None, deadband: float | None = None, limit: float | None = None) -> None:
         """Publish this attribute through every node it is registered on.
 
         No argument: every ``set``. ``deadband``: a set that changes the value by more than ``deadband`` from the
         last publication. ``rate``: a fixed rate (``rate`` per second of the node's clock). Both: on a change larger
-        than the deadband, and at least every ``1/rate`` seconds.
+        than the deadband, and at least every ``1/rate`` seconds. ``limit`` (with a deadband): at most ``limit``
+        publications per second however fast the value moves — a joint read at every control tick need not fill a
+        bus at the tick rate.
         """
-        policy = PublishPolicy(rate, deadband)
+        policy = PublishPolicy(rate, deadband, limit)
         self._policy = policy
         for hook in self._policy_hooks:
             hook(policy)

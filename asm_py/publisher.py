@@ -3,7 +3,9 @@
 - no rate, no deadband: every ``set`` is published;
 - deadband only: a ``set`` that moves the value by more than the deadband from the last publication;
 - rate only: the current value at a fixed rate, on the grid start + k/rate of the node's clock;
-- both: on a change larger than the deadband, and at least every 1/rate after the last publication.
+- both: on a change larger than the deadband, and at least every 1/rate after the last publication;
+- a limit (with a deadband): no two publications of changes closer than 1/limit; a change that comes sooner waits for
+  the next change after the gap, or for the refresh.
 
 Distance between two values: the absolute difference for numbers, the largest one for arrays and records of
 numbers; any other change counts as infinitely large.
@@ -54,7 +56,8 @@ class Publisher(Service):
         self.policy = policy
         self.published = 0
         self._counter = itertools.count()  # next() on it is atomic: concurrent setters get distinct numbers
-        self._timed = policy.rate is not None
+        self._timed = policy.rate is not None or policy.limit is not None
+        self._gap = 1.0 / policy.limit if policy.limit is not None else 0.0
         self._name = entry.name
         self._last_value: Any = _NOTHING
         self._last_time = -math.inf
@@ -83,6 +86,8 @@ class Publisher(Service):
         deadband = self.policy.deadband
         if deadband is not None and distance(self._last_value, value) <= deadband:
             return
+        if self._gap and self._last_time > -math.inf and not self.clock.reached(self._last_time + self._gap):
+            return  # too soon: the next change after the gap, or the refresh, publishes the value then
         self.publish(value)
 
     def run(self) -> None:

@@ -174,6 +174,7 @@ class ModuleRuntime:
         ramp: float = 1.0,
         inline: bool = False,
         refresh_rate: float = 2.0,
+        publish_limit: float = 25.0,
     ) -> None:
         self.driver = driver
         self.node = node
@@ -204,29 +205,30 @@ class ModuleRuntime:
         self._unlisten = [self.gait.reference_out.on_change(self._follow), self.limits.on_change(self._reclamp),
                           self.goal.on_change(self._command)]  # fmt: skip
         if node is not None:
-            self._register(node, refresh_rate)
+            self._register(node, refresh_rate, publish_limit)
         self.servo.start()
         if self._own_timer is not None:
             self._own_timer.start()
 
     # -- wiring -------------------------------------------------------------------------------------------------
 
-    def _register(self, node: Node, refresh_rate: float) -> None:
+    def _register(self, node: Node, refresh_rate: float, publish_limit: float) -> None:
         for obj in (self.goal, self.angle, self.torque, self.limits, self.servo, self.table, self.checksum,
                     self.phase, self.gait, self.tick, self.contact, self.estop):  # fmt: skip
             node.register(obj)
         node.register(self.gait.direction, name="gait.direction")
         node.register(self.gait.state, name="gait.state")
-        # every change beyond the deadband (at most one per control tick: the servo sets them), and a refresh
-        # ``refresh_rate`` times a second when nothing moves: a resting robot keeps the bus quiet
-        self.angle.publish(rate=refresh_rate, deadband=0.1)
-        self.torque.publish(rate=refresh_rate / 2, deadband=0.05)
+        # changes beyond the deadband, at most ``publish_limit`` a second (a moving joint changes at every control
+        # tick: 32 modules at 50 Hz would be 1 600 frames a second), and a refresh ``refresh_rate`` times a second
+        # when nothing moves: a resting robot keeps the bus quiet
+        self.angle.publish(rate=refresh_rate, deadband=0.1, limit=publish_limit)
+        self.torque.publish(rate=refresh_rate / 2, deadband=0.05, limit=publish_limit / 2)
         if self._own_timer is not None:  # a tick given to the runtime is published as its owner chose
             # the tick fires 50 times a second; published at each firing (an event's default) it would take two
             # frames per firing per module, ~40 % of a 1 Mbit/s bus for 32 modules: once a second shows it ticks
             self.tick.publish(rate=1.0)
         self.contact.publish()
-        self.gait.state.publish()
+        self.gait.state.publish(deadband=0)  # on change: the automaton sets its state at every tick
         self._unlisten.append(node.on_estop(lambda source, reason: self.emergency_stop(reason)))
 
     # -- behaviour ----------------------------------------------------------------------------------------------

@@ -99,6 +99,24 @@ def test_deadband_with_minimum_rate(pair) -> None:
     assert received == pytest.approx([3.0, 3.2, 3.2])
 
 
+def test_a_limit_spaces_the_publications_of_a_fast_change(pair) -> None:
+    clock, server, client = pair
+    angle = Attribute("joint.angle", 0.0, codec="float32")
+    _, received = subscribed_copy(server, client, angle)
+    angle.publish(rate=2, deadband=0.1, limit=20)  # at most one every 0.05 s
+    times: list[float] = []
+    publisher = server.entry("joint.angle").publisher
+    original = publisher.publish
+    publisher.publish = lambda value: (times.append(round(clock.now(), 6)), original(value))  # type: ignore[method-assign]
+    for k in range(1, 11):  # a joint moving at every 0.02 s control tick
+        clock.advance(0.02)
+        angle.set(float(k))
+    clock.advance(0.6)  # the last value, 10, also comes with the refresh 0.5 s after the last publication
+    assert times == [0.02, 0.08, 0.14, 0.2, 0.7]
+    assert wait_until(lambda: len(received) == 5)
+    assert received == pytest.approx([1.0, 4.0, 7.0, 10.0, 10.0])
+
+
 def test_policy_can_change_and_stop(pair) -> None:
     clock, server, client = pair
     angle = Attribute("joint.angle", 0.0, codec="float32")
@@ -152,7 +170,8 @@ def test_subscriber_type_must_match(pair) -> None:
 
 def test_bad_policies_are_refused() -> None:
     attr = Attribute("x")
-    for kwargs in ({"rate": 0}, {"rate": -1}, {"rate": math.inf}, {"deadband": -0.1}, {"deadband": math.nan}):
+    for kwargs in ({"rate": 0}, {"rate": -1}, {"rate": math.inf}, {"deadband": -0.1}, {"deadband": math.nan},
+                   {"limit": 10}, {"deadband": 0.1, "limit": 0}):
         with pytest.raises(ValueError):
             attr.publish(**kwargs)
 
