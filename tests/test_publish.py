@@ -170,8 +170,15 @@ def test_subscriber_type_must_match(pair) -> None:
 
 def test_bad_policies_are_refused() -> None:
     attr = Attribute("x")
-    for kwargs in ({"rate": 0}, {"rate": -1}, {"rate": math.inf}, {"deadband": -0.1}, {"deadband": math.nan},
-                   {"limit": 10}, {"deadband": 0.1, "limit": 0}):
+    for kwargs in (
+        {"rate": 0},
+        {"rate": -1},
+        {"rate": math.inf},
+        {"deadband": -0.1},
+        {"deadband": math.nan},
+        {"limit": 10},
+        {"deadband": 0.1, "limit": 0},
+    ):
         with pytest.raises(ValueError):
             attr.publish(**kwargs)
 
