@@ -19,7 +19,6 @@ import time
 from collections.abc import Callable, Iterator
 from typing import TYPE_CHECKING, Any
 
-import numpy as np
 import viser
 
 from gaits.deploy import deploy, module_name, start_all, stop_all
@@ -27,7 +26,7 @@ from gaits.deploy import deploy, module_name, start_all, stop_all
 from .document import GaitDocument
 from .editor import GaitEditor
 from .inputs import ValueInput
-from .monitor import LivePlot, Roster, describe, format_value, stroke
+from .monitor import LivePlot, Roster, describe, empty_plot, format_value, stroke
 from .preview import PreviewLoop, SceneView
 
 if TYPE_CHECKING:
@@ -35,10 +34,6 @@ if TYPE_CHECKING:
 
 log = logging.getLogger("asm_studio.web")
 MIN_DRAW_INTERVAL = 1 / 100
-
-
-def _zeros(count: int) -> tuple[np.ndarray, ...]:
-    return (np.array([0.0, 1.0]), *(np.zeros(2) for _ in range(count - 1)))
 
 
 class Dashboard:
@@ -131,7 +126,7 @@ class Dashboard:
         self.metrics = gui.add_markdown("")
         self.plot_module = gui.add_slider("Plot module", min=1, max=max(2, self.doc.gait().robot.modules), step=1,
                                           initial_value=1)  # fmt: skip
-        self.angles = gui.add_uplot(data=_zeros(3),
+        self.angles = gui.add_uplot(data=empty_plot(3),
                                     series=({"label": "t"}, {"label": "commanded", "stroke": "orange"},
                                             {"label": "measured", "stroke": "steelblue"}),
                                     title="Joint angle (deg)", aspect=2.0)  # fmt: skip
@@ -159,7 +154,7 @@ class Dashboard:
             self.value_folder = gui.add_folder("Value")
             actions = gui.add_button_group("Browse", ["List", "Get", "Set", "Plot"])
             actions.on_click(self.safe(self._on_browse))
-        self.live = gui.add_uplot(data=_zeros(2), series=({"label": "t"}, {"label": "-"}),
+        self.live = gui.add_uplot(data=empty_plot(2), series=({"label": "t"}, {"label": "-"}),
                                   title="Live attributes", aspect=2.0)  # fmt: skip
         self._live_labels: list[str] = ["-"]
 

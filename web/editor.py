@@ -22,7 +22,7 @@ from gaits.model import AXES, SHAPES, GaitError, load
 from gaits.table import expand
 
 from .grid import StateGrid
-from .monitor import stroke
+from .monitor import empty_plot, stroke
 
 if TYPE_CHECKING:
     from .app import Dashboard
@@ -77,7 +77,7 @@ class GaitEditor:
             self.friction = gui.add_number("Friction", initial_value=1.0, min=0.01, max=10.0, step=0.05)
             self.robot_problem = gui.add_markdown("")
         self.table_html = gui.add_html("")
-        self.expanded = gui.add_uplot(data=_zeros(2), series=({"label": "t"}, {"label": "m1"}),
+        self.expanded = gui.add_uplot(data=empty_plot(2), series=({"label": "t"}, {"label": "m1"}),
                                       title="Expanded table: commanded angle per module", aspect=1.6)  # fmt: skip
 
         def field(setter: Callable[[Any], None]) -> Callable[[Any], None]:
@@ -227,7 +227,3 @@ def _states_table(data: dict[str, Any], selected: str, index: int) -> str:
         rows.append(f"<tr><th>{name}</th>{''.join(cells)}</tr>")
     return ('<div style="overflow-x:auto;font-size:0.75em"><table border="1" cellpadding="2" '
             f'style="border-collapse:collapse">{"".join(rows)}</table></div>')  # fmt: skip
-
-
-def _zeros(count: int) -> tuple[np.ndarray, ...]:
-    return (np.array([0.0, 1.0]), *(np.zeros(2) for _ in range(count - 1)))

@@ -169,6 +169,11 @@ def stroke(index: int) -> str:
     return PALETTE[index % len(PALETTE)]
 
 
+def empty_plot(count: int) -> tuple[np.ndarray, ...]:
+    """uPlot data for a plot with ``count`` arrays (time first) and nothing to show yet."""
+    return (np.array([0.0, 1.0]), *(np.zeros(2) for _ in range(count - 1)))
+
+
 def describe(obj: RemoteObject) -> str:
     """One line about a remote object: its kind and type."""
     info = obj.info
