@@ -45,8 +45,8 @@ def test_group_start_set_stop_reach_every_member_and_only_members(kind: str) -> 
             assert wait_until(lambda: (legs.attribute("joint.goal", "float32").set(0.5), goals[0].peek())[1] == 0.5)
             assert wait_until(lambda: all(g.peek() == 0.5 for g in goals[:3]), timeout=10)
             legs.service("gait.service").start(2, "fast")
-            assert wait_until(lambda: all(g.running for g in gaits[:3]), timeout=10)
-            assert all(g.params == (2, "fast") for g in gaits[:3])
+            # running is set as the thread starts, params a moment later (run's first line): wait for both
+            assert wait_until(lambda: all(g.running and g.params == (2, "fast") for g in gaits[:3]), timeout=10)
             assert not gaits[3].started and goals[3].peek() == 0.0  # not a member
             controller.group().service("gait.service").stop()  # the broadcast reaches everyone
             assert wait_until(lambda: not any(g.started for g in gaits), timeout=10)
