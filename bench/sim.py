@@ -21,11 +21,10 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from gaits.mjcf import build_mjcf
-from gaits.model import Robot, load
+from gaits.model import LIBRARY, Robot, load
 from gaits.serpenoid import sine, wave_gait
 from gaits.sim import Simulation
 
-LIBRARY = Path(__file__).resolve().parent.parent / "gaits" / "library"
 TARGETS = {"caterpillar": 3, "sidewinding": 3, "rolling_loop": 3, "inchworm": 2, "legged_walk": 2,
            "lateral_undulation": 3}  # fmt: skip
 

@@ -25,7 +25,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != ROOT / "bench"]  # bench/can.py is not python-can
 sys.path.insert(0, str(ROOT))
 
-from gaits.model import dumps, load  # noqa: E402
+from gaits.model import LIBRARY, dumps, load  # noqa: E402
 from tests.processes import Process  # noqa: E402
 from tests.transports import free_port  # noqa: E402
 from web.document import GaitDocument  # noqa: E402
@@ -36,7 +36,7 @@ SECONDS = 8.0
 
 
 def gait_file(directory: str) -> Path:
-    doc = GaitDocument(load(ROOT / "gaits" / "library" / "caterpillar.toml"))
+    doc = GaitDocument(load(LIBRARY / "caterpillar.toml"))
     doc.set_robot("modules", MODULES)
     path = Path(directory) / "caterpillar32.toml"
     path.write_text(dumps(doc.gait()))

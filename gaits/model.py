@@ -43,6 +43,8 @@ AXES = ("pitch", "yaw", "alternating")
 INTERPOLATIONS = ("step", "linear")
 EVENTS = ("contact",)
 MAX_MODULES = 254
+LIBRARY = Path(__file__).resolve().parent / "library"
+"""The library gaits shipped with the package (gaits.serpenoid writes them)."""
 
 
 @dataclass(frozen=True)

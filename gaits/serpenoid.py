@@ -11,10 +11,9 @@ import math
 from collections.abc import Callable
 from pathlib import Path
 
-from .model import Assignment, Automaton, Gait, Ground, Robot, State, dumps
+from .model import LIBRARY, Assignment, Automaton, Gait, Ground, Robot, State, dumps
 
 SAMPLES = 16
-LIBRARY = Path(__file__).resolve().parent / "library"
 
 
 def sampled(name: str, wave: Callable[[float], float], period: float, samples: int = SAMPLES) -> Automaton:

@@ -213,6 +213,10 @@ class ModuleRuntime:
     # -- wiring -------------------------------------------------------------------------------------------------
 
     def _register(self, node: Node, refresh_rate: float, publish_limit: float) -> None:
+        if self.tick.publish_policy is None:  # unless the tick's owner chose otherwise (before it is registered)
+            # the tick fires 50 times a second; published at each firing (an event's default) it would take two
+            # frames per firing per module, ~40 % of a 1 Mbit/s bus for 32 modules: once a second shows it ticks
+            self.tick.publish(rate=1.0)
         for obj in (self.goal, self.angle, self.torque, self.limits, self.servo, self.table, self.checksum,
                     self.phase, self.gait, self.tick, self.contact, self.estop):  # fmt: skip
             node.register(obj)
@@ -223,10 +227,6 @@ class ModuleRuntime:
         # when nothing moves: a resting robot keeps the bus quiet
         self.angle.publish(rate=refresh_rate, deadband=0.1, limit=publish_limit)
         self.torque.publish(rate=refresh_rate / 2, deadband=0.05, limit=publish_limit / 2)
-        if self._own_timer is not None:  # a tick given to the runtime is published as its owner chose
-            # the tick fires 50 times a second; published at each firing (an event's default) it would take two
-            # frames per firing per module, ~40 % of a 1 Mbit/s bus for 32 modules: once a second shows it ticks
-            self.tick.publish(rate=1.0)
         self.contact.publish()
         self.gait.state.publish(deadband=0)  # on change: the automaton sets its state at every tick
         self._unlisten.append(node.on_estop(lambda source, reason: self.emergency_stop(reason)))

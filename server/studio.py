@@ -25,13 +25,12 @@ from asm_py.codec import FLOAT64
 from asm_py.event import TimerTrigger
 from asm_py.transport.can import CanTransport
 from gaits.deploy import module_name
-from gaits.model import Gait, load
+from gaits.model import LIBRARY, Gait, load
 
 from .bridge import CanZenohBridge, parse_can
 from .module import FakeDriver, ModuleRuntime
 
 log = logging.getLogger("asm_studio")
-LIBRARY = Path(__file__).resolve().parent.parent / "gaits" / "library"
 STUDIO_NODE_ID = 250
 CONTROL_RATE = 50.0
 """Ticks per second of the simulated modules (a module runtime's default)."""
@@ -67,7 +66,6 @@ class Studio:
                                                                                 "channel": channel}  # fmt: skip
         if options.bitrate:
             self.can_options["bitrate"] = options.bitrate
-        self.module_nodes: dict[int, Node] = {}
         self._tick: Event | None = None
         self._tick_timer: TimerTrigger | None = None
         self.modules: dict[int, ModuleRuntime] = {}
@@ -96,8 +94,7 @@ class Studio:
         """One 50 Hz tick for every simulated module, as if their clocks were synchronised: 32 modules each waking
         their own timer thread 50 times a second crowd out the dashboard's threads (Python runs one at a time)."""
         if self._tick is None:
-            self._tick = Event("gait.tick", codec=FLOAT64)
-            self._tick.publish(rate=1.0)  # published once a second, as a module's own tick is
+            self._tick = Event("gait.tick", codec=FLOAT64)  # published as a module's own tick is (ModuleRuntime)
             self._tick_timer = TimerTrigger(1.0 / CONTROL_RATE, name="studio.tick")
             self._tick.add_trigger(self._tick_timer)
             self._tick_timer.start()
@@ -110,27 +107,25 @@ class Studio:
         tell a module it removed from one that was lost."""
         if count not in MODULE_IDS:
             raise ValueError(f"the studio simulates 1..{MODULE_IDS[-1]} modules, not {count}")
-        closed = []
-        for module_id in sorted(set(self.modules) - set(range(1, count + 1))):
-            self.modules.pop(module_id).close()
-            node = self.module_nodes.pop(module_id)
-            node.close()
-            closed.append(node.name)
+        closed = [self._close_module(module_id) for module_id in sorted(set(self.modules) - set(range(1, count + 1)))]
         for module_id in range(1, count + 1):
             if module_id not in self.modules:
                 node = Node(module_name(module_id), self._transport(module_id))
-                self.module_nodes[module_id] = node
                 self.modules[module_id] = ModuleRuntime(FakeDriver(), node=node, tick=self._shared_tick(),
                                                         inline=True)  # fmt: skip
         return closed
 
+    def _close_module(self, module_id: int) -> str:
+        """Close simulated module ``module_id``, its runtime then its node; returns the node's name."""
+        runtime = self.modules.pop(module_id)
+        runtime.close()
+        assert runtime.node is not None  # the studio's modules always have one
+        runtime.node.close()
+        return runtime.node.name
+
     def stop_modules(self) -> None:
-        for runtime in self.modules.values():
-            runtime.close()
-        for node in self.module_nodes.values():
-            node.close()
-        self.modules.clear()
-        self.module_nodes.clear()
+        for module_id in sorted(self.modules):
+            self._close_module(module_id)
 
     @property
     def port(self) -> int:

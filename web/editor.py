@@ -13,23 +13,19 @@ do not take them for user edits.
 from __future__ import annotations
 
 from collections.abc import Callable
-from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from gaits.model import AXES, SHAPES, GaitError, load
+from gaits.model import AXES, LIBRARY, SHAPES, GaitError, load
 from gaits.table import expand
+from server.studio import MODULE_IDS
 
 from .grid import StateGrid
 from .monitor import empty_plot, stroke
 
 if TYPE_CHECKING:
     from .app import Dashboard
-
-LIBRARY = Path(__file__).resolve().parent.parent / "gaits" / "library"
-MAX_MODULES = 199
-"""Module count the editor offers (the studio simulates modules on node IDs 1..199)."""
 
 
 class GaitEditor:
@@ -69,10 +65,10 @@ class GaitEditor:
             self.module_automaton = gui.add_dropdown("Runs", ["-"])
             self.module_problem = gui.add_markdown("")
         with gui.add_folder("Robot"):
-            self.modules = gui.add_number("Modules", initial_value=8, min=1, max=MAX_MODULES, step=1)
+            self.modules = gui.add_number("Modules", initial_value=8, min=1, max=MODULE_IDS[-1], step=1)
             self.shape = gui.add_dropdown("Shape", SHAPES)
             self.axes = gui.add_dropdown("Axes", AXES)
-            self.legs = gui.add_number("Legs", initial_value=4, min=2, max=MAX_MODULES, step=1)
+            self.legs = gui.add_number("Legs", initial_value=4, min=2, max=MODULE_IDS[-1], step=1)
             self.module_size = gui.add_number("Module size (m)", initial_value=0.05, min=0.01, max=1.0, step=0.005)
             self.friction = gui.add_number("Friction", initial_value=1.0, min=0.01, max=10.0, step=0.05)
             self.robot_problem = gui.add_markdown("")
