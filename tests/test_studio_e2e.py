@@ -110,7 +110,9 @@ def test_edit_preview_deploy_watch_and_estop(studio):
             expect(page.get_by_text(re.compile(r"m8\s*live")).first).to_be_visible(timeout=15_000)
             expect(page.get_by_text("gait running", exact=False).first).to_be_visible(timeout=15_000)
             plot = page.locator("canvas").last
-            assert wait_until(lambda: _pixels(plot.screenshot(), LINE_COLOR) > 50, timeout=15), "no line drawn"
+            if not wait_until(lambda: _pixels(plot.screenshot(), LINE_COLOR) > 50, timeout=15):
+                page.screenshot(path=str(ARTIFACTS / "studio-monitor-no-line.png"))
+                raise AssertionError("no line drawn in the live plot:\n" + "".join(log[-30:]))
             before = plot.screenshot()
             time.sleep(1.0)
             assert plot.screenshot() != before, "the live plot did not change"

@@ -329,11 +329,12 @@ class Dashboard:
         )  # fmt: skip
         labels, data = self.plot.data()
         if labels:
-            if labels != self._live_labels:
-                self.live.series = ({"label": "t"}, *({"label": label, "stroke": stroke(k)}
-                                                      for k, label in enumerate(labels)))  # fmt: skip
-                self._live_labels = labels
-            self.live.data = data
+            with self.server.atomic():  # a new series list and its data reach the page together
+                if labels != self._live_labels:
+                    self.live.series = ({"label": "t"}, *({"label": label, "stroke": stroke(k)}
+                                                          for k, label in enumerate(labels)))  # fmt: skip
+                    self._live_labels = labels
+                self.live.data = data
 
     def close(self) -> None:
         self._stop.set()

@@ -200,9 +200,10 @@ class GaitEditor:
         self.table_html.content = _states_table(data, self.automaton.value, index)
         if not self.doc.problems:
             times, rows = expand(self.doc.gait(), samples=32)
-            self.expanded.data = (np.asarray(times), *(np.asarray(r) for r in rows))
-            self.expanded.series = ({"label": "t"}, *({"label": f"m{k + 1}", "stroke": stroke(k)}
-                                                      for k in range(len(rows))))  # fmt: skip
+            with self.app.server.atomic():  # as many series as arrays, whenever the page applies them
+                self.expanded.series = ({"label": "t"}, *({"label": f"m{k + 1}", "stroke": stroke(k)}
+                                                          for k in range(len(rows))))  # fmt: skip
+                self.expanded.data = (np.asarray(times), *(np.asarray(r) for r in rows))
 
 
 def _problems(problems: list[Any]) -> str:
