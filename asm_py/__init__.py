@@ -1,7 +1,7 @@
 """asm_py — the Attribute/Service Model: attributes, services, events and triggers, event-driven services and phase
 automata, with every timing on a Clock. This package is what a module runs: it imports neither viser nor mujoco."""
 
-from .attribute import Attribute
+from .attribute import Attribute, CheckedAttribute
 from .automaton import PeriodicAutomaton, PhaseAutomaton, PhaseState
 from .clock import WALL_CLOCK, Clock, Monitor, SimClock, WallClock
 from .codec import (
@@ -25,7 +25,19 @@ from .codec import (
     record,
 )
 from .eds import EventDrivenService
-from .errors import AsmError, AsmTimeout, RemoteError, ServiceError, ServiceStopped, SimulationStalled
+from .errors import (
+    AsmError,
+    AsmTimeout,
+    EstopLatched,
+    Locked,
+    MessageTooLarge,
+    ReadOnlyError,
+    Refused,
+    RemoteError,
+    ServiceError,
+    ServiceStopped,
+    SimulationStalled,
+)
 from .event import ConditionTrigger, Event, ThresholdTrigger, TimerTrigger, Trigger
 from .group import GroupAttribute, GroupPort, GroupService
 from .node import Node
@@ -36,7 +48,8 @@ from .transport import MemoryNetwork, MemoryTransport, Transport
 __version__ = "0.1.0"
 
 __all__ = [
-    "Attribute", "PeriodicAutomaton", "PhaseAutomaton", "PhaseState", "WALL_CLOCK", "Clock", "Monitor",
+    "Attribute", "CheckedAttribute", "EstopLatched", "Locked", "MessageTooLarge", "ReadOnlyError", "Refused",
+    "PeriodicAutomaton", "PhaseAutomaton", "PhaseState", "WALL_CLOCK", "Clock", "Monitor",
     "SimClock", "WallClock", "BOOL", "BYTES", "FLOAT32", "FLOAT64", "INT8", "INT16", "INT32", "INT64", "STR",
     "UINT8", "UINT16", "UINT32", "UINT64", "Codec", "codec_from_descriptor", "float_array", "parse_codec",
     "record", "EventDrivenService", "AsmError", "AsmTimeout", "ServiceError", "ServiceStopped",

@@ -245,3 +245,22 @@ class Attribute:
     def __repr__(self) -> str:
         flags = "".join(f for f, on in (("G", self._sync_get), ("S", self._sync_set)) if on) or "-"
         return f"<{type(self).__name__} {self._name!r} {flags} valid={self._valid} value={self._value!r}>"
+
+
+class CheckedAttribute(Attribute):
+    """An attribute whose every value, however it arrives (a local or remote set, a publication), passes
+    ``check(value)`` first: the check may return the value to store (a goal clamped to its limits) or raise, and
+    then nothing is stored. The domain of a value lives with the value, so no path around it exists."""
+
+    __slots__ = ("_check",)
+
+    def __init__(self, name: str, initial: Any = None, *, check: Callable[[Any], Any], **options: Any) -> None:
+        super().__init__(name, initial, **options)
+        self._check = check
+
+    def set(self, value: Any, timeout: float | None = None, *, wait: bool = True) -> None:
+        value = self._codec.normalize(value) if self._codec is not None else value
+        super().set(self._check(value), timeout, wait=wait)
+
+    def _deliver(self, value: Any, *, decoded_by: Codec | None = None) -> None:
+        self.set(value)

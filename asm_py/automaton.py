@@ -20,7 +20,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any, Literal
 
-from .attribute import Attribute
+from .attribute import Attribute, CheckedAttribute
 from .clock import Clock
 from .codec import FLOAT64, INT8, UINT16, float_array
 from .eds import EventDrivenService, SuspendedPolicy
@@ -60,7 +60,8 @@ class PhaseAutomaton(EventDrivenService):
         )
         self.states: tuple[Any, ...] = tuple(states)
         self.state = Attribute(f"{name}.state", 0, codec=UINT16, clock=self.clock)
-        self.direction = Attribute(f"{name}.direction", _check_direction(direction), codec=INT8, clock=self.clock)
+        self.direction = CheckedAttribute(f"{name}.direction", _check_direction(direction), codec=INT8,
+                                          check=_check_direction, clock=self.clock)  # fmt: skip
         self.phase = 0.0
         self._initialize = initialize
         self._next_state = next_state

@@ -19,6 +19,11 @@ exception types wherever a caller would naturally catch them, so code written ag
   holds the protocol status code. Remote timeouts, service errors, TypeError, ValueError and LookupError are raised
   as the same types as locally.
 
+- ``Refused(AsmError, PermissionError)`` — the node would not do it in its present state: ``ReadOnlyError`` (only the
+  node writes that attribute), ``EstopLatched`` (the emergency stop is latched and the request would move a joint),
+  ``Locked`` (another client holds the lease). ``MessageTooLarge(AsmError, ValueError)`` — a message over
+  ``protocol.MAX_MESSAGE`` bytes, refused before it was sent or at the first edge that saw it.
+
 ``ServiceStopped`` is deliberately *not* an ``Exception``: it unwinds a service's ``run`` when ``stop()`` interrupts
 a blocking call inside it, and must not be swallowed by a routine's ``except Exception`` (the same reasoning that
 made ``asyncio.CancelledError`` a ``BaseException``). The service thread catches it; user code never needs to.
@@ -51,8 +56,40 @@ class RemoteError(AsmError):
         self.status = status
 
 
+class Refused(AsmError, PermissionError):
+    """The node refused the request in its present state (nothing changed)."""
+
+
+class ReadOnlyError(Refused):
+    """A write from outside the node to an attribute only the node itself writes."""
+
+
+class EstopLatched(Refused):
+    """The node's emergency stop is latched: it holds its joint and refuses what would move it."""
+
+
+class Locked(Refused):
+    """Another client holds the lease the request needs."""
+
+
+class MessageTooLarge(AsmError, ValueError):
+    """A message longer than the protocol's maximum message size."""
+
+
 class ServiceStopped(BaseException):
     """Raised inside a service thread when ``stop()`` interrupts a blocking ASM call; ends ``run`` quietly."""
 
 
-__all__ = ["AsmError", "AsmTimeout", "RemoteError", "ServiceError", "ServiceStopped", "SimulationStalled"]
+__all__ = [
+    "AsmError",
+    "AsmTimeout",
+    "EstopLatched",
+    "Locked",
+    "MessageTooLarge",
+    "ReadOnlyError",
+    "Refused",
+    "RemoteError",
+    "ServiceError",
+    "ServiceStopped",
+    "SimulationStalled",
+]

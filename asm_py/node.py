@@ -23,11 +23,12 @@ from typing import Any
 from .attribute import Attribute, PublishPolicy
 from .clock import WALL_CLOCK, Clock
 from .codec import JSON, Codec
-from .errors import AsmTimeout, RemoteError, ServiceError
+from .errors import AsmTimeout, EstopLatched, Locked, MessageTooLarge, ReadOnlyError, RemoteError, ServiceError
 from .event import Event
 from .group import GroupPort
 from .protocol import (
     LOCAL_CLASS_BASE,
+    MAX_MESSAGE,
     WELL_KNOWN_CLASSES,
     Kind,
     Message,
@@ -46,6 +47,12 @@ from .transport.base import BROADCAST, Responder, Transport, check_name
 log = logging.getLogger("asm_py.node")
 
 Registrable = Attribute | Service
+Guard = Callable[[int], None]
+"""Called with the method of each request that would change an object, before it runs; raises to refuse it."""
+WRITES = frozenset({Method.SET, Method.RESET, Method.START, Method.STOP, Method.SUSPEND, Method.RESUME})
+"""The methods that change an object (what read-only attributes and guards refuse)."""
+MAX_PARAMS_DEPTH = 32
+"""Nesting depth of START parameters beyond which a request is a BAD_MESSAGE (no recursion on hostile input)."""
 
 
 @dataclass
@@ -61,6 +68,10 @@ class Entry:
     codec: Codec
     """Codec of the value (attributes, events) or of the start parameters (services: JSON)."""
     publisher: Publisher | None = None
+    read_only: bool = False
+    """Remote SET and RESET are refused (READ_ONLY): only the node itself writes the value."""
+    guard: Guard | None = None
+    """Called before every remote request that would change the object; may refuse it by raising."""
 
 
 class Node:
@@ -94,8 +105,22 @@ class Node:
 
     # -- registration ---------------------------------------------------------------------------------------------
 
-    def register(self, obj: Registrable, *, name: str | None = None, class_name: str | None = None) -> Entry:
-        """Enter ``obj`` in the lookup table; its class defaults to its name (the kind of object it is)."""
+    def register(
+        self,
+        obj: Registrable,
+        *,
+        name: str | None = None,
+        class_name: str | None = None,
+        read_only: bool = False,
+        guard: Guard | None = None,
+    ) -> Entry:
+        """Enter ``obj`` in the lookup table; its class defaults to its name (the kind of object it is).
+
+        ``read_only``: remote SET and RESET are answered READ_ONLY (a measurement, a checksum, a state that only the
+        node's own code writes; the lookup reply says so). ``guard(method)`` runs before every remote request that
+        would change the object (set, reset, start, stop, suspend, resume) and refuses it by raising — a module
+        refuses what would move its joint while its emergency stop is latched.
+        """
         if isinstance(obj, Event):
             kind, codec = ObjectKind.EVENT, obj.codec or JSON
         elif isinstance(obj, Attribute):
@@ -113,7 +138,7 @@ class Node:
             if object_id > 0xFF:
                 raise ValueError(f"node {self.name!r} is full: at most 255 objects")
             class_id = self._class_id(class_name)
-            entry = Entry(obj, name, class_name, class_id, object_id, kind, codec)
+            entry = Entry(obj, name, class_name, class_id, object_id, kind, codec, read_only=read_only, guard=guard)
             self._by_id[object_id] = entry
             self._by_name[name] = entry
         if isinstance(obj, Attribute):
@@ -258,6 +283,9 @@ class Node:
                 port.fail_all(f"node {name!r} left")
 
     def _on_message(self, source: str, data: bytes, respond: Responder | None = None) -> None:
+        if len(data) > MAX_MESSAGE:
+            self._refuse_oversized(source, data, respond)
+            return
         try:
             message = decode(data)
         except ProtocolError as exc:
@@ -278,6 +306,18 @@ class Node:
                 transport.send(source, reply)
 
         self._serve(source, message, respond)
+
+    def _refuse_oversized(self, source: str, data: bytes, respond: Responder | None) -> None:
+        """A message over MAX_MESSAGE is not decoded; a request that wants a reply is told why (TOO_LARGE)."""
+        self.dropped += 1
+        if data[0] >> 6 != 1 or (data[0] >> 4) & 0x03 != Kind.REQUEST_REPLY:
+            return
+        reply = bytes((first_byte(Kind.REPLY, data[0] & 0x0F), data[1] & 0x7F, Status.TOO_LARGE, data[3]))
+        text = f"message of {len(data)} bytes exceeds the {MAX_MESSAGE}-byte maximum".encode()
+        if respond is None:
+            self.transport.send(source, reply + text)
+        else:
+            respond(reply + text)
 
     @staticmethod
     def _reply(respond: Responder, request: Message, status: int = Status.OK, data: bytes = b"") -> None:
@@ -323,6 +363,11 @@ class Node:
             return describe_entry(entry)
         assert entry is not None
         obj = entry.obj
+        if method in WRITES:
+            if entry.read_only and method in (Method.SET, Method.RESET):
+                raise ReadOnlyError(f"{entry.name!r} on node {self.name!r} is read-only: only the node writes it")
+            if entry.guard is not None:
+                entry.guard(method)
         if isinstance(obj, Attribute):
             if method == Method.GET:
                 try:
@@ -355,9 +400,7 @@ class Node:
                 )
         elif isinstance(obj, Service):
             if method == Method.START:
-                params = json.loads(request.data.decode("utf-8")) if request.data else []
-                if not isinstance(params, list):
-                    raise ValueError("service parameters travel as a JSON array")
+                params = _parse_params(request.data)
                 obj.start(*params)
                 return b""
             if method == Method.STOP:
@@ -416,13 +459,48 @@ class _Busy(Exception):
     pass
 
 
+class _BadMessage(Exception):
+    pass
+
+
+def _parse_params(data: bytes) -> list[Any]:
+    """START parameters: a JSON array, at most MAX_PARAMS_DEPTH deep (checked before parsing, so hostile nesting
+    costs one pass over the bytes and never a recursion)."""
+    if not data:
+        return []
+    depth = deepest = 0
+    for byte in data:  # brackets inside strings count too: a conservative bound is enough here
+        if byte in b"[{":
+            depth += 1
+            deepest = max(deepest, depth)
+        elif byte in b"]}":
+            depth -= 1
+    if deepest > MAX_PARAMS_DEPTH:
+        raise _BadMessage(f"service parameters nest deeper than {MAX_PARAMS_DEPTH} levels")
+    try:
+        params = json.loads(data.decode("utf-8"))
+    except UnicodeDecodeError as exc:
+        raise _BadMessage(f"service parameters are not UTF-8: {exc}") from None
+    except ValueError as exc:
+        raise _BadMessage(f"service parameters are not JSON: {exc}") from None
+    if not isinstance(params, list):
+        raise ValueError("service parameters travel as a JSON array")
+    return params
+
+
 # First match wins: UnicodeDecodeError is a ValueError, so it must come before it.
 _FAILURE_STATUS: tuple[tuple[type[Exception], int], ...] = (
     (TimeoutError, Status.TIMEOUT),
     (ServiceError, Status.SERVICE_ERROR),
     (_Busy, Status.BUSY),
     (RemoteError, Status.UNSUPPORTED),
+    (_BadMessage, Status.BAD_MESSAGE),
     (UnicodeDecodeError, Status.BAD_MESSAGE),
+    (RecursionError, Status.BAD_MESSAGE),
+    (ReadOnlyError, Status.READ_ONLY),
+    (EstopLatched, Status.ESTOP),
+    (Locked, Status.LOCKED),
+    (MessageTooLarge, Status.TOO_LARGE),
     (TypeError, Status.TYPE_ERROR),
     (ValueError, Status.VALUE_ERROR),
     (LookupError, Status.NOT_FOUND),

@@ -24,6 +24,9 @@ from .errors import AsmError
 VERSION = 1
 HEADER_SIZE = 4
 MAX_TXN = 0x7F
+MAX_MESSAGE = 4096
+"""The largest ASM message in bytes, header included, on every transport and through every bridge. A sender refuses
+a longer message before sending it (TOO_LARGE); a receiver drops it at its edge, so no layer ever buffers more."""
 
 
 class ProtocolError(AsmError, ValueError):
@@ -79,6 +82,14 @@ class Status(IntEnum):
     BAD_MESSAGE = 7
     BUSY = 8
     INTERNAL = 9
+    READ_ONLY = 10
+    """A remote SET or RESET of an attribute that only its node writes (a measurement, a checksum, a state)."""
+    ESTOP = 11
+    """Refused: the node's emergency stop is latched, and the request would move a joint (or load a gait)."""
+    LOCKED = 12
+    """Refused: another client holds the lease this request needs (the data names the holder)."""
+    TOO_LARGE = 13
+    """The message is longer than :data:`MAX_MESSAGE` bytes (answered at the edge that saw it, before forwarding)."""
 
 
 class ObjectKind(IntEnum):
@@ -232,6 +243,10 @@ WELL_KNOWN_CLASSES: dict[str, int] = {
     "gait.service": 0x24,
     "gait.tick": 0x25,
     "gait.checksum": 0x26,
+    "gait.staged": 0x27,
+    "gait.staged_checksum": 0x28,
+    "gait.activate": 0x29,
+    "gait.lease": 0x2A,
     "sensor.contact": 0x30,
 }
 LOCAL_CLASS_BASE = 0x80

@@ -23,9 +23,10 @@ from typing import TYPE_CHECKING, Any
 
 from .clock import WALL_CLOCK, Clock, Monitor
 from .codec import Codec, codec_from_descriptor
-from .errors import AsmTimeout, RemoteError, ServiceError
+from .errors import AsmTimeout, EstopLatched, Locked, MessageTooLarge, ReadOnlyError, RemoteError, ServiceError
 from .protocol import (
     HEADER_SIZE,
+    MAX_MESSAGE,
     MAX_TXN,
     Kind,
     Message,
@@ -59,13 +60,16 @@ class ObjectInfo:
     codec: Codec
     name: str
     class_name: str
+    read_only: bool = False
+    """Only the node writes it: a remote set or reset is answered READ_ONLY."""
 
 
 def describe_entry(entry: Entry) -> bytes:
     """The data of a LOOKUP reply (docs/protocol.md, "Lookup")."""
     obj = entry.obj
     published = getattr(obj, "publish_policy", None) is not None or entry.kind == ObjectKind.EVENT
-    flags = int(getattr(obj, "sync_get", False)) | int(getattr(obj, "sync_set", False)) << 1 | int(published) << 2
+    flags = (int(getattr(obj, "sync_get", False)) | int(getattr(obj, "sync_set", False)) << 1 | int(published) << 2
+             | int(entry.read_only) << 3)  # fmt: skip
     descriptor = entry.codec.descriptor()
     name = entry.name.encode("utf-8")
     return (bytes([entry.class_id, entry.object_id, entry.kind, flags, len(descriptor)]) + descriptor
@@ -81,7 +85,7 @@ def parse_description(data: bytes) -> ObjectInfo:
         name = data[offset + 1 : offset + 1 + name_length].decode("utf-8")
         class_name = data[offset + 1 + name_length :].decode("utf-8")
         return ObjectInfo(class_id, object_id, ObjectKind(kind), bool(flags & 1), bool(flags & 2), bool(flags & 4),
-                          codec_from_descriptor(descriptor), name, class_name)  # fmt: skip
+                          codec_from_descriptor(descriptor), name, class_name, bool(flags & 8))  # fmt: skip
     except (ValueError, IndexError) as exc:
         raise ProtocolError(f"malformed lookup reply: {exc}") from None
 
@@ -98,6 +102,10 @@ _STATUS_ERRORS: dict[int, type[Exception]] = {
     Status.TYPE_ERROR: TypeError,
     Status.VALUE_ERROR: ValueError,
     Status.NOT_FOUND: LookupError,
+    Status.READ_ONLY: ReadOnlyError,
+    Status.ESTOP: EstopLatched,
+    Status.LOCKED: Locked,
+    Status.TOO_LARGE: MessageTooLarge,
 }
 
 
@@ -127,11 +135,20 @@ def raise_for_status(reply: Message, what: object) -> None:
 
 
 class _Call:
-    __slots__ = ("failure", "reply")
+    __slots__ = ("failure", "method", "object_id", "reply")
 
-    def __init__(self) -> None:
+    def __init__(self, method: int, object_id: int) -> None:
+        self.method = method
+        self.object_id = object_id
         self.reply: Message | None = None
         self.failure: str | None = None
+
+
+def _check_size(data: bytes, what: object) -> bytes:
+    """``data`` if it fits one ASM message; MessageTooLarge before anything is sent otherwise."""
+    if len(data) > MAX_MESSAGE:
+        raise MessageTooLarge(f"{what}: message of {len(data)} bytes exceeds the {MAX_MESSAGE}-byte maximum")
+    return data
 
 
 class Port:
@@ -151,7 +168,7 @@ class Port:
     ) -> None:
         """Send a request that wants no reply."""
         message = Message(Kind.REQUEST, method, 0, class_id, object_id, timeout=timeout, data=data)
-        self.node.transport.send(self.remote, encode(message))
+        self.node.transport.send(self.remote, _check_size(encode(message), _What(method, self.remote)))
 
     def call(
         self,
@@ -198,7 +215,9 @@ class Port:
         what: object,
     ) -> Message:
         mon = self._mon
-        call = _Call()
+        raw = _check_size(encode(Message(Kind.REQUEST_REPLY, method, 0, class_id, object_id, timeout=code, data=data)),
+                          what)  # fmt: skip
+        call = _Call(method, object_id)
         with mon:
             if not mon.wait_for(lambda: len(self._pending) <= MAX_TXN, wait):
                 raise AsmTimeout(f"{what}: all {MAX_TXN + 1} transaction ids of the port are in use")
@@ -207,9 +226,8 @@ class Port:
                 txn = (txn + 1) & MAX_TXN
             self._next_txn = (txn + 1) & MAX_TXN
             self._pending[txn] = call
-        message = Message(Kind.REQUEST_REPLY, method, txn, class_id, object_id, timeout=code, data=data)
         try:
-            self.node.transport.send(self.remote, encode(message))
+            self.node.transport.send(self.remote, raw[:1] + bytes((raw[1] | txn,)) + raw[2:])
             with mon:
                 mon.wait_for(lambda: call.reply is not None or call.failure is not None, wait)
         finally:
@@ -230,10 +248,10 @@ class Port:
         """
         txn = next(self._direct_txns) & MAX_TXN  # atomic; these replies never pass through _pending
         head = bytes((first_byte(Kind.REQUEST_REPLY, method), txn, class_id, object_id))
-        raw = self.node.transport.request(self.remote, head + data, wait)
+        raw = self.node.transport.request(self.remote, _check_size(head + data, what), wait)
         if raw is None:
             raise AsmTimeout(f"{what} timed out: no reply within {wait:.3g}s")
-        if len(raw) < HEADER_SIZE or raw[0] != first_byte(Kind.REPLY, method) or raw[1] != txn:
+        if len(raw) < HEADER_SIZE or raw[0] != first_byte(Kind.REPLY, method) or raw[1] != txn or raw[3] != object_id:
             raise ProtocolError(f"{what}: answer is not the reply to transaction {txn}")
         reply = Message(Kind.REPLY, method, txn, 0, raw[3], raw[2], None, raw[HEADER_SIZE:])
         if reply.status:
@@ -243,10 +261,11 @@ class Port:
     def deliver(self, reply: Message) -> None:
         """A reply arrived for this port (from the node's receive path)."""
         with self._mon:
-            call = self._pending.pop(reply.txn, None)
-            if call is None:
-                self.stale_replies += 1  # its caller gave up already
+            call = self._pending.get(reply.txn)
+            if call is None or call.method != reply.method or call.object_id != reply.object_id:
+                self.stale_replies += 1  # its caller gave up already, or it answers another request
                 return
+            del self._pending[reply.txn]
             call.reply = reply
             self._mon.notify_all()
 

@@ -4,12 +4,21 @@ For each CAN node heard (by its heartbeat) the bridge declares, on Zenoh, the no
 request keys (docs/protocol.md, "Zenoh key space"); it forwards the ASM message bytes unchanged both ways:
 
 - a Zenoh query ``asm/<N>/req/<C>`` becomes the same message on CAN from an *alias* node ID standing for client C
-  (one alias per Zenoh client, from a pool, least recently used reused first), and N's reply to that alias becomes
-  the query's reply, paired by (alias, N, transaction id);
+  (one alias per Zenoh session — name and session ID — from a pool, least recently used reused first), with its
+  transaction id replaced by one the bridge allocates and its timeout byte capped, and N's reply to that alias
+  becomes the query's reply with the client's own transaction id back in place (so two sessions that share a name
+  never receive each other's replies);
 - puts on ``asm/<N>/msg/<C>`` and ``asm/@group/<G>/msg/<C>`` become node and group frames from C's alias;
 - each publication of a CAN node becomes a put on ``asm/<N>/pub/<object>`` and its JSON view (object names and
   codecs come from a lookup of N's table, made once when N appears);
 - e-stops cross in both directions.
+
+The bridge is an edge, so it enforces the protocol's bounds before anything reaches the bus: a message over
+``MAX_MESSAGE`` bytes is refused at once (TOO_LARGE) and never fragmented; each client has at most
+``max_pending_per_client`` queries waiting for a reply (``max_pending`` in all) and a queue of at most
+``max_queued_per_client`` messages; beyond that it is told BUSY. Queues are served round-robin, one message per
+client in turn, by one sender thread, so a client flooding the bridge only delays itself. E-stops never queue: they
+go straight to the bus as one priority-0 frame, from whichever Zenoh session sent them.
 
 Zenoh clients therefore see CAN modules with lookup, get/set, services, events, publications and discovery, and
 nothing is re-encoded. CLI: ``python -m server.bridge --can virtual:bus0 --zenoh-listen tcp/127.0.0.1:7447``.
@@ -24,8 +33,9 @@ import queue
 import signal
 import threading
 import time
-from collections import OrderedDict
+from collections import OrderedDict, deque
 from collections.abc import Sequence
+from dataclasses import dataclass, field
 from typing import Any
 
 import zenoh
@@ -33,7 +43,7 @@ import zenoh
 from asm_py.canbus.ids import Dest, check_node_id
 from asm_py.codec import to_json
 from asm_py.node import Node
-from asm_py.protocol import Kind, decode_timeout, kind_of
+from asm_py.protocol import MAX_MESSAGE, MAX_TXN, Kind, Status, decode_timeout, encode_timeout, first_byte, kind_of
 from asm_py.remote import RemoteObject
 from asm_py.transport.can import CanTransport, group_id, message_priority
 from asm_py.transport.zenoh import make_config
@@ -42,6 +52,9 @@ log = logging.getLogger("server.bridge")
 
 REPLY_MARGIN = 5.0
 """Seconds a forwarded query waits for its CAN reply beyond the request's own timeout."""
+MAX_BLOCK = 60.0
+"""The longest a forwarded request may ask a CAN node to block: a longer (or endless) timeout byte is capped."""
+MAX_BLOCK_CODE = encode_timeout(MAX_BLOCK)
 
 
 class _GatewayTransport(CanTransport):
@@ -68,6 +81,25 @@ class _Mirror:
         self.objects: dict[int, RemoteObject] = {}
 
 
+@dataclass
+class _Pending:
+    """A forwarded query waiting for its CAN reply."""
+
+    query: zenoh.Query
+    txn: int
+    """The client's own transaction id, put back into the reply."""
+    deadline: float
+
+
+@dataclass
+class _Client:
+    """One Zenoh session as the bus sees it: an alias node ID and a bounded queue of messages to send."""
+
+    alias: int
+    queue: deque[tuple[int, int, bytes]] = field(default_factory=deque)
+    pending: int = 0
+
+
 class CanZenohBridge:
     """See the module docstring."""
 
@@ -81,29 +113,48 @@ class CanZenohBridge:
         zenoh_mode: str = "peer",
         zenoh_listen: Sequence[str] = (),
         zenoh_connect: Sequence[str] = (),
+        zenoh_config: str | None = None,
+        max_pending: int = 1024,
+        max_pending_per_client: int = 32,
+        max_queued_per_client: int = 64,
     ) -> None:
         self._lock = threading.Lock()
+        self._ready = threading.Condition(self._lock)
         self._mirrors: dict[str, _Mirror] = {}
         self._alias_pool = [check_node_id(a) for a in aliases if a != node_id]
-        self._aliases: OrderedDict[str, int] = OrderedDict()  # Zenoh client name -> alias ID (LRU order)
-        self._pending: dict[tuple[int, int, int], tuple[zenoh.Query, float]] = {}
+        self._clients: OrderedDict[tuple[str, bytes], _Client] = OrderedDict()  # (name, session) -> client, LRU
+        self._pending: dict[tuple[int, int, int], _Pending] = {}  # (alias, CAN node ID, bridge txn) -> query
+        self._next_txn = 0
+        self.max_pending = max_pending
+        self.max_pending_per_client = max_pending_per_client
+        self.max_queued_per_client = max_queued_per_client
         self._work: queue.Queue[str | None] = queue.Queue()
-        self.forwarded = {"to_can": 0, "to_zenoh": 0, "publications": 0, "unanswered": 0}
-        self.session = zenoh.open(make_config(mode=zenoh_mode, listen=zenoh_listen, connect=zenoh_connect))
+        self.forwarded = {"to_can": 0, "to_zenoh": 0, "publications": 0, "unanswered": 0, "refused": 0}
+        self.session = zenoh.open(make_config(mode=zenoh_mode, listen=zenoh_listen, connect=zenoh_connect,
+                                              config_file=zenoh_config))  # fmt: skip
+        self._stop = threading.Event()
+        try:
+            self.can = _GatewayTransport(node_id, **can_transport_options)
+            self.can.bridge = self
+            self.node = Node(name, self.can)
+        except BaseException:
+            self.session.close()
+            raise
+        remote = zenoh.Locality.REMOTE  # what this session put itself never comes back
         self._keep: list[Any] = [
-            self.session.declare_subscriber("asm/@group/*/msg/*", self._group_from_zenoh),
-            self.session.declare_subscriber("asm/@estop/*", self._estop_from_zenoh),
+            self.session.declare_subscriber("asm/@group/*/msg/*", self._group_from_zenoh, allowed_origin=remote),
+            self.session.declare_subscriber("asm/@estop/*", self._estop_from_zenoh, allowed_origin=remote),
         ]
-        self.can = _GatewayTransport(node_id, **can_transport_options)
-        self.can.bridge = self
-        self.node = Node(name, self.can)
         for alias in self._alias_pool:
             self.can.accept_node_id(alias)
         self.can.on_estop(self._estop_from_can)
         self.node.on_discovery(self._can_peer)
-        self._stop = threading.Event()
-        self._worker = threading.Thread(target=self._work_loop, name=f"asm-bridge:{name}", daemon=True)
-        self._worker.start()
+        self._threads = [
+            threading.Thread(target=self._work_loop, name=f"asm-bridge:{name}", daemon=True),
+            threading.Thread(target=self._send_loop, name=f"asm-bridge-tx:{name}", daemon=True),
+        ]
+        for thread in self._threads:
+            thread.start()
         for peer in self.can.peers():
             self._can_peer(peer, True)
 
@@ -140,7 +191,11 @@ class CanZenohBridge:
         session = self.session
         mirror.entities = [
             session.declare_queryable(f"asm/{name}/req/*", lambda q, m=mirror: self._query_from_zenoh(m, q)),
-            session.declare_subscriber(f"asm/{name}/msg/*", lambda s, m=mirror: self._put_from_zenoh(m, s)),
+            session.declare_subscriber(
+                f"asm/{name}/msg/*",
+                lambda s, m=mirror: self._put_from_zenoh(m, s),
+                allowed_origin=zenoh.Locality.REMOTE,
+            ),
             session.liveliness().declare_token(f"asm/@alive/{name}"),
         ]
         with self._lock:
@@ -161,63 +216,127 @@ class CanZenohBridge:
 
     # -- Zenoh -> CAN ---------------------------------------------------------------------------------------------
 
-    def _alias(self, client: str) -> int:
-        with self._lock:
-            alias = self._aliases.get(client)
-            if alias is not None:
-                self._aliases.move_to_end(client)
-                return alias
-            used = set(self._aliases.values())
-            free = [a for a in self._alias_pool if a not in used]
-            if free:
-                alias = free[0]
-            else:  # reuse the least recently used alias
-                _, alias = self._aliases.popitem(last=False)
-            self._aliases[client] = alias
-            return alias
+    def _client(self, name: str, session: bytes) -> _Client:
+        """The client for a Zenoh session (lock held): its alias, least recently used reused first."""
+        key = (name, session)
+        client = self._clients.get(key)
+        if client is not None:
+            self._clients.move_to_end(key)
+            return client
+        used = {c.alias for c in self._clients.values()}
+        free = [a for a in self._alias_pool if a not in used]
+        if free:
+            alias = free[0]
+        else:  # reuse the alias of the least recently used client without work in flight
+            idle = next((k for k, c in self._clients.items() if not c.pending and not c.queue), None)
+            if idle is None:
+                raise _Refusal(Status.BUSY, "the bridge has no free alias: too many clients at work")
+            alias = self._clients.pop(idle).alias
+        client = self._clients[key] = _Client(alias)
+        return client
+
+    @staticmethod
+    def _sender(key_expr: Any, attachment: Any) -> tuple[str, bytes]:
+        name = str(key_expr).rsplit("/", 1)[-1]
+        return name, (attachment.to_bytes()[:64] if attachment is not None else b"")
 
     def _query_from_zenoh(self, mirror: _Mirror, query: zenoh.Query) -> None:
-        client = str(query.key_expr).rsplit("/", 1)[-1]
         data = query.payload.to_bytes() if query.payload is not None else b""
-        if len(data) < 4:
+        wants_reply = len(data) >= 4 and kind_of(data) == Kind.REQUEST_REPLY and data[0] >> 6 == 1
+        try:
+            if len(data) < 4:
+                raise _Refusal(None, "")
+            if len(data) > MAX_MESSAGE:
+                raise _Refusal(Status.TOO_LARGE, f"message of {len(data)} bytes exceeds the {MAX_MESSAGE}-byte maximum")
+            name, session = self._sender(query.key_expr, query.attachment)
+            with self._lock:
+                client = self._client(name, session)
+                self._check_room(client)
+                if wants_reply:
+                    data = self._await_reply(client, mirror, query, data)
+                self._enqueue(client, Dest.NODE, mirror.node_id, data)
+        except _Refusal as refusal:
+            self.forwarded["refused"] += 1
+            if wants_reply and refusal.status is not None:
+                head = bytes((first_byte(Kind.REPLY, data[0] & 0x0F), data[1] & MAX_TXN, refusal.status, data[3]))
+                query.reply(query.key_expr, head + refusal.text.encode("utf-8")[:120])
             query.drop()
             return
-        alias = self._alias(client)
-        if kind_of(data) == Kind.REQUEST_REPLY:
-            limit = decode_timeout(data[4]) if data[1] & 0x80 and len(data) > 4 else 0.0
-            deadline = time.monotonic() + (limit if limit is not None else 86_400.0) + REPLY_MARGIN
-            with self._lock:
-                self._pending[(alias, mirror.node_id, data[1] & 0x7F)] = (query, deadline)
-        else:
+        if not wants_reply:
             query.drop()
-        self._to_can(Dest.NODE, mirror.node_id, data, alias)
+
+    def _await_reply(self, client: _Client, mirror: _Mirror, query: zenoh.Query, data: bytes) -> bytes:
+        """Register ``query`` as waiting for its reply (lock held); the request as it goes on the bus: a bridge
+        transaction id, and a timeout byte of at most MAX_BLOCK."""
+        if client.pending >= self.max_pending_per_client or len(self._pending) >= self.max_pending:
+            raise _Refusal(Status.BUSY, f"too many requests in flight through the bridge ({client.pending} of yours)")
+        for _ in range(MAX_TXN + 1):
+            txn, self._next_txn = self._next_txn, (self._next_txn + 1) & MAX_TXN
+            if (client.alias, mirror.node_id, txn) not in self._pending:
+                break
+        else:
+            raise _Refusal(Status.BUSY, "all transaction ids to this node are in use")
+        has_timeout = bool(data[1] & 0x80) and len(data) > 4
+        limit = decode_timeout(data[4]) if has_timeout else 0.0
+        if limit is None or limit > MAX_BLOCK:
+            data = data[:4] + bytes((MAX_BLOCK_CODE,)) + data[5:]
+            limit = MAX_BLOCK
+        deadline = time.monotonic() + limit + REPLY_MARGIN
+        self._pending[(client.alias, mirror.node_id, txn)] = _Pending(query, data[1] & MAX_TXN, deadline)
+        client.pending += 1
+        return data[:1] + bytes(((data[1] & 0x80) | txn,)) + data[2:]
+
+    def _check_room(self, client: _Client) -> None:
+        """BUSY when the client's queue is full (lock held)."""
+        if len(client.queue) >= self.max_queued_per_client:
+            raise _Refusal(Status.BUSY, "your queue at the bridge is full")
+
+    def _enqueue(self, client: _Client, dest_kind: int, dest: int, data: bytes) -> None:
+        """Queue a message for the bus (lock held, room checked)."""
+        client.queue.append((dest_kind, dest, data))
+        self._ready.notify()
 
     def _put_from_zenoh(self, mirror: _Mirror, sample: zenoh.Sample) -> None:
-        client = str(sample.key_expr).rsplit("/", 1)[-1]
-        if client in self._mirrors:
-            return
-        self._to_can(Dest.NODE, mirror.node_id, sample.payload.to_bytes(), self._alias(client))
+        self._forward_put(sample, Dest.NODE, mirror.node_id)
 
     def _group_from_zenoh(self, sample: zenoh.Sample) -> None:
-        parts = str(sample.key_expr).split("/")
-        group, client = parts[2], parts[-1]
-        if client in self._mirrors:
-            return  # a CAN node's own group message, already on the bus
+        group = str(sample.key_expr).split("/")[2]
         if group == "all":
-            self._to_can(Dest.BROADCAST, 0, sample.payload.to_bytes(), self._alias(client))
+            self._forward_put(sample, Dest.BROADCAST, 0)
         else:
-            gid = group_id(group, self.can.group_table)
-            self._to_can(Dest.GROUP, gid, sample.payload.to_bytes(), self._alias(client))
+            self._forward_put(sample, Dest.GROUP, group_id(group, self.can.group_table))
 
-    def _to_can(self, dest_kind: int, dest: int, data: bytes, source: int) -> None:
-        self.can.send_message(dest_kind, dest, data, message_priority(data), source=source)
-        self.forwarded["to_can"] += 1
+    def _forward_put(self, sample: zenoh.Sample, dest_kind: int, dest: int) -> None:
+        data = sample.payload.to_bytes()
+        if not 4 <= len(data) <= MAX_MESSAGE or kind_of(data) == Kind.REQUEST_REPLY:
+            self.forwarded["refused"] += 1  # a put has nobody to answer: what cannot be served is dropped
+            return
+        try:
+            with self._lock:
+                client = self._client(*self._sender(sample.key_expr, sample.attachment))
+                self._check_room(client)
+                self._enqueue(client, dest_kind, dest, data)
+        except _Refusal:
+            self.forwarded["refused"] += 1
+
+    def _send_loop(self) -> None:
+        """Send the clients' queued messages round-robin, one message per client in turn."""
+        while True:
+            with self._lock:
+                while not self._stop.is_set() and not any(c.queue for c in self._clients.values()):
+                    self._ready.wait(0.5)
+                if self._stop.is_set():
+                    return
+                batch = [(c.alias, c.queue.popleft()) for c in self._clients.values() if c.queue]
+            for alias, (dest_kind, dest, data) in batch:
+                try:
+                    self.can.send_message(dest_kind, dest, data, message_priority(data), source=alias)
+                    self.forwarded["to_can"] += 1
+                except Exception:
+                    log.exception("forwarding a message to the bus failed")
 
     def _estop_from_zenoh(self, sample: zenoh.Sample) -> None:
-        source = str(sample.key_expr).rsplit("/", 1)[-1]
-        if source in self._mirrors or source == self.node.name:
-            return  # came from the bus through us
-        self.can.estop(sample.payload.to_bytes().decode("utf-8", errors="replace"))
+        self.can.estop(sample.payload.to_bytes()[:64].decode("utf-8", errors="replace"))
 
     # -- CAN -> Zenoh ---------------------------------------------------------------------------------------------
 
@@ -225,16 +344,25 @@ class CanZenohBridge:
         if len(data) < 4 or kind_of(data) != Kind.REPLY:
             return
         with self._lock:
-            waiting = self._pending.pop((alias, source_id, data[1] & 0x7F), None)
+            waiting = self._pending.pop((alias, source_id, data[1] & MAX_TXN), None)
+            if waiting is not None:
+                self._release(alias)
         if waiting is None:
             self.forwarded["unanswered"] += 1
             return
-        query, _ = waiting
+        query = waiting.query
         try:
-            query.reply(query.key_expr, data)
+            query.reply(query.key_expr, data[:1] + bytes((waiting.txn,)) + data[2:])
         finally:
             query.drop()
         self.forwarded["to_zenoh"] += 1
+
+    def _release(self, alias: int) -> None:
+        """One query of ``alias`` is done (lock held)."""
+        for client in self._clients.values():
+            if client.alias == alias:
+                client.pending = max(0, client.pending - 1)
+                return
 
     def _publication_from_can(self, source_id: int, data: bytes) -> None:
         mirror = self._mirrors.get(self.can.name_of(source_id))
@@ -254,16 +382,25 @@ class CanZenohBridge:
         self.forwarded["publications"] += 1
 
     def _estop_from_can(self, source: str, reason: str) -> None:
-        if source != self.node.name:
-            self.session.put(f"asm/@estop/{source}", reason.encode("utf-8"), priority=zenoh.Priority.REAL_TIME)
+        if source != self.node.name:  # the bridge's own e-stops came from Zenoh
+            self.session.put(f"asm/@estop/{source}", reason.encode("utf-8"), priority=zenoh.Priority.REAL_TIME,
+                             congestion_control=zenoh.CongestionControl.BLOCK, express=True)  # fmt: skip
 
     def _expire_pending(self) -> None:
         now = time.monotonic()
         with self._lock:
-            expired = [k for k, (_, deadline) in self._pending.items() if deadline < now]
-            queries = [self._pending.pop(k)[0] for k in expired]
+            expired = [k for k, p in self._pending.items() if p.deadline < now]
+            queries = []
+            for key in expired:
+                queries.append(self._pending.pop(key).query)
+                self._release(key[0])
         for query in queries:
             query.drop()
+
+    @property
+    def pending(self) -> int:
+        """Forwarded queries waiting for a CAN reply now (bounded by ``max_pending``)."""
+        return len(self._pending)
 
     @property
     def bridged(self) -> list[str]:
@@ -271,20 +408,34 @@ class CanZenohBridge:
         return sorted(self._mirrors)
 
     def close(self) -> None:
-        self._stop.set()
-        self._work.put(None)
-        self._worker.join(5)
+        for entity in self._keep:  # no new work from Zenoh first
+            entity.undeclare()
+        self._keep.clear()
         for name in list(self._mirrors):
             self._unmirror(name)
+        with self._lock:
+            self._stop.set()
+            self._ready.notify_all()
+        self._work.put(None)
+        for thread in self._threads:
+            thread.join(5)
         self.node.close()
         with self._lock:
-            queries = [q for q, _ in self._pending.values()]
+            queries = [p.query for p in self._pending.values()]
             self._pending.clear()
+            self._clients.clear()
         for query in queries:
             query.drop()
-        for entity in self._keep:
-            entity.undeclare()
         self.session.close()
+
+
+class _Refusal(Exception):
+    """A request the bridge answers itself (status None: dropped without an answer)."""
+
+    def __init__(self, status: int | None, text: str) -> None:
+        super().__init__(text)
+        self.status = status
+        self.text = text
 
 
 def parse_can(spec: str) -> dict[str, Any]:

@@ -15,8 +15,14 @@ What a module has is what it exposes (well-known classes, so groups and tools ad
     gait.service    the PeriodicAutomaton running the table on gait.tick; its output drives joint.goal
     gait.tick       float64  the control tick event (a timer on a real module; the simulator's steps in preview)
     sensor.contact  bool     the module touches the ground, published
-    estop           bool     latched emergency stop: the gait stops, the joint holds where it is, and nothing
-                             starts again until it is set back to false
+    estop           bool     latched emergency stop: the gait stops, the joint holds where it is, and every
+                             remote request that would move it (goal, limits, tables, staging, activation, gait and
+                             servo starts and stops) is refused with status ESTOP until estop is set back to false
+    gait.staged, gait.staged_checksum, gait.activate, gait.lease
+                             a deployment as a transaction (server/staging.py)
+
+Measurements and what only the module computes (joint.angle, joint.torque, sensor.contact, gait.checksum,
+gait.staged_checksum, gait.state, gait.tick) are read-only from outside: a remote set is answered READ_ONLY.
 
 The same class drives a simulated joint (a MuJoCo actuator, gaits.sim) or a real one behind :class:`JointDriver`;
 :class:`FakeDriver` is a servo model for tests and for running without hardware.
@@ -34,12 +40,16 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-from asm_py import Attribute, Event, Node, PeriodicAutomaton, PhaseState, TimerTrigger
+from asm_py import Attribute, CheckedAttribute, Event, Node, PeriodicAutomaton, PhaseState, TimerTrigger
 from asm_py.clock import WALL_CLOCK, Clock
 from asm_py.codec import BOOL, BYTES, FLOAT32, FLOAT64, UINT32, float_array
 from asm_py.eds import EventDrivenService
-from asm_py.errors import ServiceError
+from asm_py.errors import EstopLatched
+from asm_py.node import WRITES
+from asm_py.protocol import Method
 from gaits.wire import checksum, decode_table, encode_table
+
+from .staging import Staging
 
 HOLD = [PhaseState(0.0, 1.0, "step")]
 """The table of a module that has not been given a gait: hold 0°."""
@@ -108,22 +118,6 @@ class FakeDriver(JointDriver):
             self._powered = False
 
 
-class _Checked(Attribute):
-    """An attribute whose every value, however it arrives (set, remote set, publication), passes ``check`` first,
-    which may transform it (joint.goal is clamped to the limits) or raise (nothing is stored then)."""
-
-    def __init__(self, name: str, initial: Any, codec: Any, check: Callable[[Any], Any], clock: Clock) -> None:
-        super().__init__(name, initial, codec=codec, clock=clock)
-        self._check = check
-
-    def set(self, value: Any, timeout: float | None = None, *, wait: bool = True) -> None:
-        value = self.codec.normalize(value) if self.codec is not None else value
-        super().set(self._check(value), timeout, wait=wait)
-
-    def _deliver(self, value: Any, *, decoded_by: Any = None) -> None:
-        self.set(value)
-
-
 class ModuleGait(PeriodicAutomaton):
     """gait.service: started without a phase, it starts at the module's gait.phase; refuses to start in e-stop."""
 
@@ -133,8 +127,8 @@ class ModuleGait(PeriodicAutomaton):
         super().__init__("gait.service", tick, HOLD, output=self.reference_out, inline=inline, clock=runtime.clock)
 
     def start(self, phase: float | None = None, direction: int | None = None, *, wait: bool = True) -> None:  # type: ignore[override]
-        if self._runtime.estop.peek():
-            raise ServiceError("the module is in emergency stop; set estop to false before starting the gait")
+        if self._runtime.latched:
+            raise EstopLatched("the module is in emergency stop; set estop to false before starting the gait")
         if phase is None:
             phase = float(self._runtime.phase.peek())
         self._runtime._begin_ramp()
@@ -181,14 +175,17 @@ class ModuleRuntime:
         self.clock = clock or (node.clock if node is not None else WALL_CLOCK)
         self.hardware_range = hardware_range
         self.ramp = ramp
-        self.limits = _Checked("joint.limits", self._check_limits(limits), float_array(2), self._check_limits,
-                               self.clock)  # fmt: skip
-        self.goal = _Checked("joint.goal", 0.0, FLOAT32, self._clamp_goal, self.clock)
+        self._motion = threading.Lock()  # the hold of an e-stop and the gait's next goal never interleave
+        self.latched = False
+        """The e-stop is latched (set before the hold, so no goal from a racing tick follows it)."""
+        self.limits = CheckedAttribute("joint.limits", self._check_limits(limits), codec=float_array(2),
+                                       check=self._check_limits, clock=self.clock)  # fmt: skip
+        self.goal = CheckedAttribute("joint.goal", 0.0, codec=FLOAT32, check=self._clamp_goal, clock=self.clock)
         self.angle = Attribute("joint.angle", 0.0, codec=FLOAT32, clock=self.clock)
         self.torque = Attribute("joint.torque", 0.0, codec=FLOAT32, clock=self.clock)
         self.contact = Attribute("sensor.contact", False, codec=BOOL, clock=self.clock)
-        self.estop = _Checked("estop", False, BOOL, self._check_estop, self.clock)
-        self.phase = _Checked("gait.phase", 0.0, FLOAT32, self._check_phase, self.clock)
+        self.estop = CheckedAttribute("estop", False, codec=BOOL, check=self._check_estop, clock=self.clock)
+        self.phase = CheckedAttribute("gait.phase", 0.0, codec=FLOAT32, check=self._check_phase, clock=self.clock)
         self._own_timer: TimerTrigger | None = None
         if tick is None:
             tick = Event("gait.tick", codec=FLOAT64, clock=self.clock)
@@ -197,8 +194,9 @@ class ModuleRuntime:
         self.tick = tick
         self.gait = ModuleGait(self, tick, inline=inline)
         table = encode_table(HOLD)
-        self.table = _Checked("gait.table", table, BYTES, self._load_table, self.clock)
+        self.table = CheckedAttribute("gait.table", table, codec=BYTES, check=self._load_table, clock=self.clock)
         self.checksum = Attribute("gait.checksum", checksum(table), codec=UINT32, clock=self.clock)
+        self.staging = Staging(self)
         self.servo = _Servo(self, tick, inline=inline)
         self._ramp_from = 0.0
         self._ramp_start = 0.0
@@ -217,11 +215,18 @@ class ModuleRuntime:
             # the tick fires 50 times a second; published at each firing (an event's default) it would take two
             # frames per firing per module, ~40 % of a 1 Mbit/s bus for 32 modules: once a second shows it ticks
             self.tick.publish(rate=1.0)
+        staging = self.staging
+        starts = (Method.START, Method.RESUME)
+        moving = {self.goal: WRITES, self.limits: WRITES, self.servo: WRITES, self.table: WRITES, self.gait: starts,
+                  staging.staged: WRITES, staging.activate: WRITES}  # fmt: skip
         for obj in (self.goal, self.angle, self.torque, self.limits, self.servo, self.table, self.checksum,
-                    self.phase, self.gait, self.tick, self.contact, self.estop):  # fmt: skip
-            node.register(obj)
+                    self.phase, self.gait, self.tick, self.contact, self.estop, staging.staged,
+                    staging.staged_checksum, staging.activate, staging.lease):  # fmt: skip
+            refused = moving.get(obj)
+            node.register(obj, read_only=obj in self._read_only(),
+                          guard=None if refused is None else self._refuse_in_estop(obj.name, refused))  # fmt: skip
         node.register(self.gait.direction, name="gait.direction")
-        node.register(self.gait.state, name="gait.state")
+        node.register(self.gait.state, name="gait.state", read_only=True)
         # changes beyond the deadband, at most ``publish_limit`` a second (a moving joint changes at every control
         # tick: 32 modules at 50 Hz would be 1 600 frames a second), and a refresh ``refresh_rate`` times a second
         # when nothing moves: a resting robot keeps the bus quiet
@@ -230,6 +235,16 @@ class ModuleRuntime:
         self.contact.publish()
         self.gait.state.publish(deadband=0)  # on change: the automaton sets its state at every tick
         self._unlisten.append(node.on_estop(lambda source, reason: self.emergency_stop(reason)))
+
+    def _read_only(self) -> tuple[Attribute, ...]:
+        return (self.angle, self.torque, self.contact, self.checksum, self.staging.staged_checksum, self.tick)
+
+    def _refuse_in_estop(self, name: str, methods: frozenset[int] | tuple[int, ...]) -> Callable[[int], None]:
+        def guard(method: int) -> None:
+            if method in methods and self.latched:
+                raise EstopLatched(f"{name}: the module's emergency stop is latched (set estop to false to release)")
+
+        return guard
 
     # -- behaviour ----------------------------------------------------------------------------------------------
 
@@ -252,24 +267,44 @@ class ModuleRuntime:
         return value
 
     def _check_estop(self, value: bool) -> bool:
+        self.latched = bool(value)
         if value:
             self._halt()
         return value
 
-    def _load_table(self, data: bytes) -> bytes:
+    def check_table(self, data: bytes) -> list[PhaseState]:
+        """The states of table ``data`` if this module can run it; ValueError saying why not."""
         states = decode_table(data)
         lo, hi = self.limits.peek()
         outside = [s.target for s in states if not lo <= s.target <= hi]  # type: ignore[operator]
         if outside:
             raise ValueError(f"gait table angles {outside[:4]} lie outside the joint limits ({lo}, {hi})")
-        self.gait.load(states)  # ServiceError while the gait runs: a table never changes mid-cycle
+        return states
+
+    def _load_table(self, data: bytes) -> bytes:
+        self.gait.load(self.check_table(data))  # ServiceError while the gait runs: a table never changes mid-cycle
         self.checksum.set(checksum(data))
+        Attribute.set(self.staging.activate, 0)  # the gait is no longer a deployment's (the base set: no activation)
         return data
+
+    def switch_gait(self, table: bytes, phase: float, direction: int) -> None:
+        """Stop the gait, make ``table``/``phase``/``direction`` the module's gait and start it (an activation)."""
+        if self.latched:
+            raise EstopLatched("the module's emergency stop is latched")
+        self.check_table(table)
+        self.gait.stop(timeout=1.0)
+        self.table.set(table)
+        self.phase.set(phase)
+        self.gait.direction.set(direction)
+        self.gait.start()
 
     def _follow(self, reference: float) -> None:
         """The automaton's reference becomes the goal, ramped in from the goal held when the gait started."""
-        s = 1.0 if self.ramp <= 0 else min(1.0, (self.clock.now() - self._ramp_start) / self.ramp)
-        self.goal.set(self._ramp_from + s * (reference - self._ramp_from))
+        with self._motion:
+            if self.latched:
+                return  # a tick that raced the e-stop: the hold wins
+            s = 1.0 if self.ramp <= 0 else min(1.0, (self.clock.now() - self._ramp_start) / self.ramp)
+            self.goal.set(self._ramp_from + s * (reference - self._ramp_from))
 
     def _reclamp(self, limits: Any) -> None:
         self.goal.set(self.goal.peek())
@@ -291,7 +326,8 @@ class ModuleRuntime:
 
     def _halt(self) -> None:
         self.gait.stop(wait=False)
-        self.goal.set(self.driver.read().angle)
+        with self._motion:
+            self.goal.set(self.driver.read().angle)
 
     def emergency_stop(self, reason: str = "") -> None:
         """Stop the gait and hold the joint where it is; latched until ``estop`` is set to false."""

@@ -102,9 +102,9 @@ def test_discovery_and_estop_cross_the_bridge(can_world) -> None:
     module_stops: list[str] = []
     m1.on_estop(lambda source, reason: module_stops.append(reason))
     client.estop("from the page")
-    assert wait_until(lambda: module_stops == ["from the page"], timeout=5)
+    assert wait_until(lambda: module_stops == ["from the"], timeout=5)  # a reason is at most 8 bytes: one frame
     m1.estop("from the bus")
-    assert wait_until(lambda: ("m1", "from the bus") in stops, timeout=5)
+    assert wait_until(lambda: ("m1", "from the") in stops, timeout=5)
     left = threading.Event()
     client.on_discovery(lambda name, alive: left.set() if name == "m1" and not alive else None)
     m1.close()

@@ -11,10 +11,10 @@ import pytest
 from asm_py import Node
 from asm_py.automaton import PhaseState
 from asm_py.clock import SimClock
-from asm_py.errors import RemoteError, ServiceError
+from asm_py.errors import EstopLatched, RemoteError, ServiceError
 from asm_py.transport import MemoryNetwork, MemoryTransport
 from asm_py.transport.can import CanTransport
-from gaits.deploy import DeployError, deploy, start_all, stop_all
+from gaits.deploy import DeployError, activate, deploy, stop_all
 from gaits.model import load
 from gaits.wire import checksum, decode_table, encode_table
 from server.module import FakeDriver, ModuleRuntime
@@ -96,7 +96,7 @@ def test_estop_stops_the_gait_holds_the_joint_and_latches(pair):
     assert wait_until(lambda: not runtime.gait.started)
     held = runtime.goal.peek()
     assert runtime.estop.peek() is True
-    with pytest.raises((RemoteError, ServiceError)):
+    with pytest.raises(EstopLatched):
         gait.start(wait=True)
     assert runtime.goal.peek() == held
     client.lookup("m1", "estop", timeout=2).set(False, wait=True)
@@ -159,13 +159,13 @@ def test_deploy_over_can_verifies_checksums_and_starts_all_with_one_broadcast():
         tool = Node("tool", CanTransport(200, interface="virtual", channel=channel, heartbeat_period=0.05))
         nodes.append(tool)
         steps: list[tuple[int, int]] = []
-        verified = deploy(tool, gait, progress=lambda done, total, _: steps.append((done, total)))
-        assert steps[-1] == (8, 8) and len(verified) == 8
+        report = deploy(tool, gait, start=False, progress=lambda done, total, _: steps.append((done, total)))
+        assert steps[-1] == (8, 8) and len(report.checksums) == 8 and report.running == []
+        assert not any(runtime.gait.started for runtime in runtimes)  # staged only
+        activate(tool, report)
+        assert report.running == list(range(1, 9)) and all(r.gait.started for r in runtimes)
         for runtime, a in zip(runtimes, gait.modules, strict=True):
             assert runtime.phase.peek() == pytest.approx(a.phase, abs=1e-6)
-            assert not runtime.gait.started
-        start_all(tool)
-        assert wait_until(lambda: all(r.gait.started for r in runtimes))
         stop_all(tool)
         assert wait_until(lambda: not any(r.gait.started for r in runtimes))
         runtimes[3].limits.set((-10.0, 10.0))  # module 4 can no longer take ±50°: nothing may start

@@ -13,7 +13,7 @@ import pytest
 
 from asm_py import Node
 from asm_py.transport.can import CanTransport
-from gaits.deploy import deploy, start_all, stop_all
+from gaits.deploy import activate, deploy, stop_all
 from gaits.model import Robot, load
 from gaits.serpenoid import sine, wave_gait
 from gaits.sim import Simulation
@@ -159,10 +159,10 @@ def test_preview_equals_deployment_over_virtual_can():
             records.append(record)
         tool = Node("tool", CanTransport(200, interface="virtual", channel=channel, heartbeat_period=0.05))
         nodes.append(tool)
-        deploy(tool, gait)
+        report = deploy(tool, gait, start=False)
         for record in records:
             record.clear()
-        start_all(tool)
+        activate(tool, report)
         assert wait_until(lambda: all(r.gait.started for r in runtimes))
         time.sleep(2.2)
         stop_all(tool)

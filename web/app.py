@@ -225,18 +225,20 @@ class Dashboard:
             self.roster.forget(removed)
             self.plot.forget(removed)
             lines.append(f"simulated modules: {before} → {gait.robot.modules}")
-        deploy(self.node, gait, progress=progress)  # type: ignore[arg-type]
-        start_all(self.node)  # type: ignore[arg-type]
-        self.notify("Deployed", f"{gait.name} verified on {gait.robot.modules} modules and started")
+        report = deploy(self.node, gait, progress=progress)  # type: ignore[arg-type]
+        self.notify("Deployed", f"{gait.name}: staged and verified on {len(report.checksums)} modules; "
+                    f"{len(report.running)} of {gait.robot.modules} confirmed running it")  # fmt: skip
         for assignment in gait.modules[:4]:
             self.plot.watch(module_name(assignment.id), "joint.angle")
 
     def _on_run(self, event: Any) -> None:
         if event.target.value == "Start all":
-            start_all(self.node)  # type: ignore[arg-type]
+            names = [module_name(a.id) for a in self.doc.gait().modules]
+            running = start_all(self.node, names)  # type: ignore[arg-type]
+            self.notify("Modules", f"{len(running)} of {len(names)} modules confirmed running")
         else:
             stop_all(self.node)  # type: ignore[arg-type]
-        self.notify("Modules", event.target.value.lower())
+            self.notify("Modules", "stop sent to every module")
 
     def _on_browse(self, event: Any) -> None:
         action = event.target.value

@@ -102,6 +102,7 @@ class Reassembler:
     """Rebuilds fragmented messages; see the module docstring for the bounds."""
 
     max_message: int = 4096
+    """protocol.MAX_MESSAGE: a first frame announcing more is dropped at once."""
     max_partials: int = 64
     timeout: float = 1.0
     dropped: dict[str, int] = field(default_factory=dict)

@@ -31,6 +31,9 @@ EstopHandler = Callable[[str, str], None]
 """Called with (source node name, reason) when an emergency stop arrives."""
 
 BROADCAST = "all"
+ESTOP_REASON_MAX = 8
+"""Bytes of an e-stop's reason that travel: an e-stop is one classic CAN frame on every medium, never fragmented
+(a fragment lost or queued behind bulk traffic must not delay or drop a stop)."""
 _NAME = re.compile(r"^[A-Za-z0-9_.\-]{1,64}$")
 
 
@@ -39,6 +42,11 @@ def check_name(name: str, what: str = "node name") -> str:
     if not isinstance(name, str) or not _NAME.match(name):
         raise ValueError(f"{what} {name!r} must be 1-64 characters of letters, digits, '_', '.', '-'")
     return name
+
+
+def short_reason(reason: str) -> str:
+    """``reason`` cut to at most ESTOP_REASON_MAX bytes of UTF-8, never inside a character."""
+    return reason.encode("utf-8")[:ESTOP_REASON_MAX].decode("utf-8", errors="ignore")
 
 
 class Transport(ABC):
@@ -110,9 +118,13 @@ class Transport(ABC):
         return remove
 
     def estop(self, reason: str = "") -> None:
-        """Send an emergency stop to every node at the medium's highest priority, and act on it here too."""
-        self._send_estop(reason[:200])
-        self._estop_received(self.name, reason[:200])
+        """Send an emergency stop to every node at the medium's highest priority, and act on it here too.
+
+        Handlers here run first (this node stops at once, even if the medium fails); the reason is cut to
+        ESTOP_REASON_MAX bytes of UTF-8 so the stop is one frame everywhere."""
+        reason = short_reason(reason)
+        self._estop_received(self.name, reason)
+        self._send_estop(reason)
 
     def close(self) -> None:
         """Leave the network; idempotent."""

@@ -31,7 +31,8 @@ import can
 
 from ..canbus.fragments import Reassembler, fragment
 from ..canbus.ids import CanId, Dest, FrameType, Priority, SystemCode, check_node_id, dest_filter, frame_priority
-from ..protocol import Kind, kind_of
+from ..errors import MessageTooLarge
+from ..protocol import MAX_MESSAGE, Kind, kind_of
 from .base import BROADCAST, PublicationHandler, Transport
 
 log = logging.getLogger("asm_py.transport.can")
@@ -70,7 +71,7 @@ class CanTransport(Transport):
         heartbeat_period: float = 0.5,
         missed_heartbeats: int = 3,
         groups: Mapping[str, int] | None = None,
-        max_message: int = 4096,
+        max_message: int = MAX_MESSAGE,
         max_partials: int = 64,
         reassembly_timeout: float = 1.0,
         record: str | Path | None = None,
@@ -209,7 +210,23 @@ class CanTransport(Transport):
         self.send_message(Dest.BROADCAST, 0, data, Priority.PUBLICATION)
 
     def _send_estop(self, reason: str) -> None:
-        self._send_system(SystemCode.ESTOP, reason.encode("utf-8")[:200], Priority.ESTOP)
+        """One priority-0 system frame, sent without waiting for the send lock: a long fragmented message being
+        sent by another thread never holds back a stop (the e-stop's identifier is its own reassembly key, so it
+        cannot tear that message's fragments apart)."""
+        cid = CanId(Priority.ESTOP, Dest.SYSTEM, SystemCode.ESTOP, self.node_id, FrameType.SINGLE).pack()
+        frame = can.Message(arbitration_id=cid, is_extended_id=True, data=reason.encode("utf-8")[: self.frame_size],
+                            is_fd=self.fd, bitrate_switch=self.fd)  # fmt: skip
+        try:
+            self.bus.send(frame, timeout=self.send_timeout)
+        except (can.CanError, RuntimeError) as exc:
+            self.send_errors += 1
+            log.error("CAN e-stop send failed: %s", exc)
+            raise
+        self.frames_sent += 1
+        if self._logger is not None:
+            frame.timestamp = time.time()
+            frame.is_rx = False
+            self._log(frame)
 
     def _send_heartbeat(self) -> None:
         self._send_system(SystemCode.HEARTBEAT, self.name.encode("utf-8"), Priority.HEARTBEAT)
@@ -223,6 +240,9 @@ class CanTransport(Transport):
         ``source`` other than this node's ID is for gateways sending on behalf of a node they represent.
         """
         src = self.node_id if source is None else source
+        if len(data) > self.reassembler.max_message and dest_kind != Dest.SYSTEM:
+            raise MessageTooLarge(f"message of {len(data)} bytes exceeds the {self.reassembler.max_message}-byte "
+                                  "maximum")  # fmt: skip
         frames = list(fragment(data, frame_size=self.frame_size))
         # Packing validates every field once; each frame then only adds its type and counter.
         base = CanId(frame_priority(priority, len(frames)), dest_kind, dest, src, FrameType.SINGLE).pack()
@@ -289,6 +309,11 @@ class CanTransport(Transport):
         if self._logger is not None:
             self._log(frame)
         cid = CanId.unpack(frame.arbitration_id)
+        if cid.dest_kind == Dest.SYSTEM and cid.dest == SystemCode.ESTOP:
+            # an e-stop is honoured whoever sent it, even with this node's own ID or an invalid one: stopping twice
+            # is harmless, ignoring a stop is not
+            self._estop_received(self.name_of(cid.source), bytes(frame.data).decode("utf-8", errors="replace"))
+            return
         if cid.source == self.node_id or not 1 <= cid.source <= 254:
             return  # our own frame (a loopback interface), or a forged source
         if not self._accepts(cid):
@@ -332,9 +357,7 @@ class CanTransport(Transport):
         self._deliver(source, data)
 
     def _on_system(self, source_id: int, code: int, data: bytes) -> None:
-        if code == SystemCode.ESTOP:
-            self._estop_received(self.name_of(source_id), data.decode("utf-8", errors="replace"))
-        elif code == SystemCode.HEARTBEAT:
+        if code == SystemCode.HEARTBEAT:
             name = data.decode("utf-8", errors="replace")
             with self._lock:
                 old = self._names.get(source_id)

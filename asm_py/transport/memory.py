@@ -51,11 +51,15 @@ class MemoryTransport(Transport):
     def _join(self, group: str) -> None:
         pass  # membership is read from self.groups at send time
 
-    def _post(self, work: Callable[[], None]) -> None:
+    def _post(self, work: Callable[[], None], *, urgent: bool = False) -> None:
+        """Queue ``work`` for this node's thread; ``urgent`` work (an e-stop) goes before everything queued."""
         with self._wake:
             if self._closed:
                 return
-            self._queue.append(work)
+            if urgent:
+                self._queue.appendleft(work)
+            else:
+                self._queue.append(work)
             self._wake.notify()
 
     def _pump(self) -> None:
@@ -79,7 +83,7 @@ class MemoryTransport(Transport):
         with self.network.lock:
             others = [t for t in self.network.nodes.values() if t is not self]
         for target in others:
-            target._post(lambda t=target: t._estop_received(source, reason))
+            target._post(lambda t=target: t._estop_received(source, reason), urgent=True)
 
     def send_group(self, group: str, data: bytes) -> None:
         source = self.name

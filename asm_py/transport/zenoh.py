@@ -27,7 +27,7 @@ from typing import Any
 import zenoh
 
 from ..protocol import Kind, decode_timeout, kind_of
-from .base import PublicationHandler, Transport
+from .base import ESTOP_REASON_MAX, PublicationHandler, Transport
 
 log = logging.getLogger("asm_py.transport.zenoh")
 
@@ -77,6 +77,8 @@ class ZenohTransport(Transport):
         self.listen = tuple(listen)
         self.connect = tuple(connect)
         self._session: zenoh.Session | None = None
+        self._attachment = b""
+        """Sent with every request: this session's Zenoh ID, so a bridge tells apart sessions of the same name."""
         self._keep: list[Any] = []  # declared entities, kept alive until close
         self._publishers: dict[str, zenoh.Publisher] = {}
         self._queriers: dict[tuple[str, float], zenoh.Querier] = {}
@@ -97,8 +99,10 @@ class ZenohTransport(Transport):
             session.declare_subscriber(f"asm/{name}/msg/*", self._on_sample),
             session.liveliness().declare_token(f"asm/@alive/{name}"),
             session.liveliness().declare_subscriber("asm/@alive/*", self._on_alive, history=True),
-            session.declare_subscriber("asm/@estop/*", self._on_estop),
+            # every e-stop from elsewhere, whatever its sender's name (this node's own runs its handlers directly)
+            session.declare_subscriber("asm/@estop/*", self._on_estop, allowed_origin=zenoh.Locality.REMOTE),
         ]
+        self._attachment = str(session.info.zid()).encode()
 
     def _join(self, group: str) -> None:
         self._keep.append(self.session.declare_subscriber(f"asm/@group/{group}/msg/*", self._on_sample))
@@ -135,8 +139,7 @@ class ZenohTransport(Transport):
 
     def _on_estop(self, sample: zenoh.Sample) -> None:
         source = str(sample.key_expr).rsplit("/", 1)[-1]
-        if source != self._name:
-            self._estop_received(source, sample.payload.to_bytes().decode("utf-8", errors="replace"))
+        self._estop_received(source, sample.payload.to_bytes()[:ESTOP_REASON_MAX].decode("utf-8", errors="replace"))
 
     def _on_alive(self, sample: zenoh.Sample) -> None:
         name = str(sample.key_expr).rsplit("/", 1)[-1]
@@ -164,7 +167,7 @@ class ZenohTransport(Transport):
         if self._expects_reply(data):
             self._query(dest, data)
         else:
-            self._publisher(f"asm/{dest}/msg/{self.name}", reliable=True).put(data)
+            self._publisher(f"asm/{dest}/msg/{self.name}", reliable=True).put(data, attachment=self._attachment)
 
     def _query(self, dest: str, data: bytes) -> None:
         has_timeout = len(data) > 4 and data[1] & 0x80
@@ -176,7 +179,7 @@ class ZenohTransport(Transport):
                 self._deliver(dest, reply.ok.payload.to_bytes())
 
         self.session.get(f"asm/{dest}/req/{self.name}", on_reply, payload=data, timeout=timeout,
-                         congestion_control=zenoh.CongestionControl.BLOCK)  # fmt: skip
+                         congestion_control=zenoh.CongestionControl.BLOCK, attachment=self._attachment)  # fmt: skip
 
     def request(self, dest: str, data: bytes, wait: float) -> bytes | None:
         """A query answered in the caller's thread: the fast path for requests that cannot block.
@@ -195,7 +198,7 @@ class ZenohTransport(Transport):
                         f"asm/{dest}/req/{self.name}", timeout=wait, congestion_control=zenoh.CongestionControl.BLOCK
                     )
                     self._queriers[(dest, wait)] = querier
-        for reply in querier.get(payload=data):
+        for reply in querier.get(payload=data, attachment=self._attachment):
             if reply.ok is not None:
                 return reply.ok.payload.to_bytes()
         return None
@@ -205,7 +208,7 @@ class ZenohTransport(Transport):
                          congestion_control=zenoh.CongestionControl.BLOCK, express=True)  # fmt: skip
 
     def send_group(self, group: str, data: bytes) -> None:
-        self._publisher(f"asm/@group/{group}/msg/{self.name}", reliable=True).put(data)
+        self._publisher(f"asm/@group/{group}/msg/{self.name}", reliable=True).put(data, attachment=self._attachment)
 
     def publish(self, object_name: str, data: bytes, json_text: Callable[[], str] | None = None) -> None:
         keys = self._pub_keys.get(object_name)
