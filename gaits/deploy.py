@@ -2,9 +2,9 @@
 
 A deploy never leaves a robot half running a new gait (docs/protocol.md §9, "Deployment"):
 
-1. **check** — every table fits one message, and no module's e-stop is latched (nothing is sent otherwise);
+1. **check** — every table fits one message (nothing is sent otherwise);
 2. **lease** — take ``gait.lease`` on every module, in module order, so a second deployer is told who holds the
-   robot and changes nothing;
+   robot and changes nothing; a module whose e-stop is latched refuses the lease (ESTOP);
 3. **stage** — write each module's ``gait.staged`` record (table, phase, direction, deploy ID) and read back
    ``gait.staged_checksum``; the modules keep running what they ran;
 4. **activate** — one group SET of ``gait.activate`` = deploy ID to every module; each switches to its staged gait
@@ -24,11 +24,12 @@ import os
 import secrets
 import socket
 import time
+import weakref
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 from asm_py import Node
-from asm_py.errors import AsmError, AsmTimeout, Locked
+from asm_py.errors import AsmError, AsmTimeout, EstopLatched
 from asm_py.remote import RemoteObject
 from asm_py.transport.base import BROADCAST
 
@@ -71,6 +72,11 @@ def default_holder(node: Node) -> str:
     return f"{node.name}@{socket.gethostname()}:{os.getpid()}"[:64]
 
 
+_LOOKUPS: weakref.WeakKeyDictionary[Node, dict[tuple[str, str], RemoteObject]] = weakref.WeakKeyDictionary()
+"""Client objects a deploying node looked up, kept across deploys: a lookup is a round trip, and a module that
+restarted with other objects answers NOT_FOUND, after which the object is looked up again."""
+
+
 class _Modules:
     """The deploying side's view of the modules: client objects looked up once, calls retried on timeouts."""
 
@@ -79,7 +85,7 @@ class _Modules:
         self.names = names
         self.timeout = timeout
         self.attempts = attempts
-        self._objects: dict[tuple[int, str], RemoteObject] = {}
+        self._objects = _LOOKUPS.setdefault(node, {})
 
     def call(self, module: int, step: str, operation: Callable[[], object]) -> object:
         """Run ``operation`` (repeatable), retrying timeouts; DeployError naming the module and step otherwise."""
@@ -94,24 +100,32 @@ class _Modules:
         raise AssertionError("unreachable")
 
     def obj(self, module: int, name: str, step: str) -> RemoteObject:
-        key = (module, name)
+        key = (self.names[module], name)
         if key not in self._objects:
             self._objects[key] = self.call(  # type: ignore[assignment]
                 module, step, lambda: self.node.lookup(self.names[module], name, timeout=self.timeout)
             )
         return self._objects[key]
 
+    def on(self, module: int, name: str, step: str, operation: Callable[[RemoteObject], object]) -> object:
+        """``operation(obj)`` on the module's object ``name``; looked up again once if the module no longer has it
+        (it restarted)."""
+        try:
+            return self.call(module, step, lambda: operation(self.obj(module, name, step)))
+        except DeployError as exc:
+            if not isinstance(exc.__cause__, LookupError):
+                raise
+            self._objects.pop((self.names[module], name), None)
+            return self.call(module, step, lambda: operation(self.obj(module, name, step)))
+
     def peek(self, module: int, name: str, step: str) -> object:
-        obj = self.obj(module, name, step)
-        return self.call(module, step, obj.peek)  # type: ignore[attr-defined]
+        return self.on(module, name, step, lambda obj: obj.peek())  # type: ignore[attr-defined]
 
     def set(self, module: int, name: str, value: object, step: str) -> None:
-        obj = self.obj(module, name, step)
-        self.call(module, step, lambda: obj.set(value, timeout=self.timeout))  # type: ignore[attr-defined]
+        self.on(module, name, step, lambda obj: obj.set(value, timeout=self.timeout))  # type: ignore[attr-defined]
 
     def running(self, module: int, step: str) -> bool:
-        service = self.obj(module, "gait.service", step)
-        return bool(self.call(module, step, lambda: service.running))  # type: ignore[attr-defined]
+        return bool(self.on(module, "gait.service", step, lambda obj: obj.running))  # type: ignore[attr-defined]
 
     def check_not_latched(self, modules: Sequence[int], step: str) -> None:
         latched = [m for m in modules if self.peek(m, "estop", step)]
@@ -150,7 +164,6 @@ def deploy(
             raise DeployError(f"module {a.id} ({name_of(a.id)}), check: {exc}") from None
     modules = _Modules(node, {a.id: name_of(a.id) for a in gait.modules}, timeout, attempts)
     ids = sorted(records)
-    modules.check_not_latched(ids, "check")
     report = DeployReport(gait.name, deploy_id)
     lease = {"holder": holder or default_holder(node), "token": deploy_id, "seconds": LEASE_SECONDS}
     leased: list[int] = []
@@ -159,8 +172,9 @@ def deploy(
             try:
                 modules.set(module, "gait.lease", lease, "lease")
             except DeployError as exc:
-                if isinstance(exc.__cause__, Locked):
-                    raise DeployError(f"module {module} ({modules.names[module]}), lease: {exc.__cause__}") from None
+                if isinstance(exc.__cause__, EstopLatched):
+                    raise DeployError(f"lease: the emergency stop is latched on module {module} "
+                                      f"({modules.names[module]}); release it first") from None  # fmt: skip
                 raise
             leased.append(module)
         for done, module in enumerate(ids, start=1):  # step 3

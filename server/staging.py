@@ -25,7 +25,7 @@ from typing import TYPE_CHECKING, Any
 
 from asm_py import Attribute, CheckedAttribute
 from asm_py.codec import BYTES, FLOAT32, STR, UINT32, record
-from asm_py.errors import Locked
+from asm_py.errors import EstopLatched, Locked
 from gaits.wire import Staged, checksum, decode_staged
 
 if TYPE_CHECKING:
@@ -58,6 +58,8 @@ class Staging:
         return lease
 
     def _take_lease(self, wanted: dict[str, Any]) -> dict[str, Any]:
+        if self._runtime.latched and wanted["seconds"] > 0:
+            raise EstopLatched("the module's emergency stop is latched: no deploy until it is released")
         current = self.holder()
         if current is not None and current["token"] != wanted["token"]:
             left = self._expires - self._runtime.clock.now()
