@@ -51,6 +51,8 @@ class StudioOptions:
     """Bridge the bus to Zenoh (so tools on other machines see the modules)."""
     host: str = "127.0.0.1"
     port: int = 8080
+    token: str | None = None
+    """The page's access token; None: none on loopback, a new random one when served beyond it."""
     heartbeat_period: float = 0.5
 
 
@@ -72,6 +74,7 @@ class Studio:
         self.bridge: CanZenohBridge | None = None
         self.node: Node | None = None
         self.app: Any = None
+        self.token: str | None = None
         try:
             if self.simulated:
                 self.start_modules(self.gait.robot.modules)
@@ -81,8 +84,10 @@ class Studio:
                 self.bridge = CanZenohBridge(self.can_options, aliases=aliases, zenoh_listen=options.zenoh_listen,
                                              zenoh_connect=options.zenoh_connect)  # fmt: skip
             from web.app import Dashboard  # viser loads only for the studio
+            from web.guard import is_loopback, new_token
 
-            self.app = Dashboard(self, host=options.host, port=options.port)
+            self.token = options.token or (None if is_loopback(options.host) else new_token())
+            self.app = Dashboard(self, host=options.host, port=options.port, token=self.token)
         except BaseException:
             self.close()
             raise
@@ -168,7 +173,11 @@ def main(argv: list[str] | None = None) -> int:
     signal.signal(signal.SIGTERM, lambda *_: done.set())
     signal.signal(signal.SIGINT, lambda *_: done.set())
     where = "simulated modules" if studio.simulated else f"CAN {args.can}"
-    print(f"READY studio http://{args.host}:{studio.port} ({where})", flush=True)
+    query = f"/?token={studio.token}" if studio.token else ""
+    print(f"READY studio http://{args.host}:{studio.port}{query} ({where})", flush=True)
+    if studio.token:
+        print("The page is served beyond this machine: open it with the token above (it is asked once, then kept "
+              "in a cookie).", flush=True)  # fmt: skip
     done.wait()
     studio.close()
     return 0

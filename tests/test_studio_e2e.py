@@ -99,7 +99,7 @@ def test_edit_preview_deploy_watch_and_estop(studio):
             # deploy to the simulated modules: every checksum verified, all started
             page.get_by_role("tab", name="Deploy").click()
             page.get_by_role("button", name="Deploy", exact=True).click()
-            expect(page.get_by_text("module 8 verified", exact=False)).to_be_visible(timeout=30_000)
+            expect(page.get_by_text("8 modules confirmed running", exact=False)).to_be_visible(timeout=30_000)
             assert wait_until(lambda: all(client.lookup(f"m{i}", "gait.service", timeout=2).running
                                           for i in range(1, 9)), timeout=15)  # fmt: skip
             # the deployed (edited) table is what module 1 holds: its first state is 42°
@@ -174,7 +174,7 @@ def test_upload_grid_history_robot_size_and_attribute_browser(studio, tmp_path):
             page.screenshot(path=str(ARTIFACTS / "studio-grid.png"))
             page.get_by_role("tab", name="Deploy").click()
             page.get_by_role("button", name="Deploy", exact=True).click()
-            expect(page.get_by_text("module 10 verified", exact=False)).to_be_visible(timeout=30_000)
+            expect(page.get_by_text("10 modules confirmed running", exact=False)).to_be_visible(timeout=30_000)
             assert wait_until(lambda: client.lookup("m10", "gait.service", timeout=2).running, timeout=15)
             table = client.lookup("m1", "gait.table", timeout=2).peek()
             assert abs(decode_table(table)[2].target + 33.0) < 1e-4  # state 3's angle, as deployed

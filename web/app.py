@@ -19,12 +19,11 @@ import time
 from collections.abc import Callable, Iterator
 from typing import TYPE_CHECKING, Any
 
-import viser
-
 from gaits.deploy import deploy, module_name, start_all, stop_all
 
 from .document import GaitDocument
 from .editor import GaitEditor
+from .guard import AccessGuard, guarded_server
 from .inputs import ValueInput
 from .monitor import LivePlot, Roster, describe, empty_plot, format_value, stroke
 from .preview import PreviewLoop, SceneView
@@ -39,10 +38,11 @@ MIN_DRAW_INTERVAL = 1 / 100
 class Dashboard:
     """The viser app of a Studio; see the module docstring."""
 
-    def __init__(self, studio: Studio, *, host: str = "127.0.0.1", port: int = 8080) -> None:
+    def __init__(self, studio: Studio, *, host: str = "127.0.0.1", port: int = 8080, token: str | None = None) -> None:
         self.studio = studio
         self.node = studio.node
-        self.server = viser.ViserServer(host=host, port=port, label="ASM Studio", verbose=False)
+        self.guard = AccessGuard(host, token)
+        self.server = guarded_server(self.guard, host=host, port=port, label="ASM Studio", verbose=False)
         self.port = self.server.get_port()
         self.doc = GaitDocument(studio.gait)
         self.loop = PreviewLoop(studio.gait)
