@@ -114,6 +114,7 @@ class CanZenohBridge:
         zenoh_listen: Sequence[str] = (),
         zenoh_connect: Sequence[str] = (),
         zenoh_config: str | None = None,
+        insecure: bool = False,
         max_pending: int = 1024,
         max_pending_per_client: int = 32,
         max_queued_per_client: int = 64,
@@ -131,7 +132,7 @@ class CanZenohBridge:
         self._work: queue.Queue[str | None] = queue.Queue()
         self.forwarded = {"to_can": 0, "to_zenoh": 0, "publications": 0, "unanswered": 0, "refused": 0}
         self.session = zenoh.open(make_config(mode=zenoh_mode, listen=zenoh_listen, connect=zenoh_connect,
-                                              config_file=zenoh_config))  # fmt: skip
+                                              config_file=zenoh_config, insecure=insecure))  # fmt: skip
         self._stop = threading.Event()
         try:
             self.can = _GatewayTransport(node_id, **can_transport_options)
@@ -446,6 +447,15 @@ def parse_can(spec: str) -> dict[str, Any]:
     return {"interface": interface, "channel": channel}
 
 
+def check_zenoh_arguments(cli: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    """A usage error (exit 2, one line) for Zenoh endpoints that would be insecure or a config file that is bad."""
+    try:
+        make_config(mode=getattr(args, "zenoh_mode", "peer"), listen=args.zenoh_listen, connect=args.zenoh_connect,
+                    config_file=args.zenoh_config, insecure=args.insecure)  # fmt: skip
+    except (ValueError, OSError, zenoh.ZError) as exc:
+        cli.error(str(exc))
+
+
 def main(argv: list[str] | None = None) -> int:
     cli = argparse.ArgumentParser(prog="python -m server.bridge", description=__doc__.splitlines()[0])
     cli.add_argument("--can", type=parse_can, required=True, metavar="INTERFACE:CHANNEL")
@@ -455,11 +465,16 @@ def main(argv: list[str] | None = None) -> int:
     cli.add_argument("--zenoh-listen", action="append", default=[], metavar="ENDPOINT")
     cli.add_argument("--zenoh-connect", action="append", default=[], metavar="ENDPOINT")
     cli.add_argument("--zenoh-mode", default="peer", choices=["peer", "client"])
+    cli.add_argument("--zenoh-config", metavar="FILE", help="a Zenoh JSON5 configuration (TLS, access control)")
+    cli.add_argument("--insecure", action="store_true", help="allow listening beyond loopback without TLS and "
+                     "access control (anyone who reaches the port can command the robot)")  # fmt: skip
     args = cli.parse_args(argv)
+    check_zenoh_arguments(cli, args)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
     options = {**args.can, "fd": args.fd, **({"bitrate": args.bitrate} if args.bitrate else {})}
     bridge = CanZenohBridge(options, node_id=args.node_id, zenoh_mode=args.zenoh_mode,
-                            zenoh_listen=args.zenoh_listen, zenoh_connect=args.zenoh_connect)  # fmt: skip
+                            zenoh_listen=args.zenoh_listen, zenoh_connect=args.zenoh_connect,
+                            zenoh_config=args.zenoh_config, insecure=args.insecure)  # fmt: skip
     done = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: done.set())
     signal.signal(signal.SIGINT, lambda *_: done.set())

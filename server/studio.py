@@ -27,7 +27,7 @@ from asm_py.transport.can import CanTransport
 from gaits.deploy import module_name
 from gaits.model import LIBRARY, Gait, load
 
-from .bridge import CanZenohBridge, parse_can
+from .bridge import CanZenohBridge, check_zenoh_arguments, parse_can
 from .module import FakeDriver, ModuleRuntime
 
 log = logging.getLogger("asm_studio")
@@ -49,6 +49,10 @@ class StudioOptions:
     zenoh_connect: tuple[str, ...] = ()
     zenoh: bool = True
     """Bridge the bus to Zenoh (so tools on other machines see the modules)."""
+    zenoh_config: str | None = None
+    """A Zenoh JSON5 configuration file (TLS, access control) for the bridge."""
+    insecure: bool = False
+    """Allow the bridge to listen beyond loopback without TLS and access control."""
     host: str = "127.0.0.1"
     port: int = 8080
     token: str | None = None
@@ -82,7 +86,8 @@ class Studio:
             if options.zenoh:
                 aliases = [a for a in range(200, 254) if a != STUDIO_NODE_ID]  # 250 is the dashboard's own ID
                 self.bridge = CanZenohBridge(self.can_options, aliases=aliases, zenoh_listen=options.zenoh_listen,
-                                             zenoh_connect=options.zenoh_connect)  # fmt: skip
+                                             zenoh_connect=options.zenoh_connect, zenoh_config=options.zenoh_config,
+                                             insecure=options.insecure)  # fmt: skip
             from web.app import Dashboard  # viser loads only for the studio
             from web.guard import is_loopback, new_token
 
@@ -160,14 +165,20 @@ def main(argv: list[str] | None = None) -> int:
     cli.add_argument("--bitrate", type=int)
     cli.add_argument("--zenoh-listen", action="append", default=[], metavar="ENDPOINT")
     cli.add_argument("--zenoh-connect", action="append", default=[], metavar="ENDPOINT")
+    cli.add_argument("--zenoh-config", metavar="FILE", help="a Zenoh JSON5 configuration (TLS, access control)")
+    cli.add_argument("--insecure", action="store_true", help="allow Zenoh to listen beyond loopback without TLS "
+                     "and access control (anyone who reaches the port can command the robot)")  # fmt: skip
     cli.add_argument("--no-zenoh", action="store_true", help="do not bridge the bus to Zenoh")
     cli.add_argument("--host", default="127.0.0.1", help="address to serve on (default 127.0.0.1, this machine only)")
     cli.add_argument("--port", type=int, default=8080, help="HTTP port (default 8080; 0 picks a free one)")
     args = cli.parse_args(argv)
+    if not args.no_zenoh:
+        check_zenoh_arguments(cli, args)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
     options = StudioOptions(gait=args.gait, can=args.can, bitrate=args.bitrate,
                             zenoh_listen=tuple(args.zenoh_listen), zenoh_connect=tuple(args.zenoh_connect),
-                            zenoh=not args.no_zenoh, host=args.host, port=args.port)  # fmt: skip
+                            zenoh=not args.no_zenoh, zenoh_config=args.zenoh_config, insecure=args.insecure,
+                            host=args.host, port=args.port)  # fmt: skip
     studio = Studio(options)
     done = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: done.set())
