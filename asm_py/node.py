@@ -6,7 +6,8 @@ plain gets and sets, start, suspend, …) are answered at once on the transport'
 may block — a get on a sync_get attribute without a valid value, a set on a sync_set attribute while valid, an
 event wait, a stop whose caller waits — is handed to a *server daemon* of its own (a service, interruptible by
 ``close``), so one client's blocking call never stalls another client or another object. Each client may hold
-``max_daemons_per_client`` daemons at once; beyond that it gets BUSY.
+``max_daemons_per_client`` daemons at once, and the node ``max_daemons`` in all (a thread each: many clients must not
+exhaust a module's memory); beyond that a client gets BUSY.
 
 ``node.lookup(remote, name)`` returns a client object with the local interface (asm_py.remote).
 """
@@ -85,12 +86,14 @@ class Node:
         clock: Clock | None = None,
         call_timeout: float = 2.0,
         max_daemons_per_client: int = 8,
+        max_daemons: int = 16,
     ) -> None:
         self.name = check_name(name)
         self.transport = transport
         self.clock = clock if clock is not None else WALL_CLOCK
         self.call_timeout = call_timeout
         self.max_daemons_per_client = max_daemons_per_client
+        self.max_daemons = max_daemons
         self._lock = threading.Lock()
         self._by_id: dict[int, Entry] = {}
         self._by_name: dict[str, Entry] = {}
@@ -432,6 +435,8 @@ class Node:
             active = self._daemons.setdefault(source, set())
             if len(active) >= self.max_daemons_per_client or self._closed:
                 raise _Busy(f"client {source!r} already has {len(active)} blocking requests on node {self.name!r}")
+            if sum(len(d) for d in self._daemons.values()) >= self.max_daemons:
+                raise _Busy(f"node {self.name!r} already serves {self.max_daemons} blocking requests")
             daemon = _ServerDaemon(self, source, request, respond, operation)
             active.add(daemon)
         daemon.start()

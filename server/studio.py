@@ -1,7 +1,8 @@
 """``asm-studio``: the modules, the bridge and the dashboard, started with one command.
 
 By default everything runs in this process on loopback: one module runtime per module of the opened gait's robot,
-each an ASM node on an in-process python-can virtual bus (what ``asm-module`` runs on a real module), a CAN↔Zenoh
+each an ASM node on an in-process CAN bus that filters like a CAN controller (asm_py.canbus.simbus; what
+``asm-module`` runs on a real module), a CAN↔Zenoh
 bridge (a Zenoh peer listening on a free loopback port, or the endpoints given), and the dashboard at
 http://127.0.0.1:8080. ``--can INTERFACE:CHANNEL`` attaches to a real bus instead of starting simulated modules.
 
@@ -68,7 +69,7 @@ class Studio:
         self.gait: Gait = load(options.gait)
         self.simulated = options.can is None
         channel = f"asm-studio-{os.getpid()}-{id(self)}"
-        self.can_options: dict[str, Any] = dict(options.can) if options.can else {"interface": "virtual",
+        self.can_options: dict[str, Any] = dict(options.can) if options.can else {"interface": "asm_sim",
                                                                                 "channel": channel}  # fmt: skip
         if options.bitrate:
             self.can_options["bitrate"] = options.bitrate

@@ -61,7 +61,7 @@ class Robot:
             raise
 
     def transport(self, node_id: int, seed: int | None = None) -> CanTransport:
-        bus = can.Bus(interface="virtual", channel=self.channel)
+        bus = can.Bus(interface="asm_sim", channel=self.channel)
         self.buses.append(bus)
         if self.faults:
             bus = FaultyBus(bus, seed=node_id if seed is None else seed, **self.faults)
@@ -99,7 +99,7 @@ def robot() -> Iterator[Robot]:
 @contextlib.contextmanager
 def bridged(robot: Robot, **options) -> Iterator[tuple[CanZenohBridge, str]]:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    bridge = CanZenohBridge({"interface": "virtual", "channel": robot.channel, **robot.options},
+    bridge = CanZenohBridge({"interface": "asm_sim", "channel": robot.channel, **robot.options},
                             zenoh_listen=[endpoint], **options)  # fmt: skip
     try:
         yield bridge, endpoint
@@ -138,7 +138,7 @@ def test_an_estop_frame_is_honoured_from_any_source_id(robot: Robot) -> None:
     for source in (3, 0, 255):
         for runtime in robot.runtimes:
             runtime.estop.set(False)
-        with can.Bus(interface="virtual", channel=robot.channel) as bus:
+        with can.Bus(interface="asm_sim", channel=robot.channel) as bus:
             bus.send(can.Message(arbitration_id=0x03000000 | source << 8, is_extended_id=True, data=b"x"))
         assert wait_until(lambda: all(r.estop.peek() for r in robot.runtimes), timeout=5), source
 
@@ -182,7 +182,7 @@ def test_a_latched_estop_refuses_every_command_that_would_move_the_joint(robot: 
 def test_an_oversized_request_is_refused_at_the_bridge_before_any_frame(robot: Robot) -> None:
     with bridged(robot) as (bridge, endpoint), zenoh.open(_raw_config(endpoint)) as session:
         assert wait_until(lambda: "m1" in bridge.bridged, 10)
-        listener = can.Bus(interface="virtual", channel=robot.channel)
+        listener = can.Bus(interface="asm_sim", channel=robot.channel)
         request = encode(Message(Kind.REQUEST_REPLY, Method.SET, 5, 0x20, 1, data=bytes(64 * 1024)))
         replies = list(session.get("asm/m1/req/flooder", payload=request, timeout=5))
         reply = decode(replies[0].ok.payload.to_bytes())

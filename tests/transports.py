@@ -48,12 +48,20 @@ def zenoh_transports() -> Iterator[Callable[[], Transport]]:
 
 
 @contextmanager
-def can_transports(**options) -> Iterator[Callable[[], Transport]]:
-    """Transports with node IDs 1, 2, … on a fresh python-can virtual channel (fast heartbeats for the tests)."""
+def can_transports(interface: str = "virtual", **options) -> Iterator[Callable[[], Transport]]:
+    """Transports with node IDs 1, 2, … on a fresh in-process channel (fast heartbeats for the tests): python-can's
+    ``virtual`` bus, or ``asm_sim``, which filters like a CAN controller."""
     channel = fresh_name("asm-test")
     ids = itertools.count(1)
     settings = {"heartbeat_period": 0.05, "missed_heartbeats": 4, **options}
-    yield lambda: CanTransport(next(ids), interface="virtual", channel=channel, **settings)
+    yield lambda: CanTransport(next(ids), interface=interface, channel=channel, **settings)
 
 
-FACTORIES = {"memory": memory_transports, "zenoh": zenoh_transports, "can": can_transports}
+@contextmanager
+def sim_can_transports(**options) -> Iterator[Callable[[], Transport]]:
+    with can_transports("asm_sim", **options) as make:
+        yield make
+
+
+FACTORIES = {"memory": memory_transports, "zenoh": zenoh_transports, "can": can_transports,
+             "can-sim": sim_can_transports}  # fmt: skip

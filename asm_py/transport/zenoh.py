@@ -32,11 +32,13 @@ from typing import Any
 
 import zenoh
 
-from ..protocol import Kind, decode_timeout, kind_of
+from ..protocol import MAX_MESSAGE, Kind, decode_timeout, kind_of
 from .base import ESTOP_REASON_MAX, PublicationHandler, Transport
 
 log = logging.getLogger("asm_py.transport.zenoh")
 
+MAX_LINK_MESSAGE = 16 * MAX_MESSAGE
+"""The largest Zenoh message a session accepts from its links (the rest is dropped by Zenoh, never buffered)."""
 FOREVER_QUERY = 86_400.0
 """Seconds a query for a request that may block forever stays open on the client (Zenoh needs a number)."""
 QUERY_MARGIN = 5.0
@@ -107,6 +109,9 @@ def make_config(
             log.warning("INSECURE: listening on %s without %s: anyone who can reach it can command the robot",
                         ", ".join(exposed), "; ".join(problems))  # fmt: skip
     config.insert_json5("listen/endpoints", json.dumps(list(listen)))
+    # Zenoh buffers a message whole before anything sees it: bound that at the link (ASM messages are at most
+    # MAX_MESSAGE bytes; between that and this bound a node answers TOO_LARGE, beyond it the message is dropped)
+    config.insert_json5("transport/link/rx/max_message_size", str(MAX_LINK_MESSAGE))
     if connect:
         config.insert_json5("connect/endpoints", json.dumps(list(connect)))
     return config

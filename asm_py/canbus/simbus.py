@@ -1,0 +1,104 @@
+"""An in-process CAN bus that filters like a CAN controller: python-can interface ``asm_sim``.
+
+python-can's ``virtual`` bus copies every frame into every endpoint's queue and filters in software when the
+frame is read, so on a simulated robot every node's receive thread handles every frame of the bus — delivering a
+frame costs as much as there are nodes, and a long transfer to one node backs up every other node's queue. A CAN
+controller filters in hardware: frames its acceptance filters reject never reach its FIFO. This bus does the same:
+``send`` puts a frame only into the queues of the buses whose filters accept it, so a frame costs the same whatever
+the module count.
+
+It also models a controller's second receive FIFO: frames of priority 0 (the three top identifier bits clear — the
+ASM e-stop) go to an urgent FIFO that ``recv`` empties first, so a stop never waits behind bulk frames that arrived
+before it.
+
+    bus = can.Bus(interface="asm_sim", channel="robot")   # registered as a python-can interface plugin
+
+Frames are delivered in the order they were sent (one lock per channel), never to the sending bus itself unless
+``receive_own_messages``.
+"""
+
+from __future__ import annotations
+
+import queue
+import threading
+import time
+from typing import Any, ClassVar
+
+import can
+
+URGENT_MASK = 0x7 << 26
+"""Extended identifiers with these bits clear (priority 0) go to the urgent FIFO."""
+
+
+class SimBus(can.BusABC):
+    """One controller on an in-process channel; see the module docstring."""
+
+    _channels: ClassVar[dict[str, list[SimBus]]] = {}
+    _lock: ClassVar[threading.Lock] = threading.Lock()
+
+    def __init__(self, channel: Any = "asm_sim", receive_own_messages: bool = False, **kwargs: Any) -> None:
+        self.channel_info = f"asm_sim channel {channel}"
+        self._channel = str(channel)
+        self._own = receive_own_messages
+        self._accept: tuple[tuple[int, int, bool | None], ...] | None = None  # None: accept everything
+        self._urgent: queue.SimpleQueue[can.Message] = queue.SimpleQueue()
+        self._normal: queue.SimpleQueue[can.Message] = queue.SimpleQueue()
+        self._ready = threading.Semaphore(0)
+        self._open = True
+        super().__init__(channel=channel, **kwargs)
+        with SimBus._lock:
+            SimBus._channels.setdefault(self._channel, []).append(self)
+
+    def _apply_filters(self, filters: can.typechecking.CanFilters | None) -> None:
+        if not filters:
+            self._accept = None
+            return
+        self._accept = tuple(
+            (f["can_id"], f["can_mask"], f.get("extended"))
+            for f in filters  # type: ignore[misc]
+        )
+
+    def _accepts(self, message: can.Message) -> bool:
+        accept = self._accept
+        if accept is None:
+            return True
+        arbitration_id = message.arbitration_id
+        for can_id, mask, extended in accept:
+            if extended is not None and extended != message.is_extended_id:
+                continue
+            if (arbitration_id ^ can_id) & mask == 0:
+                return True
+        return False
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        if not self._open:
+            raise can.CanOperationError("the bus is shut down")
+        msg = can.Message(timestamp=time.time(), arbitration_id=msg.arbitration_id, is_extended_id=msg.is_extended_id,
+                          is_remote_frame=msg.is_remote_frame, is_error_frame=msg.is_error_frame, dlc=msg.dlc,
+                          data=bytes(msg.data), is_fd=msg.is_fd, bitrate_switch=msg.bitrate_switch,
+                          error_state_indicator=msg.error_state_indicator, channel=self._channel)  # fmt: skip
+        urgent = msg.is_extended_id and not msg.arbitration_id & URGENT_MASK
+        with SimBus._lock:  # one order of frames on the channel, as on a wire
+            for bus in SimBus._channels.get(self._channel, ()):
+                if (bus is not self or self._own) and bus._accepts(msg):
+                    (bus._urgent if urgent else bus._normal).put(msg)
+                    bus._ready.release()
+
+    def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
+        acquired = self._ready.acquire() if timeout is None else self._ready.acquire(timeout=max(0.0, timeout))
+        if not acquired:
+            return None, True
+        try:
+            return self._urgent.get_nowait(), True
+        except queue.Empty:
+            return self._normal.get_nowait(), True
+
+    def shutdown(self) -> None:
+        with SimBus._lock:
+            buses = SimBus._channels.get(self._channel, [])
+            if self in buses:
+                buses.remove(self)
+            if not buses:
+                SimBus._channels.pop(self._channel, None)
+        self._open = False
+        super().shutdown()
