@@ -49,6 +49,8 @@ from asm_py.remote import RemoteObject
 from asm_py.transport.can import CanTransport, group_id, message_priority
 from asm_py.transport.zenoh import make_config
 
+from .realtime import prefer_latency
+
 log = logging.getLogger("server.bridge")
 
 REPLY_MARGIN = 5.0
@@ -496,6 +498,7 @@ def main(argv: list[str] | None = None) -> int:
                      "access control (anyone who reaches the port can command the robot)")  # fmt: skip
     args = cli.parse_args(argv)
     check_zenoh_arguments(cli, args)
+    prefer_latency()
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
     options = {**args.can, "fd": args.fd, **({"bitrate": args.bitrate} if args.bitrate else {})}
     bridge = CanZenohBridge(options, node_id=args.node_id, zenoh_mode=args.zenoh_mode,

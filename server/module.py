@@ -349,6 +349,7 @@ def main(argv: list[str] | None = None) -> int:
 
     from asm_py.transport.can import CanTransport
     from server.bridge import parse_can
+    from server.realtime import prefer_latency
 
     cli = argparse.ArgumentParser(prog="asm-module", description=main.__doc__.splitlines()[0] if main.__doc__ else "")
     cli.add_argument("--can", type=parse_can, required=True, metavar="INTERFACE:CHANNEL")
@@ -359,6 +360,7 @@ def main(argv: list[str] | None = None) -> int:
     cli.add_argument("--limits", type=float, nargs=2, default=(-90.0, 90.0), metavar=("MIN", "MAX"))
     cli.add_argument("--rate", type=float, default=50.0, help="control ticks per second (default 50)")
     args = cli.parse_args(argv)
+    prefer_latency()
     options = {**args.can, **({"bitrate": args.bitrate} if args.bitrate else {})}
     name = args.name or f"m{args.node_id}"
     node = Node(name, CanTransport(args.node_id, **options))

@@ -30,6 +30,7 @@ from gaits.model import LIBRARY, Gait, load
 
 from .bridge import CanZenohBridge, check_zenoh_arguments, parse_can
 from .module import FakeDriver, ModuleRuntime
+from .realtime import prefer_latency
 
 log = logging.getLogger("asm_studio")
 STUDIO_NODE_ID = 250
@@ -175,6 +176,7 @@ def main(argv: list[str] | None = None) -> int:
     args = cli.parse_args(argv)
     if not args.no_zenoh:
         check_zenoh_arguments(cli, args)
+    prefer_latency()
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
     options = StudioOptions(gait=args.gait, can=args.can, bitrate=args.bitrate,
                             zenoh_listen=tuple(args.zenoh_listen), zenoh_connect=tuple(args.zenoh_connect),

@@ -438,3 +438,35 @@ def _gait_with_states(count: int):
         states = [replace(automaton.states[k % len(automaton.states)], duration=1.0 / count) for k in range(count)]
         automata[name] = replace(automaton, states=states)
     return replace(CATERPILLAR, automata=automata)
+
+
+# -- golden vectors of the module objects and statuses (docs/protocol.md §1, §9) -------------------------------
+
+
+def test_golden_module_object_vectors() -> None:
+    import json
+    from pathlib import Path
+
+    from asm_py.remote import describe_entry
+    from gaits.wire import Staged, decode_staged, encode_staged
+    from server.staging import LEASE
+
+    vectors = json.loads((Path(__file__).parent / "vectors" / "module_objects.json").read_text())
+    robot = Robot(1)
+    try:
+        entry = robot.nodes[0].entry(vectors["lookup_reply_read_only"]["object"])
+        reply = encode(Message(Kind.REPLY, Method.LOOKUP, 4, 0, 0, Status.OK, None, describe_entry(entry)))
+        assert reply.hex() == vectors["lookup_reply_read_only"]["hex"]
+    finally:
+        robot.close()
+    staged = vectors["staged"]
+    record = Staged(staged["deploy_id"], staged["phase"], staged["direction"], bytes.fromhex(staged["table_hex"]))
+    assert encode_staged(record).hex() == staged["hex"] and decode_staged(bytes.fromhex(staged["hex"])) == record
+    activate = vectors["activate"]
+    message = Message(Kind.REQUEST, Method.SET, 0, 0x29, 0, data=activate["deploy_id"].to_bytes(4, "little"))
+    assert encode(message).hex() == activate["hex"] and len(bytes.fromhex(activate["hex"])) <= 8
+    assert LEASE.encode(vectors["lease"]["value"]).hex() == vectors["lease"]["hex"]
+    for vector in vectors["replies"]:
+        assert Status[vector["name"]] == vector["status"]
+        message = Message(Kind.REPLY, Method.SET, 5, 0, 7, vector["status"], None, vector["text"].encode())
+        assert encode(message).hex() == vector["hex"]
