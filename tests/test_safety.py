@@ -470,3 +470,50 @@ def test_golden_module_object_vectors() -> None:
         assert Status[vector["name"]] == vector["status"]
         message = Message(Kind.REPLY, Method.SET, 5, 0, 7, vector["status"], None, vector["text"].encode())
         assert encode(message).hex() == vector["hex"]
+
+
+# -- clean shutdown after a flood (no SIGABRT) -------------------------------------------------------------------
+
+FLOOD = r"""
+import sys, time, zenoh
+from asm_py.protocol import Kind, Message, Method, encode
+config = zenoh.Config()
+config.insert_json5("scouting/multicast/enabled", "false")
+config.insert_json5("listen/endpoints", '["tcp/127.0.0.1:0"]')
+config.insert_json5("connect/endpoints", f'["{sys.argv[1]}"]')
+session = zenoh.open(config)
+time.sleep(1.0)
+huge = encode(Message(Kind.REQUEST, Method.SET, 0, 0x20, 0, data=bytes(64 * 1024)))
+largest = encode(Message(Kind.REQUEST, Method.SET, 0, 0x27, 0, data=bytes(4092)))
+oversized = encode(Message(Kind.REQUEST_REPLY, Method.SET, 1, 0x27, 0, timeout=0xFE, data=bytes(1 << 20)))
+end = time.monotonic() + float(sys.argv[2])
+while time.monotonic() < end:
+    for module in range(1, 9):
+        session.put(f"asm/m{module}/msg/flooder", huge)
+        session.put(f"asm/m{module}/msg/flooder", largest)
+    session.put("asm/@group/all/msg/flooder", largest)
+    session.get("asm/m1/req/flooder", lambda reply: None, payload=oversized, timeout=30.0)
+    time.sleep(0.02)
+print("FLOODED", flush=True)
+session.close()
+"""
+
+
+def test_the_studio_shuts_down_cleanly_after_a_flood() -> None:
+    import subprocess
+    import sys
+
+    from .processes import ROOT, Process
+
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    studio = Process("-m", "server.studio", "--port", "0", "--zenoh-listen", endpoint)
+    try:
+        studio.wait_for_line("READY studio", timeout=60)
+        flooder = subprocess.run([sys.executable, "-c", FLOOD, endpoint, "5"], cwd=ROOT, capture_output=True,
+                                 text=True, timeout=60)  # fmt: skip
+        assert "FLOODED" in flooder.stdout, flooder.stderr
+        with zenoh_client("operator", endpoint) as operator:  # still answering after the flood
+            assert operator.lookup("m3", "joint.goal", timeout=5).peek() == 0.0
+    finally:
+        code = studio.stop()
+    assert code == 0, "".join(studio.output[-30:])
