@@ -12,13 +12,15 @@ joint goals MuJoCo sees are therefore exactly what the modules command; nothing 
 from __future__ import annotations
 
 import math
+import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import mujoco
 import numpy as np
 
-from asm_py import Event
+from asm_py import Event, Node
 from asm_py.clock import SimClock
 from server.module import JointDriver, JointReading, ModuleRuntime
 
@@ -101,17 +103,20 @@ class MujocoJoint(JointDriver):
         self._relaxed = False
 
     def command(self, degrees: float) -> None:
-        self._sim.data.ctrl[self._actuator] = math.radians(degrees)
-        if self._relaxed:
-            self._power(*self._gains)
+        with self._sim.lock:
+            self._sim.data.ctrl[self._actuator] = math.radians(degrees)
+            if self._relaxed:
+                self._power(*self._gains)
 
     def read(self) -> JointReading:
-        data = self._sim.data
-        return JointReading(math.degrees(data.qpos[self._qpos]), float(data.actuator_force[self._actuator]),
-                            self._module in self._sim.touching)  # fmt: skip
+        with self._sim.lock:
+            data = self._sim.data
+            return JointReading(math.degrees(data.qpos[self._qpos]), float(data.actuator_force[self._actuator]),
+                                self._module in self._sim.touching)  # fmt: skip
 
     def relax(self) -> None:
-        self._power(0.0, 0.0)
+        with self._sim.lock:
+            self._power(0.0, 0.0)
 
     def _power(self, kp: float, damping: float) -> None:
         """A position actuator with zero gains exerts no torque: the servo is off."""
@@ -133,7 +138,10 @@ class Trace:
 class Simulation:
     """A gait's robot in MuJoCo, driven by one ModuleRuntime per module; see the module docstring.
 
-    ``direction`` -1 runs every module's automaton backwards (the gait's own directions, negated).
+    ``direction`` -1 runs every module's automaton backwards (the gait's own directions, negated). ``node_of``
+    gives each module runtime its ASM node (a robot process puts them on a bus); without it they have none.
+    ``lock`` guards the model and data: the stepping thread holds it per control period, and a module's joint
+    driver takes it, so a request arriving on a bus thread never touches MjData in the middle of a step.
     """
 
     def __init__(
@@ -145,8 +153,10 @@ class Simulation:
         ramp: float = 1.0,
         direction: int = 1,
         trace: bool = False,
+        node_of: Callable[[int], Node] | None = None,
     ) -> None:
         self.gait = gait
+        self.lock = threading.RLock()
         self.physics = physics or Physics(friction=gait.ground.friction, anisotropic=gait.ground.anisotropic)
         self.mjcf = build_mjcf(gait.robot, self.physics, name=gait.name)
         self.model = mujoco.MjModel.from_xml_string(self.mjcf)
@@ -167,7 +177,8 @@ class Simulation:
         self.peak_torque = 0.0
         self._started = False
         for assignment in gait.modules:
-            runtime = ModuleRuntime(MujocoJoint(self, assignment.id), clock=self.clock, tick=self.tick,
+            node = node_of(assignment.id) if node_of is not None else None
+            runtime = ModuleRuntime(MujocoJoint(self, assignment.id), node=node, clock=self.clock, tick=self.tick,
                                     limits=gait.limits, ramp=ramp, inline=True)  # fmt: skip
             self.modules[assignment.id] = runtime
         mujoco.mj_forward(self.model, self.data)
@@ -215,7 +226,8 @@ class Simulation:
             if self._into_tick == 0:
                 self._control_tick()
             n = min(steps, self.steps_per_tick - self._into_tick)
-            mujoco.mj_step(self.model, self.data, n)
+            with self.lock:
+                mujoco.mj_step(self.model, self.data, n)
             self._into_tick = (self._into_tick + n) % self.steps_per_tick
             steps -= n
             self.peak_torque = max(self.peak_torque, float(np.abs(self.data.actuator_force).max(initial=0.0)))
@@ -285,6 +297,8 @@ class Simulation:
     def close(self) -> None:
         for runtime in self.modules.values():
             runtime.close()
+            if runtime.node is not None:
+                runtime.node.close()
 
     def __enter__(self) -> Simulation:
         return self

@@ -1,13 +1,14 @@
-"""``asm-studio``: the modules, the bridge and the dashboard, started with one command.
+"""``asm-studio``: the dashboard, as a client of a robot — one command for everything.
 
-By default everything runs in this process on loopback: one module runtime per module of the opened gait's robot,
-each an ASM node on an in-process CAN bus that filters like a CAN controller (asm_py.canbus.simbus; what
-``asm-module`` runs on a real module), a CAN↔Zenoh
-bridge (a Zenoh peer listening on a free loopback port, or the endpoints given), and the dashboard at
-http://127.0.0.1:8080. ``--can INTERFACE:CHANNEL`` attaches to a real bus instead of starting simulated modules.
+By default the studio starts a simulated robot, ``asm-robot --sim GAIT`` (server/robot.py: the opened gait's robot
+in real-time MuJoCo physics, its modules on a CAN bus, the CAN↔Zenoh bridge), as a child process on a private
+loopback Zenoh link, and serves the page at http://127.0.0.1:8080. The child ends with the studio, even when the
+studio is killed. ``--can INTERFACE:CHANNEL`` starts ``asm-robot --can`` for a real bus instead; ``--robot
+ENDPOINT`` attaches to a robot process already running elsewhere (a robot's computer, or another machine's
+simulation) and starts nothing.
 
-The dashboard is an ordinary ASM node on the bus (node ID 250, named ``studio``): it reaches the modules only by
-lookup, get/set, services and subscriptions, like any client.
+The dashboard is an ordinary Zenoh ASM node named ``studio``: it reaches the modules only through the bridge, by
+lookup, get/set, services and subscriptions, like any tool. It hosts no module runtime.
 """
 
 from __future__ import annotations
@@ -15,81 +16,128 @@ from __future__ import annotations
 import argparse
 import logging
 import os
+import queue
 import signal
+import socket
+import subprocess
+import sys
+import tempfile
 import threading
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from asm_py import Event, Node
-from asm_py.codec import FLOAT64
-from asm_py.event import TimerTrigger
-from asm_py.transport.can import CanTransport
-from gaits.deploy import module_name
-from gaits.model import LIBRARY, Gait, load
+import zenoh
 
-from .bridge import CanZenohBridge, check_zenoh_arguments, parse_can
-from .module import FakeDriver, ModuleRuntime
+from asm_py import Node
+from asm_py.transport.zenoh import ZenohTransport
+from gaits.model import LIBRARY, Gait, GaitError, dumps, load
+
+from .bridge import check_zenoh_arguments, parse_can
+from .feed import RobotStatus, status_key
 from .realtime import prefer_latency
 
 log = logging.getLogger("asm_studio")
-STUDIO_NODE_ID = 250
-CONTROL_RATE = 50.0
-"""Ticks per second of the simulated modules (a module runtime's default)."""
 MODULE_IDS = range(1, 200)
 """Node IDs simulated modules may take: 200-253 are the bridge's aliases for Zenoh clients, 254 the bridge."""
+ROBOT_START_TIMEOUT = 60.0
 
 
 @dataclass
 class StudioOptions:
     gait: Path = LIBRARY / "caterpillar.toml"
-    """The gait opened at start; its robot sets how many simulated modules run."""
+    """The gait opened at start; a simulated robot is built from its robot."""
     can: dict[str, Any] | None = None
-    """python-can options of a real bus; None: simulated modules on an in-process virtual bus."""
+    """python-can options of a real bus (``asm-robot --can``); None: a simulated robot."""
+    robot: str | None = None
+    """A Zenoh endpoint of a robot process already running: attach to it, start none."""
+    robot_name: str = "robot"
     bitrate: int | None = None
     zenoh_listen: tuple[str, ...] = ()
+    """More endpoints the robot listens on (so tools elsewhere reach the modules)."""
     zenoh_connect: tuple[str, ...] = ()
-    zenoh: bool = True
-    """Bridge the bus to Zenoh (so tools on other machines see the modules)."""
     zenoh_config: str | None = None
-    """A Zenoh JSON5 configuration file (TLS, access control) for the bridge."""
+    """A Zenoh JSON5 configuration file (TLS, access control) for the robot and the studio's own session."""
     insecure: bool = False
-    """Allow the bridge to listen beyond loopback without TLS and access control."""
+    """Allow the robot to listen beyond loopback without TLS and access control."""
     host: str = "127.0.0.1"
     port: int = 8080
     token: str | None = None
     """The page's access token; None: none on loopback, a new random one when served beyond it."""
-    heartbeat_period: float = 0.5
+
+
+def free_loopback_port() -> int:
+    """A TCP port free on 127.0.0.1 now (bound and released: the child binds it a moment later)."""
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return sock.getsockname()[1]
+
+
+class RobotChild:
+    """An ``asm-robot`` child process on a private loopback endpoint; it dies with this process."""
+
+    def __init__(self, args: list[str], endpoint: str) -> None:
+        self.endpoint = endpoint
+        env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+        self.popen = subprocess.Popen([sys.executable, "-m", "server.robot", "--zenoh-listen", endpoint,
+                                       "--parent-pid", str(os.getpid()), *args], stdout=subprocess.PIPE,
+                                      stderr=subprocess.STDOUT, text=True, env=env)  # fmt: skip
+        self.output: list[str] = []
+        self._lines: queue.Queue[str | None] = queue.Queue()
+        self._reader = threading.Thread(target=self._read, name="robot-output", daemon=True)
+        self._reader.start()
+        self._wait_ready()
+
+    def _read(self) -> None:
+        assert self.popen.stdout is not None
+        for line in self.popen.stdout:
+            self.output.append(line)
+            del self.output[:-200]
+            self._lines.put(line)
+            log.debug("robot: %s", line.rstrip())
+        self._lines.put(None)
+
+    def _wait_ready(self) -> None:
+        while True:
+            try:
+                line = self._lines.get(timeout=ROBOT_START_TIMEOUT)
+            except queue.Empty:
+                line = None
+            if line is None:
+                self.stop()
+                raise RuntimeError("the robot process did not start: " + "".join(self.output[-5:]).strip())
+            if line.startswith("READY robot"):
+                return
+
+    def stop(self) -> None:
+        if self.popen.poll() is None:
+            self.popen.terminate()
+            try:
+                self.popen.wait(15)
+            except subprocess.TimeoutExpired:
+                self.popen.kill()
+                self.popen.wait(5)
+        self._reader.join(5)
 
 
 class Studio:
-    """The backend: modules (simulated or on a real bus), the bridge, the dashboard's node and the web app."""
+    """The backend: the robot (a child process, or one attached to), the dashboard's node and the web app."""
 
     def __init__(self, options: StudioOptions) -> None:
         self.options = options
         self.gait: Gait = load(options.gait)
-        self.simulated = options.can is None
-        channel = f"asm-studio-{os.getpid()}-{id(self)}"
-        self.can_options: dict[str, Any] = dict(options.can) if options.can else {"interface": "asm_sim",
-                                                                                "channel": channel}  # fmt: skip
-        if options.bitrate:
-            self.can_options["bitrate"] = options.bitrate
-        self._tick: Event | None = None
-        self._tick_timer: TimerTrigger | None = None
-        self.modules: dict[int, ModuleRuntime] = {}
-        self.bridge: CanZenohBridge | None = None
+        self.child: RobotChild | None = None
         self.node: Node | None = None
         self.app: Any = None
         self.token: str | None = None
+        self.robot_gait: Gait | None = None
+        """The gait whose robot the simulated child runs (None when the robot is not ours to rebuild)."""
+        self._gait_file: Path | None = None
         try:
-            if self.simulated:
-                self.start_modules(self.gait.robot.modules)
-            self.node = Node("studio", self._transport(STUDIO_NODE_ID))
-            if options.zenoh:
-                aliases = [a for a in range(200, 254) if a != STUDIO_NODE_ID]  # 250 is the dashboard's own ID
-                self.bridge = CanZenohBridge(self.can_options, aliases=aliases, zenoh_listen=options.zenoh_listen,
-                                             zenoh_connect=options.zenoh_connect, zenoh_config=options.zenoh_config,
-                                             insecure=options.insecure)  # fmt: skip
+            endpoint = options.robot or self._start_robot(self.gait)
+            self.node = Node("studio", ZenohTransport(connect=[endpoint], config_file=options.zenoh_config))
+            self.status = self.read_status(timeout=10.0)
+            self.simulated = self.status.mode == "simulated"
             from web.app import Dashboard  # viser loads only for the studio
             from web.guard import is_loopback, new_token
 
@@ -99,45 +147,66 @@ class Studio:
             self.close()
             raise
 
-    def _transport(self, node_id: int) -> CanTransport:
-        return CanTransport(node_id, heartbeat_period=self.options.heartbeat_period, **self.can_options)
+    def _robot_args(self, gait: Gait) -> list[str]:
+        options = self.options
+        args = ["--name", options.robot_name]
+        if options.can is not None:
+            args += ["--can", f"{options.can['interface']}:{options.can['channel']}"]
+            if options.bitrate:
+                args += ["--bitrate", str(options.bitrate)]
+        else:
+            if self._gait_file is None:
+                handle, name = tempfile.mkstemp(prefix="asm-studio-robot-", suffix=".toml")
+                os.close(handle)
+                self._gait_file = Path(name)
+            self._gait_file.write_text(dumps(gait))
+            args += ["--sim", str(self._gait_file)]
+            self.robot_gait = gait
+        for endpoint in options.zenoh_listen:
+            args += ["--zenoh-listen", endpoint]
+        for endpoint in options.zenoh_connect:
+            args += ["--zenoh-connect", endpoint]
+        if options.zenoh_config:
+            args += ["--zenoh-config", options.zenoh_config]
+        if options.insecure:
+            args.append("--insecure")
+        return args
 
-    def _shared_tick(self) -> Event:
-        """One 50 Hz tick for every simulated module, as if their clocks were synchronised: 32 modules each waking
-        their own timer thread 50 times a second crowd out the dashboard's threads (Python runs one at a time)."""
-        if self._tick is None:
-            self._tick = Event("gait.tick", codec=FLOAT64)  # published as a module's own tick is (ModuleRuntime)
-            self._tick_timer = TimerTrigger(1.0 / CONTROL_RATE, name="studio.tick")
-            self._tick.add_trigger(self._tick_timer)
-            self._tick_timer.start()
-        return self._tick
+    def _start_robot(self, gait: Gait) -> str:
+        endpoint = f"tcp/127.0.0.1:{free_loopback_port()}"
+        self.child = RobotChild(self._robot_args(gait), endpoint)
+        return endpoint
 
-    def start_modules(self, count: int) -> list[str]:
-        """Run simulated modules m1..m<count> (node IDs 1..count): start the missing ones, close those beyond.
+    def read_status(self, timeout: float = 5.0) -> RobotStatus:
+        """The robot's status, as it publishes it (waits for the next publication)."""
+        assert self.node is not None
+        session: zenoh.Session = self.node.transport.session  # type: ignore[attr-defined]
+        box: queue.Queue[bytes] = queue.Queue()
+        subscriber = session.declare_subscriber(status_key(self.options.robot_name),
+                                                lambda sample: box.put(sample.payload.to_bytes()))  # fmt: skip
+        try:
+            return RobotStatus.from_json(box.get(timeout=timeout))
+        except queue.Empty:
+            raise RuntimeError(f"no status from robot {self.options.robot_name!r} within {timeout:g} s") from None
+        finally:
+            subscriber.undeclare()
 
-        Modules that stay keep running untouched. Returns the names of the modules closed, so the dashboard can
-        tell a module it removed from one that was lost."""
-        if count not in MODULE_IDS:
-            raise ValueError(f"the studio simulates 1..{MODULE_IDS[-1]} modules, not {count}")
-        closed = [self._close_module(module_id) for module_id in sorted(set(self.modules) - set(range(1, count + 1)))]
-        for module_id in range(1, count + 1):
-            if module_id not in self.modules:
-                node = Node(module_name(module_id), self._transport(module_id))
-                self.modules[module_id] = ModuleRuntime(FakeDriver(), node=node, tick=self._shared_tick(),
-                                                        inline=True)  # fmt: skip
-        return closed
-
-    def _close_module(self, module_id: int) -> str:
-        """Close simulated module ``module_id``, its runtime then its node; returns the node's name."""
-        runtime = self.modules.pop(module_id)
-        runtime.close()
-        assert runtime.node is not None  # the studio's modules always have one
-        runtime.node.close()
-        return runtime.node.name
-
-    def stop_modules(self) -> None:
-        for module_id in sorted(self.modules):
-            self._close_module(module_id)
+    def ensure_robot(self, gait: Gait) -> str | None:
+        """Make the simulated robot the one ``gait`` describes (a new child when it differs); a message saying what
+        changed, or None. On a robot that is not ours to rebuild, ValueError when the module counts differ."""
+        if self.robot_gait is None:
+            modules = self.read_status().modules
+            if modules and modules != gait.robot.modules:
+                raise ValueError(f"the robot has {modules} modules; this gait needs {gait.robot.modules}")
+            return None
+        running = self.robot_gait
+        if (gait.robot, gait.ground, gait.limits) == (running.robot, running.ground, running.limits):
+            return None
+        before = running.robot.modules
+        assert self.child is not None
+        self.child.stop()
+        self.child = RobotChild(self._robot_args(gait), self.child.endpoint)
+        return f"simulated robot rebuilt: {before} → {gait.robot.modules} modules"
 
     @property
     def port(self) -> int:
@@ -147,46 +216,54 @@ class Studio:
         if self.app is not None:
             self.app.close()
             self.app = None
-        if self.bridge is not None:
-            self.bridge.close()
-            self.bridge = None
         if self.node is not None:
             self.node.close()
             self.node = None
-        if self._tick_timer is not None:
-            self._tick_timer.stop(timeout=5)
-            self._tick_timer = None
-        self.stop_modules()
+        if self.child is not None:
+            self.child.stop()
+            self.child = None
+        if self._gait_file is not None:
+            self._gait_file.unlink(missing_ok=True)
+            self._gait_file = None
 
 
 def main(argv: list[str] | None = None) -> int:
     cli = argparse.ArgumentParser(prog="asm-studio", description=__doc__.splitlines()[0] if __doc__ else "")
     cli.add_argument("--gait", type=Path, default=StudioOptions.gait, help="gait file to open (default: caterpillar)")
-    cli.add_argument("--can", type=parse_can, metavar="INTERFACE:CHANNEL", help="a real CAN bus instead of simulated "
-                     "modules, e.g. socketcan:can0")  # fmt: skip
+    where = cli.add_mutually_exclusive_group()
+    where.add_argument("--can", type=parse_can, metavar="INTERFACE:CHANNEL", help="a real CAN bus instead of a "
+                       "simulated robot, e.g. socketcan:can0 (starts asm-robot --can)")  # fmt: skip
+    where.add_argument("--robot", metavar="ENDPOINT", help="attach to a robot process already running, e.g. "
+                       "tcp/192.0.2.5:7447 (with --zenoh-config for TLS); starts none")  # fmt: skip
+    cli.add_argument("--robot-name", default="robot", help="the robot's name in its Zenoh keys (default robot)")
     cli.add_argument("--bitrate", type=int)
-    cli.add_argument("--zenoh-listen", action="append", default=[], metavar="ENDPOINT")
+    cli.add_argument("--zenoh-listen", action="append", default=[], metavar="ENDPOINT",
+                     help="more endpoints the robot listens on, for tools elsewhere")  # fmt: skip
     cli.add_argument("--zenoh-connect", action="append", default=[], metavar="ENDPOINT")
     cli.add_argument("--zenoh-config", metavar="FILE", help="a Zenoh JSON5 configuration (TLS, access control)")
     cli.add_argument("--insecure", action="store_true", help="allow Zenoh to listen beyond loopback without TLS "
                      "and access control (anyone who reaches the port can command the robot)")  # fmt: skip
-    cli.add_argument("--no-zenoh", action="store_true", help="do not bridge the bus to Zenoh")
+    cli.add_argument("--no-zenoh", action="store_true", help="accepted for compatibility: the robot's Zenoh link "
+                     "is on loopback only unless --zenoh-listen says otherwise")  # fmt: skip
     cli.add_argument("--host", default="127.0.0.1", help="address to serve on (default 127.0.0.1, this machine only)")
     cli.add_argument("--port", type=int, default=8080, help="HTTP port (default 8080; 0 picks a free one)")
     args = cli.parse_args(argv)
-    if not args.no_zenoh:
-        check_zenoh_arguments(cli, args)
+    check_zenoh_arguments(cli, args)
     prefer_latency()
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
-    options = StudioOptions(gait=args.gait, can=args.can, bitrate=args.bitrate,
-                            zenoh_listen=tuple(args.zenoh_listen), zenoh_connect=tuple(args.zenoh_connect),
-                            zenoh=not args.no_zenoh, zenoh_config=args.zenoh_config, insecure=args.insecure,
-                            host=args.host, port=args.port)  # fmt: skip
-    studio = Studio(options)
+    options = StudioOptions(gait=args.gait, can=args.can, robot=args.robot, robot_name=args.robot_name,
+                            bitrate=args.bitrate, zenoh_listen=tuple(args.zenoh_listen),
+                            zenoh_connect=tuple(args.zenoh_connect), zenoh_config=args.zenoh_config,
+                            insecure=args.insecure, host=args.host, port=args.port)  # fmt: skip
     done = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: done.set())
     signal.signal(signal.SIGINT, lambda *_: done.set())
-    where = "simulated modules" if studio.simulated else f"CAN {args.can}"
+    try:
+        studio = Studio(options)
+    except (GaitError, OSError, RuntimeError) as exc:
+        print(f"asm-studio: {exc}", file=sys.stderr)
+        return 1
+    where = "simulated robot" if studio.simulated else f"robot {args.robot or args.can}"
     query = f"/?token={studio.token}" if studio.token else ""
     print(f"READY studio http://{args.host}:{studio.port}{query} ({where})", flush=True)
     if studio.token:

@@ -20,7 +20,7 @@ PROTOCOL = f"viser-v{viser.__version__}"
 
 @pytest.fixture
 def studio():
-    studio = Studio(StudioOptions(port=0, zenoh=False, heartbeat_period=0.2))
+    studio = Studio(StudioOptions(port=0))
     try:
         yield studio
     finally:
@@ -50,7 +50,7 @@ def test_a_websocket_from_a_foreign_origin_is_refused(studio) -> None:
 
 
 def test_beyond_loopback_every_request_needs_the_token() -> None:
-    studio = Studio(StudioOptions(port=0, zenoh=False, heartbeat_period=0.2, token="s3cret-token"))
+    studio = Studio(StudioOptions(port=0, token="s3cret-token"))
     try:
         base = f"127.0.0.1:{studio.port}"
         with pytest.raises(urllib.error.HTTPError) as info:

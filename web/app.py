@@ -25,6 +25,7 @@ from .document import GaitDocument
 from .editor import GaitEditor
 from .guard import AccessGuard, guarded_server
 from .inputs import ValueInput
+from .live import LiveFeed
 from .monitor import LivePlot, Roster, describe, empty_plot, format_value, stroke
 from .preview import PreviewLoop, SceneView
 
@@ -46,7 +47,8 @@ class Dashboard:
         self.port = self.server.get_port()
         self.doc = GaitDocument(studio.gait)
         self.loop = PreviewLoop(studio.gait)
-        self.view = SceneView(self.server, self.loop)
+        self.feed = LiveFeed(studio.node.transport.session, studio.options.robot_name)  # type: ignore[union-attr]
+        self.view = SceneView(self.server, self.loop, self.feed)
         self.roster = Roster(self.node)  # type: ignore[arg-type]
         self.plot = LivePlot(self.node)  # type: ignore[arg-type]
         self._stop = threading.Event()
@@ -96,6 +98,10 @@ class Dashboard:
         self.estop = gui.add_button("E-STOP", color="red", hint="stop every module's gait and hold its joint")
         self.estop.on_click(self.safe(self._on_estop))
         self.status = gui.add_markdown("Ready.")
+        hint = "the edited gait in the preview simulation, or the robot itself"
+        self.source = gui.add_button_group("View", ["Preview", "Live"], hint=hint)
+        self.source.on_click(self.safe(lambda e: self.show(e.target.value.lower())))
+        self.source_md = gui.add_markdown("Showing: **Preview** (the edited gait, simulated here)")
         tabs = gui.add_tab_group()
         with tabs.add_tab("Gait"):
             self.editor = GaitEditor(self, initial=self.studio.gait.name)
@@ -181,6 +187,13 @@ class Dashboard:
         if not self.syncing:  # a user's drag scrubs (and pauses); the refresh moving the slider does not
             self.loop.request("seek", int(event.target.value))
 
+    def show(self, source: str) -> None:
+        """Show the "preview" or the "live" robot in the 3D view (and say which, under the buttons)."""
+        self.view.set_source(source)
+        kind = "simulated" if self.studio.simulated else "real: no poses, angles only"
+        self.source_md.content = ("Showing: **Live** (the robot, " + kind + ")" if source == "live"
+                                  else "Showing: **Preview** (the edited gait, simulated here)")  # fmt: skip
+
     def _on_estop(self, _: Any) -> None:
         self.node.estop("studio E-STOP")  # type: ignore[union-attr]
         self.notify("E-STOP", "sent to every module: gaits stopped, joints holding", error=True)
@@ -219,17 +232,25 @@ class Dashboard:
             self.deploy_log.content = "  \n".join(lines[-8:])
 
         self.progress.value = 0.0
-        if self.studio.simulated and len(self.studio.modules) != gait.robot.modules:
-            before = len(self.studio.modules)
-            removed = self.studio.start_modules(gait.robot.modules)  # the simulated robot becomes the edited one
+        before = set(self.roster.alive())
+        rebuilt = self.studio.ensure_robot(gait)  # the simulated robot becomes the edited one
+        if rebuilt:
+            lines.append(rebuilt)
+            self.deploy_log.content = "  \n".join(lines)
+            wanted = {module_name(a.id) for a in gait.modules}
+            removed = sorted(n for n in before if n.startswith("m") and n[1:].isdigit() and n not in wanted)
             self.roster.forget(removed)
             self.plot.forget(removed)
-            lines.append(f"simulated modules: {before} → {gait.robot.modules}")
-        report = deploy(self.node, gait, progress=progress)  # type: ignore[arg-type]
+            deadline = time.monotonic() + 30.0
+            while not wanted <= set(self.node.discover()) and time.monotonic() < deadline:  # type: ignore[union-attr]
+                time.sleep(0.1)
+        report = deploy(self.node, gait, progress=progress, timeout=5.0)  # type: ignore[arg-type]
         self.notify("Deployed", f"{gait.name}: staged and verified on {len(report.checksums)} modules; "
                     f"{len(report.running)} of {gait.robot.modules} confirmed running it")  # fmt: skip
         for assignment in gait.modules[:4]:
             self.plot.watch(module_name(assignment.id), "joint.angle")
+        if self.studio.simulated:
+            self.show("live")
 
     def _on_run(self, event: Any) -> None:
         if event.target.value == "Start all":
@@ -281,7 +302,7 @@ class Dashboard:
         faster playback is drawn at most every MIN_DRAW_INTERVAL."""
         last = 0.0
         while not self._stop.is_set():
-            if not self.loop.wait_changed(timeout=0.1):
+            if not self.view.wait_changed(timeout=0.1):
                 continue
             pause = last + MIN_DRAW_INTERVAL - time.monotonic()
             if pause > 0 and self._stop.wait(pause):
@@ -308,9 +329,9 @@ class Dashboard:
         m = loop.metrics()
         frames = len(loop.frames)
         warning = f"  \n⚠ {loop.error}" if loop.error else ""
-        self.metrics.content = (f"t = {m.seconds:.2f} s · distance **{m.distance:.3f} m** "
+        self.metrics.content = (f"Preview: t = {m.seconds:.2f} s · distance **{m.distance:.3f} m** "
                                 f"({m.body_lengths:.2f} BL) · speed **{m.speed:.3f} m/s** · heading {m.heading:.0f}° · "
-                                f"peak torque {m.peak_torque:.2f} N·m{warning}")  # fmt: skip
+                                f"peak torque {m.peak_torque:.2f} N·m{warning}{self._live_line()}")  # fmt: skip
         with self.programmatic():
             modules = max(2, loop.sim.gait.robot.modules)
             if self.plot_module.max != modules:
@@ -338,11 +359,23 @@ class Dashboard:
                     self._live_labels = labels
                 self.live.data = data
 
+    def _live_line(self) -> str:
+        status = self.feed.status
+        if status is None:
+            return "  \nLive: no status from the robot yet"
+        moved, speed = self.feed.speed()
+        rtf = "" if status.real_time_factor is None else f" · real-time factor {status.real_time_factor:.2f}"
+        latched = f" · **E-STOP latched** on {len(status.estop)} modules" if status.estop else ""
+        behind = " · ⚠ the simulation cannot keep up with real time" if status.behind else ""
+        return (f"  \nLive: {status.mode} robot, {status.modules} modules{rtf} · moved {moved:.3f} m in the last "
+                f"10 s ({speed:.3f} m/s){latched}{behind}")  # fmt: skip
+
     def close(self) -> None:
         self._stop.set()
         for thread in self._threads:
             thread.join(timeout=5)
         self.plot.close()
         self.roster.close()
+        self.feed.close()
         self.loop.close()
         self.server.stop()

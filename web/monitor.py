@@ -60,6 +60,7 @@ class Roster:
             with self._lock:
                 if name in self.entries:
                     self.entries[name]["gait"] = f"gait {'running' if running else 'stopped'} · state {index}"
+                    self.entries[name]["heard"] = time.monotonic()  # it answered: heard now
 
     def forget(self, names: list[str]) -> None:
         """Drop nodes that were closed on purpose (the studio removed them), so they do not show as lost."""
@@ -81,8 +82,9 @@ class Roster:
             items = sorted(self.entries.items(), key=lambda kv: (len(kv[0]), kv[0]))
         out = []
         for name, entry in items:
-            last = heard(name) if heard is not None else None
-            out.append((name, entry["alive"], now - (last if last is not None else entry["since"])))
+            last = heard(name) if heard is not None else None  # a CAN transport hears every frame
+            last = last if last is not None else entry.get("heard", entry["since"])  # else: its last answer
+            out.append((name, entry["alive"], now - last))
         return out
 
     def alive(self) -> list[str]:

@@ -210,26 +210,54 @@ def _box(half: np.ndarray) -> np.ndarray:
                      [-x, -y, z], [x, -y, z], [x, y, z], [-x, y, z]], dtype=np.float32)  # fmt: skip
 
 
-class SceneView:
-    """Draws frames of a PreviewLoop in viser's scene: one batched mesh per distinct module shape.
+def _quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Hamilton products of (n, 4) w-x-y-z quaternions."""
+    aw, ax, ay, az = a.T
+    bw, bx, by, bz = b.T
+    return np.stack([aw * bw - ax * bx - ay * by - az * bz, aw * bx + ax * bw + ay * bz - az * by,
+                     aw * by - ax * bz + ay * bw + az * bx, aw * bz + ax * by - ay * bx + az * bw], axis=1)  # fmt: skip
 
-    Lighting is plain by default — no shadows, no environment map: a browser without a GPU (software WebGL) draws a
-    moving 32-module robot about 4× faster that way (bench/studio.py). ``rich=True`` turns both on.
+
+def _rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Vectors (n, 3) rotated by unit quaternions (n, 4)."""
+    w, u = q[:, :1], q[:, 1:]
+    return v + 2.0 * np.cross(u, np.cross(u, v) + w * v)
+
+
+def geom_poses(model: mujoco.MjModel, xpos: np.ndarray, xquat: np.ndarray, geoms: np.ndarray) -> tuple[np.ndarray, ...]:
+    """World positions and w-x-y-z orientations of ``geoms`` from their bodies' poses (arrays over bodies 1..)."""
+    bodies = model.geom_bodyid[geoms] - 1
+    quat = xquat[bodies]
+    return xpos[bodies] + _rotate(quat, model.geom_pos[geoms]), _quat_mul(quat, model.geom_quat[geoms])
+
+
+class SceneView:
+    """Draws the robot in viser's scene, from the preview or from the live robot: one batched mesh per distinct
+    module shape.
+
+    ``source`` is "preview" (frames of a PreviewLoop) or "live" (the robot process's pose feed, a LiveFeed); a label
+    in the scene says which one is shown. Lighting is plain by default — no shadows, no environment map: a browser
+    without a GPU (software WebGL) draws a moving 32-module robot about 4× faster that way (bench/studio.py).
+    ``rich=True`` turns both on.
 
     With ``follow`` (the default) the robot stays in the middle of the view and the ground moves under it: a gait
     crawls out of a fixed camera's view in seconds. The ground grid is shifted by the robot's position modulo one
     grid cell, so its lines move exactly as the floor would."""
 
-    def __init__(self, server: viser.ViserServer, loop: PreviewLoop, *, rich: bool = False) -> None:
+    def __init__(self, server: viser.ViserServer, loop: PreviewLoop, live: Any = None, *, rich: bool = False) -> None:
         self.server = server
         self.loop = loop
+        self.live = live
+        self.source = "preview"
         self._data: mujoco.MjData | None = None
+        self._model: mujoco.MjModel | None = None
         self._batches: list[tuple[Any, np.ndarray]] = []
-        self._generation = -1
-        self._drawn: Frame | None = None
+        self._built: tuple[str, int] | None = None
+        self._drawn: object = None
         self.rich = rich
         self.follow = True
         self._ground = server.scene.add_grid("/ground", width=4.0, height=4.0, cell_size=GRID_CELL, plane="xy")
+        self._label = server.scene.add_label("/source", "PREVIEW", position=(0.0, 0.0, 0.25))
         self.set_rich(rich)
 
     def set_rich(self, rich: bool) -> None:
@@ -240,13 +268,31 @@ class SceneView:
             self.server.scene.configure_environment_map()
         else:
             self.server.scene.configure_environment_map(None)
-        self._generation = -1
+        self._built = None
 
-    def _build(self) -> None:
-        model = self.loop.sim.model
+    def set_source(self, source: str) -> None:
+        """Show the "preview" or the "live" robot (rebuilt at the next draw)."""
+        if source not in ("preview", "live") or (source == "live" and self.live is None):
+            raise ValueError(f"no {source!r} source to show")
+        self.source = source
+        self._built = None
+
+    def wait_changed(self, timeout: float) -> bool:
+        """Wait until the shown source may have something new to draw."""
+        if self.source == "live":
+            return self.live.wait_changed(timeout)
+        return self.loop.wait_changed(timeout)
+
+    def _wanted(self) -> tuple[mujoco.MjModel | None, tuple[str, int]]:
+        if self.source == "live":
+            return self.live.model, ("live", self.live.generation)
+        return self.loop.sim.model, ("preview", self.loop.generation)
+
+    def _build(self, model: mujoco.MjModel, key: tuple[str, int]) -> None:
         for handle, _ in self._batches:
             handle.remove()
         self._batches = []
+        self._model = model
         self._data = mujoco.MjData(model)
         groups: dict[tuple[float, float, float], list[int]] = {}
         # capsule chains collide with capsules but show their modules as the boxes of their visual geoms
@@ -265,40 +311,54 @@ class SceneView:
             else:
                 continue
             groups.setdefault(tuple(round(h, 5) for h in half), []).append(g)  # type: ignore[arg-type]
+        color = (60, 130, 200) if key[0] == "live" else (217, 140, 38)
         for n, (half, geoms) in enumerate(groups.items()):
             ids = np.array(geoms)
             handle = self.server.scene.add_batched_meshes_simple(
                 f"/robot/shape{n}", _box(np.array(half)), _BOX_FACES,
                 batched_wxyzs=np.tile([1.0, 0, 0, 0], (len(ids), 1)), batched_positions=np.zeros((len(ids), 3)),
-                batched_colors=(217, 140, 38), cast_shadow=self.rich, receive_shadow=self.rich, lod="off",
+                batched_colors=color, cast_shadow=self.rich, receive_shadow=self.rich, lod="off",
             )  # fmt: skip
             self._batches.append((handle, ids))
-        self._generation = self.loop.generation
+        self._built = key
+        self._drawn = None
+
+    def _poses(self) -> tuple[object, np.ndarray, np.ndarray] | None:
+        """(what is drawn, body positions, body orientations) of the shown source, bodies 1.. of its model."""
+        if self.source == "live":
+            frame = self.live.latest
+            model = self._model
+            if frame is None or model is None or len(frame.positions) != model.nbody - 1:
+                return None
+            return frame, frame.positions, frame.quaternions
+        frame = self.loop.shown()
+        data = self._data
+        if frame is None or data is None or len(frame.qpos) != data.qpos.shape[0]:
+            return None
+        data.qpos[:] = frame.qpos
+        mujoco.mj_kinematics(self._model, data)
+        return frame, data.xpos[1:], data.xquat[1:]
 
     def draw(self) -> bool:
-        """Draw the loop's shown frame; False if there is none yet or it is the one already drawn."""
-        if self._generation != self.loop.generation or self._data is None:
-            self._build()
-            self._drawn = None
-        frame = self.loop.shown()
-        if frame is None or frame is self._drawn or self._data is None or len(frame.qpos) != self._data.qpos.shape[0]:
+        """Draw the shown source's newest frame; False if there is none yet or it is the one already drawn."""
+        model, key = self._wanted()
+        if model is None:
             return False
-        self._drawn = frame
-        model = self.loop.sim.model
-        data = self._data
-        data.qpos[:] = frame.qpos
-        mujoco.mj_kinematics(model, data)
-        quat = np.empty(4)
+        if self._built != key:
+            self._build(model, key)
+            self._label.text = "LIVE — the robot" if key[0] == "live" else "PREVIEW — simulation of the edited gait"
+        poses = self._poses()
+        if poses is None or poses[0] is self._drawn:
+            return False
+        self._drawn, xpos, xquat = poses
         shift = np.zeros(3)
-        if self.follow and self._batches:
-            shift[:2] = data.geom_xpos[np.concatenate([ids for _, ids in self._batches]), :2].mean(axis=0)
+        placed = [(handle, *geom_poses(self._model, xpos, xquat, ids)) for handle, ids in self._batches]
+        if self.follow and placed:
+            shift[:2] = np.concatenate([pos for _, pos, _ in placed])[:, :2].mean(axis=0)
         with self.server.atomic():
-            for handle, ids in self._batches:
-                wxyz = np.empty((len(ids), 4))
-                for k, g in enumerate(ids):
-                    mujoco.mju_mat2Quat(quat, data.geom_xmat[g])
-                    wxyz[k] = quat
-                handle.batched_positions = (data.geom_xpos[ids] - shift).astype(np.float32)
+            for handle, pos, wxyz in placed:
+                handle.batched_positions = (pos - shift).astype(np.float32)
                 handle.batched_wxyzs = wxyz.astype(np.float32)
             self._ground.position = (-(shift[0] % GRID_CELL), -(shift[1] % GRID_CELL), 0.0)
+            self._label.position = (0.0, 0.0, 0.25)
         return True

@@ -1,0 +1,273 @@
+"""``asm-robot``: one process that is the robot, reached over Zenoh like a real robot's computer.
+
+Simulated (``--sim FILE``, the default: a gait file, whose robot is built): the robot's MuJoCo world stepped in
+real time (paced to the wall clock), one module runtime per module whose joint driver is that module's actuator,
+joint sensor and contact sensor in the physics (torque limited by the actuator, limp when ``servo.service`` stops,
+holding on e-stop), the modules as ASM nodes on an in-process CAN bus that filters like CAN controllers
+(``asm_sim``), and the CAN↔Zenoh bridge. It publishes its body poses at up to 60 Hz and its status once a second
+(server/feed.py, docs/protocol.md §10), with its real-time factor; when it cannot keep up it says so in the status
+and in its log.
+
+Real (``--can INTERFACE:CHANNEL``): no physics, only the bridge for the modules on that bus, and the status.
+
+Started by ``asm-studio`` as a child process (``--parent-pid``): it ends when its parent does, even one killed with
+SIGKILL (the kernel's parent-death signal, and a watch on the parent's process ID).
+"""
+
+from __future__ import annotations
+
+import argparse
+import ctypes
+import logging
+import os
+import signal
+import sys
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import zenoh
+
+from asm_py.node import Node
+from asm_py.transport.can import CanTransport
+from gaits.deploy import module_name
+from gaits.model import LIBRARY, GaitError, load
+from gaits.sim import Simulation
+
+from .bridge import CanZenohBridge, check_zenoh_arguments, parse_can
+from .feed import PoseFrame, RobotStatus, encode_poses, mjcf_key, poses_key, status_key
+from .realtime import prefer_latency
+
+log = logging.getLogger("asm_robot")
+POSE_RATE = 60.0
+MAX_LAG = 0.25
+"""Seconds the simulation may fall behind the wall clock before it gives the time up (and says it is behind)."""
+
+
+@dataclass
+class RobotOptions:
+    sim: Path | None = LIBRARY / "caterpillar.toml"
+    """The gait file whose robot is simulated; None with ``can``."""
+    can: dict[str, Any] | None = None
+    """python-can options of a real bus."""
+    name: str = "robot"
+    zenoh_listen: tuple[str, ...] = ()
+    zenoh_connect: tuple[str, ...] = ()
+    zenoh_config: str | None = None
+    insecure: bool = False
+    heartbeat_period: float = 0.5
+    pose_rate: float = POSE_RATE
+
+
+class RealTimeLoop:
+    """Steps a Simulation at the wall clock's pace on its own thread and publishes what viewers need."""
+
+    def __init__(self, sim: Simulation, publish: Any, status: RobotStatus, pose_rate: float) -> None:
+        self.sim = sim
+        self._publish = publish
+        self.status = status
+        self.pose_rate = pose_rate
+        self.frames = 0
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="asm-robot-physics", daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        sim = self.sim
+        period = sim.steps_per_tick * sim.model.opt.timestep
+        wall0, sim0 = time.monotonic(), sim.data.time
+        window_wall, window_sim = wall0, sim0
+        next_pose = wall0
+        while not self._stop.is_set():
+            now = time.monotonic()
+            target = sim0 + (now - wall0)
+            if target - sim.data.time > MAX_LAG:  # cannot keep up: give the time up rather than spiral
+                wall0, sim0 = now, sim.data.time
+                target = sim.data.time
+                self._behind(True)
+            try:
+                while sim.data.time < target - 1e-9:
+                    sim.step_tick()
+            except FloatingPointError as exc:
+                log.error("the simulation diverged: %s", exc)
+                return
+            if now >= next_pose:
+                next_pose = max(next_pose + 1.0 / self.pose_rate, now)
+                self._send_poses()
+            if now - window_wall >= 1.0:
+                self.status.real_time_factor = round((sim.data.time - window_sim) / (now - window_wall), 3)
+                if self.status.real_time_factor > 0.95 and self.status.behind:
+                    self._behind(False)
+                self.status.time = sim.data.time
+                self.status.estop = [i for i, r in sim.modules.items() if r.latched]
+                self._publish(status_key(self.status.robot), self.status.to_json())
+                window_wall, window_sim = now, sim.data.time
+            due = min(next_pose, wall0 + (sim.data.time - sim0) + period)
+            self._stop.wait(max(0.0, due - time.monotonic()))
+
+    def _behind(self, behind: bool) -> None:
+        if behind != self.status.behind:
+            self.status.behind = behind
+            if behind:
+                log.warning("the simulation cannot keep up with real time (real-time factor %.2f)",
+                            self.status.real_time_factor or 0.0)  # fmt: skip
+            self._publish(status_key(self.status.robot), self.status.to_json())
+
+    def _send_poses(self) -> None:
+        sim = self.sim
+        with sim.lock:
+            frame = PoseFrame(self.frames, sim.data.time, sim.data.xpos[1:].copy(), sim.data.xquat[1:].copy())
+        self.frames += 1
+        self._publish(poses_key(self.status.robot), encode_poses(frame))
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=10)
+
+
+class Robot:
+    """The robot process's parts; see the module docstring. ``close`` stops all of them."""
+
+    def __init__(self, options: RobotOptions) -> None:
+        self.options = options
+        self.sim: Simulation | None = None
+        self.bridge: CanZenohBridge | None = None
+        self.loop: RealTimeLoop | None = None
+        self._keep: list[Any] = []
+        try:
+            if options.can is None:
+                gait = load(options.sim or RobotOptions.sim)  # type: ignore[arg-type]
+                channel = f"asm-robot-{os.getpid()}-{id(self)}"
+                can_options: dict[str, Any] = {"interface": "asm_sim", "channel": channel}
+
+                def node_of(module_id: int) -> Node:
+                    transport = CanTransport(module_id, heartbeat_period=options.heartbeat_period, **can_options)
+                    return Node(module_name(module_id), transport)
+
+                self.sim = Simulation(gait, node_of=node_of)
+                self.mjcf = self.sim.mjcf
+            else:
+                can_options = dict(options.can)
+            self.bridge = CanZenohBridge({**can_options, "heartbeat_period": options.heartbeat_period},
+                                         zenoh_listen=options.zenoh_listen, zenoh_connect=options.zenoh_connect,
+                                         zenoh_config=options.zenoh_config, insecure=options.insecure)  # fmt: skip
+            session = self.bridge.session
+            modules = len(self.sim.modules) if self.sim is not None else 0
+            self.status = RobotStatus(options.name, "simulated" if self.sim else "real", modules,
+                                      estop=[] if self.sim else None)  # fmt: skip
+            publishers: dict[str, Any] = {}
+
+            def publish(key: str, payload: bytes | str) -> None:
+                publisher = publishers.get(key)
+                if publisher is None:
+                    publisher = publishers[key] = session.declare_publisher(key, express=True)
+                publisher.put(payload)
+
+            self._publish = publish
+            if self.sim is not None:
+                self._keep.append(session.declare_queryable(mjcf_key(options.name), self._answer_mjcf))
+                self.loop = RealTimeLoop(self.sim, publish, self.status, options.pose_rate)
+            else:
+                self._status_timer = threading.Thread(target=self._report, name="asm-robot-status", daemon=True)
+                self._stop = threading.Event()
+                self._status_timer.start()
+            self._publishers = publishers
+        except BaseException:
+            self.close()
+            raise
+
+    def _answer_mjcf(self, query: zenoh.Query) -> None:
+        try:
+            query.reply(query.key_expr, self.mjcf)
+        finally:
+            query.drop()
+
+    def _report(self) -> None:
+        """A real robot's status, once a second (the modules on the bus, as the bridge sees them)."""
+        while not self._stop.wait(1.0):
+            assert self.bridge is not None
+            self.status.modules = len(self.bridge.bridged)
+            self._publish(status_key(self.status.robot), self.status.to_json())
+
+    def close(self) -> None:
+        if self.loop is not None:
+            self.loop.close()
+            self.loop = None
+        if getattr(self, "_stop", None) is not None:
+            self._stop.set()
+            self._status_timer.join(5)
+        for entity in self._keep:
+            entity.undeclare()
+        self._keep.clear()
+        for publisher in getattr(self, "_publishers", {}).values():
+            publisher.undeclare()
+        if self.bridge is not None:
+            self.bridge.close()
+            self.bridge = None
+        if self.sim is not None:
+            self.sim.close()
+            self.sim = None
+
+
+def die_with_parent(parent: int) -> None:
+    """End this process when process ``parent`` ends, however it ends (SIGKILL included)."""
+    try:  # Linux: the kernel sends SIGTERM when the parent thread dies
+        ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        pass
+    if os.getppid() != parent:  # the parent died before the line above
+        os.kill(os.getpid(), signal.SIGTERM)
+
+    def watch() -> None:
+        while True:
+            time.sleep(0.5)
+            if os.getppid() != parent:
+                os.kill(os.getpid(), signal.SIGTERM)
+                return
+
+    threading.Thread(target=watch, name="parent-watch", daemon=True).start()
+
+
+def main(argv: list[str] | None = None) -> int:
+    cli = argparse.ArgumentParser(prog="asm-robot", description=__doc__.splitlines()[0] if __doc__ else "")
+    where = cli.add_mutually_exclusive_group()
+    where.add_argument("--sim", type=Path, metavar="FILE", help="simulate the robot of this gait file (default: "
+                       "the caterpillar)")  # fmt: skip
+    where.add_argument("--can", type=parse_can, metavar="INTERFACE:CHANNEL", help="a real bus: bridge its modules")
+    cli.add_argument("--bitrate", type=int)
+    cli.add_argument("--name", default="robot", help="the robot's name in its Zenoh keys (default robot)")
+    cli.add_argument("--zenoh-listen", action="append", default=[], metavar="ENDPOINT")
+    cli.add_argument("--zenoh-connect", action="append", default=[], metavar="ENDPOINT")
+    cli.add_argument("--zenoh-config", metavar="FILE", help="a Zenoh JSON5 configuration (TLS, access control)")
+    cli.add_argument("--insecure", action="store_true", help="allow listening beyond loopback without TLS and "
+                     "access control (anyone who reaches the port can command the robot)")  # fmt: skip
+    cli.add_argument("--parent-pid", type=int, help=argparse.SUPPRESS)
+    args = cli.parse_args(argv)
+    check_zenoh_arguments(cli, args)
+    if args.parent_pid:
+        die_with_parent(args.parent_pid)
+    prefer_latency()
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
+    can_options = None if args.can is None else {**args.can, **({"bitrate": args.bitrate} if args.bitrate else {})}
+    options = RobotOptions(sim=None if args.can else (args.sim or RobotOptions.sim), can=can_options, name=args.name,
+                           zenoh_listen=tuple(args.zenoh_listen), zenoh_connect=tuple(args.zenoh_connect),
+                           zenoh_config=args.zenoh_config, insecure=args.insecure)  # fmt: skip
+    done = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: done.set())
+    signal.signal(signal.SIGINT, lambda *_: done.set())
+    try:
+        robot = Robot(options)
+    except (GaitError, OSError, ValueError) as exc:
+        print(f"asm-robot: {exc}", file=sys.stderr)
+        return 1
+    kind = "simulated" if robot.sim is not None else f"CAN {args.can}"
+    print(f"READY robot {args.name} ({kind}, {robot.status.modules} modules)", flush=True)
+    done.wait()
+    robot.close()
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,149 @@
+"""The robot process (asm-robot): a simulated robot in real-time physics, reached over a real Zenoh link."""
+
+from __future__ import annotations
+
+import os
+import signal
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+import pytest
+import zenoh
+
+from asm_py.node import Node
+from asm_py.transport.zenoh import ZenohTransport
+from gaits.deploy import deploy
+from gaits.model import LIBRARY, load
+from server.feed import PoseFrame, RobotStatus, decode_poses, encode_poses, mjcf_key, poses_key, status_key
+
+from .helpers import wait_until
+from .processes import Process
+from .transports import free_port
+
+pytestmark = pytest.mark.timeout(180)
+CATERPILLAR = load(LIBRARY / "caterpillar.toml")
+
+
+@pytest.fixture
+def robot() -> Iterator[tuple[Process, str]]:
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    process = Process("-m", "server.robot", "--zenoh-listen", endpoint)
+    try:
+        process.wait_for_line("READY robot", timeout=60)
+        yield process, endpoint
+    finally:
+        assert process.stop() == 0, "".join(process.output[-30:])
+
+
+class Viewer:
+    """What a viewer sees of the robot: its latest pose frame and status."""
+
+    def __init__(self, session: zenoh.Session, name: str = "robot") -> None:
+        self.frames: list[PoseFrame] = []
+        self.status: RobotStatus | None = None
+        self._lock = threading.Lock()
+        self._subs = [session.declare_subscriber(poses_key(name), self._pose),
+                      session.declare_subscriber(status_key(name), self._status)]  # fmt: skip
+
+    def _pose(self, sample: zenoh.Sample) -> None:
+        with self._lock:
+            self.frames.append(decode_poses(sample.payload.to_bytes()))
+            del self.frames[:-600]
+
+    def _status(self, sample: zenoh.Sample) -> None:
+        self.status = RobotStatus.from_json(sample.payload.to_bytes())
+
+    def latest(self) -> PoseFrame | None:
+        with self._lock:
+            return self.frames[-1] if self.frames else None
+
+    def close(self) -> None:
+        for sub in self._subs:
+            sub.undeclare()
+
+
+def test_a_pose_frame_round_trips_and_matches_its_golden_vector() -> None:
+    frame = PoseFrame(7, 1.5, np.array([[0.1, -0.2, 0.025]]), np.array([[1.0, 0.0, 0.0, 0.0]]))
+    data = encode_poses(frame)
+    assert data.hex(" ") == (
+        "52 50 01 01 07 00 00 00 00 00 00 00 00 00 f8 3f 01 00 "
+        "cd cc cc 3d cd cc 4c be cd cc cc 3c 00 00 80 3f 00 00 00 00 00 00 00 00 00 00 00 00"
+    )
+    back = decode_poses(data)
+    assert back.seq == 7 and back.time == 1.5 and back.simulated
+    assert np.allclose(back.positions, frame.positions) and np.allclose(back.quaternions, frame.quaternions)
+    for bad in (data[:-1], b"XP" + data[2:], data[:2] + b"\x02" + data[3:]):
+        with pytest.raises(ValueError):
+            decode_poses(bad)
+
+
+def test_the_deployed_robot_crawls_in_physics_stops_on_estop_and_starts_again(robot) -> None:
+    _, endpoint = robot
+    client = Node("tool", ZenohTransport(connect=[endpoint]))
+    viewer = Viewer(client.transport.session)  # type: ignore[attr-defined]
+    try:
+        assert wait_until(lambda: {f"m{i}" for i in range(1, 9)} <= set(client.discover()), 20)
+        assert wait_until(lambda: viewer.status is not None and viewer.latest() is not None, 10)
+        assert viewer.status.mode == "simulated" and viewer.status.modules == 8  # type: ignore[union-attr]
+        mjcf = list(client.transport.session.get(mjcf_key("robot"), timeout=5))  # type: ignore[attr-defined]
+        assert "<mujoco" in mjcf[0].ok.payload.to_string()
+        still = viewer.latest()
+        assert still is not None
+        report = deploy(client, CATERPILLAR, timeout=5.0)
+        assert report.running == list(range(1, 9))
+        time.sleep(4.0)
+        moving = viewer.latest()
+        assert moving is not None and moving.time > still.time + 3.0
+        assert np.abs(moving.positions - still.positions).max() > 0.02  # the bodies moved: the robot crawls
+        client.estop("test")
+        assert wait_until(lambda: viewer.status is not None and len(viewer.status.estop or []) == 8, 5)
+        time.sleep(0.5)
+        held = viewer.latest()
+        time.sleep(1.0)
+        after = viewer.latest()
+        assert held is not None and after is not None and after.time > held.time + 0.5
+        assert np.abs(after.positions - held.positions).max() < 0.005  # every joint holds: the robot stands still
+        for i in range(1, 9):
+            client.lookup(f"m{i}", "estop", timeout=5).set(False, wait=True)
+        report = deploy(client, CATERPILLAR, timeout=5.0)
+        assert report.running == list(range(1, 9))
+        assert 0.8 < (viewer.status.real_time_factor or 0.0) < 1.2  # type: ignore[union-attr]
+    finally:
+        viewer.close()
+        client.close()
+
+
+def _children(pid: int) -> list[int]:
+    found = []
+    for entry in os.listdir("/proc"):
+        if entry.isdigit():
+            try:
+                stat = Path(f"/proc/{entry}/stat").read_text()
+            except OSError:
+                continue
+            if int(stat.rsplit(")", 1)[1].split()[1]) == pid:
+                found.append(int(entry))
+    return found
+
+
+def test_the_studio_runs_its_robot_as_a_child_that_dies_with_it_even_on_sigkill() -> None:
+    studio = Process("-m", "server.studio", "--port", "0")
+    try:
+        studio.wait_for_line("READY studio", timeout=90)
+        children = _children(studio.popen.pid)
+        assert len(children) == 1 and "server.robot" in Path(f"/proc/{children[0]}/cmdline").read_text()
+        os.kill(studio.popen.pid, signal.SIGKILL)
+        studio.popen.wait(10)
+        assert wait_until(lambda: not os.path.exists(f"/proc/{children[0]}") or _zombie(children[0]), 15)
+    finally:
+        studio.stop()
+
+
+def _zombie(pid: int) -> bool:
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] == "Z"
+    except OSError:
+        return True
