@@ -63,6 +63,44 @@ def _pixels(png: bytes, rgb: tuple[int, int, int], tolerance: int = 40) -> int:
     return int((np.abs(image - np.array(rgb)).sum(axis=2) < tolerance).sum())
 
 
+class _PoseWatch:
+    """The robot's pose feed as a viewer receives it: how far its first body moved across the frames kept."""
+
+    def __init__(self, client) -> None:
+        import threading
+
+        from server.feed import decode_poses, poses_key
+
+        self._lock = threading.Lock()
+        self._points: list = []
+        self._decode = decode_poses
+        self._sub = client.transport.session.declare_subscriber(poses_key("robot"), self._on)
+
+    def _on(self, sample) -> None:
+        frame = self._decode(sample.payload.to_bytes())
+        with self._lock:
+            self._points.append(frame.positions[0].copy())
+            del self._points[:-120]
+
+    def spread(self) -> float:
+        import numpy as np
+
+        with self._lock:
+            points = np.array(self._points[-60:])
+        return float(np.ptp(points, axis=0).max()) if len(points) > 1 else 0.0
+
+    def count(self) -> int:
+        with self._lock:
+            return len(self._points)
+
+    def clear(self) -> None:
+        with self._lock:
+            self._points.clear()
+
+    def close(self) -> None:
+        self._sub.undeclare()
+
+
 def _number(text: str, pattern: str) -> float:
     match = re.search(pattern, text)
     assert match, f"{pattern!r} not in {text[:500]!r}"
@@ -100,6 +138,10 @@ def test_edit_preview_deploy_watch_and_estop(studio):
             page.get_by_role("tab", name="Deploy").click()
             page.get_by_role("button", name="Deploy", exact=True).click()
             expect(page.get_by_text("8 modules confirmed running", exact=False)).to_be_visible(timeout=30_000)
+            # the view shows the live robot, and the robot's own pose feed says it crawls
+            expect(page.get_by_text("Showing: Live", exact=False)).to_be_visible(timeout=15_000)
+            feed = _PoseWatch(client)
+            assert wait_until(lambda: feed.spread() > 0.01, timeout=15), "the live robot did not move"
             assert wait_until(lambda: all(client.lookup(f"m{i}", "gait.service", timeout=2).running
                                           for i in range(1, 9)), timeout=15)  # fmt: skip
             # the deployed (edited) table is what module 1 holds: its first state is 42°
@@ -123,6 +165,10 @@ def test_edit_preview_deploy_watch_and_estop(studio):
                                               for i in range(1, 9)), timeout=15)  # fmt: skip
             expect(page.get_by_text("gait stopped", exact=False).first).to_be_visible(timeout=15_000)
             page.screenshot(path=str(ARTIFACTS / "studio-estop.png"))
+            feed.clear()  # the live robot holds: its bodies stand still
+            assert wait_until(lambda: feed.count() > 30, timeout=10) and feed.spread() < 0.005, feed.spread()
+            expect(page.get_by_text("E-STOP latched", exact=False).first).to_be_visible(timeout=15_000)
+            feed.close()
             browser.close()
         # a browser that disconnected leaves the server and the modules alive
         assert client.lookup("m1", "joint.angle", timeout=5).peek() is not None

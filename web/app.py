@@ -190,9 +190,17 @@ class Dashboard:
     def show(self, source: str) -> None:
         """Show the "preview" or the "live" robot in the 3D view (and say which, under the buttons)."""
         self.view.set_source(source)
-        kind = "simulated" if self.studio.simulated else "real: no poses, angles only"
-        self.source_md.content = ("Showing: **Live** (the robot, " + kind + ")" if source == "live"
-                                  else "Showing: **Preview** (the edited gait, simulated here)")  # fmt: skip
+        self._show_source()
+
+    def _show_source(self) -> None:
+        if self.view.source == "live":
+            kind = "simulated" if self.studio.simulated else "real: no poses, angles only"
+            shown = f"Showing: **Live** (the robot, {kind})"
+        else:
+            shown = "Showing: **Preview** (the edited gait, simulated here)"
+        content = shown + self._live_line()
+        if self.source_md.content != content:
+            self.source_md.content = content
 
     def _on_estop(self, _: Any) -> None:
         self.node.estop("studio E-STOP")  # type: ignore[union-attr]
@@ -331,7 +339,8 @@ class Dashboard:
         warning = f"  \n⚠ {loop.error}" if loop.error else ""
         self.metrics.content = (f"Preview: t = {m.seconds:.2f} s · distance **{m.distance:.3f} m** "
                                 f"({m.body_lengths:.2f} BL) · speed **{m.speed:.3f} m/s** · heading {m.heading:.0f}° · "
-                                f"peak torque {m.peak_torque:.2f} N·m{warning}{self._live_line()}")  # fmt: skip
+                                f"peak torque {m.peak_torque:.2f} N·m{warning}")  # fmt: skip
+        self._show_source()
         with self.programmatic():
             modules = max(2, loop.sim.gait.robot.modules)
             if self.plot_module.max != modules:
