@@ -16,6 +16,7 @@
 
 from __future__ import annotations
 
+import os
 import statistics
 import sys
 import tempfile
@@ -88,7 +89,13 @@ def robot_process(path: Path) -> tuple[Process, Node, Watch]:
 def real_time_factor(path: Path, modules: int) -> float:
     process, client, watch = robot_process(path)
     try:
+        deadline = time.monotonic() + 60.0
         while not {f"m{i}" for i in range(1, modules + 1)} <= set(client.discover()):
+            if time.monotonic() > deadline:
+                seen = len(client.discover())
+                status = watch.status
+                print(f"{modules} modules: only {seen} nodes discovered after 60 s; robot status {status}")
+                return status.real_time_factor or 0.0 if status else 0.0
             time.sleep(0.2)
         report = deploy(client, load(path), timeout=10.0, deadline=30.0)
         assert len(report.running) == modules
@@ -167,7 +174,7 @@ def main() -> None:
     prefer_latency()
     with tempfile.TemporaryDirectory() as folder:
         directory = Path(folder)
-        for modules in (32, 128):
+        for modules in [int(m) for m in os.environ.get("ROBOT_SIZES", "32,128").split(",")]:
             rtf = real_time_factor(resized("caterpillar", modules, directory), modules)
             print(f"ratio robot_rtf_{modules}_running {rtf:.2f} (target >= 1.0)", flush=True)
         for name in ("caterpillar", "sidewinding"):

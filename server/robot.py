@@ -90,8 +90,9 @@ class RealTimeLoop:
             try:
                 while sim.data.time < target - 1e-9:
                     sim.step_tick()
-            except FloatingPointError as exc:
-                log.error("the simulation diverged: %s", exc)
+            except Exception as exc:  # a diverged model, a stalled module: say so, and stop stepping
+                log.error("the simulation stopped: %s", exc)
+                self.status.behind = True
                 return
             if now >= next_pose:
                 next_pose = max(next_pose + 1.0 / self.pose_rate, now)
@@ -143,7 +144,8 @@ class Robot:
                 can_options: dict[str, Any] = {"interface": "asm_sim", "channel": channel}
 
                 def node_of(module_id: int) -> Node:
-                    transport = CanTransport(module_id, heartbeat_period=options.heartbeat_period, **can_options)
+                    transport = CanTransport(module_id, heartbeat_period=options.heartbeat_period, watch_bus=False,
+                                             **can_options)  # fmt: skip
                     return Node(module_name(module_id), transport)
 
                 self.sim = Simulation(gait, node_of=node_of)
@@ -160,10 +162,13 @@ class Robot:
             publishers: dict[str, Any] = {}
 
             def publish(key: str, payload: bytes | str) -> None:
-                publisher = publishers.get(key)
-                if publisher is None:
-                    publisher = publishers[key] = session.declare_publisher(key, express=True)
-                publisher.put(payload)
+                try:
+                    publisher = publishers.get(key)
+                    if publisher is None:
+                        publisher = publishers[key] = session.declare_publisher(key, express=True)
+                    publisher.put(payload)
+                except zenoh.ZError as exc:  # closing: the session or the publisher is gone
+                    log.debug("not published on %s: %s", key, exc)
 
             self._publish = publish
             if self.sim is not None:

@@ -384,3 +384,45 @@ def test_bus_configured_from_python_can_environment(monkeypatch: pytest.MonkeyPa
     finally:
         tool.close()
         module.close()
+
+
+def test_a_quiet_module_hears_only_what_it_must_act_on() -> None:
+    """watch_bus=False: requests to it, broadcast requests and e-stops pass its filters; the other nodes'
+    publications and heartbeats do not, until it subscribes to something."""
+    from asm_py import Attribute
+    from asm_py.canbus.ids import Priority
+
+    from .helpers import wait_until
+    from .transports import fresh_name
+
+    channel = fresh_name("asm-quiet")
+    options = {"interface": "asm_sim", "channel": channel, "heartbeat_period": 0.05}
+    talker = Node("talker", CanTransport(1, **options))
+    quiet = Node("quiet", CanTransport(2, watch_bus=False, **options))
+    tool = Node("tool", CanTransport(3, **options))
+    try:
+        angle = Attribute("joint.angle", 0.0, codec="float32")
+        talker.register(angle)
+        angle.publish()
+        goal = Attribute("joint.goal", 0.0, codec="float32")
+        quiet.register(goal)
+        for k in range(20):
+            angle.set(float(k))
+        time.sleep(0.3)
+        assert quiet.transport.frames_received == 0  # nobody's publications or heartbeats reached it
+        assert wait_until(lambda: "quiet" in tool.discover())
+        tool.lookup("quiet", "joint.goal", timeout=2).set(1.5, wait=True)  # a request to it
+        tool.group().attribute("joint.goal", "float32").set(2.5)  # a broadcast request
+        assert wait_until(lambda: goal.peek() == 2.5)
+        stops: list[str] = []
+        quiet.on_estop(lambda source, reason: stops.append(source))
+        tool.estop("x")
+        assert wait_until(lambda: stops == ["can.3"])  # it knows no names: the sender is can.<its ID>
+        copy = Attribute("copy", codec="float32")
+        copy.subscribe(quiet.lookup("can.1", "joint.angle", timeout=2))
+        angle.set(42.0)
+        assert wait_until(lambda: copy.peek() == 42.0)  # subscribing turned publications on
+        assert Priority.PUBLICATION == 4
+    finally:
+        for node in (tool, quiet, talker):
+            node.close()

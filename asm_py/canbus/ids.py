@@ -103,6 +103,12 @@ def dest_filter(dest_kind: int, dest: int) -> dict[str, int | bool]:
     return {"can_id": dest_kind << 24 | dest << 16, "can_mask": DEST_MASK, "extended": True}
 
 
+def priority_filter(priority: int, dest_kind: int, dest: int) -> dict[str, int | bool]:
+    """A python-can ``can_filters`` entry accepting frames of one priority to (dest_kind, dest)."""
+    return {"can_id": priority << 26 | dest_kind << 24 | dest << 16, "can_mask": 0x7 << 26 | DEST_MASK,
+            "extended": True}  # fmt: skip
+
+
 def check_node_id(node_id: int) -> int:
     if not isinstance(node_id, int) or not MIN_NODE_ID <= node_id <= MAX_NODE_ID:
         raise ValueError(f"CAN node IDs are {MIN_NODE_ID}..{MAX_NODE_ID}, not {node_id!r}")

@@ -30,7 +30,17 @@ from typing import Any
 import can
 
 from ..canbus.fragments import Reassembler, fragment
-from ..canbus.ids import CanId, Dest, FrameType, Priority, SystemCode, check_node_id, dest_filter, frame_priority
+from ..canbus.ids import (
+    CanId,
+    Dest,
+    FrameType,
+    Priority,
+    SystemCode,
+    check_node_id,
+    dest_filter,
+    frame_priority,
+    priority_filter,
+)
 from ..errors import MessageTooLarge
 from ..protocol import MAX_MESSAGE, Kind, kind_of
 from .base import BROADCAST, PublicationHandler, Transport
@@ -76,10 +86,17 @@ class CanTransport(Transport):
         reassembly_timeout: float = 1.0,
         record: str | Path | None = None,
         send_timeout: float = 0.1,
+        watch_bus: bool = True,
         **bus_options: Any,
     ) -> None:
         super().__init__()
         self.node_id = check_node_id(node_id)
+        self.watch_bus = watch_bus
+        """False: the acceptance filters pass only what this node must act on — frames to it and its groups,
+        broadcast requests, e-stops — not the other nodes' publications and heartbeats (a module that neither
+        subscribes nor discovers; on a bus of 128 modules each would otherwise handle every module's traffic).
+        A subscription turns publications back on."""
+        self._hear_publications = watch_bus
         self.fd = fd
         self.frame_size = 64 if fd else 8
         self.heartbeat_period = heartbeat_period
@@ -146,8 +163,13 @@ class CanTransport(Transport):
             return
         filters = [dest_filter(Dest.NODE, i) for i in sorted(self._accept_ids)]
         filters += [dest_filter(Dest.GROUP, g) for g in sorted(self._group_ids)]
-        filters += [dest_filter(Dest.BROADCAST, 0), {"can_id": Dest.SYSTEM << 24, "can_mask": 0x3 << 24,
-                                                     "extended": True}]  # fmt: skip
+        if self.watch_bus:
+            filters += [dest_filter(Dest.BROADCAST, 0), {"can_id": Dest.SYSTEM << 24, "can_mask": 0x3 << 24,
+                                                         "extended": True}]  # fmt: skip
+        else:
+            priorities = [Priority.REQUEST, Priority.BULK, *([Priority.PUBLICATION] if self._hear_publications else [])]
+            filters += [priority_filter(p, Dest.BROADCAST, 0) for p in priorities]
+            filters.append(dest_filter(Dest.SYSTEM, SystemCode.ESTOP))
         self._bus.set_filters(filters)
 
     def _close(self) -> None:
@@ -273,6 +295,9 @@ class CanTransport(Transport):
         key = (node, object_id)
         with self._lock:
             self._subscriptions[key] = (*self._subscriptions.get(key, ()), callback)
+        if not self._hear_publications:
+            self._hear_publications = True
+            self._apply_filters()
 
         def remove() -> None:
             with self._lock:
@@ -333,12 +358,16 @@ class CanTransport(Transport):
                 self._logger.on_message_received(frame)
 
     def _accepts(self, cid: CanId) -> bool:
-        """Software acceptance (interfaces without hardware filters, and replays)."""
+        """Software acceptance (interfaces without hardware filters, and replays): the same rules as the filters."""
         if cid.dest_kind == Dest.NODE:
             return cid.dest in self._accept_ids
         if cid.dest_kind == Dest.GROUP:
             return cid.dest in self._group_ids
-        return True
+        if self.watch_bus:
+            return True
+        if cid.dest_kind == Dest.BROADCAST:
+            return cid.priority != Priority.PUBLICATION or self._hear_publications
+        return cid.dest == SystemCode.ESTOP
 
     def on_message(self, source_id: int, dest_kind: int, dest: int, data: bytes) -> None:
         """A complete message arrived: dispatch it (a gateway overrides this to forward)."""

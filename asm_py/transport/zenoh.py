@@ -112,6 +112,9 @@ def make_config(
     # Zenoh buffers a message whole before anything sees it: bound that at the link (ASM messages are at most
     # MAX_MESSAGE bytes; between that and this bound a node answers TOO_LARGE, beyond it the message is dropped)
     config.insert_json5("transport/link/rx/max_message_size", str(MAX_LINK_MESSAGE))
+    # and drop what is larger before it reaches any callback (the link limit above lets some through in zenoh 1.10)
+    config.insert_json5("low_pass_filter", json.dumps([{"flows": ["ingress"], "messages": ["put", "delete", "query",
+                        "reply"], "key_exprs": ["**"], "size_limit": MAX_LINK_MESSAGE}]))  # fmt: skip
     if connect:
         config.insert_json5("connect/endpoints", json.dumps(list(connect)))
     return config
