@@ -25,7 +25,7 @@ from .document import GaitDocument
 from .editor import GaitEditor
 from .guard import AccessGuard, guarded_server
 from .inputs import ValueInput
-from .live import LiveFeed
+from .live import KinematicTwin, LiveFeed
 from .monitor import LivePlot, Roster, describe, empty_plot, format_value, stroke
 from .preview import PreviewLoop, SceneView
 
@@ -49,6 +49,7 @@ class Dashboard:
         self.loop = PreviewLoop(studio.gait)
         self.feed = LiveFeed(studio.node.transport.session, studio.options.robot_name)  # type: ignore[union-attr]
         self.view = SceneView(self.server, self.loop, self.feed)
+        self.twin: KinematicTwin | None = None
         self.roster = Roster(self.node)  # type: ignore[arg-type]
         self.plot = LivePlot(self.node)  # type: ignore[arg-type]
         self._stop = threading.Event()
@@ -188,7 +189,13 @@ class Dashboard:
             self.loop.request("seek", int(event.target.value))
 
     def show(self, source: str) -> None:
-        """Show the "preview" or the "live" robot in the 3D view (and say which, under the buttons)."""
+        """Show the "preview" or the "live" robot in the 3D view (and say which, under the buttons).
+
+        A real robot sends no poses: its Live view is a kinematic twin of the edited gait's robot, posed from the
+        modules' joint.angle publications (made once, on the first look)."""
+        if source == "live" and not self.studio.simulated and self.twin is None:
+            self.twin = KinematicTwin(self.doc.gait())
+            self.twin.follow(self.feed, self.node)
         self.view.set_source(source)
         self._show_source()
 
@@ -257,8 +264,7 @@ class Dashboard:
                     f"{len(report.running)} of {gait.robot.modules} confirmed running it")  # fmt: skip
         for assignment in gait.modules[:4]:
             self.plot.watch(module_name(assignment.id), "joint.angle")
-        if self.studio.simulated:
-            self.show("live")
+        self.show("live")
 
     def _on_run(self, event: Any) -> None:
         if event.target.value == "Start all":

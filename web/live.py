@@ -1,19 +1,26 @@
 """The Live source of the 3D view: the robot process's pose feed, as any viewer receives it over Zenoh.
 
-The robot publishes its bodies' poses (server/feed.py) and answers its MuJoCo model on request; this keeps the
-newest frame and the model to draw it with. Callbacks run on Zenoh's threads and only store; the view reads.
+A simulated robot publishes its bodies' poses (server/feed.py) and answers its MuJoCo model on request; this keeps
+the newest frame and the model to draw it with. A real robot has no poses: :class:`KinematicTwin` poses a model of
+the edited gait's robot from the modules' ``joint.angle`` publications, with its base fixed where the model puts it
+(it shows the joints, not where the robot went). Callbacks run on Zenoh's or the bus's threads and only store; the
+view reads.
 """
 
 from __future__ import annotations
 
 import logging
 import threading
+import time
 from collections import deque
 
 import mujoco
 import numpy as np
 import zenoh
 
+from gaits.deploy import module_name
+from gaits.mjcf import build_mjcf
+from gaits.model import Gait
 from server.feed import PoseFrame, RobotStatus, decode_poses, mjcf_key, poses_key, status_key
 
 log = logging.getLogger("asm_studio.live")
@@ -37,6 +44,7 @@ class LiveFeed:
         self._want_model = threading.Event()
         self._want_model.set()
         self._stop = threading.Event()
+        self._removers: list[object] = []
         self._subs = [session.declare_subscriber(poses_key(name), self._on_poses),
                       session.declare_subscriber(status_key(name), self._on_status)]  # fmt: skip
         self._fetcher = threading.Thread(target=self._fetch_models, name="live-model", daemon=True)
@@ -85,6 +93,19 @@ class LiveFeed:
                 self._want_model.clear()
             self._changed.set()
 
+    def show_twin(self, model: mujoco.MjModel, frame: PoseFrame) -> None:
+        """Show a kinematic twin's frame (a real robot: no pose feed of its own)."""
+        with self._lock:
+            if self.model is not model:
+                self.model = model
+                self.generation += 1
+            self.latest = frame
+        self._changed.set()
+
+    def keep(self, remover: object) -> None:
+        """Keep a subscription's remover, called on close."""
+        self._removers.append(remover)
+
     def wait_changed(self, timeout: float) -> bool:
         changed = self._changed.wait(timeout)
         self._changed.clear()
@@ -102,9 +123,59 @@ class LiveFeed:
 
     def close(self) -> None:
         self._stop.set()
+        for remove in self._removers:
+            try:
+                remove()  # type: ignore[operator]
+            except Exception:
+                log.debug("unsubscribe failed", exc_info=True)
         for sub in self._subs:
             try:
                 sub.undeclare()
             except Exception:
                 log.debug("undeclare failed", exc_info=True)
         self._fetcher.join(5)
+
+
+class KinematicTwin:
+    """A model of ``gait``'s robot posed from measured joint angles (degrees by module ID), base fixed."""
+
+    def __init__(self, gait: Gait) -> None:
+        self.model = mujoco.MjModel.from_xml_string(build_mjcf(gait.robot, name=gait.name))
+        self._data = mujoco.MjData(self.model)
+        self._qpos = {}
+        for assignment in gait.modules:
+            joint = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_JOINT, module_name(assignment.id))
+            self._qpos[assignment.id] = int(self.model.jnt_qposadr[joint])
+        self.angles: dict[int, float] = {}
+        self._seq = 0
+
+    def frame(self, angles: dict[int, float], time: float) -> PoseFrame:
+        """The bodies' poses with each module's joint at ``angles[id]`` (others at 0)."""
+        data = self._data
+        data.qpos[:] = self.model.qpos0
+        for module_id, degrees in angles.items():
+            address = self._qpos.get(module_id)
+            if address is not None:
+                data.qpos[address] = np.radians(degrees)
+        mujoco.mj_kinematics(self.model, data)
+        self._seq += 1
+        return PoseFrame(self._seq, time, data.xpos[1:].copy(), data.xquat[1:].copy(), simulated=False)
+
+    def follow(self, feed: LiveFeed, node: object) -> None:
+        """Subscribe to every module's ``joint.angle`` through ``node`` and pose ``feed`` at each publication."""
+        lock = threading.Lock()
+        start = time.monotonic()
+
+        def arrived(module_id: int, value: float) -> None:
+            with lock:
+                self.angles[module_id] = float(value)
+                frame = self.frame(self.angles, time.monotonic() - start)
+            feed.show_twin(self.model, frame)
+
+        for module_id in self._qpos:
+            try:
+                remote = node.lookup(module_name(module_id), "joint.angle", timeout=2.0)  # type: ignore[attr-defined]
+            except Exception as exc:  # a module not on the bus: its joint stays at 0
+                log.info("kinematic twin: no joint.angle of %s (%s)", module_name(module_id), exc)
+                continue
+            feed.keep(remote.on_change(lambda value, m=module_id: arrived(m, value)))

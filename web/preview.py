@@ -346,7 +346,10 @@ class SceneView:
             return False
         if self._built != key:
             self._build(model, key)
-            self._label.text = "LIVE — the robot" if key[0] == "live" else "PREVIEW — simulation of the edited gait"
+            twin = key[0] == "live" and self.live.latest is not None and not self.live.latest.simulated
+            self._label.text = ("LIVE — real robot: kinematic twin from its joint angles, base fixed" if twin
+                                else "LIVE — the robot" if key[0] == "live"
+                                else "PREVIEW — simulation of the edited gait")  # fmt: skip
         poses = self._poses()
         if poses is None or poses[0] is self._drawn:
             return False
