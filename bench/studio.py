@@ -16,6 +16,7 @@ one SceneView.draw for the same robot is compared with the 1/60 s frame budget.
 from __future__ import annotations
 
 import os
+import re
 import sys
 import tempfile
 import time
@@ -130,7 +131,7 @@ def drawn_in_browser(port: int) -> float:
         browser = pw.chromium.launch(executable_path=CHROMIUM, args=["--no-sandbox"])
         page = browser.new_page(viewport={"width": 1280, "height": 800})
         page.goto(f"http://127.0.0.1:{port}")
-        page.get_by_role("button", name="E-STOP").wait_for(timeout=30_000)
+        page.get_by_role("button", name=re.compile(r"^E-STOP")).wait_for(timeout=30_000)
         time.sleep(2.0)
         page.evaluate("window.__frames = 0; (function f() { window.__frames++; requestAnimationFrame(f); })()")
         start = time.monotonic()

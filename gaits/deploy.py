@@ -287,3 +287,20 @@ def stop_all(node: Node, group: str = BROADCAST) -> None:
     service = node.group(group).service("gait.service")
     for _ in range(3):
         service.stop()
+
+
+def release_all(node: Node, modules: Sequence[str], *, timeout: float = 2.0, attempts: int = 3) -> list[str]:
+    """Release the e-stop of each module (node names) — set its ``estop`` to false, confirmed — and return those
+    released; DeployError names the modules that could not be released (the others are released all the same)."""
+    by_index = dict(enumerate(modules, start=1))
+    checker = _Modules(node, by_index, timeout, attempts)
+    released, failed = [], []
+    for index, name in by_index.items():
+        try:
+            checker.set(index, "estop", False, "release")
+            released.append(name)
+        except DeployError as exc:
+            failed.append(str(exc))
+    if failed:
+        raise DeployError(f"released {len(released)} of {len(modules)} modules; " + "; ".join(failed))
+    return released

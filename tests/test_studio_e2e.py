@@ -44,7 +44,7 @@ def _open(pw, url: str):
     browser = pw.chromium.launch(executable_path=CHROMIUM, args=["--no-sandbox"])
     page = browser.new_page(viewport={"width": 1400, "height": 900})
     page.goto(url)
-    expect(page.get_by_role("button", name="E-STOP")).to_be_visible(timeout=30_000)
+    expect(page.get_by_role("button", name=re.compile(r"^E-STOP"))).to_be_visible(timeout=30_000)
     return browser, page
 
 
@@ -160,7 +160,7 @@ def test_edit_preview_deploy_watch_and_estop(studio):
             assert plot.screenshot() != before, "the live plot did not change"
             page.screenshot(path=str(ARTIFACTS / "studio-monitor.png"))
             # e-stop: every module stops
-            page.get_by_role("button", name="E-STOP").click()
+            page.get_by_role("button", name=re.compile(r"^E-STOP")).click()
             assert wait_until(lambda: not any(client.lookup(f"m{i}", "gait.service", timeout=2).started
                                               for i in range(1, 9)), timeout=15)  # fmt: skip
             expect(page.get_by_text("gait stopped", exact=False).first).to_be_visible(timeout=15_000)
@@ -168,7 +168,24 @@ def test_edit_preview_deploy_watch_and_estop(studio):
             feed.clear()  # the live robot holds: it settles within seconds, then its bodies stand still for 1 s
             assert wait_until(lambda: feed.count() >= 60 and feed.spread() < 0.005, timeout=15), feed.spread()
             expect(page.get_by_text("E-STOP latched", exact=False).first).to_be_visible(timeout=15_000)
+            expect(page.get_by_role("button", name="E-STOP — LATCHED on 8 modules")).to_be_visible(timeout=15_000)
             feed.close()
+            # start is refused, saying why; release (confirmed) clears every module; then start works
+            page.get_by_role("tab", name="Deploy").click()
+            page.get_by_role("button", name="Start all").click()
+            expect(page.get_by_text("the emergency stop is latched on", exact=False).first).to_be_visible(
+                timeout=15_000
+            )
+            assert not any(client.lookup(f"m{i}", "gait.service", timeout=2).started for i in range(1, 9))
+            page.get_by_role("button", name="Release e-stop").click()
+            page.get_by_role("button", name="Yes, release").click()
+            expect(page.get_by_text("released on 8 of 8 modules", exact=False).first).to_be_visible(timeout=20_000)
+            expect(page.get_by_role("button", name="E-STOP", exact=True)).to_be_visible(timeout=15_000)
+            page.get_by_role("button", name="Start all").click()
+            expect(page.get_by_text("8 of 8 modules confirmed running", exact=False).first).to_be_visible(
+                timeout=20_000
+            )
+            page.screenshot(path=str(ARTIFACTS / "studio-released.png"))
             browser.close()
         # a browser that disconnected leaves the server and the modules alive
         assert client.lookup("m1", "joint.angle", timeout=5).peek() is not None

@@ -19,7 +19,7 @@ import time
 from collections.abc import Callable, Iterator
 from typing import TYPE_CHECKING, Any
 
-from gaits.deploy import deploy, module_name, start_all, stop_all
+from gaits.deploy import deploy, module_name, release_all, start_all, stop_all
 
 from .document import GaitDocument
 from .editor import GaitEditor
@@ -98,6 +98,8 @@ class Dashboard:
         gui.configure_theme(control_width="large")
         self.estop = gui.add_button("E-STOP", color="red", hint="stop every module's gait and hold its joint")
         self.estop.on_click(self.safe(self._on_estop))
+        self.release = gui.add_button("Release e-stop", color="green", hint="let every module move again (asks first)")
+        self.release.on_click(self.safe(self._on_release))
         self.status = gui.add_markdown("Ready.")
         hint = "the edited gait in the preview simulation, or the robot itself"
         self.source = gui.add_button_group("View", ["Preview", "Live"], hint=hint)
@@ -141,8 +143,9 @@ class Dashboard:
     def _build_deploy(self) -> None:
         gui = self.server.gui
         target = "the simulated modules" if self.studio.simulated else "the modules on the REAL CAN bus"
-        gui.add_markdown(f"Deploy the edited gait to {target}: validate, transfer, verify each checksum, then start "
-                         "all modules with one broadcast.")  # fmt: skip
+        gui.add_markdown(f"Deploy the edited gait to {target}: validate, stage it beside the running gait, verify "
+                         "each checksum, then switch every module with one broadcast and confirm each — all or "
+                         "nothing.")  # fmt: skip
         self.deploy_button = gui.add_button("Deploy")
         self.deploy_button.on_click(self.safe(self._on_deploy))
         self.progress = gui.add_progress_bar(0.0)
@@ -199,6 +202,12 @@ class Dashboard:
         self.view.set_source(source)
         self._show_source()
 
+    def _show_estop(self) -> None:
+        latched = self.feed.status.estop if self.feed.status is not None else None
+        label = f"E-STOP — LATCHED on {len(latched)} modules" if latched else "E-STOP"
+        if self.estop.label != label:
+            self.estop.label = label
+
     def _show_source(self) -> None:
         if self.view.source == "live":
             kind = "simulated" if self.studio.simulated else "real: no poses, angles only"
@@ -208,10 +217,34 @@ class Dashboard:
         content = shown + self._live_line()
         if self.source_md.content != content:
             self.source_md.content = content
+        self._show_estop()
 
     def _on_estop(self, _: Any) -> None:
         self.node.estop("studio E-STOP")  # type: ignore[union-attr]
         self.notify("E-STOP", "sent to every module: gaits stopped, joints holding", error=True)
+
+    def _modules(self) -> list[str]:
+        """The module nodes the roster sees alive (m1, m2, …)."""
+        return [n for n in self.roster.alive() if n.startswith("m") and n[1:].isdigit()]
+
+    def _on_release(self, event: Any) -> None:
+        modules = self._modules()
+        with event.client.gui.add_modal("Release the emergency stop?") as modal:
+            event.client.gui.add_markdown(f"Every module ({len(modules)}) may move again: joints stay where they hold "
+                                          "and nothing starts until you start or deploy a gait.")  # fmt: skip
+            go = event.client.gui.add_button("Yes, release", color="green")
+            cancel = event.client.gui.add_button("Cancel")
+
+            @go.on_click
+            def _(_: Any) -> None:
+                modal.close()
+                self.safe(lambda __: self._release(modules))(None)
+
+            cancel.on_click(lambda _: modal.close())
+
+    def _release(self, modules: list[str]) -> None:
+        released = release_all(self.node, modules)  # type: ignore[arg-type]
+        self.notify("E-STOP released", f"released on {len(released)} of {len(modules)} modules")
 
     def _on_deploy(self, event: Any) -> None:
         gait = self.doc.gait()  # GaitError (shown) if the edited gait is invalid

@@ -30,7 +30,7 @@ class Roster:
         self._lock = threading.Lock()
         self.entries: dict[str, dict[str, Any]] = {}
         self._forgotten: set[str] = set()
-        self._gait_objects: dict[str, tuple[Any, Any]] = {}
+        self._gait_objects: dict[str, tuple[Any, ...]] = {}
         for name in node.discover():
             self._changed(name, True)
         self._unlisten = node.on_discovery(self._changed)
@@ -50,16 +50,18 @@ class Roster:
         for name in self.alive():
             try:
                 if name not in self._gait_objects:  # looked up once: a lookup by name is a few frames each way
-                    self._gait_objects[name] = (self.node.lookup(name, "gait.service", timeout=timeout),
-                                                self.node.lookup(name, "gait.state", timeout=timeout))  # fmt: skip
-                service, state = self._gait_objects[name]
+                    self._gait_objects[name] = tuple(self.node.lookup(name, o, timeout=timeout)
+                                                     for o in ("gait.service", "gait.state", "estop"))  # fmt: skip
+                service, state, estop = self._gait_objects[name]
                 running, index = bool(service.running), state.peek()  # type: ignore[union-attr]
+                latched = bool(estop.peek())  # type: ignore[union-attr]
             except Exception:  # not a module (a bridge, a tool) or gone: no gait column, look it up again next time
                 self._gait_objects.pop(name, None)
                 continue
             with self._lock:
                 if name in self.entries:
-                    self.entries[name]["gait"] = f"gait {'running' if running else 'stopped'} · state {index}"
+                    self.entries[name]["gait"] = (f"gait {'running' if running else 'stopped'} · state {index}"
+                                                  + (" · **E-STOP latched**" if latched else ""))  # fmt: skip
                     self.entries[name]["heard"] = time.monotonic()  # it answered: heard now
 
     def forget(self, names: list[str]) -> None:
