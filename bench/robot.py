@@ -31,12 +31,12 @@ sys.path.insert(0, str(ROOT))
 import numpy as np  # noqa: E402
 import zenoh  # noqa: E402
 
+from asm_py.feed import RobotStatus, decode_poses, poses_key, status_key  # noqa: E402
 from asm_py.node import Node  # noqa: E402
 from asm_py.transport.zenoh import ZenohTransport  # noqa: E402
 from gaits.deploy import deploy  # noqa: E402
 from gaits.model import LIBRARY, dumps, load  # noqa: E402
 from gaits.sim import Simulation  # noqa: E402
-from server.feed import RobotStatus, decode_poses, poses_key, status_key  # noqa: E402
 from server.realtime import prefer_latency  # noqa: E402
 from server.robot import Robot, RobotOptions  # noqa: E402
 from tests.processes import Process  # noqa: E402

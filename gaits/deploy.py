@@ -30,13 +30,15 @@ from dataclasses import dataclass, field
 
 from asm_py import Node
 from asm_py.errors import AsmError, AsmTimeout, EstopLatched
+from asm_py.module.wire import Staged, checksum, encode_staged, encode_table
 from asm_py.remote import RemoteObject
 from asm_py.transport.base import BROADCAST
 
 from .model import Gait
 from .table import phase_states
-from .wire import Staged, checksum, encode_staged, encode_table
 
+MODULE_IDS = range(1, 200)
+"""Node IDs modules may take: 200-253 are the bridge's aliases for Zenoh clients, 254 the bridge."""
 LEASE_SECONDS = 30.0
 """How long a deployer holds the robot at most (it releases the lease when done)."""
 

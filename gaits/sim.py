@@ -1,6 +1,6 @@
 """A gait in MuJoCo, run by the modules' own runtime on the simulation clock.
 
-Every module is a :class:`server.module.ModuleRuntime` — the program a real module runs — with a MuJoCo actuator as
+Every module is a :class:`asm_py.module.ModuleRuntime` — the program a real module runs — with a MuJoCo actuator as
 its joint driver. Its gait table arrives as the bytes a deploying tool would send, and its PeriodicAutomaton runs on
 a :class:`~asm_py.clock.SimClock` that this loop advances: one ``gait.tick`` per control period (every module's
 automaton and servo react to it, inline, before the physics continues), then the physics steps of that period. The
@@ -22,7 +22,7 @@ import numpy as np
 
 from asm_py import Event, Node
 from asm_py.clock import SimClock
-from server.module import JointDriver, JointReading, ModuleRuntime
+from asm_py.module import JointDriver, JointReading, ModuleRuntime
 
 from .deploy import module_tables
 from .mjcf import Physics, build_mjcf

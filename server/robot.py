@@ -5,7 +5,7 @@ real time (paced to the wall clock), one module runtime per module whose joint d
 joint sensor and contact sensor in the physics (torque limited by the actuator, limp when ``servo.service`` stops,
 holding on e-stop), the modules as ASM nodes on an in-process CAN bus that filters like CAN controllers
 (``asm_sim``), and the CAN↔Zenoh bridge. It publishes its body poses at up to 60 Hz and its status once a second
-(server/feed.py, docs/protocol.md §10), with its real-time factor; when it cannot keep up it says so in the status
+(asm_py/feed.py, docs/protocol.md §10), with its real-time factor; when it cannot keep up it says so in the status
 and in its log.
 
 Real (``--can INTERFACE:CHANNEL``): no physics, only the bridge for the modules on that bus, and the status.
@@ -30,6 +30,7 @@ from typing import Any
 
 import zenoh
 
+from asm_py.feed import PoseFrame, RobotStatus, encode_poses, mjcf_key, poses_key, status_key
 from asm_py.node import Node
 from asm_py.transport.can import CanTransport
 from gaits.deploy import module_name
@@ -37,7 +38,6 @@ from gaits.model import LIBRARY, GaitError, load
 from gaits.sim import Simulation
 
 from .bridge import CanZenohBridge, check_zenoh_arguments, parse_can
-from .feed import PoseFrame, RobotStatus, encode_poses, mjcf_key, poses_key, status_key
 from .realtime import prefer_latency
 
 log = logging.getLogger("asm_robot")

@@ -30,16 +30,14 @@ from typing import Any
 import zenoh
 
 from asm_py import Node
+from asm_py.feed import RobotStatus, status_key
 from asm_py.transport.zenoh import ZenohTransport
 from gaits.model import LIBRARY, Gait, GaitError, dumps, load
 
 from .bridge import check_zenoh_arguments, parse_can
-from .feed import RobotStatus, status_key
 from .realtime import prefer_latency
 
 log = logging.getLogger("asm_studio")
-MODULE_IDS = range(1, 200)
-"""Node IDs simulated modules may take: 200-253 are the bridge's aliases for Zenoh clients, 254 the bridge."""
 ROBOT_START_TIMEOUT = 60.0
 
 
@@ -125,6 +123,7 @@ class Studio:
 
     def __init__(self, options: StudioOptions) -> None:
         self.options = options
+        self.robot_name = options.robot_name
         self.gait: Gait = load(options.gait)
         self.child: RobotChild | None = None
         self.node: Node | None = None

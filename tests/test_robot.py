@@ -13,11 +13,11 @@ import numpy as np
 import pytest
 import zenoh
 
+from asm_py.feed import PoseFrame, RobotStatus, decode_poses, encode_poses, mjcf_key, poses_key, status_key
 from asm_py.node import Node
 from asm_py.transport.zenoh import ZenohTransport
 from gaits.deploy import deploy
 from gaits.model import LIBRARY, load
-from server.feed import PoseFrame, RobotStatus, decode_poses, encode_poses, mjcf_key, poses_key, status_key
 
 from .helpers import wait_until
 from .processes import Process

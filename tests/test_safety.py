@@ -21,15 +21,15 @@ from asm_py.canbus.faults import FaultyBus
 from asm_py.codec import FLOAT64
 from asm_py.errors import EstopLatched, MessageTooLarge, ReadOnlyError, RemoteError
 from asm_py.event import TimerTrigger
+from asm_py.module import FakeDriver, ModuleRuntime
+from asm_py.module.wire import MAX_STAGED_STATES, PhaseState, encode_table
 from asm_py.node import Node
 from asm_py.protocol import MAX_MESSAGE, Kind, Message, Method, Status, decode, encode
 from asm_py.transport.can import CanTransport
 from asm_py.transport.zenoh import ZenohTransport
 from gaits.deploy import DeployError, deploy, module_name, start_all
 from gaits.model import LIBRARY, load
-from gaits.wire import MAX_STAGED_STATES, PhaseState, encode_table
 from server.bridge import MAX_BLOCK, REPLY_MARGIN, CanZenohBridge
-from server.module import FakeDriver, ModuleRuntime
 
 from .helpers import wait_until
 from .transports import free_port, fresh_name
@@ -448,9 +448,9 @@ def test_golden_module_object_vectors() -> None:
     import json
     from pathlib import Path
 
+    from asm_py.module.staging import LEASE
+    from asm_py.module.wire import Staged, decode_staged, encode_staged
     from asm_py.remote import describe_entry
-    from gaits.wire import Staged, decode_staged, encode_staged
-    from server.staging import LEASE
 
     vectors = json.loads((Path(__file__).parent / "vectors" / "module_objects.json").read_text())
     robot = Robot(1)

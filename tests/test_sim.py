@@ -12,12 +12,12 @@ import mujoco
 import pytest
 
 from asm_py import Node
+from asm_py.module import FakeDriver, ModuleRuntime
 from asm_py.transport.can import CanTransport
 from gaits.deploy import activate, deploy, stop_all
 from gaits.model import Robot, load
 from gaits.serpenoid import sine, wave_gait
 from gaits.sim import Simulation
-from server.module import FakeDriver, ModuleRuntime
 from tests.helpers import wait_until
 from tests.transports import fresh_name
 

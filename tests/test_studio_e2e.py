@@ -69,7 +69,7 @@ class _PoseWatch:
     def __init__(self, client) -> None:
         import threading
 
-        from server.feed import decode_poses, poses_key
+        from asm_py.feed import decode_poses, poses_key
 
         self._lock = threading.Lock()
         self._points: list = []
@@ -197,8 +197,8 @@ def test_edit_preview_deploy_watch_and_estop(studio):
 def test_upload_grid_history_robot_size_and_attribute_browser(studio, tmp_path):
     from playwright.sync_api import expect, sync_playwright
 
+    from asm_py.module.wire import decode_table
     from gaits.model import dumps, load
-    from gaits.wire import decode_table
 
     url, endpoint, log = studio
     ARTIFACTS.mkdir(exist_ok=True)

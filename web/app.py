@@ -17,9 +17,11 @@ import logging
 import threading
 import time
 from collections.abc import Callable, Iterator
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
+from asm_py.node import Node
 from gaits.deploy import deploy, module_name, release_all, start_all, stop_all
+from gaits.model import Gait
 
 from .document import GaitDocument
 from .editor import GaitEditor
@@ -29,17 +31,31 @@ from .live import KinematicTwin, LiveFeed
 from .monitor import LivePlot, Roster, describe, empty_plot, format_value, stroke
 from .preview import PreviewLoop, SceneView
 
-if TYPE_CHECKING:
-    from server.studio import Studio
-
 log = logging.getLogger("asm_studio.web")
 MIN_DRAW_INTERVAL = 1 / 100
 
 
-class Dashboard:
-    """The viser app of a Studio; see the module docstring."""
+class Backend(Protocol):
+    """What the page needs of the backend that builds it (server.studio.Studio is one): the page imports nothing
+    of server/, so the two never import each other."""
 
-    def __init__(self, studio: Studio, *, host: str = "127.0.0.1", port: int = 8080, token: str | None = None) -> None:
+    node: Node
+    """The page's own ASM node, on Zenoh: everything it does to modules goes through it."""
+    gait: Gait
+    """The gait opened at start."""
+    simulated: bool
+    """The robot is simulated (it publishes poses); else a real bus."""
+    robot_name: str
+    """The robot's name in its Zenoh keys."""
+
+    def ensure_robot(self, gait: Gait) -> str | None:
+        """Make a simulated robot the one ``gait`` describes; a message when it was rebuilt."""
+
+
+class Dashboard:
+    """The viser app of a Backend; see the module docstring."""
+
+    def __init__(self, studio: Backend, *, host: str = "127.0.0.1", port: int = 8080, token: str | None = None) -> None:
         self.studio = studio
         self.node = studio.node
         self.guard = AccessGuard(host, token)
@@ -47,7 +63,7 @@ class Dashboard:
         self.port = self.server.get_port()
         self.doc = GaitDocument(studio.gait)
         self.loop = PreviewLoop(studio.gait)
-        self.feed = LiveFeed(studio.node.transport.session, studio.options.robot_name)  # type: ignore[union-attr]
+        self.feed = LiveFeed(studio.node.transport.session, studio.robot_name)  # type: ignore[attr-defined]
         self.view = SceneView(self.server, self.loop, self.feed)
         self.twin: KinematicTwin | None = None
         self.roster = Roster(self.node)  # type: ignore[arg-type]

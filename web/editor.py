@@ -17,9 +17,9 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from gaits.deploy import MODULE_IDS
 from gaits.model import AXES, LIBRARY, SHAPES, GaitError, load
 from gaits.table import expand
-from server.studio import MODULE_IDS
 
 from .grid import StateGrid
 from .monitor import empty_plot, stroke

@@ -3,8 +3,8 @@
 A deploying tool must never leave a robot half running a new gait. So a module keeps two gaits: the one it runs
 (``gait.table``, ``gait.phase``, ``gait.direction``) and a *staged* one that does nothing until activated:
 
-    gait.staged           bytes    a staged record (gaits.wire: deploy ID, phase, direction, table); set any time,
-                                   even while the gait runs — the running gait is untouched
+    gait.staged           bytes    a staged record (wire.py: deploy ID, phase, direction, table); set any time, even
+                                   while the gait runs — the running gait is untouched
     gait.staged_checksum  uint32   CRC-32 of gait.staged (read-only), for the tool to verify the transfer
     gait.activate         uint32   set to a deploy ID: if it is the staged one, the module makes the staged gait its
                                    gait and starts it; its value is the deploy ID now running (0: none). Sent as one
@@ -23,13 +23,13 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any
 
-from asm_py import Attribute, CheckedAttribute
-from asm_py.codec import BYTES, FLOAT32, STR, UINT32, record
-from asm_py.errors import EstopLatched, Locked
-from gaits.wire import Staged, checksum, decode_staged
+from ..attribute import Attribute, CheckedAttribute
+from ..codec import BYTES, FLOAT32, STR, UINT32, record
+from ..errors import EstopLatched, Locked
+from .wire import Staged, checksum, decode_staged
 
 if TYPE_CHECKING:
-    from .module import ModuleRuntime
+    from .runtime import ModuleRuntime
 
 LEASE = record([("holder", STR), ("token", UINT32), ("seconds", FLOAT32)])
 MAX_LEASE = 60.0

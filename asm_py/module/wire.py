@@ -25,8 +25,8 @@ import zlib
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from asm_py.automaton import PhaseState
-from asm_py.protocol import HEADER_SIZE, MAX_MESSAGE
+from ..automaton import PhaseState
+from ..protocol import HEADER_SIZE, MAX_MESSAGE
 
 MAGIC = b"GT"
 VERSION = 1

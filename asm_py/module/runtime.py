@@ -1,0 +1,343 @@
+"""The module runtime: the ASM node a PolyBot-like module runs, whether its joint is simulated or real.
+
+What a module has is what it exposes (well-known classes, so groups and tools address them on every module):
+
+    joint.goal      float32  the commanded angle, degrees — clamped to joint.limits whatever is sent
+    joint.angle     float32  the measured angle, published
+    joint.torque    float32  the measured torque, N·m, published
+    joint.limits    float32[2]  (min, max) degrees; settable only within the hardware's range
+    servo.service   the servo loop: running = joint powered and following joint.goal; stopped = limp
+    gait.table      bytes    this module's automaton (asm_py.module.wire); settable only while the gait is stopped
+    gait.checksum   uint32   CRC-32 of gait.table, for a deploying tool to verify the transfer
+    gait.phase      float32  the initial phase delay φ ∈ [0, 1) used when the gait starts without one
+    gait.direction  int8     +1 forward, -1 backward (the automaton's direction)
+    gait.state      uint16   the automaton's current state
+    gait.service    the PeriodicAutomaton running the table on gait.tick; its output drives joint.goal
+    gait.tick       float64  the control tick event (a timer on a real module; the simulator's steps in preview)
+    sensor.contact  bool     the module touches the ground, published
+    estop           bool     latched emergency stop: the gait stops, the joint holds where it is, and every
+                             remote request that would move it (goal, limits, tables, staging, activation, gait and
+                             servo starts and stops) is refused with status ESTOP until estop is set back to false
+    gait.staged, gait.staged_checksum, gait.activate, gait.lease
+                             a deployment as a transaction (asm_py/module/staging.py)
+
+Measurements and what only the module computes (joint.angle, joint.torque, sensor.contact, gait.checksum,
+gait.staged_checksum, gait.state, gait.tick) are read-only from outside: a remote set is answered READ_ONLY.
+
+The same class drives a simulated joint (a MuJoCo actuator, gaits.sim) or a real one behind :class:`JointDriver`;
+:class:`FakeDriver` is a servo model for tests and for running without hardware.
+
+When the gait starts, the goal ramps from where it was to the automaton's reference over ``ramp`` seconds: a jump to
+full amplitude can throw a long chain about (SIMULATION.md). The ramp is part of the module, so a preview shows it.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+from abc import ABC, abstractmethod
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+from ..attribute import Attribute, CheckedAttribute
+from ..automaton import PeriodicAutomaton, PhaseState
+from ..clock import WALL_CLOCK, Clock
+from ..codec import BOOL, BYTES, FLOAT32, FLOAT64, UINT32, float_array
+from ..eds import EventDrivenService
+from ..errors import EstopLatched
+from ..event import Event, TimerTrigger
+from ..node import WRITES, Node
+from ..protocol import Method
+from .staging import Staging
+from .wire import checksum, decode_table, encode_table
+
+HOLD = [PhaseState(0.0, 1.0, "step")]
+"""The table of a module that has not been given a gait: hold 0°."""
+
+
+@dataclass(frozen=True)
+class JointReading:
+    angle: float
+    """Measured joint angle, degrees."""
+    torque: float = 0.0
+    """Measured joint torque, N·m."""
+    contact: bool = False
+    """The module touches the ground."""
+
+
+class JointDriver(ABC):
+    """The joint of one module in degrees: what a simulated or real module plugs into the runtime."""
+
+    @abstractmethod
+    def command(self, degrees: float) -> None:
+        """Drive the joint towards ``degrees`` (already within the module's limits)."""
+
+    @abstractmethod
+    def read(self) -> JointReading:
+        """The joint's measured state now."""
+
+    def relax(self) -> None:
+        """Stop driving the joint (servo off)."""
+
+
+class FakeDriver(JointDriver):
+    """A position servo model: the angle follows the command as a first-order lag with time constant ``tau``
+    seconds of ``clock``, computed when read (no thread of its own, so it is deterministic on a SimClock)."""
+
+    def __init__(self, *, tau: float = 0.05, stiffness: float = 0.02, clock: Clock | None = None) -> None:
+        self.tau = tau
+        self.stiffness = stiffness  # N·m per degree of error, for the torque estimate
+        self.clock = clock or WALL_CLOCK
+        self._lock = threading.Lock()
+        self._goal = 0.0
+        self._angle = 0.0
+        self._powered = True
+        self._time = self.clock.now()
+
+    def _advance(self) -> None:
+        now = self.clock.now()
+        if self._powered:
+            self._angle = self._goal + (self._angle - self._goal) * math.exp(-(now - self._time) / self.tau)
+        self._time = now
+
+    def command(self, degrees: float) -> None:
+        with self._lock:
+            self._advance()
+            self._goal = degrees
+            self._powered = True
+
+    def read(self) -> JointReading:
+        with self._lock:
+            self._advance()
+            torque = self.stiffness * (self._goal - self._angle) if self._powered else 0.0
+            return JointReading(self._angle, max(-1.5, min(1.5, torque)), False)
+
+    def relax(self) -> None:
+        with self._lock:
+            self._advance()
+            self._powered = False
+
+
+class ModuleGait(PeriodicAutomaton):
+    """gait.service: started without a phase, it starts at the module's gait.phase; refuses to start in e-stop."""
+
+    def __init__(self, runtime: ModuleRuntime, tick: Event, *, inline: bool) -> None:
+        self._runtime = runtime
+        self.reference_out = Attribute("gait.reference", 0.0, codec=FLOAT64, clock=runtime.clock)
+        super().__init__("gait.service", tick, HOLD, output=self.reference_out, inline=inline, clock=runtime.clock)
+
+    def start(self, phase: float | None = None, direction: int | None = None, *, wait: bool = True) -> None:  # type: ignore[override]
+        if self._runtime.latched:
+            raise EstopLatched("the module is in emergency stop; set estop to false before starting the gait")
+        if phase is None:
+            phase = float(self._runtime.phase.peek())
+        self._runtime._begin_ramp()
+        super().start(phase, direction)
+
+
+class _Servo(EventDrivenService):
+    """servo.service: on every control tick, read the joint into joint.angle/torque and sensor.contact."""
+
+    def __init__(self, runtime: ModuleRuntime, tick: Event, *, inline: bool) -> None:
+        super().__init__("servo.service", tick, inline=inline, clock=runtime.clock)
+        self._runtime = runtime
+
+    def handle(self, value: Any) -> None:
+        self._runtime.sense()
+
+    def on_start(self, *params: Any) -> None:
+        self._runtime.driver.command(self._runtime.goal.peek())
+
+    def on_stop(self) -> None:
+        self._runtime.driver.relax()
+
+
+class ModuleRuntime:
+    """One module's objects and behaviour; see the module docstring. ``close`` stops everything it started."""
+
+    def __init__(
+        self,
+        driver: JointDriver,
+        *,
+        node: Node | None = None,
+        clock: Clock | None = None,
+        limits: tuple[float, float] = (-90.0, 90.0),
+        hardware_range: tuple[float, float] = (-90.0, 90.0),
+        tick: Event | None = None,
+        control_rate: float = 50.0,
+        ramp: float = 1.0,
+        inline: bool = False,
+        refresh_rate: float = 2.0,
+        publish_limit: float = 25.0,
+    ) -> None:
+        self.driver = driver
+        self.node = node
+        self.clock = clock or (node.clock if node is not None else WALL_CLOCK)
+        self.hardware_range = hardware_range
+        self.ramp = ramp
+        self._motion = threading.Lock()  # the hold of an e-stop and the gait's next goal never interleave
+        self.latched = False
+        """The e-stop is latched (set before the hold, so no goal from a racing tick follows it)."""
+        self.limits = CheckedAttribute("joint.limits", self._check_limits(limits), codec=float_array(2),
+                                       check=self._check_limits, clock=self.clock)  # fmt: skip
+        self.goal = CheckedAttribute("joint.goal", 0.0, codec=FLOAT32, check=self._clamp_goal, clock=self.clock)
+        self.angle = Attribute("joint.angle", 0.0, codec=FLOAT32, clock=self.clock)
+        self.torque = Attribute("joint.torque", 0.0, codec=FLOAT32, clock=self.clock)
+        self.contact = Attribute("sensor.contact", False, codec=BOOL, clock=self.clock)
+        self.estop = CheckedAttribute("estop", False, codec=BOOL, check=self._check_estop, clock=self.clock)
+        self.phase = CheckedAttribute("gait.phase", 0.0, codec=FLOAT32, check=self._check_phase, clock=self.clock)
+        self._own_timer: TimerTrigger | None = None
+        if tick is None:
+            tick = Event("gait.tick", codec=FLOAT64, clock=self.clock)
+            self._own_timer = TimerTrigger(1.0 / control_rate, name="tick.timer", clock=self.clock)
+            tick.add_trigger(self._own_timer)
+        self.tick = tick
+        self.gait = ModuleGait(self, tick, inline=inline)
+        table = encode_table(HOLD)
+        self.table = CheckedAttribute("gait.table", table, codec=BYTES, check=self._load_table, clock=self.clock)
+        self.checksum = Attribute("gait.checksum", checksum(table), codec=UINT32, clock=self.clock)
+        self.staging = Staging(self)
+        self.servo = _Servo(self, tick, inline=inline)
+        self._ramp_from = 0.0
+        self._ramp_start = 0.0
+        self._unlisten = [self.gait.reference_out.on_change(self._follow), self.limits.on_change(self._reclamp),
+                          self.goal.on_change(self._command)]  # fmt: skip
+        if node is not None:
+            self._register(node, refresh_rate, publish_limit)
+        self.servo.start()
+        if self._own_timer is not None:
+            self._own_timer.start()
+
+    # -- wiring -------------------------------------------------------------------------------------------------
+
+    def _register(self, node: Node, refresh_rate: float, publish_limit: float) -> None:
+        if self.tick.publish_policy is None:  # unless the tick's owner chose otherwise (before it is registered)
+            # the tick fires 50 times a second; published at each firing (an event's default) it would take two
+            # frames per firing per module, ~40 % of a 1 Mbit/s bus for 32 modules: once a second shows it ticks
+            self.tick.publish(rate=1.0)
+        staging = self.staging
+        starts = (Method.START, Method.RESUME)
+        moving = {self.goal: WRITES, self.limits: WRITES, self.servo: WRITES, self.table: WRITES, self.gait: starts,
+                  staging.staged: WRITES, staging.activate: WRITES}  # fmt: skip
+        for obj in (self.goal, self.angle, self.torque, self.limits, self.servo, self.table, self.checksum,
+                    self.phase, self.gait, self.tick, self.contact, self.estop, staging.staged,
+                    staging.staged_checksum, staging.activate, staging.lease):  # fmt: skip
+            refused = moving.get(obj)
+            node.register(obj, read_only=obj in self._read_only(),
+                          guard=None if refused is None else self._refuse_in_estop(obj.name, refused))  # fmt: skip
+        node.register(self.gait.direction, name="gait.direction")
+        node.register(self.gait.state, name="gait.state", read_only=True)
+        # changes beyond the deadband, at most ``publish_limit`` a second (a moving joint changes at every control
+        # tick: 32 modules at 50 Hz would be 1 600 frames a second), and a refresh ``refresh_rate`` times a second
+        # when nothing moves: a resting robot keeps the bus quiet
+        self.angle.publish(rate=refresh_rate, deadband=0.1, limit=publish_limit)
+        self.torque.publish(rate=refresh_rate / 2, deadband=0.05, limit=publish_limit / 2)
+        self.contact.publish()
+        self.gait.state.publish(deadband=0)  # on change: the automaton sets its state at every tick
+        self._unlisten.append(node.on_estop(lambda source, reason: self.emergency_stop(reason)))
+
+    def _read_only(self) -> tuple[Attribute, ...]:
+        return (self.angle, self.torque, self.contact, self.checksum, self.staging.staged_checksum, self.tick)
+
+    def _refuse_in_estop(self, name: str, methods: frozenset[int] | tuple[int, ...]) -> Callable[[int], None]:
+        def guard(method: int) -> None:
+            if method in methods and self.latched:
+                raise EstopLatched(f"{name}: the module's emergency stop is latched (set estop to false to release)")
+
+        return guard
+
+    # -- behaviour ----------------------------------------------------------------------------------------------
+
+    def _check_limits(self, value: Any) -> tuple[float, float]:
+        lo, hi = (float(v) for v in value)
+        hw_lo, hw_hi = self.hardware_range
+        if not (hw_lo <= lo < hi <= hw_hi):
+            raise ValueError(f"joint limits must satisfy {hw_lo} <= min < max <= {hw_hi}, not ({lo}, {hi})")
+        return (lo, hi)
+
+    def _clamp_goal(self, value: float) -> float:
+        if math.isnan(value):
+            raise ValueError("joint.goal cannot be NaN")
+        lo, hi = self.limits.peek()
+        return min(max(value, lo), hi)
+
+    def _check_phase(self, value: float) -> float:
+        if not 0.0 <= value < 1.0:
+            raise ValueError(f"gait.phase must be in [0, 1), not {value}")
+        return value
+
+    def _check_estop(self, value: bool) -> bool:
+        self.latched = bool(value)
+        if value:
+            self._halt()
+        return value
+
+    def check_table(self, data: bytes) -> list[PhaseState]:
+        """The states of table ``data`` if this module can run it; ValueError saying why not."""
+        states = decode_table(data)
+        lo, hi = self.limits.peek()
+        outside = [s.target for s in states if not lo <= s.target <= hi]  # type: ignore[operator]
+        if outside:
+            raise ValueError(f"gait table angles {outside[:4]} lie outside the joint limits ({lo}, {hi})")
+        return states
+
+    def _load_table(self, data: bytes) -> bytes:
+        self.gait.load(self.check_table(data))  # ServiceError while the gait runs: a table never changes mid-cycle
+        self.checksum.set(checksum(data))
+        Attribute.set(self.staging.activate, 0)  # the gait is no longer a deployment's (the base set: no activation)
+        return data
+
+    def switch_gait(self, table: bytes, phase: float, direction: int) -> None:
+        """Stop the gait, make ``table``/``phase``/``direction`` the module's gait and start it (an activation)."""
+        if self.latched:
+            raise EstopLatched("the module's emergency stop is latched")
+        self.check_table(table)
+        self.gait.stop(timeout=1.0)
+        self.table.set(table)
+        self.phase.set(phase)
+        self.gait.direction.set(direction)
+        self.gait.start()
+
+    def _follow(self, reference: float) -> None:
+        """The automaton's reference becomes the goal, ramped in from the goal held when the gait started."""
+        with self._motion:
+            if self.latched:
+                return  # a tick that raced the e-stop: the hold wins
+            s = 1.0 if self.ramp <= 0 else min(1.0, (self.clock.now() - self._ramp_start) / self.ramp)
+            self.goal.set(self._ramp_from + s * (reference - self._ramp_from))
+
+    def _reclamp(self, limits: Any) -> None:
+        self.goal.set(self.goal.peek())
+
+    def _command(self, goal: float) -> None:
+        if self.servo.running:
+            self.driver.command(goal)
+
+    def sense(self) -> None:
+        reading = self.driver.read()
+        self.angle.set(reading.angle)
+        self.torque.set(reading.torque)
+        if reading.contact != self.contact.peek():
+            self.contact.set(reading.contact)
+
+    def _begin_ramp(self) -> None:
+        self._ramp_from = float(self.goal.peek())
+        self._ramp_start = self.clock.now()
+
+    def _halt(self) -> None:
+        self.gait.stop(wait=False)
+        with self._motion:
+            self.goal.set(self.driver.read().angle)
+
+    def emergency_stop(self, reason: str = "") -> None:
+        """Stop the gait and hold the joint where it is; latched until ``estop`` is set to false."""
+        self.estop.set(True)
+
+    def close(self) -> None:
+        if self._own_timer is not None:
+            self._own_timer.stop(timeout=5)
+        self.gait.stop(timeout=5)
+        self.servo.stop(timeout=5)
+        for unlisten in self._unlisten:
+            unlisten()
