@@ -243,20 +243,28 @@ class Dashboard:
         """The module nodes the roster sees alive (m1, m2, …)."""
         return [n for n in self.roster.alive() if n.startswith("m") and n[1:].isdigit()]
 
-    def _on_release(self, event: Any) -> None:
-        modules = self._modules()
-        with event.client.gui.add_modal("Release the emergency stop?") as modal:
-            event.client.gui.add_markdown(f"Every module ({len(modules)}) may move again: joints stay where they hold "
-                                          "and nothing starts until you start or deploy a gait.")  # fmt: skip
-            go = event.client.gui.add_button("Yes, release", color="green")
-            cancel = event.client.gui.add_button("Cancel")
+    def _confirm(self, event: Any, title: str, lines: list[str], yes: str, color: str, action: Any) -> None:
+        """Ask the user who clicked first: a dialog with ``lines``, a ``yes`` button running ``action``, and Cancel."""
+        gui = event.client.gui
+        with gui.add_modal(title) as modal:
+            for line in lines:
+                gui.add_markdown(line)
+            go = gui.add_button(yes, color=color)
+            cancel = gui.add_button("Cancel")
 
             @go.on_click
             def _(_: Any) -> None:
                 modal.close()
-                self.safe(lambda __: self._release(modules))(None)
+                self.safe(lambda __: action())(None)
 
             cancel.on_click(lambda _: modal.close())
+
+    def _on_release(self, event: Any) -> None:
+        modules = self._modules()
+        lines = [f"Every module ({len(modules)}) may move again: joints stay where they hold and nothing starts until "
+                 "you start or deploy a gait."]  # fmt: skip
+        self._confirm(event, "Release the emergency stop?", lines, "Yes, release", "green",
+                      lambda: self._release(modules))  # fmt: skip
 
     def _release(self, modules: list[str]) -> None:
         released = release_all(self.node, modules)  # type: ignore[arg-type]
@@ -271,21 +279,12 @@ class Dashboard:
 
     def _confirm_real(self, event: Any, gait: Any) -> None:
         wanted = {module_name(a.id) for a in gait.modules}
-        others = [n for n in self.roster.alive() if n.startswith("m") and n[1:].isdigit() and n not in wanted]
-        with event.client.gui.add_modal("Deploy to the real robot?") as modal:
-            event.client.gui.add_markdown(f"{gait.name} will be written to {gait.robot.modules} modules on the bus.")
-            if others:
-                event.client.gui.add_markdown(f"⚠ {', '.join(others)} on the bus are not in this gait; the broadcast "
-                                              "start starts them too, with the table they already hold.")  # fmt: skip
-            go = event.client.gui.add_button("Yes, deploy", color="red")
-            cancel = event.client.gui.add_button("Cancel")
-
-            @go.on_click
-            def _(_: Any) -> None:
-                modal.close()
-                self.safe(lambda __: self._deploy(gait))(None)
-
-            cancel.on_click(lambda _: modal.close())
+        others = [n for n in self._modules() if n not in wanted]
+        lines = [f"{gait.name} will be written to {gait.robot.modules} modules on the bus."]
+        if others:
+            lines.append(f"⚠ {', '.join(others)} on the bus are not in this gait: they keep running what they run "
+                         "(the activation reaches only the modules that staged this gait).")  # fmt: skip
+        self._confirm(event, "Deploy to the real robot?", lines, "Yes, deploy", "red", lambda: self._deploy(gait))
 
     def _deploy(self, gait: Any) -> None:
         lines: list[str] = []
