@@ -60,6 +60,8 @@ class StudioOptions:
     """Allow the robot to listen beyond loopback without TLS and access control."""
     host: str = "127.0.0.1"
     port: int = 8080
+    view: str = "preview"
+    """What the 3D view shows at start: "preview" (the edited gait) or "live" (the robot)."""
     token: str | None = None
     """The page's access token; None: none on loopback, a new random one when served beyond it."""
 
@@ -142,6 +144,7 @@ class Studio:
 
             self.token = options.token or (None if is_loopback(options.host) else new_token())
             self.app = Dashboard(self, host=options.host, port=options.port, token=self.token)
+            self.app.show(options.view)
         except BaseException:
             self.close()
             raise
@@ -246,6 +249,8 @@ def main(argv: list[str] | None = None) -> int:
                      "is on loopback only unless --zenoh-listen says otherwise")  # fmt: skip
     cli.add_argument("--host", default="127.0.0.1", help="address to serve on (default 127.0.0.1, this machine only)")
     cli.add_argument("--port", type=int, default=8080, help="HTTP port (default 8080; 0 picks a free one)")
+    cli.add_argument("--view", choices=["preview", "live"], default="preview",
+                     help="what the 3D view shows at start (default: the preview of the edited gait)")  # fmt: skip
     args = cli.parse_args(argv)
     check_zenoh_arguments(cli, args)
     prefer_latency()
@@ -253,7 +258,7 @@ def main(argv: list[str] | None = None) -> int:
     options = StudioOptions(gait=args.gait, can=args.can, robot=args.robot, robot_name=args.robot_name,
                             bitrate=args.bitrate, zenoh_listen=tuple(args.zenoh_listen),
                             zenoh_connect=tuple(args.zenoh_connect), zenoh_config=args.zenoh_config,
-                            insecure=args.insecure, host=args.host, port=args.port)  # fmt: skip
+                            insecure=args.insecure, host=args.host, port=args.port, view=args.view)  # fmt: skip
     done = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: done.set())
     signal.signal(signal.SIGINT, lambda *_: done.set())

@@ -216,6 +216,8 @@ class Dashboard:
             self.twin = KinematicTwin(self.doc.gait())
             self.twin.follow(self.feed, self.node)
         self.view.set_source(source)
+        # the preview simulation pauses while the live robot is shown (its CPU is the live view's), and plays again
+        self.loop.request("play", source == "preview")
         self._show_source()
 
     def _show_estop(self) -> None:
