@@ -138,7 +138,7 @@ class Dashboard:
         self.play.on_click(self.safe(self._on_play))
         self.speed = gui.add_slider("Speed", min=0.1, max=4.0, step=0.1, initial_value=1.0)
         self.speed.on_update(self.safe(lambda e: self.loop.request("speed", e.target.value)))
-        self.timeline = gui.add_slider("Timeline (frame)", min=0, max=1, step=1, initial_value=0)
+        self.timeline = gui.add_slider("Preview timeline (frame)", min=0, max=1, step=1, initial_value=0)
         self.timeline.on_update(self.safe(self._on_seek))
         steps = gui.add_button_group("Step", ["◀ back", "forward ▶"])
         steps.on_click(self.safe(lambda e: self.loop.request("step", -1 if "back" in e.target.value else 1)))
@@ -154,7 +154,7 @@ class Dashboard:
         self.angles = gui.add_uplot(data=empty_plot(3),
                                     series=({"label": "t"}, {"label": "commanded", "stroke": "orange"},
                                             {"label": "measured", "stroke": "steelblue"}),
-                                    title="Joint angle (deg)", aspect=2.0)  # fmt: skip
+                                    title="Preview: joint angle (deg)", aspect=2.0)  # fmt: skip
 
     def _build_deploy(self) -> None:
         gui = self.server.gui
@@ -181,7 +181,7 @@ class Dashboard:
             actions = gui.add_button_group("Browse", ["List", "Get", "Set", "Plot"])
             actions.on_click(self.safe(self._on_browse))
         self.live = gui.add_uplot(data=empty_plot(2), series=({"label": "t"}, {"label": "-"}),
-                                  title="Live attributes", aspect=2.0)  # fmt: skip
+                                  title="Live: module attributes (from the robot)", aspect=2.0)  # fmt: skip
         self._live_labels: list[str] = ["-"]
 
     @contextlib.contextmanager
