@@ -18,8 +18,7 @@ import json
 from typing import TYPE_CHECKING, Any
 
 from .codec import Codec, parse_codec
-from .errors import MessageTooLarge
-from .protocol import MAX_MESSAGE, WELL_KNOWN_CLASSES, Kind, Message, Method, encode
+from .protocol import WELL_KNOWN_CLASSES, Kind, Message, Method, check_size, encode
 from .transport.base import BROADCAST, check_name
 
 if TYPE_CHECKING:
@@ -51,9 +50,7 @@ class GroupPort:
 
     def send(self, method: Method, cls: str | int, data: bytes = b"") -> None:
         """Send one request (no reply) for the object of class ``cls`` on every member."""
-        raw = encode(Message(Kind.REQUEST, method, 0, class_id_of(cls), 0, data=data))
-        if len(raw) > MAX_MESSAGE:
-            raise MessageTooLarge(f"group message of {len(raw)} bytes exceeds the {MAX_MESSAGE}-byte maximum")
+        raw = check_size(encode(Message(Kind.REQUEST, method, 0, class_id_of(cls), 0, data=data)), self)
         self.node.transport.send_group(self.group, raw)
         self.sent += 1
 

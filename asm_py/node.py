@@ -39,6 +39,8 @@ from .protocol import (
     Status,
     decode,
     first_byte,
+    reply_head,
+    too_large,
 )
 from .publisher import Publisher
 from .remote import Port, RemoteObject, describe_entry, make_client
@@ -315,12 +317,11 @@ class Node:
         self.dropped += 1
         if data[0] >> 6 != 1 or (data[0] >> 4) & 0x03 != Kind.REQUEST_REPLY:
             return
-        reply = bytes((first_byte(Kind.REPLY, data[0] & 0x0F), data[1] & 0x7F, Status.TOO_LARGE, data[3]))
-        text = f"message of {len(data)} bytes exceeds the {MAX_MESSAGE}-byte maximum".encode()
+        reply = reply_head(data, Status.TOO_LARGE) + too_large(len(data)).encode()
         if respond is None:
-            self.transport.send(source, reply + text)
+            self.transport.send(source, reply)
         else:
-            respond(reply + text)
+            respond(reply)
 
     @staticmethod
     def _reply(respond: Responder, request: Message, status: int = Status.OK, data: bytes = b"") -> None:

@@ -19,7 +19,7 @@ from __future__ import annotations
 from enum import IntEnum
 from typing import NamedTuple
 
-from .errors import AsmError
+from .errors import AsmError, MessageTooLarge
 
 VERSION = 1
 HEADER_SIZE = 4
@@ -217,6 +217,26 @@ def decode(data: bytes | bytearray | memoryview) -> Message:
     if kind == Kind.REPLY:
         return Message(kind, method, raw[1] & MAX_TXN, 0, raw[3], raw[2], None, raw[offset:])
     return Message(kind, method, raw[1] & MAX_TXN, raw[2], raw[3], Status.OK, timeout, raw[offset:])
+
+
+def too_large(length: int, what: object = None) -> str:
+    """Why a message of ``length`` bytes (sent for ``what``) is refused: one wording at every edge that enforces
+    MAX_MESSAGE."""
+    prefix = "" if what is None else f"{what}: "
+    return f"{prefix}message of {length} bytes exceeds the {MAX_MESSAGE}-byte maximum"
+
+
+def check_size(raw: bytes, what: object = None) -> bytes:
+    """``raw`` if it fits one ASM message; MessageTooLarge, before anything is sent, otherwise."""
+    if len(raw) > MAX_MESSAGE:
+        raise MessageTooLarge(too_large(len(raw), what))
+    return raw
+
+
+def reply_head(request: bytes, status: int) -> bytes:
+    """The 4-byte reply header to the raw request ``request`` (at least 4 bytes), for an edge that answers a
+    request it will not decode: same method, transaction and object ID, the given status."""
+    return bytes((first_byte(Kind.REPLY, request[0] & 0x0F), request[1] & MAX_TXN, status, request[3]))
 
 
 def reply_to(request: Message, status: int = Status.OK, data: bytes = b"") -> Message:

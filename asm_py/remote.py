@@ -26,7 +26,6 @@ from .codec import Codec, codec_from_descriptor
 from .errors import AsmTimeout, EstopLatched, Locked, MessageTooLarge, ReadOnlyError, RemoteError, ServiceError
 from .protocol import (
     HEADER_SIZE,
-    MAX_MESSAGE,
     MAX_TXN,
     Kind,
     Message,
@@ -34,6 +33,7 @@ from .protocol import (
     ObjectKind,
     ProtocolError,
     Status,
+    check_size,
     encode,
     encode_timeout,
     first_byte,
@@ -144,13 +144,6 @@ class _Call:
         self.failure: str | None = None
 
 
-def _check_size(data: bytes, what: object) -> bytes:
-    """``data`` if it fits one ASM message; MessageTooLarge before anything is sent otherwise."""
-    if len(data) > MAX_MESSAGE:
-        raise MessageTooLarge(f"{what}: message of {len(data)} bytes exceeds the {MAX_MESSAGE}-byte maximum")
-    return data
-
-
 class Port:
     """The client port from a node to one remote node."""
 
@@ -168,7 +161,7 @@ class Port:
     ) -> None:
         """Send a request that wants no reply."""
         message = Message(Kind.REQUEST, method, 0, class_id, object_id, timeout=timeout, data=data)
-        self.node.transport.send(self.remote, _check_size(encode(message), _What(method, self.remote)))
+        self.node.transport.send(self.remote, check_size(encode(message), _What(method, self.remote)))
 
     def call(
         self,
@@ -215,7 +208,7 @@ class Port:
         what: object,
     ) -> Message:
         mon = self._mon
-        raw = _check_size(encode(Message(Kind.REQUEST_REPLY, method, 0, class_id, object_id, timeout=code, data=data)),
+        raw = check_size(encode(Message(Kind.REQUEST_REPLY, method, 0, class_id, object_id, timeout=code, data=data)),
                           what)  # fmt: skip
         call = _Call(method, object_id)
         with mon:
@@ -248,7 +241,7 @@ class Port:
         """
         txn = next(self._direct_txns) & MAX_TXN  # atomic; these replies never pass through _pending
         head = bytes((first_byte(Kind.REQUEST_REPLY, method), txn, class_id, object_id))
-        raw = self.node.transport.request(self.remote, _check_size(head + data, what), wait)
+        raw = self.node.transport.request(self.remote, check_size(head + data, what), wait)
         if raw is None:
             raise AsmTimeout(f"{what} timed out: no reply within {wait:.3g}s")
         if len(raw) < HEADER_SIZE or raw[0] != first_byte(Kind.REPLY, method) or raw[1] != txn or raw[3] != object_id:

@@ -44,7 +44,17 @@ from asm_py.canbus.fragments import frame_count
 from asm_py.canbus.ids import Dest, check_node_id
 from asm_py.codec import to_json
 from asm_py.node import Node
-from asm_py.protocol import MAX_MESSAGE, MAX_TXN, Kind, Status, decode_timeout, encode_timeout, first_byte, kind_of
+from asm_py.protocol import (
+    MAX_MESSAGE,
+    MAX_TXN,
+    Kind,
+    Status,
+    decode_timeout,
+    encode_timeout,
+    kind_of,
+    reply_head,
+    too_large,
+)
 from asm_py.remote import RemoteObject
 from asm_py.transport.can import CanTransport, group_id, message_priority
 from asm_py.transport.zenoh import make_config
@@ -260,7 +270,7 @@ class CanZenohBridge:
             if len(data) < 4:
                 raise _Refusal(None, "")
             if len(data) > MAX_MESSAGE:
-                raise _Refusal(Status.TOO_LARGE, f"message of {len(data)} bytes exceeds the {MAX_MESSAGE}-byte maximum")
+                raise _Refusal(Status.TOO_LARGE, too_large(len(data)))
             name, session = self._sender(query.key_expr, query.attachment)
             with self._lock:
                 client = self._client(name, session)
@@ -271,8 +281,7 @@ class CanZenohBridge:
         except _Refusal as refusal:
             self.forwarded["refused"] += 1
             if wants_reply and refusal.status is not None:
-                head = bytes((first_byte(Kind.REPLY, data[0] & 0x0F), data[1] & MAX_TXN, refusal.status, data[3]))
-                query.reply(query.key_expr, head + refusal.text.encode("utf-8")[:120])
+                query.reply(query.key_expr, reply_head(data, refusal.status) + refusal.text.encode("utf-8")[:120])
             query.drop()
             return
         if not wants_reply:
