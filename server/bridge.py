@@ -484,6 +484,16 @@ def parse_can(spec: str) -> dict[str, Any]:
     return {"interface": interface, "channel": channel}
 
 
+def add_zenoh_arguments(cli: argparse.ArgumentParser, *, listen_help: str | None = None) -> None:
+    """The Zenoh options every command shares (as python-can's ``add_bus_arguments`` gives every tool the same bus
+    flags); :func:`check_zenoh_arguments` checks them once parsed."""
+    cli.add_argument("--zenoh-listen", action="append", default=[], metavar="ENDPOINT", help=listen_help)
+    cli.add_argument("--zenoh-connect", action="append", default=[], metavar="ENDPOINT")
+    cli.add_argument("--zenoh-config", metavar="FILE", help="a Zenoh JSON5 configuration (TLS, access control)")
+    cli.add_argument("--insecure", action="store_true", help="allow Zenoh to listen beyond loopback without TLS "
+                     "and access control (anyone who reaches the port can command the robot)")  # fmt: skip
+
+
 def check_zenoh_arguments(cli: argparse.ArgumentParser, args: argparse.Namespace) -> None:
     """A usage error (exit 2, one line) for Zenoh endpoints that would be insecure or a config file that is bad."""
     try:
@@ -499,12 +509,8 @@ def main(argv: list[str] | None = None) -> int:
     cli.add_argument("--bitrate", type=int)
     cli.add_argument("--fd", action="store_true")
     cli.add_argument("--node-id", type=int, default=254, help="the bridge's own CAN node ID")
-    cli.add_argument("--zenoh-listen", action="append", default=[], metavar="ENDPOINT")
-    cli.add_argument("--zenoh-connect", action="append", default=[], metavar="ENDPOINT")
+    add_zenoh_arguments(cli)
     cli.add_argument("--zenoh-mode", default="peer", choices=["peer", "client"])
-    cli.add_argument("--zenoh-config", metavar="FILE", help="a Zenoh JSON5 configuration (TLS, access control)")
-    cli.add_argument("--insecure", action="store_true", help="allow listening beyond loopback without TLS and "
-                     "access control (anyone who reaches the port can command the robot)")  # fmt: skip
     args = cli.parse_args(argv)
     check_zenoh_arguments(cli, args)
     prefer_latency()

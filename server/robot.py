@@ -37,7 +37,7 @@ from gaits.deploy import module_name
 from gaits.model import LIBRARY, GaitError, load
 from gaits.sim import Simulation
 
-from .bridge import CanZenohBridge, check_zenoh_arguments, parse_can
+from .bridge import CanZenohBridge, add_zenoh_arguments, check_zenoh_arguments, parse_can
 from .realtime import prefer_latency
 
 log = logging.getLogger("asm_robot")
@@ -137,6 +137,9 @@ class Robot:
         self.bridge: CanZenohBridge | None = None
         self.loop: RealTimeLoop | None = None
         self._keep: list[Any] = []
+        self._publishers: dict[str, Any] = {}
+        self._stop = threading.Event()
+        self._status_timer: threading.Thread | None = None
         try:
             if options.can is None:
                 gait = load(options.sim or RobotOptions.sim)  # type: ignore[arg-type]
@@ -159,7 +162,7 @@ class Robot:
             modules = len(self.sim.modules) if self.sim is not None else 0
             self.status = RobotStatus(options.name, "simulated" if self.sim else "real", modules,
                                       estop=[] if self.sim else None)  # fmt: skip
-            publishers: dict[str, Any] = {}
+            publishers = self._publishers
 
             def publish(key: str, payload: bytes | str) -> None:
                 try:
@@ -176,9 +179,7 @@ class Robot:
                 self.loop = RealTimeLoop(self.sim, publish, self.status, options.pose_rate)
             else:
                 self._status_timer = threading.Thread(target=self._report, name="asm-robot-status", daemon=True)
-                self._stop = threading.Event()
                 self._status_timer.start()
-            self._publishers = publishers
         except BaseException:
             self.close()
             raise
@@ -200,14 +201,16 @@ class Robot:
         if self.loop is not None:
             self.loop.close()
             self.loop = None
-        if getattr(self, "_stop", None) is not None:
-            self._stop.set()
+        self._stop.set()
+        if self._status_timer is not None:
             self._status_timer.join(5)
+            self._status_timer = None
         for entity in self._keep:
             entity.undeclare()
         self._keep.clear()
-        for publisher in getattr(self, "_publishers", {}).values():
+        for publisher in self._publishers.values():
             publisher.undeclare()
+        self._publishers.clear()
         if self.bridge is not None:
             self.bridge.close()
             self.bridge = None
@@ -243,11 +246,7 @@ def main(argv: list[str] | None = None) -> int:
     where.add_argument("--can", type=parse_can, metavar="INTERFACE:CHANNEL", help="a real bus: bridge its modules")
     cli.add_argument("--bitrate", type=int)
     cli.add_argument("--name", default="robot", help="the robot's name in its Zenoh keys (default robot)")
-    cli.add_argument("--zenoh-listen", action="append", default=[], metavar="ENDPOINT")
-    cli.add_argument("--zenoh-connect", action="append", default=[], metavar="ENDPOINT")
-    cli.add_argument("--zenoh-config", metavar="FILE", help="a Zenoh JSON5 configuration (TLS, access control)")
-    cli.add_argument("--insecure", action="store_true", help="allow listening beyond loopback without TLS and "
-                     "access control (anyone who reaches the port can command the robot)")  # fmt: skip
+    add_zenoh_arguments(cli)
     cli.add_argument("--parent-pid", type=int, help=argparse.SUPPRESS)
     args = cli.parse_args(argv)
     check_zenoh_arguments(cli, args)

@@ -34,7 +34,7 @@ from asm_py.feed import RobotStatus, status_key
 from asm_py.transport.zenoh import ZenohTransport
 from gaits.model import LIBRARY, Gait, GaitError, dumps, load
 
-from .bridge import check_zenoh_arguments, parse_can
+from .bridge import add_zenoh_arguments, check_zenoh_arguments, parse_can
 from .realtime import prefer_latency
 
 log = logging.getLogger("asm_studio")
@@ -239,12 +239,7 @@ def main(argv: list[str] | None = None) -> int:
                        "tcp/192.0.2.5:7447 (with --zenoh-config for TLS); starts none")  # fmt: skip
     cli.add_argument("--robot-name", default="robot", help="the robot's name in its Zenoh keys (default robot)")
     cli.add_argument("--bitrate", type=int)
-    cli.add_argument("--zenoh-listen", action="append", default=[], metavar="ENDPOINT",
-                     help="more endpoints the robot listens on, for tools elsewhere")  # fmt: skip
-    cli.add_argument("--zenoh-connect", action="append", default=[], metavar="ENDPOINT")
-    cli.add_argument("--zenoh-config", metavar="FILE", help="a Zenoh JSON5 configuration (TLS, access control)")
-    cli.add_argument("--insecure", action="store_true", help="allow Zenoh to listen beyond loopback without TLS "
-                     "and access control (anyone who reaches the port can command the robot)")  # fmt: skip
+    add_zenoh_arguments(cli, listen_help="more endpoints the robot listens on, for tools elsewhere")
     cli.add_argument("--no-zenoh", action="store_true", help="accepted for compatibility: the robot's Zenoh link "
                      "is on loopback only unless --zenoh-listen says otherwise")  # fmt: skip
     cli.add_argument("--host", default="127.0.0.1", help="address to serve on (default 127.0.0.1, this machine only)")
