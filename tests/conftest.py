@@ -29,3 +29,15 @@ def services():
     yield started
     for service in reversed(started):
         service.stop(timeout=None)
+
+
+@pytest.fixture
+def studio():
+    """The studio in this process (its robot a child process), on a free port; closed even when the test fails."""
+    from server.studio import Studio, StudioOptions
+
+    studio = Studio(StudioOptions(port=0))
+    try:
+        yield studio
+    finally:
+        studio.close()

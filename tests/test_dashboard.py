@@ -11,7 +11,6 @@ import numpy as np
 import pytest
 
 from gaits.model import load
-from server.studio import Studio, StudioOptions
 from tests.helpers import wait_until
 
 pytestmark = pytest.mark.timeout(120)
@@ -20,15 +19,6 @@ pytestmark = pytest.mark.timeout(120)
 def _click(value: str) -> SimpleNamespace:
     """What viser hands a button group's callback when the button ``value`` is clicked."""
     return SimpleNamespace(target=SimpleNamespace(value=value), client=None)
-
-
-@pytest.fixture
-def studio():
-    studio = Studio(StudioOptions(port=0))
-    try:
-        yield studio
-    finally:
-        studio.close()
 
 
 def test_a_grid_row_edits_its_state_selects_it_and_re_previews(studio):

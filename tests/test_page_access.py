@@ -18,15 +18,6 @@ pytestmark = pytest.mark.timeout(120)
 PROTOCOL = f"viser-v{viser.__version__}"
 
 
-@pytest.fixture
-def studio():
-    studio = Studio(StudioOptions(port=0))
-    try:
-        yield studio
-    finally:
-        studio.close()
-
-
 def _open(url: str, origin: str | None = None, cookie: str | None = None, host: str | None = None):
     headers = {**({"Cookie": cookie} if cookie else {}), **({"Host": host} if host else {})}
     return connect(url, origin=origin, subprotocols=[PROTOCOL], additional_headers=headers, open_timeout=10)

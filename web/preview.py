@@ -363,5 +363,4 @@ class SceneView:
                 handle.batched_positions = (pos - shift).astype(np.float32)
                 handle.batched_wxyzs = wxyz.astype(np.float32)
             self._ground.position = (-(shift[0] % GRID_CELL), -(shift[1] % GRID_CELL), 0.0)
-            self._label.position = (0.0, 0.0, 0.25)
         return True
