@@ -14,6 +14,7 @@ import sys
 import time
 
 from . import Attribute, Event, PeriodicAutomaton, PhaseState, TimerTrigger
+from .cli import bounded, rate
 
 # One period of a caterpillar joint, as eight states with linear interpolation: a sine sampled at 45° steps.
 CATERPILLAR = [PhaseState(round(60.0 * s, 1), 0.125, "linear") for s in (0.71, 1, 0.71, 0, -0.71, -1, -0.71, 0)]
@@ -27,10 +28,12 @@ def bar(angle: float, width: int = 9) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--modules", type=int, default=6, help="modules in the chain")
-    parser.add_argument("--seconds", type=float, default=0.0, help="run time; 0 runs until Ctrl-C")
-    parser.add_argument("--rate", type=float, default=50.0, help="control ticks per second")
+    parser = argparse.ArgumentParser(prog="asm-demo", description=__doc__.splitlines()[0])
+    parser.add_argument("--modules", type=bounded(int, 1, 254, what="a module count"), default=6,
+                        help="modules in the chain (default 6)")  # fmt: skip
+    parser.add_argument("--seconds", type=bounded(float, 0, 86_400, what="a run time"), default=0.0,
+                        help="run time; 0 runs until Ctrl-C")  # fmt: skip
+    parser.add_argument("--rate", type=rate, default=50.0, help="control ticks per second (default 50)")
     args = parser.parse_args(argv)
 
     tick = Event("tick", codec="float64")

@@ -14,13 +14,14 @@ from _common import parser
 from module import populate, serve
 
 from asm_py import Node
+from asm_py.cli import can_channel
 from asm_py.transport.can import CanTransport
-from server.bridge import CanZenohBridge, parse_can
+from server.bridge import CanZenohBridge
 
 
 def main() -> int:
     cli = parser(__doc__.splitlines()[0])
-    cli.add_argument("--can", type=parse_can, required=True, metavar="INTERFACE:CHANNEL")
+    cli.add_argument("--can", type=can_channel, required=True, metavar="INTERFACE:CHANNEL")
     cli.add_argument("--node-id", type=int, default=1)
     cli.add_argument("--name", default="m1")
     cli.add_argument("--bridge", action="store_true", help="also bridge the bus to Zenoh (--listen/--connect)")

@@ -11,6 +11,8 @@ from __future__ import annotations
 import argparse
 import sys
 
+from asm_py.cli import bounded, output_file, run
+
 from .model import GaitError, load
 from .table import format_table
 
@@ -22,38 +24,52 @@ def main(argv: list[str] | None = None) -> int:
     validate.add_argument("files", nargs="+")
     expand = commands.add_parser("expand", help="print the module x time table")
     expand.add_argument("file")
-    expand.add_argument("--samples", type=int, default=16, help="samples per period (default 16)")
+    expand.add_argument("--samples", type=bounded(int, 1, 1024, what="samples per period"), default=16,
+                        help="samples per period, 1..1024 (default 16)")  # fmt: skip
     simulate = commands.add_parser("simulate", help="run the gait in MuJoCo and print the metrics")
     simulate.add_argument("file")
-    simulate.add_argument("--seconds", type=float, default=10.0, help="measured simulated time (default 10)")
-    simulate.add_argument("--warmup", type=float, default=2.0, help="simulated seconds before measuring (default 2)")
+    simulate.add_argument("--seconds", type=bounded(float, above=0, high=3600, what="the measured time"),
+                          default=10.0, help="measured simulated time, seconds (default 10)")  # fmt: skip
+    simulate.add_argument("--warmup", type=bounded(float, 0, 3600, what="the warm-up"), default=2.0,
+                          help="simulated seconds before measuring (default 2)")  # fmt: skip
     simulate.add_argument("--direction", type=int, choices=(1, -1), default=1, help="-1 runs every automaton backwards")
-    simulate.add_argument("--push-at", type=float, help="push the robot sideways (1 N, 0.1 s) at this time")
-    simulate.add_argument("--mjcf", metavar="OUT.xml", help="also write the model as MJCF (opens in MuJoCo's viewer)")
+    simulate.add_argument("--push-at", type=bounded(float, 0, 3600, what="the push time"),
+                          help="push the robot sideways (1 N, 0.1 s) at this simulated time")  # fmt: skip
+    simulate.add_argument("--mjcf", type=output_file, metavar="OUT.xml",
+                          help="also write the model as MJCF (opens in MuJoCo's viewer)")  # fmt: skip
     args = cli.parse_args(argv)
     if args.command == "simulate":
-        return _simulate(args)
+        return run("gaits simulate", lambda: _simulate(args))
     if args.command == "validate":
-        failed = 0
-        for path in args.files:
-            try:
-                gait = load(path)
-            except (GaitError, OSError) as exc:
-                failed += 1
-                problems = getattr(exc, "problems", None) or [exc]
-                print(f"{path}: INVALID", file=sys.stderr)
-                for problem in problems:
-                    print(f"  {problem}", file=sys.stderr)
-                continue
-            print(f"{path}: ok ({gait.name}: {gait.robot.modules} modules, {len(gait.automata)} automata)")
-        return 1 if failed else 0
+        return _validate(args.files)
     try:
         gait = load(args.file)
-        print(format_table(gait, samples=args.samples))
-    except (GaitError, OSError, ValueError) as exc:
-        print(f"{args.file}: {exc}", file=sys.stderr)
+    except (GaitError, OSError) as exc:
+        _report(args.file, exc)
         return 1
+    print(format_table(gait, samples=args.samples))
     return 0
+
+
+def _report(path: str, exc: GaitError | OSError) -> None:
+    print(f"{path}: INVALID", file=sys.stderr)
+    lines = exc.lines() if isinstance(exc, GaitError) else [exc.strerror or str(exc)]
+    for line in lines:
+        print(f"  {line}", file=sys.stderr)
+
+
+def _validate(files: list[str]) -> int:
+    """Exit 1 if any file is bad; every file gets one verdict line, a bad one its problems (at most 50)."""
+    failed = 0
+    for path in files:
+        try:
+            gait = load(path)
+        except (GaitError, OSError) as exc:
+            failed += 1
+            _report(path, exc)
+            continue
+        print(f"{path}: ok ({gait.name}: {gait.robot.modules} modules, {len(gait.automata)} automata)")
+    return 1 if failed else 0
 
 
 def _simulate(args: argparse.Namespace) -> int:
@@ -64,7 +80,7 @@ def _simulate(args: argparse.Namespace) -> int:
     try:
         gait = load(args.file)
     except (GaitError, OSError) as exc:
-        print(f"{args.file}: {exc}", file=sys.stderr)
+        _report(args.file, exc)
         return 1
     with Simulation(gait, direction=args.direction) as sim:
         if args.mjcf:

@@ -42,6 +42,7 @@ import zenoh
 
 from asm_py.canbus.fragments import frame_count
 from asm_py.canbus.ids import Dest, check_node_id
+from asm_py.cli import bitrate, can_channel, describe, input_file, node_id, run, zenoh_endpoint
 from asm_py.codec import to_json
 from asm_py.node import Node
 from asm_py.protocol import (
@@ -476,20 +477,14 @@ class _Refusal(Exception):
         self.text = text
 
 
-def parse_can(spec: str) -> dict[str, Any]:
-    """``INTERFACE:CHANNEL`` (e.g. ``socketcan:can0``, ``virtual:bus0``) as python-can keyword arguments."""
-    interface, sep, channel = spec.partition(":")
-    if not sep or not interface or not channel:
-        raise argparse.ArgumentTypeError(f"{spec!r} is not INTERFACE:CHANNEL, e.g. socketcan:can0")
-    return {"interface": interface, "channel": channel}
-
-
 def add_zenoh_arguments(cli: argparse.ArgumentParser, *, listen_help: str | None = None) -> None:
     """The Zenoh options every command shares (as python-can's ``add_bus_arguments`` gives every tool the same bus
     flags); :func:`check_zenoh_arguments` checks them once parsed."""
-    cli.add_argument("--zenoh-listen", action="append", default=[], metavar="ENDPOINT", help=listen_help)
-    cli.add_argument("--zenoh-connect", action="append", default=[], metavar="ENDPOINT")
-    cli.add_argument("--zenoh-config", metavar="FILE", help="a Zenoh JSON5 configuration (TLS, access control)")
+    cli.add_argument("--zenoh-listen", action="append", default=[], type=zenoh_endpoint, metavar="ENDPOINT",
+                     help=listen_help)  # fmt: skip
+    cli.add_argument("--zenoh-connect", action="append", default=[], type=zenoh_endpoint, metavar="ENDPOINT")
+    cli.add_argument("--zenoh-config", type=input_file, metavar="FILE",
+                     help="a Zenoh JSON5 configuration (TLS, access control)")  # fmt: skip
     cli.add_argument("--insecure", action="store_true", help="allow Zenoh to listen beyond loopback without TLS "
                      "and access control (anyone who reaches the port can command the robot)")  # fmt: skip
 
@@ -500,19 +495,23 @@ def check_zenoh_arguments(cli: argparse.ArgumentParser, args: argparse.Namespace
         make_config(mode=getattr(args, "zenoh_mode", "peer"), listen=args.zenoh_listen, connect=args.zenoh_connect,
                     config_file=args.zenoh_config, insecure=args.insecure)  # fmt: skip
     except (ValueError, OSError, zenoh.ZError) as exc:
-        cli.error(str(exc))
+        cli.error(describe(exc))
 
 
 def main(argv: list[str] | None = None) -> int:
-    cli = argparse.ArgumentParser(prog="python -m server.bridge", description=__doc__.splitlines()[0])
-    cli.add_argument("--can", type=parse_can, required=True, metavar="INTERFACE:CHANNEL")
-    cli.add_argument("--bitrate", type=int)
+    cli = argparse.ArgumentParser(prog="asm-bridge", description=__doc__.splitlines()[0])
+    cli.add_argument("--can", type=can_channel, required=True, metavar="INTERFACE:CHANNEL")
+    cli.add_argument("--bitrate", type=bitrate)
     cli.add_argument("--fd", action="store_true")
-    cli.add_argument("--node-id", type=int, default=254, help="the bridge's own CAN node ID")
+    cli.add_argument("--node-id", type=node_id, default=254, help="the bridge's own CAN node ID (default 254)")
     add_zenoh_arguments(cli)
     cli.add_argument("--zenoh-mode", default="peer", choices=["peer", "client"])
     args = cli.parse_args(argv)
     check_zenoh_arguments(cli, args)
+    return run(cli.prog, lambda: _serve(args))
+
+
+def _serve(args: argparse.Namespace) -> int:
     prefer_latency()
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
     options = {**args.can, "fd": args.fd, **({"bitrate": args.bitrate} if args.bitrate else {})}

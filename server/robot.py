@@ -21,7 +21,6 @@ import ctypes
 import logging
 import os
 import signal
-import sys
 import threading
 import time
 from dataclasses import dataclass
@@ -30,14 +29,15 @@ from typing import Any
 
 import zenoh
 
+from asm_py.cli import bitrate, can_channel, input_file, name, run
 from asm_py.feed import PoseFrame, RobotStatus, encode_poses, mjcf_key, poses_key, status_key
 from asm_py.node import Node
 from asm_py.transport.can import CanTransport
 from gaits.deploy import module_name
-from gaits.model import LIBRARY, GaitError, load
+from gaits.model import LIBRARY, load
 from gaits.sim import Simulation
 
-from .bridge import CanZenohBridge, add_zenoh_arguments, check_zenoh_arguments, parse_can
+from .bridge import CanZenohBridge, add_zenoh_arguments, check_zenoh_arguments
 from .realtime import prefer_latency
 
 log = logging.getLogger("asm_robot")
@@ -241,15 +241,19 @@ def die_with_parent(parent: int) -> None:
 def main(argv: list[str] | None = None) -> int:
     cli = argparse.ArgumentParser(prog="asm-robot", description=__doc__.splitlines()[0] if __doc__ else "")
     where = cli.add_mutually_exclusive_group()
-    where.add_argument("--sim", type=Path, metavar="FILE", help="simulate the robot of this gait file (default: "
+    where.add_argument("--sim", type=input_file, metavar="FILE", help="simulate the robot of this gait file (default: "
                        "the caterpillar)")  # fmt: skip
-    where.add_argument("--can", type=parse_can, metavar="INTERFACE:CHANNEL", help="a real bus: bridge its modules")
-    cli.add_argument("--bitrate", type=int)
-    cli.add_argument("--name", default="robot", help="the robot's name in its Zenoh keys (default robot)")
+    where.add_argument("--can", type=can_channel, metavar="INTERFACE:CHANNEL", help="a real bus: bridge its modules")
+    cli.add_argument("--bitrate", type=bitrate)
+    cli.add_argument("--name", type=name, default="robot", help="the robot's name in its Zenoh keys (default robot)")
     add_zenoh_arguments(cli)
     cli.add_argument("--parent-pid", type=int, help=argparse.SUPPRESS)
     args = cli.parse_args(argv)
     check_zenoh_arguments(cli, args)
+    return run(cli.prog, lambda: _serve(args))
+
+
+def _serve(args: argparse.Namespace) -> int:
     if args.parent_pid:
         die_with_parent(args.parent_pid)
     prefer_latency()
@@ -261,11 +265,7 @@ def main(argv: list[str] | None = None) -> int:
     done = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: done.set())
     signal.signal(signal.SIGINT, lambda *_: done.set())
-    try:
-        robot = Robot(options)
-    except (GaitError, OSError, ValueError) as exc:
-        print(f"asm-robot: {exc}", file=sys.stderr)
-        return 1
+    robot = Robot(options)  # a bad gait file, a busy port or a missing bus: asm-robot: error: … (asm_py.cli.run)
     kind = "simulated" if robot.sim is not None else f"CAN {args.can}"
     print(f"READY robot {args.name} ({kind}, {robot.status.modules} modules)", flush=True)
     done.wait()

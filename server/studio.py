@@ -30,11 +30,12 @@ from typing import Any
 import zenoh
 
 from asm_py import Node
+from asm_py.cli import bitrate, can_channel, input_file, name, port, run, zenoh_endpoint
 from asm_py.feed import RobotStatus, status_key
 from asm_py.transport.zenoh import ZenohTransport
-from gaits.model import LIBRARY, Gait, GaitError, dumps, load
+from gaits.model import LIBRARY, Gait, dumps, load
 
-from .bridge import add_zenoh_arguments, check_zenoh_arguments, parse_can
+from .bridge import add_zenoh_arguments, check_zenoh_arguments
 from .realtime import prefer_latency
 
 log = logging.getLogger("asm_studio")
@@ -231,23 +232,29 @@ class Studio:
 
 def main(argv: list[str] | None = None) -> int:
     cli = argparse.ArgumentParser(prog="asm-studio", description=__doc__.splitlines()[0] if __doc__ else "")
-    cli.add_argument("--gait", type=Path, default=StudioOptions.gait, help="gait file to open (default: caterpillar)")
+    cli.add_argument("--gait", type=input_file, default=StudioOptions.gait,
+                     help="gait file to open (default: caterpillar)")  # fmt: skip
     where = cli.add_mutually_exclusive_group()
-    where.add_argument("--can", type=parse_can, metavar="INTERFACE:CHANNEL", help="a real CAN bus instead of a "
+    where.add_argument("--can", type=can_channel, metavar="INTERFACE:CHANNEL", help="a real CAN bus instead of a "
                        "simulated robot, e.g. socketcan:can0 (starts asm-robot --can)")  # fmt: skip
-    where.add_argument("--robot", metavar="ENDPOINT", help="attach to a robot process already running, e.g. "
-                       "tcp/192.0.2.5:7447 (with --zenoh-config for TLS); starts none")  # fmt: skip
-    cli.add_argument("--robot-name", default="robot", help="the robot's name in its Zenoh keys (default robot)")
-    cli.add_argument("--bitrate", type=int)
+    where.add_argument("--robot", type=zenoh_endpoint, metavar="ENDPOINT", help="attach to a robot process already "
+                       "running, e.g. tcp/192.0.2.5:7447 (with --zenoh-config for TLS); starts none")  # fmt: skip
+    cli.add_argument("--robot-name", type=name, default="robot",
+                     help="the robot's name in its Zenoh keys (default robot)")  # fmt: skip
+    cli.add_argument("--bitrate", type=bitrate)
     add_zenoh_arguments(cli, listen_help="more endpoints the robot listens on, for tools elsewhere")
     cli.add_argument("--no-zenoh", action="store_true", help="accepted for compatibility: the robot's Zenoh link "
                      "is on loopback only unless --zenoh-listen says otherwise")  # fmt: skip
     cli.add_argument("--host", default="127.0.0.1", help="address to serve on (default 127.0.0.1, this machine only)")
-    cli.add_argument("--port", type=int, default=8080, help="HTTP port (default 8080; 0 picks a free one)")
+    cli.add_argument("--port", type=port, default=8080, help="HTTP port (default 8080; 0 picks a free one)")
     cli.add_argument("--view", choices=["preview", "live"], default="preview",
                      help="what the 3D view shows at start (default: the preview of the edited gait)")  # fmt: skip
     args = cli.parse_args(argv)
     check_zenoh_arguments(cli, args)
+    return run(cli.prog, lambda: _serve(args))
+
+
+def _serve(args: argparse.Namespace) -> int:
     prefer_latency()
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
     options = StudioOptions(gait=args.gait, can=args.can, robot=args.robot, robot_name=args.robot_name,
@@ -257,11 +264,7 @@ def main(argv: list[str] | None = None) -> int:
     done = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: done.set())
     signal.signal(signal.SIGINT, lambda *_: done.set())
-    try:
-        studio = Studio(options)
-    except (GaitError, OSError, RuntimeError) as exc:
-        print(f"asm-studio: {exc}", file=sys.stderr)
-        return 1
+    studio = Studio(options)  # a bad gait file, a busy port, no robot: asm-studio: error: … (asm_py.cli.run)
     where = "simulated robot" if studio.simulated else f"robot {args.robot or args.can}"
     query = f"/?token={studio.token}" if studio.token else ""
     print(f"READY studio http://{args.host}:{studio.port}{query} ({where})", flush=True)

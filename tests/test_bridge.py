@@ -13,7 +13,7 @@ from asm_py import Attribute, Event, Service
 from asm_py.node import Node
 from asm_py.transport.can import CanTransport
 from asm_py.transport.zenoh import ZenohTransport
-from server.bridge import CanZenohBridge, parse_can
+from server.bridge import CanZenohBridge
 
 from .helpers import wait_until
 from .processes import Process
@@ -109,12 +109,6 @@ def test_discovery_and_estop_cross_the_bridge(can_world) -> None:
     client.on_discovery(lambda name, alive: left.set() if name == "m1" and not alive else None)
     m1.close()
     assert left.wait(5) and "m1" not in bridge.bridged
-
-
-def test_parse_can() -> None:
-    assert parse_can("socketcan:can0") == {"interface": "socketcan", "channel": "can0"}
-    with pytest.raises(Exception, match="INTERFACE:CHANNEL"):
-        parse_can("can0")
 
 
 def test_a_zenoh_process_drives_a_can_module_in_another_process() -> None:

@@ -147,4 +147,8 @@ def guarded_server(guard: AccessGuard, **options: Any) -> viser.ViserServer:
         finally:
             viser_infra.websockets = real  # type: ignore[attr-defined]
     guard.port = server.get_port()
+    wanted = options.get("port", 0)
+    if wanted and guard.port != wanted:  # viser moves to the next free port; a user who asked for one means it
+        server.stop()
+        raise OSError(f"port {wanted} on {options.get('host', '127.0.0.1')} is in use (choose another, or 0 for any)")
     return server

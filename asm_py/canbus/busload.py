@@ -20,6 +20,7 @@ import argparse
 import math
 from collections.abc import Iterable
 
+from ..cli import bitrate, bounded
 from .fragments import fd_size
 
 
@@ -68,19 +69,19 @@ def bus_load(
 
 
 def _frames(spec: str) -> tuple[int, float]:
-    size, _, rate = spec.partition("x")
-    try:
-        return int(size), float(rate)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{spec!r} is not BYTESxRATE, e.g. 8x5000") from None
+    """``BYTESxRATE``: data bytes 0..64 and a rate >= 0 frames per second, finite."""
+    size, sep, rate = spec.partition("x")
+    if not sep:
+        raise argparse.ArgumentTypeError(f"{spec!r} is not BYTESxRATE, e.g. 8x5000")
+    return bounded(int, 0, 64, what="data bytes")(size), bounded(float, 0, 1e9, what="frames per second")(rate)
 
 
 def main(argv: list[str] | None = None) -> int:
-    cli = argparse.ArgumentParser(prog="python -m asm_py.canbus.busload", description=__doc__.splitlines()[0])
+    cli = argparse.ArgumentParser(prog="asm-busload", description=__doc__.splitlines()[0])
     cli.add_argument("frames", nargs="+", type=_frames, metavar="BYTESxRATE", help="data bytes x frames per second")
-    cli.add_argument("--bitrate", type=float, default=1_000_000, help="nominal bit rate (default 1 Mbit/s)")
+    cli.add_argument("--bitrate", type=bitrate, default=1_000_000, help="nominal bit rate (default 1 Mbit/s)")
     cli.add_argument("--fd", action="store_true", help="CAN FD frames with bit rate switch")
-    cli.add_argument("--data-bitrate", type=float, help="CAN FD data phase bit rate (default: the nominal rate)")
+    cli.add_argument("--data-bitrate", type=bitrate, help="CAN FD data phase bit rate (default: the nominal rate)")
     cli.add_argument("--standard", action="store_true", help="11-bit identifiers (default 29-bit)")
     args = cli.parse_args(argv)
     try:

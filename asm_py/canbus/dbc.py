@@ -19,6 +19,7 @@ from collections.abc import Iterable, Mapping
 from cantools.database.can import Database, Message, Signal
 from cantools.database.conversion import BaseConversion
 
+from ..cli import node_id, output_file, run
 from ..codec import Codec, parse_codec
 from ..protocol import WELL_KNOWN_CLASSES
 from .ids import CanId, Dest, FrameType, Priority, SystemCode
@@ -137,26 +138,35 @@ def generate(nodes: Iterable[int], tool: int = 254, classes: Mapping[str, str] |
 
 
 def _ids(spec: str) -> list[int]:
+    """``1-8`` or ``1,3,5`` (or both, ``1-4,9``): node IDs, each 1..254, as an argparse type."""
     out: list[int] = []
     for part in spec.split(","):
         low, _, high = part.partition("-")
-        out += range(int(low), int(high or low) + 1)
-    return out
+        first, last = node_id(low.strip()), node_id((high or low).strip())
+        if last < first:
+            raise argparse.ArgumentTypeError(f"{part!r}: a range runs from low to high, e.g. 1-8")
+        out += range(first, last + 1)
+    return sorted(set(out))
 
 
 def main(argv: list[str] | None = None) -> int:
-    cli = argparse.ArgumentParser(prog="python -m asm_py.canbus.dbc", description=__doc__.splitlines()[0])
+    cli = argparse.ArgumentParser(prog="asm-dbc", description=__doc__.splitlines()[0])
     cli.add_argument("--nodes", type=_ids, default=_ids("1-8"), help="module node IDs, e.g. 1-8 or 1,3,5")
-    cli.add_argument("--tool", type=int, default=254, help="node ID of the tool, studio or bridge (default 254)")
-    cli.add_argument("-o", "--output", help="write here instead of stdout")
+    cli.add_argument("--tool", type=node_id, default=254, help="node ID of the tool, studio or bridge (default 254)")
+    cli.add_argument("-o", "--output", type=output_file, help="write here instead of stdout")
     args = cli.parse_args(argv)
-    text = generate(args.nodes, args.tool)
-    if args.output:
-        with open(args.output, "w", encoding="utf-8") as out:
-            out.write(text)
-    else:
-        print(text)
-    return 0
+    if args.tool in args.nodes:
+        cli.error(f"--tool {args.tool} is also one of --nodes: every node on a bus needs its own ID")
+
+    def write() -> int:
+        text = generate(args.nodes, args.tool)
+        if args.output:
+            args.output.write_text(text, encoding="utf-8")
+        else:
+            print(text)
+        return 0
+
+    return run(cli.prog, write)
 
 
 if __name__ == "__main__":

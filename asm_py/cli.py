@@ -1,0 +1,145 @@
+"""What every command line shares: argument types that refuse a bad value with a one-line usage error (exit 2),
+and one way to end on a failure found while running (exit 1, ``prog: error: …``, never a traceback).
+
+An argument is checked where argparse reads it, so ``--node-id 999`` or ``--port 99999`` is a usage error before
+anything starts, rather than a traceback from deep inside a library or a server thread that dies while the process
+keeps running. What can only fail at run time (a busy port, a missing CAN interface, an unwritable file) goes
+through :func:`run`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from .canbus.ids import MAX_NODE_ID, MIN_NODE_ID
+
+
+def _number(text: str, kind: type) -> Any:
+    try:
+        value = kind(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not {'an integer' if kind is int else 'a number'}") from None
+    if kind is float and not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"{text!r} is not a finite number")
+    return value
+
+
+def bounded(kind: type, low: float | None = None, high: float | None = None, *, above: float | None = None,
+            what: str = "") -> Callable[[str], Any]:  # fmt: skip
+    """An argparse type: a number of ``kind`` in [low, high] (or > above), refused with the range otherwise."""
+
+    def parse(text: str) -> Any:
+        value = _number(text, kind)
+        if (
+            (low is not None and value < low)
+            or (high is not None and value > high)
+            or (above is not None and value <= above)
+        ):
+            lower = f"> {above:g}" if above is not None else (f">= {low:g}" if low is not None else "")
+            upper = f"<= {high:g}" if high is not None else ""
+            rule = " and ".join(part for part in (lower, upper) if part)
+            raise argparse.ArgumentTypeError(f"{what or 'the value'} must be {rule}, not {text}")
+        return value
+
+    parse.__name__ = kind.__name__  # argparse names the type in its own messages
+    return parse
+
+
+port = bounded(int, 0, 65535, what="a TCP port")
+"""0..65535 (0: pick a free one)."""
+node_id = bounded(int, MIN_NODE_ID, MAX_NODE_ID, what="a CAN node ID")
+rate = bounded(float, above=0, high=1000, what="a rate in Hz")
+positive_seconds = bounded(float, above=0, high=86_400, what="a time in seconds")
+_bitrate = bounded(float, 10_000, 8_000_000, what="a CAN bit rate in bit/s")
+
+
+def bitrate(text: str) -> int:
+    """A CAN bit rate, 10 kbit/s .. 8 Mbit/s (``500000`` or ``5e5``)."""
+    return int(_bitrate(text))
+
+
+def can_channel(spec: str) -> dict[str, Any]:
+    """``INTERFACE:CHANNEL`` (e.g. ``socketcan:can0``, ``virtual:bus0``) as python-can keyword arguments; the
+    interface must be one python-can knows (its own list, plus the ``can.interface`` entry points, e.g. asm_sim)."""
+    import can
+
+    interface, sep, channel = spec.partition(":")
+    if not sep or not interface or not channel:
+        raise argparse.ArgumentTypeError(f"{spec!r} is not INTERFACE:CHANNEL, e.g. socketcan:can0")
+    if interface not in can.VALID_INTERFACES:
+        known = ", ".join(sorted(can.VALID_INTERFACES))
+        raise argparse.ArgumentTypeError(f"unknown CAN interface {interface!r} (python-can knows: {known})")
+    return {"interface": interface, "channel": channel}
+
+
+def input_file(text: str) -> Path:
+    """An existing, readable file."""
+    path = Path(text)
+    if not path.is_file():
+        raise argparse.ArgumentTypeError(f"{text}: {'not a file' if path.exists() else 'no such file'}")
+    return path
+
+
+def output_file(text: str) -> Path:
+    """A file that can be created: its directory exists."""
+    path = Path(text)
+    if path.is_dir():
+        raise argparse.ArgumentTypeError(f"{text} is a directory, not a file name")
+    if not path.parent.is_dir():
+        raise argparse.ArgumentTypeError(f"{text}: the directory {path.parent} does not exist")
+    return path
+
+
+def describe(exc: BaseException) -> str:
+    """An exception as one line for a person (Zenoh's errors carry the Rust source path they were raised at)."""
+    text = str(exc) or type(exc).__name__
+    for marker in (" at /", "\n"):
+        text = text.split(marker, 1)[0]
+    return text
+
+
+def run(prog: str, body: Callable[[], int]) -> int:
+    """Run a command's body; a failure found while running ends it with ``prog: error: …`` and exit 1."""
+    import can
+    import zenoh
+
+    try:
+        return body()
+    except KeyboardInterrupt:
+        return 130
+    except (OSError, ValueError, RuntimeError, can.CanError, zenoh.ZError) as exc:
+        print(f"{prog}: error: {describe(exc)}", file=sys.stderr)
+        return 1
+
+
+ZENOH_PROTOCOLS = ("tcp", "udp", "tls", "quic", "ws", "unixsock-stream")
+
+
+def zenoh_endpoint(text: str) -> str:
+    """A Zenoh locator such as ``tcp/127.0.0.1:7447`` or ``tls/[::1]:0``: a known protocol and, for IP links, a
+    port 0..65535 (Zenoh itself accepts 99999 here and fails only when the session opens)."""
+    protocol, sep, rest = text.partition("/")
+    address = rest.split("?", 1)[0].split("#", 1)[0]
+    if not sep or protocol not in ZENOH_PROTOCOLS or not address:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a Zenoh endpoint such as tcp/127.0.0.1:7447 "
+                                         f"(protocols: {', '.join(ZENOH_PROTOCOLS)})")  # fmt: skip
+    if protocol != "unixsock-stream":
+        host, colon, number = address.rpartition(":")
+        if not colon or not host or not number.isdigit() or not 0 <= int(number) <= 65535:
+            raise argparse.ArgumentTypeError(f"{text!r}: an endpoint needs HOST:PORT with a port 0..65535")
+    return text
+
+
+def name(text: str) -> str:
+    """A node or robot name as it appears in Zenoh keys (letters, digits, ``_ . -``; 1-64 characters)."""
+    from .transport.base import check_name
+
+    try:
+        return check_name(text, "a name")
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None

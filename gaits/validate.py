@@ -1,0 +1,162 @@
+"""Bytes to a checked document: decoding, TOML, the JSON Schema (gaits/schema.json), and the line of each problem.
+
+The schema is the one description of the gait format's structure — which fields exist, their types, ranges and
+sizes. The loader validates every document with it and keeps in code only the checks a schema cannot state (angles
+within the file's own limits, every module assigned once, one shared period, finite numbers), so the schema and the
+loader cannot disagree about structure. Every cost is bounded before it is paid: the file's size before it is
+parsed, nesting depth by the parser, array sizes by the schema before anything is sized by them, and the number of
+problems collected.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import tomllib
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+from jsonschema import Draft202012Validator
+from jsonschema.exceptions import ValidationError
+
+from .errors import MAX_LISTED, GaitError, Problem
+from .lines import format_path
+
+MAX_FILE_BYTES = 2 * 1024 * 1024
+"""A gait file is at most 2 MiB (254 modules with an automaton of 64 states each is about 1 MiB)."""
+MAX_COUNTED = 1000
+"""Problems counted before validation stops (only the first MAX_LISTED are listed)."""
+
+SCHEMA: dict[str, Any] = json.loads((Path(__file__).resolve().parent / "schema.json").read_text(encoding="utf-8"))
+_VALIDATOR = Draft202012Validator(SCHEMA)
+
+
+def read(path: str | Path) -> bytes:
+    """The file's bytes, refused before reading when larger than a gait file can be."""
+    with open(path, "rb") as file:
+        data = file.read(MAX_FILE_BYTES + 1)
+    if len(data) > MAX_FILE_BYTES:
+        raise GaitError(
+            str(path), [Problem("(file)", f"larger than {MAX_FILE_BYTES // 1024 // 1024} MiB: not a gait file", 1)]
+        )
+    return data
+
+
+def decode(data: bytes | str, source: str) -> str:
+    """UTF-8 text (a leading byte-order mark is allowed); a bad byte is reported with its line."""
+    if isinstance(data, str):
+        text = data
+    else:
+        if len(data) > MAX_FILE_BYTES:
+            raise GaitError(source, [Problem("(file)", f"larger than {MAX_FILE_BYTES // 1024 // 1024} MiB", 1)])
+        try:
+            text = data.decode("utf-8")
+        except UnicodeDecodeError as exc:
+            line = data.count(b"\n", 0, exc.start) + 1
+            message = f"not UTF-8 text: byte 0x{data[exc.start]:02x} at offset {exc.start} cannot be decoded"
+            raise GaitError(source, [Problem("(file)", message, line)]) from None
+    if len(text) > MAX_FILE_BYTES:
+        raise GaitError(source, [Problem("(file)", f"larger than {MAX_FILE_BYTES // 1024 // 1024} MiB", 1)])
+    return text.removeprefix("\ufeff")
+
+
+def parse(text: str, source: str) -> dict[str, Any]:
+    """The TOML document as a dict; GaitError (with the parser's line) when it is not TOML."""
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        found = re.search(r"line (\d+)", str(exc))
+        raise GaitError(source, [Problem("(file)", f"not valid TOML: {exc}", int(found[1]) if found else 1)]) from None
+    except RecursionError:
+        raise GaitError(source, [Problem("(file)", "arrays or tables nested too deeply", 1)]) from None
+    except ValueError:  # an integer with more digits than Python converts (4,300)
+        raise GaitError(
+            source, [Problem("(file)", "not a usable TOML document: a number too long to read", 1)]
+        ) from None
+
+
+def brief(value: Any) -> str:
+    """A value as a problem quotes it: short whatever its size."""
+    if isinstance(value, dict):
+        return f"a table of {len(value)} field(s)"
+    if isinstance(value, list):
+        return f"an array of {len(value)} item(s)"
+    text = repr(value)
+    return text if len(text) <= 40 else text[:37] + "…"
+
+
+_TYPES = {"string": "a string", "integer": "an integer", "number": "a number", "object": "a table",
+          "array": "an array", "boolean": "true or false"}  # fmt: skip
+
+
+def _range(schema: dict[str, Any]) -> str:
+    low = (
+        f"[{schema['minimum']:g}"
+        if "minimum" in schema
+        else (f"({schema['exclusiveMinimum']:g}" if "exclusiveMinimum" in schema else "(-∞")
+    )
+    high = (
+        f"{schema['maximum']:g}]"
+        if "maximum" in schema
+        else (f"{schema['exclusiveMaximum']:g})" if "exclusiveMaximum" in schema else "∞)")
+    )
+    return f"{low}, {high}"  # fmt: skip
+
+
+def _problems(error: ValidationError) -> Iterator[tuple[list[str | int], str]]:
+    """One schema error as (path, message) pairs, worded for a person editing the file."""
+    path = list(error.absolute_path)
+    kind, value, schema, instance = error.validator, error.validator_value, error.schema, error.instance
+    if "propertyNames" in error.schema_path:  # a table key (an automaton's name) that breaks the rules for names
+        yield [*path, instance], f"names must be 1 to 64 characters long, not {len(instance)}"
+    elif kind == "additionalProperties" and value is False:
+        for key in sorted(set(instance) - set(schema.get("properties", {}))):
+            yield [*path, key], "unknown field"
+    elif kind == "required":
+        for key in value:
+            if key not in instance:
+                yield [*path, key], "missing"
+    elif kind == "type":
+        yield path, f"must be {_TYPES.get(value, value)}, not {brief(instance)}"
+    elif kind == "enum":
+        yield path, f"must be one of {', '.join(json.dumps(v) for v in value)}, not {brief(instance)}"
+    elif kind in ("minimum", "maximum", "exclusiveMinimum", "exclusiveMaximum"):
+        yield path, f"must be in {_range(schema)}, not {brief(instance)}"
+    elif kind in ("minItems", "maxItems"):
+        yield path, f"must have {schema.get('minItems', 0)} to {schema.get('maxItems', '∞')} items, not {len(instance)}"
+    elif kind in ("minProperties", "maxProperties"):
+        low, high = schema.get("minProperties", 0), schema.get("maxProperties", "∞")
+        yield path, f"must have {low} to {high} entries, not {len(instance)}"
+    elif kind in ("minLength", "maxLength"):
+        low, high = schema.get("minLength", 0), schema.get("maxLength", "∞")
+        yield path, f"must be {low} to {high} characters long, not {len(instance)}"
+    elif kind == "anyOf" and path and path[-2:-1] == ["states"]:
+        yield path, "needs a duration or the event it waits for (until)"
+    else:
+        message = error.message
+        yield path, message if len(message) <= 200 else message[:197] + "…"
+
+
+def structure_problems(data: Any, line: Callable[[str], int | None]) -> tuple[list[Problem], int]:
+    """What the schema refuses in ``data``: the first MAX_COUNTED problems, and how many more were not counted."""
+    problems: list[Problem] = []
+    errors = _VALIDATOR.iter_errors(data)  # lazy: stopping early bounds the cost on a huge bad document
+    for error in errors:
+        for parts, message in _problems(error):
+            path = format_path(parts) or "(document)"
+            shown = path if len(path) <= 120 else path[:119] + "…"  # a key can be as long as the file
+            problems.append(Problem(shown, message, line(path)))
+        if len(problems) >= MAX_COUNTED:
+            return problems, 1 if next(errors, None) is not None else 0
+    return problems, 0
+
+
+def raise_if(problems: list[Problem], source: str, *, uncounted: int = 0) -> None:
+    """GaitError listing the first problems in file order, if there are any."""
+    if problems:
+        ordered = sorted(problems, key=lambda p: p.line or 0)
+        listed = ordered[:MAX_LISTED]
+        raise GaitError(
+            source, listed, more=len(ordered) - len(listed) + uncounted, more_is_lower_bound=bool(uncounted)
+        )
