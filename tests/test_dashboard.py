@@ -42,6 +42,32 @@ def test_a_grid_row_edits_its_state_selects_it_and_re_previews(studio):
     assert not app.doc.problems
 
 
+def test_a_users_edit_is_not_lost_while_the_server_is_setting_controls_elsewhere(studio):
+    """Reproduces a lost edit: a user's edit arrives on viser's thread pool while another thread (the 20 Hz refresh)
+    is inside programmatic(); the edit was taken for the server's own and dropped."""
+    import threading
+
+    app = studio.app
+    inside, release = threading.Event(), threading.Event()
+
+    def refresh_holding_the_flag() -> None:
+        with app.programmatic():
+            inside.set()
+            release.wait(5)
+
+    other = threading.Thread(target=refresh_holding_the_flag)
+    other.start()
+    try:
+        assert inside.wait(5)
+        assert not app.syncing  # the flag is that thread's, not this one's
+        threading.Timer(0.3, release.set).start()
+        app.editor.angle.value = 42.0  # the user's edit, as viser delivers it
+    finally:
+        release.set()
+        other.join(5)
+    assert app.doc.gait().automata["wave"].states[0].angle == 42.0
+
+
 def test_a_row_never_rounds_what_it_did_not_change(studio):
     app = studio.app
     app.doc.update_state("wave", 0, {"duration": 1 / 12})  # shown as 0.0833 in the page

@@ -42,6 +42,9 @@ def test_edits_reach_the_gait_and_the_file():
     with pytest.raises(GaitError):
         doc.load_text("name = 'x'\n[robot]\nshape = 'blob'\n")
     assert doc.gait() == gait  # a bad upload changes nothing
+    with pytest.raises(GaitError, match=r"line 2: .*not UTF-8"):
+        doc.load_text(b"name = 'x'\ndescription = '\xff'\n")  # uploaded bytes that are not UTF-8
+    assert doc.gait() == gait
     doc.load_text(dumps(load("gaits/library/inchworm.toml")))
     assert doc.gait().name == "inchworm" and doc.undo() and doc.gait().name == "caterpillar"
 

@@ -256,6 +256,27 @@ def test_upload_grid_history_robot_size_and_attribute_browser(studio, tmp_path):
             assert wait_until(lambda: client.lookup("m2", "joint.limits", timeout=2).peek() == (-45.0, 90.0), 15)
             expect(page.get_by_text("set to", exact=False).first).to_be_visible(timeout=15_000)
             page.screenshot(path=str(ARTIFACTS / "studio-browser.png"))
+            # out of range is refused, never clamped: an int8 of 300 is not sent to the module
+            page.get_by_label("Object").click()
+            page.get_by_role("option", name="gait.direction", exact=True).click()
+            direction = page.get_by_label("gait.direction (int8)")
+            expect(direction).to_be_visible(timeout=15_000)
+            direction.fill("300")
+            direction.press("Enter")
+            page.get_by_role("button", name="Set").click()
+            expect(page.get_by_text("not set: 300 is outside int8 range", exact=False)).to_be_visible(timeout=15_000)
+            expect(direction).to_have_value("300")
+            assert client.lookup("m2", "gait.direction", timeout=2).get() == 1
+            # a phase of 1.5 stays 1.5 in its field and the problem is named as the page names things
+            page.get_by_role("tab", name="Gait").click()
+            phase = page.get_by_label("Phase")
+            phase.fill("1.5")
+            phase.press("Enter")
+            expect(page.get_by_text("module 1 phase: must be in [0, 1), not 1.5").first).to_be_visible(timeout=15_000)
+            expect(phase).to_have_value("1.5")
+            page.screenshot(path=str(ARTIFACTS / "studio-refused.png"))
+            page.get_by_role("button", name="Undo").click()
+            expect(page.get_by_text("✓ valid (caterpillar)")).to_be_visible(timeout=15_000)
             browser.close()
     finally:
         client.close()

@@ -69,8 +69,7 @@ class Dashboard:
         self.roster = Roster(self.node)  # type: ignore[arg-type]
         self.plot = LivePlot(self.node)  # type: ignore[arg-type]
         self._stop = threading.Event()
-        self.syncing = False
-        """True while the server sets controls (see :meth:`programmatic`)."""
+        self._programmatic = threading.local()
         self._value_input: ValueInput | None = None
         self._rebuild_lock = threading.RLock()
         self._build()
@@ -188,14 +187,22 @@ class Dashboard:
     def programmatic(self) -> Iterator[None]:
         """Controls set by the server (not the user) inside this block: their update callbacks do nothing.
 
-        viser calls a control's callbacks synchronously when the server sets its value; the flag tells them apart,
-        and the lock keeps the editor's resync and the 20 Hz refresh from clearing each other's flag."""
+        viser calls a control's callbacks synchronously, in the thread that sets its value: the flag is that
+        thread's alone. (It was one flag for the process: a user's edit arriving on viser's thread pool while the
+        20 Hz refresh was setting the timeline was taken for the server's own and silently dropped.) The lock
+        keeps the editor's resync and the refresh from interleaving."""
         with self._rebuild_lock:
-            self.syncing = True
+            outer = self.syncing
+            self._programmatic.active = True
             try:
                 yield
             finally:
-                self.syncing = False
+                self._programmatic.active = outer
+
+    @property
+    def syncing(self) -> bool:
+        """True in a thread that is setting controls itself (see :meth:`programmatic`)."""
+        return getattr(self._programmatic, "active", False)
 
     # -- preview, deploy, monitor ---------------------------------------------------------------------------------
 
@@ -336,7 +343,12 @@ class Dashboard:
                 f"`{value.obj.name}` ({describe(value.obj)}) = **{format_value(value.refresh())}**"
             )
         elif action == "Set":
-            self.browse_value.content = f"`{value.obj.name}` set to **{format_value(value.write())}**"
+            try:
+                written = value.write()
+            except (ValueError, TypeError) as exc:  # refused in the page: nothing was sent to the module
+                self.browse_value.content = f"⚠ `{value.obj.name}` not set: {exc}"
+                raise
+            self.browse_value.content = f"`{value.obj.name}` set to **{format_value(written)}**"
         else:
             self.plot.watch(self.browse_module.value, value.obj.name)
 

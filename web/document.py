@@ -12,7 +12,7 @@ import copy
 import threading
 from typing import Any
 
-from gaits.model import Gait, GaitError, Problem, dumps, from_dict, loads, to_dict
+from gaits.model import MAX_MODULES, Gait, GaitError, Problem, dumps, from_dict, loads, to_dict
 
 HISTORY = 200
 
@@ -59,8 +59,8 @@ class GaitDocument:
         self._spare.clear()
         self._apply(lambda data: data.clear() or data.update(to_dict(gait)))
 
-    def load_text(self, text: str, source: str = "upload") -> None:
-        """Open a TOML file's text; GaitError (nothing changes) if it is not a valid gait."""
+    def load_text(self, text: str | bytes, source: str = "upload") -> None:
+        """Open a TOML file's text or bytes; GaitError (nothing changes) if it is not a valid gait."""
         self.replace(loads(text, source=source))
 
     def set_state(self, automaton: str, index: int, field: str, value: Any) -> None:
@@ -102,6 +102,8 @@ class GaitDocument:
         if field == "friction":
             self._apply(lambda d: d.setdefault("ground", {}).__setitem__("friction", value))
         elif field == "modules":
+            if not isinstance(value, int) or isinstance(value, bool) or not 1 <= value <= MAX_MODULES:
+                raise ValueError(f"a robot has 1 to {MAX_MODULES} modules, not {value!r}: nothing changed")
             self._apply(lambda d: _resize(d, value, self._spare))
         elif field == "shape":
             self._apply(lambda d: _reshape(d, value))

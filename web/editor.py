@@ -12,6 +12,7 @@ do not take them for user edits.
 
 from __future__ import annotations
 
+import re
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
@@ -54,23 +55,25 @@ class GaitEditor:
             self.automaton = gui.add_dropdown("Automaton", ["-"])
             self.state_index = gui.add_slider("State", min=1, max=2, step=1, initial_value=1)
             self.angle = gui.add_number("Angle (deg)", initial_value=0.0, step=0.5)
-            self.duration = gui.add_number("Duration (s)", initial_value=0.1, step=0.005, min=0.0)
+            # no min/max on the number inputs: the browser would clamp a value out of range (phase 1.5 became
+            # 0.999999); the document takes what was typed and the loader's problem shows at the field instead
+            self.duration = gui.add_number("Duration (s)", initial_value=0.1, step=0.005)
             self.interp = gui.add_dropdown("Interpolation", ["linear", "step"])
             self.state_problem = gui.add_markdown("")
             states = gui.add_button_group("Edit states", ["Insert after", "Remove"])
         with gui.add_folder("Module"):
             self.module_index = gui.add_slider("Module", min=1, max=2, step=1, initial_value=1)
-            self.phase = gui.add_number("Phase", initial_value=0.0, min=0.0, max=0.999999, step=0.01)
+            self.phase = gui.add_number("Phase", initial_value=0.0, step=0.01, hint="phase delay in [0, 1)")
             self.direction = gui.add_dropdown("Direction", ["1", "-1"])
             self.module_automaton = gui.add_dropdown("Runs", ["-"])
             self.module_problem = gui.add_markdown("")
         with gui.add_folder("Robot"):
-            self.modules = gui.add_number("Modules", initial_value=8, min=1, max=MODULE_IDS[-1], step=1)
+            self.modules = gui.add_number("Modules", initial_value=8, step=1, hint=f"1..{MODULE_IDS[-1]}")
             self.shape = gui.add_dropdown("Shape", SHAPES)
             self.axes = gui.add_dropdown("Axes", AXES)
-            self.legs = gui.add_number("Legs", initial_value=4, min=2, max=MODULE_IDS[-1], step=1)
-            self.module_size = gui.add_number("Module size (m)", initial_value=0.05, min=0.01, max=1.0, step=0.005)
-            self.friction = gui.add_number("Friction", initial_value=1.0, min=0.01, max=10.0, step=0.05)
+            self.legs = gui.add_number("Legs", initial_value=4, step=1)
+            self.module_size = gui.add_number("Module size (m)", initial_value=0.05, step=0.005)
+            self.friction = gui.add_number("Friction", initial_value=1.0, step=0.05, hint="in (0, 10]")
             self.robot_problem = gui.add_markdown("")
         self.table_html = gui.add_html("")
         self.expanded = gui.add_uplot(data=empty_plot(2), series=({"label": "t"}, {"label": "m1"}),
@@ -116,9 +119,9 @@ class GaitEditor:
     def _on_upload(self, event: Any) -> None:
         file = event.target.value
         try:
-            self.doc.load_text(file.content.decode("utf-8"), source=file.name)
+            self.doc.load_text(file.content, source=file.name[:100])  # bytes: the loader reports bad UTF-8 itself
         except GaitError as exc:
-            self.app.notify("Invalid gait file", "; ".join(str(p) for p in exc.problems[:5]), error=True)
+            self.app.notify("Invalid gait file", "; ".join(exc.lines()[:5]), error=True)
             return
         self.after_edit()
         self.app.notify("Opened", file.name)
@@ -149,7 +152,7 @@ class GaitEditor:
     def after_edit(self) -> None:
         self.sync()
         if self.doc.problems:
-            self.app.notify("Invalid", str(self.doc.problems[0]), error=True)
+            self.app.notify("Invalid", page_label(self.doc.problems[0]), error=True)
             return
         self.app.loop.request("load", self.doc.gait())  # an edit re-previews at once
 
@@ -194,7 +197,7 @@ class GaitEditor:
         self.module_size.value = float(robot.get("module_size", 0.05))
         self.friction.value = float(data.get("ground", {}).get("friction", 1.0))
         self.robot_problem.content = _problems(self.doc.problem_at("robot") + self.doc.problem_at("modules"))
-        self.problems.content = ("**Problems**  \n" + "".join(f"- {p}\n" for p in self.doc.problems)
+        self.problems.content = ("**Problems**  \n" + "".join(f"- {page_label(p)}\n" for p in self.doc.problems)
                                  if self.doc.problems else f"✓ valid ({data['name']})")  # fmt: skip
         self.grid.sync(data, self.automaton.value)
         self.table_html.content = _states_table(data, self.automaton.value, index)
@@ -204,6 +207,14 @@ class GaitEditor:
                 self.expanded.series = ({"label": "t"}, *({"label": f"m{k + 1}", "stroke": stroke(k)}
                                                           for k in range(len(rows))))  # fmt: skip
                 self.expanded.data = (np.asarray(times), *(np.asarray(r) for r in rows))
+
+
+def page_label(problem: Any) -> str:
+    """A problem as the page names things: 1-based states and modules (``wave S4``, ``module 3``), no file line."""
+    path = re.sub(r"automata\.([^.\[]+)\.states\[(\d+)\]", lambda m: f"{m[1]} S{int(m[2]) + 1}", problem.path)
+    path = re.sub(r"modules\[(\d+)\]", lambda m: f"module {int(m[1]) + 1}", path)
+    path = re.sub(r"(S\d+|module \d+)\.", r"\1 ", path)  # "module 1 phase", "wave S4 angle"
+    return f"{path}: {problem.message}"
 
 
 def _problems(problems: list[Any]) -> str:

@@ -1,6 +1,6 @@
 """An input that fits an attribute's type, derived from its codec (the one place the type is defined).
 
-bool → a checkbox; integers → a number input with step 1 and the type's range; floats → a number input; float
+bool → a checkbox; integers → a number input with step 1 (its range in the label); floats → a number input; float
 arrays of 2 or 3 → a vector input; anything else (text, bytes as hex, arrays, records, JSON) → a text box parsed by
 :func:`web.monitor.parse_value`. A service gets a "running" checkbox: set it to start the service, clear it to stop.
 The attribute browser swaps the input whenever another object is chosen.
@@ -42,10 +42,10 @@ class ValueInput:
         if self.kind == "bool":
             self.handle = gui.add_checkbox(label, initial_value=bool(value))
         elif self.kind == "int":
+            # no min/max on the input: the browser would clamp (an int8 of 300 became 127 and was written to the
+            # module); read() refuses a value outside the codec's range instead, and nothing is sent
             low, high = info.get("min"), info.get("max")
-            self.handle = gui.add_number(label, initial_value=int(value), step=1,
-                                         min=low if low is not None and low >= -JS_SAFE else None,
-                                         max=high if high is not None and high <= JS_SAFE else None)  # fmt: skip
+            self.handle = gui.add_number(label, initial_value=int(value), step=1, hint=f"{low}..{high}")
         elif self.kind == "float" and math.isfinite(float(value)):
             self.handle = gui.add_number(label, initial_value=float(value), step=0.001)
         elif self.kind == "float_array" and info.get("length") in (2, 3) and all(map(math.isfinite, value)):
@@ -79,7 +79,9 @@ class ValueInput:
         if self.kind == "text":
             return parse_value(self.obj, value)  # type: ignore[arg-type]
         if self.kind == "float_array":
-            return tuple(float(v) for v in value)
+            value = tuple(float(v) for v in value)
+        if isinstance(self.obj, RemoteAttribute):
+            self.obj.codec.normalize(value)  # out of the type's range: ValueError here, before anything is sent
         return value
 
     def show(self, value: Any) -> None:
