@@ -169,3 +169,14 @@ def test_a_failing_grid_edit_becomes_a_notification(studio):
     last.value = (10.0, 0.0625)
     assert app.status.content.startswith("**Error**")
     assert len(app.doc.gait().automata["wave"].states) == 15  # nothing half applied
+
+
+def test_every_plot_is_against_seconds_with_units_and_the_live_window_is_chosen(studio):
+    """uPlot takes an x axis as UNIX dates unless told otherwise: the page showed "1/1/70 12:00am" for 0 s."""
+    app = studio.app
+    for plot in (app.angles, app.live, app.editor.expanded):
+        assert plot.scales == {"x": {"time": False}}
+        assert plot.axes[0]["label"] == "time (s)" and plot.axes[1]["label"]
+    assert app.plot.window == 10.0
+    app.window.value = "300"  # as the page's dropdown sets it
+    assert app.plot.window == 300.0

@@ -131,3 +131,27 @@ def test_live_series_are_continuous_on_a_shared_time_axis():
     assert list(t) == sorted(t) and len(t) == 5
     assert list(a) == pytest.approx([0.0, 5.0, 10.0, 15.0, 20.0])  # m1 between its own samples
     assert list(b) == pytest.approx([5.0, 5.0, 6.0, 7.0, 7.0])  # held outside m2's samples, no NaN (uPlot)
+
+
+def test_undo_takes_back_a_typed_value_not_a_keystroke():
+    """Typing 45 sends "4" then "45": one undo step gives back the value before, never "4"."""
+    now = [0.0]
+    doc = GaitDocument(load(CATERPILLAR), clock=lambda: now[0])
+    before = doc.gait().automata["wave"].states[0].angle
+    doc.set_state("wave", 0, "angle", 4.0)
+    now[0] += 0.2
+    doc.set_state("wave", 0, "angle", 45.0)
+    assert doc.gait().automata["wave"].states[0].angle == 45.0
+    assert doc.undo() and doc.gait().automata["wave"].states[0].angle == before
+    assert not doc.undo()  # one step, not two
+    assert doc.redo() and doc.gait().automata["wave"].states[0].angle == 45.0
+    # a pause ends the step; so does an edit of another field
+    now[0] += 5.0
+    doc.set_state("wave", 0, "angle", 30.0)
+    now[0] += 0.1
+    doc.set_module(1, "phase", 0.5)
+    now[0] += 0.1
+    doc.set_state("wave", 0, "angle", 31.0)
+    assert doc.undo() and doc.gait().automata["wave"].states[0].angle == 30.0
+    assert doc.undo() and doc.gait().assignment(1).phase == 0.0
+    assert doc.undo() and doc.gait().automata["wave"].states[0].angle == 45.0

@@ -101,6 +101,20 @@ class _PoseWatch:
         self._sub.undeclare()
 
 
+def _type_and_set(page, name: str, label: str, text: str):
+    """In the attribute browser: choose object ``name``, type ``text`` into its input, press Set; the input."""
+    from playwright.sync_api import expect
+
+    page.get_by_label("Object").click()
+    page.get_by_role("option", name=name, exact=True).click()
+    field = page.get_by_label(label)
+    expect(field).to_be_visible(timeout=15_000)
+    field.fill(text)
+    field.press("Enter")
+    page.get_by_role("button", name="Set").click()
+    return field
+
+
 def _number(text: str, pattern: str) -> float:
     match = re.search(pattern, text)
     assert match, f"{pattern!r} not in {text[:500]!r}"
@@ -158,6 +172,9 @@ def test_edit_preview_deploy_watch_and_estop(studio):
             before = plot.screenshot()
             time.sleep(1.0)
             assert plot.screenshot() != before, "the live plot did not change"
+            page.get_by_label("Window (s)").click()
+            page.get_by_role("option", name="60", exact=True).click()
+            expect(page.get_by_label("Window (s)")).to_have_value("60", timeout=15_000)
             page.screenshot(path=str(ARTIFACTS / "studio-monitor.png"))
             # e-stop: every module stops
             page.get_by_role("button", name=re.compile(r"^E-STOP")).click()
@@ -246,24 +263,12 @@ def test_upload_grid_history_robot_size_and_attribute_browser(studio, tmp_path):
             page.get_by_label("Node").click()
             page.get_by_role("option", name="m2", exact=True).click()
             page.get_by_role("button", name="List").click()
-            page.get_by_label("Object").click()
-            page.get_by_role("option", name="joint.limits", exact=True).click()
-            low = page.get_by_label("joint.limits (float32[2])")
-            expect(low).to_be_visible(timeout=15_000)
-            low.fill("-45")
-            low.press("Enter")
-            page.get_by_role("button", name="Set").click()
+            _type_and_set(page, "joint.limits", "joint.limits (float32[2])", "-45")
             assert wait_until(lambda: client.lookup("m2", "joint.limits", timeout=2).peek() == (-45.0, 90.0), 15)
             expect(page.get_by_text("set to", exact=False).first).to_be_visible(timeout=15_000)
             page.screenshot(path=str(ARTIFACTS / "studio-browser.png"))
             # out of range is refused, never clamped: an int8 of 300 is not sent to the module
-            page.get_by_label("Object").click()
-            page.get_by_role("option", name="gait.direction", exact=True).click()
-            direction = page.get_by_label("gait.direction (int8)")
-            expect(direction).to_be_visible(timeout=15_000)
-            direction.fill("300")
-            direction.press("Enter")
-            page.get_by_role("button", name="Set").click()
+            direction = _type_and_set(page, "gait.direction", "gait.direction (int8)", "300")
             expect(page.get_by_text("not set: 300 is outside int8 range", exact=False)).to_be_visible(timeout=15_000)
             expect(direction).to_have_value("300")
             assert client.lookup("m2", "gait.direction", timeout=2).get() == 1
@@ -277,6 +282,15 @@ def test_upload_grid_history_robot_size_and_attribute_browser(studio, tmp_path):
             page.screenshot(path=str(ARTIFACTS / "studio-refused.png"))
             page.get_by_role("button", name="Undo").click()
             expect(page.get_by_text("✓ valid (caterpillar)")).to_be_visible(timeout=15_000)
+            # typing "45" key by key, then Undo: the value before "45" (S3's -33), never "4"
+            angle = page.get_by_label("Angle (deg)")
+            expect(angle).to_have_value(re.compile(r"^-33(\.0+)?$"), timeout=15_000)
+            angle.click()
+            angle.press("Control+A")
+            angle.press_sequentially("45", delay=150)
+            expect(page.locator("td", has_text="45.0°").first).to_be_visible(timeout=15_000)
+            page.get_by_role("button", name="Undo").click()
+            expect(angle).to_have_value(re.compile(r"^-33(\.0+)?$"), timeout=15_000)
             browser.close()
     finally:
         client.close()

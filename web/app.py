@@ -28,7 +28,7 @@ from .editor import GaitEditor
 from .guard import AccessGuard, guarded_server
 from .inputs import ValueInput
 from .live import KinematicTwin, LiveFeed
-from .monitor import LivePlot, Roster, describe, empty_plot, format_value, stroke
+from .monitor import PLOT_SECONDS, WINDOWS, LivePlot, Roster, describe, empty_plot, format_value, seconds_axes, stroke
 from .preview import PreviewLoop, SceneView
 
 log = logging.getLogger("asm_studio.web")
@@ -153,7 +153,8 @@ class Dashboard:
         self.angles = gui.add_uplot(data=empty_plot(3),
                                     series=({"label": "t"}, {"label": "commanded", "stroke": "orange"},
                                             {"label": "measured", "stroke": "steelblue"}),
-                                    title="Preview: joint angle (deg)", aspect=2.0)  # fmt: skip
+                                    title="Preview: joint angle (deg)", aspect=2.0,
+                                    **seconds_axes("degrees"))  # fmt: skip
 
     def _build_deploy(self) -> None:
         gui = self.server.gui
@@ -179,8 +180,11 @@ class Dashboard:
             self.value_folder = gui.add_folder("Value")
             actions = gui.add_button_group("Browse", ["List", "Get", "Set", "Plot"])
             actions.on_click(self.safe(self._on_browse))
+        self.window = gui.add_dropdown("Window (s)", [f"{w:g}" for w in WINDOWS], initial_value=f"{PLOT_SECONDS:g}")
+        self.window.on_update(self.safe(lambda e: setattr(self.plot, "window", float(e.target.value))))
         self.live = gui.add_uplot(data=empty_plot(2), series=({"label": "t"}, {"label": "-"}),
-                                  title="Live: module attributes (from the robot)", aspect=2.0)  # fmt: skip
+                                  title="Live: module attributes (from the robot)", aspect=2.0,
+                                  **seconds_axes("value (degrees for angles)"))  # fmt: skip
         self._live_labels: list[str] = ["-"]
 
     @contextlib.contextmanager

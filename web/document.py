@@ -10,18 +10,25 @@ from __future__ import annotations
 
 import copy
 import threading
+import time
+from collections.abc import Callable
 from typing import Any
 
 from gaits.model import MAX_MODULES, Gait, GaitError, Problem, dumps, from_dict, loads, to_dict
 
 HISTORY = 200
+TYPING = 1.0
+"""Seconds between two edits of one field that still count as typing one value (one undo step)."""
 
 
 class GaitDocument:
     """An editable gait with undo/redo; thread-safe (viser runs GUI callbacks on a thread pool)."""
 
-    def __init__(self, gait: Gait) -> None:
+    def __init__(self, gait: Gait, *, clock: Callable[[], float] = time.monotonic) -> None:
         self._lock = threading.Lock()
+        self._clock = clock
+        self._last_edit: tuple[Any, float] | None = None
+        """(what was edited, when): the next edit of the same field within TYPING seconds joins its undo step."""
         self._data = to_dict(gait)
         self._undo: list[dict[str, Any]] = []
         self._redo: list[dict[str, Any]] = []
@@ -76,7 +83,7 @@ class GaitDocument:
         def edit(data: dict[str, Any]) -> None:
             data["automata"][automaton]["states"][index].update(changes)
 
-        self._apply(edit)
+        self._apply(edit, field=("state", automaton, index, tuple(sorted(changes))))
 
     def add_state(self, automaton: str, index: int) -> None:
         """Duplicate state ``index`` right after it."""
@@ -94,21 +101,21 @@ class GaitDocument:
         def edit(data: dict[str, Any]) -> None:
             next(m for m in data["modules"] if m["id"] == module_id)[field] = value
 
-        self._apply(edit)
+        self._apply(edit, field=("module", module_id, field))
 
     def set_robot(self, field: str, value: Any) -> None:
         """Edit the robot: ``modules`` (the assignments follow), ``shape``, ``axes``, ``legs``, ``module_size``;
         the ground's ``friction``."""
         if field == "friction":
-            self._apply(lambda d: d.setdefault("ground", {}).__setitem__("friction", value))
+            self._apply(lambda d: d.setdefault("ground", {}).__setitem__("friction", value), field=("robot", field))
         elif field == "modules":
             if not isinstance(value, int) or isinstance(value, bool) or not 1 <= value <= MAX_MODULES:
                 raise ValueError(f"a robot has 1 to {MAX_MODULES} modules, not {value!r}: nothing changed")
-            self._apply(lambda d: _resize(d, value, self._spare))
+            self._apply(lambda d: _resize(d, value, self._spare), field=("robot", field))
         elif field == "shape":
-            self._apply(lambda d: _reshape(d, value))
+            self._apply(lambda d: _reshape(d, value), field=("robot", field))
         elif field in ("module_size", "axes", "legs"):
-            self._apply(lambda d: d["robot"].__setitem__(field, value))
+            self._apply(lambda d: d["robot"].__setitem__(field, value), field=("robot", field))
         else:
             raise ValueError(f"the robot has no editable field {field!r}")
 
@@ -125,15 +132,24 @@ class GaitDocument:
                 return False
             target.append(self._data)
             self._data = source.pop()
+            self._last_edit = None
             self._revalidate()
             return True
 
-    def _apply(self, edit: Any) -> None:
+    def _apply(self, edit: Any, *, field: Any = None) -> None:
+        """Apply one edit as an undo step. Edits of the same ``field`` less than TYPING seconds apart are one step:
+        the page sends a number as it is typed ("4", then "45"), and Undo should give back the value before "45",
+        not "4". Anything else in between (another field, undo, redo) ends the step."""
         with self._lock:
+            now = self._clock()
+            typing = (field is not None and self._last_edit is not None and self._last_edit[0] == field
+                      and now - self._last_edit[1] < TYPING and self._undo and not self._redo)  # fmt: skip
             before = copy.deepcopy(self._data)
             edit(self._data)
-            self._undo.append(before)
-            del self._undo[:-HISTORY]
+            if not typing:
+                self._undo.append(before)
+                del self._undo[:-HISTORY]
+            self._last_edit = (field, now) if field is not None else None
             self._redo.clear()
             self._revalidate()
 

@@ -23,7 +23,7 @@ from gaits.model import AXES, LIBRARY, SHAPES, GaitError, load
 from gaits.table import expand
 
 from .grid import StateGrid
-from .monitor import empty_plot, stroke
+from .monitor import empty_plot, seconds_axes, stroke
 
 if TYPE_CHECKING:
     from .app import Dashboard
@@ -77,7 +77,8 @@ class GaitEditor:
             self.robot_problem = gui.add_markdown("")
         self.table_html = gui.add_html("")
         self.expanded = gui.add_uplot(data=empty_plot(2), series=({"label": "t"}, {"label": "m1"}),
-                                      title="Expanded table: commanded angle per module", aspect=1.6)  # fmt: skip
+                                      title="Expanded table: commanded angle per module", aspect=1.6,
+                                      **seconds_axes("degrees"))  # fmt: skip
 
         def field(setter: Callable[[Any], None]) -> Callable[[Any], None]:
             def callback(event: Any) -> None:

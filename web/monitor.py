@@ -19,7 +19,10 @@ from asm_py import Node
 from asm_py.remote import RemoteAttribute, RemoteObject
 
 PLOT_SECONDS = 10.0
-PLOT_POINTS = 2000
+"""The live plot's default window; the page offers WINDOWS."""
+WINDOWS = (10.0, 30.0, 60.0, 300.0)
+PLOT_POINTS = 8000
+"""Per series: five minutes at the modules' 25 publications a second."""
 
 
 class Roster:
@@ -106,6 +109,8 @@ class LivePlot:
         self._unsubscribe: dict[tuple[str, str], Callable[[], None]] = {}
         self.t0 = time.monotonic()
         self.received = 0
+        self.window = PLOT_SECONDS
+        """Seconds shown, up to the newest sample."""
 
     def watch(self, module: str, attribute: str, timeout: float = 2.0) -> None:
         key = (module, attribute)
@@ -144,7 +149,7 @@ class LivePlot:
         uPlot takes only null as a gap, and one NaN leaves its whole scale (and every line on it) undrawn."""
         with self._lock:
             items = [(f"{m} {a}", list(buf)) for (m, a), buf in sorted(self.series.items())]
-        horizon = time.monotonic() - self.t0 - PLOT_SECONDS
+        horizon = time.monotonic() - self.t0 - self.window
         recent = [(label, [(t, v) for t, v in points if t >= horizon]) for label, points in items]
         items_last = {label: float(np.nan_to_num(points[-1][1])) for label, points in items if points}
         times = np.unique(np.array([t for _, points in recent for t, _ in points], dtype=float))
@@ -171,6 +176,12 @@ PALETTE = ("#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e
 def stroke(index: int) -> str:
     """The colour of a plot's ``index``-th series (uPlot draws no line without one)."""
     return PALETTE[index % len(PALETTE)]
+
+
+def seconds_axes(y_label: str) -> dict[str, Any]:
+    """uPlot options for a plot against time in seconds: uPlot's default x scale takes numbers as UNIX dates
+    (and labelled 0..10 s as "1/1/70 12:00am"); the y axis carries its unit."""
+    return {"scales": {"x": {"time": False}}, "axes": ({"label": "time (s)"}, {"label": y_label})}
 
 
 def empty_plot(count: int) -> tuple[np.ndarray, ...]:
