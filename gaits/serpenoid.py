@@ -42,9 +42,10 @@ def wave_gait(
     period: float = 1.0,
     role_of: Callable[[int], str],
     offset_of: Callable[[int], float],
+    samples: int = SAMPLES,
 ) -> Gait:
     """A gait where module n (0-based) runs automaton ``role_of(n)`` with phase ``offset_of(n)`` (cycles)."""
-    automata = {role: sampled(role, wave, period) for role, (wave, _) in roles.items()}
+    automata = {role: sampled(role, wave, period, samples) for role, (wave, _) in roles.items()}
     modules = [Assignment(n + 1, role_of(n), _phase(offset_of(n) + roles[role_of(n)][1]), 1)
                for n in range(robot.modules)]  # fmt: skip
     return Gait(name, robot, automata, modules, (-90.0, 90.0), description)

@@ -20,6 +20,8 @@ from typing import Any
 import jsonschema
 import pytest
 import tomli_w
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from gaits.errors import MAX_LISTED
 from gaits.model import LIBRARY, GaitError, loads
@@ -176,3 +178,18 @@ def test_problems_are_listed_up_to_fifty_then_counted() -> None:
     assert (
         lines == sorted(lines) and lines[0] == 28
     )  # in file order, from the first bad state (the line after "states = [")
+
+
+@settings(max_examples=150, deadline=None)
+@given(st.data())
+def test_any_mutation_of_a_library_file_gives_a_gait_or_a_gait_error(data: st.DataObject) -> None:
+    """Random edits of a library file's bytes (insert, delete, replace runs of bytes): never another exception."""
+    raw = bytearray(BASES[data.draw(st.sampled_from(sorted(BASES)))].encode())
+    for _ in range(data.draw(st.integers(1, 5))):
+        at = data.draw(st.integers(0, len(raw)))
+        end = min(len(raw), at + data.draw(st.integers(0, 8)))
+        raw[at:end] = data.draw(st.binary(max_size=8) | st.sampled_from([b"[", b"]", b"{", b"=", b'"', b"\n", b"nan"]))
+    try:
+        loads(bytes(raw))
+    except GaitError as exc:
+        assert all(isinstance(p.line, int) and p.line >= 1 for p in exc.problems)

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import contextlib
 import functools
+import html
 import logging
 import threading
 import time
@@ -20,7 +21,7 @@ from collections.abc import Callable, Iterator
 from typing import Any, Protocol
 
 from asm_py.node import Node
-from gaits.deploy import deploy, module_name, release_all, start_all, stop_all
+from gaits.deploy import activate, deploy, module_name, release_all, start_all, stop_all
 from gaits.model import Gait
 
 from .document import GaitDocument
@@ -159,13 +160,14 @@ class Dashboard:
     def _build_deploy(self) -> None:
         gui = self.server.gui
         target = "the simulated modules" if self.studio.simulated else "the modules on the REAL CAN bus"
-        gui.add_markdown(f"Deploy the edited gait to {target}: validate, stage it beside the running gait, verify "
-                         "each checksum, then switch every module with one broadcast and confirm each — all or "
-                         "nothing.")  # fmt: skip
+        gui.add_markdown(f"Deploy the edited gait to {target}: validate, stage it beside the running gait and "
+                         "verify each checksum (nothing moves yet); then, when you say Start, switch every module "
+                         "with one broadcast and confirm each — all or nothing.")  # fmt: skip
         self.deploy_button = gui.add_button("Deploy")
         self.deploy_button.on_click(self.safe(self._on_deploy))
         self.progress = gui.add_progress_bar(0.0)
-        self.deploy_log = gui.add_markdown("")
+        self.deploy_log = gui.add_html("")
+        self._deploy_lines: list[str] = []
         self.run_buttons = gui.add_button_group("Modules", ["Start all", "Stop all"])
         self.run_buttons.on_click(self.safe(self._on_run))
 
@@ -184,7 +186,7 @@ class Dashboard:
         self.window.on_update(self.safe(lambda e: setattr(self.plot, "window", float(e.target.value))))
         self.live = gui.add_uplot(data=empty_plot(2), series=({"label": "t"}, {"label": "-"}),
                                   title="Live: module attributes (from the robot)", aspect=2.0,
-                                  **seconds_axes("value (degrees for angles)"))  # fmt: skip
+                                  **seconds_axes("value"))  # fmt: skip
         self._live_labels: list[str] = ["-"]
 
     @contextlib.contextmanager
@@ -288,7 +290,7 @@ class Dashboard:
         if not self.studio.simulated:
             self._confirm_real(event, gait)
             return
-        self._deploy(gait)
+        self._deploy(event, gait)
 
     def _confirm_real(self, event: Any, gait: Any) -> None:
         wanted = {module_name(a.id) for a in gait.modules}
@@ -297,22 +299,37 @@ class Dashboard:
         if others:
             lines.append(f"⚠ {', '.join(others)} on the bus are not in this gait: they keep running what they run "
                          "(the activation reaches only the modules that staged this gait).")  # fmt: skip
-        self._confirm(event, "Deploy to the real robot?", lines, "Yes, deploy", "red", lambda: self._deploy(gait))
+        self._confirm(event, "Deploy to the real robot?", lines, "Yes, deploy", "red",
+                      lambda: self._deploy(event, gait))  # fmt: skip
 
-    def _deploy(self, gait: Any) -> None:
-        lines: list[str] = []
+    def _log(self, line: str) -> None:
+        """One more line in the deploy log, which keeps every line and scrolls (newest at the bottom)."""
+        self._deploy_lines.append(html.escape(line))
+        del self._deploy_lines[:-500]
+        self.deploy_log.content = ('<div style="max-height:12em;overflow-y:auto;font-size:0.85em;'
+                                   'display:flex;flex-direction:column-reverse"><div>'
+                                   + "<br>".join(self._deploy_lines) + "</div></div>")  # fmt: skip
+
+    def _deploy(self, event: Any, gait: Any) -> None:
+        """Stage and verify (nothing moves), then ask the user who clicked before starting."""
+        report = self._stage(gait)
+        staged = f"{gait.name}: staged and verified on {len(report.checksums)} modules"
+        lines = [f"{staged}.", "Start it now? Every module switches to it at once, from where it stands."]
+        self._confirm(event, f"Start {gait.name}?", lines, "Start", "green", lambda: self._start_deployed(gait, report))
+
+    def _stage(self, gait: Any) -> Any:
+        """Deploy steps 1-3 (lease, stage, verify); the DeployReport to start from."""
 
         def progress(done: int, total: int, message: str) -> None:
             self.progress.value = 100.0 * done / total
-            lines.append(message)
-            self.deploy_log.content = "  \n".join(lines[-8:])
+            self._log(message)
 
         self.progress.value = 0.0
+        self._log(f"— deploy {gait.name} at {time.strftime('%H:%M:%S')} —")
         before = set(self.roster.alive())
         rebuilt = self.studio.ensure_robot(gait)  # the simulated robot becomes the edited one
         if rebuilt:
-            lines.append(rebuilt)
-            self.deploy_log.content = "  \n".join(lines)
+            self._log(rebuilt)
             wanted = {module_name(a.id) for a in gait.modules}
             removed = sorted(n for n in before if n.startswith("m") and n[1:].isdigit() and n not in wanted)
             self.roster.forget(removed)
@@ -320,7 +337,15 @@ class Dashboard:
             deadline = time.monotonic() + 30.0
             while not wanted <= set(self.node.discover()) and time.monotonic() < deadline:  # type: ignore[union-attr]
                 time.sleep(0.1)
-        report = deploy(self.node, gait, progress=progress, timeout=5.0)  # type: ignore[arg-type]
+        report = deploy(self.node, gait, progress=progress, timeout=5.0, start=False)  # type: ignore[arg-type]
+        staged = f"{gait.name}: staged and verified on {len(report.checksums)} modules"
+        self._log(staged + "; nothing moves until Start")
+        self.notify("Staged", staged)
+        return report
+
+    def _start_deployed(self, gait: Any, report: Any) -> None:
+        report = activate(self.node, report, timeout=5.0)  # type: ignore[arg-type]
+        self._log(f"started: {len(report.running)} of {gait.robot.modules} modules confirmed running {gait.name}")
         self.notify("Deployed", f"{gait.name}: staged and verified on {len(report.checksums)} modules; "
                     f"{len(report.running)} of {gait.robot.modules} confirmed running it")  # fmt: skip
         for assignment in gait.modules[:4]:

@@ -9,6 +9,7 @@ only a valid document reaches the preview or the modules.
 from __future__ import annotations
 
 import copy
+import math
 import threading
 import time
 from collections.abc import Callable
@@ -118,6 +119,57 @@ class GaitDocument:
             self._apply(lambda d: d["robot"].__setitem__(field, value), field=("robot", field))
         else:
             raise ValueError(f"the robot has no editable field {field!r}")
+
+    def set_meta(self, field: str, value: str) -> None:
+        """Rename the gait (``name``) or describe it (``description``); the download is named after it."""
+        if field not in ("name", "description"):
+            raise ValueError(f"a gait has no text field {field!r}")
+        if not isinstance(value, str):
+            raise ValueError(f"the {field} must be text")
+        self._apply(lambda d: d.__setitem__(field, value), field=("meta", field))
+
+    def spread_phases(self) -> None:
+        """Phases evenly over the modules in ID order, module k at -k/n of a cycle: one wave along the body."""
+
+        def edit(data: dict[str, Any]) -> None:
+            modules = sorted(data["modules"], key=lambda m: m["id"])
+            for k, module in enumerate(modules):
+                module["phase"] = round((-k / len(modules)) % 1.0, 6) % 1.0
+
+        self._apply(edit)
+
+    def shift_phases(self, delta: float) -> None:
+        """Add ``delta`` cycles to every module's phase (mod 1)."""
+        if not isinstance(delta, int | float) or not math.isfinite(delta):
+            raise ValueError(f"a phase shift must be a finite number of cycles, not {delta!r}")
+
+        def edit(data: dict[str, Any]) -> None:
+            for module in data["modules"]:
+                module["phase"] = round((module.get("phase", 0.0) + delta) % 1.0, 6) % 1.0
+
+        self._apply(edit)
+
+    def scale_amplitude(self, factor: float, automaton: str | None = None) -> None:
+        """Multiply the angles of one automaton (or all): refused whole, changing nothing, if any would leave the
+        joint limits."""
+        if not isinstance(factor, int | float) or not math.isfinite(factor):
+            raise ValueError(f"a scale factor must be a finite number, not {factor!r}")
+        data = self.data()
+        low, high = data.get("limits", {}).get("min", -90.0), data.get("limits", {}).get("max", 90.0)
+        names = [automaton] if automaton is not None else list(data["automata"])
+        for name in names:
+            for k, state in enumerate(data["automata"][name]["states"]):
+                scaled = state.get("angle", 0.0) * factor
+                if not low <= scaled <= high:
+                    raise ValueError(f"{name} S{k + 1} would be {scaled:g}°, outside the limits {low:g}..{high:g}°: "
+                                     "nothing changed")  # fmt: skip
+
+        def edit(data: dict[str, Any]) -> None:
+            for name in names:
+                for state in data["automata"][name]["states"]:
+                    state["angle"] = round(state.get("angle", 0.0) * factor, 3)
+
+        self._apply(edit)
 
     def undo(self) -> bool:
         return self._travel(self._undo, self._redo)

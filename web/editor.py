@@ -22,6 +22,7 @@ from gaits.deploy import MODULE_IDS
 from gaits.model import AXES, LIBRARY, SHAPES, GaitError, load
 from gaits.table import expand
 
+from .generator import GaitTools
 from .grid import StateGrid
 from .monitor import empty_plot, seconds_axes, stroke
 
@@ -47,8 +48,9 @@ class GaitEditor:
         history = gui.add_button_group("History", ["Undo", "Redo"])
         history.on_click(safe(self._on_history))
         gui.add_button("Download .toml").on_click(safe(lambda e: e.client.send_file_download(
-            f"{self.doc.gait().name}.toml", self.doc.text().encode())))  # fmt: skip
+            f"{self.doc.gait().name}.toml", self.doc.text().encode(), save_immediately=True)))  # fmt: skip
         self.problems = gui.add_markdown("")
+        self.tools = GaitTools(gui, self.doc, edited=self.after_edit, safe=safe, syncing=lambda: app.syncing)
         grid_folder = gui.add_folder("States")
         self.grid = StateGrid(app.server, grid_folder, on_edit=self._on_grid, syncing=lambda: app.syncing, safe=safe)
         with gui.add_folder("Selected state"):
@@ -166,6 +168,7 @@ class GaitEditor:
 
     def _sync_controls(self) -> None:
         data = self.doc.data()
+        self.tools.sync(data)
         automata = list(data["automata"])
         if list(self.automaton.options) != automata:
             self.automaton.options = automata

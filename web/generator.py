@@ -1,0 +1,96 @@
+"""The Gait tab's tools for making gaits fast: name and description, a generator for the classic families, and
+whole-gait operations (spread phases, shift phases, scale amplitude).
+
+Each control only edits the document (one undo step each) and lets the editor show and re-preview it; a value that
+cannot be used is refused with its reason and changes nothing.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import viser
+
+from gaits.generate import FAMILIES, WaveSpec, generate
+
+from .document import GaitDocument
+
+Safe = Callable[[Callable[[Any], None]], Callable[[Any], None]]
+"""The dashboard's wrapper that shows a callback's failure instead of losing it in viser's thread pool."""
+LABELS = {"travelling_wave": "travelling wave", "rolling_loop": "rolling loop", "sidewinding": "sidewinding"}
+DEFAULTS = {  # a family's usual numbers, filled in when it is chosen
+    "travelling_wave": {"amplitude": 45.0, "wavelength": 6.0},
+    "rolling_loop": {"amplitude": 45.0, "wavelength": 6.0},
+    "sidewinding": {"amplitude": 60.0, "wavelength": 12.0},
+}
+
+
+class GaitTools:
+    """The controls; ``edited`` is the editor's after-edit (show, validate, re-preview)."""
+
+    def __init__(self, gui: viser.GuiApi, doc: GaitDocument, *, edited: Callable[[], None], safe: Safe,
+                 syncing: Callable[[], bool]) -> None:  # fmt: skip
+        self.doc = doc
+        self._edited = edited
+        self._syncing = syncing
+        self.name = gui.add_text("Name", initial_value="")
+        self.description = gui.add_text("Description", initial_value="")
+        for handle, field in ((self.name, "name"), (self.description, "description")):
+            handle.on_update(safe(lambda e, field=field: None if syncing() else self._edit(
+                lambda: doc.set_meta(field, e.target.value))))  # fmt: skip
+        with gui.add_folder("Make a gait", expand_by_default=False):
+            self.family = gui.add_dropdown("Family", [LABELS[f] for f in FAMILIES])
+            self.modules = gui.add_number("Module count", initial_value=12, step=1, hint="2..254 (a loop: 4 or more)")
+            self.amplitude = gui.add_number("Amplitude (deg)", initial_value=45.0, step=1.0)
+            self.wavelength = gui.add_number("Wavelength (modules)", initial_value=6.0, step=0.5,
+                                             hint="modules per wave; negative: it runs the other way")  # fmt: skip
+            self.period = gui.add_number("Period (s)", initial_value=1.0, step=0.1)
+            self.states = gui.add_number("States per period", initial_value=16, step=1)
+            self.axes = gui.add_dropdown("Joint axes", ["pitch", "yaw", "alternating"],
+                                         hint="travelling wave: pitch (caterpillar) or yaw (undulation)")  # fmt: skip
+            self.make = gui.add_button("Generate")
+        with gui.add_folder("Whole gait", expand_by_default=False):
+            self.amount = gui.add_number("Amount", initial_value=0.1, step=0.05,
+                                         hint="Shift: cycles added to every phase. Scale: the factor.")  # fmt: skip
+            self.whole = gui.add_button_group("Apply", ["Spread phases", "Shift phases", "Scale amplitude"])
+        self.family.on_update(safe(lambda _: None if syncing() else self._family_chosen()))
+        self.make.on_click(safe(lambda _: self._edit(lambda: self.doc.replace(generate(self.spec())))))
+        self.whole.on_click(safe(self._on_whole))
+
+    def spec(self) -> WaveSpec:
+        """The generator's fields as a WaveSpec (generate() checks every number)."""
+        family = next(f for f in FAMILIES if LABELS[f] == self.family.value)
+        return WaveSpec(family=family, modules=_whole(self.modules.value, "modules"),
+                        amplitude=float(self.amplitude.value), wavelength=float(self.wavelength.value),
+                        period=float(self.period.value), states=_whole(self.states.value, "states per period"),
+                        axes=self.axes.value)  # fmt: skip
+
+    def sync(self, data: dict[str, Any]) -> None:
+        """Show the document's name and description (called by the editor inside its programmatic block)."""
+        self.name.value = data.get("name", "")
+        self.description.value = data.get("description", "")
+
+    def _family_chosen(self) -> None:
+        family = next(f for f in FAMILIES if LABELS[f] == self.family.value)
+        self.amplitude.value = DEFAULTS[family]["amplitude"]
+        self.wavelength.value = DEFAULTS[family]["wavelength"]
+
+    def _on_whole(self, event: Any) -> None:
+        action = event.target.value
+        if action == "Spread phases":
+            self._edit(self.doc.spread_phases)
+        elif action == "Shift phases":
+            self._edit(lambda: self.doc.shift_phases(float(self.amount.value)))
+        else:
+            self._edit(lambda: self.doc.scale_amplitude(float(self.amount.value)))
+
+    def _edit(self, change: Callable[[], None]) -> None:
+        change()
+        self._edited()
+
+
+def _whole(value: Any, what: str) -> int:
+    if float(value) != int(value):
+        raise ValueError(f"{what} must be a whole number, not {value!r}")
+    return int(value)
