@@ -184,3 +184,62 @@ def test_every_plot_is_against_seconds_with_units_and_the_live_window_is_chosen(
     assert app.plot.window == 10.0
     app.window.value = "300"  # as the page's dropdown sets it
     assert app.plot.window == 300.0
+
+
+def test_one_toast_per_distinct_problem_and_the_status_line_is_always_current(studio):
+    app = studio.app
+    sent = app.toasts
+    app.editor.phase.value = 1.5  # typed into the page: a problem, toasted
+    app.editor.after_edit()  # the same problem again (another keystroke, a resync): not toasted again
+    app.editor.phase.value = 1.55  # a different problem: toasted
+    assert app.toasts - sent == 2
+    assert app.status.content.startswith("**Invalid**")
+    app.editor.phase.value = 0.5
+    assert "✓ valid" in app.status.content  # no stale "Invalid" next to a valid gait
+
+
+def test_the_gait_control_table_shows_modules_by_time_with_the_selection_and_a_moving_cursor(studio):
+    from web.control_table import CELL_HEIGHT, CELL_WIDTH, FRAME
+
+    app = studio.app
+    editor = app.editor
+    editor.module_index.value = 3  # select module 3, as the page's slider does
+    image = editor.control.image
+    assert image.shape == (8 * CELL_HEIGHT, 64 * CELL_WIDTH, 3)  # 8 modules down, 64 samples of a period across
+    top = 2 * CELL_HEIGHT
+    assert (image[top, 10] == FRAME).all() and not (image[0, 10] == FRAME).all()  # module 3 is framed
+    # the wave: module 1 at phase 0 starts at 0° (white-ish), and some cell is strongly red and some strongly blue
+    assert image[..., 0].max() >= 190 and image[..., 2].max() >= 190
+    editor.draw_control_table(cursor=0.5, force=True)
+    column = 32 * CELL_WIDTH
+    assert (editor.control.image[:, column] == 0).all()  # the cursor: a black column at half the period
+
+
+def test_control_table_colours_are_signed_and_scaled_to_the_limits():
+    import numpy as np
+
+    from web.control_table import colours
+
+    c = colours(np.array([-90.0, 0.0, 45.0, 90.0, 200.0]), 90.0)
+    assert tuple(c[1]) == (255, 255, 255)
+    assert c[0][2] > c[0][0] and c[3][0] > c[3][2]  # blue for negative, red for positive
+    assert tuple(c[3]) == tuple(c[4])  # clipped at the limit
+    assert c[2][1] > c[3][1]  # half the limit is paler than the limit
+
+
+def test_clicking_a_module_in_3d_selects_it_in_the_editor_the_plot_and_the_browser(studio):
+    import mujoco
+
+    app = studio.app
+    assert wait_until(lambda: bool(app.view._batches), timeout=20)  # the scene is built by the drawing thread
+    model = app.view._model
+    for _, ids in app.view._batches:
+        names = [mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_BODY, int(model.geom_bodyid[g])) for g in ids]
+        if "b5" in names:
+            app.view._picked(model, ids, names.index("b5"))  # what viser calls with the clicked instance
+            break
+    else:
+        raise AssertionError("no piece of body b5 in the scene")
+    assert app.editor.module_index.value == 5 and app.plot_module.value == 5
+    assert "Selected module 5" in app.status.content
+    assert (app.editor.control.image[4 * 12, 10] == (255, 170, 0)).all()  # the control table frames module 5

@@ -63,6 +63,13 @@ def test_preview_loop_plays_steps_scrubs_and_reloads():
         loop.request("step", -1)
         time.sleep(0.2)
         assert loop.shown() is loop.frames[4]
+        # the metrics and the angle plot follow the timeline with the pose: they are those of frame 4
+        assert loop.metrics().seconds == loop.frames[4].time < loop.frames[-1].time
+        t, goal, _ = loop.series(0)
+        assert t[-1] == loop.frames[4].time and goal[-1] == loop.frames[4].goals[0]
+        loop.request("step", 1)  # step works while scrubbed
+        time.sleep(0.2)
+        assert loop.shown() is loop.frames[5] and loop.metrics().seconds == loop.frames[5].time
         loop.request("load", load("gaits/library/rolling_loop.toml"))
         loop.request("play", True)
         deadline = time.monotonic() + 20

@@ -63,6 +63,24 @@ def _pixels(png: bytes, rgb: tuple[int, int, int], tolerance: int = 40) -> int:
     return int((np.abs(image - np.array(rgb)).sum(axis=2) < tolerance).sum())
 
 
+def _robot_point(png: bytes, right_edge: int = 950) -> tuple[int, int]:
+    """A pixel on the preview's robot (its modules are tan: red well above blue) left of the side panel: the one
+    nearest the middle of all such pixels, so a click there lands on a module, not in a gap of the wave."""
+    import io
+
+    import numpy as np
+    from PIL import Image
+
+    image = np.asarray(Image.open(io.BytesIO(png)).convert("RGB"), dtype=int)[:, :right_edge]
+    r, g, b = image[..., 0], image[..., 1], image[..., 2]
+    ys, xs = np.nonzero((r - b > 70) & (r > g) & (g > b) & (r > 90))
+    ys, xs = ys[ys > 150], xs[ys > 150]  # below the page's notification toast
+    if not len(xs):
+        raise AssertionError("no robot in the screenshot")
+    k = int(np.argmin((xs - xs.mean()) ** 2 + (ys - ys.mean()) ** 2))
+    return int(xs[k]), int(ys[k])
+
+
 class _PoseWatch:
     """The robot's pose feed as a viewer receives it: how far its first body moved across the frames kept."""
 
@@ -155,6 +173,15 @@ def test_edit_preview_deploy_watch_and_estop(studio):
             assert _number(second, r"t = ([\d.]+) s") > _number(first, r"t = ([\d.]+) s")
             assert _number(second, r"distance ([\d.]+) m") > 0.0
             page.screenshot(path=str(ARTIFACTS / "studio-preview.png"))
+            # a click on the robot in the 3D view picks that module: the editor and the preview's plot follow it
+            page.get_by_role("button", name="Pause").click()
+            page.mouse.click(*_robot_point(page.screenshot()))
+            picked = page.get_by_text(re.compile(r"Selected module \d+"))
+            expect(picked).to_be_visible(timeout=15_000)
+            module = int(re.search(r"\d+", picked.inner_text())[0])
+            plot_row = page.locator("xpath=//label[normalize-space()='Plot module']/ancestor::*[.//input][1]")
+            expect(plot_row.locator("input").last).to_have_value(str(module), timeout=15_000)
+            page.get_by_role("button", name="Play").click()
             # deploy to the simulated modules: every checksum verified, all started
             page.get_by_role("tab", name="Deploy").click()
             page.get_by_role("button", name="Deploy", exact=True).click()

@@ -33,6 +33,7 @@ from .monitor import PLOT_SECONDS, WINDOWS, LivePlot, Roster, describe, empty_pl
 from .preview import PreviewLoop, SceneView
 
 log = logging.getLogger("asm_studio.web")
+TOAST_SECONDS = 6.0
 MIN_DRAW_INTERVAL = 1 / 100
 
 
@@ -66,11 +67,15 @@ class Dashboard:
         self.loop = PreviewLoop(studio.gait)
         self.feed = LiveFeed(studio.node.transport.session, studio.robot_name)  # type: ignore[attr-defined]
         self.view = SceneView(self.server, self.loop, self.feed)
+        self.view.on_pick = self.pick_module
         self.twin: KinematicTwin | None = None
         self.roster = Roster(self.node)  # type: ignore[arg-type]
         self.plot = LivePlot(self.node)  # type: ignore[arg-type]
         self._stop = threading.Event()
         self._programmatic = threading.local()
+        self._last_toast: tuple[tuple[str, str], float] | None = None
+        self.toasts = 0
+        """Toasts sent (a repeat within TOAST_SECONDS is not)."""
         self._value_input: ValueInput | None = None
         self._rebuild_lock = threading.RLock()
         self._build()
@@ -95,10 +100,36 @@ class Dashboard:
 
         return wrapped
 
+    def pick_module(self, module_id: int) -> None:
+        """A module clicked in the 3D view: select it in the editor, the preview's plot and the attribute browser."""
+        modules = self.doc.data()["modules"]
+        index = next((k for k, m in enumerate(sorted(modules, key=lambda m: m["id"])) if m["id"] == module_id), None)
+        if index is not None:
+            self.editor.module_index.value = index + 1  # its callback resyncs the editor (and the control table)
+        if module_id <= self.plot_module.max:
+            self.plot_module.value = module_id
+        if f"m{module_id}" in self.browse_module.options:
+            self.browse_module.value = f"m{module_id}"
+        self.status.content = f"Selected module {module_id}"
+
     def notify(self, title: str, body: str, *, error: bool = False) -> None:
+        """Say it in the status line, and as a toast unless the same toast went out less than TOAST_SECONDS ago
+        (typing into a field with a problem used to pile up one toast per keystroke)."""
         self.status.content = f"**{title}**: {body}"
+        now = time.monotonic()
+        last = self._last_toast
+        if last is not None and last[0] == (title, body) and now - last[1] < TOAST_SECONDS:
+            return
+        self._last_toast = ((title, body), now)
+        self.toasts += 1
         for client in self.server.get_clients().values():
-            client.add_notification(title, body, color="red" if error else "blue", auto_close_seconds=6.0)
+            client.add_notification(title, body, color="red" if error else "blue", auto_close_seconds=TOAST_SECONDS)
+
+    def resolved(self, title: str, now: str) -> None:
+        """The problem the status line reports under ``title`` is gone: say ``now`` instead (one status, current)."""
+        if self.status.content.startswith(f"**{title}**"):
+            self.status.content = now
+            self._last_toast = None
 
     def _frame_camera(self, client: Any) -> None:
         """Look at the robot from close enough to see its modules move."""
@@ -447,6 +478,9 @@ class Dashboard:
                 self.timeline.value = max(0, frames - 1)
         t, goal, angle = loop.series(int(self.plot_module.value) - 1)
         self.angles.data = (t, goal, angle)
+        shown = loop.shown()
+        with contextlib.suppress(ValueError):  # a gait with no single period has no cursor
+            self.editor.draw_control_table(cursor=None if shown is None else shown.time / loop.sim.gait.period)
         rows = self.roster.rows()
         names = [n for n, _, _ in rows]
         if names and list(self.browse_module.options) != names:

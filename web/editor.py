@@ -22,6 +22,7 @@ from gaits.deploy import MODULE_IDS
 from gaits.model import AXES, LIBRARY, SHAPES, GaitError, load
 from gaits.table import expand
 
+from .control_table import control_table
 from .generator import GaitTools
 from .grid import StateGrid
 from .monitor import empty_plot, seconds_axes, stroke
@@ -78,6 +79,11 @@ class GaitEditor:
             self.friction = gui.add_number("Friction", initial_value=1.0, step=0.05, hint="in (0, 10]")
             self.robot_problem = gui.add_markdown("")
         self.table_html = gui.add_html("")
+        gui.add_markdown("**Gait control table**: modules 1… top to bottom, one period across; blue −, red + "
+                         "(full at the limits); black: where the preview is; framed: the selected module")  # fmt: skip
+        self.control = gui.add_image(control_table([], (-90.0, 90.0)), label=None, format="png")
+        self._table: tuple[list[list[float]], tuple[float, float]] = ([], (-90.0, 90.0))
+        self._table_drawn: tuple[int, int | None, int | None] | None = None
         self.expanded = gui.add_uplot(data=empty_plot(2), series=({"label": "t"}, {"label": "m1"}),
                                       title="Expanded table: commanded angle per module", aspect=1.6,
                                       **seconds_axes("degrees"))  # fmt: skip
@@ -157,6 +163,7 @@ class GaitEditor:
         if self.doc.problems:
             self.app.notify("Invalid", page_label(self.doc.problems[0]), error=True)
             return
+        self.app.resolved("Invalid", f"✓ valid ({self.doc.gait().name})")
         self.app.loop.request("load", self.doc.gait())  # an edit re-previews at once
 
     # -- showing the document -------------------------------------------------------------------------------------
@@ -206,11 +213,29 @@ class GaitEditor:
         self.grid.sync(data, self.automaton.value)
         self.table_html.content = _states_table(data, self.automaton.value, index)
         if not self.doc.problems:
-            times, rows = expand(self.doc.gait(), samples=32)
+            gait = self.doc.gait()
+            times, rows = expand(gait, samples=32)
+            self._table = (expand(gait, samples=64)[1], gait.limits)
+            self.draw_control_table(force=True)
             with self.app.server.atomic():  # as many series as arrays, whenever the page applies them
                 self.expanded.series = ({"label": "t"}, *({"label": f"m{k + 1}", "stroke": stroke(k)}
                                                           for k in range(len(rows))))  # fmt: skip
                 self.expanded.data = (np.asarray(times), *(np.asarray(r) for r in rows))
+
+    def selected_module(self) -> int:
+        """The 0-based row of the module chosen in the editor's Module slider."""
+        return int(self.module_index.value) - 1
+
+    def draw_control_table(self, *, cursor: float | None = None, force: bool = False) -> None:
+        """Draw the control table if its cursor column or selection moved (the dashboard's refresh calls this with
+        the preview's phase in the period; an edit redraws it at once)."""
+        rows, limits = self._table
+        column = None if cursor is None else int((cursor % 1.0) * 64)
+        key = (id(rows), column, self.selected_module())
+        if not force and key == self._table_drawn:
+            return
+        self._table_drawn = key
+        self.control.image = control_table(rows, limits, cursor=cursor, selected=self.selected_module())
 
 
 def page_label(problem: Any) -> str:

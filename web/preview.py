@@ -12,6 +12,7 @@ import queue
 import threading
 import time
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -24,7 +25,8 @@ from gaits.sim import Metrics, Simulation
 
 FRAME_RATE = 60.0
 """Recorded frames per simulated second: the timeline's resolution, and what the view draws at speed 1."""
-HISTORY_SECONDS = 60.0
+HISTORY_SECONDS = 300.0
+"""Five minutes of frames the timeline can go back to (bounded: a 128-module chain keeps about 70 MB)."""
 GRID_CELL = 0.1
 """Metres between the ground grid's lines."""
 
@@ -37,6 +39,9 @@ class Frame:
     """Each module's joint.goal (degrees) at this time."""
     angles: tuple[float, ...]
     """Each module's measured joint angle (degrees)."""
+    metrics: Metrics | None = None
+    """Distance, speed, heading and peak torque since the gait (re)started, as they were at this frame: the metrics
+    follow the timeline as the pose does."""
 
 
 class PreviewLoop:
@@ -87,14 +92,23 @@ class PreviewLoop:
             return self.frames[index]
 
     def metrics(self) -> Metrics:
-        """Distance and speed since the gait (re)started, on the centre of mass."""
+        """Distance and speed since the gait (re)started, on the centre of mass, at the frame shown (the newest one
+        while playing, the timeline's one when scrubbed or stepped)."""
         with self._lock:
+            if self.cursor is not None and self.frames:
+                frame = self.frames[min(self.cursor, len(self.frames) - 1)]
+                if frame.metrics is not None:
+                    return frame.metrics
             return self.sim.measure(self._start_com, self.sim.data.time)
 
     def series(self, module_index: int, seconds: float = 5.0) -> tuple[np.ndarray, ...]:
-        """Time, commanded and measured angle (degrees) of one module over the last ``seconds`` of frames."""
+        """Time, commanded and measured angle (degrees) of one module over the ``seconds`` of frames up to the one
+        shown (so the plot follows the timeline with the pose and the metrics)."""
         with self._lock:
             frames = list(self.frames)
+            cursor = self.cursor
+        if frames and cursor is not None:
+            frames = frames[: min(cursor, len(frames) - 1) + 1]
         frames = [f for f in frames if f.time >= frames[-1].time - seconds] if frames else []
         if not frames:
             return (np.zeros(1), np.zeros(1), np.zeros(1))
@@ -155,7 +169,8 @@ class PreviewLoop:
                     self._next_frame += 1 / FRAME_RATE
                 goals = tuple(float(r.goal.peek()) for r in sim.modules.values())
                 angles = tuple(float(r.angle.peek()) for r in sim.modules.values())
-                self.frames.append(Frame(sim.data.time, sim.data.qpos.copy(), goals, angles))
+                metrics = sim.measure(self._start_com, sim.data.time)
+                self.frames.append(Frame(sim.data.time, sim.data.qpos.copy(), goals, angles, metrics))
                 self._changed.set()
 
     def _handle(self, kind: str, value: Any) -> None:
@@ -256,6 +271,8 @@ class SceneView:
         self._drawn: object = None
         self.rich = rich
         self.follow = True
+        self.on_pick: Callable[[int], None] | None = None
+        """Called with a module ID when the user clicks that module in the 3D view (on viser's thread pool)."""
         self._ground = server.scene.add_grid("/ground", width=4.0, height=4.0, cell_size=GRID_CELL, plane="xy")
         self._label = server.scene.add_label("/source", "PREVIEW", position=(0.0, 0.0, 0.25))
         self.set_rich(rich)
@@ -320,8 +337,20 @@ class SceneView:
                 batched_colors=color, cast_shadow=self.rich, receive_shadow=self.rich, lod="off",
             )  # fmt: skip
             self._batches.append((handle, ids))
+            handle.on_click(lambda event, ids=ids, model=model: self._picked(model, ids, event.instance_index))
         self._built = key
         self._drawn = None
+
+    def _picked(self, model: mujoco.MjModel, ids: np.ndarray, instance: int | None) -> None:
+        """A click on a piece of the robot: the module whose hinge starts that piece (``b<k>`` holds the half
+        modules on either side of hinge k, so the piece b<k> belongs to module k, and b0 to module 1)."""
+        if instance is None or self.on_pick is None or not 0 <= instance < len(ids):
+            return
+        body = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_BODY, int(model.geom_bodyid[ids[instance]])) or ""
+        if body.startswith("b") and body[1:].isdigit():
+            joints = sum(1 for j in range(model.njnt) if (mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_JOINT, j) or "")
+                         .startswith("m"))  # fmt: skip
+            self.on_pick(min(max(int(body[1:]), 1), max(joints, 1)))
 
     def _poses(self) -> tuple[object, np.ndarray, np.ndarray] | None:
         """(what is drawn, body positions, body orientations) of the shown source, bodies 1.. of its model."""
