@@ -5,6 +5,8 @@ same callback a user's edit in the page does (the browser path itself is test_st
 
 from __future__ import annotations
 
+import time
+from collections import deque
 from types import SimpleNamespace
 
 import numpy as np
@@ -195,7 +197,7 @@ def test_one_toast_per_distinct_problem_and_the_status_line_is_always_current(st
     assert app.toasts - sent == 2
     assert app.status.content.startswith("**Invalid**")
     app.editor.phase.value = 0.5
-    assert "✓ valid" in app.status.content  # no stale "Invalid" next to a valid gait
+    assert "is valid again" in app.status.content  # no stale "Invalid" next to a valid gait
 
 
 def test_the_gait_control_table_shows_modules_by_time_with_the_selection_and_a_moving_cursor(studio):
@@ -243,3 +245,20 @@ def test_clicking_a_module_in_3d_selects_it_in_the_editor_the_plot_and_the_brows
     assert app.editor.module_index.value == 5 and app.plot_module.value == 5
     assert "Selected module 5" in app.status.content
     assert (app.editor.control.image[4 * 12, 10] == (255, 170, 0)).all()  # the control table frames module 5
+
+
+def test_the_live_plot_can_be_paused_and_resumed(studio):
+    import numpy as np
+
+    app = studio.app
+    app.plot.series[("m1", "joint.angle")] = deque([(0.0, 1.0), (1.0, 2.0)])
+    app.plot.t0 -= 1.0  # the samples are recent
+    assert wait_until(lambda: len(app.live.data[0]) == 2, timeout=10)
+    app.freeze.value = True
+    app.plot.series[("m1", "joint.angle")].append((1.5, 3.0))
+    time.sleep(0.5)  # ten refreshes
+    assert len(app.live.data[0]) == 2  # held still
+    app.freeze.value = False
+    assert wait_until(lambda: len(app.live.data[0]) == 3, timeout=10)
+    assert np.asarray(app.live.data[1])[-1] == 3.0
+    app.plot.unwatch_all()

@@ -161,7 +161,21 @@ class Dashboard:
             self._build_deploy()
         with tabs.add_tab("Monitor"):
             self._build_monitor()
+        self._build_keys()
         self.editor.sync()
+
+    def _build_keys(self) -> None:
+        """Keyboard shortcuts, as viser's command-palette hotkeys (a key typed into a field stays the field's)."""
+        keys = (
+            ("Play / pause the preview", "space", None, lambda: self.loop.request("play", not self.loop.playing)),
+            ("Step the preview back", "arrowleft", None, lambda: self.loop.request("step", -1)),
+            ("Step the preview forward", "arrowright", None, lambda: self.loop.request("step", 1)),
+            ("Undo the last edit", "Z", "cmd/ctrl", lambda: self.editor.history("Undo")),
+            ("Redo", "Z", "cmd/ctrl+shift", lambda: self.editor.history("Redo")),
+        )
+        for label, key, modifier, action in keys:
+            command = self.server.gui.add_command(label, hotkey=key, modifier=modifier)  # type: ignore[arg-type]
+            command.on_trigger(self.safe(lambda _, action=action: action()))
 
     def _build_preview(self) -> None:
         gui = self.server.gui
@@ -215,6 +229,8 @@ class Dashboard:
             actions.on_click(self.safe(self._on_browse))
         self.window = gui.add_dropdown("Window (s)", [f"{w:g}" for w in WINDOWS], initial_value=f"{PLOT_SECONDS:g}")
         self.window.on_update(self.safe(lambda e: setattr(self.plot, "window", float(e.target.value))))
+        self.freeze = gui.add_checkbox("Pause the live plot", initial_value=False,
+                                       hint="hold the plot still to read it; the samples keep arriving")  # fmt: skip
         self.live = gui.add_uplot(data=empty_plot(2), series=({"label": "t"}, {"label": "-"}),
                                   title="Live: module attributes (from the robot)", aspect=2.0,
                                   **seconds_axes("value"))  # fmt: skip
@@ -491,7 +507,7 @@ class Dashboard:
             for name, alive, age in rows
         )  # fmt: skip
         labels, data = self.plot.data()
-        if labels:
+        if labels and not self.freeze.value:
             with self.server.atomic():  # a new series list and its data reach the page together
                 if labels != self._live_labels:
                     self.live.series = ({"label": "t"}, *({"label": label, "stroke": stroke(k)}

@@ -136,9 +136,13 @@ class GaitEditor:
         self.app.notify("Opened", file.name)
 
     def _on_history(self, event: Any) -> None:
-        moved = self.doc.undo() if event.target.value == "Undo" else self.doc.redo()
+        self.history(event.target.value)
+
+    def history(self, kind: str) -> None:
+        """``Undo`` or ``Redo`` one step (the History buttons and Ctrl+Z / Ctrl+Shift+Z)."""
+        moved = self.doc.undo() if kind == "Undo" else self.doc.redo()
         if not moved:
-            self.app.notify("History", f"nothing to {event.target.value.lower()}")
+            self.app.notify("History", f"nothing to {kind.lower()}")
         self.after_edit()
 
     def _on_states(self, event: Any) -> None:
@@ -163,7 +167,7 @@ class GaitEditor:
         if self.doc.problems:
             self.app.notify("Invalid", page_label(self.doc.problems[0]), error=True)
             return
-        self.app.resolved("Invalid", f"✓ valid ({self.doc.gait().name})")
+        self.app.resolved("Invalid", f"Edited: {self.doc.gait().name} is valid again")
         self.app.loop.request("load", self.doc.gait())  # an edit re-previews at once
 
     # -- showing the document -------------------------------------------------------------------------------------
