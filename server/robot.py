@@ -219,6 +219,10 @@ class Robot:
             self.sim = None
 
 
+ORPHAN_GRACE = 5.0
+"""Seconds an orphaned robot process gets to close in order before it exits anyway."""
+
+
 def die_with_parent(parent: int) -> None:
     """End this process when process ``parent`` ends, however it ends (SIGKILL included)."""
     try:  # Linux: the kernel sends SIGTERM when the parent thread dies
@@ -229,11 +233,11 @@ def die_with_parent(parent: int) -> None:
         os.kill(os.getpid(), signal.SIGTERM)
 
     def watch() -> None:
-        while True:
+        while os.getppid() == parent:
             time.sleep(0.5)
-            if os.getppid() != parent:
-                os.kill(os.getpid(), signal.SIGTERM)
-                return
+        os.kill(os.getpid(), signal.SIGTERM)  # an orderly close: modules stopped, sessions closed
+        time.sleep(ORPHAN_GRACE)
+        os._exit(1)  # a robot whose operator is gone must not linger, even if closing hangs
 
     threading.Thread(target=watch, name="parent-watch", daemon=True).start()
 
