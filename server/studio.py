@@ -128,6 +128,7 @@ class Studio:
         self.options = options
         self.robot_name = options.robot_name
         self.gait: Gait = load(options.gait)
+        self.gait_text: str | None = Path(options.gait).read_text(encoding="utf-8-sig")
         self.child: RobotChild | None = None
         self.node: Node | None = None
         self.app: Any = None

@@ -163,6 +163,11 @@ def test_edit_preview_deploy_watch_and_estop(studio):
             angle.press("Enter")
             expect(page.locator("td", has_text="42.0°").first).to_be_visible(timeout=15_000)
             page.screenshot(path=str(ARTIFACTS / "studio-editor.png"))
+            # the download keeps the library file's comments and says the new angle
+            with page.expect_download() as download:
+                page.get_by_role("button", name="Download .toml").click()
+            text = download.value.path().read_text(encoding="utf-8")
+            assert text.startswith("# A vertical travelling wave") and "angle = 42.0" in text
             # the preview moves: simulated time and distance grow
             page.get_by_role("tab", name="Preview").click()
             metrics = page.get_by_text("distance", exact=False).first
@@ -370,6 +375,7 @@ def test_make_a_12_module_wave_preview_rename_download_and_deploy_it_in_a_minute
             saved = tmp_path / download.value.suggested_filename
             download.value.save_as(saved)
             assert saved.name == "my_wave.toml" and 'name = "my_wave"' in saved.read_text()
+            assert "module_size = 0.05  # metres" in saved.read_text()  # a gait with no file: units in comments
             # deploy and start on 12 simulated modules
             page.get_by_role("tab", name="Deploy").click()
             page.get_by_role("button", name="Deploy", exact=True).click()

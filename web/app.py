@@ -45,6 +45,8 @@ class Backend(Protocol):
     """The page's own ASM node, on Zenoh: everything it does to modules goes through it."""
     gait: Gait
     """The gait opened at start."""
+    gait_text: str | None
+    """The text of its file (a download keeps its comments)."""
     simulated: bool
     """The robot is simulated (it publishes poses); else a real bus."""
     robot_name: str
@@ -63,7 +65,7 @@ class Dashboard:
         self.guard = AccessGuard(host, token)
         self.server = guarded_server(self.guard, host=host, port=port, label="ASM Studio", verbose=False)
         self.port = self.server.get_port()
-        self.doc = GaitDocument(studio.gait)
+        self.doc = GaitDocument(studio.gait, text=studio.gait_text)
         self.loop = PreviewLoop(studio.gait)
         self.feed = LiveFeed(studio.node.transport.session, studio.robot_name)  # type: ignore[attr-defined]
         self.view = SceneView(self.server, self.loop, self.feed)

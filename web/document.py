@@ -15,7 +15,8 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-from gaits.model import MAX_MODULES, Gait, GaitError, Problem, dumps, from_dict, loads, to_dict
+from gaits.model import MAX_MODULES, Gait, GaitError, Problem, from_dict, loads, to_dict
+from gaits.roundtrip import save
 
 HISTORY = 200
 TYPING = 1.0
@@ -25,14 +26,16 @@ TYPING = 1.0
 class GaitDocument:
     """An editable gait with undo/redo; thread-safe (viser runs GUI callbacks on a thread pool)."""
 
-    def __init__(self, gait: Gait, *, clock: Callable[[], float] = time.monotonic) -> None:
+    def __init__(self, gait: Gait, *, text: str | None = None, clock: Callable[[], float] = time.monotonic) -> None:
         self._lock = threading.Lock()
         self._clock = clock
         self._last_edit: tuple[Any, float] | None = None
         """(what was edited, when): the next edit of the same field within TYPING seconds joins its undo step."""
         self._data = to_dict(gait)
-        self._undo: list[dict[str, Any]] = []
-        self._redo: list[dict[str, Any]] = []
+        self._source: str | None = text
+        """The TOML text the gait was opened from: saving keeps its comments and layout (gaits.roundtrip)."""
+        self._undo: list[tuple[dict[str, Any], str | None]] = []
+        self._redo: list[tuple[dict[str, Any], str | None]] = []
         self._valid: Gait | None = gait
         self.problems: list[Problem] = []
         self.version = 0
@@ -54,22 +57,27 @@ class GaitDocument:
             return self._valid
 
     def text(self) -> str:
-        """The document as a TOML gait file (the last valid state if it has problems now)."""
-        return dumps(self.gait())
+        """The document as a TOML gait file (the last valid state if it has problems now), keeping the comments
+        and layout of the file it was opened from; a gait with no file gets its units in comments."""
+        gait = self.gait()
+        with self._lock:
+            source = self._source
+        return save(to_dict(gait), source)
 
     def problem_at(self, prefix: str) -> list[Problem]:
         return [p for p in self.problems if p.path == prefix or p.path.startswith(prefix + ".")]
 
     # -- editing ------------------------------------------------------------------------------------------------
 
-    def replace(self, gait: Gait) -> None:
-        """Open another gait (undoable)."""
+    def replace(self, gait: Gait, *, text: str | None = None) -> None:
+        """Open another gait (undoable); ``text``: the file it comes from, whose comments a save keeps."""
         self._spare.clear()
-        self._apply(lambda data: data.clear() or data.update(to_dict(gait)))
+        self._apply(lambda data: data.clear() or data.update(to_dict(gait)), opened=True, text=text)
 
     def load_text(self, text: str | bytes, source: str = "upload") -> None:
         """Open a TOML file's text or bytes; GaitError (nothing changes) if it is not a valid gait."""
-        self.replace(loads(text, source=source))
+        gait = loads(text, source=source)
+        self.replace(gait, text=text.decode("utf-8-sig") if isinstance(text, bytes) else text)
 
     def set_state(self, automaton: str, index: int, field: str, value: Any) -> None:
         """Set ``angle``, ``duration`` or ``interpolation`` of one state of an automaton."""
@@ -182,13 +190,13 @@ class GaitDocument:
         with self._lock:
             if not source:
                 return False
-            target.append(self._data)
-            self._data = source.pop()
+            target.append((self._data, self._source))
+            self._data, self._source = source.pop()
             self._last_edit = None
             self._revalidate()
             return True
 
-    def _apply(self, edit: Any, *, field: Any = None) -> None:
+    def _apply(self, edit: Any, *, field: Any = None, opened: bool = False, text: str | None = None) -> None:
         """Apply one edit as an undo step. Edits of the same ``field`` less than TYPING seconds apart are one step:
         the page sends a number as it is typed ("4", then "45"), and Undo should give back the value before "45",
         not "4". Anything else in between (another field, undo, redo) ends the step."""
@@ -196,8 +204,10 @@ class GaitDocument:
             now = self._clock()
             typing = (field is not None and self._last_edit is not None and self._last_edit[0] == field
                       and now - self._last_edit[1] < TYPING and self._undo and not self._redo)  # fmt: skip
-            before = copy.deepcopy(self._data)
+            before = (copy.deepcopy(self._data), self._source)
             edit(self._data)
+            if opened:  # a gait opened in place of this one: its own file's text (or none)
+                self._source = text
             if not typing:
                 self._undo.append(before)
                 del self._undo[:-HISTORY]

@@ -14,12 +14,13 @@ from __future__ import annotations
 
 import re
 from collections.abc import Callable
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from gaits.deploy import MODULE_IDS
-from gaits.model import AXES, LIBRARY, SHAPES, GaitError, load
+from gaits.model import AXES, LIBRARY, SHAPES, GaitError
 from gaits.table import expand
 
 from .control_table import control_table
@@ -42,7 +43,7 @@ class GaitEditor:
         names = sorted(p.stem for p in LIBRARY.glob("*.toml"))
         self.library = gui.add_dropdown("Library", names, initial_value=initial if initial in names else names[0])
         gui.add_button("Open from library").on_click(
-            safe(lambda _: self.open(load(LIBRARY / f"{self.library.value}.toml")))
+            safe(lambda _: self.open_file(LIBRARY / f"{self.library.value}.toml"))
         )
         self.upload = gui.add_upload_button("Upload gait file", mime_type=".toml")
         self.upload.on_upload(safe(self._on_upload))
@@ -119,6 +120,13 @@ class GaitEditor:
         states.on_click(safe(self._on_states))
 
     # -- actions --------------------------------------------------------------------------------------------------
+
+    def open_file(self, path: Path) -> None:
+        """Open a gait file, keeping its text so that a download keeps its comments."""
+        self.doc.load_text(path.read_bytes(), source=path.name)
+        self.after_edit()
+        gait = self.doc.gait()
+        self.app.notify("Opened", f"{gait.name}: {gait.robot.modules}-module {gait.robot.shape}")
 
     def open(self, gait: Any) -> None:
         self.doc.replace(gait)
