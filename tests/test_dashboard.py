@@ -262,3 +262,17 @@ def test_the_live_plot_can_be_paused_and_resumed(studio):
     assert wait_until(lambda: len(app.live.data[0]) == 3, timeout=10)
     assert np.asarray(app.live.data[1])[-1] == 3.0
     app.plot.unwatch_all()
+
+
+def test_each_module_is_labelled_at_its_joint_in_the_3d_view(studio):
+    app = studio.app
+    assert wait_until(lambda: len(app.view._labels) == 8, timeout=20)
+    assert [label.text for label in app.view._labels] == [f"m{k}" for k in range(1, 9)]
+    assert wait_until(lambda: len({tuple(label.position) for label in app.view._labels}) == 8, timeout=20)
+    import numpy as np
+
+    points = np.array([label.position for label in app.view._labels])
+    gaps = np.linalg.norm(np.diff(points, axis=0), axis=1)
+    assert np.allclose(gaps, 0.05, atol=2e-3)  # neighbouring joints are one 5 cm module apart: each label at its own
+    app.view.set_labels(False)
+    assert wait_until(lambda: not app.view._labels, timeout=20)

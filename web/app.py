@@ -195,6 +195,8 @@ class Dashboard:
         follow = gui.add_checkbox("Follow the robot", initial_value=True,
                                   hint="keep the robot in the middle; the ground moves under it")  # fmt: skip
         follow.on_update(self.safe(lambda e: setattr(self.view, "follow", bool(e.target.value))))
+        labels = gui.add_checkbox("Module labels", initial_value=True, hint="each module's name at its joint")
+        labels.on_update(self.safe(lambda e: self.view.set_labels(bool(e.target.value))))
         self.metrics = gui.add_markdown("")
         self.plot_module = gui.add_slider("Plot module", min=1, max=max(2, self.doc.gait().robot.modules), step=1,
                                           initial_value=1)  # fmt: skip

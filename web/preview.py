@@ -246,6 +246,19 @@ def geom_poses(model: mujoco.MjModel, xpos: np.ndarray, xquat: np.ndarray, geoms
     return xpos[bodies] + _rotate(quat, model.geom_pos[geoms]), _quat_mul(quat, model.geom_quat[geoms])
 
 
+def hinge_anchors(model: mujoco.MjModel, xpos: np.ndarray, xquat: np.ndarray,
+                  joints: np.ndarray) -> np.ndarray:  # fmt: skip
+    """World positions of hinge ``joints`` from their bodies' poses (arrays over bodies 1..): where a module's
+    label goes."""
+    bodies = model.jnt_bodyid[joints] - 1
+    return xpos[bodies] + _rotate(xquat[bodies], model.jnt_pos[joints])
+
+
+LABEL_EVERY = 6
+"""Module labels move with every sixth drawn frame (10 Hz at 60 frames a second): enough to read them, and 32
+labels at full rate would double what the page receives."""
+
+
 class SceneView:
     """Draws the robot in viser's scene, from the preview or from the live robot: one batched mesh per distinct
     module shape.
@@ -271,6 +284,11 @@ class SceneView:
         self._drawn: object = None
         self.rich = rich
         self.follow = True
+        self.labels = True
+        """Show each module's name at its joint."""
+        self._labels: list[Any] = []
+        self._label_joints = np.zeros(0, dtype=int)
+        self._draws = 0
         self.on_pick: Callable[[int], None] | None = None
         """Called with a module ID when the user clicks that module in the 3D view (on viser's thread pool)."""
         self._ground = server.scene.add_grid("/ground", width=4.0, height=4.0, cell_size=GRID_CELL, plane="xy")
@@ -308,7 +326,15 @@ class SceneView:
     def _build(self, model: mujoco.MjModel, key: tuple[str, int]) -> None:
         for handle, _ in self._batches:
             handle.remove()
-        self._batches = []
+        for label in self._labels:
+            label.remove()
+        self._batches, self._labels = [], []
+        names = [mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_JOINT, j) or "" for j in range(model.njnt)]
+        hinges = sorted((int(n[1:]), j) for j, n in enumerate(names) if n[:1] == "m" and n[1:].isdigit())
+        self._label_joints = np.array([j for _, j in hinges], dtype=int)
+        if self.labels:
+            self._labels = [self.server.scene.add_label(f"/robot/label{k}", f"m{k}", position=(0.0, 0.0, 0.0))
+                            for k, _ in hinges]  # fmt: skip
         self._model = model
         self._data = mujoco.MjData(model)
         groups: dict[tuple[float, float, float], list[int]] = {}
@@ -392,4 +418,14 @@ class SceneView:
                 handle.batched_positions = (pos - shift).astype(np.float32)
                 handle.batched_wxyzs = wxyz.astype(np.float32)
             self._ground.position = (-(shift[0] % GRID_CELL), -(shift[1] % GRID_CELL), 0.0)
+            if self._labels and self._draws % LABEL_EVERY == 0:
+                anchors = hinge_anchors(self._model, xpos, xquat, self._label_joints) - shift
+                for label, anchor in zip(self._labels, anchors, strict=True):
+                    label.position = (float(anchor[0]), float(anchor[1]), float(anchor[2]) + 0.04)
+        self._draws += 1
         return True
+
+    def set_labels(self, shown: bool) -> None:
+        """Module labels on or off (rebuilt at the next draw)."""
+        self.labels = shown
+        self._built = None
