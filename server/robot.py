@@ -29,7 +29,7 @@ from typing import Any
 
 import zenoh
 
-from asm_py.cli import bitrate, can_channel, input_file, name, run
+from asm_py.cli import bitrate, can_channel, input_file, name, node_id, run
 from asm_py.feed import PoseFrame, RobotStatus, encode_poses, mjcf_key, poses_key, status_key
 from asm_py.node import Node
 from asm_py.transport.can import CanTransport
@@ -59,6 +59,9 @@ class RobotOptions:
     insecure: bool = False
     heartbeat_period: float = 0.5
     pose_rate: float = POSE_RATE
+    node_id: int = 254
+    """The bridge's own CAN node ID on the bus."""
+    zenoh_mode: str = "peer"
 
 
 class RealTimeLoop:
@@ -156,6 +159,7 @@ class Robot:
             else:
                 can_options = dict(options.can)
             self.bridge = CanZenohBridge({**can_options, "heartbeat_period": options.heartbeat_period},
+                                         node_id=options.node_id, zenoh_mode=options.zenoh_mode,
                                          zenoh_listen=options.zenoh_listen, zenoh_connect=options.zenoh_connect,
                                          zenoh_config=options.zenoh_config, insecure=options.insecure)  # fmt: skip
             session = self.bridge.session
@@ -249,10 +253,15 @@ def main(argv: list[str] | None = None) -> int:
                        "the caterpillar)")  # fmt: skip
     where.add_argument("--can", type=can_channel, metavar="INTERFACE:CHANNEL", help="a real bus: bridge its modules")
     cli.add_argument("--bitrate", type=bitrate)
+    cli.add_argument("--fd", action="store_true", help="a real CAN FD bus (with --can)")
+    cli.add_argument("--node-id", type=node_id, default=254, help="the bridge's own CAN node ID (default 254)")
+    cli.add_argument("--zenoh-mode", default="peer", choices=["peer", "client"])
     cli.add_argument("--name", type=name, default="robot", help="the robot's name in its Zenoh keys (default robot)")
     add_zenoh_arguments(cli)
     cli.add_argument("--parent-pid", type=int, help=argparse.SUPPRESS)
     args = cli.parse_args(argv)
+    if args.fd and args.can is None:
+        cli.error("--fd describes a real bus: use it with --can")
     check_zenoh_arguments(cli, args)
     return run(cli.prog, lambda: _serve(args))
 
@@ -262,10 +271,12 @@ def _serve(args: argparse.Namespace) -> int:
         die_with_parent(args.parent_pid)
     prefer_latency()
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
-    can_options = None if args.can is None else {**args.can, **({"bitrate": args.bitrate} if args.bitrate else {})}
+    can_options = None if args.can is None else {**args.can, "fd": args.fd,
+                                                 **({"bitrate": args.bitrate} if args.bitrate else {})}  # fmt: skip
     options = RobotOptions(sim=None if args.can else (args.sim or RobotOptions.sim), can=can_options, name=args.name,
                            zenoh_listen=tuple(args.zenoh_listen), zenoh_connect=tuple(args.zenoh_connect),
-                           zenoh_config=args.zenoh_config, insecure=args.insecure)  # fmt: skip
+                           zenoh_config=args.zenoh_config, insecure=args.insecure, node_id=args.node_id,
+                           zenoh_mode=args.zenoh_mode)  # fmt: skip
     done = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: done.set())
     signal.signal(signal.SIGINT, lambda *_: done.set())

@@ -43,6 +43,8 @@ USAGE_ERRORS = [  # (command, arguments, what the one-line error must mention)
     ("asm-robot", ["--name", ""], "--name"),
     ("asm-robot", ["--zenoh-connect", "tcp/host"], "HOST:PORT"),
     ("asm-robot", ["--zenoh-config", "/nonexistent.json5"], "no such file"),
+    ("asm-robot", ["--fd"], "with --can"),
+    ("asm-robot", ["--can", "virtual:x", "--node-id", "255"], "node ID"),
     ("asm-bridge", [], "--can"),
     ("asm-bridge", ["--can", "nope:xx"], "unknown CAN interface"),
     ("asm-bridge", ["--can", "virtual:x", "--node-id", "0"], "node ID"),

@@ -148,3 +148,17 @@ def _zombie(pid: int) -> bool:
         return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] == "Z"
     except OSError:
         return True
+
+
+def test_asm_robot_can_takes_the_bridge_options_fd_and_node_id() -> None:
+    """`asm-robot --can` is the one command for a real bus: it takes what asm-bridge takes (FD, its node ID)."""
+    from server.robot import Robot, RobotOptions
+    from tests.transports import free_port
+
+    channel = f"asm-robot-fd-{os.getpid()}"
+    robot = Robot(RobotOptions(sim=None, can={"interface": "virtual", "channel": channel, "fd": True}, node_id=77,
+                               zenoh_listen=(f"tcp/127.0.0.1:{free_port()}",)))  # fmt: skip
+    try:
+        assert robot.bridge.can.node_id == 77 and robot.bridge.can.fd
+    finally:
+        robot.close()
