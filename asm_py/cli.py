@@ -11,7 +11,9 @@ from __future__ import annotations
 
 import argparse
 import math
+import signal
 import sys
+import threading
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -101,6 +103,15 @@ def describe(exc: BaseException) -> str:
     for marker in (" at /", "\n"):
         text = text.split(marker, 1)[0]
     return text
+
+
+def stop_requested() -> threading.Event:
+    """An event set by SIGTERM or SIGINT: a server command prints its ready line, waits on it, then closes in
+    order (the main thread must call this: Python installs signal handlers there only)."""
+    done = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: done.set())
+    signal.signal(signal.SIGINT, lambda *_: done.set())
+    return done
 
 
 def run(prog: str, body: Callable[[], int]) -> int:

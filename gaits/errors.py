@@ -32,15 +32,11 @@ class GaitError(AsmError, ValueError):
         self.source = source
         self.problems = problems[:MAX_LISTED]
         self.more = more + max(0, len(problems) - MAX_LISTED)
-        self._at_least = "at least " if more_is_lower_bound else ""
-        text = "; ".join(str(p) for p in self.problems)
-        if self.more:
-            text += f"; and {self._at_least}{self.more} more"
-        super().__init__(f"{source}: {text}")
+        self._rest = f"and {'at least ' if more_is_lower_bound else ''}{self.more} more" if self.more else ""
+        super().__init__(
+            f"{source}: " + "; ".join([str(p) for p in self.problems] + ([self._rest] if self._rest else []))
+        )
 
     def lines(self) -> list[str]:
         """One line per listed problem, and a last one counting those not listed."""
-        out = [str(p) for p in self.problems]
-        if self.more:
-            out.append(f"… and {self._at_least}{self.more} more")
-        return out
+        return [str(p) for p in self.problems] + ([f"… {self._rest}"] if self._rest else [])

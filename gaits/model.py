@@ -146,10 +146,6 @@ def loads(text: str | bytes, *, source: str = "<gait>") -> Gait:
     return from_dict(parse(text, source), source=source, text=text)
 
 
-def _finite(value: Any) -> bool:
-    return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
-
-
 def _non_finite(value: Any, path: list[str | int]) -> Iterator[list[str | int]]:
     """Paths of nan and inf in a document (TOML has them, JSON, and so the schema, does not)."""
     if isinstance(value, float) and not math.isfinite(value):

@@ -33,32 +33,30 @@ _VALIDATOR = Draft202012Validator(SCHEMA)
 
 
 def read(path: str | Path) -> bytes:
-    """The file's bytes, refused before reading when larger than a gait file can be."""
+    """The file's bytes, no more than one byte past the largest gait file (``decode`` refuses it then): a huge
+    file is never read whole."""
     with open(path, "rb") as file:
-        data = file.read(MAX_FILE_BYTES + 1)
-    if len(data) > MAX_FILE_BYTES:
-        raise GaitError(
-            str(path), [Problem("(file)", f"larger than {MAX_FILE_BYTES // 1024 // 1024} MiB: not a gait file", 1)]
-        )
-    return data
+        return file.read(MAX_FILE_BYTES + 1)
+
+
+def _too_large(source: str) -> GaitError:
+    return GaitError(
+        source, [Problem("(file)", f"larger than {MAX_FILE_BYTES // 1024 // 1024} MiB: not a gait file", 1)]
+    )
 
 
 def decode(data: bytes | str, source: str) -> str:
     """UTF-8 text (a leading byte-order mark is allowed); a bad byte is reported with its line."""
+    if len(data) > MAX_FILE_BYTES:  # checked before decoding: bytes never decode to more characters
+        raise _too_large(source)
     if isinstance(data, str):
-        text = data
-    else:
-        if len(data) > MAX_FILE_BYTES:
-            raise GaitError(source, [Problem("(file)", f"larger than {MAX_FILE_BYTES // 1024 // 1024} MiB", 1)])
-        try:
-            text = data.decode("utf-8")
-        except UnicodeDecodeError as exc:
-            line = data.count(b"\n", 0, exc.start) + 1
-            message = f"not UTF-8 text: byte 0x{data[exc.start]:02x} at offset {exc.start} cannot be decoded"
-            raise GaitError(source, [Problem("(file)", message, line)]) from None
-    if len(text) > MAX_FILE_BYTES:
-        raise GaitError(source, [Problem("(file)", f"larger than {MAX_FILE_BYTES // 1024 // 1024} MiB", 1)])
-    return text.removeprefix("\ufeff")
+        return data.removeprefix("\ufeff")
+    try:
+        return data.decode("utf-8").removeprefix("\ufeff")
+    except UnicodeDecodeError as exc:
+        line = data.count(b"\n", 0, exc.start) + 1
+        message = f"not UTF-8 text: byte 0x{data[exc.start]:02x} at offset {exc.start} cannot be decoded"
+        raise GaitError(source, [Problem("(file)", message, line)]) from None
 
 
 def parse(text: str, source: str) -> dict[str, Any]:

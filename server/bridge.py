@@ -30,7 +30,6 @@ import argparse
 import json
 import logging
 import queue
-import signal
 import threading
 import time
 from collections import OrderedDict, deque
@@ -42,7 +41,7 @@ import zenoh
 
 from asm_py.canbus.fragments import frame_count
 from asm_py.canbus.ids import Dest, check_node_id
-from asm_py.cli import bitrate, can_channel, describe, input_file, node_id, run, zenoh_endpoint
+from asm_py.cli import bitrate, can_channel, describe, input_file, node_id, run, stop_requested, zenoh_endpoint
 from asm_py.codec import to_json
 from asm_py.node import Node
 from asm_py.protocol import (
@@ -518,9 +517,7 @@ def _serve(args: argparse.Namespace) -> int:
     bridge = CanZenohBridge(options, node_id=args.node_id, zenoh_mode=args.zenoh_mode,
                             zenoh_listen=args.zenoh_listen, zenoh_connect=args.zenoh_connect,
                             zenoh_config=args.zenoh_config, insecure=args.insecure)  # fmt: skip
-    done = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: done.set())
-    signal.signal(signal.SIGINT, lambda *_: done.set())
+    done = stop_requested()
     print("READY bridge", flush=True)
     done.wait()
     bridge.close()

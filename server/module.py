@@ -7,10 +7,8 @@ joint is simulated or real); this is only its command line.
 from __future__ import annotations
 
 import argparse
-import signal
-import threading
 
-from asm_py.cli import bitrate, bounded, can_channel, name, node_id, rate, run
+from asm_py.cli import bitrate, bounded, can_channel, name, node_id, rate, run, stop_requested
 from asm_py.module import FakeDriver, ModuleRuntime
 from asm_py.node import Node
 from asm_py.transport.can import CanTransport
@@ -46,9 +44,7 @@ def _serve(args: argparse.Namespace) -> int:
     name = args.name or f"m{args.node_id}"
     node = Node(name, CanTransport(args.node_id, **options))
     runtime = ModuleRuntime(FakeDriver(), node=node, limits=tuple(args.limits), control_rate=args.rate)
-    done = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: done.set())
-    signal.signal(signal.SIGINT, lambda *_: done.set())
+    done = stop_requested()
     print(f"READY {name}", flush=True)
     done.wait()
     runtime.close()

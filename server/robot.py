@@ -29,7 +29,7 @@ from typing import Any
 
 import zenoh
 
-from asm_py.cli import bitrate, can_channel, input_file, name, node_id, run
+from asm_py.cli import bitrate, can_channel, input_file, name, node_id, run, stop_requested
 from asm_py.feed import PoseFrame, RobotStatus, encode_poses, mjcf_key, poses_key, status_key
 from asm_py.node import Node
 from asm_py.transport.can import CanTransport
@@ -277,9 +277,7 @@ def _serve(args: argparse.Namespace) -> int:
                            zenoh_listen=tuple(args.zenoh_listen), zenoh_connect=tuple(args.zenoh_connect),
                            zenoh_config=args.zenoh_config, insecure=args.insecure, node_id=args.node_id,
                            zenoh_mode=args.zenoh_mode)  # fmt: skip
-    done = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: done.set())
-    signal.signal(signal.SIGINT, lambda *_: done.set())
+    done = stop_requested()
     robot = Robot(options)  # a bad gait file, a busy port or a missing bus: asm-robot: error: … (asm_py.cli.run)
     kind = "simulated" if robot.sim is not None else f"CAN {args.can}"
     print(f"READY robot {args.name} ({kind}, {robot.status.modules} modules)", flush=True)

@@ -17,7 +17,6 @@ import argparse
 import logging
 import os
 import queue
-import signal
 import socket
 import subprocess
 import sys
@@ -30,10 +29,11 @@ from typing import Any
 import zenoh
 
 from asm_py import Node
-from asm_py.cli import bitrate, can_channel, input_file, name, port, run, zenoh_endpoint
+from asm_py.cli import bitrate, can_channel, input_file, name, port, run, stop_requested, zenoh_endpoint
 from asm_py.feed import RobotStatus, status_key
 from asm_py.transport.zenoh import ZenohTransport
-from gaits.model import LIBRARY, Gait, dumps, load
+from gaits.model import LIBRARY, Gait, dumps, loads
+from gaits.validate import read
 
 from .bridge import add_zenoh_arguments, check_zenoh_arguments
 from .realtime import prefer_latency
@@ -127,8 +127,9 @@ class Studio:
     def __init__(self, options: StudioOptions) -> None:
         self.options = options
         self.robot_name = options.robot_name
-        self.gait: Gait = load(options.gait)
-        self.gait_text: str | None = Path(options.gait).read_text(encoding="utf-8-sig")
+        raw = read(options.gait)  # once: the gait, and its text for a download that keeps its comments
+        self.gait: Gait = loads(raw, source=str(options.gait))
+        self.gait_text: str | None = raw.decode("utf-8-sig")  # it decoded as the gait above
         self.child: RobotChild | None = None
         self.node: Node | None = None
         self.app: Any = None
@@ -262,9 +263,7 @@ def _serve(args: argparse.Namespace) -> int:
                             bitrate=args.bitrate, zenoh_listen=tuple(args.zenoh_listen),
                             zenoh_connect=tuple(args.zenoh_connect), zenoh_config=args.zenoh_config,
                             insecure=args.insecure, host=args.host, port=args.port, view=args.view)  # fmt: skip
-    done = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: done.set())
-    signal.signal(signal.SIGINT, lambda *_: done.set())
+    done = stop_requested()
     studio = Studio(options)  # a bad gait file, a busy port, no robot: asm-studio: error: … (asm_py.cli.run)
     where = "simulated robot" if studio.simulated else f"robot {args.robot or args.can}"
     query = f"/?token={studio.token}" if studio.token else ""

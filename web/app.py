@@ -364,8 +364,10 @@ class Dashboard:
     def _deploy(self, event: Any, gait: Any) -> None:
         """Stage and verify (nothing moves), then ask the user who clicked before starting."""
         report = self._stage(gait)
-        staged = f"{gait.name}: staged and verified on {len(report.checksums)} modules"
-        lines = [f"{staged}.", "Start it now? Every module switches to it at once, from where it stands."]
+        lines = [
+            f"{_staged(gait, report)}.",
+            "Start it now? Every module switches to it at once, from where it stands.",
+        ]
         self._confirm(event, f"Start {gait.name}?", lines, "Start", "green", lambda: self._start_deployed(gait, report))
 
     def _stage(self, gait: Any) -> Any:
@@ -389,15 +391,14 @@ class Dashboard:
             while not wanted <= set(self.node.discover()) and time.monotonic() < deadline:  # type: ignore[union-attr]
                 time.sleep(0.1)
         report = deploy(self.node, gait, progress=progress, timeout=5.0, start=False)  # type: ignore[arg-type]
-        staged = f"{gait.name}: staged and verified on {len(report.checksums)} modules"
-        self._log(staged + "; nothing moves until Start")
-        self.notify("Staged", staged)
+        self._log(_staged(gait, report) + "; nothing moves until Start")
+        self.notify("Staged", _staged(gait, report))
         return report
 
     def _start_deployed(self, gait: Any, report: Any) -> None:
         report = activate(self.node, report, timeout=5.0)  # type: ignore[arg-type]
         self._log(f"started: {len(report.running)} of {gait.robot.modules} modules confirmed running {gait.name}")
-        self.notify("Deployed", f"{gait.name}: staged and verified on {len(report.checksums)} modules; "
+        self.notify("Deployed", f"{_staged(gait, report)}; "
                     f"{len(report.running)} of {gait.robot.modules} confirmed running it")  # fmt: skip
         for assignment in gait.modules[:4]:
             self.plot.watch(module_name(assignment.id), "joint.angle")
@@ -539,3 +540,7 @@ class Dashboard:
         self.feed.close()
         self.loop.close()
         self.server.stop()
+
+
+def _staged(gait: Any, report: Any) -> str:
+    return f"{gait.name}: staged and verified on {len(report.checksums)} modules"

@@ -12,6 +12,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
+SAMPLES = 64
+"""Columns of the table: samples of one period."""
 CELL_HEIGHT = 12
 CELL_WIDTH = 6
 FRAME = np.array([255, 170, 0], dtype=np.uint8)

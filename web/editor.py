@@ -23,6 +23,7 @@ from gaits.deploy import MODULE_IDS
 from gaits.model import AXES, LIBRARY, SHAPES, GaitError
 from gaits.table import expand
 
+from .control_table import SAMPLES as CONTROL_SAMPLES
 from .control_table import control_table
 from .generator import GaitTools
 from .grid import StateGrid
@@ -226,9 +227,10 @@ class GaitEditor:
         self.table_html.content = _states_table(data, self.automaton.value, index)
         if not self.doc.problems:
             gait = self.doc.gait()
-            times, rows = expand(gait, samples=32)
-            self._table = (expand(gait, samples=64)[1], gait.limits)
+            times, rows = expand(gait, samples=CONTROL_SAMPLES)  # the plot takes every other sample (32)
+            self._table = (rows, gait.limits)
             self.draw_control_table(force=True)
+            times, rows = times[::2], [row[::2] for row in rows]
             with self.app.server.atomic():  # as many series as arrays, whenever the page applies them
                 self.expanded.series = ({"label": "t"}, *({"label": f"m{k + 1}", "stroke": stroke(k)}
                                                           for k in range(len(rows))))  # fmt: skip
@@ -242,7 +244,7 @@ class GaitEditor:
         """Draw the control table if its cursor column or selection moved (the dashboard's refresh calls this with
         the preview's phase in the period; an edit redraws it at once)."""
         rows, limits = self._table
-        column = None if cursor is None else int((cursor % 1.0) * 64)
+        column = None if cursor is None else int((cursor % 1.0) * CONTROL_SAMPLES)
         key = (id(rows), column, self.selected_module())
         if not force and key == self._table_drawn:
             return

@@ -60,8 +60,7 @@ class GaitTools:
 
     def spec(self) -> WaveSpec:
         """The generator's fields as a WaveSpec (generate() checks every number)."""
-        family = next(f for f in FAMILIES if LABELS[f] == self.family.value)
-        return WaveSpec(family=family, modules=_whole(self.modules.value, "modules"),
+        return WaveSpec(family=self._family(), modules=_whole(self.modules.value, "modules"),
                         amplitude=float(self.amplitude.value), wavelength=float(self.wavelength.value),
                         period=float(self.period.value), states=_whole(self.states.value, "states per period"),
                         axes=self.axes.value)  # fmt: skip
@@ -71,8 +70,11 @@ class GaitTools:
         self.name.value = data.get("name", "")
         self.description.value = data.get("description", "")
 
+    def _family(self) -> str:
+        return next(f for f in FAMILIES if LABELS[f] == self.family.value)
+
     def _family_chosen(self) -> None:
-        family = next(f for f in FAMILIES if LABELS[f] == self.family.value)
+        family = self._family()
         self.amplitude.value = DEFAULTS[family]["amplitude"]
         self.wavelength.value = DEFAULTS[family]["wavelength"]
 
