@@ -267,6 +267,10 @@ WELL_KNOWN_CLASSES: dict[str, int] = {
     "gait.staged_checksum": 0x28,
     "gait.activate": 0x29,
     "gait.lease": 0x2A,
+    "gait.switch": 0x2B,
+    "gait.cycle": 0x2C,
+    "gait.mode": 0x2D,
+    "gait.done": 0x2E,
     "sensor.contact": 0x30,
 }
 LOCAL_CLASS_BASE = 0x80

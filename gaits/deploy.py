@@ -30,12 +30,12 @@ from dataclasses import dataclass, field
 
 from asm_py import Node
 from asm_py.errors import AsmError, AsmTimeout, EstopLatched
-from asm_py.module.wire import Staged, checksum, encode_staged, encode_table
+from asm_py.module.wire import Staged, checksum, encode_program, encode_staged
 from asm_py.remote import RemoteObject
 from asm_py.transport.base import BROADCAST
 
 from .model import Gait
-from .table import phase_states
+from .programs import module_program
 
 MODULE_IDS = range(1, 200)
 """Node IDs modules may take: 200-253 are the bridge's aliases for Zenoh clients, 254 the bridge."""
@@ -66,7 +66,7 @@ def module_name(module_id: int) -> str:
 
 def module_tables(gait: Gait) -> dict[int, bytes]:
     """Each module's ``gait.table`` bytes."""
-    return {a.id: encode_table(phase_states(gait.automata[a.automaton])) for a in gait.modules}
+    return {a.id: encode_program(module_program(gait, a.id)) for a in gait.modules}
 
 
 def default_holder(node: Node) -> str:

@@ -28,7 +28,7 @@ every problem with its field path and, where it can be found, its line.
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -47,6 +47,8 @@ _STATE_FIELDS = _FIELDS["automata"]["additionalProperties"]["properties"]["state
 INTERPOLATIONS: tuple[str, ...] = tuple(_STATE_FIELDS["interpolation"]["enum"])
 EVENTS: tuple[str, ...] = tuple(_STATE_FIELDS["until"]["enum"])
 MAX_MODULES: int = _FIELDS["robot"]["properties"]["modules"]["maximum"]
+FORWARD = "forward"
+"""The name of the gait ``modules`` assigns: the first of the program."""
 LIBRARY = Path(__file__).resolve().parent / "library"
 """The library gaits shipped with the package (gaits.serpenoid writes them)."""
 
@@ -61,17 +63,29 @@ class State:
     """Event that ends the state early (or alone, without a duration)."""
     interpolation: str = "linear"
     name: str = ""
+    tolerance: float | None = None
+    """at_goal: degrees that count as reached."""
+    threshold: float | None = None
+    """torque: N·m that end the state."""
+    neighbour: int | None = None
+    """neighbour: the watched module's ID relative to this one."""
+    state: str | int | None = None
+    """neighbour: the watched module's state, by name or 1-based number."""
+    on_timeout: str | None = None
+    """With an event and a duration: "next" (default) or "stop"."""
 
 
 @dataclass
 class Automaton:
     name: str
     states: list[State]
+    one_shot: bool = False
+    """Non-periodic: the gait ends after the last state."""
 
     @property
     def period(self) -> float | None:
-        """Seconds per cycle, or None when a state waits for an event."""
-        if any(s.duration is None for s in self.states):
+        """Seconds per cycle, or None when a state waits for an event or the automaton is one-shot."""
+        if self.one_shot or any(s.duration is None or s.until is not None for s in self.states):
             return None
         return math.fsum(s.duration for s in self.states)  # type: ignore[misc]
 
@@ -120,16 +134,31 @@ class Gait:
     description: str = ""
     ground: Ground = field(default_factory=Ground)
     extra: dict[str, Any] = field(default_factory=dict)
+    gaits: dict[str, list[Assignment]] = field(default_factory=dict)
+    """More gaits of the program, by name (``modules`` is the one called FORWARD)."""
+    sequence: list[tuple[str, int]] = field(default_factory=list)
+    """The program's own order: (gait, cycles); the last runs until the robot is told otherwise."""
 
     @property
     def period(self) -> float:
-        periods = {a.period for a in self.automata.values()}
-        if len(periods) != 1 or None in periods:
-            raise ValueError("the gait has no single fixed period")
+        """Seconds per cycle of its periodic time-driven automata (ValueError when it has none)."""
+        periods = {a.period for a in self.automata.values()} - {None}
+        if len(periods) != 1:
+            raise ValueError("the gait has no periodic time-driven automaton, so no fixed period")
         return periods.pop()  # type: ignore[return-value]
 
-    def assignment(self, module_id: int) -> Assignment:
-        return next(m for m in self.modules if m.id == module_id)
+    @property
+    def timed(self) -> bool:
+        """Every automaton is periodic and time-driven: the gait has a control table."""
+        return all(a.period is not None for a in self.automata.values())
+
+    def assignment(self, module_id: int, gait: str = "forward") -> Assignment:
+        assignments = self.modules if gait == FORWARD else self.gaits[gait]
+        return next(m for m in assignments if m.id == module_id)
+
+    def program_gaits(self) -> list[str]:
+        """The gaits of the program in mode order: FORWARD, then the file's ``[gaits]``."""
+        return [FORWARD, *self.gaits]
 
 
 # -- loading and validation -----------------------------------------------------------------------------------------
@@ -197,31 +226,91 @@ def from_dict(data: Any, *, source: str = "<gait>", text: str | None = None) -> 
             if low < high and not low <= angle <= high:
                 bad(f"automata.{name}.states[{k}].angle", f"{angle}° is outside the joint limits {low}..{high}°")
             states.append(State(angle, st.get("duration"), st.get("until"), st.get("interpolation", "linear"),
-                                st.get("name", "")))  # fmt: skip
-        automata[name] = Automaton(name, states)
+                                st.get("name", ""), st.get("tolerance"), st.get("threshold"), st.get("neighbour"),
+                                st.get("state"), st.get("on_timeout")))  # fmt: skip
+            _check_event(st, f"automata.{name}.states[{k}]", bad)
+        automata[name] = Automaton(name, states, bool(auto.get("one_shot", False)))
     periods = {a.period for a in automata.values() if a.period is not None}
     if len(periods) > 1:
         bad("automata", f"all automata must share one period, not {sorted(periods)} seconds")
 
+    lists = {FORWARD: ("modules", data["modules"])}
+    lists |= {name: (f"gaits.{name}.modules", g["modules"]) for name, g in data.get("gaits", {}).items()}
+    for path, listed in lists.values():
+        _check_assignments(path, listed, robot, automata, bad)
+    sequence = [(step["gait"], step.get("cycles", 1)) for step in data.get("program", {}).get("sequence", [])]
+    for k, (name, _) in enumerate(sequence):
+        if name not in lists:
+            bad(f"program.sequence[{k}].gait", f"unknown gait {brief(name)} (the program has: {', '.join(lists)})")
+    raise_if(problems, source)
+    assigned = {name: sorted((Assignment(m["id"], m["automaton"], m.get("phase", 0.0), m.get("direction", 1))
+                              for m in listed), key=lambda m: m.id) for name, (_, listed) in lists.items()}  # fmt: skip
+    for name, (path, _) in lists.items():
+        _check_neighbours(path, assigned[name], robot, automata, bad)
+    raise_if(problems, source)
+    modules = assigned.pop(FORWARD)
+    return Gait(data["name"], robot, automata, modules, (float(low), float(high)), data.get("description", ""),
+                ground, gaits=assigned, sequence=sequence)  # fmt: skip
+
+
+def _check_event(st: dict[str, Any], path: str, bad: Callable[[str, str], None]) -> None:
+    """The fields of an event go with their event."""
+    until = st.get("until")
+    uses = {"tolerance": "at_goal", "threshold": "torque", "neighbour": "neighbour", "state": "neighbour"}
+    for key, event in uses.items():
+        if key in st and until != event:
+            bad(f"{path}.{key}", f"only a state ending on {event!r} has a {key}")
+    if until == "neighbour" and "state" not in st:
+        bad(f"{path}.state", "a neighbour event needs the neighbour's state that ends it")
+    if "on_timeout" in st and (until is None or "duration" not in st):
+        bad(f"{path}.on_timeout", "only a state with both an event and a duration (its timeout) can time out")
+
+
+Bad = Callable[[str, str], None]
+
+
+def _check_assignments(
+    path: str, listed: list[dict[str, Any]], robot: Robot, automata: dict[str, Automaton], bad: Bad
+) -> None:
     seen: dict[int, int] = {}
-    for i, md in enumerate(data["modules"]):
+    for i, md in enumerate(listed):
         mid, auto = md["id"], md["automaton"]
         if mid > robot.modules:
-            bad(f"modules[{i}].id", f"must be a module ID 1..{robot.modules} (robot.modules), not {mid}")
+            bad(f"{path}[{i}].id", f"must be a module ID 1..{robot.modules} (robot.modules), not {mid}")
         elif mid in seen:
-            bad(f"modules[{i}].id", f"module {mid} is already assigned in modules[{seen[mid]}]")
+            bad(f"{path}[{i}].id", f"module {mid} is already assigned in {path}[{seen[mid]}]")
         else:
             seen[mid] = i
         if auto not in automata:
-            bad(f"modules[{i}].automaton", f"unknown automaton {brief(auto)} (defined: {', '.join(automata)})")
+            bad(f"{path}[{i}].automaton", f"unknown automaton {brief(auto)} (defined: {', '.join(automata)})")
     missing = [m for m in range(1, robot.modules + 1) if m not in seen]  # robot.modules <= 254: the schema said so
     if missing:
-        bad("modules", f"no assignment for module(s) {', '.join(map(str, missing))}")
-    raise_if(problems, source)
-    assignments = [Assignment(m["id"], m["automaton"], m.get("phase", 0.0), m.get("direction", 1))
-                   for m in data["modules"]]  # fmt: skip
-    return Gait(data["name"], robot, automata, sorted(assignments, key=lambda m: m.id), (float(low), float(high)),
-                data.get("description", ""), ground)  # fmt: skip
+        bad(path, f"no assignment for module(s) {', '.join(map(str, missing))}")
+
+
+def _check_neighbours(
+    path: str, assigned: list[Assignment], robot: Robot, automata: dict[str, Automaton], bad: Bad
+) -> None:
+    """A neighbour event names a module that exists and a state its automaton has (in the same gait)."""
+    by_id = {a.id: a for a in assigned}
+    for i, a in enumerate(assigned):
+        for k, st in enumerate(automata[a.automaton].states):
+            if st.until != "neighbour":
+                continue
+            where = f"automata.{a.automaton}.states[{k}]"
+            other = by_id.get(a.id + (st.neighbour or -1))
+            if other is None:
+                bad(f"{where}.neighbour", f"module {a.id} ({path}[{i}]) has no module {st.neighbour or -1:+d} away")
+            elif state_index(automata[other.automaton], st.state) is None:
+                bad(f"{where}.state", f"automaton {other.automaton!r} (module {other.id}) has no state {st.state!r}")
+
+
+def state_index(automaton: Automaton, state: str | int | None) -> int | None:
+    """The 0-based index of a state named or numbered (1-based) as a file does, or None."""
+    if isinstance(state, int):
+        return state - 1 if 1 <= state <= len(automaton.states) else None
+    names = [s.name for s in automaton.states]
+    return names.index(state) if state in names else None
 
 
 # -- dumping --------------------------------------------------------------------------------------------------------
@@ -236,8 +325,17 @@ def to_dict(gait: Gait) -> dict[str, Any]:
             out["duration"] = s.duration
         if s.until is not None:
             out["until"] = s.until
+        for key in ("tolerance", "threshold", "neighbour", "state", "on_timeout"):
+            if getattr(s, key) is not None:
+                out[key] = getattr(s, key)
         out["interpolation"] = s.interpolation
         return out
+
+    def automaton(a: Automaton) -> dict[str, Any]:
+        return {"states": [state(s) for s in a.states], **({"one_shot": True} if a.one_shot else {})}
+
+    def assignments(listed: list[Assignment]) -> list[dict[str, Any]]:
+        return [{"id": m.id, "automaton": m.automaton, "phase": m.phase, "direction": m.direction} for m in listed]
 
     robot = {"shape": gait.robot.shape, "modules": gait.robot.modules, "axes": gait.robot.axes,
              "module_size": gait.robot.module_size}  # fmt: skip
@@ -256,11 +354,13 @@ def to_dict(gait: Gait) -> dict[str, Any]:
             ground["anisotropic"] = list(gait.ground.anisotropic)
         out["ground"] = ground
     out |= {
-        "automata": {a.name: {"states": [state(s) for s in a.states]} for a in gait.automata.values()},
-        "modules": [
-            {"id": m.id, "automaton": m.automaton, "phase": m.phase, "direction": m.direction} for m in gait.modules
-        ],
+        "automata": {a.name: automaton(a) for a in gait.automata.values()},
+        "modules": assignments(gait.modules),
     }
+    if gait.gaits:
+        out["gaits"] = {name: {"modules": assignments(listed)} for name, listed in gait.gaits.items()}
+    if gait.sequence:
+        out["program"] = {"sequence": [{"gait": name, "cycles": cycles} for name, cycles in gait.sequence]}
     return out
 
 

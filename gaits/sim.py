@@ -22,11 +22,12 @@ import numpy as np
 
 from asm_py import Event, Node
 from asm_py.clock import SimClock
-from asm_py.module import JointDriver, JointReading, ModuleRuntime
+from asm_py.module import JointDriver, JointReading, LocalNeighbours, ModuleRuntime
 
 from .deploy import module_tables
 from .mjcf import Physics, build_mjcf
 from .model import Gait
+from .programs import mode_index
 
 
 @dataclass
@@ -176,10 +177,12 @@ class Simulation:
         self._push: tuple[float, np.ndarray] | None = None
         self.peak_torque = 0.0
         self._started = False
+        hub = LocalNeighbours() if node_of is None else None  # without a bus, neighbours are heard in-process
         for assignment in gait.modules:
             node = node_of(assignment.id) if node_of is not None else None
             runtime = ModuleRuntime(MujocoJoint(self, assignment.id), node=node, clock=self.clock, tick=self.tick,
-                                    limits=gait.limits, ramp=ramp, inline=True)  # fmt: skip
+                                    limits=gait.limits, ramp=ramp, inline=True, module_id=assignment.id,
+                                    neighbours=hub)  # fmt: skip
             self.modules[assignment.id] = runtime
         mujoco.mj_forward(self.model, self.data)
 
@@ -207,6 +210,13 @@ class Simulation:
             runtime.gait.start()
         self.clock.settle()
         self._started = True
+
+    def drive(self, gait: str, direction: int = 1) -> None:
+        """Switch every module to program gait ``gait`` (``direction`` -1: backwards) at the next cycle boundary,
+        as a deployed robot's Drive does (one ``gait.switch`` per module, the same on each)."""
+        switch = {"mode": mode_index(self.gait, gait), "direction": direction, "after": self.clock.now()}
+        for runtime in self.modules.values():
+            runtime.gait.switch.set(switch)
 
     def push(self, force: tuple[float, float, float], seconds: float) -> None:
         """Apply ``force`` (N, world frame) at the root body's centre of mass for ``seconds`` from now."""

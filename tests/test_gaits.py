@@ -61,6 +61,10 @@ def test_library_files_validate_match_the_schema_and_round_trip(path: Path) -> N
     jsonschema.validate(tomllib.loads(path.read_text()), SCHEMA)
     again = loads(dumps(gait))
     assert again == gait and to_dict(again) == to_dict(gait)
+    if not gait.timed:  # sensor-driven, neighbour-driven or one-shot: no control table to expand
+        with pytest.raises(ValueError):
+            expand(gait)
+        return
     assert gait.period == pytest.approx(1.0)
     times, table = expand(gait)
     assert len(table) == gait.robot.modules and all(len(row) == len(times) for row in table)

@@ -2,9 +2,21 @@
 the byte layouts of its gait table and staged record. Imported by the robot process, the preview simulation and
 ``asm-module`` alike: the same program in all three."""
 
+from .neighbours import BusNeighbours, LocalNeighbours
+from .program import Mode, ModeState, Program, Until
 from .runtime import FakeDriver, JointDriver, JointReading, ModuleRuntime
 from .staging import Staging
-from .wire import Staged, checksum, decode_staged, decode_table, encode_staged, encode_table
+from .wire import (
+    Staged,
+    checksum,
+    decode_program,
+    decode_staged,
+    decode_table,
+    encode_program,
+    encode_staged,
+    encode_table,
+)
 
-__all__ = ["FakeDriver", "JointDriver", "JointReading", "ModuleRuntime", "Staged", "Staging", "checksum",
-           "decode_staged", "decode_table", "encode_staged", "encode_table"]  # fmt: skip
+__all__ = ["BusNeighbours", "FakeDriver", "JointDriver", "JointReading", "LocalNeighbours", "Mode", "ModeState",
+           "ModuleRuntime", "Program", "Staged", "Staging", "Until", "checksum", "decode_program", "decode_staged",
+           "decode_table", "encode_program", "encode_staged", "encode_table"]  # fmt: skip

@@ -41,7 +41,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from ..attribute import Attribute, CheckedAttribute
-from ..automaton import PeriodicAutomaton, PhaseState
+from ..automaton import PhaseState
 from ..clock import WALL_CLOCK, Clock
 from ..codec import BOOL, BYTES, FLOAT32, FLOAT64, UINT32, float_array
 from ..eds import EventDrivenService
@@ -49,8 +49,11 @@ from ..errors import EstopLatched
 from ..event import Event, TimerTrigger
 from ..node import WRITES, Node
 from ..protocol import Method
+from .gait_service import ModuleGait
+from .neighbours import BusNeighbours, LocalNeighbours, Neighbours
+from .program import Program, program_of
 from .staging import Staging
-from .wire import checksum, decode_table, encode_table
+from .wire import checksum, decode_program, encode_table
 
 HOLD = [PhaseState(0.0, 1.0, "step")]
 """The table of a module that has not been given a gait: hold 0°."""
@@ -119,23 +122,6 @@ class FakeDriver(JointDriver):
             self._powered = False
 
 
-class ModuleGait(PeriodicAutomaton):
-    """gait.service: started without a phase, it starts at the module's gait.phase; refuses to start in e-stop."""
-
-    def __init__(self, runtime: ModuleRuntime, tick: Event, *, inline: bool) -> None:
-        self._runtime = runtime
-        self.reference_out = Attribute("gait.reference", 0.0, codec=FLOAT64, clock=runtime.clock)
-        super().__init__("gait.service", tick, HOLD, output=self.reference_out, inline=inline, clock=runtime.clock)
-
-    def start(self, phase: float | None = None, direction: int | None = None, *, wait: bool = True) -> None:  # type: ignore[override]
-        if self._runtime.latched:
-            raise EstopLatched("the module is in emergency stop; set estop to false before starting the gait")
-        if phase is None:
-            phase = float(self._runtime.phase.peek())
-        self._runtime._begin_ramp()
-        super().start(phase, direction)
-
-
 class _Servo(EventDrivenService):
     """servo.service: on every control tick, read the joint into joint.angle/torque and sensor.contact."""
 
@@ -170,8 +156,12 @@ class ModuleRuntime:
         inline: bool = False,
         refresh_rate: float = 2.0,
         publish_limit: float = 25.0,
+        module_id: int = 1,
+        neighbours: Neighbours | None = None,
     ) -> None:
         self.driver = driver
+        self.module_id = module_id
+        """This module's ID (its CAN node ID): neighbour events name modules relative to it."""
         self.node = node
         self.clock = clock or (node.clock if node is not None else WALL_CLOCK)
         self.hardware_range = hardware_range
@@ -193,7 +183,11 @@ class ModuleRuntime:
             self._own_timer = TimerTrigger(1.0 / control_rate, name="tick.timer", clock=self.clock)
             tick.add_trigger(self._own_timer)
         self.tick = tick
-        self.gait = ModuleGait(self, tick, inline=inline)
+        self.gait = ModuleGait(self, tick, program_of(HOLD), inline=inline)
+        if neighbours is None and node is not None:
+            neighbours = BusNeighbours(node)
+        self.neighbours = neighbours
+        self._watching: list[Callable[[], None]] = []
         table = encode_table(HOLD)
         self.table = CheckedAttribute("gait.table", table, codec=BYTES, check=self._load_table, clock=self.clock)
         self.checksum = Attribute("gait.checksum", checksum(table), codec=UINT32, clock=self.clock)
@@ -203,6 +197,8 @@ class ModuleRuntime:
         self._ramp_start = 0.0
         self._unlisten = [self.gait.reference_out.on_change(self._follow), self.limits.on_change(self._reclamp),
                           self.goal.on_change(self._command)]  # fmt: skip
+        if isinstance(neighbours, LocalNeighbours):
+            self._unlisten.append(self.gait.state.on_change(lambda state: neighbours.announce(module_id, state)))
         if node is not None:
             self._register(node, refresh_rate, publish_limit)
         self.servo.start()
@@ -220,14 +216,21 @@ class ModuleRuntime:
         starts = (Method.START, Method.RESUME)
         moving = {self.goal: WRITES, self.limits: WRITES, self.servo: WRITES, self.table: WRITES, self.gait: starts,
                   staging.staged: WRITES, staging.activate: WRITES}  # fmt: skip
-        for obj in (self.goal, self.angle, self.torque, self.limits, self.servo, self.table, self.checksum,
-                    self.phase, self.gait, self.tick, self.contact, self.estop, staging.staged,
-                    staging.staged_checksum, staging.activate, staging.lease):  # fmt: skip
-            refused = moving.get(obj)
-            node.register(obj, read_only=obj in self._read_only(),
-                          guard=None if refused is None else self._refuse_in_estop(obj.name, refused))  # fmt: skip
+        gait = self.gait
+        moving[gait.switch] = WRITES
+
+        def register(*objects: Any) -> None:
+            for obj in objects:
+                refused = moving.get(obj)
+                node.register(obj, read_only=obj in self._read_only(),
+                              guard=None if refused is None else self._refuse_in_estop(obj.name, refused))  # fmt: skip
+
+        register(self.goal, self.angle, self.torque, self.limits, self.servo, self.table, self.checksum, self.phase,
+                 self.gait, self.tick, self.contact, self.estop, staging.staged, staging.staged_checksum,
+                 staging.activate, staging.lease)  # fmt: skip
         node.register(self.gait.direction, name="gait.direction")
         node.register(self.gait.state, name="gait.state", read_only=True)
+        register(gait.switch, gait.cycle, gait.mode, gait.done)  # after the objects of version 1: their IDs stay
         # changes beyond the deadband, at most ``publish_limit`` a second (a moving joint changes at every control
         # tick: 32 modules at 50 Hz would be 1 600 frames a second), and a refresh ``refresh_rate`` times a second
         # when nothing moves: a resting robot keeps the bus quiet
@@ -235,10 +238,13 @@ class ModuleRuntime:
         self.torque.publish(rate=refresh_rate / 2, deadband=0.05, limit=publish_limit / 2)
         self.contact.publish()
         self.gait.state.publish(deadband=0)  # on change: the automaton sets its state at every tick
+        self.gait.mode.publish(deadband=0)
         self._unlisten.append(node.on_estop(lambda source, reason: self.emergency_stop(reason)))
 
     def _read_only(self) -> tuple[Attribute, ...]:
-        return (self.angle, self.torque, self.contact, self.checksum, self.staging.staged_checksum, self.tick)
+        gait = self.gait
+        return (self.angle, self.torque, self.contact, self.checksum, self.staging.staged_checksum, self.tick,
+                gait.cycle, gait.mode, gait.done)  # fmt: skip
 
     def _refuse_in_estop(self, name: str, methods: frozenset[int] | tuple[int, ...]) -> Callable[[int], None]:
         def guard(method: int) -> None:
@@ -273,20 +279,40 @@ class ModuleRuntime:
             self._halt()
         return value
 
-    def check_table(self, data: bytes) -> list[PhaseState]:
-        """The states of table ``data`` if this module can run it; ValueError saying why not."""
-        states = decode_table(data)
+    def check_table(self, data: bytes) -> Program:
+        """The program in table ``data`` if this module can run it; ValueError saying why not."""
+        program = decode_program(data)
         lo, hi = self.limits.peek()
-        outside = [s.target for s in states if not lo <= s.target <= hi]  # type: ignore[operator]
+        outside = [t for t in program.targets() if not lo <= t <= hi]
         if outside:
             raise ValueError(f"gait table angles {outside[:4]} lie outside the joint limits ({lo}, {hi})")
-        return states
+        missing = [k for k in program.neighbours() if not 1 <= self.module_id + k <= 254]
+        if missing:
+            raise ValueError(f"module {self.module_id} has no neighbour {missing[0]:+d} IDs away (IDs are 1..254)")
+        return program
 
     def _load_table(self, data: bytes) -> bytes:
-        self.gait.load(self.check_table(data))  # ServiceError while the gait runs: a table never changes mid-cycle
+        program = self.check_table(data)
+        if program.neighbours() and self.neighbours is None:
+            raise ValueError("this module has no bus to hear its neighbours on: it cannot run neighbour events")
+        self.gait.load(program)  # ServiceError while the gait runs: a table never changes mid-cycle
+        self._watch(program)
         self.checksum.set(checksum(data))
         Attribute.set(self.staging.activate, 0)  # the gait is no longer a deployment's (the base set: no activation)
         return data
+
+    def _watch(self, program: Program) -> None:
+        for remove in self._watching:
+            remove()
+        self._watching = []
+        if self.neighbours is None:
+            return
+        for offset in sorted(program.neighbours()):
+
+            def heard(state: int, offset: int = offset) -> None:
+                self.gait.neighbour_state(offset, state)
+
+            self._watching.append(self.neighbours.watch(self.module_id + offset, heard))
 
     def switch_gait(self, table: bytes, phase: float, direction: int) -> None:
         """Stop the gait, make ``table``/``phase``/``direction`` the module's gait and start it (an activation)."""
@@ -339,5 +365,5 @@ class ModuleRuntime:
             self._own_timer.stop(timeout=5)
         self.gait.stop(timeout=5)
         self.servo.stop(timeout=5)
-        for unlisten in self._unlisten:
+        for unlisten in (*self._unlisten, *self._watching):
             unlisten()

@@ -8,6 +8,22 @@ list of states in a compact little-endian layout that firmware can parse without
     offset 3   2 bytes  uint16 number of states N (1..1024)
     then N × 9 bytes:   float32 angle (degrees), float32 duration (seconds, > 0), uint8 interpolation (0 step, 1 linear)
 
+Version 2 holds a program (asm_py/module/program.py): several modes (gaits), a sequence, sensor- and
+neighbour-driven states and one-shot modes. A program that version 1 can say is always written as version 1, so
+its bytes and checksum do not change:
+
+    offset 0   2 bytes  magic b"GT"
+    offset 2   1 byte   version (2)
+    offset 3   1 byte   uint8 number of modes M (1..16)
+    offset 4   1 byte   uint8 sequence length Q (0..32)
+    then Q × 3 bytes:   uint8 mode, uint16 cycles
+    then per mode:      float32 phase, int8 direction, uint8 flags (bit 0: one-shot), uint16 number of states N,
+                        then N × 18 bytes: float32 angle, float32 duration (0: none, only with an event), uint8
+                        interpolation, uint8 event (0 none, 1 contact, 2 no_contact, 3 at_goal, 4 torque,
+                        5 neighbour), uint8 on timeout (0 next, 1 stop), float32 tolerance or threshold,
+                        int8 neighbour (relative ID), uint16 neighbour state
+    at most 1024 states over all modes
+
 ``checksum`` is CRC-32 (IEEE 802.3, zlib's) of those bytes: a deploying tool reads ``gait.checksum`` back from each
 module to verify the transfer before it starts anything.
 
@@ -27,12 +43,18 @@ from dataclasses import dataclass
 
 from ..automaton import PhaseState
 from ..protocol import HEADER_SIZE, MAX_MESSAGE
+from .program import EVENTS, MAX_MODES, MAX_SEQUENCE, OUTCOMES, Mode, ModeState, Program, Until, program_of
 
 MAGIC = b"GT"
 VERSION = 1
 MAX_STATES = 1024
 _HEADER = struct.Struct("<2sBH")
 _STATE = struct.Struct("<ffB")
+VERSION_PROGRAM = 2
+_PROGRAM = struct.Struct("<2sBBB")
+_STEP = struct.Struct("<BH")
+_MODE = struct.Struct("<fbBH")
+_STATE2 = struct.Struct("<ffBBBfbH")
 _INTERPOLATION = {"step": 0, "linear": 1}
 _BY_CODE = {code: name for name, code in _INTERPOLATION.items()}
 STAGED_MAGIC = b"GS"
@@ -78,6 +100,79 @@ def decode_table(data: bytes) -> list[PhaseState]:
     return states
 
 
+def encode_program(program: Program) -> bytes:
+    """The bytes of a module's program: version 1 when it is one periodic time-driven mode, else version 2."""
+    if program.simple:
+        return encode_table(program.modes[0].phase_states())
+    if sum(len(m.states) for m in program.modes) > MAX_STATES:
+        raise ValueError(f"a program has at most {MAX_STATES} states over all its modes")
+    out = bytearray(_PROGRAM.pack(MAGIC, VERSION_PROGRAM, len(program.modes), len(program.sequence)))
+    for mode, cycles in program.sequence:
+        out += _STEP.pack(mode, cycles)
+    for mode in program.modes:
+        out += _MODE.pack(mode.phase, mode.direction, int(mode.one_shot), len(mode.states))
+        for st in mode.states:
+            until = st.until or Until("contact")
+            event = 0 if st.until is None else EVENTS.index(until.event) + 1
+            out += _STATE2.pack(st.target, st.duration or 0.0, _INTERPOLATION[st.interpolation], event,
+                                OUTCOMES.index(until.on_timeout), until.value, until.neighbour if event == 5 else 0,
+                                until.state)  # fmt: skip
+    return bytes(out)
+
+
+def decode_program(data: bytes) -> Program:
+    """The program in ``data`` (a version 1 or 2 table); ValueError saying what is wrong with a malformed one."""
+    if len(data) >= 3 and data[:2] == MAGIC and data[2] == VERSION:
+        return program_of(decode_table(data))
+    if len(data) < _PROGRAM.size:
+        raise ValueError(f"a gait table needs at least {_PROGRAM.size} bytes, got {len(data)}")
+    magic, version, count, steps = _PROGRAM.unpack_from(data)
+    if magic != MAGIC:
+        raise ValueError(f"not a gait table (magic {magic!r}, expected {MAGIC!r})")
+    if version != VERSION_PROGRAM:
+        raise ValueError(f"gait table version {version} is not supported (this module reads versions 1 and 2)")
+    if not 1 <= count <= MAX_MODES or steps > MAX_SEQUENCE:
+        raise ValueError(f"a program has 1..{MAX_MODES} modes and 0..{MAX_SEQUENCE} sequence steps")
+    offset = _PROGRAM.size
+
+    def need(size: int, what: str) -> None:
+        if offset + size > len(data):
+            raise ValueError(f"the gait table ends inside {what} (byte {offset}, {len(data)} bytes)")
+
+    need(steps * _STEP.size, "the sequence")
+    sequence = [_STEP.unpack_from(data, offset + k * _STEP.size) for k in range(steps)]
+    offset += steps * _STEP.size
+    modes, total = [], 0
+    for m in range(count):
+        need(_MODE.size, f"mode {m}")
+        phase, direction, flags, n = _MODE.unpack_from(data, offset)
+        offset += _MODE.size
+        total += n
+        if n < 1 or total > MAX_STATES or flags & ~1:
+            raise ValueError(f"mode {m}: {n} states and flags {flags:#x} (1..{MAX_STATES} states in all, flag bit 0)")
+        need(n * _STATE2.size, f"the states of mode {m}")
+        states = []
+        for k in range(n):
+            angle, duration, interp, event, timeout, value, neighbour, state = _STATE2.unpack_from(data, offset)
+            offset += _STATE2.size
+            if interp not in _BY_CODE or event > len(EVENTS) or timeout >= len(OUTCOMES):
+                raise ValueError(f"mode {m} state {k}: codes interpolation {interp}, event {event}, timeout {timeout}")
+            try:
+                kind = EVENTS[event - 1] if event else None
+                watch = (neighbour, state) if kind == "neighbour" else (-1, 0)
+                until = None if kind is None else Until(kind, value, *watch, OUTCOMES[timeout])  # type: ignore[arg-type]
+                states.append(ModeState(angle, duration if duration != 0 else None, _BY_CODE[interp], until))  # type: ignore[arg-type]
+            except ValueError as exc:
+                raise ValueError(f"mode {m} state {k}: {exc}") from None
+        try:
+            modes.append(Mode(tuple(states), phase, direction, bool(flags & 1)))
+        except ValueError as exc:
+            raise ValueError(f"mode {m}: {exc}") from None
+    if offset != len(data):
+        raise ValueError(f"a gait table of these modes is {offset} bytes, got {len(data)}")
+    return Program(tuple(modes), tuple((int(a), int(b)) for a, b in sequence))
+
+
 def checksum(data: bytes) -> int:
     """CRC-32 of a table's bytes, as the module reports it in ``gait.checksum``."""
     return zlib.crc32(data) & 0xFFFFFFFF
@@ -108,9 +203,9 @@ def encode_staged(staged: Staged) -> bytes:
         raise ValueError(f"phase must be in [0, 1) and direction ±1, not {staged.phase}, {staged.direction}")
     data = _STAGED.pack(STAGED_MAGIC, VERSION, staged.deploy_id, staged.phase, staged.direction) + staged.table
     if len(data) + HEADER_SIZE > MAX_MESSAGE:
-        states = (len(staged.table) - _HEADER.size) // _STATE.size
-        raise ValueError(f"a staged table of {states} states is {len(data)} bytes; one message carries at most "
-                         f"{MAX_MESSAGE - HEADER_SIZE} ({MAX_STAGED_STATES} states)")  # fmt: skip
+        limit = MAX_MESSAGE - HEADER_SIZE
+        raise ValueError(f"a staged table of {len(data)} bytes is too long; one message carries at most {limit} "
+                         f"bytes ({MAX_STAGED_STATES} states of a version-1 table)")  # fmt: skip
     return data
 
 
@@ -124,5 +219,5 @@ def decode_staged(data: bytes) -> Staged:
     if deploy_id == 0 or not 0.0 <= phase < 1.0 or direction not in (1, -1):
         raise ValueError(f"staged deploy ID {deploy_id}, phase {phase}, direction {direction} out of their domains")
     table = bytes(data[_STAGED.size :])
-    decode_table(table)
+    decode_program(table)
     return Staged(deploy_id, float(phase), int(direction), table)

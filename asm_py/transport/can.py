@@ -377,7 +377,11 @@ class CanTransport(Transport):
         self._heard(source_id)
         source = self.name_of(source_id)
         if len(data) >= 4 and kind_of(data) == Kind.PUBLICATION:
-            for callback in self._subscriptions.get((source, data[3]), ()):
+            callbacks = self._subscriptions.get((source, data[3]), ())
+            alias = f"{ALIAS_PREFIX}{source_id}"
+            if source != alias:  # a subscriber may name a publisher by its ID alone, whatever heartbeats say
+                callbacks = (*callbacks, *self._subscriptions.get((alias, data[3]), ()))
+            for callback in callbacks:
                 try:
                     callback(data)
                 except Exception:
