@@ -7,6 +7,8 @@ Each is a phase automaton of the kinds the paper lists beyond the periodic time-
 
 from __future__ import annotations
 
+import math
+
 from .model import Assignment, Automaton, Gait, Robot, State
 from .serpenoid import sampled, sine
 
@@ -52,6 +54,23 @@ def _neighbour_caterpillar() -> Gait:
                 "the one before it enters state w3 (a neighbour event over the bus).")  # fmt: skip
 
 
+def _contact_inchworm() -> Gait:
+    """The inchworm's hump, advanced by its feet: after its hump each module reaches 10° down until it touches the
+    ground (a contact state: contact made, 0.6 s at most); module 1 then rests, the others wait for the module
+    before them to be in h2 (a neighbour event), so a late landing delays the wave instead of breaking it."""
+    hump = [State(round(75.0 * max(0.0, math.sin(2 * math.pi * (k + 1) / 16)) ** 2, 3), 0.0625, None, "linear",
+                  f"h{k + 1}") for k in range(7)]  # fmt: skip
+    land = State(-10.0, 0.6, "contact", "step", "land")
+    lead = Automaton("lead", [*hump, land, State(0.0, 0.5, None, "step", "rest")])
+    follow = Automaton("follow", [State(0.0, 3.0, "neighbour", "step", "rest", neighbour=-1, state="h2"), *hump,
+                                  land])  # fmt: skip
+    modules = [Assignment(n, "lead" if n == 1 else "follow", 0.0, 1) for n in range(1, 9)]
+    description = ("An inchworm whose states advance on foot contact: after its hump each module reaches down until "
+                   "it touches the ground, and the next module's hump starts from its neighbour's.")  # fmt: skip
+    automata = {"lead": lead, "follow": follow}
+    return Gait("contact_inchworm", Robot("chain", 8, "pitch"), automata, modules, (-90.0, 90.0), description)
+
+
 def _curl() -> Gait:
     """Eight pitch joints at 45° each make a closed octagon: a one-shot sequence that ends when it is there."""
     curl = Automaton("curl", [State(0.0, 0.5, None, "step", "flat"), State(20.0, 1.5, None, "linear", "bend"),
@@ -75,4 +94,5 @@ def library() -> dict[str, Gait]:
     )
     tour.sequence = [("forward", 5), ("left", 5), ("forward", 1)]
     return {"steerable_caterpillar": steerable, "caterpillar_tour": tour,
-            "neighbour_caterpillar": _neighbour_caterpillar(), "curl_into_loop": _curl()}  # fmt: skip
+            "neighbour_caterpillar": _neighbour_caterpillar(), "curl_into_loop": _curl(),
+            "contact_inchworm": _contact_inchworm()}  # fmt: skip

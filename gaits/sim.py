@@ -216,7 +216,15 @@ class Simulation:
         as a deployed robot's Drive does (one ``gait.switch`` per module, the same on each)."""
         switch = {"mode": mode_index(self.gait, gait), "direction": direction, "after": self.clock.now()}
         for runtime in self.modules.values():
+            if not runtime.gait.started:  # driving a stopped robot starts it (in its first gait) first
+                runtime.gait.start()
+        for runtime in self.modules.values():
             runtime.gait.switch.set(switch)
+
+    def stop_gaits(self) -> None:
+        """Stop every module's gait: the joints hold their last goals (the Drive panel's stop)."""
+        for runtime in self.modules.values():
+            runtime.gait.stop(timeout=5.0)
 
     def push(self, force: tuple[float, float, float], seconds: float) -> None:
         """Apply ``force`` (N, world frame) at the root body's centre of mass for ``seconds`` from now."""

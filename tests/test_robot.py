@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 import zenoh
 
+from asm_py.errors import AsmTimeout
 from asm_py.feed import PoseFrame, RobotStatus, decode_poses, encode_poses, mjcf_key, poses_key, status_key
 from asm_py.node import Node
 from asm_py.transport.zenoh import ZenohTransport
@@ -162,3 +163,33 @@ def test_asm_robot_can_takes_the_bridge_options_fd_and_node_id() -> None:
         assert robot.bridge.can.node_id == 77 and robot.bridge.can.fd
     finally:
         robot.close()
+
+
+def test_a_deployed_robot_runs_neighbour_events_over_its_bus_and_a_one_shot_curl_says_it_is_done(robot) -> None:
+    """Module k+1 starts each stroke on module k's state, heard over the robot's CAN bus: every module keeps the
+    leader's 1 s cycle (waiting out its 2 s timeout instead would take ~3 s a cycle)."""
+    _, endpoint = robot
+    client = Node("tool", ZenohTransport(connect=[endpoint]))
+    try:
+        assert wait_until(lambda: {f"m{i}" for i in range(1, 9)} <= set(client.discover()), 20)
+        report = deploy(client, load(LIBRARY / "neighbour_caterpillar.toml"), timeout=5.0)
+        assert report.running == list(range(1, 9))
+        cycles = [client.lookup(f"m{i}", "gait.cycle", timeout=5) for i in (1, 8)]
+        first = [c.get(timeout=5) for c in cycles]
+        time.sleep(6.0)
+        lead, last = (c.get(timeout=5) - f for c, f in zip(cycles, first, strict=True))
+        assert lead >= 4 and last >= lead - 1, (lead, last)
+        report = deploy(client, load(LIBRARY / "curl_into_loop.toml"), timeout=5.0)
+        done = client.lookup("m4", "gait.done", timeout=5)
+
+        def finished() -> bool:
+            try:
+                return done.get(timeout=1) == 1  # FINISHED (an event: no value until it fires)
+            except AsmTimeout:
+                return False
+
+        assert wait_until(finished, 20)  # it curled and stopped by itself
+        assert wait_until(lambda: not client.lookup("m4", "gait.service", timeout=5).running, 5)
+        assert abs(client.lookup("m4", "joint.angle", timeout=5).get(timeout=5) - 45.0) < 5.0
+    finally:
+        client.close()

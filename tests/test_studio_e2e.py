@@ -385,7 +385,7 @@ def test_make_a_12_module_wave_preview_rename_download_and_deploy_it_in_a_minute
             print(f"made, previewed, renamed, downloaded and deployed a 12-module wave in {elapsed:.0f} s")
             assert elapsed < 120  # the minute of clicking, with room for this machine's load
             assert wait_until(lambda: client.lookup("m12", "gait.service", timeout=2).running, timeout=15)
-            # keyboard: Space pauses and resumes the preview, arrows step it, Ctrl+Z / Ctrl+Shift+Z undo and redo
+            # keyboard: Space pauses and resumes the preview, Shift+arrows step it, Ctrl+Z / Ctrl+Shift+Z undo and redo
             page.get_by_role("button", name="Preview", exact=True).click()  # the preview plays while it is shown
             page.get_by_role("tab", name="Preview").click()
             metrics = page.get_by_text("distance", exact=False).first
@@ -395,7 +395,7 @@ def test_make_a_12_module_wave_preview_rename_download_and_deploy_it_in_a_minute
             paused = _number(metrics.inner_text(), r"t = ([\d.]+) s")
             time.sleep(1.0)
             assert _number(metrics.inner_text(), r"t = ([\d.]+) s") == paused
-            page.keyboard.press("ArrowLeft")
+            page.keyboard.press("Shift+ArrowLeft")
             expect(metrics).not_to_contain_text(f"t = {paused:.2f} s", timeout=15_000)
             assert _number(metrics.inner_text(), r"t = ([\d.]+) s") < paused
             page.keyboard.press("Space")

@@ -25,6 +25,7 @@ from gaits.deploy import activate, deploy, module_name, release_all, start_all, 
 from gaits.model import Gait
 
 from .document import GaitDocument
+from .drive import DrivePanel
 from .editor import GaitEditor
 from .guard import AccessGuard, guarded_server
 from .inputs import ValueInput
@@ -161,6 +162,8 @@ class Dashboard:
             self._build_preview()
         with tabs.add_tab("Deploy"):
             self._build_deploy()
+        with tabs.add_tab("Drive"):
+            self.drive = DrivePanel(self)
         with tabs.add_tab("Monitor"):
             self._build_monitor()
         self._build_keys()
@@ -170,14 +173,19 @@ class Dashboard:
         """Keyboard shortcuts, as viser's command-palette hotkeys (a key typed into a field stays the field's)."""
         keys = (
             ("Play / pause the preview", "space", None, lambda: self.loop.request("play", not self.loop.playing)),
-            ("Step the preview back", "arrowleft", None, lambda: self.loop.request("step", -1)),
-            ("Step the preview forward", "arrowright", None, lambda: self.loop.request("step", 1)),
+            ("Step the preview back", "arrowleft", "shift", lambda: self.loop.request("step", -1)),
+            ("Step the preview forward", "arrowright", "shift", lambda: self.loop.request("step", 1)),
             ("Undo the last edit", "Z", "cmd/ctrl", lambda: self.editor.history("Undo")),
             ("Redo", "Z", "cmd/ctrl+shift", lambda: self.editor.history("Redo")),
         )
-        for label, key, modifier, action in keys:
+
+        def add(label: str, key: str, action: Any, modifier: str | None = None) -> None:
             command = self.server.gui.add_command(label, hotkey=key, modifier=modifier)  # type: ignore[arg-type]
-            command.on_trigger(self.safe(lambda _, action=action: action()))
+            command.on_trigger(self.safe(lambda _: action()))
+
+        for label, key, modifier, action in keys:
+            add(label, key, action, modifier)
+        self.drive.bind_keys(add)  # the arrow keys drive
 
     def _build_preview(self) -> None:
         gui = self.server.gui
@@ -397,6 +405,7 @@ class Dashboard:
 
     def _start_deployed(self, gait: Any, report: Any) -> None:
         report = activate(self.node, report, timeout=5.0)  # type: ignore[arg-type]
+        self.drive.deployed = gait
         self._log(f"started: {len(report.running)} of {gait.robot.modules} modules confirmed running {gait.name}")
         self.notify("Deployed", f"{_staged(gait, report)}; "
                     f"{len(report.running)} of {gait.robot.modules} confirmed running it")  # fmt: skip
@@ -491,6 +500,7 @@ class Dashboard:
                                 f"peak torque {m.peak_torque:.2f} N·m{warning}")  # fmt: skip
         self._show_source()
         with self.programmatic():
+            self.drive.sync(loop.sim.gait)
             modules = max(2, loop.sim.gait.robot.modules)
             if self.plot_module.max != modules:
                 self.plot_module.max = modules

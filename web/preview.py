@@ -75,7 +75,8 @@ class PreviewLoop:
     # -- what GUI callbacks call ----------------------------------------------------------------------------------
 
     def request(self, kind: str, value: Any = None) -> None:
-        """Queue ``load`` (a Gait), ``play`` (bool), ``speed``, ``seek`` (frame index), ``step`` (±1), ``reset``."""
+        """Queue ``load`` (a Gait), ``play`` (bool), ``speed``, ``seek`` (frame index), ``step`` (±1), ``reset``,
+        ``drive`` ((program gait or "stop", direction))."""
         self._requests.put((kind, value))
 
     def wait_changed(self, timeout: float) -> bool:
@@ -190,6 +191,15 @@ class PreviewLoop:
                 self.error = None
                 self.generation += 1
             old.close()
+        elif kind == "drive":  # the Drive panel: (program gait or "stop", direction), as a robot would get it
+            name, direction = value
+            with self._lock:
+                if name == "stop":
+                    self.sim.stop_gaits()
+                else:
+                    self.sim.drive(name, direction)
+            self.playing = True
+            self.cursor = None
         elif kind == "play":
             self.playing = bool(value)
             if self.playing:

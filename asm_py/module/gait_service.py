@@ -11,6 +11,7 @@ from __future__ import annotations
 import bisect
 import math
 import threading
+from collections import Counter
 from typing import TYPE_CHECKING, Any
 
 from ..attribute import Attribute, CheckedAttribute
@@ -48,6 +49,8 @@ class ModuleGait(PhaseAutomaton):
         self.tau = 0.0
         self.ticks = 0
         """Control ticks handled since the start."""
+        self.ended: Counter[tuple[str, bool]] = Counter()
+        """(event, timed out) → how many event-ended states ended so since the start: how a gait really ran."""
         self.switched_at: float | None = None
         """Clock time of the last switch (for measuring how together modules switch)."""
         self._neighbour_states: dict[int, tuple[int, float]] = {}  # relative ID → (state, clock time when heard)
@@ -104,6 +107,7 @@ class ModuleGait(PhaseAutomaton):
     def initialize(self, phase: float) -> None:
         now = self.clock.now()
         self.ticks = 0
+        self.ended = Counter()
         self._finished = False
         with self._lock:  # what neighbours said stays: they publish only when their state changes
             self._switch_request = None
@@ -186,10 +190,13 @@ class ModuleGait(PhaseAutomaton):
             elapsed = now - self._entered
             if state.until is not None and self._happened(state, contact):
                 end = now
+                self.ended[(state.until.event, False)] += 1
             elif state.duration is not None and elapsed >= state.duration - _EPS:
-                if state.until is not None and state.until.on_timeout == "stop":
-                    self._end_run(TIMED_OUT)
-                    return
+                if state.until is not None:
+                    self.ended[(state.until.event, True)] += 1
+                    if state.until.on_timeout == "stop":
+                        self._end_run(TIMED_OUT)
+                        return
                 end = self._entered + state.duration
             else:
                 return

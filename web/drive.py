@@ -1,0 +1,81 @@
+"""The Drive tab: switch the running program live — forward, turn left/right, reverse, stop — with buttons and the
+arrow keys, on the preview and on the deployed robot alike (whichever the View shows).
+
+The preview's modules get the same ``gait.switch`` a deployed robot gets (through the preview loop, which owns the
+simulation); a deployed robot gets one group message and is read back (gaits/drive.py), so the page never says
+"left" before the modules did. Driving a gait without left/right gaits says what to add to the file.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any
+
+from gaits.deploy import module_name
+from gaits.drive import STOP, drive
+from gaits.model import FORWARD, Gait
+
+if TYPE_CHECKING:
+    from .app import Dashboard
+
+COMMANDS: dict[str, tuple[str, int]] = {
+    "▲ Forward": (FORWARD, 1),
+    "◀ Left": ("left", 1),
+    "▶ Right": ("right", 1),
+    "▼ Reverse": (FORWARD, -1),
+    "■ Stop": (STOP, 1),
+}
+"""Button label → (program gait, direction)."""
+KEYS: dict[str, str] = {"arrowup": "▲ Forward", "arrowleft": "◀ Left", "arrowright": "▶ Right",
+                        "arrowdown": "▼ Reverse", "S": "■ Stop"}  # fmt: skip
+
+
+class DrivePanel:
+    """The Drive tab's controls; ``command`` is what the buttons and the keys call."""
+
+    def __init__(self, app: Dashboard) -> None:
+        self.app = app
+        gui = app.server.gui
+        gui.add_markdown("Drive the running program: the modules switch gait together at their next cycle "
+                         "boundary, without stopping. Keys: ↑ forward, ← left, → right, ↓ reverse, S stop. "
+                         "It drives what the View shows: the Preview, or the deployed robot (Live).")  # fmt: skip
+        self.buttons = gui.add_button_group("Drive", list(COMMANDS))
+        self.buttons.on_click(app.safe(lambda e: self.command(e.target.value)))
+        self.gaits = gui.add_dropdown("Program gait", [FORWARD])
+        go = gui.add_button_group("Run gait", ["Run forwards", "Run backwards"])
+        go.on_click(app.safe(lambda e: self.run(self.gaits.value, -1 if "back" in e.target.value else 1)))
+        self.state = gui.add_markdown("")
+        self.deployed: Gait | None = None
+        """The gait last deployed to the robot (the one its modules' programs come from)."""
+
+    def bind_keys(self, add: Callable[[str, str, Any], None]) -> None:
+        for key, label in KEYS.items():
+            add(f"Drive: {label[2:].lower()}", key, lambda label=label: self.command(label))
+
+    def sync(self, gait: Gait) -> None:
+        """The edited gait changed: offer its program's gaits."""
+        names = gait.program_gaits()
+        if list(self.gaits.options) != names:
+            self.gaits.options = names
+
+    def command(self, label: str) -> None:
+        gait, direction = COMMANDS[label]
+        self.run(gait, direction)
+
+    def run(self, name: str, direction: int = 1) -> None:
+        app = self.app
+        live = app.view.source == "live"
+        gait = (self.deployed or app.doc.gait()) if live else app.loop.sim.gait
+        if name not in (STOP, *gait.program_gaits()):
+            raise ValueError(f"{gait.name} has no {name!r} gait: add [gaits.{name}] to the file (see "
+                             "steerable_caterpillar in the library)")  # fmt: skip
+        what = "stop" if name == STOP else f"{name}{' (backwards)' if direction < 0 else ''}"
+        if not live:
+            app.loop.request("drive", (name, direction))
+            self.state.content = f"Preview: **{what}** at the next cycle boundary"
+            return
+        names = [module_name(a.id) for a in gait.modules]
+        self.state.content = f"Robot: switching to **{what}** …"
+        confirmed = drive(app.node, gait, name, names, direction=direction)  # type: ignore[arg-type]
+        self.state.content = f"Robot: **{what}**, confirmed by {len(confirmed)} of {len(names)} modules"
+        app.notify("Drive", f"{what}: {len(confirmed)} of {len(names)} modules confirmed")
