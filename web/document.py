@@ -10,15 +10,18 @@ from __future__ import annotations
 
 import copy
 import math
+import re
 import threading
 import time
 from collections.abc import Callable
 from typing import Any
 
-from gaits.model import MAX_MODULES, Gait, GaitError, Problem, from_dict, loads, to_dict
+from gaits.model import FORWARD, MAX_MODULES, Gait, GaitError, Problem, from_dict, loads, to_dict
 from gaits.roundtrip import save
 
 HISTORY = 200
+EVENT_FIELDS = ("tolerance", "threshold", "neighbour", "state", "on_timeout")
+"""The fields that go with a state's event (``until``)."""
 TYPING = 1.0
 """Seconds between two edits of one field that still count as typing one value (one undo step)."""
 
@@ -102,15 +105,70 @@ class GaitDocument:
     def remove_state(self, automaton: str, index: int) -> None:
         self._apply(lambda d: d["automata"][automaton]["states"].pop(index))
 
-    def set_module(self, module_id: int, field: str, value: Any) -> None:
-        """Set ``phase``, ``direction`` or ``automaton`` of one module's assignment."""
+    def set_module(self, module_id: int, field: str, value: Any, gait: str = FORWARD) -> None:
+        """Set ``phase``, ``direction`` or ``automaton`` of one module's assignment in one gait of the program."""
         if field not in ("phase", "direction", "automaton"):
             raise ValueError(f"a module assignment has no editable field {field!r}")
 
         def edit(data: dict[str, Any]) -> None:
-            next(m for m in data["modules"] if m["id"] == module_id)[field] = value
+            listed = data["modules"] if gait == FORWARD else data["gaits"][gait]["modules"]
+            next(m for m in listed if m["id"] == module_id)[field] = value
 
-        self._apply(edit, field=("module", module_id, field))
+        self._apply(edit, field=("module", gait, module_id, field))
+
+    def set_event(self, automaton: str, index: int, until: str | None, **fields: Any) -> None:
+        """What ends one state: its duration alone (``until`` None) or an event with its fields (``tolerance``,
+        ``threshold``, ``neighbour``, ``state``, ``on_timeout``), as one undo step. Fields of other events go, since
+        the loader refuses them (a tolerance on a contact state)."""
+        wrong = set(fields) - set(EVENT_FIELDS)
+        if wrong:
+            raise ValueError(f"a state's event has no field {sorted(wrong)[0]!r}")
+
+        def edit(data: dict[str, Any]) -> None:
+            state = data["automata"][automaton]["states"][index]
+            for key in ("until", *EVENT_FIELDS):
+                state.pop(key, None)
+            if until is not None:
+                state["until"] = until
+                state.update({k: v for k, v in fields.items() if v is not None})
+
+        self._apply(edit, field=("event", automaton, index))
+
+    def set_one_shot(self, automaton: str, one_shot: bool) -> None:
+        """Make an automaton one-shot (it ends after its last state) or periodic."""
+
+        def edit(data: dict[str, Any]) -> None:
+            if one_shot:
+                data["automata"][automaton]["one_shot"] = True
+            else:
+                data["automata"][automaton].pop("one_shot", None)
+
+        self._apply(edit)
+
+    def add_program_gait(self, name: str) -> None:
+        """A new gait of the program, a copy of ``forward``'s assignments, to edit module by module."""
+        if not re.fullmatch(r"[A-Za-z0-9_-]{1,64}", name) or name == FORWARD:
+            raise ValueError(f"a gait is named with 1-64 letters, digits, _ or -, other than {FORWARD!r}: {name!r}")
+        if name in self._data.get("gaits", {}):
+            raise ValueError(f"the program already has a gait {name!r}")
+        self._apply(lambda d: d.setdefault("gaits", {}).__setitem__(name, {"modules": copy.deepcopy(d["modules"])}))
+
+    def remove_program_gait(self, name: str) -> None:
+        """Remove a gait of the program, and the sequence steps that ran it."""
+
+        def edit(data: dict[str, Any]) -> None:
+            data.get("gaits", {}).pop(name)
+            if not data.get("gaits"):
+                data.pop("gaits", None)
+            steps = [s for s in data.get("program", {}).get("sequence", []) if s.get("gait") != name]
+            _set_sequence(data, steps)
+
+        self._apply(edit)
+
+    def set_sequence(self, steps: list[tuple[str, int | None]]) -> None:
+        """The program's own order: (gait, cycles or None for the last) steps; none removes the sequence."""
+        self._apply(lambda d: _set_sequence(d, [{"gait": g, **({"cycles": c} if c is not None else {})}
+                                                 for g, c in steps]), field=("sequence",))  # fmt: skip
 
     def set_robot(self, field: str, value: Any) -> None:
         """Edit the robot: ``modules`` (the assignments follow), ``shape``, ``axes``, ``legs``, ``module_size``;
@@ -225,31 +283,47 @@ class GaitDocument:
         self.version += 1
 
 
-def _resize(data: dict[str, Any], count: int, spare: dict[int, dict[str, Any]]) -> None:
-    """Give the robot ``count`` modules: assignments beyond it go to ``spare``, new modules continue the pattern.
+def _resize(data: dict[str, Any], count: int, spare: dict[Any, dict[str, Any]]) -> None:
+    """Give the robot ``count`` modules: in ``modules`` and in every gait of the program, assignments beyond it go
+    to ``spare``, new modules continue the pattern.
 
     A module that was in ``spare`` comes back as it was. Otherwise a new module runs the last module's automaton
     and direction, and its phase continues the last two modules' phase step (a travelling wave keeps its wavelength
     as the chain grows), or repeats the last phase if there is one module."""
     if not isinstance(count, int) or isinstance(count, bool) or count < 1:
         raise ValueError(f"a robot needs 1 or more modules, not {count!r}")
-    modules = sorted((m for m in data["modules"] if isinstance(m.get("id"), int)), key=lambda m: m["id"])
-    spare.update((m["id"], m) for m in modules if m["id"] > count)
-    modules = [m for m in modules if m["id"] <= count]
     data["robot"]["modules"] = count
+    first = next(iter(data["automata"]), "")
+    data["modules"] = _resized(data["modules"], count, spare, "forward", first)
+    for name, program_gait in data.get("gaits", {}).items():
+        if isinstance(program_gait, dict) and isinstance(program_gait.get("modules"), list):
+            program_gait["modules"] = _resized(program_gait["modules"], count, spare, name, first)
+
+
+def _resized(listed: list[Any], count: int, spare: dict[Any, dict[str, Any]], gait: str, first: str) -> list[Any]:
+    modules = sorted((m for m in listed if isinstance(m, dict) and isinstance(m.get("id"), int)),
+                     key=lambda m: m["id"])  # fmt: skip
+    spare.update(((gait, m["id"]), m) for m in modules if m["id"] > count)
+    modules = [m for m in modules if m["id"] <= count]
     if not modules:
-        first = next(iter(data["automata"]), "")
         modules = [{"id": 1, "automaton": first, "phase": 0.0, "direction": 1}]
     step = (modules[-1]["phase"] - modules[-2]["phase"]) if len(modules) > 1 else 0.0
     while len(modules) < count:
         last = modules[-1]
-        if last["id"] + 1 in spare:
-            modules.append(spare.pop(last["id"] + 1))
+        if (gait, last["id"] + 1) in spare:
+            modules.append(spare.pop((gait, last["id"] + 1)))
             continue
-        phase = round((last["phase"] + step) % 1.0, 6) % 1.0
+        phase = round((last.get("phase", 0.0) + step) % 1.0, 6) % 1.0
         modules.append({"id": last["id"] + 1, "automaton": last["automaton"], "phase": phase,
                         "direction": last.get("direction", 1)})  # fmt: skip
-    data["modules"] = modules[:count]
+    return modules[:count]
+
+
+def _set_sequence(data: dict[str, Any], steps: list[dict[str, Any]]) -> None:
+    if steps:
+        data["program"] = {"sequence": steps}
+    else:
+        data.pop("program", None)
 
 
 def _reshape(data: dict[str, Any], shape: str) -> None:

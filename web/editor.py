@@ -28,6 +28,7 @@ from .control_table import control_table
 from .generator import GaitTools
 from .grid import StateGrid
 from .monitor import empty_plot, seconds_axes, stroke
+from .program_editor import EventControls, ProgramPanel
 
 if TYPE_CHECKING:
     from .app import Dashboard
@@ -64,6 +65,9 @@ class GaitEditor:
             # 0.999999); the document takes what was typed and the loader's problem shows at the field instead
             self.duration = gui.add_number("Duration (s)", initial_value=0.1, step=0.005)
             self.interp = gui.add_dropdown("Interpolation", ["linear", "step"])
+            selected = lambda: (self.automaton.value, int(self.state_index.value) - 1)  # noqa: E731
+            self.events = EventControls(gui, self.doc, edited=self.after_edit, safe=safe, syncing=lambda: app.syncing,
+                                        selected=selected)  # fmt: skip
             self.state_problem = gui.add_markdown("")
             states = gui.add_button_group("Edit states", ["Insert after", "Remove"])
         with gui.add_folder("Module"):
@@ -72,6 +76,8 @@ class GaitEditor:
             self.direction = gui.add_dropdown("Direction", ["1", "-1"])
             self.module_automaton = gui.add_dropdown("Runs", ["-"])
             self.module_problem = gui.add_markdown("")
+        with gui.add_folder("Program", expand_by_default=False):
+            self.program = ProgramPanel(gui, self.doc, edited=self.after_edit, safe=safe, syncing=lambda: app.syncing)
         with gui.add_folder("Robot"):
             self.modules = gui.add_number("Modules", initial_value=8, step=1, hint=f"1..{MODULE_IDS[-1]}")
             self.shape = gui.add_dropdown("Shape", SHAPES)
@@ -103,7 +109,8 @@ class GaitEditor:
                                                       convert(v)))  # fmt: skip
 
         def module_field(name: str, convert: Callable[[Any], Any]) -> Callable[[Any], None]:
-            return field(lambda v: self.doc.set_module(int(self.module_index.value), name, convert(v)))
+            return field(lambda v: self.doc.set_module(int(self.module_index.value), name, convert(v),
+                                                       self.program.gait()))  # fmt: skip
 
         self.angle.on_update(state_field("angle", float))
         self.duration.on_update(state_field("duration", float))
@@ -203,7 +210,10 @@ class GaitEditor:
         self.duration.value = float(state.get("duration") or 0.0)
         self.interp.value = state.get("interpolation", "linear")
         self.state_problem.content = _problems(self.doc.problem_at(f"automata.{self.automaton.value}.states[{index}]"))
-        modules = data["modules"]
+        self.events.sync(data, self.automaton.value, index)
+        self.program.sync(data)
+        editing = self.program.gait()
+        modules = data["modules"] if editing == "forward" else data["gaits"][editing]["modules"]
         self.module_index.max = max(2, len(modules))
         m_index = min(int(self.module_index.value), len(modules)) - 1
         module = modules[m_index]
@@ -211,7 +221,8 @@ class GaitEditor:
         self.direction.value = str(module.get("direction", 1))
         if module.get("automaton") in automata:
             self.module_automaton.value = module["automaton"]
-        self.module_problem.content = _problems(self.doc.problem_at(f"modules[{m_index}]"))
+        where = "modules" if editing == "forward" else f"gaits.{editing}.modules"
+        self.module_problem.content = _problems(self.doc.problem_at(f"{where}[{m_index}]"))
         robot = data["robot"]
         self.modules.value = int(robot.get("modules", 1))
         self.shape.value = robot.get("shape", "chain")
@@ -225,7 +236,13 @@ class GaitEditor:
                                  if self.doc.problems else f"✓ valid ({data['name']})")  # fmt: skip
         self.grid.sync(data, self.automaton.value)
         self.table_html.content = _states_table(data, self.automaton.value, index)
-        if not self.doc.problems:
+        if not self.doc.problems and not self.doc.gait().timed:  # events decide its timing: no table to expand
+            self._table = ([], self.doc.gait().limits)
+            self.draw_control_table(force=True)
+            with self.app.server.atomic():
+                self.expanded.series = ({"label": "t"}, {"label": "(event-driven: see the preview)"})
+                self.expanded.data = empty_plot(2)
+        elif not self.doc.problems:
             gait = self.doc.gait()
             times, rows = expand(gait, samples=CONTROL_SAMPLES)  # the plot takes every other sample (32)
             self._table = (rows, gait.limits)

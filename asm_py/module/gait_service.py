@@ -257,7 +257,7 @@ class ModuleGait(PhaseAutomaton):
     def _switch_to(self, index: int, drive: int, at: float) -> None:
         mode = self.program.modes[index]
         phase, direction = mode.phase, mode.direction
-        if index == 0:  # mode 0 keeps what the module was started with
+        if index == self.program.first:  # the start mode keeps the phase and direction the module was started with
             phase, direction = self._base
         self._drive = drive
         self.switched_at = at

@@ -1,0 +1,177 @@
+"""The Gait tab's controls for what goes beyond a periodic, time-driven gait: what ends the selected state (an
+event, its tolerance or threshold, the neighbour it waits on, what a timeout does), whether the automaton is
+one-shot, and the program — its gaits (forward, left, …) and the sequence it runs by itself.
+
+Every control edits the document as one undoable step, like the rest of the editor; a combination the loader
+refuses (a neighbour that does not exist) shows as a problem at the field, never silently altered.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Callable
+from typing import Any
+
+from gaits.model import EVENTS, FORWARD
+
+from .document import GaitDocument
+
+TIME = "time (its duration)"
+"""The Ends-on choice of a state without an event."""
+
+
+def parse_sequence(text: str) -> list[tuple[str, int | None]]:
+    """``forward 5, left 5, forward`` → [(forward, 5), (left, 5), (forward, None)]; ValueError saying what is wrong."""
+    steps: list[tuple[str, int | None]] = []
+    for part in (p.strip() for p in text.split(",")):
+        if not part:
+            continue
+        match = re.fullmatch(r"([A-Za-z0-9_-]{1,64})(?:\s*[x×*]?\s*(\d{1,5}))?", part)
+        if match is None:
+            raise ValueError(f"{part!r}: write a gait name and its cycles, e.g. 'forward 5, left 5, forward'")
+        steps.append((match[1], int(match[2]) if match[2] else None))
+    if any(cycles is None for _, cycles in steps[:-1]):
+        raise ValueError("every step but the last needs its number of cycles (the last runs until told otherwise)")
+    return steps
+
+
+def format_sequence(steps: list[dict[str, Any]]) -> str:
+    return ", ".join(f"{s.get('gait', '?')}" + (f" {s['cycles']}" if "cycles" in s else "") for s in steps)
+
+
+class EventControls:
+    """What ends the selected state, and whether its automaton is one-shot (inside the Selected state folder)."""
+
+    def __init__(
+        self,
+        gui: Any,
+        doc: GaitDocument,
+        *,
+        selected: Callable[[], tuple[str, int]],
+        edited: Callable[[], None],
+        safe: Callable[..., Any],
+        syncing: Callable[[], bool],
+    ) -> None:
+        self.doc = doc
+        self._selected = selected
+        self.until = gui.add_dropdown("Ends on", [TIME, *EVENTS],
+                                      hint="an event ends the state early; its duration is then a timeout")  # fmt: skip
+        self.value = gui.add_number("Tolerance / threshold", initial_value=2.0, step=0.5,
+                                    hint="at_goal: degrees; torque: N·m")  # fmt: skip
+        self.neighbour = gui.add_number("Neighbour (± IDs)", initial_value=-1, step=1,
+                                        hint="neighbour: which module, relative to this one")  # fmt: skip
+        self.state = gui.add_text("Neighbour state", initial_value="",
+                                  hint="neighbour: the state it waits for, by name or 1-based number")  # fmt: skip
+        self.on_timeout = gui.add_dropdown("On timeout", ["next", "stop"],
+                                           hint="with an event and a duration: go on, or end the gait")  # fmt: skip
+        self.one_shot = gui.add_checkbox("One-shot automaton", initial_value=False,
+                                         hint="the gait ends after the last state instead of repeating")  # fmt: skip
+
+        def changed(_: Any) -> None:
+            if not syncing():
+                self._write()
+                edited()
+
+        for control in (self.until, self.value, self.neighbour, self.state, self.on_timeout):
+            control.on_update(safe(changed))
+
+        def one_shot(event: Any) -> None:
+            if not syncing():
+                self.doc.set_one_shot(self._selected()[0], bool(event.target.value))
+                edited()
+
+        self.one_shot.on_update(safe(one_shot))
+
+    def _write(self) -> None:
+        automaton, index = self._selected()
+        until = None if self.until.value == TIME else self.until.value
+        fields: dict[str, Any] = {}
+        if until == "at_goal":
+            fields["tolerance"] = float(self.value.value)
+        elif until == "torque":
+            fields["threshold"] = float(self.value.value)
+        elif until == "neighbour":
+            text = self.state.value.strip()
+            fields["neighbour"] = int(self.neighbour.value)
+            fields["state"] = int(text) if text.isdigit() else text
+        state = self.doc.data()["automata"][automaton]["states"][index]
+        if until is not None and "duration" in state and self.on_timeout.value == "stop":
+            fields["on_timeout"] = "stop"
+        self.doc.set_event(automaton, index, until, **fields)
+
+    def sync(self, data: dict[str, Any], automaton: str, index: int) -> None:
+        """Show the selected state's event (called inside the dashboard's programmatic block)."""
+        auto = data["automata"][automaton]
+        state = auto["states"][index]
+        until = state.get("until")
+        self.until.value = until if until in EVENTS else TIME
+        value = state.get("tolerance", state.get("threshold"))
+        self.value.value = float(value) if isinstance(value, int | float) else (2.0 if until != "torque" else 1.0)
+        self.value.disabled = until not in ("at_goal", "torque")
+        neighbour = state.get("neighbour", -1)
+        self.neighbour.value = int(neighbour) if isinstance(neighbour, int) else -1
+        self.state.value = str(state.get("state", ""))
+        self.neighbour.disabled = self.state.disabled = until != "neighbour"
+        self.on_timeout.value = (
+            state.get("on_timeout", "next") if state.get("on_timeout") in ("next", "stop") else "next"
+        )
+        self.on_timeout.disabled = until is None
+        self.one_shot.value = bool(auto.get("one_shot", False))
+
+
+class ProgramPanel:
+    """The program: its gaits, which one the Module folder edits, and its sequence (a folder of the Gait tab)."""
+
+    def __init__(self, gui: Any, doc: GaitDocument, *, edited: Callable[[], None], safe: Callable[..., Any],
+                 syncing: Callable[[], bool]) -> None:  # fmt: skip
+        self.doc = doc
+        self.editing = gui.add_dropdown("Edit modules of", [FORWARD],
+                                        hint="which gait of the program the Module folder edits")  # fmt: skip
+        self.name = gui.add_text("New gait", initial_value="left", hint="e.g. left, right, turn_left")
+        actions = gui.add_button_group("Program gaits", ["Add (copy of forward)", "Remove edited"])
+        self.sequence = gui.add_text("Sequence", initial_value="",
+                                     hint="run by itself: 'forward 5, left 5, forward' (cycles each)")  # fmt: skip
+        self.problem = gui.add_markdown("")
+
+        self._edited = edited
+        self._syncing = syncing
+        actions.on_click(safe(self.on_action))
+        self.sequence.on_update(safe(self._on_sequence))
+        self.editing.on_update(safe(lambda _: None if syncing() else edited()))
+
+    def on_action(self, event: Any) -> None:
+        """The Program gaits buttons: add a copy of forward under the typed name, or remove the edited gait."""
+        if event.target.value.startswith("Add"):
+            name = self.name.value.strip()
+            self.doc.add_program_gait(name)
+            self._edited()
+            self.editing.value = name
+        elif self.editing.value == FORWARD:
+            raise ValueError("forward is the gait every program has: it cannot be removed")
+        else:
+            self.doc.remove_program_gait(self.editing.value)
+            self.editing.value = FORWARD
+        self._edited()
+
+    def _on_sequence(self, event: Any) -> None:
+        if not self._syncing():
+            self.doc.set_sequence(parse_sequence(event.target.value))
+            self._edited()
+
+    def gait(self) -> str:
+        """The gait of the program the Module folder edits."""
+        return str(self.editing.value)
+
+    def sync(self, data: dict[str, Any]) -> None:
+        gaits = data.get("gaits", {})
+        names = [FORWARD, *(gaits if isinstance(gaits, dict) else {})]
+        if list(self.editing.options) != names:
+            self.editing.options = names
+        if self.editing.value not in names:
+            self.editing.value = FORWARD
+        steps = data.get("program", {}).get("sequence", [])
+        text = format_sequence(steps if isinstance(steps, list) else [])
+        if self.sequence.value.strip() != text:
+            self.sequence.value = text
+        problems = self.doc.problem_at("program") + self.doc.problem_at("gaits")
+        self.problem.content = "".join(f"⚠ {p.message}  \n" for p in problems)
