@@ -9,6 +9,7 @@ import pytest
 
 from asm_py import Node
 from asm_py.transport.zenoh import ZenohTransport
+from gaits.model import loads
 from tests.helpers import wait_until
 from tests.processes import Process
 from tests.test_studio_e2e import ARTIFACTS, CHROMIUM, _number, _open, pytestmark  # noqa: F401
@@ -75,4 +76,42 @@ def test_a_user_steers_the_preview_and_the_deployed_robot_with_the_arrow_keys(st
             browser.close()
     finally:
         client.close()
+    assert not any("Traceback" in line for line in log), "".join(log[-40:])
+
+
+def test_a_user_makes_a_state_event_driven_and_a_program_in_the_page(steerable_studio) -> None:
+    """Edit what ends a state, add a gait to the program and a sequence, with clicks and keys; the download says
+    what was done."""
+    from playwright.sync_api import expect, sync_playwright
+
+    from tests.test_studio_e2e import _text_input
+
+    url, _, log = steerable_studio
+    with sync_playwright() as pw:
+        browser, page = _open(pw, url)
+        page.get_by_label("Ends on").click()
+        page.get_by_role("option", name="at_goal", exact=True).click()
+        tolerance = page.get_by_label("Tolerance / threshold")
+        expect(tolerance).to_be_enabled(timeout=15_000)
+        tolerance.fill("3")
+        tolerance.press("Enter")
+        expect(page.get_by_text("wave S1 ⇥at_goal", exact=False)).to_be_visible(timeout=15_000)  # the grid says so
+        page.get_by_text("Program", exact=True).click()  # open the folder
+        name = _text_input(page, "New gait")
+        name.fill("wiggle")
+        name.press("Enter")
+        page.get_by_role("button", name="Add (copy of forward)").click()
+        sequence = _text_input(page, "Sequence")
+        sequence.fill("forward 2, wiggle 3, forward")
+        sequence.press("Enter")
+        expect(page.get_by_text("✓ valid (steerable_caterpillar)")).to_be_visible(timeout=15_000)
+        page.screenshot(path=str(ARTIFACTS / "program_editor.png"), full_page=True)
+        with page.expect_download() as download:
+            page.get_by_role("button", name="Download .toml").click()
+        text = download.value.path().read_text(encoding="utf-8")
+        assert 'until = "at_goal"' in text and "tolerance = 3.0" in text
+        gait = loads(text)
+        assert list(gait.gaits) == ["left", "right", "wiggle"] and gait.sequence[:2] == [("forward", 2), ("wiggle", 3)]
+        assert gait.automata["wave"].states[0].until == "at_goal" and gait.automata["wave"].states[0].tolerance == 3
+        browser.close()
     assert not any("Traceback" in line for line in log), "".join(log[-40:])

@@ -42,7 +42,7 @@ class StateGrid:
         """True while the server itself is setting inputs (their callbacks must not edit the document)."""
         self._safe = safe
         """Wraps each input's callback (the dashboard's: an error becomes a notification)."""
-        self._shape: tuple[tuple[str, int], ...] = ()
+        self._shape: tuple[tuple[str, tuple[str, ...]], ...] = ()
         self._folders: list[Any] = []
         self.rows: dict[tuple[str, int], Any] = {}
         """(automaton, state index) → its row's input handle."""
@@ -51,7 +51,9 @@ class StateGrid:
     def sync(self, data: dict[str, Any], selected: str) -> None:
         """Show ``data``'s automata (the document's plain data); the ``selected`` automaton's folder is open."""
         automata = data["automata"]
-        shape = tuple((name, len(a["states"])) for name, a in automata.items())
+        # the rows and their labels: a state's event is in its label, so a new event rebuilds the rows too
+        shape = tuple((name, tuple(_label(name, k, st) for k, st in enumerate(a["states"])))
+                      for name, a in automata.items())  # fmt: skip
         if shape != self._shape:
             self._rebuild(automata, selected)
             self._shape = shape
@@ -76,8 +78,9 @@ class StateGrid:
                 with folder:
                     for k, state in enumerate(automaton["states"]):
                         value = _row_value(state)
-                        row = gui.add_vector2(f"{name} S{k + 1} (°, s)", value, step=STEP,
-                                              hint="target angle in degrees, duration in seconds")  # fmt: skip
+                        row = gui.add_vector2(_label(name, k, state), value, step=STEP,
+                                              hint="target angle in degrees, duration in seconds (with an event: "
+                                                   "its timeout, 0 for none)")  # fmt: skip
                         row.on_update(self._safe(self._callback(name, k)))
                         self.rows[(name, k)] = row
                         self._shown[(name, k)] = value
@@ -98,6 +101,12 @@ class StateGrid:
                 self._on_edit(name, index, changes)
 
         return update
+
+
+def _label(name: str, index: int, state: dict[str, Any]) -> str:
+    """``wave S4 (°, s)``; a state that ends on an event says which: ``lead S8 ⇥contact (°, s)``."""
+    until = state.get("until")
+    return f"{name} S{index + 1}{f' ⇥{until}' if isinstance(until, str) else ''} (°, s)"
 
 
 def _row_value(state: dict[str, Any]) -> tuple[float, float]:
