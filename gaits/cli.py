@@ -47,6 +47,10 @@ def main(argv: list[str] | None = None) -> int:
     except (GaitError, OSError) as exc:
         _report(args.file, exc)
         return 1
+    if not gait.timed:
+        print(f"gaits expand: error: {args.file}: {gait.name} has automata that wait for events or end (one-shot), "
+              "so its timing is not a table; `gaits simulate` runs it", file=sys.stderr)  # fmt: skip
+        return 1
     print(format_table(gait, samples=args.samples))
     return 0
 
@@ -88,7 +92,8 @@ def _simulate(args: argparse.Namespace) -> int:
             print(f"model written to {args.mjcf}")
         metrics = sim.run(args.seconds, warmup=args.warmup, push_at=args.push_at)
     robot = gait.robot
-    print(f"{gait.name}: {robot.modules}-module {robot.shape}, period {gait.period:g} s, direction {args.direction:+d}")
+    timing = f"period {gait.period:g} s" if gait.timed else "timed by events"
+    print(f"{gait.name}: {robot.modules}-module {robot.shape}, {timing}, direction {args.direction:+d}")
     print(
         f"distance     {metrics.distance:.3f} m ({metrics.body_lengths:.2f} body lengths of {metrics.body_length:g} m)"
     )

@@ -110,6 +110,15 @@ def test_gaits_reports_bad_files_without_a_traceback(tmp_path: Path, capsys) -> 
     assert "not UTF-8" in err or "directory" in err.lower()
 
 
+def test_gaits_expand_says_an_event_driven_gait_has_no_table(capsys) -> None:
+    library = Path(gaits_cli.__file__).parent / "library"
+    for name in ("neighbour_caterpillar", "contact_inchworm", "curl_into_loop"):
+        assert gaits_cli.main(["expand", str(library / f"{name}.toml")]) == 1
+        err = capsys.readouterr().err
+        assert err.startswith("gaits expand: error:") and "gaits simulate" in err and "Traceback" not in err
+    assert gaits_cli.main(["expand", str(library / "steerable_caterpillar.toml")]) == 0
+
+
 @pytest.fixture
 def busy_port() -> Iterator[int]:
     with socket.socket() as sock:
