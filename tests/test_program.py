@@ -9,6 +9,8 @@ import math
 from pathlib import Path
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from asm_py import Event
 from asm_py.automaton import PhaseState
@@ -141,6 +143,8 @@ def test_version_2_round_trips_and_matches_its_golden_vector() -> None:
         lambda d: d[:26] + b"\x05" + d[27:],  # unknown timeout outcome
         lambda d: d[:16] + b"\x00\x00\xc0\x7f" + d[20:],  # NaN angle
         lambda d: d[:5],  # ends inside the sequence
+        lambda d: d[:31] + b"\x01" + d[32:],  # a neighbour offset on an at_goal state (a field it does not use)
+        lambda d: d[:4] + b"\x00" + d[8:25] + bytes(6) + d[31:],  # what version 1 says: no event, no sequence
     ],
 )
 def test_a_malformed_version_2_table_is_refused_with_a_reason(mutate) -> None:
@@ -149,6 +153,36 @@ def test_a_malformed_version_2_table_is_refused_with_a_reason(mutate) -> None:
     data = encode_program(program)
     with pytest.raises(ValueError):
         decode_program(mutate(data))
+
+
+@settings(max_examples=400, deadline=None)
+@given(st.data())
+def test_any_bytes_give_a_program_or_a_value_error(data: st.DataObject) -> None:
+    """Random and mutated version-2 tables (what a raw client could SET): a program or ValueError, nothing else."""
+    program = Program((Mode((ModeState(10.0, 0.5, "linear", Until("at_goal", 2.0)),
+                             ModeState(-10.0, None, "step", Until("neighbour", neighbour=-1, state=3)))),
+                       Mode(timed(20.0), one_shot=True)), sequence=((0, 5), (1, 1)))  # fmt: skip
+    base = bytearray(encode_program(program))
+    if data.draw(st.booleans()):
+        raw = data.draw(st.binary(max_size=300))
+        blob = b"GT\x02" + raw if data.draw(st.booleans()) else raw
+    else:
+        for _ in range(data.draw(st.integers(1, 6))):
+            k = data.draw(st.integers(0, len(base) - 1))
+            base[k] = data.draw(st.integers(0, 255))
+        blob = bytes(base[: data.draw(st.integers(0, len(base) + 2))])
+    try:
+        decoded = decode_program(blob)
+    except ValueError:
+        return
+    assert encode_program(decoded) == blob  # one program, one form: the same bytes (and checksum) back
+
+
+def test_version_2_never_says_what_version_1_says() -> None:
+    data = encode_program(Program((Mode(timed(10.0)),), sequence=((0, 2),)))  # v2 only for its sequence
+    assert data[2] == 2
+    with pytest.raises(ValueError, match="version-1 table"):
+        decode_program(data[:4] + b"\x00" + data[8:])
 
 
 def test_a_module_refuses_a_program_it_cannot_run_and_keeps_its_table(bench) -> None:

@@ -157,6 +157,10 @@ def decode_program(data: bytes) -> Program:
             offset += _STATE2.size
             if interp not in _BY_CODE or event > len(EVENTS) or timeout >= len(OUTCOMES):
                 raise ValueError(f"mode {m} state {k}: codes interpolation {interp}, event {event}, timeout {timeout}")
+            unused = (timeout if event == 0 else 0, value if event not in (3, 4) else 0,
+                      neighbour if event != 5 else 0, state if event != 5 else 0)  # fmt: skip
+            if any(unused):
+                raise ValueError(f"mode {m} state {k}: a field its event does not use is not 0 (one table, one form)")
             try:
                 kind = EVENTS[event - 1] if event else None
                 watch = (neighbour, state) if kind == "neighbour" else (-1, 0)
@@ -170,7 +174,10 @@ def decode_program(data: bytes) -> Program:
             raise ValueError(f"mode {m}: {exc}") from None
     if offset != len(data):
         raise ValueError(f"a gait table of these modes is {offset} bytes, got {len(data)}")
-    return Program(tuple(modes), tuple((int(a), int(b)) for a, b in sequence))
+    program = Program(tuple(modes), tuple((int(a), int(b)) for a, b in sequence))
+    if program.simple:  # one program, one form (and one checksum)
+        raise ValueError("one periodic time-driven mode without a sequence is a version-1 table, not version 2")
+    return program
 
 
 def checksum(data: bytes) -> int:
