@@ -53,15 +53,18 @@ def _assert_within_one_tick(preview, deployed) -> None:
             assert min(window) - 1e-3 <= value <= max(window) + 1e-3, (times[k], column + 1, value, window)
 
 
-@pytest.mark.parametrize("name", ["neighbour_caterpillar", "curl_into_loop"])
-def test_preview_equals_deployment_with_neighbour_events_and_one_shot_modes(name) -> None:
+@pytest.mark.parametrize("name", ["neighbour_caterpillar", "curl_into_loop", "contact_inchworm", "caterpillar_tour"])
+def test_preview_equals_deployment_for_neighbour_contact_one_shot_and_sequenced_gaits(name) -> None:
     gait = load(LIBRARY / f"{name}.toml")
-    preview = _trace(gait, 3.0, bus=False)
-    deployed = _trace(gait, 3.0, bus=True)
+    seconds = 6.5 if name == "caterpillar_tour" else 3.0  # the tour switches to left after 5 cycles
+    preview = _trace(gait, seconds, bus=False)
+    deployed = _trace(gait, seconds, bus=True)
     _assert_within_one_tick(preview, deployed)
     if name == "neighbour_caterpillar":  # it really is a wave: the modules are in different places
         last = preview[1][-1]
         assert max(last) - min(last) > 20.0
+    if name == "caterpillar_tour":  # its own sequence switched it to left after 5 cycles: the yaw joints bend
+        assert preview[1][-1][1] == pytest.approx(20.0) and preview[1][int(4.5 * 50)][1] == pytest.approx(0.0)
 
 
 def test_preview_equals_deployment_across_a_switch() -> None:
