@@ -92,7 +92,7 @@ def library() -> dict[str, Gait]:
         "caterpillar_tour",
         "A program of gaits: the steerable caterpillar crawls forward 5 cycles, turns left 5, then goes forward.",
     )
-    tour.sequence = [("forward", 5), ("left", 5), ("forward", 1)]
+    tour.sequence = [("forward", 5), ("left", 5), ("forward", 0)]
     return {"steerable_caterpillar": steerable, "caterpillar_tour": tour,
             "neighbour_caterpillar": _neighbour_caterpillar(), "curl_into_loop": _curl(),
             "contact_inchworm": _contact_inchworm()}  # fmt: skip

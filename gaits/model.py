@@ -137,7 +137,8 @@ class Gait:
     gaits: dict[str, list[Assignment]] = field(default_factory=dict)
     """More gaits of the program, by name (``modules`` is the one called FORWARD)."""
     sequence: list[tuple[str, int]] = field(default_factory=list)
-    """The program's own order: (gait, cycles); the last runs until the robot is told otherwise."""
+    """The program's own order: (gait, cycles); cycles 0: until the gait ends by itself (one-shot), or for the
+    last step until the robot is told otherwise."""
 
     @property
     def period(self) -> float:
@@ -238,10 +239,12 @@ def from_dict(data: Any, *, source: str = "<gait>", text: str | None = None) -> 
     lists |= {name: (f"gaits.{name}.modules", g["modules"]) for name, g in data.get("gaits", {}).items()}
     for path, listed in lists.values():
         _check_assignments(path, listed, robot, automata, bad)
-    sequence = [(step["gait"], step.get("cycles", 1)) for step in data.get("program", {}).get("sequence", [])]
-    for k, (name, _) in enumerate(sequence):
+    sequence = [(step["gait"], step.get("cycles", 0)) for step in data.get("program", {}).get("sequence", [])]
+    for k, (name, cycles) in enumerate(sequence):
         if name not in lists:
             bad(f"program.sequence[{k}].gait", f"unknown gait {brief(name)} (the program has: {', '.join(lists)})")
+        elif not cycles and k + 1 < len(sequence) and not _ends(automata, lists[name][1]):
+            bad(f"program.sequence[{k}]", f"gait {name!r} never ends by itself: give it a number of cycles")
     raise_if(problems, source)
     assigned = {name: sorted((Assignment(m["id"], m["automaton"], m.get("phase", 0.0), m.get("direction", 1))
                               for m in listed), key=lambda m: m.id) for name, (_, listed) in lists.items()}  # fmt: skip
@@ -267,6 +270,12 @@ def _check_event(st: dict[str, Any], path: str, bad: Callable[[str, str], None])
 
 
 Bad = Callable[[str, str], None]
+
+
+def _ends(automata: dict[str, Automaton], listed: list[dict[str, Any]]) -> bool:
+    """Every module of this gait runs a one-shot automaton: the gait ends by itself."""
+    return all(isinstance(m, dict) and m.get("automaton") in automata and automata[m["automaton"]].one_shot
+               for m in listed)  # fmt: skip
 
 
 def _check_assignments(
@@ -360,7 +369,8 @@ def to_dict(gait: Gait) -> dict[str, Any]:
     if gait.gaits:
         out["gaits"] = {name: {"modules": assignments(listed)} for name, listed in gait.gaits.items()}
     if gait.sequence:
-        out["program"] = {"sequence": [{"gait": name, "cycles": cycles} for name, cycles in gait.sequence]}
+        out["program"] = {"sequence": [{"gait": name, **({"cycles": cycles} if cycles else {})}
+                                       for name, cycles in gait.sequence]}  # fmt: skip
     return out
 
 

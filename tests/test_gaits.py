@@ -18,6 +18,7 @@ from gaits.table import angle_at, compress, expand, phase_states
 
 GAITS = Path(__file__).resolve().parent.parent / "gaits"
 LIBRARY = sorted((GAITS / "library").glob("*.toml"))
+LIBRARY_DIR = GAITS / "library"
 SCHEMA = json.loads((GAITS / "schema.json").read_text())
 
 GOOD = """\
@@ -182,3 +183,28 @@ def test_gaits_cli(tmp_path: Path) -> None:
     table = subprocess.run([sys.executable, "-m", "gaits.cli", "expand", str(LIBRARY[0]), "--samples", "8"],
                            capture_output=True, text=True, timeout=60)  # fmt: skip
     assert table.returncode == 0 and len(table.stdout.splitlines()) == 2 + load(LIBRARY[0]).robot.modules
+
+
+def test_program_files_check_what_a_schema_cannot() -> None:
+    """Sequence steps name gaits of the file; only a gait that ends by itself may go without cycles before the
+    last step; event fields go with their event; a neighbour exists and has the named state."""
+    base = (LIBRARY_DIR / "steerable_caterpillar.toml").read_text(encoding="utf-8")
+    cases = {
+        '\n[program]\nsequence = [{ gait = "forward" }, { gait = "left", cycles = 2 }]\n':
+            ("program.sequence[0]", "never ends by itself"),
+        '\n[program]\nsequence = [{ gait = "sideways", cycles = 2 }]\n': ("program.sequence[0].gait", "unknown gait"),
+    }  # fmt: skip
+    for extra, (path, words) in cases.items():
+        with pytest.raises(GaitError) as caught:
+            loads(base + extra)
+        assert any(p.path == path and words in p.message for p in caught.value.problems), caught.value.lines()
+    inch = (LIBRARY_DIR / "contact_inchworm.toml").read_text(encoding="utf-8")
+    for old, new, path, words in [
+        ('until = "contact"', 'until = "contact", tolerance = 2.0', ".tolerance", "only a state ending on 'at_goal'"),
+        ("neighbour = -1", "neighbour = 9", ".neighbour", "no module +9 away"),
+        ('state = "h2"', 'state = "h99"', ".state", "has no state 'h99'"),
+        ('until = "contact"', 'until = "contact", on_timeout = "bogus"', "on_timeout", '"next", "stop"'),
+    ]:
+        with pytest.raises(GaitError) as caught:
+            loads(inch.replace(old, new, 1))
+        assert any(path in p.path and words in p.message for p in caught.value.problems), caught.value.lines()

@@ -382,3 +382,28 @@ def _eventually(condition, seconds: float = 5.0) -> bool:
             return True
         time.sleep(0.01)
     return condition()
+
+
+def test_a_sequence_switches_on_the_event_of_a_one_shot_mode_ending(bench) -> None:
+    """Hierarchical: 'stand up' (one-shot), then walk (periodic): the switch happens when the first mode ends."""
+    b = bench(1)
+    module = b.modules[0]
+    stand = Mode((ModeState(30.0, 0.3, "linear"), ModeState(60.0, 0.3, "linear")), one_shot=True)
+    walk = Mode(timed(10.0, -10.0, duration=0.25))
+    b.load(Program((stand, walk), sequence=((0, 0), (1, 0))))
+    b.start()
+    modes: list[tuple[float, int]] = []
+    b.run(1.5, each=lambda t: modes.append((t, module.gait.mode.peek())))
+    assert module.gait.switched_at == pytest.approx(0.6) and module.gait.started
+    assert [m for _, m in modes][-1] == 1 and not module.gait.done.valid
+
+
+def test_a_switch_asked_for_during_a_one_shot_mode_happens_when_it_ends(bench) -> None:
+    b = bench(1)
+    module = b.modules[0]
+    b.load(Program((Mode((ModeState(30.0, 0.5, "linear"),), one_shot=True), Mode(timed(-10.0)))))
+    b.start()
+    b.run(0.1)
+    module.gait.switch.set({"mode": 1, "direction": 1, "after": 0.0})
+    b.run(1.0)
+    assert module.gait.switched_at == pytest.approx(0.5) and module.gait.mode.peek() == 1 and module.gait.started

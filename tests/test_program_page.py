@@ -63,14 +63,16 @@ def test_gaits_of_the_program_and_its_sequence_are_edited_in_the_page(studio) ->
     assert app.doc.data()["gaits"]["left"]["modules"][2]["phase"] == 0.5
     assert app.doc.data()["modules"][2]["phase"] != 0.5
     program.sequence.value = "forward 2, left 3, forward"
-    assert app.doc.gait().sequence == [("forward", 2), ("left", 3), ("forward", 1)]
-    before = app.doc.data()
-    program.sequence.value = "forward, left 2"  # a step without cycles before the last: refused, nothing changed
-    assert app.doc.data() == before and "cycles" in app.status.content
+    assert app.doc.gait().sequence == [("forward", 2), ("left", 3), ("forward", 0)]
+    program.sequence.value = "forward, left 2"  # forward never ends by itself: the problem shows at the field
+    assert "never ends by itself" in program.problem.content
+    program.sequence.value = "forward 2, left x"  # not a sequence: refused, nothing changed
+    assert "e.g. 'forward 5" in app.status.content
+    program.sequence.value = "forward 2, left 3, forward"
     app.editor.modules.value = 10  # the robot grows: every gait of the program grows with it
     assert len(app.doc.data()["gaits"]["left"]["modules"]) == 10 and not app.doc.problems
     program.on_action(_click("Remove edited"))
-    assert "gaits" not in app.doc.data() and app.doc.gait().sequence == [("forward", 2), ("forward", 1)]
+    assert "gaits" not in app.doc.data() and app.doc.gait().sequence == [("forward", 2), ("forward", 0)]
 
 
 def test_the_drive_buttons_steer_the_preview_and_refuse_a_gait_the_program_lacks(studio) -> None:
@@ -93,7 +95,7 @@ def test_the_drive_buttons_steer_the_preview_and_refuse_a_gait_the_program_lacks
 @pytest.mark.parametrize("text", ["forward 5, , left 3, forward", "forward 0x5", "for ward 5", "forward 123456",
                                   "left 2; forward", "é 2", "forward 5, left"])  # fmt: skip
 def test_a_sequence_is_parsed_or_refused_with_a_reason(text) -> None:
-    if text in ("forward 5, , left 3, forward", "forward 5, left"):
+    if text in ("forward 5, , left 3, forward", "forward 5, left"):  # a step without cycles: until it ends
         assert parse_sequence(text)[-1][1] is None
         return
     with pytest.raises(ValueError):

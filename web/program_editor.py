@@ -21,7 +21,8 @@ TIME = "time (its duration)"
 
 
 def parse_sequence(text: str) -> list[tuple[str, int | None]]:
-    """``forward 5, left 5, forward`` → [(forward, 5), (left, 5), (forward, None)]; ValueError saying what is wrong."""
+    """``forward 5, left 5, forward`` → [(forward, 5), (left, 5), (forward, None)]; ValueError saying what is wrong.
+    A step without cycles runs until its gait ends (one-shot); the loader says so if that gait never ends."""
     steps: list[tuple[str, int | None]] = []
     for part in (p.strip() for p in text.split(",")):
         if not part:
@@ -30,8 +31,6 @@ def parse_sequence(text: str) -> list[tuple[str, int | None]]:
         if match is None:
             raise ValueError(f"{part!r}: write a gait name and its cycles, e.g. 'forward 5, left 5, forward'")
         steps.append((match[1], int(match[2]) if match[2] else None))
-    if any(cycles is None for _, cycles in steps[:-1]):
-        raise ValueError("every step but the last needs its number of cycles (the last runs until told otherwise)")
     return steps
 
 

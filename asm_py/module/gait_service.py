@@ -225,7 +225,8 @@ class ModuleGait(PhaseAutomaton):
         index = self._index + self.heading()
         if not 0 <= index < count:
             if self._current.one_shot:
-                self._end_run(FINISHED)
+                if not self._after_end(at):
+                    self._end_run(FINISHED)
                 return False
             index %= count
             self._enter_state(index, at)
@@ -252,6 +253,26 @@ class ModuleGait(PhaseAutomaton):
                 mode, self._cycles_left = sequence[self._sequence_at]
                 self._switch_to(mode, self._drive, at)
                 return True
+        return False
+
+    def _after_end(self, at: float) -> bool:
+        """A one-shot mode ended at ``at``: an event a program switches on. Go on with a switch asked for by then,
+        or the sequence's next step; True if the run goes on."""
+        with self._lock:
+            pending = self._switch_request
+            if pending is not None and at >= pending[2] - _EPS:
+                self._switch_request = None
+            else:
+                pending = None
+        if pending is not None:
+            self._switch_to(pending[0], pending[1], at)
+            return True
+        sequence = self.program.sequence
+        if self._sequence_at + 1 < len(sequence):
+            self._sequence_at += 1
+            mode, self._cycles_left = sequence[self._sequence_at]
+            self._switch_to(mode, self._drive, at)
+            return True
         return False
 
     def _switch_to(self, index: int, drive: int, at: float) -> None:

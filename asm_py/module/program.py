@@ -17,7 +17,8 @@ Timing rules, the same on every module so that modules agree without talking:
 - A **switch** (``gait.switch`` = {mode, direction, after}) happens at the first cycle boundary at or after
   ``after`` (seconds on the module's clock; 0: the next boundary). Every module of a robot started together has
   the same boundaries, so a switch sent to all of them with the same ``after`` happens at the same tick on each.
-  A program's ``sequence`` switches by itself after the given number of cycles.
+  A program's ``sequence`` switches by itself after the given number of cycles, or, for a one-shot mode, when the
+  mode ends (switching on an event: "curl up, then …"); a switch asked for by then also happens at that end.
 - Across a switch the joint does not jump: the difference between the old and the new reference at the switch
   decays linearly over ``SWITCH_BLEND`` seconds.
 - Events are evaluated at the control tick; a neighbour's state counts from the tick after it arrived, whether it
@@ -130,7 +131,8 @@ class Program:
 
     modes: tuple[Mode, ...]
     sequence: tuple[tuple[int, int], ...] = ()
-    """(mode index, cycles) in order; the last entry runs until a switch is commanded (its cycles are ignored)."""
+    """(mode index, cycles) in order; the last entry runs until a switch is commanded (its cycles are ignored). A
+    one-shot mode's step ends when the mode does (an event), whatever its cycles: 0 says so."""
 
     def __post_init__(self) -> None:
         if not 1 <= len(self.modes) <= MAX_MODES:
