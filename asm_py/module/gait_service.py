@@ -146,9 +146,9 @@ class ModuleGait(PhaseAutomaton):
     def _enter_state(self, index: int, at: float) -> None:
         self._index = index
         self._entered = at
-        self._touch_seen = self._runtime.contact.peek()
-        self._saw_free = not self._touch_seen
-        self._saw_touch = self._touch_seen
+        touching = bool(self._runtime.contact.peek())
+        self._saw_free = not touching  # contact made / lost are edges within the state
+        self._saw_touch = touching
         self.state.set(index)
 
     # -- each tick ----------------------------------------------------------------------------------------------
