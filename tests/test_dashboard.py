@@ -180,7 +180,7 @@ def test_a_failing_grid_edit_becomes_a_notification(studio):
 def test_every_plot_is_against_seconds_with_units_and_the_live_window_is_chosen(studio):
     """uPlot takes an x axis as UNIX dates unless told otherwise: the page showed "1/1/70 12:00am" for 0 s."""
     app = studio.app
-    for plot in (app.angles, app.live, app.editor.expanded):
+    for plot in (app.angles, app.lives[0].handle, app.editor.expanded):
         assert plot.scales == {"x": {"time": False}}
         assert plot.axes[0]["label"] == "time (s)" and plot.axes[1]["label"]
     assert app.plot.window == 10.0
@@ -253,14 +253,14 @@ def test_the_live_plot_can_be_paused_and_resumed(studio):
     app = studio.app
     app.plot.series[("m1", "joint.angle")] = deque([(0.0, 1.0), (1.0, 2.0)])
     app.plot.t0 -= 1.0  # the samples are recent
-    assert wait_until(lambda: len(app.live.data[0]) == 2, timeout=10)
+    assert wait_until(lambda: len(app.lives[0].handle.data[0]) == 2, timeout=10)
     app.freeze.value = True
     app.plot.series[("m1", "joint.angle")].append((1.5, 3.0))
     time.sleep(0.5)  # ten refreshes
-    assert len(app.live.data[0]) == 2  # held still
+    assert len(app.lives[0].handle.data[0]) == 2  # held still
     app.freeze.value = False
-    assert wait_until(lambda: len(app.live.data[0]) == 3, timeout=10)
-    assert np.asarray(app.live.data[1])[-1] == 3.0
+    assert wait_until(lambda: len(app.lives[0].handle.data[0]) == 3, timeout=10)
+    assert np.asarray(app.lives[0].handle.data[1])[-1] == 3.0
     app.plot.unwatch_all()
 
 

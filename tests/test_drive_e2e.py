@@ -12,7 +12,7 @@ from asm_py.transport.zenoh import ZenohTransport
 from gaits.model import loads
 from tests.helpers import wait_until
 from tests.processes import Process
-from tests.test_studio_e2e import ARTIFACTS, CHROMIUM, _number, _open, pytestmark  # noqa: F401
+from tests.test_studio_e2e import ARTIFACTS, CHROMIUM, FOCUS_3D, _number, _open, pytestmark  # noqa: F401
 from tests.transports import free_port
 
 GAIT = "gaits/library/steerable_caterpillar.toml"
@@ -47,21 +47,21 @@ def test_a_user_steers_the_preview_and_the_deployed_robot_with_the_arrow_keys(st
                                               r"t = ([\d.]+) s") > 3.0, timeout=60)  # fmt: skip
             straight = _heading(page)
             assert abs(straight) < 10  # forward: it crawls straight
-            page.mouse.click(200, 800)  # the 3D view has the focus, not a field
+            page.mouse.click(*FOCUS_3D)  # the 3D view has the focus, not a field
             page.keyboard.press("ArrowLeft")
             page.get_by_role("tab", name="Drive").click()
             expect(page.get_by_text("Preview: left", exact=False)).to_be_visible(timeout=10_000)
             # the heading is the travel since the start: turning left swings it counter-clockwise
             assert wait_until(lambda: _heading(page) > straight + 20, timeout=60), _heading(page)
             page.screenshot(path=str(ARTIFACTS / "drive_preview_left.png"))
-            page.mouse.click(200, 800)
+            page.mouse.click(*FOCUS_3D)
             page.keyboard.press("ArrowUp")
             expect(page.get_by_text("Preview: forward", exact=False)).to_be_visible(timeout=10_000)
             page.get_by_role("tab", name="Deploy").click()
             page.get_by_role("button", name="Deploy", exact=True).click()
             page.get_by_role("button", name="Start", exact=True).click()
             expect(page.get_by_text("12 modules confirmed running", exact=False).first).to_be_visible(timeout=60_000)
-            page.mouse.click(200, 800)
+            page.mouse.click(*FOCUS_3D)
             page.keyboard.press("ArrowRight")  # the View shows Live after a deploy: this steers the robot
             page.get_by_role("tab", name="Drive").click()
             expect(page.get_by_text(re.compile(r"Robot: right, confirmed by 12 of 12"))).to_be_visible(timeout=30_000)
@@ -69,7 +69,7 @@ def test_a_user_steers_the_preview_and_the_deployed_robot_with_the_arrow_keys(st
             goal = client.lookup("m2", "joint.goal", timeout=5)
             assert wait_until(lambda: goal.get(timeout=5) < -19, timeout=10)  # its yaw joint bends right, blended
             page.screenshot(path=str(ARTIFACTS / "drive_robot_right.png"))
-            page.mouse.click(200, 800)
+            page.mouse.click(*FOCUS_3D)
             page.keyboard.press("S")
             expect(page.get_by_text("Robot: stop", exact=False)).to_be_visible(timeout=30_000)
             assert wait_until(lambda: not client.lookup("m1", "gait.service", timeout=5).running, timeout=10)
@@ -113,5 +113,36 @@ def test_a_user_makes_a_state_event_driven_and_a_program_in_the_page(steerable_s
         gait = loads(text)
         assert list(gait.gaits) == ["left", "right", "wiggle"] and gait.sequence[:2] == [("forward", 2), ("wiggle", 3)]
         assert gait.automata["wave"].states[0].until == "at_goal" and gait.automata["wave"].states[0].tolerance == 3
+        browser.close()
+    assert not any("Traceback" in line for line in log), "".join(log[-40:])
+
+
+def test_a_laptop_screen_shows_the_common_controls_and_the_control_table_beside_the_3d_view(steerable_studio) -> None:
+    """On a 1366×768 screen every common task's controls are on screen without scrolling, and the gait control
+    table and the plots sit over the 3D view's lower left, not in the side panel."""
+    from playwright.sync_api import expect, sync_playwright
+
+    url, _, log = steerable_studio
+    with sync_playwright() as pw:
+        browser = pw.chromium.launch(executable_path=CHROMIUM, args=["--no-sandbox"])
+        page = browser.new_page(viewport={"width": 1366, "height": 768})
+        page.goto(url)
+        estop = page.get_by_role("button", name=re.compile(r"^E-STOP"))
+        expect(estop).to_be_in_viewport(timeout=30_000)
+        for tab, controls in (("Gait", ["Open from library", "Download .toml"]),
+                              ("Preview", ["Play", "Pause", "Reset"]),
+                              ("Deploy", ["Deploy", "Start all", "Stop all"]),
+                              ("Drive", ["▲ Forward", "◀ Left", "▶ Right", "▼ Reverse", "■ Stop"])):  # fmt: skip
+            page.get_by_role("tab", name=tab, exact=True).click()
+            for name in controls:
+                expect(page.get_by_role("button", name=name, exact=True)).to_be_in_viewport(timeout=10_000)
+            expect(estop).to_be_in_viewport()
+        page.get_by_role("tab", name="Control table").click()
+        table = page.locator("img[src^='blob:']").first  # the control table (a PNG the server sends)
+        expect(table).to_be_in_viewport(timeout=10_000)
+        side = page.get_by_role("button", name=re.compile(r"^E-STOP")).bounding_box()
+        box = table.bounding_box()
+        assert box is not None and side is not None and box["x"] + box["width"] < side["x"]  # beside, not in it
+        page.screenshot(path=str(ARTIFACTS / "laptop_1366x768.png"))
         browser.close()
     assert not any("Traceback" in line for line in log), "".join(log[-40:])

@@ -48,6 +48,9 @@ def _open(pw, url: str):
     return browser, page
 
 
+FOCUS_3D = (650, 200)
+"""A point of the 3D view clear of the side panel, the toast and the plots panel over its lower left: a click there
+gives the 3D view the focus (a click on a plot's legend would hide a series)."""
 LINE_COLOR = (0x1F, 0x77, 0xB4)
 """The first series' colour in the page's plots (web.monitor.PALETTE)."""
 
@@ -64,8 +67,9 @@ def _pixels(png: bytes, rgb: tuple[int, int, int], tolerance: int = 40) -> int:
 
 
 def _robot_point(png: bytes, right_edge: int = 950) -> tuple[int, int]:
-    """A pixel on the preview's robot (its modules are tan: red well above blue) left of the side panel: the one
-    nearest the middle of all such pixels, so a click there lands on a module, not in a gap of the wave."""
+    """A pixel well inside the preview's robot (its modules are tan: red well above blue) left of the side panel,
+    clear of the plots panel over the lower left (its orange line is not the robot): of the pixels whose 9×9
+    neighbourhood is all robot — not an edge, a gap of the wave or a module's label — the one nearest the middle."""
     import io
 
     import numpy as np
@@ -73,8 +77,15 @@ def _robot_point(png: bytes, right_edge: int = 950) -> tuple[int, int]:
 
     image = np.asarray(Image.open(io.BytesIO(png)).convert("RGB"), dtype=int)[:, :right_edge]
     r, g, b = image[..., 0], image[..., 1], image[..., 2]
-    ys, xs = np.nonzero((r - b > 70) & (r > g) & (g > b) & (r > 90))
-    ys, xs = ys[ys > 150], xs[ys > 150]  # below the page's notification toast
+    robot = (r - b > 70) & (r > g) & (g > b) & (r > 90)
+    robot[:150] = False  # the page's notification toasts
+    height = robot.shape[0]
+    robot[height - 12 - 360 :, :600] = False  # the plots panel
+    inner = robot.copy()
+    for dy in range(-4, 5):
+        for dx in range(-4, 5):
+            inner &= np.roll(np.roll(robot, dy, axis=0), dx, axis=1)
+    ys, xs = np.nonzero(inner if inner.any() else robot)
     if not len(xs):
         raise AssertionError("no robot in the screenshot")
     k = int(np.argmin((xs - xs.mean()) ** 2 + (ys - ys.mean()) ** 2))
@@ -180,6 +191,7 @@ def test_edit_preview_deploy_watch_and_estop(studio):
             page.screenshot(path=str(ARTIFACTS / "studio-preview.png"))
             # a click on the robot in the 3D view picks that module: the editor and the preview's plot follow it
             page.get_by_role("button", name="Pause").click()
+            time.sleep(1.0)  # the last frame drawn: the robot stands still where the click goes
             page.mouse.click(*_robot_point(page.screenshot()))
             picked = page.get_by_text(re.compile(r"Selected module \d+"))
             expect(picked).to_be_visible(timeout=15_000)
@@ -209,7 +221,7 @@ def test_edit_preview_deploy_watch_and_estop(studio):
             page.get_by_role("tab", name="Monitor").click()
             expect(page.get_by_text(re.compile(r"m8\s*live")).first).to_be_visible(timeout=15_000)
             expect(page.get_by_text("gait running", exact=False).first).to_be_visible(timeout=15_000)
-            plot = page.locator("canvas").last
+            plot = page.locator(".uplot", has_text="Live 1").locator("canvas").first  # the first live plot
             if not wait_until(lambda: _pixels(plot.screenshot(), LINE_COLOR) > 50, timeout=15):
                 page.screenshot(path=str(ARTIFACTS / "studio-monitor-no-line.png"))
                 raise AssertionError("no line drawn in the live plot:\n" + "".join(log[-30:]))
@@ -312,6 +324,20 @@ def test_upload_grid_history_robot_size_and_attribute_browser(studio, tmp_path):
             assert wait_until(lambda: client.lookup("m2", "joint.limits", timeout=2).peek() == (-45.0, 90.0), 15)
             expect(page.get_by_text("set to", exact=False).first).to_be_visible(timeout=15_000)
             page.screenshot(path=str(ARTIFACTS / "studio-browser.png"))
+            # several plots at once: m2's joint.torque into the second live plot, beside the first one's angles
+            page.get_by_label("Object").click()
+            page.get_by_role("option", name="joint.torque", exact=True).click()
+            page.get_by_label("Plot into").click()
+            page.get_by_role("option", name="Live plot 2", exact=True).click()
+            page.get_by_role("button", name="Plot", exact=True).click()
+            page.get_by_role("tab", name="Plots").click()
+            second = page.locator(".uplot", has_text="Live 2").locator("canvas").first
+            second.scroll_into_view_if_needed()
+            expect(page.locator(".uplot", has_text="Live 2")).to_contain_text("m2 joint.torque", timeout=15_000)
+            assert wait_until(lambda: _pixels(second.screenshot(), LINE_COLOR) > 50, timeout=15), "no torque line"
+            first = page.locator(".uplot", has_text="Live 1")
+            expect(first).to_contain_text("joint.angle", timeout=15_000)  # the first still plots the angles
+            page.screenshot(path=str(ARTIFACTS / "studio-two-plots.png"))
             # out of range is refused, never clamped: an int8 of 300 is not sent to the module
             direction = _type_and_set(page, "gait.direction", "gait.direction (int8)", "300")
             expect(page.get_by_text("not set: 300 is outside int8 range", exact=False)).to_be_visible(timeout=15_000)
@@ -389,7 +415,7 @@ def test_make_a_12_module_wave_preview_rename_download_and_deploy_it_in_a_minute
             page.get_by_role("button", name="Preview", exact=True).click()  # the preview plays while it is shown
             page.get_by_role("tab", name="Preview").click()
             metrics = page.get_by_text("distance", exact=False).first
-            page.mouse.click(200, 800)  # the 3D view has the focus, not a field
+            page.mouse.click(*FOCUS_3D)  # the 3D view has the focus, not a field
             page.keyboard.press("Space")
             time.sleep(0.5)
             paused = _number(metrics.inner_text(), r"t = ([\d.]+) s")
@@ -402,7 +428,7 @@ def test_make_a_12_module_wave_preview_rename_download_and_deploy_it_in_a_minute
             expect(metrics).not_to_contain_text(f"t = {paused:.2f} s", timeout=15_000)
             assert wait_until(lambda: _number(metrics.inner_text(), r"t = ([\d.]+) s") > paused + 0.5, timeout=15)
             page.get_by_role("tab", name="Gait").click()
-            page.mouse.click(200, 800)
+            page.mouse.click(*FOCUS_3D)
             page.keyboard.press("Control+z")  # undoes the rename
             expect(page.get_by_text("✓ valid (travelling_wave)")).to_be_visible(timeout=15_000)
             page.keyboard.press("Control+Shift+z")

@@ -30,11 +30,26 @@ from .editor import GaitEditor
 from .guard import AccessGuard, guarded_server
 from .inputs import ValueInput
 from .live import KinematicTwin, LiveFeed
-from .monitor import PLOT_SECONDS, WINDOWS, LivePlot, Roster, describe, empty_plot, format_value, seconds_axes, stroke
+from .monitor import (
+    PLOT_SECONDS,
+    WINDOWS,
+    LivePlot,
+    Roster,
+    SeriesPlot,
+    describe,
+    empty_plot,
+    format_value,
+    seconds_axes,
+)
 from .preview import PreviewLoop, SceneView
 
 log = logging.getLogger("asm_studio.web")
 TOAST_SECONDS = 6.0
+PANEL_WIDTH, PANEL_HEIGHT = 560, 330
+"""The table-and-plots panel, floating over the 3D view's lower left (it fits a 1366×768 screen beside the side
+panel)."""
+LIVE_PLOTS = {"Live plot 1": "Live 1: module attributes (from the robot)",
+              "Live plot 2": "Live 2: module attributes (from the robot)"}  # fmt: skip
 MIN_DRAW_INTERVAL = 1 / 100
 
 
@@ -73,7 +88,9 @@ class Dashboard:
         self.view.on_pick = self.pick_module
         self.twin: KinematicTwin | None = None
         self.roster = Roster(self.node)  # type: ignore[arg-type]
-        self.plot = LivePlot(self.node)  # type: ignore[arg-type]
+        self.plots = [LivePlot(self.node) for _ in LIVE_PLOTS]  # type: ignore[arg-type]
+        self.plot = self.plots[0]
+        """The first live plot (a deploy watches the modules' angles in it)."""
         self._stop = threading.Event()
         self._programmatic = threading.local()
         self._last_toast: tuple[tuple[str, str], float] | None = None
@@ -155,6 +172,7 @@ class Dashboard:
         self.source = gui.add_button_group("View", ["Preview", "Live"], hint=hint)
         self.source.on_click(self.safe(lambda e: self.show(e.target.value.lower())))
         self.source_md = gui.add_markdown("Showing: **Preview** (the edited gait, simulated here)")
+        self._build_panel()
         tabs = gui.add_tab_group()
         with tabs.add_tab("Gait"):
             self.editor = GaitEditor(self, initial=self.studio.gait.name)
@@ -168,6 +186,16 @@ class Dashboard:
             self._build_monitor()
         self._build_keys()
         self.editor.sync()
+
+    def _build_panel(self) -> None:
+        """A second panel over the 3D view's lower left: the gait control table and the plots, where there is room
+        (the side panel keeps the controls). It can be moved, docked or minimized like any viser panel."""
+        gui = self.server.gui
+        gui.main_panel.dock_right()
+        self.panel = gui.add_panel()
+        self.plots_tab = self.panel.add_tab("Plots")  # first: what the page shows at once
+        self.table_tab = self.expanded_tab = self.panel.add_tab("Control table")
+        self.panel.float(x=12, y=-12, width=PANEL_WIDTH, height=PANEL_HEIGHT)
 
     def _build_keys(self) -> None:
         """Keyboard shortcuts, as viser's command-palette hotkeys (a key typed into a field stays the field's)."""
@@ -208,11 +236,12 @@ class Dashboard:
         self.metrics = gui.add_markdown("")
         self.plot_module = gui.add_slider("Plot module", min=1, max=max(2, self.doc.gait().robot.modules), step=1,
                                           initial_value=1)  # fmt: skip
-        self.angles = gui.add_uplot(data=empty_plot(3),
-                                    series=({"label": "t"}, {"label": "commanded", "stroke": "orange"},
-                                            {"label": "measured", "stroke": "steelblue"}),
-                                    title="Preview: joint angle (deg)", aspect=2.0,
-                                    **seconds_axes("degrees"))  # fmt: skip
+        with self.plots_tab:
+            self.angles = gui.add_uplot(data=empty_plot(3),
+                                        series=({"label": "t"}, {"label": "commanded", "stroke": "orange"},
+                                                {"label": "measured", "stroke": "steelblue"}),
+                                        title="Preview: joint angle (deg)", aspect=3.0,
+                                        **seconds_axes("degrees"))  # fmt: skip
 
     def _build_deploy(self) -> None:
         gui = self.server.gui
@@ -239,14 +268,16 @@ class Dashboard:
             self.value_folder = gui.add_folder("Value")
             actions = gui.add_button_group("Browse", ["List", "Get", "Set", "Plot"])
             actions.on_click(self.safe(self._on_browse))
+        self.plot_into = gui.add_dropdown("Plot into", list(LIVE_PLOTS), hint="which live plot Plot adds to")
         self.window = gui.add_dropdown("Window (s)", [f"{w:g}" for w in WINDOWS], initial_value=f"{PLOT_SECONDS:g}")
-        self.window.on_update(self.safe(lambda e: setattr(self.plot, "window", float(e.target.value))))
-        self.freeze = gui.add_checkbox("Pause the live plot", initial_value=False,
-                                       hint="hold the plot still to read it; the samples keep arriving")  # fmt: skip
-        self.live = gui.add_uplot(data=empty_plot(2), series=({"label": "t"}, {"label": "-"}),
-                                  title="Live: module attributes (from the robot)", aspect=2.0,
-                                  **seconds_axes("value"))  # fmt: skip
-        self._live_labels: list[str] = ["-"]
+        self.window.on_update(self.safe(lambda e: [setattr(p, "window", float(e.target.value)) for p in self.plots]))
+        self.freeze = gui.add_checkbox("Pause the live plots", initial_value=False,
+                                       hint="hold the plots still to read them; the samples keep arriving")  # fmt: skip
+        clear = gui.add_button_group("Clear", list(LIVE_PLOTS))
+        clear.on_click(self.safe(lambda e: self.plots[list(LIVE_PLOTS).index(e.target.value)].unwatch_all()))
+        # several plots at once, one under the other
+        self.lives = [SeriesPlot(gui, self.plots_tab, title=title, y_label="value", aspect=3.0)
+                      for title in LIVE_PLOTS.values()]  # fmt: skip
 
     @contextlib.contextmanager
     def programmatic(self) -> Iterator[None]:
@@ -394,7 +425,8 @@ class Dashboard:
             wanted = {module_name(a.id) for a in gait.modules}
             removed = sorted(n for n in before if n.startswith("m") and n[1:].isdigit() and n not in wanted)
             self.roster.forget(removed)
-            self.plot.forget(removed)
+            for plot in self.plots:
+                plot.forget(removed)
             deadline = time.monotonic() + 30.0
             while not wanted <= set(self.node.discover()) and time.monotonic() < deadline:  # type: ignore[union-attr]
                 time.sleep(0.1)
@@ -440,7 +472,8 @@ class Dashboard:
                 raise
             self.browse_value.content = f"`{value.obj.name}` set to **{format_value(written)}**"
         else:
-            self.plot.watch(self.browse_module.value, value.obj.name)
+            self.plots[list(LIVE_PLOTS).index(self.plot_into.value)].watch(self.browse_module.value, value.obj.name)
+            self.panel.expand()
 
     def _list(self) -> None:
         """List the chosen node's objects and choose the first."""
@@ -521,14 +554,10 @@ class Dashboard:
             f"{' · ' + self.roster.gait(name) if self.roster.gait(name) else ''}"
             for name, alive, age in rows
         )  # fmt: skip
-        labels, data = self.plot.data()
-        if labels and not self.freeze.value:
-            with self.server.atomic():  # a new series list and its data reach the page together
-                if labels != self._live_labels:
-                    self.live.series = ({"label": "t"}, *({"label": label, "stroke": stroke(k)}
-                                                          for k, label in enumerate(labels)))  # fmt: skip
-                    self._live_labels = labels
-                self.live.data = data
+        for plot, live in zip(self.plots, self.lives, strict=True):
+            labels, data = plot.data()
+            if labels and not self.freeze.value:
+                live.show(labels, data)
 
     def _live_line(self) -> str:
         status = self.feed.status
@@ -545,7 +574,8 @@ class Dashboard:
         self._stop.set()
         for thread in self._threads:
             thread.join(timeout=5)
-        self.plot.close()
+        for plot in self.plots:
+            plot.close()
         self.roster.close()
         self.feed.close()
         self.loop.close()

@@ -87,14 +87,16 @@ class GaitEditor:
             self.friction = gui.add_number("Friction", initial_value=1.0, step=0.05, hint="in (0, 10]")
             self.robot_problem = gui.add_markdown("")
         self.table_html = gui.add_html("")
-        gui.add_markdown("**Gait control table**: modules 1… top to bottom, one period across; blue −, red + "
-                         "(full at the limits); black: where the preview is; framed: the selected module")  # fmt: skip
-        self.control = gui.add_image(control_table([], (-90.0, 90.0)), label=None, format="png")
+        with app.table_tab:  # beside the 3D view, in the page's own panel, not in the side panel
+            gui.add_markdown("Modules 1… top to bottom, one period across; blue −, red + (full at the limits); "
+                             "black: where the preview is; framed: the selected module")  # fmt: skip
+            self.control = gui.add_image(control_table([], (-90.0, 90.0)), label=None, format="png")
         self._table: tuple[list[list[float]], tuple[float, float]] = ([], (-90.0, 90.0))
         self._table_drawn: tuple[int, int | None, int | None] | None = None
-        self.expanded = gui.add_uplot(data=empty_plot(2), series=({"label": "t"}, {"label": "m1"}),
-                                      title="Expanded table: commanded angle per module", aspect=1.6,
-                                      **seconds_axes("degrees"))  # fmt: skip
+        with app.expanded_tab:
+            self.expanded = gui.add_uplot(data=empty_plot(2), series=({"label": "t"}, {"label": "m1"}),
+                                          title="Expanded table: commanded angle per module", aspect=2.2,
+                                          **seconds_axes("degrees"))  # fmt: skip
 
         def field(setter: Callable[[Any], None]) -> Callable[[Any], None]:
             def callback(event: Any) -> None:

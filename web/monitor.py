@@ -169,6 +169,38 @@ class LivePlot:
         self.unwatch_all()
 
 
+class SeriesPlot:
+    """A plot against seconds whose set of series can change (a live plot gains a series per watched attribute).
+
+    A new set of series makes a new uPlot in the same place, holding its data from the start: the page applies a
+    plot's ``series`` and ``data`` as two updates, and a plot that had five series with two arrays in between kept
+    a broken x scale (millions of seconds, no line) for as long as it lived."""
+
+    def __init__(self, gui: Any, container: Any, *, title: str, y_label: str, aspect: float) -> None:
+        self._gui = gui
+        self._container = container
+        self._options = {"title": title, "aspect": aspect, **seconds_axes(y_label)}
+        self.labels: list[str] = ["-"]
+        with container:
+            self.handle = gui.add_uplot(data=empty_plot(2), series=self._series(self.labels), **self._options)
+        self._order = self.handle.order
+
+    @staticmethod
+    def _series(labels: list[str]) -> tuple[dict[str, Any], ...]:
+        return ({"label": "t"}, *({"label": label, "stroke": stroke(k)} for k, label in enumerate(labels)))
+
+    def show(self, labels: list[str], data: tuple[np.ndarray, ...]) -> None:
+        if labels == self.labels:
+            self.handle.data = data
+            return
+        old = self.handle
+        with self._container:
+            self.handle = self._gui.add_uplot(data=data, series=self._series(labels), order=self._order,
+                                              **self._options)  # fmt: skip
+        old.remove()
+        self.labels = labels
+
+
 PALETTE = ("#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2", "#7f7f7f", "#bcbd22",
            "#17becf")  # fmt: skip
 
