@@ -271,6 +271,7 @@ WELL_KNOWN_CLASSES: dict[str, int] = {
     "gait.cycle": 0x2C,
     "gait.mode": 0x2D,
     "gait.done": 0x2E,
+    "gait.signal": 0x2F,
     "sensor.contact": 0x30,
 }
 LOCAL_CLASS_BASE = 0x80

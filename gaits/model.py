@@ -73,6 +73,10 @@ class State:
     """neighbour: the watched module's state, by name or 1-based number."""
     on_timeout: str | None = None
     """With an event and a duration: "next" (default) or "stop"."""
+    signal: int | None = None
+    """signal: the broadcast signal (1..255) that ends the state."""
+    emit: int | None = None
+    """A broadcast signal (1..255) sent to every module on entering the state."""
 
 
 @dataclass
@@ -228,7 +232,7 @@ def from_dict(data: Any, *, source: str = "<gait>", text: str | None = None) -> 
                 bad(f"automata.{name}.states[{k}].angle", f"{angle}° is outside the joint limits {low}..{high}°")
             states.append(State(angle, st.get("duration"), st.get("until"), st.get("interpolation", "linear"),
                                 st.get("name", ""), st.get("tolerance"), st.get("threshold"), st.get("neighbour"),
-                                st.get("state"), st.get("on_timeout")))  # fmt: skip
+                                st.get("state"), st.get("on_timeout"), st.get("signal"), st.get("emit")))  # fmt: skip
             _check_event(st, f"automata.{name}.states[{k}]", bad)
         automata[name] = Automaton(name, states, bool(auto.get("one_shot", False)))
     periods = {a.period for a in automata.values() if a.period is not None}
@@ -259,12 +263,15 @@ def from_dict(data: Any, *, source: str = "<gait>", text: str | None = None) -> 
 def _check_event(st: dict[str, Any], path: str, bad: Callable[[str, str], None]) -> None:
     """The fields of an event go with their event."""
     until = st.get("until")
-    uses = {"tolerance": "at_goal", "threshold": "torque", "neighbour": "neighbour", "state": "neighbour"}
+    uses = {"tolerance": "at_goal", "threshold": "torque", "neighbour": "neighbour", "state": "neighbour",
+            "signal": "signal"}  # fmt: skip
     for key, event in uses.items():
         if key in st and until != event:
             bad(f"{path}.{key}", f"only a state ending on {event!r} has a {key}")
     if until == "neighbour" and "state" not in st:
         bad(f"{path}.state", "a neighbour event needs the neighbour's state that ends it")
+    if until == "signal" and "signal" not in st:
+        bad(f"{path}.signal", "a signal event needs the number of the signal that ends it")
     if "on_timeout" in st and (until is None or "duration" not in st):
         bad(f"{path}.on_timeout", "only a state with both an event and a duration (its timeout) can time out")
 
@@ -334,7 +341,7 @@ def to_dict(gait: Gait) -> dict[str, Any]:
             out["duration"] = s.duration
         if s.until is not None:
             out["until"] = s.until
-        for key in ("tolerance", "threshold", "neighbour", "state", "on_timeout"):
+        for key in ("tolerance", "threshold", "neighbour", "state", "on_timeout", "signal", "emit"):
             if getattr(s, key) is not None:
                 out[key] = getattr(s, key)
         out["interpolation"] = s.interpolation

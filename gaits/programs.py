@@ -31,14 +31,16 @@ def _until(gait: Gait, gait_name: str, module_id: int, state: State) -> Until | 
         index = state_index(other, state.state)
         assert index is not None  # the loader checked it
         return Until("neighbour", neighbour=offset, state=index, on_timeout=outcome)
+    if state.until == "signal":
+        return Until("signal", state=state.signal or 0, on_timeout=outcome)
     return Until(state.until, on_timeout=outcome)  # type: ignore[arg-type]
 
 
 def _mode(gait: Gait, gait_name: str, module_id: int) -> Mode:
     assignment = gait.assignment(module_id, gait_name)
     automaton: Automaton = gait.automata[assignment.automaton]
-    states = tuple(ModeState(s.angle, s.duration, s.interpolation, _until(gait, gait_name, module_id, s))  # type: ignore[arg-type]
-                   for s in automaton.states)  # fmt: skip
+    states = tuple(ModeState(s.angle, s.duration, s.interpolation, _until(gait, gait_name, module_id, s),  # type: ignore[arg-type]
+                             s.emit or 0) for s in automaton.states)  # fmt: skip
     return Mode(states, assignment.phase, assignment.direction, automaton.one_shot)
 
 

@@ -208,3 +208,19 @@ def test_program_files_check_what_a_schema_cannot() -> None:
         with pytest.raises(GaitError) as caught:
             loads(inch.replace(old, new, 1))
         assert any(path in p.path and words in p.message for p in caught.value.problems), caught.value.lines()
+
+
+def test_a_signal_state_needs_its_signal_and_a_signal_goes_only_with_it() -> None:
+    from tests.test_program_sim import SIGNALLED
+
+    gait = loads(SIGNALLED)
+    assert gait.automata["lead"].states[1].emit == 7 and gait.automata["follow"].states[0].signal == 7
+    assert loads(dumps(gait)) == gait
+    for old, new, path, words in [
+        ('until = "signal", signal = 7', 'until = "signal"', ".signal", "needs the number"),
+        ('until = "signal", signal = 7', 'until = "contact", signal = 7', ".signal", "only a state ending on 'signal'"),
+        ("emit = 7", "emit = 300", ".emit", "300"),
+    ]:
+        with pytest.raises(GaitError) as caught:
+            loads(SIGNALLED.replace(old, new, 1))
+        assert any(path in p.path and words in p.message for p in caught.value.problems), caught.value.lines()

@@ -113,7 +113,8 @@ def test_version_2_round_trips_and_matches_its_golden_vector() -> None:
     program = Program(
         (Mode((ModeState(10.0, 0.5, "linear", Until("at_goal", 2.0, on_timeout="stop")),
                ModeState(-10.0, None, "step", Until("neighbour", neighbour=-1, state=3)))),
-         Mode(timed(20.0), phase=0.5, direction=-1, one_shot=True)),
+         Mode((ModeState(20.0, 0.5, "step", Until("signal", state=9), emit=7),), phase=0.5, direction=-1,
+              one_shot=True)),
         sequence=((0, 5), (1, 1)),
     )  # fmt: skip
     data = encode_program(program)
@@ -121,13 +122,13 @@ def test_version_2_round_trips_and_matches_its_golden_vector() -> None:
     assert data.hex(" ") == (
         "47 54 02 02 02 00 05 00 01 01 00 "
         "00 00 00 00 01 00 02 00 "
-        "00 00 20 41 00 00 00 3f 01 03 01 00 00 00 40 00 00 00 "
-        "00 00 20 c1 00 00 00 00 00 05 00 00 00 00 00 ff 03 00 "
+        "00 00 20 41 00 00 00 3f 01 03 01 00 00 00 40 00 00 00 00 "
+        "00 00 20 c1 00 00 00 00 00 05 00 00 00 00 00 ff 03 00 00 "
         "00 00 00 3f ff 01 01 00 "
-        "00 00 a0 41 00 00 00 3f 00 00 00 00 00 00 00 00 00 00"
+        "00 00 a0 41 00 00 00 3f 00 06 00 00 00 00 00 00 09 00 07"
     )
     vector = json.loads((Path(__file__).parent / "vectors" / "module_objects.json").read_text())["program"]
-    assert vector["hex"] == data.hex() and vector["checksum"] == checksum(data) == 0x7C8ED7A9
+    assert vector["hex"] == data.hex() and vector["checksum"] == checksum(data) == 0x89F64A44
 
 
 @pytest.mark.parametrize(
@@ -407,3 +408,30 @@ def test_a_switch_asked_for_during_a_one_shot_mode_happens_when_it_ends(bench) -
     module.gait.switch.set({"mode": 1, "direction": 1, "after": 0.0})
     b.run(1.0)
     assert module.gait.switched_at == pytest.approx(0.5) and module.gait.mode.peek() == 1 and module.gait.started
+
+
+def test_a_broadcast_signal_ends_waiting_states_on_every_module_the_tick_after(bench) -> None:
+    """A global event: module 1 emits signal 5 on entering its state 2 (at 0.5 s); the others wait for it, then go
+    at the next tick."""
+    b = bench(3)
+    lead = Program((Mode((ModeState(0.0, 0.5, "step"), ModeState(30.0, 0.5, "step", emit=5))),))  # float32-exact
+    wait = Program((Mode((ModeState(0.0, None, "step", Until("signal", state=5)), ModeState(45.0, 0.2, "step"))),))
+    b.load(lead, 0)
+    b.load(wait, 1, 2)
+    b.start()
+    went: list[float] = []
+    b.run(0.7, each=lambda t: went.append(t) if b.modules[2].gait.state.peek() == 1 and not went else None)
+    assert went == [pytest.approx(0.5 + TICK)]
+    assert b.modules[1].gait.state.peek() == 1
+    # a tool's group SET of gait.signal is the same event
+    follower = b.modules[1]
+    follower.gait.stop(timeout=5)
+    follower.table.set(encode_program(wait))
+    follower.gait.start()
+    b.run(0.1)
+    assert follower.gait.state.peek() == 0
+    follower.gait.signal.set(5)
+    b.run(0.04)
+    assert follower.gait.state.peek() == 1
+    with pytest.raises(ValueError):
+        follower.gait.signal.set(0)

@@ -74,3 +74,34 @@ def test_preview_equals_deployment_across_a_switch() -> None:
     _assert_within_one_tick(preview, deployed)
     yaw = [row[1] for row in preview[1]]
     assert yaw[0] == pytest.approx(0.0) and yaw[-1] == pytest.approx(20.0)  # the yaw joints bent to turn
+
+
+SIGNALLED = """
+name = "signalled"
+modules = [ { id = 1, automaton = "lead" }, { id = 2, automaton = "follow" }, { id = 3, automaton = "follow" },
+            { id = 4, automaton = "follow" }, { id = 5, automaton = "follow" }, { id = 6, automaton = "follow" } ]
+[robot]
+shape = "chain"
+modules = 6
+axes = "pitch"
+[automata.lead]
+states = [ { angle = 0.0, duration = 0.5, interpolation = "step" },
+           { name = "go", angle = 30.0, duration = 0.5, interpolation = "linear", emit = 7 } ]
+[automata.follow]
+states = [ { name = "wait", angle = 0.0, until = "signal", signal = 7, interpolation = "step" },
+           { angle = 40.0, duration = 0.3, interpolation = "linear" },
+           { angle = -20.0, duration = 0.3, interpolation = "linear" } ]
+"""
+
+
+def test_preview_equals_deployment_with_a_broadcast_signal() -> None:
+    """A group/broadcast event: module 1 emits signal 7 each cycle (a group SET on the bus); the others wait for it.
+    Over CAN they go at the same ticks as in the preview."""
+    from gaits.model import loads
+
+    gait = loads(SIGNALLED)
+    preview = _trace(gait, 3.0, bus=False)
+    deployed = _trace(gait, 3.0, bus=True)
+    _assert_within_one_tick(preview, deployed)
+    followers = [row[1] for row in preview[1]]
+    assert max(followers) > 35.0  # the signal arrived: the followers moved

@@ -20,7 +20,7 @@ from gaits.model import FORWARD, MAX_MODULES, Gait, GaitError, Problem, from_dic
 from gaits.roundtrip import save
 
 HISTORY = 200
-EVENT_FIELDS = ("tolerance", "threshold", "neighbour", "state", "on_timeout")
+EVENT_FIELDS = ("tolerance", "threshold", "neighbour", "state", "on_timeout", "signal")
 """The fields that go with a state's event (``until``)."""
 TYPING = 1.0
 """Seconds between two edits of one field that still count as typing one value (one undo step)."""
@@ -133,6 +133,19 @@ class GaitDocument:
                 state.update({k: v for k, v in fields.items() if v is not None})
 
         self._apply(edit, field=("event", automaton, index))
+
+    def set_emit(self, automaton: str, index: int, signal: int) -> None:
+        """The broadcast signal a state sends on entry (0: none); a value outside 1..255 is kept for the loader to
+        refuse at the field, not altered."""
+
+        def edit(data: dict[str, Any]) -> None:
+            state = data["automata"][automaton]["states"][index]
+            if signal:
+                state["emit"] = signal
+            else:
+                state.pop("emit", None)
+
+        self._apply(edit, field=("emit", automaton, index))
 
     def set_one_shot(self, automaton: str, one_shot: bool) -> None:
         """Make an automaton one-shot (it ends after its last state) or periodic."""

@@ -61,6 +61,10 @@ class EventControls:
                                         hint="neighbour: which module, relative to this one")  # fmt: skip
         self.state = gui.add_text("Neighbour state", initial_value="",
                                   hint="neighbour: the state it waits for, by name or 1-based number")  # fmt: skip
+        self.signal = gui.add_number("Signal", initial_value=1, step=1,
+                                     hint="signal: the broadcast (1..255) that ends the state")  # fmt: skip
+        self.emit = gui.add_number("Emits signal", initial_value=0, step=1,
+                                   hint="sent to every module on entering the state (1..255; 0: none)")  # fmt: skip
         self.on_timeout = gui.add_dropdown("On timeout", ["next", "stop"],
                                            hint="with an event and a duration: go on, or end the gait")  # fmt: skip
         self.one_shot = gui.add_checkbox("One-shot automaton", initial_value=False,
@@ -71,8 +75,16 @@ class EventControls:
                 self._write()
                 edited()
 
-        for control in (self.until, self.value, self.neighbour, self.state, self.on_timeout):
+        for control in (self.until, self.value, self.neighbour, self.state, self.signal, self.on_timeout):
             control.on_update(safe(changed))
+
+        def emit(event: Any) -> None:
+            if not syncing():
+                automaton, index = self._selected()
+                self.doc.set_emit(automaton, index, int(event.target.value))
+                edited()
+
+        self.emit.on_update(safe(emit))
 
         def one_shot(event: Any) -> None:
             if not syncing():
@@ -89,6 +101,8 @@ class EventControls:
             fields["tolerance"] = float(self.value.value)
         elif until == "torque":
             fields["threshold"] = float(self.value.value)
+        elif until == "signal":
+            fields["signal"] = int(self.signal.value)
         elif until == "neighbour":
             text = self.state.value.strip()
             fields["neighbour"] = int(self.neighbour.value)
@@ -111,6 +125,11 @@ class EventControls:
         self.neighbour.value = int(neighbour) if isinstance(neighbour, int) else -1
         self.state.value = str(state.get("state", ""))
         self.neighbour.disabled = self.state.disabled = until != "neighbour"
+        signal = state.get("signal", 1)
+        self.signal.value = int(signal) if isinstance(signal, int) else 1
+        self.signal.disabled = until != "signal"
+        emit = state.get("emit", 0)
+        self.emit.value = int(emit) if isinstance(emit, int) else 0
         self.on_timeout.value = (
             state.get("on_timeout", "next") if state.get("on_timeout") in ("next", "stop") else "next"
         )

@@ -46,6 +46,9 @@ class ModuleGait(PhaseAutomaton):
         self.cycle = Attribute("gait.cycle", 0, codec=UINT32, clock=clock)
         self.mode = Attribute("gait.mode", 0, codec=UINT8, clock=clock)
         self.done = Event("gait.done", codec=UINT8, clock=clock)
+        self.signal = CheckedAttribute("gait.signal", 0, codec=UINT8, check=self._heard_signal, clock=clock)
+        """The last broadcast signal heard (a group SET from a module's emitting state, or from a tool)."""
+        self._signals: dict[int, float] = {}  # signal → clock time it was last heard
         self.tau = 0.0
         self.ticks = 0
         """Control ticks handled since the start."""
@@ -88,6 +91,13 @@ class ModuleGait(PhaseAutomaton):
         with self._lock:
             self._switch_request = (mode, direction, after)
         return {"mode": mode, "direction": direction, "after": after}
+
+    def _heard_signal(self, number: int) -> int:
+        if not 1 <= int(number) <= 255:
+            raise ValueError(f"a signal is numbered 1..255, not {number}")
+        with self._lock:
+            self._signals[int(number)] = self.clock.now()
+        return int(number)
 
     def neighbour_state(self, offset: int, state: int) -> None:
         """A neighbour ``offset`` IDs away is now in ``state`` (from the bus, or a simulator's hub)."""
@@ -150,6 +160,9 @@ class ModuleGait(PhaseAutomaton):
         self._saw_free = not touching  # contact made / lost are edges within the state
         self._saw_touch = touching
         self.state.set(index)
+        emit = self._current.states[index].emit
+        if emit:
+            self._runtime.emit_signal(emit)
 
     # -- each tick ----------------------------------------------------------------------------------------------
 
@@ -215,6 +228,10 @@ class ModuleGait(PhaseAutomaton):
             return abs(float(runtime.angle.peek()) - state.target) <= until.value
         if until.event == "torque":
             return abs(float(runtime.torque.peek())) >= until.value
+        if until.event == "signal":  # heard since the state began, before this tick
+            with self._lock:
+                when = self._signals.get(until.state)
+            return when is not None and self._entered - _EPS <= when < self.clock.now() - _EPS
         with self._lock:
             heard = self._neighbour_states.get(until.neighbour)
         return heard is not None and heard[0] == until.state and heard[1] < self.clock.now() - _EPS

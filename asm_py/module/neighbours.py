@@ -1,4 +1,5 @@
-"""How a module hears which state its neighbours are in: the neighbour events of program.py.
+"""How a module hears which state its neighbours are in, and the signals broadcast to all: the global events of
+program.py.
 
 A module on a bus hears its neighbours' ``gait.state`` publications (they are published on every change anyway,
 so coordination costs the bus nothing more); modules in one process without a bus — a preview — share a
@@ -13,6 +14,7 @@ import threading
 from collections.abc import Callable
 from typing import Protocol
 
+from ..codec import UINT8
 from ..node import Node
 from ..protocol import HEADER_SIZE, Kind, Method, first_byte
 
@@ -23,6 +25,10 @@ _STATE = struct.Struct("<H")
 class Neighbours(Protocol):
     def watch(self, module_id: int, callback: StateCallback) -> Callable[[], None]:
         """Call ``callback(state)`` whenever module ``module_id`` enters a state; returns a remover."""
+        ...
+
+    def broadcast(self, signal: int) -> None:
+        """Send broadcast signal ``signal`` to every module."""
         ...
 
 
@@ -47,6 +53,14 @@ class LocalNeighbours:
         for callback in self._watchers.get(module_id, ()):
             callback(state)
 
+    def listen(self, callback: StateCallback) -> Callable[[], None]:
+        """Call ``callback(signal)`` for every broadcast signal (every module of the process listens)."""
+        return self.watch(0, callback)
+
+    def broadcast(self, signal: int) -> None:
+        """A module emits ``signal``: every module hears it, the emitter too (as a group message reaches all)."""
+        self.announce(0, signal)
+
 
 class BusNeighbours:
     """A module's neighbours heard through its node: the ``gait.state`` publications of module IDs.
@@ -69,3 +83,7 @@ class BusNeighbours:
 
         name = f"can.{module_id}" if hasattr(node.transport, "node_id") else f"m{module_id}"
         return node.transport.subscribe(name, "gait.state", on_publication, object_id=object_id)
+
+    def broadcast(self, signal: int) -> None:
+        """One group SET of ``gait.signal`` to every node (a classic CAN frame: 42 00 2f 00 + the signal)."""
+        self._node.group().attribute("gait.signal", UINT8).set(signal)

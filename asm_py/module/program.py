@@ -33,11 +33,12 @@ from typing import Literal
 
 from ..automaton import PhaseState
 
-EventName = Literal["contact", "no_contact", "at_goal", "torque", "neighbour"]
-EVENTS: tuple[EventName, ...] = ("contact", "no_contact", "at_goal", "torque", "neighbour")
+EventName = Literal["contact", "no_contact", "at_goal", "torque", "neighbour", "signal"]
+EVENTS: tuple[EventName, ...] = ("contact", "no_contact", "at_goal", "torque", "neighbour", "signal")
 """contact: the contact sensor goes from free to touching during the state; no_contact: from touching to free;
 at_goal: |joint.angle - target| <= value degrees; torque: |joint.torque| >= value N·m; neighbour: module
-(own ID + neighbour) is in state ``state``."""
+(own ID + neighbour) is in state ``state``; signal: broadcast signal number ``state`` (1..255) arrives during the
+state — sent by a module entering a state that emits it, or by any tool (a group SET of ``gait.signal``)."""
 OUTCOMES = ("next", "stop")
 SWITCH_BLEND = 0.5
 """Seconds over which the reference's jump at a switch is blended out."""
@@ -70,6 +71,8 @@ class Until:
             raise ValueError(f"a neighbour is another module, -128..127 IDs away, not {self.neighbour}")
         if not 0 <= self.state <= 0xFFFF:
             raise ValueError(f"a neighbour's state is 0..65535, not {self.state}")
+        if self.event == "signal" and not 1 <= self.state <= 255:
+            raise ValueError(f"a signal is numbered 1..255, not {self.state}")
 
 
 @dataclass(frozen=True)
@@ -81,8 +84,12 @@ class ModeState:
     """Seconds (time-driven), or the timeout of an event; None only with an event: no timeout."""
     interpolation: Literal["step", "linear"] = "step"
     until: Until | None = None
+    emit: int = 0
+    """Broadcast signal 1..255 on entering the state (0: none): a global event other modules' states can end on."""
 
     def __post_init__(self) -> None:
+        if not 0 <= self.emit <= 255:
+            raise ValueError(f"a state emits signal 1..255 (0: none), not {self.emit}")
         if self.duration is None:
             if self.until is None:
                 raise ValueError("a state needs a duration, an event, or both")
@@ -145,8 +152,8 @@ class Program:
 
     @property
     def simple(self) -> bool:
-        """One periodic time-driven mode and no sequence: what a version-1 gait table holds."""
-        return len(self.modes) == 1 and not self.sequence and self.modes[0].timed
+        """One periodic time-driven mode, no sequence, no signal emitted: what a version-1 gait table holds."""
+        return len(self.modes) == 1 and not self.sequence and self.modes[0].timed and not self.emits()
 
     @property
     def first(self) -> int:
@@ -155,6 +162,9 @@ class Program:
 
     def targets(self) -> list[float]:
         return [s.target for m in self.modes for s in m.states]
+
+    def emits(self) -> bool:
+        return any(s.emit for m in self.modes for s in m.states)
 
     def neighbours(self) -> set[int]:
         """Relative IDs of the modules whose states this program waits on."""

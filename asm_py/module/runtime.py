@@ -33,6 +33,7 @@ full amplitude can throw a long chain about (SIMULATION.md). The ramp is part of
 
 from __future__ import annotations
 
+import logging
 import math
 import threading
 from abc import ABC, abstractmethod
@@ -55,6 +56,7 @@ from .program import Program, program_of
 from .staging import Staging
 from .wire import checksum, decode_program, encode_table
 
+log = logging.getLogger("asm_py.module")
 HOLD = [PhaseState(0.0, 1.0, "step")]
 """The table of a module that has not been given a gait: hold 0°."""
 
@@ -199,6 +201,7 @@ class ModuleRuntime:
                           self.goal.on_change(self._command)]  # fmt: skip
         if isinstance(neighbours, LocalNeighbours):
             self._unlisten.append(self.gait.state.on_change(lambda state: neighbours.announce(module_id, state)))
+            self._unlisten.append(neighbours.listen(self.gait.signal.set))
         if node is not None:
             self._register(node, refresh_rate, publish_limit)
         self.servo.start()
@@ -230,7 +233,7 @@ class ModuleRuntime:
                  staging.activate, staging.lease)  # fmt: skip
         node.register(self.gait.direction, name="gait.direction")
         node.register(self.gait.state, name="gait.state", read_only=True)
-        register(gait.switch, gait.cycle, gait.mode, gait.done)  # after the objects of version 1: their IDs stay
+        register(gait.switch, gait.cycle, gait.mode, gait.done, gait.signal)  # after version 1's objects: IDs stay
         # changes beyond the deadband, at most ``publish_limit`` a second (a moving joint changes at every control
         # tick: 32 modules at 50 Hz would be 1 600 frames a second), and a refresh ``refresh_rate`` times a second
         # when nothing moves: a resting robot keeps the bus quiet
@@ -293,13 +296,25 @@ class ModuleRuntime:
 
     def _load_table(self, data: bytes) -> bytes:
         program = self.check_table(data)
-        if program.neighbours() and self.neighbours is None:
-            raise ValueError("this module has no bus to hear its neighbours on: it cannot run neighbour events")
+        if (program.neighbours() or program.emits()) and self.neighbours is None:
+            raise ValueError("this module has no bus to its neighbours: it cannot run neighbour events or signals")
         self.gait.load(program)  # ServiceError while the gait runs: a table never changes mid-cycle
         self._watch(program)
         self.checksum.set(checksum(data))
         Attribute.set(self.staging.activate, 0)  # the gait is no longer a deployment's (the base set: no activation)
         return data
+
+    def emit_signal(self, signal: int) -> None:
+        """Broadcast ``signal`` to every module (a state that emits it was entered); this module hears it too."""
+        if isinstance(self.neighbours, LocalNeighbours):
+            self.neighbours.broadcast(signal)  # every module of the hub, this one included
+            return
+        self.gait.signal.set(signal)  # a group message does not come back to its sender
+        if self.neighbours is not None:
+            try:
+                self.neighbours.broadcast(signal)
+            except Exception:  # a tick must go on whatever the bus does: the signal is lost, as a frame can be
+                log.exception("module %d could not broadcast signal %d", self.module_id, signal)
 
     def _watch(self, program: Program) -> None:
         for remove in self._watching:

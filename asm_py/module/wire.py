@@ -18,10 +18,11 @@ its bytes and checksum do not change:
     offset 4   1 byte   uint8 sequence length Q (0..32)
     then Q × 3 bytes:   uint8 mode, uint16 cycles
     then per mode:      float32 phase, int8 direction, uint8 flags (bit 0: one-shot), uint16 number of states N,
-                        then N × 18 bytes: float32 angle, float32 duration (0: none, only with an event), uint8
+                        then N × 19 bytes: float32 angle, float32 duration (0: none, only with an event), uint8
                         interpolation, uint8 event (0 none, 1 contact, 2 no_contact, 3 at_goal, 4 torque,
-                        5 neighbour), uint8 on timeout (0 next, 1 stop), float32 tolerance or threshold,
-                        int8 neighbour (relative ID), uint16 neighbour state
+                        5 neighbour, 6 signal), uint8 on timeout (0 next, 1 stop), float32 tolerance or
+                        threshold, int8 neighbour (relative ID), uint16 neighbour state or signal number,
+                        uint8 signal emitted on entering the state (0: none)
     at most 1024 states over all modes
 
 ``checksum`` is CRC-32 (IEEE 802.3, zlib's) of those bytes: a deploying tool reads ``gait.checksum`` back from each
@@ -54,7 +55,7 @@ VERSION_PROGRAM = 2
 _PROGRAM = struct.Struct("<2sBBB")
 _STEP = struct.Struct("<BH")
 _MODE = struct.Struct("<fbBH")
-_STATE2 = struct.Struct("<ffBBBfbH")
+_STATE2 = struct.Struct("<ffBBBfbHB")
 _INTERPOLATION = {"step": 0, "linear": 1}
 _BY_CODE = {code: name for name, code in _INTERPOLATION.items()}
 STAGED_MAGIC = b"GS"
@@ -116,7 +117,7 @@ def encode_program(program: Program) -> bytes:
             event = 0 if st.until is None else EVENTS.index(until.event) + 1
             out += _STATE2.pack(st.target, st.duration or 0.0, _INTERPOLATION[st.interpolation], event,
                                 OUTCOMES.index(until.on_timeout), until.value, until.neighbour if event == 5 else 0,
-                                until.state)  # fmt: skip
+                                until.state if event in (5, 6) else 0, st.emit)  # fmt: skip
     return bytes(out)
 
 
@@ -153,19 +154,19 @@ def decode_program(data: bytes) -> Program:
         need(n * _STATE2.size, f"the states of mode {m}")
         states = []
         for k in range(n):
-            angle, duration, interp, event, timeout, value, neighbour, state = _STATE2.unpack_from(data, offset)
+            angle, duration, interp, event, timeout, value, neighbour, state, emit = _STATE2.unpack_from(data, offset)
             offset += _STATE2.size
             if interp not in _BY_CODE or event > len(EVENTS) or timeout >= len(OUTCOMES):
                 raise ValueError(f"mode {m} state {k}: codes interpolation {interp}, event {event}, timeout {timeout}")
             unused = (timeout if event == 0 else 0, value if event not in (3, 4) else 0,
-                      neighbour if event != 5 else 0, state if event != 5 else 0)  # fmt: skip
+                      neighbour if event != 5 else 0, state if event not in (5, 6) else 0)  # fmt: skip
             if any(unused):
                 raise ValueError(f"mode {m} state {k}: a field its event does not use is not 0 (one table, one form)")
             try:
                 kind = EVENTS[event - 1] if event else None
-                watch = (neighbour, state) if kind == "neighbour" else (-1, 0)
+                watch = (neighbour, state) if kind == "neighbour" else (-1, state) if kind == "signal" else (-1, 0)
                 until = None if kind is None else Until(kind, value, *watch, OUTCOMES[timeout])  # type: ignore[arg-type]
-                states.append(ModeState(angle, duration if duration != 0 else None, _BY_CODE[interp], until))  # type: ignore[arg-type]
+                states.append(ModeState(angle, duration if duration != 0 else None, _BY_CODE[interp], until, emit))  # type: ignore[arg-type]
             except ValueError as exc:
                 raise ValueError(f"mode {m} state {k}: {exc}") from None
         try:
