@@ -195,9 +195,7 @@ def test_program_files_check_what_a_schema_cannot() -> None:
         '\n[program]\nsequence = [{ gait = "sideways", cycles = 2 }]\n': ("program.sequence[0].gait", "unknown gait"),
     }  # fmt: skip
     for extra, (path, words) in cases.items():
-        with pytest.raises(GaitError) as caught:
-            loads(base + extra)
-        assert any(p.path == path and words in p.message for p in caught.value.problems), caught.value.lines()
+        _refused(base + extra, path, words)
     inch = (LIBRARY_DIR / "contact_inchworm.toml").read_text(encoding="utf-8")
     for old, new, path, words in [
         ('until = "contact"', 'until = "contact", tolerance = 2.0', ".tolerance", "only a state ending on 'at_goal'"),
@@ -205,9 +203,14 @@ def test_program_files_check_what_a_schema_cannot() -> None:
         ('state = "h2"', 'state = "h99"', ".state", "has no state 'h99'"),
         ('until = "contact"', 'until = "contact", on_timeout = "bogus"', "on_timeout", '"next", "stop"'),
     ]:
-        with pytest.raises(GaitError) as caught:
-            loads(inch.replace(old, new, 1))
-        assert any(path in p.path and words in p.message for p in caught.value.problems), caught.value.lines()
+        _refused(inch.replace(old, new, 1), path, words)
+
+
+def _refused(text: str, path: str, words: str) -> None:
+    """The loader refuses ``text`` with a problem at a path ending in (or equal to) ``path`` that says ``words``."""
+    with pytest.raises(GaitError) as caught:
+        loads(text)
+    assert any(path in p.path and words in p.message for p in caught.value.problems), caught.value.lines()
 
 
 def test_a_signal_state_needs_its_signal_and_a_signal_goes_only_with_it() -> None:
@@ -221,6 +224,4 @@ def test_a_signal_state_needs_its_signal_and_a_signal_goes_only_with_it() -> Non
         ('until = "signal", signal = 7', 'until = "contact", signal = 7', ".signal", "only a state ending on 'signal'"),
         ("emit = 7", "emit = 300", ".emit", "300"),
     ]:
-        with pytest.raises(GaitError) as caught:
-            loads(SIGNALLED.replace(old, new, 1))
-        assert any(path in p.path and words in p.message for p in caught.value.problems), caught.value.lines()
+        _refused(SIGNALLED.replace(old, new, 1), path, words)
