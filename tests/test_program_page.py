@@ -100,3 +100,21 @@ def test_a_sequence_is_parsed_or_refused_with_a_reason(text) -> None:
         return
     with pytest.raises(ValueError):
         parse_sequence(text)
+
+
+def test_the_drive_tab_sends_a_broadcast_signal_to_the_preview(studio) -> None:
+    from gaits.model import loads
+    from tests.test_program_sim import SIGNALLED
+
+    app = studio.app
+    app.editor.open(loads(SIGNALLED.replace("emit = 7", "emit = 8")))
+    assert wait_until(lambda: app.loop.sim.gait.name == "signalled", timeout=30)
+    sim = app.loop.sim
+    assert wait_until(lambda: sim.data.time > 1.2, timeout=30)
+    assert all(sim.modules[k].gait.state.peek() == 0 for k in range(2, 7))  # module 1 emits 8: nobody waits on it
+    app.drive.signal.value = 7
+    app.safe(lambda _: app.drive.send_signal(int(app.drive.signal.value)))(None)
+    assert wait_until(lambda: all(sim.modules[k].gait.state.peek() != 0 for k in range(2, 7)), timeout=30)
+    assert "signal **7**" in app.drive.state.content
+    app.safe(lambda _: app.drive.send_signal(300))(None)
+    assert "1..255" in app.status.content

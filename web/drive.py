@@ -11,6 +11,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
+from asm_py.codec import UINT8
 from gaits.deploy import module_name
 from gaits.drive import STOP, drive
 from gaits.model import FORWARD, Gait
@@ -44,6 +45,9 @@ class DrivePanel:
         self.gaits = gui.add_dropdown("Program gait", [FORWARD])
         go = gui.add_button_group("Run gait", ["Run forwards", "Run backwards"])
         go.on_click(app.safe(lambda e: self.run(self.gaits.value, -1 if "back" in e.target.value else 1)))
+        self.signal = gui.add_number("Signal", initial_value=1, step=1,
+                                     hint="broadcast 1..255, for states that wait on it (until = signal)")  # fmt: skip
+        gui.add_button("Send signal").on_click(app.safe(lambda _: self.send_signal(int(self.signal.value))))
         self.state = gui.add_markdown("")
         self.deployed: Gait | None = None
         """The gait last deployed to the robot (the one its modules' programs come from)."""
@@ -61,6 +65,18 @@ class DrivePanel:
     def command(self, label: str) -> None:
         gait, direction = COMMANDS[label]
         self.run(gait, direction)
+
+    def send_signal(self, number: int) -> None:
+        """Broadcast a signal to what the View shows: the preview's modules, or every module on the robot (one group
+        SET of gait.signal, as a module's emitting state sends it)."""
+        if not 1 <= number <= 255:
+            raise ValueError(f"a signal is numbered 1..255, not {number}")
+        if self.app.view.source == "live":
+            self.app.node.group().attribute("gait.signal", UINT8).set(number)
+            self.state.content = f"Robot: signal **{number}** sent to every module"
+        else:
+            self.app.loop.request("signal", number)
+            self.state.content = f"Preview: signal **{number}** sent to every module"
 
     def run(self, name: str, direction: int = 1) -> None:
         app = self.app

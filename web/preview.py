@@ -76,7 +76,7 @@ class PreviewLoop:
 
     def request(self, kind: str, value: Any = None) -> None:
         """Queue ``load`` (a Gait), ``play`` (bool), ``speed``, ``seek`` (frame index), ``step`` (±1), ``reset``,
-        ``drive`` ((program gait or "stop", direction))."""
+        ``drive`` ((program gait or "stop", direction)), ``signal`` (a broadcast signal number)."""
         self._requests.put((kind, value))
 
     def wait_changed(self, timeout: float) -> bool:
@@ -200,6 +200,10 @@ class PreviewLoop:
                     self.sim.drive(name, direction)
             self.playing = True
             self.cursor = None
+        elif kind == "signal":  # the Drive panel's broadcast signal, as every module on a bus would hear it
+            with self._lock:
+                for runtime in self.sim.modules.values():
+                    runtime.gait.signal.set(int(value))
         elif kind == "play":
             self.playing = bool(value)
             if self.playing:
