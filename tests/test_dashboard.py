@@ -96,16 +96,16 @@ def test_deploying_another_robot_resizes_the_simulated_modules(studio):
     app.editor.modules.value = 12  # the Robot folder's module count, as typed in the page
     assert app.doc.gait().robot.modules == 12
     gait = app.doc.gait()
-    app._start_deployed(gait, app._stage(gait))  # Deploy, then Start in the dialog that follows
+    app.deployer.start(gait, app.deployer.stage(gait))  # Deploy, then Start in the dialog that follows
     assert studio.read_status().modules == 12
     assert wait_until(lambda: all(app.node.lookup(f"m{i}", "gait.service", timeout=2).running for i in (1, 12)), 20)
     app.editor.modules.value = 6
     gait = app.doc.gait()
-    report = app._stage(gait)
+    report = app.deployer.stage(gait)
     assert not any(app.node.lookup(f"m{i}", "gait.service", timeout=2).running for i in range(1, 7))  # nothing moves
-    app._start_deployed(gait, report)
+    app.deployer.start(gait, report)
     assert studio.read_status().modules == 6
-    assert "simulated robot rebuilt: 12 → 6 modules" in app.deploy_log.content
+    assert "simulated robot rebuilt: 12 → 6 modules" in app.deployer.log_html.content
     assert wait_until(lambda: [n for n, _, _ in app.roster.rows()] == [f"m{i}" for i in range(1, 7)], 20)
 
 

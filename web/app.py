@@ -1,9 +1,9 @@
 """The dashboard: one viser page to edit a gait, preview it in MuJoCo, deploy it to modules and watch them.
 
-Layout: an always-visible E-STOP button and status line, then tabs — Gait (library/upload, automaton state editor,
-module phases and directions, robot, undo/redo, download, the table view and the expanded table plot), Preview
-(play/pause, speed, timeline, step, reset, metrics, commanded vs measured angle), Deploy (progress, verify, start,
-stop), Monitor (roster, attribute browser, live plot).
+Layout: the side panel (docked right) has an always-visible E-STOP button and status line, then tabs — Gait
+(web/editor.py), Preview (play/pause, speed, timeline, step, reset, metrics), Deploy (web/deploy_panel.py), Drive
+(web/drive.py), Monitor (roster, attribute browser, which live plot to add to). A second panel over the 3D view's
+lower left shows the plots (the preview's angles and two live plots at once) and the gait control table.
 
 Every callback either takes the document's lock or queues a request to the preview loop, and is wrapped so that an
 exception becomes a notification in the page, never a dead server.
@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import contextlib
 import functools
-import html
 import logging
 import threading
 import time
@@ -21,9 +20,10 @@ from collections.abc import Callable, Iterator
 from typing import Any, Protocol
 
 from asm_py.node import Node
-from gaits.deploy import activate, deploy, module_name, release_all, start_all, stop_all
+from gaits.deploy import release_all
 from gaits.model import Gait
 
+from .deploy_panel import DeployPanel
 from .document import GaitDocument
 from .drive import DrivePanel
 from .editor import GaitEditor
@@ -179,7 +179,7 @@ class Dashboard:
         with tabs.add_tab("Preview"):
             self._build_preview()
         with tabs.add_tab("Deploy"):
-            self._build_deploy()
+            self.deployer = DeployPanel(self)
         with tabs.add_tab("Drive"):
             self.drive = DrivePanel(self)
         with tabs.add_tab("Monitor"):
@@ -242,20 +242,6 @@ class Dashboard:
                                                 {"label": "measured", "stroke": "steelblue"}),
                                         title="Preview: joint angle (deg)", aspect=3.0,
                                         **seconds_axes("degrees"))  # fmt: skip
-
-    def _build_deploy(self) -> None:
-        gui = self.server.gui
-        target = "the simulated modules" if self.studio.simulated else "the modules on the REAL CAN bus"
-        gui.add_markdown(f"Deploy the edited gait to {target}: validate, stage it beside the running gait and "
-                         "verify each checksum (nothing moves yet); then, when you say Start, switch every module "
-                         "with one broadcast and confirm each — all or nothing.")  # fmt: skip
-        self.deploy_button = gui.add_button("Deploy")
-        self.deploy_button.on_click(self.safe(self._on_deploy))
-        self.progress = gui.add_progress_bar(0.0)
-        self.deploy_log = gui.add_html("")
-        self._deploy_lines: list[str] = []
-        self.run_buttons = gui.add_button_group("Modules", ["Start all", "Stop all"])
-        self.run_buttons.on_click(self.safe(self._on_run))
 
     def _build_monitor(self) -> None:
         gui = self.server.gui
@@ -344,11 +330,11 @@ class Dashboard:
         self.node.estop("studio E-STOP")  # type: ignore[union-attr]
         self.notify("E-STOP", "sent to every module: gaits stopped, joints holding", error=True)
 
-    def _modules(self) -> list[str]:
+    def modules(self) -> list[str]:
         """The module nodes the roster sees alive (m1, m2, …)."""
         return [n for n in self.roster.alive() if n.startswith("m") and n[1:].isdigit()]
 
-    def _confirm(self, event: Any, title: str, lines: list[str], yes: str, color: str, action: Any) -> None:
+    def confirm(self, event: Any, title: str, lines: list[str], yes: str, color: str, action: Any) -> None:
         """Ask the user who clicked first: a dialog with ``lines``, a ``yes`` button running ``action``, and Cancel."""
         gui = event.client.gui
         with gui.add_modal(title) as modal:
@@ -365,94 +351,15 @@ class Dashboard:
             cancel.on_click(lambda _: modal.close())
 
     def _on_release(self, event: Any) -> None:
-        modules = self._modules()
+        modules = self.modules()
         lines = [f"Every module ({len(modules)}) may move again: joints stay where they hold and nothing starts until "
                  "you start or deploy a gait."]  # fmt: skip
-        self._confirm(event, "Release the emergency stop?", lines, "Yes, release", "green",
+        self.confirm(event, "Release the emergency stop?", lines, "Yes, release", "green",
                       lambda: self._release(modules))  # fmt: skip
 
     def _release(self, modules: list[str]) -> None:
         released = release_all(self.node, modules)  # type: ignore[arg-type]
         self.notify("E-STOP released", f"released on {len(released)} of {len(modules)} modules")
-
-    def _on_deploy(self, event: Any) -> None:
-        gait = self.doc.gait()  # GaitError (shown) if the edited gait is invalid
-        if not self.studio.simulated:
-            self._confirm_real(event, gait)
-            return
-        self._deploy(event, gait)
-
-    def _confirm_real(self, event: Any, gait: Any) -> None:
-        wanted = {module_name(a.id) for a in gait.modules}
-        others = [n for n in self._modules() if n not in wanted]
-        lines = [f"{gait.name} will be written to {gait.robot.modules} modules on the bus."]
-        if others:
-            lines.append(f"⚠ {', '.join(others)} on the bus are not in this gait: they keep running what they run "
-                         "(the activation reaches only the modules that staged this gait).")  # fmt: skip
-        self._confirm(event, "Deploy to the real robot?", lines, "Yes, deploy", "red",
-                      lambda: self._deploy(event, gait))  # fmt: skip
-
-    def _log(self, line: str) -> None:
-        """One more line in the deploy log, which keeps every line and scrolls (newest at the bottom)."""
-        self._deploy_lines.append(html.escape(line))
-        del self._deploy_lines[:-500]
-        self.deploy_log.content = ('<div style="max-height:12em;overflow-y:auto;font-size:0.85em;'
-                                   'display:flex;flex-direction:column-reverse"><div>'
-                                   + "<br>".join(self._deploy_lines) + "</div></div>")  # fmt: skip
-
-    def _deploy(self, event: Any, gait: Any) -> None:
-        """Stage and verify (nothing moves), then ask the user who clicked before starting."""
-        report = self._stage(gait)
-        lines = [
-            f"{_staged(gait, report)}.",
-            "Start it now? Every module switches to it at once, from where it stands.",
-        ]
-        self._confirm(event, f"Start {gait.name}?", lines, "Start", "green", lambda: self._start_deployed(gait, report))
-
-    def _stage(self, gait: Any) -> Any:
-        """Deploy steps 1-3 (lease, stage, verify); the DeployReport to start from."""
-
-        def progress(done: int, total: int, message: str) -> None:
-            self.progress.value = 100.0 * done / total
-            self._log(message)
-
-        self.progress.value = 0.0
-        self._log(f"— deploy {gait.name} at {time.strftime('%H:%M:%S')} —")
-        before = set(self.roster.alive())
-        rebuilt = self.studio.ensure_robot(gait)  # the simulated robot becomes the edited one
-        if rebuilt:
-            self._log(rebuilt)
-            wanted = {module_name(a.id) for a in gait.modules}
-            removed = sorted(n for n in before if n.startswith("m") and n[1:].isdigit() and n not in wanted)
-            self.roster.forget(removed)
-            for plot in self.plots:
-                plot.forget(removed)
-            deadline = time.monotonic() + 30.0
-            while not wanted <= set(self.node.discover()) and time.monotonic() < deadline:  # type: ignore[union-attr]
-                time.sleep(0.1)
-        report = deploy(self.node, gait, progress=progress, timeout=5.0, start=False)  # type: ignore[arg-type]
-        self._log(_staged(gait, report) + "; nothing moves until Start")
-        self.notify("Staged", _staged(gait, report))
-        return report
-
-    def _start_deployed(self, gait: Any, report: Any) -> None:
-        report = activate(self.node, report, timeout=5.0)  # type: ignore[arg-type]
-        self.drive.deployed = gait
-        self._log(f"started: {len(report.running)} of {gait.robot.modules} modules confirmed running {gait.name}")
-        self.notify("Deployed", f"{_staged(gait, report)}; "
-                    f"{len(report.running)} of {gait.robot.modules} confirmed running it")  # fmt: skip
-        for assignment in gait.modules[:4]:
-            self.plot.watch(module_name(assignment.id), "joint.angle")
-        self.show("live")
-
-    def _on_run(self, event: Any) -> None:
-        if event.target.value == "Start all":
-            names = [module_name(a.id) for a in self.doc.gait().modules]
-            running = start_all(self.node, names)  # type: ignore[arg-type]
-            self.notify("Modules", f"{len(running)} of {len(names)} modules confirmed running")
-        else:
-            stop_all(self.node)  # type: ignore[arg-type]
-            self.notify("Modules", "stop sent to every module")
 
     def _on_browse(self, event: Any) -> None:
         action = event.target.value
@@ -580,7 +487,3 @@ class Dashboard:
         self.feed.close()
         self.loop.close()
         self.server.stop()
-
-
-def _staged(gait: Any, report: Any) -> str:
-    return f"{gait.name}: staged and verified on {len(report.checksums)} modules"
