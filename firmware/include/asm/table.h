@@ -1,0 +1,53 @@
+/* A module's gait table (docs/protocol.md section 9): version 1 (one periodic automaton) and version 2 (a program
+ * of modes, a sequence, event-ended and one-shot states), parsed into fixed arrays and checked as the Python module
+ * runtime checks them: same bytes accepted, same bytes refused. */
+#ifndef ASM_TABLE_H
+#define ASM_TABLE_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#ifndef ASM_MAX_STATES
+#define ASM_MAX_STATES 64 /* what this module holds, over all modes; the protocol allows up to 1024 */
+#endif
+#define ASM_PROTOCOL_MAX_STATES 1024
+#define ASM_MAX_MODES 16
+#define ASM_MAX_SEQUENCE 32
+
+enum asm_event { ASM_EV_NONE, ASM_EV_CONTACT, ASM_EV_NO_CONTACT, ASM_EV_AT_GOAL, ASM_EV_TORQUE, ASM_EV_NEIGHBOUR,
+                 ASM_EV_SIGNAL };
+
+struct asm_state {
+    float target;        /* degrees */
+    float duration;      /* seconds; with an event its timeout, 0: none */
+    uint8_t linear;      /* 0 step, 1 linear */
+    uint8_t event;       /* enum asm_event */
+    uint8_t stop_on_timeout;
+    float value;         /* tolerance (at goal) or threshold (torque) */
+    int8_t neighbour;    /* relative module ID (neighbour) */
+    uint16_t watch;      /* the neighbour's state, or the signal number */
+    uint8_t emit;        /* signal broadcast on entry, 0: none */
+};
+
+struct asm_mode {
+    float phase;
+    int8_t direction;
+    uint8_t one_shot;
+    uint16_t first; /* index of its first state in asm_program.states */
+    uint16_t count;
+};
+
+struct asm_program {
+    uint8_t version;
+    uint8_t modes_n, sequence_n;
+    uint16_t states_n;
+    struct asm_mode modes[ASM_MAX_MODES];
+    struct { uint8_t mode; uint16_t cycles; } sequence[ASM_MAX_SEQUENCE];
+    struct asm_state states[ASM_MAX_STATES];
+};
+
+/* ASM_OK; ASM_E_FORMAT for a malformed table; ASM_E_TOO_LARGE for a valid one with more states than
+ * ASM_MAX_STATES (the module's declared limit). ``limits`` (min, max degrees) bounds every target. */
+int asm_table_parse(const uint8_t *data, size_t length, const float limits[2], struct asm_program *program);
+
+#endif

@@ -1,0 +1,53 @@
+/* The ASM message (docs/protocol.md sections 1-2) and the checksums every part of the protocol uses.
+ *
+ * No allocation, no OS: every function works on caller-owned buffers and returns a status. */
+#ifndef ASM_WIRE_H
+#define ASM_WIRE_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#define ASM_VERSION 1u
+#define ASM_HEADER_SIZE 4u
+#define ASM_MAX_MESSAGE 4096u /* bytes, header included */
+#define ASM_MAX_TXN 0x7Fu
+#define ASM_FOREVER 0xFFu /* timeout byte: block without limit */
+
+enum asm_kind { ASM_REQUEST = 0, ASM_REQUEST_REPLY = 1, ASM_REPLY = 2, ASM_PUBLICATION = 3 };
+
+enum asm_result {
+    ASM_OK = 0,
+    ASM_E_SHORT = -1,     /* fewer bytes than the header (and its timeout byte) need */
+    ASM_E_VERSION = -2,   /* a protocol version this implementation does not speak */
+    ASM_E_RANGE = -3,     /* a field out of its range */
+    ASM_E_TOO_LARGE = -4, /* longer than ASM_MAX_MESSAGE or the caller's buffer */
+    ASM_E_FORMAT = -5     /* malformed content */
+};
+
+/* One decoded message. ``data`` points into the buffer it was decoded from (no copy). */
+struct asm_message {
+    uint8_t kind;      /* enum asm_kind */
+    uint8_t method;    /* 0..15 */
+    uint8_t txn;       /* 0..127 (publications: sequence number) */
+    uint8_t class_id;  /* requests and publications */
+    uint8_t status;    /* replies */
+    uint8_t object_id;
+    int16_t timeout;   /* the raw timeout byte of a request, or -1 when absent */
+    const uint8_t *data;
+    size_t length;     /* bytes of data */
+};
+
+/* Encode ``m`` into ``out`` (capacity ``size``); the number of bytes written, or a negative asm_result. */
+long asm_encode(const struct asm_message *m, uint8_t *out, size_t size);
+/* Decode ``raw``; ASM_OK or a negative asm_result (``m`` is then undefined). */
+int asm_decode(const uint8_t *raw, size_t length, struct asm_message *m);
+
+/* The timeout byte for ``ms`` milliseconds, rounded down (ASM_FOREVER for UINT32_MAX), and back (UINT32_MAX for
+ * ASM_FOREVER). */
+uint8_t asm_timeout_code(uint32_t ms);
+uint32_t asm_timeout_ms(uint8_t code);
+
+uint16_t asm_crc16(const uint8_t *data, size_t length); /* CRC-16/CCITT-FALSE: CAN fragment preambles */
+uint32_t asm_crc32(const uint8_t *data, size_t length); /* CRC-32 (IEEE, zlib's): gait.checksum */
+
+#endif
