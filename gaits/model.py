@@ -157,7 +157,7 @@ class Gait:
         """Every automaton is periodic and time-driven: the gait has a control table."""
         return all(a.period is not None for a in self.automata.values())
 
-    def assignment(self, module_id: int, gait: str = "forward") -> Assignment:
+    def assignment(self, module_id: int, gait: str = FORWARD) -> Assignment:
         assignments = self.modules if gait == FORWARD else self.gaits[gait]
         return next(m for m in assignments if m.id == module_id)
 

@@ -221,6 +221,11 @@ class Simulation:
         for runtime in self.modules.values():
             runtime.gait.switch.set(switch)
 
+    def signal(self, number: int) -> None:
+        """Broadcast signal ``number`` to every module, as a tool's group SET of ``gait.signal`` does on a bus."""
+        for runtime in self.modules.values():
+            runtime.gait.signal.set(number)
+
     def stop_gaits(self) -> None:
         """Stop every module's gait: the joints hold their last goals (the Drive panel's stop)."""
         for runtime in self.modules.values():

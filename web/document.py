@@ -111,8 +111,7 @@ class GaitDocument:
             raise ValueError(f"a module assignment has no editable field {field!r}")
 
         def edit(data: dict[str, Any]) -> None:
-            listed = data["modules"] if gait == FORWARD else data["gaits"][gait]["modules"]
-            next(m for m in listed if m["id"] == module_id)[field] = value
+            next(m for m in assignments(data, gait) if m["id"] == module_id)[field] = value
 
         self._apply(edit, field=("module", gait, module_id, field))
 
@@ -307,7 +306,7 @@ def _resize(data: dict[str, Any], count: int, spare: dict[Any, dict[str, Any]]) 
         raise ValueError(f"a robot needs 1 or more modules, not {count!r}")
     data["robot"]["modules"] = count
     first = next(iter(data["automata"]), "")
-    data["modules"] = _resized(data["modules"], count, spare, "forward", first)
+    data["modules"] = _resized(data["modules"], count, spare, FORWARD, first)
     for name, program_gait in data.get("gaits", {}).items():
         if isinstance(program_gait, dict) and isinstance(program_gait.get("modules"), list):
             program_gait["modules"] = _resized(program_gait["modules"], count, spare, name, first)
@@ -330,6 +329,11 @@ def _resized(listed: list[Any], count: int, spare: dict[Any, dict[str, Any]], ga
         modules.append({"id": last["id"] + 1, "automaton": last["automaton"], "phase": phase,
                         "direction": last.get("direction", 1)})  # fmt: skip
     return modules[:count]
+
+
+def assignments(data: dict[str, Any], gait: str) -> list[dict[str, Any]]:
+    """The module assignments of program gait ``gait`` in a document's data (``modules`` for FORWARD)."""
+    return data["modules"] if gait == FORWARD else data["gaits"][gait]["modules"]
 
 
 def _set_sequence(data: dict[str, Any], steps: list[dict[str, Any]]) -> None:

@@ -11,7 +11,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
-from asm_py.codec import UINT8
+from asm_py.module.neighbours import send_signal
 from gaits.deploy import module_name
 from gaits.drive import STOP, drive
 from gaits.model import FORWARD, Gait
@@ -72,7 +72,7 @@ class DrivePanel:
         if not 1 <= number <= 255:
             raise ValueError(f"a signal is numbered 1..255, not {number}")
         if self.app.view.source == "live":
-            self.app.node.group().attribute("gait.signal", UINT8).set(number)
+            send_signal(self.app.node, number)  # type: ignore[arg-type]
             self.state.content = f"Robot: signal **{number}** sent to every module"
         else:
             self.app.loop.request("signal", number)

@@ -20,11 +20,12 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from gaits.deploy import MODULE_IDS
-from gaits.model import AXES, LIBRARY, SHAPES, GaitError
+from gaits.model import AXES, FORWARD, LIBRARY, SHAPES, GaitError
 from gaits.table import expand
 
 from .control_table import SAMPLES as CONTROL_SAMPLES
 from .control_table import control_table
+from .document import assignments
 from .generator import GaitTools
 from .grid import StateGrid
 from .monitor import empty_plot, seconds_axes, stroke
@@ -215,7 +216,7 @@ class GaitEditor:
         self.events.sync(data, self.automaton.value, index)
         self.program.sync(data)
         editing = self.program.gait()
-        modules = data["modules"] if editing == "forward" else data["gaits"][editing]["modules"]
+        modules = assignments(data, editing)
         self.module_index.max = max(2, len(modules))
         m_index = min(int(self.module_index.value), len(modules)) - 1
         module = modules[m_index]
@@ -223,7 +224,7 @@ class GaitEditor:
         self.direction.value = str(module.get("direction", 1))
         if module.get("automaton") in automata:
             self.module_automaton.value = module["automaton"]
-        where = "modules" if editing == "forward" else f"gaits.{editing}.modules"
+        where = "modules" if editing == FORWARD else f"gaits.{editing}.modules"
         self.module_problem.content = _problems(self.doc.problem_at(f"{where}[{m_index}]"))
         robot = data["robot"]
         self.modules.value = int(robot.get("modules", 1))

@@ -202,8 +202,7 @@ class PreviewLoop:
             self.cursor = None
         elif kind == "signal":  # the Drive panel's broadcast signal, as every module on a bus would hear it
             with self._lock:
-                for runtime in self.sim.modules.values():
-                    runtime.gait.signal.set(int(value))
+                self.sim.signal(int(value))
         elif kind == "play":
             self.playing = bool(value)
             if self.playing:

@@ -50,8 +50,6 @@ class ModuleGait(PhaseAutomaton):
         """The last broadcast signal heard (a group SET from a module's emitting state, or from a tool)."""
         self._signals: dict[int, float] = {}  # signal → clock time it was last heard
         self.tau = 0.0
-        self.ticks = 0
-        """Control ticks handled since the start."""
         self.ended: Counter[tuple[str, bool]] = Counter()
         """(event, timed out) → how many event-ended states ended so since the start: how a gait really ran."""
         self.switched_at: float | None = None
@@ -116,7 +114,6 @@ class ModuleGait(PhaseAutomaton):
 
     def initialize(self, phase: float) -> None:
         now = self.clock.now()
-        self.ticks = 0
         self.ended = Counter()
         self._finished = False
         with self._lock:  # what neighbours said stays: they publish only when their state changes
@@ -132,7 +129,7 @@ class ModuleGait(PhaseAutomaton):
     def _enter_mode(self, index: int, at: float, phase: float, heading: int, *, blend: bool) -> None:
         old = float(self.reference_out.peek())
         mode: Mode = self.program.modes[index]
-        self._mode_index, self._current = index, mode
+        self._current = mode
         self.states = mode.states
         self.mode.set(index)
         self.direction.set(heading)
@@ -170,7 +167,6 @@ class ModuleGait(PhaseAutomaton):
         if self._finished:
             return
         now = self.clock.now()
-        self.ticks += 1
         if self._current.timed:
             self._step_timed(now)
         else:
@@ -254,43 +250,38 @@ class ModuleGait(PhaseAutomaton):
     def _cross_boundary(self, at: float) -> bool:
         """A cycle ended at ``at``: count it and switch if a switch or the sequence says so; True if switched."""
         self.cycle.set(int(self.cycle.peek()) + 1)
-        with self._lock:
-            pending = self._switch_request
-            if pending is not None and at >= pending[2] - _EPS:
-                self._switch_request = None
-        if pending is not None and at >= pending[2] - _EPS:
-            mode, drive, _ = pending
-            self._switch_to(mode, drive, at)
+        if self._switch_due(at):
             return True
-        sequence = self.program.sequence
-        if self._sequence_at + 1 < len(sequence):
+        if self._sequence_at + 1 < len(self.program.sequence):
             self._cycles_left -= 1
             if self._cycles_left <= 0:
-                self._sequence_at += 1
-                mode, self._cycles_left = sequence[self._sequence_at]
-                self._switch_to(mode, self._drive, at)
-                return True
+                return self._next_step(at)
         return False
 
     def _after_end(self, at: float) -> bool:
         """A one-shot mode ended at ``at``: an event a program switches on. Go on with a switch asked for by then,
         or the sequence's next step; True if the run goes on."""
+        return self._switch_due(at) or self._next_step(at)
+
+    def _switch_due(self, at: float) -> bool:
+        """Make the switch asked for (gait.switch) if ``at`` is at or after its time; True if it was made."""
         with self._lock:
             pending = self._switch_request
-            if pending is not None and at >= pending[2] - _EPS:
-                self._switch_request = None
-            else:
-                pending = None
-        if pending is not None:
-            self._switch_to(pending[0], pending[1], at)
-            return True
+            if pending is None or at < pending[2] - _EPS:
+                return False
+            self._switch_request = None
+        self._switch_to(pending[0], pending[1], at)
+        return True
+
+    def _next_step(self, at: float) -> bool:
+        """Go on to the sequence's next step at ``at``; False when there is none."""
         sequence = self.program.sequence
-        if self._sequence_at + 1 < len(sequence):
-            self._sequence_at += 1
-            mode, self._cycles_left = sequence[self._sequence_at]
-            self._switch_to(mode, self._drive, at)
-            return True
-        return False
+        if self._sequence_at + 1 >= len(sequence):
+            return False
+        self._sequence_at += 1
+        mode, self._cycles_left = sequence[self._sequence_at]
+        self._switch_to(mode, self._drive, at)
+        return True
 
     def _switch_to(self, index: int, drive: int, at: float) -> None:
         mode = self.program.modes[index]

@@ -85,5 +85,10 @@ class BusNeighbours:
         return node.transport.subscribe(name, "gait.state", on_publication, object_id=object_id)
 
     def broadcast(self, signal: int) -> None:
-        """One group SET of ``gait.signal`` to every node (a classic CAN frame: 42 00 2f 00 + the signal)."""
-        self._node.group().attribute("gait.signal", UINT8).set(signal)
+        send_signal(self._node, signal)
+
+
+def send_signal(node: Node, signal: int) -> None:
+    """Broadcast ``signal`` from ``node`` (a module's emitting state, or a tool): one group SET of ``gait.signal`` to
+    every node — a classic CAN frame, 42 00 2f 00 and the signal."""
+    node.group().attribute("gait.signal", UINT8).set(signal)

@@ -217,10 +217,9 @@ class ModuleRuntime:
             self.tick.publish(rate=1.0)
         staging = self.staging
         starts = (Method.START, Method.RESUME)
-        moving = {self.goal: WRITES, self.limits: WRITES, self.servo: WRITES, self.table: WRITES, self.gait: starts,
-                  staging.staged: WRITES, staging.activate: WRITES}  # fmt: skip
         gait = self.gait
-        moving[gait.switch] = WRITES
+        moving = {self.goal: WRITES, self.limits: WRITES, self.servo: WRITES, self.table: WRITES, gait: starts,
+                  staging.staged: WRITES, staging.activate: WRITES, gait.switch: WRITES}  # fmt: skip
 
         def register(*objects: Any) -> None:
             for obj in objects:
@@ -240,7 +239,7 @@ class ModuleRuntime:
         self.angle.publish(rate=refresh_rate, deadband=0.1, limit=publish_limit)
         self.torque.publish(rate=refresh_rate / 2, deadband=0.05, limit=publish_limit / 2)
         self.contact.publish()
-        self.gait.state.publish(deadband=0)  # on change: the automaton sets its state at every tick
+        self.gait.state.publish(deadband=0)  # every change: neighbours wait on it
         self.gait.mode.publish(deadband=0)
         self._unlisten.append(node.on_estop(lambda source, reason: self.emergency_stop(reason)))
 

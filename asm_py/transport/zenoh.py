@@ -40,14 +40,12 @@ log = logging.getLogger("asm_py.transport.zenoh")
 MAX_LINK_MESSAGE = 16 * MAX_MESSAGE
 """The largest Zenoh message a session accepts from its links (the rest is dropped by Zenoh, never buffered)."""
 FOREVER_QUERY = 86_400.0
+"""Seconds a query for a request that may block forever stays open on the client (Zenoh needs a number)."""
+QUERY_MARGIN = 5.0
 
 
 def _ignore(reply: zenoh.Reply) -> None:
     """The (absent) reply to a request that wants none."""
-
-
-"""Seconds a query for a request that may block forever stays open on the client (Zenoh needs a number)."""
-QUERY_MARGIN = 5.0
 
 
 class InsecureEndpoint(ValueError):
