@@ -4,10 +4,11 @@
 protocol requests for it from any transport (paper section 3, Figure 3). Requests that cannot block (lookups,
 plain gets and sets, start, suspend, …) are answered at once on the transport's receive thread. A request that
 may block — a get on a sync_get attribute without a valid value, a set on a sync_set attribute while valid, an
-event wait, a stop whose caller waits — is handed to a *server daemon* of its own (a service, interruptible by
-``close``), so one client's blocking call never stalls another client or another object. Each client may hold
-``max_daemons_per_client`` daemons at once, and the node ``max_daemons`` in all (a thread each: many clients must not
-exhaust a module's memory); beyond that a client gets BUSY.
+stop whose caller waits — is handed to a *server daemon* of its own (a service, interruptible by ``close``), so one
+client's blocking call never stalls another client or another object. An event WAIT needs no thread: it is a
+listener on the event with a deadline (asm_py.waits). Each client may hold ``max_daemons_per_client`` blocking
+requests at once, and the node ``max_daemons`` in all (many clients must not exhaust a module's memory); beyond that
+a client gets BUSY.
 
 ``node.lookup(remote, name)`` returns a client object with the local interface (asm_py.remote).
 """
@@ -46,6 +47,7 @@ from .publisher import Publisher
 from .remote import Port, RemoteObject, describe_entry, make_client
 from .service import Service
 from .transport.base import BROADCAST, Responder, Transport, check_name
+from .waits import EventWaits, PendingWait
 
 log = logging.getLogger("asm_py.node")
 
@@ -101,7 +103,8 @@ class Node:
         self._by_name: dict[str, Entry] = {}
         self._local_classes: dict[str, int] = {}
         self._ports: dict[str, Port] = {}
-        self._daemons: dict[str, set[Service]] = {}
+        self._daemons: dict[str, set[Service | PendingWait]] = {}  # blocking requests being served, per client
+        self._waits: EventWaits | None = None
         self._closed = False
         self._seen: set[str] = set()
         self.dropped = 0
@@ -262,11 +265,18 @@ class Node:
             entries = list(self._by_id.values())
             daemons = [d for group in self._daemons.values() for d in group]
             ports = list(self._ports.values())
+            waits = self._waits
         for entry in entries:
             if entry.publisher is not None:
                 entry.publisher.close()
         for daemon in daemons:
-            daemon.stop(timeout=5)
+            if isinstance(daemon, PendingWait):
+                assert waits is not None
+                waits.cancel(daemon)
+            else:
+                daemon.stop(timeout=5)
+        if waits is not None:
+            waits.stop(timeout=5)
         for port in ports:
             port.fail_all(f"node {self.name!r} closed")
         self._unpeer()
@@ -399,9 +409,7 @@ class Node:
             if method == Method.STATUS:
                 return bytes([1 if obj.valid else 0])
             if method == Method.WAIT and isinstance(obj, Event):
-                return self._defer(
-                    source, request, respond, lambda: entry.codec.encode(obj.waiting(request.timeout_seconds))
-                )
+                return self._wait(source, request, respond, obj, entry.codec)
         elif isinstance(obj, Service):
             if method == Method.START:
                 params = _parse_params(request.data)
@@ -433,17 +441,39 @@ class Node:
 
     def _defer(self, source: str, request: Message, respond: Responder, operation: Callable[[], bytes]) -> object:
         with self._lock:
-            active = self._daemons.setdefault(source, set())
-            if len(active) >= self.max_daemons_per_client or self._closed:
-                raise _Busy(f"client {source!r} already has {len(active)} blocking requests on node {self.name!r}")
-            if sum(len(d) for d in self._daemons.values()) >= self.max_daemons:
-                raise _Busy(f"node {self.name!r} already serves {self.max_daemons} blocking requests")
             daemon = _ServerDaemon(self, source, request, respond, operation)
-            active.add(daemon)
+            self._admit(source).add(daemon)
         daemon.start()
         return _DEFERRED
 
-    def _daemon_done(self, daemon: _ServerDaemon) -> None:
+    def _wait(self, source: str, request: Message, respond: Responder, event: Event, codec: Codec) -> object:
+        timeout = request.timeout_seconds
+        wait = PendingWait(source, request, respond, None if timeout is None else self.clock.now() + timeout)
+        with self._lock:
+            self._admit(source).add(wait)
+            if self._waits is None:
+                self._waits = EventWaits(self.name, self._wait_answered, clock=self.clock)
+            waits = self._waits
+        waits.add(wait, event, codec)
+        return _DEFERRED
+
+    def _wait_answered(self, wait: PendingWait, failure: Exception | None, data: bytes) -> None:
+        self._daemon_done(wait)
+        if failure is None:
+            self._reply(wait.respond, wait.request, Status.OK, data)
+        else:
+            self._reply(wait.respond, wait.request, *self._failure(failure))
+
+    def _admit(self, source: str) -> set[Service | PendingWait]:
+        """The client's set of blocking requests, if it and the node may take one more (lock held); BUSY if not."""
+        active = self._daemons.setdefault(source, set())
+        if len(active) >= self.max_daemons_per_client or self._closed:
+            raise _Busy(f"client {source!r} already has {len(active)} blocking requests on node {self.name!r}")
+        if sum(len(d) for d in self._daemons.values()) >= self.max_daemons:
+            raise _Busy(f"node {self.name!r} already serves {self.max_daemons} blocking requests")
+        return active
+
+    def _daemon_done(self, daemon: Service | PendingWait) -> None:
         with self._lock:
             self._daemons.get(daemon.source, set()).discard(daemon)
 

@@ -157,7 +157,8 @@ def main() -> None:
         after = rss_kib()
         print("RSS every 10 s of the flood (MiB): " + ", ".join(f"{m:.0f}" for m in samples))
         print(f"bridge process RSS: {before / 1024:.1f} MiB idle, {after / 1024:.1f} MiB after {FLOOD_SECONDS:.0f} s "
-              f"of oversized and never-answered requests ({sent}); pending now {bridge.pending}")  # fmt: skip
+              f"of oversized and never-answered requests ({sent}); pending now {bridge.pending}; "
+              f"heap trimmed {bridge.heap.trims} time(s) after the flood")  # fmt: skip
         print(f"ratio bridge_rss_after_flood_vs_idle {after / before:.2f} (target <= 1.2)", flush=True)
     finally:
         if flooder is not None and flooder.poll() is None:

@@ -59,6 +59,7 @@ from asm_py.remote import RemoteObject
 from asm_py.transport.can import CanTransport, group_id, message_priority
 from asm_py.transport.zenoh import make_config
 
+from .heap import HeapTrimmer
 from .realtime import prefer_latency
 
 log = logging.getLogger("server.bridge")
@@ -156,6 +157,7 @@ class CanZenohBridge:
         self.session = zenoh.open(make_config(mode=zenoh_mode, listen=zenoh_listen, connect=zenoh_connect,
                                               config_file=zenoh_config, insecure=insecure))  # fmt: skip
         self._stop = threading.Event()
+        self.heap = HeapTrimmer(lambda: sum(self.forwarded.values()))
         try:
             self.can = _GatewayTransport(node_id, **can_transport_options)
             self.can.bridge = self
@@ -194,6 +196,7 @@ class CanZenohBridge:
                 item = self._work.get(timeout=0.2)
             except queue.Empty:
                 self._expire_pending()
+                self.heap.tick()
                 continue
             if item is None:
                 return
@@ -205,6 +208,7 @@ class CanZenohBridge:
             except Exception:
                 log.exception("bridging %s failed", item)
             self._expire_pending()
+            self.heap.tick()
 
     def _mirror(self, name: str) -> None:
         node_id = self.can.resolve(name)

@@ -14,6 +14,7 @@ from asm_py.node import Node
 from asm_py.transport.can import CanTransport
 from asm_py.transport.zenoh import ZenohTransport
 from server.bridge import CanZenohBridge
+from server.heap import MALLOC_TRIM, HeapTrimmer
 
 from .helpers import wait_until
 from .processes import Process
@@ -138,3 +139,30 @@ def test_a_zenoh_process_drives_a_can_module_in_another_process() -> None:
         if client is not None:
             client.close()
         assert module.stop() in (0, -15), "".join(module.output)
+
+
+def test_heap_trimmer_trims_once_after_each_burst_and_never_during_one() -> None:
+    now = [0.0]
+    count = [0]
+    trims: list[float] = []
+    trimmer = HeapTrimmer(lambda: count[0], trim=lambda: trims.append(now[0]), clock=lambda: now[0])
+
+    def second(requests: int) -> bool:
+        count[0] += requests
+        now[0] += 1.0
+        return trimmer.tick()
+
+    assert not any(second(50) for _ in range(5)), "steady light traffic is no burst"
+    assert not any(second(2000) for _ in range(5)), "never during a burst"
+    assert second(0) and trims == [11.0], "once, the first quiet second after it"
+    assert not any(second(0) for _ in range(5))
+    assert not any(second(5000) for _ in range(3)) and second(100) and trimmer.trims == 2
+    count[0] += 10
+    assert not trimmer.tick(), "nothing is measured before a whole window has passed"
+
+
+def test_heap_trimmer_returns_memory_on_this_c_library() -> None:
+    assert MALLOC_TRIM is not None, "glibc's malloc_trim is found"
+    MALLOC_TRIM()
+    trimmer = HeapTrimmer(lambda: 0, trim=None)
+    assert not trimmer.tick()

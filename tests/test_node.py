@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import threading
+from collections.abc import Callable
 
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from asm_py import Attribute, Event, RemoteError, Service
+from asm_py.clock import SimClock
 from asm_py.node import Node
 from asm_py.protocol import Kind, Message, Method, Status, decode, encode
 from asm_py.transport import MemoryNetwork, MemoryTransport
@@ -125,23 +127,88 @@ def test_daemons_per_client_are_bounded(world) -> None:
     assert len(errors) == 3
 
 
-def test_peer_gone_fails_calls_within_their_deadline(world) -> None:
-    server, client, _ = world
-    fresh = client.lookup("module", "fresh", timeout=5)
-    box: list[BaseException] = []
+def test_event_waits_hold_no_thread_each(world) -> None:
+    """Pending WAITs are listeners with deadlines: three of them cost at most the node's one timing thread."""
+    server, client, objects = world
+    contact = client.lookup("module", "sensor.contact", timeout=5)
+    results: list[object] = []
 
-    def wait_forever() -> None:
+    def wait_for_contact(timeout: float) -> None:
         try:
-            fresh.get()
-        except TimeoutError as exc:
-            box.append(exc)
+            results.append(contact.waiting(timeout=timeout))
+        except BaseException as exc:
+            results.append(exc)
 
-    waiter = threading.Thread(target=wait_forever)
+    baseline = threading.active_count()
+    listeners = objects["contact"]._listeners  # its publisher's
+    waiters = [threading.Thread(target=wait_for_contact, args=(30,)) for _ in range(3)]
+    for t in waiters:
+        t.start()
+    assert wait_until(lambda: len(server._daemons.get("client", ())) == 3)
+    assert threading.active_count() <= baseline + len(waiters) + 1  # the callers' threads, and one for the node
+    with pytest.raises(RemoteError) as info:
+        contact.waiting(timeout=5)
+    assert info.value.status == Status.BUSY  # the per-client cap counts waits
+    objects["contact"].set(True)  # one firing answers every pending wait, once
+    for t in waiters:
+        t.join(10)
+    assert results == [True, True, True]
+    assert wait_until(lambda: not server._daemons.get("client"))
+    objects["contact"].set(False)
+    assert results == [True, True, True]
+    assert objects["contact"]._listeners == listeners, "an answered wait leaves no listener on the event"
+
+    wait_for_contact(0.3)
+    assert isinstance(results[-1], TimeoutError), "a wait that sees no firing ends at its deadline"
+    assert wait_until(lambda: not server._daemons.get("client"))
+    assert objects["contact"]._listeners == listeners
+
+
+def test_wait_deadlines_run_on_the_node_clock() -> None:
+    """On a SimClock a pending WAIT ends exactly when simulated time passes its deadline, not on the wall."""
+    network = MemoryNetwork()
+    clock = SimClock()
+    server = Node("module", MemoryTransport(network), clock=clock)
+    client = Node("client", MemoryTransport(network))
+    contact = Event("sensor.contact", codec="bool", clock=clock)
+    server.register(contact)
+    box: list[BaseException] = []
+    try:
+        remote = client.lookup("module", "sensor.contact", timeout=5)
+        waiter = threading.Thread(target=lambda: _catch(box, lambda: remote.waiting(timeout=60)))
+        waiter.start()
+        assert wait_until(lambda: server._daemons.get("client"))
+        clock.advance(59.0)
+        assert server._daemons.get("client"), "59 s of 60 simulated: still waiting"
+        clock.advance(2.0)
+        assert wait_until(lambda: not server._daemons.get("client"))
+        waiter.join(10)
+        assert box and isinstance(box[0], TimeoutError)
+    finally:
+        client.close()
+        server.close()
+
+
+def _catch(box: list[BaseException], call: Callable[[], object]) -> None:
+    try:
+        call()
+    except BaseException as exc:
+        box.append(exc)
+
+
+@pytest.mark.parametrize("name", ["fresh", "sensor.contact"])  # a daemon's get, a thread-less wait
+def test_peer_gone_fails_calls_within_their_deadline(world, name: str) -> None:
+    server, client, objects = world
+    remote = client.lookup("module", name, timeout=5)
+    box: list[BaseException] = []
+    listeners = objects["contact"]._listeners
+    waiter = threading.Thread(target=lambda: _catch(box, remote.waiting if name == "sensor.contact" else remote.get))
     waiter.start()
     assert wait_until(lambda: server._daemons.get("client"))
     server.close()
     waiter.join(5)
     assert box and isinstance(box[0], TimeoutError)
+    assert set(objects["contact"]._listeners) <= set(listeners), "a forgotten wait leaves no listener"
     with pytest.raises(TimeoutError):
         client.lookup("module", "joint.angle", timeout=0.3)
 

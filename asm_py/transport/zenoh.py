@@ -116,7 +116,11 @@ def make_config(
     # Zenoh buffers a message whole before anything sees it: bound that at the link (ASM messages are at most
     # MAX_MESSAGE bytes; between that and this bound a node answers TOO_LARGE, beyond it the message is dropped)
     config.insert_json5("transport/link/rx/max_message_size", str(MAX_LINK_MESSAGE))
-    # and drop what is larger before it reaches any callback (the link limit above lets some through in zenoh 1.10)
+    # Zenoh's shared-memory transport carries any message over 3 KiB as a reference into the sender's 16 MiB pool:
+    # it bypasses the link limit above (a 10 MB query arrives whole) and lets every local client make this process
+    # map its pool. ASM messages are at most MAX_MESSAGE bytes, so shared memory buys nothing here: off.
+    config.insert_json5("transport/shared_memory/enabled", "false")
+    # and drop what is larger before it reaches any callback
     config.insert_json5("low_pass_filter", json.dumps([{"flows": ["ingress"], "messages": ["put", "delete", "query",
                         "reply"], "key_exprs": ["**"], "size_limit": MAX_LINK_MESSAGE}]))  # fmt: skip
     if connect:
