@@ -4,8 +4,11 @@ through a real Zenoh session (queries and puts on a node's keys)."""
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
 import threading
 from collections.abc import Iterator
+from pathlib import Path
 
 import pytest
 import zenoh
@@ -179,3 +182,34 @@ def test_a_clients_requests_to_a_node_are_served_in_the_order_it_sent_them() -> 
         finally:
             client.close()
             server.close()
+
+
+SHARED_MEMORY_CLIENT = r"""
+import sys, zenoh
+config = zenoh.Config()  # Zenoh's defaults: shared memory on, as any local tool would have it
+config.insert_json5("scouting/multicast/enabled", "false")
+config.insert_json5("connect/endpoints", f'["{sys.argv[1]}"]')
+session = zenoh.open(config)
+big = bytes(100_000)
+for _ in range(3):
+    session.put("asm/target/msg/local", big)
+    list(session.get("asm/target/req/local", payload=big, timeout=2.0))
+print("SENT", flush=True)
+session.close()
+"""
+
+
+def _zenoh_shared_maps() -> set[str]:
+    return {line.split()[-1] for line in Path("/proc/self/maps").read_text().splitlines() if line.endswith(".zenoh")}
+
+
+def test_a_local_client_cannot_make_a_node_map_its_shared_memory(exposed) -> None:
+    """Zenoh's shared memory would carry these 100 KB messages around the 64 KiB link limit, as references into
+    the client's pool mapped into the node's process: ASM sessions turn it off."""
+    node, _, angle = exposed
+    before = _zenoh_shared_maps()
+    result = subprocess.run([sys.executable, "-c", SHARED_MEMORY_CLIENT, node.transport.listen[0]],
+                            capture_output=True, text=True, timeout=60)  # fmt: skip
+    assert result.stdout.strip() == "SENT", result.stderr
+    assert _zenoh_shared_maps() <= before
+    assert node.transport.handler_errors == 0 and angle.get() == 0.5
