@@ -22,6 +22,12 @@ $(CHROMIUM):
 	if [ "$$(id -u)" = 0 ]; then apt-get update && apt-get install -y chromium; \
 	else sudo apt-get update && sudo apt-get install -y chromium; fi
 
+# The C runtime's Cortex-M4 build (tests/test_firmware.py, bench/firmware.py): Debian's bare-metal toolchain.
+ARM_GCC := /usr/bin/arm-none-eabi-gcc
+$(ARM_GCC):
+	if [ "$$(id -u)" = 0 ]; then apt-get update && apt-get install -y gcc-arm-none-eabi libnewlib-arm-none-eabi; \
+	else sudo apt-get update && sudo apt-get install -y gcc-arm-none-eabi libnewlib-arm-none-eabi; fi
+
 lint: $(STAMP)
 	$(PY) -m ruff check .
 	$(PY) -m ruff format --check .
@@ -30,10 +36,10 @@ format: $(STAMP)
 	$(PY) -m ruff format .
 	$(PY) -m ruff check --fix .
 
-test: lint $(CHROMIUM)
+test: lint $(CHROMIUM) $(ARM_GCC)
 	PLAYWRIGHT_SKIP_BROWSER_DOWNLOAD=1 $(PY) -m pytest -m "not slow"
 
-bench: $(STAMP)
+bench: $(STAMP) $(ARM_GCC)
 	for script in bench/*.py; do $(PY) $$script || exit 1; done
 
 clean:

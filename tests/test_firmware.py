@@ -18,6 +18,7 @@ import pytest
 from asm_py.automaton import PhaseState
 from asm_py.canbus.fragments import fragment
 from asm_py.canbus.ids import CanId, frame_priority
+from asm_py.firmware import build_cortex_m4
 from asm_py.module.program import EVENTS, Mode, ModeState, Program, Until
 from asm_py.module.wire import checksum, decode_program, encode_program, encode_table
 from asm_py.protocol import decode_timeout, encode_timeout
@@ -165,3 +166,10 @@ def test_hostile_frames_and_bytes_crash_nothing_and_the_module_still_answers(tmp
     result = subprocess.run([str(fuzz), "200000", "7"], capture_output=True, text=True, timeout=240)
     assert result.returncode == 0, result.stderr[-3000:]
     assert "still answers" in result.stdout and "runtime error" not in result.stderr
+
+
+@pytest.mark.skipif(shutil.which("arm-none-eabi-gcc") is None, reason="make test installs gcc-arm-none-eabi")
+def test_the_cortex_m4_example_port_links_within_16k_flash_and_8k_ram(tmp_path: Path) -> None:
+    """The runtime and the STM32F4 bxCAN port, warnings as errors, -Os (bench/firmware.py reports the figures)."""
+    text, data, bss = build_cortex_m4(tmp_path / "m4.elf")
+    assert text + data <= 16 * 1024 and data + bss <= 8 * 1024, (text, data, bss)

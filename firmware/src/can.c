@@ -191,7 +191,7 @@ int asm_reassemble(struct asm_reassembler *r, const struct asm_can_id *id, const
         if (dlc < PREAMBLE || id->counter != 0)
             return drop(r);
         uint16_t announced = (uint16_t)(data[0] | (data[1] << 8));
-        if (announced > ASM_MAX_MESSAGE)
+        if (announced > ASM_CAN_MAX_MESSAGE)
             return drop(r);
         p = NULL;
         for (size_t k = 0; k < ASM_CAN_PARTIALS && p == NULL; k++)
@@ -225,7 +225,7 @@ int asm_reassemble(struct asm_reassembler *r, const struct asm_can_id *id, const
         return drop(r);
     }
     p->counter = id->counter;
-    memcpy(p->data + p->have, data, dlc); /* have < length <= ASM_MAX_MESSAGE here: room for one frame more */
+    memcpy(p->data + p->have, data, dlc); /* have < length <= ASM_CAN_MAX_MESSAGE here: room for one frame more */
     p->have += dlc;
     remember(p, data, dlc, now_ms);
     return check(r, p, id->frame == ASM_LAST, message, length);

@@ -1,6 +1,8 @@
 /* Hostile input for the parsers: random and mutated frames into the reassembler, random and mutated bytes into the
- * message decoder and the gait-table parser. Run under AddressSanitizer and UndefinedBehaviorSanitizer: no crash,
- * no report, and the reassembler still completes a well-formed message afterwards.
+ * message decoder and the gait-table parser, and random, mutated and well-formed request frames into a module (the
+ * node's request server and the module objects). Run under AddressSanitizer and UndefinedBehaviorSanitizer: no
+ * crash, no report; afterwards the reassembler still completes a well-formed message and the module still answers
+ * a lookup.
  *
  *   fuzz ITERATIONS SEED */
 #include <stdio.h>
@@ -8,6 +10,7 @@
 #include <string.h>
 
 #include "asm/can.h"
+#include "asm/module.h"
 #include "asm/table.h"
 #include "asm/wire.h"
 
@@ -23,6 +26,30 @@ static uint32_t next(void)
 
 static struct asm_reassembler reassembler;
 static struct asm_program program;
+static struct asm_module module;
+static unsigned long replies_to_200;
+static float joint_angle;
+
+static int sent(void *ctx, uint32_t id, const uint8_t *data, uint8_t dlc)
+{
+    struct asm_can_id cid;
+    (void)ctx;
+    (void)data;
+    (void)dlc;
+    asm_can_unpack(id, &cid);
+    replies_to_200 += cid.dest_kind == ASM_DEST_NODE && cid.dest == 200;
+    return 0;
+}
+
+static void command(void *ctx, float degrees) { (void)ctx; joint_angle = degrees; }
+static void relax(void *ctx) { (void)ctx; }
+static void read_joint(void *ctx, float *angle, float *torque, uint8_t *contact)
+{
+    (void)ctx;
+    *angle = joint_angle;
+    *torque = 0.0f;
+    *contact = (uint8_t)(next() & 1);
+}
 
 int main(int argc, char **argv)
 {
@@ -31,6 +58,9 @@ int main(int argc, char **argv)
     static const float limits[2] = {-90.0f, 90.0f};
     static uint8_t message[ASM_MAX_MESSAGE], buffer[ASM_MAX_MESSAGE + 16];
     asm_reassembler_init(&reassembler);
+    static const struct asm_port port = {sent, NULL, 0};
+    static const struct asm_joint_port joint = {command, relax, read_joint, NULL};
+    asm_module_init(&module, "m7", 7, &port, &joint, -90.0f, 90.0f, 0);
     unsigned long completed = 0, parsed = 0;
     uint32_t now = 0;
     for (unsigned long k = 0; k < iterations; k++) {
@@ -54,6 +84,22 @@ int main(int argc, char **argv)
         completed += (unsigned long)asm_reassemble(&reassembler, &id, data, dlc, now, &out, &length);
         if (next() % 64 == 0)
             asm_reassembler_expire(&reassembler, now);
+        /* the same frame to the module, often addressed to it; or a request to it with random method, IDs, data */
+        if (next() % 2) {
+            id.dest_kind = ASM_DEST_NODE;
+            id.dest = 7;
+        }
+        if (next() % 3 == 0 && dlc >= 4) {
+            id.frame = ASM_SINGLE;
+            id.counter = 0;
+            dlc = dlc > 8 ? 8 : dlc;
+            data[0] = (uint8_t)(0x40 | (next() & 0x1F)); /* version 1, request or request-reply, any method */
+            data[2] = (uint8_t)(next() % 2 ? data[2] : 0x10 + next() % 0x25);
+            data[3] = (uint8_t)(next() % 10);
+        }
+        asm_node_frame(&module.node, asm_can_pack(&id), data, dlc, now);
+        if (next() % 16 == 0)
+            asm_module_tick(&module, now);
         /* bytes into the decoder and the table parser: random, or a table with a byte changed */
         size_t n = next() % 200;
         for (size_t b = 0; b < n; b++)
@@ -90,7 +136,20 @@ int main(int argc, char **argv)
         fprintf(stderr, "the reassembler no longer completes a well-formed message\n");
         return 1;
     }
-    printf("fuzzed %lu inputs: %lu messages completed, %lu tables parsed, %lu dropped; still answers\n", iterations,
-           completed, parsed, (unsigned long)reassembler.dropped);
+    /* and the module still answers a lookup of joint.goal, sent as fragments by node 200 */
+    static const uint8_t lookup[] = {0x50, 0x01, 0x00, 0x00, 'j', 'o', 'i', 'n', 't', '.', 'g', 'o', 'a', 'l'};
+    unsigned long before = replies_to_200;
+    asm_fragment_begin(&f, lookup, sizeof lookup, 0);
+    while (asm_fragment_next(&f, &frame, &counter, data, &dlc)) {
+        struct asm_can_id id = {3, ASM_DEST_NODE, 7, 200, frame, counter};
+        asm_node_frame(&module.node, asm_can_pack(&id), data, dlc, now + 1);
+    }
+    if (replies_to_200 == before) {
+        fprintf(stderr, "the module no longer answers a lookup\n");
+        return 1;
+    }
+    printf("fuzzed %lu inputs: %lu messages completed, %lu tables parsed, %lu dropped; the module served %lu "
+           "requests; still answers\n", iterations, completed, parsed, (unsigned long)reassembler.dropped,
+           (unsigned long)module.node.served);
     return 0;
 }

@@ -1,7 +1,7 @@
 /* ASM over CAN (docs/protocol.md section 7): the 29-bit identifier, fragmentation and bounded reassembly.
  *
- * The reassembler is a fixed array of ASM_CAN_PARTIALS slots of ASM_MAX_MESSAGE + 64 bytes each: a module sets
- * ASM_CAN_PARTIALS to what its RAM allows (the Python side defaults to 64; a module talks to few peers at once). */
+ * The reassembler is a fixed array of ASM_CAN_PARTIALS slots of ASM_CAN_MAX_MESSAGE + 64 bytes each: a module sets
+ * ASM_CAN_PARTIALS and ASM_CAN_MAX_MESSAGE to what its RAM allows (the Python side defaults to 64; a module talks to few peers at once). */
 #ifndef ASM_CAN_H
 #define ASM_CAN_H
 
@@ -12,6 +12,9 @@
 
 #ifndef ASM_CAN_PARTIALS
 #define ASM_CAN_PARTIALS 4
+#endif
+#ifndef ASM_CAN_MAX_MESSAGE
+#define ASM_CAN_MAX_MESSAGE ASM_MAX_MESSAGE /* the longest message a slot takes; a longer one is dropped */
 #endif
 #define ASM_CAN_TIMEOUT_MS 1000u /* a partial message without a fragment for this long is discarded */
 
@@ -61,7 +64,7 @@ struct asm_partial {
     uint32_t touched_ms;
     uint8_t last[64];
     uint8_t last_length;
-    uint8_t data[ASM_MAX_MESSAGE + 64];
+    uint8_t data[ASM_CAN_MAX_MESSAGE + 64];
 };
 
 struct asm_reassembler {

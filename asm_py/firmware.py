@@ -1,0 +1,203 @@
+"""Modules that run the C runtime (firmware/) on a python-can bus, beside Python modules.
+
+The firmware is what a module's microcontroller would run; built as a shared library for this machine, the same
+code answers on any python-can bus — a virtual one in tests, the simulated robot's, a real interface — so a tool
+cannot tell a C module from a Python one except by how fast it answers. :class:`CModule` owns the C module's
+memory (one buffer of ``asm_host_size()`` bytes: the firmware allocates nothing), gives it frames from the bus and
+a control tick, and lends it a :class:`~asm_py.module.runtime.JointDriver` as its joint.
+
+The library is built from firmware/ with the system's C compiler when it is missing or older than its sources
+(firmware/build/, ignored by git), so a fresh checkout needs nothing but gcc.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import logging
+import os
+import subprocess
+import tempfile
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import can
+
+from .module.runtime import FakeDriver, JointDriver
+
+log = logging.getLogger("asm_py.firmware")
+FIRMWARE = Path(__file__).resolve().parent.parent / "firmware"
+LIBRARY = FIRMWARE / "build" / "libasm_host.so"
+
+_SEND = ctypes.CFUNCTYPE(ctypes.c_int, ctypes.c_void_p, ctypes.c_uint32, ctypes.POINTER(ctypes.c_uint8), ctypes.c_uint8)
+_COMMAND = ctypes.CFUNCTYPE(None, ctypes.c_void_p, ctypes.c_float)
+_RELAX = ctypes.CFUNCTYPE(None, ctypes.c_void_p)
+_READ = ctypes.CFUNCTYPE(None, ctypes.c_void_p, ctypes.POINTER(ctypes.c_float), ctypes.POINTER(ctypes.c_float),
+                         ctypes.POINTER(ctypes.c_uint8))  # fmt: skip
+_lock = threading.Lock()
+_library: ctypes.CDLL | None = None
+
+
+def _sources() -> list[Path]:
+    return [*sorted((FIRMWARE / "src").glob("*.c")), FIRMWARE / "port" / "host.c"]
+
+
+def build_library() -> Path:
+    """firmware/build/libasm_host.so, compiled now if missing or older than a source or header."""
+    inputs = [*_sources(), *(FIRMWARE / "include" / "asm").glob("*.h")]
+    if LIBRARY.exists() and LIBRARY.stat().st_mtime >= max(p.stat().st_mtime for p in inputs):
+        return LIBRARY
+    LIBRARY.parent.mkdir(exist_ok=True)
+    fd, temporary = tempfile.mkstemp(dir=LIBRARY.parent, suffix=".so")  # then renamed: parallel builds never clash
+    os.close(fd)
+    try:
+        subprocess.run([os.environ.get("CC", "gcc"), "-std=c11", "-O2", "-fPIC", "-shared", "-Wall", "-Wextra",
+                        "-Werror", "-pedantic", f"-I{FIRMWARE / 'include'}", *map(str, _sources()), "-lm", "-o",
+                        temporary], check=True, capture_output=True, text=True)  # fmt: skip
+        os.replace(temporary, LIBRARY)
+    except subprocess.CalledProcessError as exc:
+        raise RuntimeError(f"building the C module runtime failed:\n{exc.stderr}") from None
+    finally:
+        if os.path.exists(temporary):
+            os.unlink(temporary)
+    return LIBRARY
+
+
+CORTEX_M4_FLAGS = [
+    *("-mcpu=cortex-m4", "-mthumb", "-mfloat-abi=hard", "-mfpu=fpv4-sp-d16", "-ffunction-sections", "-fdata-sections"),
+    *("-DASM_CAN_PARTIALS=1", "-DASM_CAN_MAX_MESSAGE=1536", "-DASM_NODE_OUT=1536"),
+]
+"""A module's limits on a 128 KiB part: one reassembly slot and replies of at most 1,536 bytes."""
+
+
+def build_cortex_m4(elf: Path) -> tuple[int, int, int]:
+    """Link the example STM32F4 port (firmware/port/) with the runtime, -Os; its (text, data, bss) in bytes."""
+    sources = [*sorted((FIRMWARE / "src").glob("*.c")), FIRMWARE / "port" / "stm32f4_bxcan.c"]
+    subprocess.run(["arm-none-eabi-gcc", "-std=c11", "-Os", "-Wall", "-Wextra", "-Werror", "-pedantic",
+                    *CORTEX_M4_FLAGS, f"-I{FIRMWARE / 'include'}", *map(str, sources), "-nostartfiles",
+                    "--specs=nano.specs", "--specs=nosys.specs", "-Wl,--gc-sections",
+                    f"-T{FIRMWARE / 'port' / 'stm32f4.ld'}", "-lm", "-o", str(elf)], check=True, capture_output=True,
+                   text=True)  # fmt: skip
+    report = subprocess.run(["arm-none-eabi-size", str(elf)], capture_output=True, text=True, check=True)
+    text, data, bss = (int(v) for v in report.stdout.splitlines()[1].split()[:3])
+    return text, data, bss
+
+
+def library() -> ctypes.CDLL:
+    """The host library, built and loaded once per process."""
+    global _library
+    with _lock:
+        if _library is None:
+            lib = ctypes.CDLL(str(build_library()))
+            lib.asm_host_size.restype = ctypes.c_size_t
+            lib.asm_host_init.argtypes = [ctypes.c_void_p, ctypes.c_char_p, ctypes.c_uint8, _SEND, _COMMAND, _RELAX,
+                                          _READ, ctypes.c_float, ctypes.c_float, ctypes.c_uint32]  # fmt: skip
+            lib.asm_host_frame.argtypes = [ctypes.c_void_p, ctypes.c_uint32, ctypes.c_char_p, ctypes.c_uint8,
+                                           ctypes.c_uint32]  # fmt: skip
+            lib.asm_host_tick.argtypes = [ctypes.c_void_p, ctypes.c_uint32]
+            lib.asm_host_leave.argtypes = [ctypes.c_void_p]
+            for name in ("asm_host_latched", "asm_host_served", "asm_host_dropped"):
+                getattr(lib, name).argtypes = [ctypes.c_void_p]
+                getattr(lib, name).restype = ctypes.c_uint32
+            lib.asm_host_goal.argtypes = [ctypes.c_void_p]
+            lib.asm_host_goal.restype = ctypes.c_float
+            _library = lib
+        return _library
+
+
+class CModule:
+    """One C module on a python-can bus (given, or opened from ``bus_options`` like python-can's ``can.Bus``)."""
+
+    def __init__(
+        self,
+        name: str,
+        node_id: int,
+        *,
+        bus: can.BusABC | None = None,
+        driver: JointDriver | None = None,
+        control_rate: float = 50.0,
+        hardware_range: tuple[float, float] = (-90.0, 90.0),
+        **bus_options: Any,
+    ) -> None:
+        self.name = name
+        self.node_id = node_id
+        self.driver = driver if driver is not None else FakeDriver()
+        self.period = 1.0 / control_rate
+        self._own_bus = bus is None
+        self.bus = bus if bus is not None else can.Bus(**bus_options)
+        self._lib = library()
+        self._memory = ctypes.create_string_buffer(self._lib.asm_host_size())
+        self._name = name.encode("utf-8")  # the firmware keeps a pointer to it: it lives as long as this object
+        self._t0 = time.monotonic()
+        self._callbacks = (_SEND(self._send), _COMMAND(lambda _, d: self.driver.command(float(d))),
+                           _RELAX(lambda _: self.driver.relax()), _READ(self._read))  # fmt: skip
+        self._call_lock = threading.Lock()  # the firmware is single-threaded: one caller at a time
+        self.send_errors = 0
+        with self._call_lock:
+            self._lib.asm_host_init(self._memory, self._name, node_id, *self._callbacks, *map(float, hardware_range),
+                                    self._now_ms())  # fmt: skip
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name=f"c-module:{name}", daemon=True)
+        self._thread.start()
+
+    def _now_ms(self) -> int:
+        return int((time.monotonic() - self._t0) * 1000) & 0xFFFFFFFF
+
+    def _send(self, _: object, can_id: int, data: Any, dlc: int) -> int:
+        try:
+            self.bus.send(can.Message(arbitration_id=can_id, data=bytes(data[:dlc]), is_extended_id=True,
+                                      is_fd=dlc > 8), timeout=0.1)  # fmt: skip
+            return 0
+        except can.CanError:
+            self.send_errors += 1
+            return 1
+
+    def _read(self, _: object, angle: Any, torque: Any, contact: Any) -> None:
+        reading = self.driver.read()
+        angle[0], torque[0], contact[0] = reading.angle, reading.torque, int(reading.contact)
+
+    def _run(self) -> None:
+        next_tick = time.monotonic()
+        while not self._stop.is_set():
+            frame = self.bus.recv(timeout=max(0.0, next_tick - time.monotonic()))
+            with self._call_lock:
+                if frame is not None and frame.is_extended_id and not frame.is_error_frame:
+                    self._lib.asm_host_frame(self._memory, frame.arbitration_id, bytes(frame.data), frame.dlc,
+                                             self._now_ms())  # fmt: skip
+                if time.monotonic() >= next_tick:
+                    next_tick += self.period
+                    self._lib.asm_host_tick(self._memory, self._now_ms())
+
+    @property
+    def latched(self) -> bool:
+        """The firmware's e-stop is latched."""
+        return bool(self._lib.asm_host_latched(self._memory))
+
+    @property
+    def goal(self) -> float:
+        """What the firmware commands the joint to (degrees)."""
+        return float(self._lib.asm_host_goal(self._memory))
+
+    def counters(self) -> dict[str, int]:
+        """Requests served and frames or messages dropped by the firmware."""
+        with self._call_lock:
+            return {"served": self._lib.asm_host_served(self._memory),
+                    "dropped": self._lib.asm_host_dropped(self._memory)}  # fmt: skip
+
+    def close(self) -> None:
+        """Leave the bus in order and stop; the bus is shut down if this module opened it."""
+        if self._stop.is_set():
+            return
+        self._stop.set()
+        self._thread.join(5)
+        with self._call_lock:
+            self._lib.asm_host_leave(self._memory)
+        if self._own_bus:
+            self.bus.shutdown()
+
+    def __enter__(self) -> CModule:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

@@ -1,0 +1,153 @@
+/* An ASM node on a CAN bus (docs/protocol.md sections 1-5 and 7): the lookup table of a module's objects and the
+ * server side of the protocol, without allocation, threads or an OS.
+ *
+ * The platform delivers frames (asm_node_frame) and calls asm_node_poll every few milliseconds with a monotonic
+ * time in milliseconds; the node sends frames through its port. Everything a module stores lives in its objects'
+ * own buffers, so the limits below are the whole of the node's RAM besides them. A request that cannot be served
+ * within them is answered with the status the Python node gives (BUSY, NOT_FOUND, TOO_LARGE), never dropped
+ * silently. */
+#ifndef ASM_NODE_H
+#define ASM_NODE_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#include "asm/can.h"
+#include "asm/wire.h"
+
+#ifndef ASM_MAX_OBJECTS
+#define ASM_MAX_OBJECTS 32 /* objects in the lookup table (IDs 1..ASM_MAX_OBJECTS) */
+#endif
+#ifndef ASM_MAX_WAITS
+#define ASM_MAX_WAITS 4 /* requests waiting at once (WAIT on an event, GET of a sync_get attribute) */
+#endif
+#ifndef ASM_MAX_GROUPS
+#define ASM_MAX_GROUPS 4 /* groups joined */
+#endif
+#ifndef ASM_NODE_OUT
+#define ASM_NODE_OUT 1536u /* the longest reply or publication this node builds (a 64-state gait table fits) */
+#endif
+
+/* Statuses of replies (docs/protocol.md section 1, "Status"). */
+enum asm_status {
+    ASM_S_OK = 0, ASM_S_TIMEOUT = 1, ASM_S_SERVICE_ERROR = 2, ASM_S_TYPE_ERROR = 3, ASM_S_VALUE_ERROR = 4,
+    ASM_S_NOT_FOUND = 5, ASM_S_UNSUPPORTED = 6, ASM_S_BAD_MESSAGE = 7, ASM_S_BUSY = 8, ASM_S_INTERNAL = 9,
+    ASM_S_READ_ONLY = 10, ASM_S_ESTOP = 11, ASM_S_LOCKED = 12, ASM_S_TOO_LARGE = 13
+};
+
+enum asm_method {
+    ASM_LOOKUP = 0, ASM_GET = 1, ASM_SET = 2, ASM_RESET = 3, ASM_START = 4, ASM_STOP = 5, ASM_SUSPEND = 6,
+    ASM_RESUME = 7, ASM_STATUS = 8, ASM_WAIT = 9, ASM_PEEK = 10, ASM_PUBLISH = 11
+};
+
+enum asm_object_kind { ASM_ATTRIBUTE = 0, ASM_EVENT = 1, ASM_SERVICE = 2 };
+
+/* Lookup flags (section 3). */
+#define ASM_F_SYNC_GET 0x01u
+#define ASM_F_SYNC_SET 0x02u
+#define ASM_F_PUBLISHED 0x04u
+#define ASM_F_READ_ONLY 0x08u
+
+/* How a remote SET is checked before the object's own check: a fixed size, or up to its capacity. */
+enum asm_type { ASM_T_FIXED = 0, ASM_T_BOOL = 1, ASM_T_FLOAT32 = 2, ASM_T_VARIABLE = 3 };
+
+/* When a published attribute sends (section 5): every set, or a float32 moving beyond a deadband at most every
+ * min_gap_ms and at least every refresh_ms. */
+enum asm_publish_mode { ASM_PUB_NONE = 0, ASM_PUB_EVERY_SET = 1, ASM_PUB_DEADBAND = 2 };
+
+struct asm_node;
+struct asm_object;
+
+/* A remote SET of ``obj``: check the value and store it; an asm_status. NULL: the type check, then a copy. */
+typedef int (*asm_set_fn)(struct asm_node *node, struct asm_object *obj, const uint8_t *data, size_t length);
+/* START/STOP/SUSPEND/RESUME/RESET of a service: an asm_status (SERVICE_ERROR when the state forbids it). */
+typedef int (*asm_control_fn)(struct asm_node *node, struct asm_object *obj, uint8_t method);
+
+struct asm_publication {
+    uint8_t mode;       /* enum asm_publish_mode */
+    uint8_t seq;        /* sequence number of the next publication, mod 128 */
+    uint8_t pending;    /* a change not sent yet (it came inside min_gap_ms) */
+    uint16_t min_gap_ms, refresh_ms;
+    float deadband;
+    float last_value;
+    uint32_t last_ms;
+};
+
+struct asm_object {
+    const char *name;
+    const char *class_name; /* NULL: the name */
+    uint8_t class_id;
+    uint8_t kind;  /* enum asm_object_kind */
+    uint8_t flags; /* ASM_F_SYNC_GET, ASM_F_SYNC_SET, ASM_F_READ_ONLY (ASM_F_PUBLISHED follows the policy) */
+    uint8_t type;  /* enum asm_type */
+    const uint8_t *descriptor;
+    uint8_t descriptor_length;
+    uint8_t *value;   /* the value's bytes, owned by the module */
+    uint16_t length;  /* bytes in use */
+    uint16_t capacity;
+    uint8_t valid;
+    uint16_t estop_refuses; /* bit (1 << method): refused with ESTOP while the node's e-stop is latched */
+    asm_set_fn set;
+    asm_control_fn control;
+    uint8_t started, running, failed; /* services */
+    struct asm_publication publication;
+    uint8_t id; /* assigned by asm_node_register */
+};
+
+/* The platform: send one extended CAN frame. Nonzero when the frame could not be queued. */
+struct asm_port {
+    int (*send)(void *ctx, uint32_t id, const uint8_t *data, uint8_t dlc);
+    void *ctx;
+    uint8_t fd; /* CAN FD frames of 64 bytes */
+};
+
+struct asm_wait {
+    uint8_t used, source, txn, method, object_byte, forever;
+    struct asm_object *object;
+    uint32_t deadline_ms;
+};
+
+struct asm_node {
+    struct asm_port port;
+    const char *name;
+    uint8_t node_id;
+    uint8_t count;
+    struct asm_object *objects[ASM_MAX_OBJECTS];
+    uint8_t groups[ASM_MAX_GROUPS];
+    uint8_t group_count;
+    struct asm_wait waits[ASM_MAX_WAITS];
+    struct asm_reassembler rx;
+    uint8_t out[ASM_NODE_OUT];
+    uint8_t estop; /* latched */
+    void (*on_estop)(struct asm_node *node, void *ctx); /* the module's reaction: stop the gait, hold the joint */
+    void *estop_ctx;
+    uint16_t heartbeat_ms;
+    uint32_t next_heartbeat_ms;
+    uint32_t now_ms;
+    uint32_t served, dropped, send_errors;
+};
+
+void asm_node_init(struct asm_node *node, const char *name, uint8_t node_id, const struct asm_port *port,
+                   uint32_t now_ms);
+/* Enter ``obj`` (ID = its place); ASM_OK, ASM_E_TOO_LARGE when the table is full, ASM_E_RANGE for a name taken. */
+int asm_node_register(struct asm_node *node, struct asm_object *obj);
+struct asm_object *asm_node_find(struct asm_node *node, const char *name);
+/* Join the group with CAN group ID ``group``; ASM_E_TOO_LARGE beyond ASM_MAX_GROUPS. */
+int asm_node_join(struct asm_node *node, uint8_t group);
+
+/* One received frame (extended identifier), at ``now_ms``. */
+void asm_node_frame(struct asm_node *node, uint32_t id, const uint8_t *data, uint8_t dlc, uint32_t now_ms);
+/* Heartbeats, publications due, waits that time out, stale partial messages. */
+void asm_node_poll(struct asm_node *node, uint32_t now_ms);
+
+/* The module's own write of an attribute or firing of an event: stores the value, answers waiting requests and
+ * publishes by the object's policy. ASM_E_TOO_LARGE over its capacity. */
+int asm_node_write(struct asm_node *node, struct asm_object *obj, const void *data, size_t length);
+/* Latch (or release) the e-stop; latching calls on_estop. */
+void asm_node_set_estop(struct asm_node *node, int latched);
+/* Tell the bus this node leaves (system frame LEAVE). */
+void asm_node_leave(struct asm_node *node);
+/* Send an e-stop to every node (system frame, priority 0, one frame). */
+void asm_node_send_estop(struct asm_node *node, const char *reason);
+
+#endif

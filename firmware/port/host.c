@@ -1,0 +1,33 @@
+/* The host port: the C module as a shared library for the simulation (asm_py/firmware.py loads it with ctypes).
+ * Python owns the memory (asm_host_size bytes) and supplies the frame sender and the joint as callbacks; time comes
+ * with every call, so a simulated clock drives the module as it drives the Python runtime. */
+#include <stddef.h>
+
+#include "asm/module.h"
+
+typedef int (*send_fn)(void *ctx, uint32_t id, const uint8_t *data, uint8_t dlc);
+typedef void (*command_fn)(void *ctx, float degrees);
+typedef void (*relax_fn)(void *ctx);
+typedef void (*read_fn)(void *ctx, float *angle, float *torque, uint8_t *contact);
+
+size_t asm_host_size(void) { return sizeof(struct asm_module); }
+
+void asm_host_init(struct asm_module *m, const char *name, uint8_t node_id, send_fn send, command_fn command,
+                   relax_fn relax, read_fn read, float hardware_min, float hardware_max, uint32_t now_ms)
+{
+    struct asm_port port = {send, NULL, 0};
+    struct asm_joint_port joint = {command, relax, read, NULL};
+    asm_module_init(m, name, node_id, &port, &joint, hardware_min, hardware_max, now_ms);
+}
+
+void asm_host_frame(struct asm_module *m, uint32_t id, const uint8_t *data, uint8_t dlc, uint32_t now_ms)
+{
+    asm_node_frame(&m->node, id, data, dlc, now_ms);
+}
+
+void asm_host_tick(struct asm_module *m, uint32_t now_ms) { asm_module_tick(m, now_ms); }
+void asm_host_leave(struct asm_module *m) { asm_node_leave(&m->node); }
+int asm_host_latched(const struct asm_module *m) { return m->node.estop; }
+uint32_t asm_host_served(const struct asm_module *m) { return m->node.served; }
+uint32_t asm_host_dropped(const struct asm_module *m) { return m->node.dropped + m->node.rx.dropped; }
+float asm_host_goal(const struct asm_module *m) { return m->goal_v; }

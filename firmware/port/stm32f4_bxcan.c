@@ -1,0 +1,153 @@
+/* An example port: one module on an STM32F4 (Cortex-M4) with its bxCAN peripheral, compiled by bench/firmware.py
+ * to measure flash and RAM (never run here). What a board adds to the portable runtime is exactly this file: a
+ * millisecond clock, frames in and out of the CAN controller, and the joint (stubbed: a real module drives its
+ * servo's PWM and reads its encoder here).
+ *
+ * Registers are those of RM0090 (STM32F405/407) for CAN1; no vendor headers are needed. The bus is set up for
+ * 1 Mbit/s from a 42 MHz APB1 clock, extended identifiers, one acceptance filter per rule of
+ * docs/protocol.md section 7 ("a module passes only what it must act on"). */
+#include <stdint.h>
+
+#include "asm/module.h"
+
+#define REG(address) (*(volatile uint32_t *)(address))
+#define CAN1 0x40006400u
+#define CAN_MCR REG(CAN1 + 0x000u)
+#define CAN_MSR REG(CAN1 + 0x004u)
+#define CAN_TSR REG(CAN1 + 0x008u)
+#define CAN_RF0R REG(CAN1 + 0x00Cu)
+#define CAN_BTR REG(CAN1 + 0x01Cu)
+#define CAN_TIR(m) REG(CAN1 + 0x180u + 0x10u * (m))
+#define CAN_TDTR(m) REG(CAN1 + 0x184u + 0x10u * (m))
+#define CAN_TDLR(m) REG(CAN1 + 0x188u + 0x10u * (m))
+#define CAN_TDHR(m) REG(CAN1 + 0x18Cu + 0x10u * (m))
+#define CAN_RI0R REG(CAN1 + 0x1B0u)
+#define CAN_RDT0R REG(CAN1 + 0x1B4u)
+#define CAN_RDL0R REG(CAN1 + 0x1B8u)
+#define CAN_RDH0R REG(CAN1 + 0x1BCu)
+#define CAN_FMR REG(CAN1 + 0x200u)
+#define CAN_FM1R REG(CAN1 + 0x204u)
+#define CAN_FS1R REG(CAN1 + 0x20Cu)
+#define CAN_FFA1R REG(CAN1 + 0x214u)
+#define CAN_FA1R REG(CAN1 + 0x21Cu)
+#define CAN_FR1(f) REG(CAN1 + 0x240u + 8u * (f))
+#define CAN_FR2(f) REG(CAN1 + 0x244u + 8u * (f))
+#define SYST_CSR REG(0xE000E010u)
+#define SYST_RVR REG(0xE000E018u)
+#define SYST_CVR REG(0xE000E018u + 4u)
+
+#define NODE_ID 7u
+#define CONTROL_MS 20u /* the gait tick: 50 Hz */
+
+static struct asm_module module;
+static volatile uint32_t milliseconds;
+static float servo_command;
+
+void SysTick_Handler(void) { milliseconds++; }
+
+/* One mask filter (32-bit, FIFO 0): extended identifier ``id`` under ``mask`` (bits 28-0). */
+static void filter(uint32_t bank, uint32_t id, uint32_t mask)
+{
+    CAN_FR1(bank) = (id << 3) | 4u; /* IDE */
+    CAN_FR2(bank) = (mask << 3) | 4u;
+    CAN_FA1R |= 1u << bank;
+}
+
+static void can_init(void)
+{
+    CAN_MCR = 1u; /* initialization request */
+    while (!(CAN_MSR & 1u))
+        ;
+    CAN_BTR = (1u << 24) | (4u << 20) | (12u << 16) | 2u; /* SJW 2, TS2 5, TS1 13, prescaler 3: 42 MHz / 3 / 14 */
+    CAN_FMR |= 1u;                                       /* filter init */
+    CAN_FM1R = 0;                                        /* mask mode */
+    CAN_FS1R = 0x3FFFu;                                  /* 32-bit */
+    CAN_FFA1R = 0;                                       /* FIFO 0 */
+    filter(0, (0u << 24) | (NODE_ID << 16), 0x03FF0000u); /* to this node */
+    filter(1, (2u << 24) | (3u << 26), 0x1FFF0000u & ~(0xFFu << 16)); /* broadcast requests (priority 3) */
+    filter(2, (2u << 24) | (5u << 26), 0x1FFF0000u & ~(0xFFu << 16)); /* broadcast, fragmented (priority 5) */
+    filter(3, (3u << 24) | (0u << 16), 0x03FF0000u); /* the e-stop system frame */
+    CAN_FMR &= ~1u;
+    CAN_MCR = 0; /* normal mode */
+    while (CAN_MSR & 1u)
+        ;
+}
+
+static int can_send(void *ctx, uint32_t id, const uint8_t *data, uint8_t dlc)
+{
+    (void)ctx;
+    uint32_t tsr = CAN_TSR, box;
+    if (!(tsr & (7u << 26)))
+        return 1; /* no empty mailbox: the caller counts it */
+    box = (tsr >> 24) & 3u;
+    uint8_t b[8] = {0};
+    for (uint8_t k = 0; k < dlc && k < 8; k++)
+        b[k] = data[k];
+    CAN_TDTR(box) = dlc;
+    CAN_TDLR(box) = (uint32_t)b[0] | (uint32_t)b[1] << 8 | (uint32_t)b[2] << 16 | (uint32_t)b[3] << 24;
+    CAN_TDHR(box) = (uint32_t)b[4] | (uint32_t)b[5] << 8 | (uint32_t)b[6] << 16 | (uint32_t)b[7] << 24;
+    CAN_TIR(box) = (id << 3) | 4u | 1u; /* extended, transmit request */
+    return 0;
+}
+
+static void can_receive(void)
+{
+    while (CAN_RF0R & 3u) {
+        uint32_t id = CAN_RI0R >> 3, low = CAN_RDL0R, high = CAN_RDH0R;
+        uint8_t dlc = (uint8_t)(CAN_RDT0R & 0xFu), data[8];
+        for (int k = 0; k < 4; k++) {
+            data[k] = (uint8_t)(low >> (8 * k));
+            data[4 + k] = (uint8_t)(high >> (8 * k));
+        }
+        CAN_RF0R = 1u << 5; /* release the FIFO output */
+        asm_node_frame(&module.node, id, data, dlc > 8 ? 8 : dlc, milliseconds);
+    }
+}
+
+static void joint_command(void *ctx, float degrees) { (void)ctx; servo_command = degrees; }
+static void joint_relax(void *ctx) { (void)ctx; }
+static void joint_read(void *ctx, float *angle, float *torque, uint8_t *contact)
+{
+    (void)ctx;
+    *angle = servo_command;
+    *torque = 0.0f;
+    *contact = 0;
+}
+
+int main(void)
+{
+    static const struct asm_port port = {can_send, 0, 0};
+    static const struct asm_joint_port joint = {joint_command, joint_relax, joint_read, 0};
+    SYST_RVR = 168000u - 1u; /* 1 ms at 168 MHz */
+    SYST_CVR = 0;
+    SYST_CSR = 7u;
+    can_init();
+    asm_module_init(&module, "m7", NODE_ID, &port, &joint, -90.0f, 90.0f, milliseconds);
+    uint32_t next_tick = milliseconds;
+    for (;;) {
+        can_receive();
+        if ((int32_t)(milliseconds - next_tick) >= 0) {
+            next_tick += CONTROL_MS;
+            asm_module_tick(&module, milliseconds);
+        }
+    }
+}
+
+/* The vector table and reset: the stack top, then reset, and SysTick at index 15. */
+extern uint32_t _stack_top, _sidata, _sdata, _edata, _sbss, _ebss;
+void Reset_Handler(void);
+void Default_Handler(void) { for (;;) ; }
+__attribute__((section(".vectors"), used)) static void (*const vectors[16])(void) = {
+    (void (*)(void))(uintptr_t)&_stack_top, Reset_Handler, Default_Handler, Default_Handler, Default_Handler,
+    Default_Handler, Default_Handler, 0, 0, 0, 0, Default_Handler, Default_Handler, 0, Default_Handler,
+    SysTick_Handler};
+
+void Reset_Handler(void)
+{
+    uint32_t *from = &_sidata, *to = &_sdata;
+    while (to < &_edata)
+        *to++ = *from++;
+    for (to = &_sbss; to < &_ebss;)
+        *to++ = 0;
+    main();
+}
