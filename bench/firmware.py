@@ -4,7 +4,7 @@
 
 Builds firmware/tests/fuzz.c with AddressSanitizer and UndefinedBehaviorSanitizer and feeds it 10 million random
 and mutated frames, messages, gait tables and module requests; links the example Cortex-M4 port
-(firmware/port/stm32f4_bxcan.c, -Os, one 1,536-byte reassembly slot) and reads its flash and RAM with
+(firmware/port/stm32f4_bxcan.c, -Os, one 640-byte reassembly slot) and reads its flash and RAM with
 arm-none-eabi-size (`make test` installs Debian's gcc-arm-none-eabi); and times remote gets answered by a C module
 and by a Python module on one python-can virtual bus, in the same run.
 """

@@ -39,8 +39,8 @@ def bus_pair() -> Iterator[tuple[CModule, Node, str]]:
 def test_a_client_lists_reads_and_writes_a_c_module(bus_pair) -> None:
     module, tool, _ = bus_pair
     names = [obj.info.name for obj in tool.list_objects("c1", timeout=5)]
-    assert names == ["joint.goal", "joint.angle", "joint.torque", "joint.limits", "servo.service", "sensor.contact",
-                     "estop"]  # fmt: skip
+    python_names = [entry.name for entry in _python_module_entries()]
+    assert names == python_names, "the objects of the Python module, with the same IDs"
     goal = tool.lookup("c1", "joint.goal", timeout=5)
     assert goal.info.class_id == 0x10 and goal.info.codec.descriptor() == b"\x0a"
     goal.set(30.0, wait=True)
@@ -63,6 +63,33 @@ def test_a_client_lists_reads_and_writes_a_c_module(bus_pair) -> None:
         tool.lookup("c1", "no.such.object", timeout=5)
     servo = tool.lookup("c1", "servo.service", timeout=5)
     assert servo.running
+
+
+def _python_module_entries() -> list:
+    from asm_py.module.runtime import FakeDriver, ModuleRuntime
+    from asm_py.transport import MemoryNetwork, MemoryTransport
+
+    node = Node("reference", MemoryTransport(MemoryNetwork()))
+    runtime = ModuleRuntime(FakeDriver(), node=node)
+    try:
+        return [e for e in node.entries if e.name not in ("gait.switch", "gait.cycle", "gait.mode", "gait.done",
+                                                          "gait.signal")]  # fmt: skip
+    finally:
+        runtime.close()
+        node.close()
+
+
+def test_lookups_describe_objects_as_the_python_module_does(bus_pair) -> None:
+    """Every object's lookup reply, byte for byte (class, ID, kind, flags, codec descriptor, name, class name)."""
+    from asm_py.protocol import Method
+    from asm_py.remote import describe_entry
+
+    module, tool, _ = bus_pair
+    port = tool.port("c1")  # the raw request, to compare the reply bytes
+    for entry in _python_module_entries():
+        data = port.call(Method.LOOKUP, 0, 0, entry.name.encode(), timeout=5).data
+        expected = describe_entry(entry)
+        assert data == expected, entry.name
 
 
 def test_publications_of_a_c_module_reach_a_python_subscriber(bus_pair) -> None:
@@ -121,3 +148,73 @@ def test_hostile_frames_leave_the_c_module_answering(bus_pair) -> None:
         tool.lookup("c1", "estop", timeout=5).set(False, wait=True)
     goal.set(12.5, wait=True)
     assert goal.peek() == 12.5
+
+
+def test_a_mixed_robot_is_deployed_to_runs_and_stops_like_an_all_python_one() -> None:
+    """A 2-module caterpillar: m1 in C, m2 in Python, one bus; the studio's deploy, then the e-stop."""
+    from asm_py.module.runtime import FakeDriver, ModuleRuntime
+    from asm_py.module.wire import checksum
+    from gaits.deploy import DeployError, deploy, module_tables
+    from gaits.model import LIBRARY, load
+    from web.document import GaitDocument
+
+    doc = GaitDocument(load(LIBRARY / "caterpillar.toml"))
+    doc.set_robot("modules", 2)
+    gait = doc.gait()
+    channel = fresh_name("mixed")
+    c_module = CModule("m1", 1, interface="virtual", channel=channel)
+    python_node = Node("m2", CanTransport(2, interface="virtual", channel=channel, watch_bus=False))
+    runtime = ModuleRuntime(FakeDriver(), node=python_node, module_id=2)
+    tool = Node("studio", CanTransport(100, interface="virtual", channel=channel, heartbeat_period=0.1))
+    try:
+        assert wait_until(lambda: {"m1", "m2"} <= set(tool.discover()), timeout=10)
+        report = deploy(tool, gait, timeout=2.0)
+        assert set(report.running) == {1, 2}
+        tables = module_tables(gait)
+        assert tool.lookup("m1", "gait.checksum", timeout=5).peek() == checksum(tables[1])
+        state = tool.lookup("m1", "gait.state", timeout=5)
+        states: list[int] = []
+        unsubscribe = state.on_change(states.append)
+        goals = set()
+        for _ in range(40):
+            goals.add(round(c_module.goal, 1))
+            time.sleep(0.05)
+        unsubscribe()
+        assert len(goals) > 10 and len(set(states)) > 1, "the C module's gait moves its joint through its states"
+        tool.estop("test")
+        assert wait_until(lambda: c_module.latched and runtime.latched, timeout=5)
+        assert not tool.lookup("m1", "gait.service", timeout=5).running
+        held = c_module.goal
+        time.sleep(0.3)
+        assert c_module.goal == held, "it holds"
+        with pytest.raises(DeployError, match="emergency stop is latched on module 1"):
+            deploy(tool, gait, timeout=2.0)  # refused while latched, on the C module first
+    finally:
+        tool.close()
+        runtime.close()
+        python_node.close()
+        c_module.close()
+
+
+def test_a_request_longer_than_the_module_takes_is_answered_too_large_from_its_first_frame(bus_pair) -> None:
+    module, _, channel = bus_pair
+    raw = can.Bus(interface="virtual", channel=channel)
+    try:
+        length = 5000  # beyond the host build's 4,096 (a board's 640)
+        header = bytes([0x52, 0x09, 0x27, 0x0D])  # version 1, request-reply SET, txn 9, gait.staged (object 13)
+        first = bytes([length & 0xFF, length >> 8, 0, 0]) + header
+        raw.send(can.Message(arbitration_id=5 << 26 | 0 << 24 | 5 << 16 | 77 << 8 | 1 << 6, data=first,
+                             is_extended_id=True))  # fmt: skip
+        deadline = time.monotonic() + 5
+        reply = None
+        while reply is None and time.monotonic() < deadline:
+            frame = raw.recv(timeout=0.5)
+            to_77_from_5 = frame is not None and (frame.arbitration_id >> 8) & 0x3FFFF == (77 << 8 | 5)
+            if to_77_from_5:
+                reply = frame
+        assert reply is not None, "the module answered"
+        first_frame = (reply.arbitration_id >> 6) & 3 == 1  # its header follows the length and CRC
+        head = reply.data[4:8] if first_frame else reply.data[:4]
+        assert head == bytes([0x62, 0x09, 13, 0x0D]), bytes(reply.data).hex()  # REPLY to SET, txn 9, TOO_LARGE
+    finally:
+        raw.shutdown()

@@ -52,6 +52,12 @@ static int set_limits(struct asm_node *node, struct asm_object *o, const uint8_t
     return ASM_S_OK;
 }
 
+void asm_module_set_goal(struct asm_module *m, float degrees)
+{
+    m->goal_v = clamp(degrees, m->limits_v);
+    command(m);
+}
+
 static void hold(struct asm_node *node, void *ctx)
 {
     struct asm_module *m = module_of(node);
@@ -59,6 +65,7 @@ static void hold(struct asm_node *node, void *ctx)
     uint8_t contact;
     (void)ctx;
     m->estop_v = 1;
+    asm_gait_halt(m);
     m->joint.read(m->joint.ctx, &m->goal_v, &torque, &contact); /* hold where it is now */
     m->goal_v = clamp(m->goal_v, m->limits_v);
     command(m);
@@ -99,21 +106,6 @@ static int control_servo(struct asm_node *node, struct asm_object *o, uint8_t me
     }
 }
 
-static void object(struct asm_object *o, const char *name, uint8_t class_id, uint8_t kind, const uint8_t *descriptor,
-                   uint8_t descriptor_length, void *value, uint16_t size, uint8_t type)
-{
-    memset(o, 0, sizeof *o);
-    o->name = name;
-    o->class_id = class_id;
-    o->kind = kind;
-    o->descriptor = descriptor;
-    o->descriptor_length = descriptor_length;
-    o->value = value;
-    o->length = o->capacity = size;
-    o->type = type;
-    o->valid = 1;
-}
-
 void asm_module_init(struct asm_module *m, const char *name, uint8_t node_id, const struct asm_port *port,
                      const struct asm_joint_port *joint, float hardware_min, float hardware_max, uint32_t now_ms)
 {
@@ -124,31 +116,37 @@ void asm_module_init(struct asm_module *m, const char *name, uint8_t node_id, co
     m->hardware[0] = m->limits_v[0] = hardware_min;
     m->hardware[1] = m->limits_v[1] = hardware_max;
     m->goal_v = clamp(0.0f, m->limits_v);
-    object(&m->goal, "joint.goal", C_GOAL, ASM_ATTRIBUTE, D_FLOAT32, 1, &m->goal_v, 4, ASM_T_FLOAT32);
+    asm_object_init(&m->goal, "joint.goal", C_GOAL, ASM_ATTRIBUTE, D_FLOAT32, 1, &m->goal_v, 4, 4, ASM_T_FLOAT32);
     m->goal.set = set_goal;
     m->goal.estop_refuses = WRITES;
-    object(&m->angle, "joint.angle", C_ANGLE, ASM_ATTRIBUTE, D_FLOAT32, 1, &m->angle_v, 4, ASM_T_FLOAT32);
+    asm_object_init(&m->angle, "joint.angle", C_ANGLE, ASM_ATTRIBUTE, D_FLOAT32, 1, &m->angle_v, 4, 4, ASM_T_FLOAT32);
     m->angle.flags = ASM_F_READ_ONLY;
     m->angle.publication = (struct asm_publication){.mode = ASM_PUB_DEADBAND, .deadband = 0.1f, .min_gap_ms = 40,
                                                     .refresh_ms = 500};
-    object(&m->torque, "joint.torque", C_TORQUE, ASM_ATTRIBUTE, D_FLOAT32, 1, &m->torque_v, 4, ASM_T_FLOAT32);
+    asm_object_init(&m->torque, "joint.torque", C_TORQUE, ASM_ATTRIBUTE, D_FLOAT32, 1, &m->torque_v, 4, 4, ASM_T_FLOAT32);
     m->torque.flags = ASM_F_READ_ONLY;
     m->torque.publication = (struct asm_publication){.mode = ASM_PUB_DEADBAND, .deadband = 0.05f, .min_gap_ms = 80,
                                                      .refresh_ms = 1000};
-    object(&m->limits, "joint.limits", C_LIMITS, ASM_ATTRIBUTE, D_LIMITS, 3, m->limits_v, 8, ASM_T_FIXED);
+    asm_object_init(&m->limits, "joint.limits", C_LIMITS, ASM_ATTRIBUTE, D_LIMITS, 3, m->limits_v, 8, 8, ASM_T_FIXED);
     m->limits.set = set_limits;
     m->limits.estop_refuses = WRITES;
-    object(&m->servo, "servo.service", C_SERVO, ASM_SERVICE, D_JSON, 1, NULL, 0, ASM_T_FIXED);
+    asm_object_init(&m->servo, "servo.service", C_SERVO, ASM_SERVICE, D_JSON, 1, NULL, 0, 0, ASM_T_FIXED);
     m->servo.control = control_servo;
     m->servo.estop_refuses = WRITES;
-    object(&m->contact, "sensor.contact", C_CONTACT, ASM_ATTRIBUTE, D_BOOL, 1, &m->contact_v, 1, ASM_T_BOOL);
+    asm_object_init(&m->contact, "sensor.contact", C_CONTACT, ASM_ATTRIBUTE, D_BOOL, 1, &m->contact_v, 1, 1, ASM_T_BOOL);
     m->contact.flags = ASM_F_READ_ONLY;
     m->contact.publication.mode = ASM_PUB_EVERY_SET;
-    object(&m->estop, "estop", C_ESTOP, ASM_ATTRIBUTE, D_BOOL, 1, &m->estop_v, 1, ASM_T_BOOL);
+    asm_object_init(&m->estop, "estop", C_ESTOP, ASM_ATTRIBUTE, D_BOOL, 1, &m->estop_v, 1, 1, ASM_T_BOOL);
     m->estop.set = set_estop;
-    struct asm_object *all[] = {&m->goal, &m->angle, &m->torque, &m->limits, &m->servo, &m->contact, &m->estop};
-    for (size_t k = 0; k < sizeof all / sizeof all[0]; k++)
-        asm_node_register(&m->node, all[k]);
+    /* the order of the Python module, so object IDs match (docs/protocol.md's example: gait.checksum is 7) */
+    struct asm_object *joint_objects[] = {&m->goal, &m->angle, &m->torque, &m->limits, &m->servo};
+    for (size_t k = 0; k < sizeof joint_objects / sizeof joint_objects[0]; k++)
+        asm_node_register(&m->node, joint_objects[k]);
+    asm_gait_register(m, 0);
+    asm_node_register(&m->node, &m->contact);
+    asm_node_register(&m->node, &m->estop);
+    asm_gait_register(m, 1);
+    asm_gait_register(m, 2);
     control_servo(&m->node, &m->servo, ASM_START);
 }
 
@@ -166,5 +164,6 @@ void asm_module_tick(struct asm_module *m, uint32_t now_ms)
             asm_node_write(&m->node, &m->contact, &contact, 1);
         }
     }
+    asm_gait_tick(m, now_ms);
     asm_node_poll(&m->node, now_ms);
 }

@@ -82,6 +82,22 @@ static float as_float(const struct asm_object *o)
 
 /* -- registration ------------------------------------------------------------------------------------------------ */
 
+void asm_object_init(struct asm_object *o, const char *name, uint8_t class_id, uint8_t kind, const uint8_t *descriptor,
+                     uint8_t descriptor_length, void *value, uint16_t length, uint16_t capacity, uint8_t type)
+{
+    memset(o, 0, sizeof *o);
+    o->name = name;
+    o->class_id = class_id;
+    o->kind = kind;
+    o->descriptor = descriptor;
+    o->descriptor_length = descriptor_length;
+    o->value = value;
+    o->length = length;
+    o->capacity = capacity;
+    o->type = type;
+    o->valid = 1;
+}
+
 void asm_node_init(struct asm_node *n, const char *name, uint8_t node_id, const struct asm_port *port, uint32_t now_ms)
 {
     memset(n, 0, sizeof *n);
@@ -423,6 +439,15 @@ void asm_node_frame(struct asm_node *n, uint32_t can_id, const uint8_t *data, ui
     }
     if (id.source == 0 || id.source == 255 || !accepts(n, &id) || dlc > 64)
         return;
+    if (id.frame == ASM_FIRST && dlc >= 8 && (size_t)(data[0] | data[1] << 8) > ASM_CAN_MAX_MESSAGE) {
+        /* longer than this module takes: its header is in the first frame, so say so at once (TOO_LARGE) */
+        static const char text[] = "message longer than this module takes";
+        n->dropped++;
+        if (data[4] >> 6 == ASM_VERSION && ((data[4] >> 4) & 3u) == ASM_REQUEST_REPLY)
+            reply(n, id.source, data[4] & 0x0Fu, data[5] & ASM_MAX_TXN, ASM_S_TOO_LARGE, data[7], text,
+                  sizeof text - 1);
+        return;
+    }
     if (asm_reassemble(&n->rx, &id, data, dlc, now_ms, &message, &length))
         serve(n, id.source, message, length);
 }
@@ -443,7 +468,7 @@ void asm_node_poll(struct asm_node *n, uint32_t now_ms)
     for (uint8_t k = 0; k < n->count; k++) {
         struct asm_object *o = n->objects[k];
         struct asm_publication *p = &o->publication;
-        if (p->mode != ASM_PUB_DEADBAND)
+        if (p->mode != ASM_PUB_DEADBAND && p->mode != ASM_PUB_RATE)
             continue;
         if ((p->pending && due(now_ms, p->last_ms + p->min_gap_ms)) ||
             (p->refresh_ms && due(now_ms, p->last_ms + p->refresh_ms)))

@@ -67,7 +67,8 @@ static int parse_state(const uint8_t *s, struct asm_state *out)
         return ASM_E_FORMAT;
     if (event == ASM_EV_SIGNAL && (watch < 1 || watch > 255))
         return ASM_E_FORMAT;
-    *out = (struct asm_state){angle, duration, interp, event, timeout, value, neighbour, watch, emit};
+    *out = (struct asm_state){.target = angle, .duration = duration, .value = value, .watch = watch, .linear = interp,
+                              .event = event, .stop_on_timeout = timeout, .neighbour = neighbour, .emit = emit};
     return ASM_OK;
 }
 

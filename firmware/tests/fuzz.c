@@ -95,7 +95,7 @@ int main(int argc, char **argv)
             dlc = dlc > 8 ? 8 : dlc;
             data[0] = (uint8_t)(0x40 | (next() & 0x1F)); /* version 1, request or request-reply, any method */
             data[2] = (uint8_t)(next() % 2 ? data[2] : 0x10 + next() % 0x25);
-            data[3] = (uint8_t)(next() % 10);
+            data[3] = (uint8_t)(next() % 20); /* the joint and gait objects, and IDs beyond them */
         }
         asm_node_frame(&module.node, asm_can_pack(&id), data, dlc, now);
         if (next() % 16 == 0)

@@ -51,9 +51,9 @@ enum asm_object_kind { ASM_ATTRIBUTE = 0, ASM_EVENT = 1, ASM_SERVICE = 2 };
 /* How a remote SET is checked before the object's own check: a fixed size, or up to its capacity. */
 enum asm_type { ASM_T_FIXED = 0, ASM_T_BOOL = 1, ASM_T_FLOAT32 = 2, ASM_T_VARIABLE = 3 };
 
-/* When a published attribute sends (section 5): every set, or a float32 moving beyond a deadband at most every
- * min_gap_ms and at least every refresh_ms. */
-enum asm_publish_mode { ASM_PUB_NONE = 0, ASM_PUB_EVERY_SET = 1, ASM_PUB_DEADBAND = 2 };
+/* When a published attribute sends (section 5): every set; a float32 moving beyond a deadband at most every
+ * min_gap_ms and at least every refresh_ms; or only every refresh_ms (an event that fires at every control tick). */
+enum asm_publish_mode { ASM_PUB_NONE = 0, ASM_PUB_EVERY_SET = 1, ASM_PUB_DEADBAND = 2, ASM_PUB_RATE = 3 };
 
 struct asm_node;
 struct asm_object;
@@ -126,6 +126,11 @@ struct asm_node {
     uint32_t now_ms;
     uint32_t served, dropped, send_errors;
 };
+
+/* Fill in ``obj`` (everything else zero, the value valid): the one way the modules describe their objects. */
+void asm_object_init(struct asm_object *obj, const char *name, uint8_t class_id, uint8_t kind,
+                     const uint8_t *descriptor, uint8_t descriptor_length, void *value, uint16_t length,
+                     uint16_t capacity, uint8_t type);
 
 void asm_node_init(struct asm_node *node, const char *name, uint8_t node_id, const struct asm_port *port,
                    uint32_t now_ms);

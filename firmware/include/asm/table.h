@@ -17,15 +17,15 @@
 enum asm_event { ASM_EV_NONE, ASM_EV_CONTACT, ASM_EV_NO_CONTACT, ASM_EV_AT_GOAL, ASM_EV_TORQUE, ASM_EV_NEIGHBOUR,
                  ASM_EV_SIGNAL };
 
-struct asm_state {
+struct asm_state { /* 20 bytes: floats, then the small fields */
     float target;        /* degrees */
     float duration;      /* seconds; with an event its timeout, 0: none */
+    float value;         /* tolerance (at goal) or threshold (torque) */
+    uint16_t watch;      /* the neighbour's state, or the signal number */
     uint8_t linear;      /* 0 step, 1 linear */
     uint8_t event;       /* enum asm_event */
     uint8_t stop_on_timeout;
-    float value;         /* tolerance (at goal) or threshold (torque) */
     int8_t neighbour;    /* relative module ID (neighbour) */
-    uint16_t watch;      /* the neighbour's state, or the signal number */
     uint8_t emit;        /* signal broadcast on entry, 0: none */
 };
 
