@@ -30,7 +30,7 @@ log = logging.getLogger("asm_py.firmware")
 FIRMWARE = Path(__file__).resolve().parent.parent / "firmware"
 LIBRARY = FIRMWARE / "build" / "libasm_host.so"
 
-_SEND = ctypes.CFUNCTYPE(ctypes.c_int, ctypes.c_void_p, ctypes.c_uint32, ctypes.POINTER(ctypes.c_uint8), ctypes.c_uint8)
+_SEND = ctypes.CFUNCTYPE(ctypes.c_int, ctypes.c_void_p, ctypes.c_uint32, ctypes.c_void_p, ctypes.c_uint8)
 _COMMAND = ctypes.CFUNCTYPE(None, ctypes.c_void_p, ctypes.c_float)
 _RELAX = ctypes.CFUNCTYPE(None, ctypes.c_void_p)
 _READ = ctypes.CFUNCTYPE(None, ctypes.c_void_p, ctypes.POINTER(ctypes.c_float), ctypes.POINTER(ctypes.c_float),
@@ -144,10 +144,11 @@ class CModule:
     def _now_ms(self) -> int:
         return int((time.monotonic() - self._t0) * 1000) & 0xFFFFFFFF
 
-    def _send(self, _: object, can_id: int, data: Any, dlc: int) -> int:
+    def _send(self, _: object, can_id: int, data: int | None, dlc: int) -> int:
+        payload = ctypes.string_at(data, dlc) if dlc else b""  # one copy, not a list of ints
         try:
-            self.bus.send(can.Message(arbitration_id=can_id, data=bytes(data[:dlc]), is_extended_id=True,
-                                      is_fd=dlc > 8), timeout=0.1)  # fmt: skip
+            self.bus.send(can.Message(arbitration_id=can_id, data=payload, is_extended_id=True, is_fd=dlc > 8),
+                          timeout=0.1)  # fmt: skip
             return 0
         except can.CanError:
             self.send_errors += 1
