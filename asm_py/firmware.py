@@ -24,6 +24,9 @@ from typing import Any
 
 import can
 
+from .canbus.ids import Dest, Priority, SystemCode, dest_filter, priority_filter
+from .clock import Clock
+from .event import Event
 from .module.runtime import FakeDriver, JointDriver
 
 log = logging.getLogger("asm_py.firmware")
@@ -107,7 +110,12 @@ def library() -> ctypes.CDLL:
 
 
 class CModule:
-    """One C module on a python-can bus (given, or opened from ``bus_options`` like python-can's ``can.Bus``)."""
+    """One C module on a python-can bus (given, or opened from ``bus_options`` like python-can's ``can.Bus``).
+
+    On its own it ticks every 1/``control_rate`` s of the wall clock. Given a ``clock`` and a ``tick`` event (a
+    simulation's), it reads time from that clock and runs its control tick at every firing, in the firing thread,
+    as a Python module runtime with ``inline=True`` does: the same ticks, so a deployed C module and a preview agree.
+    """
 
     def __init__(
         self,
@@ -118,14 +126,21 @@ class CModule:
         driver: JointDriver | None = None,
         control_rate: float = 50.0,
         hardware_range: tuple[float, float] = (-90.0, 90.0),
+        clock: Clock | None = None,
+        tick: Event | None = None,
         **bus_options: Any,
     ) -> None:
         self.name = name
         self.node_id = node_id
         self.driver = driver if driver is not None else FakeDriver()
         self.period = 1.0 / control_rate
+        self.clock = clock
         self._own_bus = bus is None
         self.bus = bus if bus is not None else can.Bus(**bus_options)
+        # what a module's CAN controller passes (docs/protocol.md §7): its ID, broadcast requests, the e-stop
+        self.bus.set_filters([dest_filter(Dest.NODE, node_id), priority_filter(Priority.REQUEST, Dest.BROADCAST, 0),
+                              priority_filter(Priority.BULK, Dest.BROADCAST, 0),
+                              dest_filter(Dest.SYSTEM, SystemCode.ESTOP)])  # fmt: skip
         self._lib = library()
         self._memory = ctypes.create_string_buffer(self._lib.asm_host_size())
         self._name = name.encode("utf-8")  # the firmware keeps a pointer to it: it lives as long as this object
@@ -138,11 +153,18 @@ class CModule:
             self._lib.asm_host_init(self._memory, self._name, node_id, *self._callbacks, *map(float, hardware_range),
                                     self._now_ms())  # fmt: skip
         self._stop = threading.Event()
+        self._unlisten = tick.on_change(lambda _: self.tick()) if tick is not None else None
         self._thread = threading.Thread(target=self._run, name=f"c-module:{name}", daemon=True)
         self._thread.start()
 
     def _now_ms(self) -> int:
-        return int((time.monotonic() - self._t0) * 1000) & 0xFFFFFFFF
+        seconds = self.clock.now() if self.clock is not None else time.monotonic() - self._t0
+        return round(seconds * 1000) & 0xFFFFFFFF
+
+    def tick(self) -> None:
+        """One control tick now (the firmware's asm_module_tick)."""
+        with self._call_lock:
+            self._lib.asm_host_tick(self._memory, self._now_ms())
 
     def _send(self, _: object, can_id: int, data: int | None, dlc: int) -> int:
         payload = ctypes.string_at(data, dlc) if dlc else b""  # one copy, not a list of ints
@@ -159,16 +181,17 @@ class CModule:
         angle[0], torque[0], contact[0] = reading.angle, reading.torque, int(reading.contact)
 
     def _run(self) -> None:
+        ticking = self._unlisten is None  # else the simulation's tick event drives it
         next_tick = time.monotonic()
         while not self._stop.is_set():
-            frame = self.bus.recv(timeout=max(0.0, next_tick - time.monotonic()))
-            with self._call_lock:
-                if frame is not None and frame.is_extended_id and not frame.is_error_frame:
+            frame = self.bus.recv(timeout=max(0.0, next_tick - time.monotonic()) if ticking else 0.1)
+            if frame is not None and frame.is_extended_id and not frame.is_error_frame:
+                with self._call_lock:
                     self._lib.asm_host_frame(self._memory, frame.arbitration_id, bytes(frame.data), frame.dlc,
                                              self._now_ms())  # fmt: skip
-                if time.monotonic() >= next_tick:
-                    next_tick += self.period
-                    self._lib.asm_host_tick(self._memory, self._now_ms())
+            if ticking and time.monotonic() >= next_tick:
+                next_tick += self.period
+                self.tick()
 
     @property
     def latched(self) -> bool:
@@ -190,6 +213,8 @@ class CModule:
         """Leave the bus in order and stop; the bus is shut down if this module opened it."""
         if self._stop.is_set():
             return
+        if self._unlisten is not None:
+            self._unlisten()
         self._stop.set()
         self._thread.join(5)
         with self._call_lock:

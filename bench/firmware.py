@@ -111,6 +111,20 @@ def c_vs_python_gets() -> float:
         c_module.close()
 
 
+def mixed_vs_python() -> float:
+    """Distance of the caterpillar with modules 1, 3, 5, 7 in C over the all-Python one, each deployed to its own
+    robot process and measured over the same 10 s of wall time (bench/robot.py's live distance)."""
+    sys.path.insert(0, str(ROOT))
+    from bench.robot import live_distance
+    from gaits.model import LIBRARY
+
+    path = LIBRARY / "caterpillar.toml"
+    python = live_distance(path)
+    mixed = live_distance(path, "--c-modules", "odd")
+    print(f"# caterpillar in 10 s of wall time: {python:.3f} m all Python, {mixed:.3f} m with modules 1, 3, 5, 7 in C")
+    return mixed / python if python > 0 else 0.0
+
+
 def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         workdir = Path(tmp)
@@ -118,6 +132,7 @@ def main() -> None:
         size("gcc", [], workdir, "host x86-64")
         m4 = cortex_m4(workdir) if shutil.which("arm-none-eabi-gcc") else None
     gets = c_vs_python_gets()
+    mixed = mixed_vs_python()
     print(f"ratio firmware_fuzz_inputs_vs_10M {fed / INPUTS:.2f} (target >= 1)")
     print(f"ratio c_fuzz_inputs_vs_10m {fed / INPUTS:.2f} (target >= 1)")
     if m4 is None:
@@ -126,6 +141,8 @@ def main() -> None:
         print(f"ratio c_runtime_flash_vs_16k {m4[0] / 16384:.2f} (target <= 1)")
         print(f"ratio c_runtime_ram_vs_8k {m4[1] / 8192:.2f} (target <= 1)")
     print(f"ratio c_module_gets_vs_python_module {gets:.2f} (target >= 1.5)")
+    print(f"ratio mixed_robot_distance_vs_python {mixed:.2f} (target >= 0.95)")
+    print(f"ratio mixed_robot_distance_vs_python {mixed:.2f} (target <= 1.05)")
 
 
 if __name__ == "__main__":

@@ -14,17 +14,19 @@ from __future__ import annotations
 import math
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Collection, Mapping
 from dataclasses import dataclass, field
+from typing import Any
 
 import mujoco
 import numpy as np
 
 from asm_py import Event, Node
 from asm_py.clock import SimClock
+from asm_py.firmware import CModule
 from asm_py.module import JointDriver, JointReading, LocalNeighbours, ModuleRuntime
 
-from .deploy import module_tables
+from .deploy import module_name, module_tables
 from .mjcf import Physics, build_mjcf
 from .model import Gait
 from .programs import mode_index
@@ -141,6 +143,8 @@ class Simulation:
 
     ``direction`` -1 runs every module's automaton backwards (the gait's own directions, negated). ``node_of``
     gives each module runtime its ASM node (a robot process puts them on a bus); without it they have none.
+    ``c_modules`` (IDs) run the C runtime instead (asm_py.firmware), on the python-can bus ``bus_options`` opens,
+    ticked by the same tick event; they have no Python runtime in ``modules`` and are reached over the bus only.
     ``lock`` guards the model and data: the stepping thread holds it per control period, and a module's joint
     driver takes it, so a request arriving on a bus thread never touches MjData in the middle of a step.
     """
@@ -155,7 +159,11 @@ class Simulation:
         direction: int = 1,
         trace: bool = False,
         node_of: Callable[[int], Node] | None = None,
+        c_modules: Collection[int] = (),
+        bus_options: Mapping[str, Any] | None = None,
     ) -> None:
+        if c_modules and bus_options is None:
+            raise ValueError("C modules are reached over a bus only: give bus_options")
         self.gait = gait
         self.lock = threading.RLock()
         self.physics = physics or Physics(friction=gait.ground.friction, anisotropic=gait.ground.anisotropic)
@@ -174,11 +182,18 @@ class Simulation:
         self._module_of_body = self._module_bodies()
         self._root = int(self.model.joint("root").bodyid[0])  # the body with the free joint (mjcf chose it)
         self.modules: dict[int, ModuleRuntime] = {}
+        self.c_modules: dict[int, CModule] = {}
         self._push: tuple[float, np.ndarray] | None = None
         self.peak_torque = 0.0
         self._started = False
         hub = LocalNeighbours() if node_of is None else None  # without a bus, neighbours are heard in-process
         for assignment in gait.modules:
+            if assignment.id in c_modules:
+                self.c_modules[assignment.id] = CModule(module_name(assignment.id), assignment.id,
+                                                        driver=MujocoJoint(self, assignment.id), clock=self.clock,
+                                                        tick=self.tick, hardware_range=gait.limits,
+                                                        **dict(bus_options or {}))  # fmt: skip
+                continue
             node = node_of(assignment.id) if node_of is not None else None
             runtime = ModuleRuntime(MujocoJoint(self, assignment.id), node=node, clock=self.clock, tick=self.tick,
                                     limits=gait.limits, ramp=ramp, inline=True, module_id=assignment.id,
@@ -317,7 +332,14 @@ class Simulation:
         wall = time.perf_counter() - wall
         return self.measure(start, seconds, (warmup + seconds) / wall if wall > 0 else 0.0)
 
+    def latched(self) -> list[int]:
+        """The modules whose e-stop is latched, C modules included."""
+        python = [i for i, r in self.modules.items() if r.latched]
+        return sorted(python + [i for i, c in self.c_modules.items() if c.latched])
+
     def close(self) -> None:
+        for c_module in self.c_modules.values():
+            c_module.close()
         for runtime in self.modules.values():
             runtime.close()
             if runtime.node is not None:

@@ -34,7 +34,7 @@ from asm_py.feed import PoseFrame, RobotStatus, encode_poses, mjcf_key, poses_ke
 from asm_py.node import Node
 from asm_py.transport.can import CanTransport
 from gaits.deploy import module_name
-from gaits.model import LIBRARY, load
+from gaits.model import LIBRARY, Gait, load
 from gaits.sim import Simulation
 
 from .bridge import CanZenohBridge, add_zenoh_arguments, check_zenoh_arguments
@@ -62,6 +62,9 @@ class RobotOptions:
     node_id: int = 254
     """The bridge's own CAN node ID on the bus."""
     zenoh_mode: str = "peer"
+    c_modules: tuple[int, ...] | str = ()
+    """Simulated modules that run the C runtime (firmware/) instead of the Python one: IDs, or "odd", "even",
+    "all"."""
 
 
 class RealTimeLoop:
@@ -105,7 +108,7 @@ class RealTimeLoop:
                 if self.status.real_time_factor > 0.95 and self.status.behind:
                     self._behind(False)
                 self.status.time = sim.data.time
-                self.status.estop = [i for i, r in sim.modules.items() if r.latched]
+                self.status.estop = sim.latched()
                 self._publish(status_key(self.status.robot), self.status.to_json())
                 window_wall, window_sim = now, sim.data.time
             due = min(next_pose, wall0 + (sim.data.time - sim0) + period)
@@ -154,7 +157,8 @@ class Robot:
                                              **can_options)  # fmt: skip
                     return Node(module_name(module_id), transport)
 
-                self.sim = Simulation(gait, node_of=node_of)
+                self.sim = Simulation(gait, node_of=node_of, c_modules=chosen(options.c_modules, gait),
+                                      bus_options=can_options)  # fmt: skip
                 self.mjcf = self.sim.mjcf
             else:
                 can_options = dict(options.can)
@@ -163,7 +167,7 @@ class Robot:
                                          zenoh_listen=options.zenoh_listen, zenoh_connect=options.zenoh_connect,
                                          zenoh_config=options.zenoh_config, insecure=options.insecure)  # fmt: skip
             session = self.bridge.session
-            modules = len(self.sim.modules) if self.sim is not None else 0
+            modules = self.sim.gait.robot.modules if self.sim is not None else 0
             self.status = RobotStatus(options.name, "simulated" if self.sim else "real", modules,
                                       estop=[] if self.sim else None)  # fmt: skip
             publishers = self._publishers
@@ -246,6 +250,28 @@ def die_with_parent(parent: int) -> None:
     threading.Thread(target=watch, name="parent-watch", daemon=True).start()
 
 
+def chosen(selection: tuple[int, ...] | str, gait: Gait) -> tuple[int, ...]:
+    """The module IDs of the gait's robot a ``--c-modules`` selection names (IDs it does not have are ignored)."""
+    ids = [a.id for a in gait.modules]
+    if isinstance(selection, str):
+        parity = {"odd": 1, "even": 0, "all": None}[selection]
+        return tuple(i for i in ids if parity is None or i % 2 == parity)
+    return tuple(i for i in ids if i in selection)
+
+
+def module_selection(text: str) -> tuple[int, ...] | str:
+    """``--c-modules``: "odd", "even", "all", or module IDs separated by commas (1..254)."""
+    if text in ("odd", "even", "all"):
+        return text
+    try:
+        ids = tuple(sorted({int(part) for part in text.split(",")}))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"module IDs separated by commas, or odd, even, all; not {text!r}") from None
+    if not all(1 <= i <= 254 for i in ids):
+        raise argparse.ArgumentTypeError(f"module IDs are 1..254, not {text!r}")
+    return ids
+
+
 def main(argv: list[str] | None = None) -> int:
     cli = argparse.ArgumentParser(prog="asm-robot", description=__doc__.splitlines()[0] if __doc__ else "")
     where = cli.add_mutually_exclusive_group()
@@ -258,10 +284,19 @@ def main(argv: list[str] | None = None) -> int:
     cli.add_argument("--zenoh-mode", default="peer", choices=["peer", "client"])
     cli.add_argument("--name", type=name, default="robot", help="the robot's name in its Zenoh keys (default robot)")
     add_zenoh_arguments(cli)
+    cli.add_argument(
+        "--c-modules",
+        type=module_selection,
+        default=(),
+        metavar="IDS",
+        help="simulated modules that run the C runtime (firmware/): IDs as 1,3,5, or odd, even, all",
+    )
     cli.add_argument("--parent-pid", type=int, help=argparse.SUPPRESS)
     args = cli.parse_args(argv)
     if args.fd and args.can is None:
         cli.error("--fd describes a real bus: use it with --can")
+    if args.c_modules and args.can is not None:
+        cli.error("--c-modules chooses simulated modules: use it with --sim")
     check_zenoh_arguments(cli, args)
     return run(cli.prog, lambda: _serve(args))
 
@@ -276,7 +311,7 @@ def _serve(args: argparse.Namespace) -> int:
     options = RobotOptions(sim=None if args.can else (args.sim or RobotOptions.sim), can=can_options, name=args.name,
                            zenoh_listen=tuple(args.zenoh_listen), zenoh_connect=tuple(args.zenoh_connect),
                            zenoh_config=args.zenoh_config, insecure=args.insecure, node_id=args.node_id,
-                           zenoh_mode=args.zenoh_mode)  # fmt: skip
+                           zenoh_mode=args.zenoh_mode, c_modules=args.c_modules)  # fmt: skip
     done = stop_requested()
     robot = Robot(options)  # a bad gait file, a busy port or a missing bus: asm-robot: error: … (asm_py.cli.run)
     kind = "simulated" if robot.sim is not None else f"CAN {args.can}"

@@ -29,9 +29,9 @@ CATERPILLAR = load(LIBRARY / "caterpillar.toml")
 
 
 @pytest.fixture
-def robot() -> Iterator[tuple[Process, str]]:
+def robot(request) -> Iterator[tuple[Process, str]]:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    process = Process("-m", "server.robot", "--zenoh-listen", endpoint)
+    process = Process("-m", "server.robot", "--zenoh-listen", endpoint, *getattr(request, "param", ()))
     try:
         process.wait_for_line("READY robot", timeout=60)
         yield process, endpoint
@@ -81,7 +81,9 @@ def test_a_pose_frame_round_trips_and_matches_its_golden_vector() -> None:
             decode_poses(bad)
 
 
+@pytest.mark.parametrize("robot", [(), ("--c-modules", "odd")], ids=["python", "half-C"], indirect=True)
 def test_the_deployed_robot_crawls_in_physics_stops_on_estop_and_starts_again(robot) -> None:
+    """All modules Python, or modules 1, 3, 5, 7 running the C runtime on the same bus: the same behaviour."""
     _, endpoint = robot
     client = Node("tool", ZenohTransport(connect=[endpoint]))
     viewer = Viewer(client.transport.session)  # type: ignore[attr-defined]
