@@ -154,3 +154,16 @@ def name(text: str) -> str:
         return check_name(text, "a name")
     except ValueError as exc:
         raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def module_selection(text: str) -> tuple[int, ...] | str:
+    """``--c-modules``: "odd", "even", "all", or module IDs separated by commas (1..254)."""
+    if text in ("odd", "even", "all"):
+        return text
+    try:
+        ids = tuple(sorted({int(part) for part in text.split(",")}))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"module IDs separated by commas, or odd, even, all; not {text!r}") from None
+    if not all(1 <= i <= 254 for i in ids):
+        raise argparse.ArgumentTypeError(f"module IDs are 1..254, not {text!r}")
+    return ids

@@ -100,7 +100,7 @@ def library() -> ctypes.CDLL:
                                            ctypes.c_uint32]  # fmt: skip
             lib.asm_host_tick.argtypes = [ctypes.c_void_p, ctypes.c_uint32]
             lib.asm_host_leave.argtypes = [ctypes.c_void_p]
-            for name in ("asm_host_latched", "asm_host_served", "asm_host_dropped"):
+            for name in ("asm_host_latched", "asm_host_served", "asm_host_dropped", "asm_host_gait_started_ms"):
                 getattr(lib, name).argtypes = [ctypes.c_void_p]
                 getattr(lib, name).restype = ctypes.c_uint32
             lib.asm_host_goal.argtypes = [ctypes.c_void_p]
@@ -202,6 +202,13 @@ class CModule:
     def goal(self) -> float:
         """What the firmware commands the joint to (degrees)."""
         return float(self._lib.asm_host_goal(self._memory))
+
+    def gait_started(self) -> float:
+        """When the gait last started (its 1 s ramp began), in seconds of this module's clock (a wall clock's:
+        time.monotonic())."""
+        with self._call_lock:
+            ms = self._lib.asm_host_gait_started_ms(self._memory)
+        return ms / 1000 if self.clock is not None else self._t0 + ms / 1000
 
     def counters(self) -> dict[str, int]:
         """Requests served and frames or messages dropped by the firmware."""

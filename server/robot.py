@@ -29,7 +29,7 @@ from typing import Any
 
 import zenoh
 
-from asm_py.cli import bitrate, can_channel, input_file, name, node_id, run, stop_requested
+from asm_py.cli import bitrate, can_channel, input_file, module_selection, name, node_id, run, stop_requested
 from asm_py.feed import PoseFrame, RobotStatus, encode_poses, mjcf_key, poses_key, status_key
 from asm_py.node import Node
 from asm_py.transport.can import CanTransport
@@ -257,19 +257,6 @@ def chosen(selection: tuple[int, ...] | str, gait: Gait) -> tuple[int, ...]:
         parity = {"odd": 1, "even": 0, "all": None}[selection]
         return tuple(i for i in ids if parity is None or i % 2 == parity)
     return tuple(i for i in ids if i in selection)
-
-
-def module_selection(text: str) -> tuple[int, ...] | str:
-    """``--c-modules``: "odd", "even", "all", or module IDs separated by commas (1..254)."""
-    if text in ("odd", "even", "all"):
-        return text
-    try:
-        ids = tuple(sorted({int(part) for part in text.split(",")}))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"module IDs separated by commas, or odd, even, all; not {text!r}") from None
-    if not all(1 <= i <= 254 for i in ids):
-        raise argparse.ArgumentTypeError(f"module IDs are 1..254, not {text!r}")
-    return ids
 
 
 def main(argv: list[str] | None = None) -> int:

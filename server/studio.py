@@ -29,7 +29,17 @@ from typing import Any
 import zenoh
 
 from asm_py import Node
-from asm_py.cli import bitrate, can_channel, input_file, name, port, run, stop_requested, zenoh_endpoint
+from asm_py.cli import (
+    bitrate,
+    can_channel,
+    input_file,
+    module_selection,
+    name,
+    port,
+    run,
+    stop_requested,
+    zenoh_endpoint,
+)
 from asm_py.feed import RobotStatus, status_key
 from asm_py.transport.zenoh import ZenohTransport
 from gaits.model import LIBRARY, Gait, dumps, loads
@@ -65,6 +75,8 @@ class StudioOptions:
     """What the 3D view shows at start: "preview" (the edited gait) or "live" (the robot)."""
     token: str | None = None
     """The page's access token; None: none on loopback, a new random one when served beyond it."""
+    c_modules: str | None = None
+    """Simulated modules that run the C runtime (``asm-robot --c-modules``): "odd", "even", "all" or "1,3,5"."""
 
 
 def free_loopback_port() -> int:
@@ -166,6 +178,8 @@ class Studio:
                 self._gait_file = Path(name)
             self._gait_file.write_text(dumps(gait))
             args += ["--sim", str(self._gait_file)]
+            if options.c_modules:
+                args += ["--c-modules", options.c_modules]
             self.robot_gait = gait
         for endpoint in options.zenoh_listen:
             args += ["--zenoh-listen", endpoint]
@@ -251,9 +265,19 @@ def main(argv: list[str] | None = None) -> int:
     cli.add_argument("--port", type=port, default=8080, help="HTTP port (default 8080; 0 picks a free one)")
     cli.add_argument("--view", choices=["preview", "live"], default="preview",
                      help="what the 3D view shows at start (default: the preview of the edited gait)")  # fmt: skip
+    cli.add_argument("--c-modules", type=module_selection, metavar="IDS", help="simulated modules that run the C "
+                     "runtime (firmware/): IDs as 1,3,5, or odd, even, all")  # fmt: skip
     args = cli.parse_args(argv)
     check_zenoh_arguments(cli, args)
+    if args.c_modules and (args.can or args.robot):
+        cli.error("--c-modules chooses simulated modules of the studio's own robot: not with --can or --robot")
     return run(cli.prog, lambda: _serve(args))
+
+
+def _selection_text(selection: tuple[int, ...] | str | None) -> str | None:
+    if not selection:
+        return None
+    return selection if isinstance(selection, str) else ",".join(map(str, selection))
 
 
 def _serve(args: argparse.Namespace) -> int:
@@ -262,7 +286,8 @@ def _serve(args: argparse.Namespace) -> int:
     options = StudioOptions(gait=args.gait, can=args.can, robot=args.robot, robot_name=args.robot_name,
                             bitrate=args.bitrate, zenoh_listen=tuple(args.zenoh_listen),
                             zenoh_connect=tuple(args.zenoh_connect), zenoh_config=args.zenoh_config,
-                            insecure=args.insecure, host=args.host, port=args.port, view=args.view)  # fmt: skip
+                            insecure=args.insecure, host=args.host, port=args.port, view=args.view,
+                            c_modules=_selection_text(args.c_modules))  # fmt: skip
     done = stop_requested()
     studio = Studio(options)  # a bad gait file, a busy port, no robot: asm-studio: error: … (asm_py.cli.run)
     where = "simulated robot" if studio.simulated else f"robot {args.robot or args.can}"

@@ -14,6 +14,7 @@ import pytest
 
 from asm_py import EstopLatched, ReadOnlyError
 from asm_py.firmware import CModule
+from asm_py.module.runtime import FakeDriver
 from asm_py.node import Node
 from asm_py.transport.can import CanTransport
 
@@ -218,3 +219,69 @@ def test_a_request_longer_than_the_module_takes_is_answered_too_large_from_its_f
         assert head == bytes([0x62, 0x09, 13, 0x0D]), bytes(reply.data).hex()  # REPLY to SET, txn 9, TOO_LARGE
     finally:
         raw.shutdown()
+
+
+class _Recording(FakeDriver):
+    """A servo model that notes every command (wall time, degrees)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.commands: list[tuple[float, float]] = []
+
+    def command(self, degrees: float) -> None:
+        self.commands.append((time.monotonic(), degrees))
+        super().command(degrees)
+
+
+def test_preview_equals_deployment_for_c_and_python_modules_alike() -> None:
+    """The caterpillar with modules 1, 3, 5, 7 in C and the rest in Python on one virtual bus: at every tick each
+    module commands what the preview's module commanded at that time since the start, within one control tick."""
+    from asm_py.module.runtime import ModuleRuntime
+    from gaits.deploy import activate, deploy, stop_all
+    from gaits.model import LIBRARY, load
+    from gaits.sim import Simulation
+
+    from .test_sim import assert_follows_preview
+
+    gait = load(LIBRARY / "caterpillar.toml")
+    with Simulation(gait, trace=True) as sim:
+        sim.start()
+        sim.advance(2.5)
+        sim_times, sim_goals = sim.trace.times, sim.trace.goals
+    channel = fresh_name("mixed-preview")
+    c_modules: dict[int, CModule] = {}
+    runtimes: dict[int, ModuleRuntime] = {}
+    records: dict[int, list[tuple[float, float]]] = {}
+    nodes: list[Node] = []
+    try:
+        for a in gait.modules:
+            if a.id % 2:
+                driver = _Recording()
+                c_modules[a.id] = CModule(f"m{a.id}", a.id, driver=driver, interface="virtual", channel=channel)
+                records[a.id] = driver.commands
+            else:
+                node = Node(f"m{a.id}", CanTransport(a.id, interface="virtual", channel=channel, heartbeat_period=0.05))
+                nodes.append(node)
+                runtimes[a.id] = ModuleRuntime(FakeDriver(), node=node, control_rate=50.0, module_id=a.id)
+                record: list[tuple[float, float]] = []
+                runtimes[a.id].goal.on_change(lambda v, record=record: record.append((time.monotonic(), v)))
+                records[a.id] = record
+        tool = Node("tool", CanTransport(200, interface="virtual", channel=channel, heartbeat_period=0.05))
+        nodes.append(tool)
+        assert wait_until(lambda: {f"m{a.id}" for a in gait.modules} <= set(tool.discover()), timeout=10)
+        report = deploy(tool, gait, start=False)
+        for record in records.values():
+            record.clear()
+        activate(tool, report)
+        time.sleep(2.3)
+        stop_all(tool)
+    finally:
+        for c_module in c_modules.values():
+            c_module.close()
+        for runtime in runtimes.values():
+            runtime.close()
+        for node in nodes:
+            node.close()
+    for column, a in enumerate(gait.modules):
+        started = c_modules[a.id].gait_started() if a.id in c_modules else runtimes[a.id]._ramp_start
+        assert_follows_preview(sim_times, sim_goals, column, records[a.id], started)

@@ -49,6 +49,8 @@ USAGE_ERRORS = [  # (command, arguments, what the one-line error must mention)
     ("asm-robot", ["--c-modules", "odd,x"], "commas"),
     ("asm-robot", ["--c-modules", ""], "commas"),
     ("asm-robot", ["--can", "virtual:x", "--c-modules", "all"], "with --sim"),
+    ("asm-studio", ["--c-modules", "seven"], "commas"),
+    ("asm-studio", ["--robot", "tcp/127.0.0.1:7447", "--c-modules", "odd"], "not with --can or --robot"),
     ("asm-bridge", [], "--can"),
     ("asm-bridge", ["--can", "nope:xx"], "unknown CAN interface"),
     ("asm-bridge", ["--can", "virtual:x", "--node-id", "0"], "node ID"),
@@ -154,3 +156,14 @@ def test_a_failure_at_run_time_is_one_line_and_exit_1(module_name: str, argv: li
     assert "Traceback" not in result.stderr, result.stderr
     assert "error:" in result.stderr and mention in result.stderr, result.stderr
     assert "READY" not in result.stdout
+
+
+def test_the_studio_passes_its_c_module_choice_to_its_robot(tmp_path) -> None:
+    from types import SimpleNamespace
+
+    from gaits.model import LIBRARY, load
+    from server.studio import Studio, StudioOptions
+
+    owner = SimpleNamespace(options=StudioOptions(c_modules="1,3"), _gait_file=tmp_path / "robot.toml")
+    args = Studio._robot_args(owner, load(LIBRARY / "caterpillar.toml"))  # type: ignore[arg-type]
+    assert args[args.index("--c-modules") + 1] == "1,3" and "--sim" in args

@@ -144,7 +144,6 @@ def test_preview_equals_deployment_over_virtual_can():
         sim.start()
         sim.advance(2.5)
         sim_times, sim_goals = sim.trace.times, sim.trace.goals
-    tick = 1 / 50
     channel = fresh_name("asm-preview")
     runtimes, nodes = [], []
     records: list[list[tuple[float, float]]] = []
@@ -173,22 +172,30 @@ def test_preview_equals_deployment_over_virtual_can():
         for node in nodes:
             node.close()
     for column, (runtime, record) in enumerate(zip(runtimes, records, strict=True)):
-        started = runtime._ramp_start
-        samples = [(t - started, v) for t, v in record if 0 <= t - started <= 2.0]
-        assert len(samples) > 50, f"module {column + 1} produced {len(samples)} goals in 2 s"
-        for t, value in samples:
-            # the simulated trajectory over [t - tick, t + tick]: its ticks inside, and its values at both ends
-            lo = bisect.bisect_left(sim_times, t - tick)
-            hi = bisect.bisect_right(sim_times, t + tick)
-            window = [row[column] for row in sim_goals[lo:hi]]
-            window += [_interpolate(sim_times, sim_goals, column, t - tick), _interpolate(sim_times, sim_goals, column,
-                                                                                       t + tick)]  # fmt: skip
-            # between its samples the trajectory may bulge past them (a peak): by at most one tick's change
-            step = max(
-                abs(rows[column] - prev[column])
-                for prev, rows in zip(sim_goals[max(lo, 1) - 1 : hi], sim_goals[max(lo, 1) : hi + 1], strict=False)
-            )
-            assert min(window) - step - 1e-3 <= value <= max(window) + step + 1e-3, (column + 1, t, value, window)
+        assert_follows_preview(sim_times, sim_goals, column, record, runtime._ramp_start)
+
+
+def assert_follows_preview(
+    sim_times: list[float], sim_goals: list[list[float]], column: int, record: list[tuple[float, float]],
+    started: float, tick: float = 1 / 50,
+) -> None:  # fmt: skip
+    """Every goal of ``record`` ((time, goal), time on the clock ``started`` is on) in its first 2 s lies on the
+    preview's trajectory of module ``column + 1`` within one control tick either side."""
+    samples = [(t - started, v) for t, v in record if 0 <= t - started <= 2.0]
+    assert len(samples) > 50, f"module {column + 1} produced {len(samples)} goals in 2 s"
+    for t, value in samples:
+        # the simulated trajectory over [t - tick, t + tick]: its ticks inside, and its values at both ends
+        lo = bisect.bisect_left(sim_times, t - tick)
+        hi = bisect.bisect_right(sim_times, t + tick)
+        window = [row[column] for row in sim_goals[lo:hi]]
+        window += [_interpolate(sim_times, sim_goals, column, t - tick), _interpolate(sim_times, sim_goals, column,
+                                                                                   t + tick)]  # fmt: skip
+        # between its samples the trajectory may bulge past them (a peak): by at most one tick's change
+        step = max(
+            abs(rows[column] - prev[column])
+            for prev, rows in zip(sim_goals[max(lo, 1) - 1 : hi], sim_goals[max(lo, 1) : hi + 1], strict=False)
+        )
+        assert min(window) - step - 1e-3 <= value <= max(window) + step + 1e-3, (column + 1, t, value, window)
 
 
 def _interpolate(times: list[float], rows: list[list[float]], column: int, t: float) -> float:

@@ -31,3 +31,5 @@ int asm_host_latched(const struct asm_module *m) { return m->node.estop; }
 uint32_t asm_host_served(const struct asm_module *m) { return m->node.served; }
 uint32_t asm_host_dropped(const struct asm_module *m) { return m->node.dropped + m->node.rx.dropped; }
 float asm_host_goal(const struct asm_module *m) { return m->goal_v; }
+/* When the gait last started (its ramp's start), in the milliseconds the caller gives; 0 before any start. */
+uint32_t asm_host_gait_started_ms(const struct asm_module *m) { return m->gait.ramp_start_ms; }
