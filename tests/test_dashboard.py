@@ -276,3 +276,28 @@ def test_each_module_is_labelled_at_its_joint_in_the_3d_view(studio):
     assert np.allclose(gaps, 0.05, atol=2e-3)  # neighbouring joints are one 5 cm module apart: each label at its own
     app.view.set_labels(False)
     assert wait_until(lambda: not app.view._labels, timeout=20)
+
+
+def test_the_studio_deploys_to_and_estops_a_robot_whose_odd_modules_run_in_c() -> None:
+    """asm-studio --c-modules odd: modules 1, 3, 5, 7 of its robot run the C runtime; the page's Deploy, E-STOP and
+    release treat them like the others."""
+    from server.studio import Studio, StudioOptions
+
+    studio = Studio(StudioOptions(port=0, c_modules="odd"))
+    try:
+        app = studio.app
+        assert wait_until(lambda: len(app.modules()) == 8, 20)
+        gait = app.doc.gait()
+        app.deployer.start(gait, app.deployer.stage(gait))  # Deploy, then Start in the dialog that follows
+        running = lambda: [app.node.lookup(f"m{i}", "gait.service", timeout=2).running for i in range(1, 9)]  # noqa: E731
+        assert wait_until(lambda: all(running()), 20)
+        goal = app.node.lookup("m3", "joint.goal", timeout=2)  # a C module: its gait moves its goal
+        first = goal.peek()
+        assert wait_until(lambda: abs(goal.peek() - first) > 1.0, 10)
+        app._on_estop(None)  # the E-STOP button's callback
+        assert wait_until(lambda: len(studio.read_status().estop or []) == 8, 10), "every module latched, C too"
+        assert not any(running())
+        app._release(app.modules())
+        assert wait_until(lambda: not studio.read_status().estop, 10)
+    finally:
+        studio.close()
