@@ -111,6 +111,34 @@ def c_vs_python_gets() -> float:
         c_module.close()
 
 
+def vectors_reproduced(workdir: Path) -> tuple[int, int]:
+    """(reproduced, present) over every golden vector in tests/vectors/: messages and CAN frames by the C runner,
+    module objects by a C module on a virtual bus; codec vectors have no C counterpart (values travel as bytes)."""
+    import json
+
+    sys.path.insert(0, str(ROOT))
+    from asm_py.firmware import CModule
+    from tests.test_c_module import reproduce_module_object_vectors
+    from tests.test_firmware import _can_vector_lines, _message_lines, build
+
+    vectors = ROOT / "tests" / "vectors"
+    lines = _message_lines() + _can_vector_lines()
+    runner = build(workdir / "vectors", "vectors")
+    out = subprocess.run([str(runner)], input="\n".join(lines) + "\n", capture_output=True, text=True).stdout
+    wire = len(lines) if out.strip() == f"ok {len(lines)} failed 0" else 0
+    channel = f"bench-vectors-{time.monotonic_ns()}"
+    module = CModule("c1", 5, interface="virtual", channel=channel)
+    try:
+        objects = reproduce_module_object_vectors(module, channel)
+    finally:
+        module.close()
+    codecs = len(json.loads((vectors / "codecs.json").read_text())["codecs"])
+    missing = sorted(name for name, ok in objects.items() if not ok)
+    print(f"# golden vectors: {wire} of {len(lines)} messages and CAN frames, {len(objects) - len(missing)} of "
+          f"{len(objects)} module objects (not: {', '.join(missing)}), 0 of {codecs} codecs")  # fmt: skip
+    return wire + len(objects) - len(missing), len(lines) + len(objects) + codecs
+
+
 def mixed_vs_python() -> float:
     """Distance of the caterpillar with modules 1, 3, 5, 7 in C over the all-Python one, each deployed to its own
     robot process and measured over the same 10 s of wall time (bench/robot.py's live distance)."""
@@ -131,6 +159,7 @@ def main() -> None:
         fed, seconds = fuzz(workdir)
         size("gcc", [], workdir, "host x86-64")
         m4 = cortex_m4(workdir) if shutil.which("arm-none-eabi-gcc") else None
+        reproduced, present = vectors_reproduced(workdir)
     gets = c_vs_python_gets()
     mixed = mixed_vs_python()
     print(f"ratio firmware_fuzz_inputs_vs_10M {fed / INPUTS:.2f} (target >= 1)")
@@ -140,6 +169,7 @@ def main() -> None:
     else:
         print(f"ratio c_runtime_flash_vs_16k {m4[0] / 16384:.2f} (target <= 1)")
         print(f"ratio c_runtime_ram_vs_8k {m4[1] / 8192:.2f} (target <= 1)")
+    print(f"ratio c_vectors_reproduced {reproduced / present:.2f} (target == 1)")
     print(f"ratio c_module_gets_vs_python_module {gets:.2f} (target >= 1.5)")
     print(f"ratio mixed_robot_distance_vs_python {mixed:.2f} (target >= 0.95)")
     print(f"ratio mixed_robot_distance_vs_python {mixed:.2f} (target <= 1.05)")
