@@ -320,49 +320,44 @@ void asm_gait_register(struct asm_module *m, int part)
         parse(m, HOLD, sizeof HOLD, &g->program);
         g->checksum_v = asm_crc32(HOLD, sizeof HOLD);
         g->direction_v = g->heading = 1;
-        asm_object_init(&g->table, "gait.table", C_TABLE, ASM_ATTRIBUTE, D_BYTES, 2, g->table_v, sizeof HOLD, ASM_TABLE_BYTES,
-               ASM_T_VARIABLE);
+        asm_object_init(&g->table, "gait.table", C_TABLE, ASM_ATTRIBUTE, D_BYTES, 2, g->table_v, sizeof HOLD, ASM_TABLE_BYTES);
         g->table.set = set_table;
         g->table.estop_refuses = WRITES;
-        asm_object_init(&g->checksum, "gait.checksum", C_CHECKSUM, ASM_ATTRIBUTE, D_UINT32, 1, &g->checksum_v, 4, 4,
-               ASM_T_FIXED);
+        asm_object_init(&g->checksum, "gait.checksum", C_CHECKSUM, ASM_ATTRIBUTE, D_UINT32, 1, &g->checksum_v, 4, 4);
         g->checksum.flags = ASM_F_READ_ONLY;
-        asm_object_init(&g->phase, "gait.phase", C_PHASE, ASM_ATTRIBUTE, D_FLOAT32, 1, &g->phase_v, 4, 4, ASM_T_FLOAT32);
+        asm_object_init(&g->phase, "gait.phase", C_PHASE, ASM_ATTRIBUTE, D_FLOAT32, 1, &g->phase_v, 4, 4);
         g->phase.set = set_phase;
-        asm_object_init(&g->service, "gait.service", C_SERVICE, ASM_SERVICE, D_JSON, 1, NULL, 0, 0, ASM_T_FIXED);
+        asm_object_init(&g->service, "gait.service", C_SERVICE, ASM_SERVICE, D_JSON, 1, NULL, 0, 0);
         g->service.control = control;
         g->service.estop_refuses = (1u << ASM_START) | (1u << ASM_RESUME);
-        asm_object_init(&g->tick, "gait.tick", C_TICK, ASM_EVENT, D_FLOAT64, 1, &g->tick_v, 8, 8, ASM_T_FIXED);
+        asm_object_init(&g->tick, "gait.tick", C_TICK, ASM_EVENT, D_FLOAT64, 1, &g->tick_v, 8, 8);
         g->tick.flags = ASM_F_READ_ONLY | ASM_F_SYNC_GET; /* an event: a GET waits for a firing */
         g->tick.publication = (struct asm_publication){.mode = ASM_PUB_RATE, .refresh_ms = 1000};
         struct asm_object *all[] = {&g->table, &g->checksum, &g->phase, &g->service, &g->tick};
         for (size_t k = 0; k < sizeof all / sizeof all[0]; k++)
             asm_node_register(n, all[k]);
     } else if (part == 1) {
-        asm_object_init(&g->staged, "gait.staged", C_STAGED, ASM_ATTRIBUTE, D_BYTES, 2, g->staged_v, 0, ASM_STAGED_BYTES,
-               ASM_T_VARIABLE);
+        asm_object_init(&g->staged, "gait.staged", C_STAGED, ASM_ATTRIBUTE, D_BYTES, 2, g->staged_v, 0, ASM_STAGED_BYTES);
         g->staged.set = set_staged;
         g->staged.estop_refuses = WRITES;
         g->staged_checksum_v = asm_crc32(g->staged_v, 0);
         asm_object_init(&g->staged_checksum, "gait.staged_checksum", C_STAGED_CHECKSUM, ASM_ATTRIBUTE, D_UINT32, 1,
-               &g->staged_checksum_v, 4, 4, ASM_T_FIXED);
+               &g->staged_checksum_v, 4, 4);
         g->staged_checksum.flags = ASM_F_READ_ONLY;
-        asm_object_init(&g->activate, "gait.activate", C_ACTIVATE, ASM_ATTRIBUTE, D_UINT32, 1, &g->activate_v, 4, 4,
-               ASM_T_FIXED);
+        asm_object_init(&g->activate, "gait.activate", C_ACTIVATE, ASM_ATTRIBUTE, D_UINT32, 1, &g->activate_v, 4, 4);
         g->activate.set = set_activate;
         g->activate.estop_refuses = WRITES;
         asm_object_init(&g->lease, "gait.lease", C_LEASE, ASM_ATTRIBUTE, D_LEASE, sizeof D_LEASE, g->lease_v, 0,
-               sizeof g->lease_v, ASM_T_VARIABLE);
+               sizeof g->lease_v);
         g->lease.set = set_lease;
         lease_free(g);
         struct asm_object *all[] = {&g->staged, &g->staged_checksum, &g->activate, &g->lease};
         for (size_t k = 0; k < sizeof all / sizeof all[0]; k++)
             asm_node_register(n, all[k]);
     } else {
-        asm_object_init(&g->direction, "gait.direction", C_DIRECTION, ASM_ATTRIBUTE, D_INT8, 1, &g->direction_v, 1, 1,
-               ASM_T_FIXED);
+        asm_object_init(&g->direction, "gait.direction", C_DIRECTION, ASM_ATTRIBUTE, D_INT8, 1, &g->direction_v, 1, 1);
         g->direction.set = set_direction;
-        asm_object_init(&g->state, "gait.state", C_STATE, ASM_ATTRIBUTE, D_UINT16, 1, &g->state_v, 2, 2, ASM_T_FIXED);
+        asm_object_init(&g->state, "gait.state", C_STATE, ASM_ATTRIBUTE, D_UINT16, 1, &g->state_v, 2, 2);
         g->state.flags = ASM_F_READ_ONLY;
         g->state.publication.mode = ASM_PUB_EVERY_SET;
         asm_node_register(n, &g->direction);

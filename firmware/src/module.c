@@ -116,27 +116,27 @@ void asm_module_init(struct asm_module *m, const char *name, uint8_t node_id, co
     m->hardware[0] = m->limits_v[0] = hardware_min;
     m->hardware[1] = m->limits_v[1] = hardware_max;
     m->goal_v = clamp(0.0f, m->limits_v);
-    asm_object_init(&m->goal, "joint.goal", C_GOAL, ASM_ATTRIBUTE, D_FLOAT32, 1, &m->goal_v, 4, 4, ASM_T_FLOAT32);
+    asm_object_init(&m->goal, "joint.goal", C_GOAL, ASM_ATTRIBUTE, D_FLOAT32, 1, &m->goal_v, 4, 4);
     m->goal.set = set_goal;
     m->goal.estop_refuses = WRITES;
-    asm_object_init(&m->angle, "joint.angle", C_ANGLE, ASM_ATTRIBUTE, D_FLOAT32, 1, &m->angle_v, 4, 4, ASM_T_FLOAT32);
+    asm_object_init(&m->angle, "joint.angle", C_ANGLE, ASM_ATTRIBUTE, D_FLOAT32, 1, &m->angle_v, 4, 4);
     m->angle.flags = ASM_F_READ_ONLY;
     m->angle.publication = (struct asm_publication){.mode = ASM_PUB_DEADBAND, .deadband = 0.1f, .min_gap_ms = 40,
                                                     .refresh_ms = 500};
-    asm_object_init(&m->torque, "joint.torque", C_TORQUE, ASM_ATTRIBUTE, D_FLOAT32, 1, &m->torque_v, 4, 4, ASM_T_FLOAT32);
+    asm_object_init(&m->torque, "joint.torque", C_TORQUE, ASM_ATTRIBUTE, D_FLOAT32, 1, &m->torque_v, 4, 4);
     m->torque.flags = ASM_F_READ_ONLY;
     m->torque.publication = (struct asm_publication){.mode = ASM_PUB_DEADBAND, .deadband = 0.05f, .min_gap_ms = 80,
                                                      .refresh_ms = 1000};
-    asm_object_init(&m->limits, "joint.limits", C_LIMITS, ASM_ATTRIBUTE, D_LIMITS, 3, m->limits_v, 8, 8, ASM_T_FIXED);
+    asm_object_init(&m->limits, "joint.limits", C_LIMITS, ASM_ATTRIBUTE, D_LIMITS, 3, m->limits_v, 8, 8);
     m->limits.set = set_limits;
     m->limits.estop_refuses = WRITES;
-    asm_object_init(&m->servo, "servo.service", C_SERVO, ASM_SERVICE, D_JSON, 1, NULL, 0, 0, ASM_T_FIXED);
+    asm_object_init(&m->servo, "servo.service", C_SERVO, ASM_SERVICE, D_JSON, 1, NULL, 0, 0);
     m->servo.control = control_servo;
     m->servo.estop_refuses = WRITES;
-    asm_object_init(&m->contact, "sensor.contact", C_CONTACT, ASM_ATTRIBUTE, D_BOOL, 1, &m->contact_v, 1, 1, ASM_T_BOOL);
+    asm_object_init(&m->contact, "sensor.contact", C_CONTACT, ASM_ATTRIBUTE, D_BOOL, 1, &m->contact_v, 1, 1);
     m->contact.flags = ASM_F_READ_ONLY;
     m->contact.publication.mode = ASM_PUB_EVERY_SET;
-    asm_object_init(&m->estop, "estop", C_ESTOP, ASM_ATTRIBUTE, D_BOOL, 1, &m->estop_v, 1, 1, ASM_T_BOOL);
+    asm_object_init(&m->estop, "estop", C_ESTOP, ASM_ATTRIBUTE, D_BOOL, 1, &m->estop_v, 1, 1);
     m->estop.set = set_estop;
     /* the order of the Python module, so object IDs match (docs/protocol.md's example: gait.checksum is 7) */
     struct asm_object *joint_objects[] = {&m->goal, &m->angle, &m->torque, &m->limits, &m->servo};

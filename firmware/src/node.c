@@ -1,5 +1,7 @@
 #include "asm/node.h"
 
+#include "asm/codec.h"
+
 #include <math.h>
 #include <string.h>
 
@@ -54,6 +56,11 @@ static void reply(struct asm_node *n, uint8_t source, uint8_t method, uint8_t tx
     send_message(n, ASM_DEST_NODE, source, n->out, ASM_HEADER_SIZE + length, PRIORITY_REPLY);
 }
 
+static int is_float32(const struct asm_object *o)
+{
+    return o->descriptor_length == 1 && o->descriptor[0] == 0x0A && o->length == 4;
+}
+
 static void publish(struct asm_node *n, struct asm_object *o)
 {
     struct asm_publication *p = &o->publication;
@@ -68,14 +75,14 @@ static void publish(struct asm_node *n, struct asm_object *o)
     p->seq = (uint8_t)((p->seq + 1) & ASM_MAX_TXN);
     p->last_ms = n->now_ms;
     p->pending = 0;
-    if (o->type == ASM_T_FLOAT32 && o->length == 4)
+    if (is_float32(o))
         memcpy(&p->last_value, o->value, 4);
 }
 
 static float as_float(const struct asm_object *o)
 {
     float v = 0.0f;
-    if (o->length == 4)
+    if (is_float32(o))
         memcpy(&v, o->value, 4);
     return v;
 }
@@ -83,7 +90,7 @@ static float as_float(const struct asm_object *o)
 /* -- registration ------------------------------------------------------------------------------------------------ */
 
 void asm_object_init(struct asm_object *o, const char *name, uint8_t class_id, uint8_t kind, const uint8_t *descriptor,
-                     uint8_t descriptor_length, void *value, uint16_t length, uint16_t capacity, uint8_t type)
+                     uint8_t descriptor_length, void *value, uint16_t length, uint16_t capacity)
 {
     memset(o, 0, sizeof *o);
     o->name = name;
@@ -94,7 +101,6 @@ void asm_object_init(struct asm_object *o, const char *name, uint8_t class_id, u
     o->value = value;
     o->length = length;
     o->capacity = capacity;
-    o->type = type;
     o->valid = 1;
 }
 
@@ -187,14 +193,9 @@ int asm_node_write(struct asm_node *n, struct asm_object *o, const void *data, s
 
 static int check_value(const struct asm_object *o, const uint8_t *data, size_t length)
 {
-    switch (o->type) {
-    case ASM_T_BOOL:
-        return length == 1 && data[0] <= 1 ? ASM_S_OK : ASM_S_VALUE_ERROR;
-    case ASM_T_VARIABLE:
-        return length <= o->capacity ? ASM_S_OK : ASM_S_VALUE_ERROR;
-    default: /* fixed sizes, float32 included */
-        return length == o->capacity ? ASM_S_OK : ASM_S_VALUE_ERROR;
-    }
+    if (length > o->capacity || asm_codec_check(o->descriptor, o->descriptor_length, data, length) != ASM_OK)
+        return ASM_S_VALUE_ERROR;
+    return ASM_S_OK;
 }
 
 static int set_value(struct asm_node *n, struct asm_object *o, const uint8_t *data, size_t length)
@@ -215,26 +216,6 @@ static int set_value(struct asm_node *n, struct asm_object *o, const uint8_t *da
 }
 
 /* -- serving requests -------------------------------------------------------------------------------------------- */
-
-/* Strict UTF-8, as Python decodes a name (no overlong forms, no surrogates, nothing beyond U+10FFFF). */
-static int utf8_valid(const uint8_t *s, size_t length)
-{
-    for (size_t k = 0; k < length;) {
-        uint8_t c = s[k], lo = 0x80, hi = 0xBF;
-        size_t more = c < 0x80 ? 0 : c < 0xC2 ? 9 : c < 0xE0 ? 1 : c < 0xF0 ? 2 : c < 0xF5 ? 3 : 9;
-        if (more == 9 || k + more >= length + (more == 0))
-            return 0;
-        if (c == 0xE0) lo = 0xA0;
-        if (c == 0xED) hi = 0x9F;
-        if (c == 0xF0) lo = 0x90;
-        if (c == 0xF4) hi = 0x8F;
-        for (size_t j = 1; j <= more; j++, lo = 0x80, hi = 0xBF)
-            if (s[k + j] < lo || s[k + j] > hi)
-                return 0;
-        k += more + 1;
-    }
-    return 1;
-}
 
 /* The LOOKUP reply data of ``o`` (section 3) in n->out + 4; its length. */
 static size_t describe(struct asm_node *n, const struct asm_object *o)
@@ -293,7 +274,7 @@ static int execute(struct asm_node *n, uint8_t source, const struct asm_message 
             memcpy(n->out + ASM_HEADER_SIZE + 1, n->name, *length - 1);
             return ASM_S_OK;
         }
-        if (!utf8_valid(m->data, m->length))
+        if (!asm_utf8_valid(m->data, m->length))
             return ASM_S_BAD_MESSAGE;
         for (uint8_t k = 0; k < n->count && o == NULL; k++)
             if (strlen(n->objects[k]->name) == m->length && memcmp(n->objects[k]->name, m->data, m->length) == 0)

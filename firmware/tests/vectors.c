@@ -5,12 +5,15 @@
  *   MSG <hex> <kind> <method> <txn> <class> <status> <object> <timeout|-1>     decode, then encode back
  *   CAN <fd> <priority> <dest_kind> <dest> <source> <message hex> <id>:<data> ...  fragment, then reassemble
  *   TABLE <ok|refused> <hex> <crc32>                                              parse; CRC-32 of the bytes
- *   TIMEOUT <ms> <code>                                                           the timeout byte both ways */
+ *   TIMEOUT <ms> <code>                                                           the timeout byte both ways
+ *   CODEC <ok|refused> <descriptor hex> <value hex> [token ...]   check the value's bytes against the descriptor;
+ *         with tokens (one per scalar, str/bytes/json as hex), encode them and compare with the value's bytes */
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
 #include "asm/can.h"
+#include "asm/codec.h"
 #include "asm/table.h"
 #include "asm/wire.h"
 
@@ -173,6 +176,103 @@ static void timeout_case(char *rest, const char *original)
     }
 }
 
+static size_t put_leb128(uint8_t *out, size_t length)
+{
+    size_t n = 0;
+    do {
+        out[n] = (uint8_t)(length & 0x7Fu);
+        length >>= 7;
+        out[n] |= length ? 0x80u : 0;
+        n++;
+    } while (length);
+    return n;
+}
+
+static long get_leb128(const uint8_t *p, size_t *at)
+{
+    unsigned long value = 0;
+    for (unsigned shift = 0;; shift += 7) {
+        uint8_t b = p[(*at)++];
+        value |= (unsigned long)(b & 0x7Fu) << shift;
+        if (!(b & 0x80u))
+            return (long)value;
+    }
+}
+
+/* Encode the tokens as the codec at desc[*d] says, as a firmware writes a value: little-endian scalars, a
+ * length-prefixed str/bytes/json inside a record, float arrays element by element. Returns bytes written. */
+static size_t encode(const uint8_t *desc, size_t *d, char **tokens, int *t, uint8_t *out, int last)
+{
+    static const uint8_t SIZES[] = {0, 1, 1, 2, 4, 8, 1, 2, 4, 8, 4, 8};
+    uint8_t tag = desc[(*d)++];
+    size_t n = 0;
+    if (tag <= 0x09) {
+        const char *token = tokens[(*t)++];
+        unsigned long long v = token[0] == '-' ? (unsigned long long)strtoll(token, NULL, 10) : strtoull(token, NULL, 10);
+        for (uint8_t k = 0; k < SIZES[tag]; k++)
+            out[n++] = (uint8_t)(v >> (8 * k));
+    } else if (tag == 0x0A || tag == 0x0B) {
+        double v = strtod(tokens[(*t)++], NULL);
+        if (tag == 0x0A) {
+            float f = (float)v;
+            memcpy(out, &f, 4);
+            n = 4;
+        } else {
+            memcpy(out, &v, 8);
+            n = 8;
+        }
+    } else if (tag == 0x0C || tag == 0x0D || tag == 0x10) {
+        if (tag != 0x10)
+            get_leb128(desc, d);
+        size_t raw = unhex(tokens[(*t)++], other);
+        if (!last)
+            n = put_leb128(out, raw);
+        memcpy(out + n, other, raw);
+        n += raw;
+    } else if (tag == 0x0E) {
+        uint8_t element[1] = {desc[(*d)++]};
+        long count = get_leb128(desc, d);
+        for (long k = 0; k < count; k++) {
+            size_t e = 0;
+            n += encode(element, &e, tokens, t, out + n, 0);
+        }
+    } else if (tag == 0x0F) {
+        long fields = get_leb128(desc, d);
+        for (long f = 0; f < fields; f++) {
+            long name = get_leb128(desc, d);
+            *d += (size_t)name;
+            n += encode(desc, d, tokens, t, out + n, 0);
+        }
+    }
+    return n;
+}
+
+static void codec_case(char *rest, const char *original)
+{
+    static uint8_t descriptor[256], encoded[4096];
+    char *tokens[512], *verdict = strtok(rest, " \n"), *desc_hex = strtok(NULL, " \n"), *value_hex = strtok(NULL, " \n");
+    int count = 0;
+    if (verdict == NULL || desc_hex == NULL || value_hex == NULL) {
+        fail("CODEC syntax", original);
+        return;
+    }
+    for (char *token = strtok(NULL, " \n"); token != NULL && count < 512; token = strtok(NULL, " \n"))
+        tokens[count++] = token;
+    size_t dn = unhex(desc_hex, descriptor), n = unhex(value_hex, bytes);
+    int ok = asm_codec_check(descriptor, dn, bytes, n) == ASM_OK;
+    if (ok != (strcmp(verdict, "ok") == 0)) {
+        fail(ok ? "CODEC accepted what Python refuses" : "CODEC refused what Python accepts", original);
+        return;
+    }
+    if (count) {
+        size_t d = 0;
+        int t = 0;
+        size_t written = encode(descriptor, &d, tokens, &t, encoded, 1);
+        if (written != n || memcmp(encoded, bytes, n) != 0)
+            fail("CODEC encode", original);
+    }
+}
+
 int main(void)
 {
     int cases = 0;
@@ -194,6 +294,8 @@ int main(void)
             table_case(rest, original);
         else if (strcmp(line, "TIMEOUT") == 0)
             timeout_case(rest, original);
+        else if (strcmp(line, "CODEC") == 0)
+            codec_case(rest, original);
         else
             fail("unknown case", original);
     }

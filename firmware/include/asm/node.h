@@ -48,9 +48,6 @@ enum asm_object_kind { ASM_ATTRIBUTE = 0, ASM_EVENT = 1, ASM_SERVICE = 2 };
 #define ASM_F_PUBLISHED 0x04u
 #define ASM_F_READ_ONLY 0x08u
 
-/* How a remote SET is checked before the object's own check: a fixed size, or up to its capacity. */
-enum asm_type { ASM_T_FIXED = 0, ASM_T_BOOL = 1, ASM_T_FLOAT32 = 2, ASM_T_VARIABLE = 3 };
-
 /* When a published attribute sends (section 5): every set; a float32 moving beyond a deadband at most every
  * min_gap_ms and at least every refresh_ms; or only every refresh_ms (an event that fires at every control tick). */
 enum asm_publish_mode { ASM_PUB_NONE = 0, ASM_PUB_EVERY_SET = 1, ASM_PUB_DEADBAND = 2, ASM_PUB_RATE = 3 };
@@ -58,7 +55,8 @@ enum asm_publish_mode { ASM_PUB_NONE = 0, ASM_PUB_EVERY_SET = 1, ASM_PUB_DEADBAN
 struct asm_node;
 struct asm_object;
 
-/* A remote SET of ``obj``: check the value and store it; an asm_status. NULL: the type check, then a copy. */
+/* A remote SET of ``obj``, its bytes already a value of the object's codec and within its capacity: check its
+ * domain and store it; an asm_status. NULL: a copy. */
 typedef int (*asm_set_fn)(struct asm_node *node, struct asm_object *obj, const uint8_t *data, size_t length);
 /* START/STOP/SUSPEND/RESUME/RESET of a service: an asm_status (SERVICE_ERROR when the state forbids it). */
 typedef int (*asm_control_fn)(struct asm_node *node, struct asm_object *obj, uint8_t method);
@@ -79,8 +77,7 @@ struct asm_object {
     uint8_t class_id;
     uint8_t kind;  /* enum asm_object_kind */
     uint8_t flags; /* ASM_F_SYNC_GET, ASM_F_SYNC_SET, ASM_F_READ_ONLY (ASM_F_PUBLISHED follows the policy) */
-    uint8_t type;  /* enum asm_type */
-    const uint8_t *descriptor;
+    const uint8_t *descriptor; /* the codec (section 2): the one statement of the type; a remote SET must match it */
     uint8_t descriptor_length;
     uint8_t *value;   /* the value's bytes, owned by the module */
     uint16_t length;  /* bytes in use */
@@ -130,7 +127,7 @@ struct asm_node {
 /* Fill in ``obj`` (everything else zero, the value valid): the one way the modules describe their objects. */
 void asm_object_init(struct asm_object *obj, const char *name, uint8_t class_id, uint8_t kind,
                      const uint8_t *descriptor, uint8_t descriptor_length, void *value, uint16_t length,
-                     uint16_t capacity, uint8_t type);
+                     uint16_t capacity);
 
 void asm_node_init(struct asm_node *node, const char *name, uint8_t node_id, const struct asm_port *port,
                    uint32_t now_ms);
