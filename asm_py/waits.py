@@ -3,16 +3,14 @@
 A WAIT is the most common blocking request (a client waiting for a contact, a gait's end, a trigger), and it only
 ever needs the event's next firing or its deadline. Serving each one on a server daemon of its own cost a thread
 apiece: 8 modules × 16 pending waits held 128 threads and about 24 MiB in one robot process, for requests that do
-nothing until they end. Here a pending wait is a listener on the event plus an entry in a deadline heap, and one
-service thread per node (started with the first wait) answers the ones whose time runs out. The node's caps on
-blocking requests per client and in all still count these waits, so what a client may hold is unchanged.
+nothing until they end. Here a pending wait is a listener on the event plus, with a deadline, an entry in a short
+list, and one service thread per node (started with the first such wait) answers the ones whose time runs out.
+The node's caps on blocking requests per client and in all still count these waits, so what a client may hold is
+unchanged.
 """
 
 from __future__ import annotations
 
-import heapq
-import itertools
-import threading
 from collections.abc import Callable
 from typing import Any
 
@@ -41,15 +39,17 @@ class PendingWait:
 
 
 class EventWaits(Service):
-    """The pending WAITs of one node and the one thread that times them out."""
+    """The pending WAITs of one node and the one thread that times them out.
+
+    The node admits at most ``max_daemons`` blocking requests, so the waits with a deadline are a short list: a wait
+    leaves it the moment it is answered, whichever way, and nothing outlives its wait.
+    """
 
     def __init__(self, name: str, answer: Answer, *, clock: Clock | None = None) -> None:
         super().__init__(f"waits:{name}", clock=clock)
         self._answer = answer
-        self._lock = threading.Lock()
-        self._heap: list[tuple[float, int, PendingWait]] = []
-        self._order = itertools.count()
-        self._version = 0  # bumped when an earlier deadline arrives, to wake the thread
+        self._timed: dict[PendingWait, float] = {}  # wait -> deadline, for those not answered yet (the monitor's)
+        self._version = 0  # bumped at every new deadline, to wake the thread
 
     def add(self, wait: PendingWait, event: Event, codec: Codec) -> None:
         """Answer ``wait`` with the event's next firing (encoded with ``codec``) or TIMEOUT at its deadline."""
@@ -65,20 +65,17 @@ class EventWaits(Service):
             self._answer(wait, None, data)
 
         remove = event.on_change(fired)
-        with self._lock:
+        with self._mon:
             wait._remove = remove
             taken = wait._taken
+            if not taken and wait.deadline is not None:
+                self._timed[wait] = wait.deadline
+                self._version += 1
+                self._mon.notify_all()
         if taken:  # it fired between the listener's registration and here
             remove()
             return
-        if wait.deadline is None:
-            return
-        with self._mon:
-            heapq.heappush(self._heap, (wait.deadline, next(self._order), wait))
-            if self._heap[0][2] is wait:
-                self._version += 1
-                self._mon.notify_all()
-        if not self.started:
+        if wait.deadline is not None and not self.started:
             try:
                 self.start()
             except ServiceError:  # a concurrent add started it first
@@ -90,11 +87,12 @@ class EventWaits(Service):
 
     def _take(self, wait: PendingWait) -> bool:
         """Claim ``wait`` for exactly one answer; False if it was already answered or cancelled."""
-        with self._lock:
+        with self._mon:
             if wait._taken:
                 return False
             wait._taken = True
             remove = wait._remove
+            self._timed.pop(wait, None)
         if remove is not None:
             remove()
         return True
@@ -103,14 +101,11 @@ class EventWaits(Service):
         mon = self._mon
         while True:
             with mon:
-                while self._heap and self._heap[0][2]._taken:  # answered by a firing: drop lazily
-                    heapq.heappop(self._heap)
                 version = self._version
-                timeout = max(0.0, self._heap[0][0] - self.clock.now()) if self._heap else None
+                first = min(self._timed.values(), default=None)
+                timeout = None if first is None else max(0.0, first - self.clock.now())
                 mon.wait_for(lambda version=version: self._version != version, timeout)
-                due = []
-                while self._heap and self.clock.reached(self._heap[0][0]):
-                    due.append(heapq.heappop(self._heap)[2])
+                due = [wait for wait, deadline in self._timed.items() if self.clock.reached(deadline)]
             for wait in due:
                 if self._take(wait):
                     self._answer(wait, AsmTimeout("waiting on the event timed out"), b"")

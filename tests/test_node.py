@@ -157,6 +157,7 @@ def test_event_waits_hold_no_thread_each(world) -> None:
     objects["contact"].set(False)
     assert results == [True, True, True]
     assert objects["contact"]._listeners == listeners, "an answered wait leaves no listener on the event"
+    assert not server._waits._timed, "nor a deadline behind it: what a node keeps is bounded by what it admits"
 
     wait_for_contact(0.3)
     assert isinstance(results[-1], TimeoutError), "a wait that sees no firing ends at its deadline"
