@@ -195,15 +195,13 @@ class CanZenohBridge:
             try:
                 item = self._work.get(timeout=0.2)
             except queue.Empty:
-                self._expire_pending()
-                self.heap.tick()
-                continue
+                item = ""  # nothing to bridge: only the housekeeping below
             if item is None:
                 return
             try:
                 if item.startswith("-"):
                     self._unmirror(item[1:])
-                else:
+                elif item:
                     self._mirror(item)
             except Exception:
                 log.exception("bridging %s failed", item)
