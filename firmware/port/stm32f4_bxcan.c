@@ -63,10 +63,10 @@ static void can_init(void)
     CAN_FM1R = 0;                                        /* mask mode */
     CAN_FS1R = 0x3FFFu;                                  /* 32-bit */
     CAN_FFA1R = 0;                                       /* FIFO 0 */
-    filter(0, (0u << 24) | (NODE_ID << 16), 0x03FF0000u); /* to this node */
-    filter(1, (2u << 24) | (3u << 26), 0x1FFF0000u & ~(0xFFu << 16)); /* broadcast requests (priority 3) */
-    filter(2, (2u << 24) | (5u << 26), 0x1FFF0000u & ~(0xFFu << 16)); /* broadcast, fragmented (priority 5) */
-    filter(3, (3u << 24) | (0u << 16), 0x03FF0000u); /* the e-stop system frame */
+    filter(0, (uint32_t)ASM_DEST_NODE << 24 | NODE_ID << 16, 0x03FF0000u); /* to this node */
+    filter(1, ASM_PRIORITY_REQUEST << 26 | (uint32_t)ASM_DEST_BROADCAST << 24, 0x1F000000u); /* broadcast requests */
+    filter(2, ASM_PRIORITY_BULK << 26 | (uint32_t)ASM_DEST_BROADCAST << 24, 0x1F000000u); /* ... fragmented */
+    filter(3, (uint32_t)ASM_DEST_SYSTEM << 24 | (uint32_t)ASM_SYSTEM_ESTOP << 16, 0x03FF0000u); /* the e-stop */
     CAN_FMR &= ~1u;
     CAN_MCR = 0; /* normal mode */
     while (CAN_MSR & 1u)

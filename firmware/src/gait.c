@@ -7,27 +7,14 @@
 
 enum { C_TABLE = 0x20, C_PHASE = 0x21, C_DIRECTION = 0x22, C_STATE = 0x23, C_SERVICE = 0x24, C_TICK = 0x25,
        C_CHECKSUM = 0x26, C_STAGED = 0x27, C_STAGED_CHECKSUM = 0x28, C_ACTIVATE = 0x29, C_LEASE = 0x2A };
-#define WRITES ((1u << ASM_SET) | (1u << ASM_RESET) | (1u << ASM_START) | (1u << ASM_STOP) | (1u << ASM_SUSPEND) | \
-                (1u << ASM_RESUME))
 #define RAMP_MS 1000u
-#define MAX_LEASE_MS 60000.0f
+#define MAX_LEASE_SECONDS 60.0f
 #define REANCHOR_MS 3600000u /* an hour: the elapsed milliseconds stay exact in a float */
 
 static const uint8_t D_BYTES[] = {0x0D, 0x00}, D_UINT32[] = {0x08}, D_FLOAT32[] = {0x0A}, D_JSON[] = {0x10},
                      D_FLOAT64[] = {0x0B}, D_INT8[] = {0x02}, D_UINT16[] = {0x07},
                      D_LEASE[] = {0x0F, 0x03, 0x06, 'h', 'o', 'l', 'd', 'e', 'r', 0x0C, 0x00, 0x05, 't', 'o', 'k',
                                   'e', 'n', 0x08, 0x07, 's', 'e', 'c', 'o', 'n', 'd', 's', 0x0A};
-
-static struct asm_module *module_of(struct asm_node *node) { return (struct asm_module *)(void *)node; }
-
-static float f32(const uint8_t *p)
-{
-    float v;
-    memcpy(&v, p, 4);
-    return v;
-}
-
-static uint32_t u32(const uint8_t *p) { return (uint32_t)p[0] | p[1] << 8 | (uint32_t)p[2] << 16 | (uint32_t)p[3] << 24; }
 
 /* A program this slice runs: one time-driven periodic mode (what a version-1 table says). */
 static int periodic(const struct asm_program *p)
@@ -68,32 +55,24 @@ static uint16_t state_at(const struct asm_gait *g, float tau, float *start)
     return index;
 }
 
-static float reference(const struct asm_gait *g, float tau)
-{
-    const struct asm_state *s = states(g);
-    float start;
-    uint16_t index = state_at(g, tau, &start);
-    if (!s[index].linear)
-        return s[index].target;
-    float previous = s[(index + count(g) - 1) % count(g)].target;
-    return previous + (tau - start) / s[index].duration * (s[index].target - previous);
-}
-
-static void enter(struct asm_module *m)
-{
-    struct asm_gait *g = &m->gait;
-    float start;
-    uint16_t index = state_at(g, g->tau, &start);
-    if (index != g->state_v || !g->state.valid)
-        asm_node_write(&m->node, &g->state, &index, 2);
-}
-
+/* The state phase time tau falls in becomes gait.state (written on a change), and its reference, ramped in from
+ * the goal held at the start, becomes the goal. */
 static void output(struct asm_module *m, uint32_t now_ms)
 {
     struct asm_gait *g = &m->gait;
+    const struct asm_state *s = states(g);
+    float start, previous, reference;
+    uint16_t index = state_at(g, g->tau, &start);
+    if (index != g->state_v || !g->state.valid)
+        asm_node_write(&m->node, &g->state, &index, 2);
+    reference = s[index].target;
+    if (s[index].linear) {
+        previous = s[(index + count(g) - 1) % count(g)].target;
+        reference = previous + (g->tau - start) / s[index].duration * (s[index].target - previous);
+    }
     uint32_t since = now_ms - g->ramp_start_ms;
-    float s = since >= RAMP_MS ? 1.0f : (float)since / (float)RAMP_MS;
-    asm_module_set_goal(m, g->ramp_from + s * (reference(g, g->tau) - g->ramp_from));
+    float ramp = since >= RAMP_MS ? 1.0f : (float)since / (float)RAMP_MS;
+    asm_module_set_goal(m, g->ramp_from + ramp * (reference - g->ramp_from));
 }
 
 static void start(struct asm_module *m, uint32_t now_ms)
@@ -108,7 +87,6 @@ static void start(struct asm_module *m, uint32_t now_ms)
     g->ramp_from = m->goal_v;
     g->ramp_start_ms = now_ms;
     g->service.started = g->service.running = 1;
-    enter(m);
     output(m, now_ms);
 }
 
@@ -128,7 +106,6 @@ void asm_gait_tick(struct asm_module *m, uint32_t now_ms)
     if (g->tau < 0.0f)
         g->tau += g->period;
     g->last_tick_ms = now_ms;
-    enter(m);
     output(m, now_ms);
 }
 
@@ -136,7 +113,7 @@ void asm_gait_halt(struct asm_module *m) { m->gait.service.started = m->gait.ser
 
 static int control(struct asm_node *node, struct asm_object *o, uint8_t method)
 {
-    struct asm_module *m = module_of(node);
+    struct asm_module *m = asm_module_of(node);
     struct asm_gait *g = &m->gait;
     switch (method) {
     case ASM_START:
@@ -166,7 +143,7 @@ static int control(struct asm_node *node, struct asm_object *o, uint8_t method)
 
 static int set_table(struct asm_node *node, struct asm_object *o, const uint8_t *data, size_t length)
 {
-    struct asm_module *m = module_of(node);
+    struct asm_module *m = asm_module_of(node);
     struct asm_gait *g = &m->gait;
     if (g->service.started)
         return ASM_S_SERVICE_ERROR; /* a table never changes mid-cycle */
@@ -183,7 +160,7 @@ static int set_table(struct asm_node *node, struct asm_object *o, const uint8_t 
 
 static int set_phase(struct asm_node *node, struct asm_object *o, const uint8_t *data, size_t length)
 {
-    float v = length == 4 ? f32(data) : 0.0f; /* a RESET: 0 */
+    float v = length == 4 ? asm_get_f32(data) : 0.0f; /* a RESET: 0 */
     (void)node;
     if (!(v >= 0.0f && v < 1.0f))
         return ASM_S_VALUE_ERROR;
@@ -210,16 +187,15 @@ static int lease_in_force(struct asm_module *m)
 
 static void lease_free(struct asm_gait *g)
 {
-    static const uint8_t FREE[9] = {0};
-    memcpy(g->lease_v, FREE, sizeof FREE);
-    g->lease.length = sizeof FREE;
+    memset(g->lease_v, 0, 9); /* {holder "", token 0, seconds 0} */
+    g->lease.length = 9;
     g->lease_held = 0;
     g->lease_token = 0;
 }
 
 static int set_lease(struct asm_node *node, struct asm_object *o, const uint8_t *data, size_t length)
 {
-    struct asm_module *m = module_of(node);
+    struct asm_module *m = asm_module_of(node);
     struct asm_gait *g = &m->gait;
     (void)o;
     if (length == 0) { /* RESET */
@@ -229,8 +205,8 @@ static int set_lease(struct asm_node *node, struct asm_object *o, const uint8_t 
     uint8_t name = data[0];
     if (name >= 0x80 || length != 1u + name + 8u || name > ASM_LEASE_HOLDER)
         return ASM_S_VALUE_ERROR; /* a longer name (or a multi-byte length) than this module keeps */
-    uint32_t token = u32(data + 1 + name);
-    float wanted = f32(data + 5 + name);
+    uint32_t token = asm_get_u32(data + 1 + name);
+    float wanted = asm_get_f32(data + 5 + name);
     if (isnan(wanted))
         return ASM_S_VALUE_ERROR;
     if (node->estop && wanted > 0)
@@ -241,7 +217,7 @@ static int set_lease(struct asm_node *node, struct asm_object *o, const uint8_t 
         lease_free(g);
         return ASM_S_OK;
     }
-    float held = wanted * 1000.0f < MAX_LEASE_MS ? wanted : MAX_LEASE_MS / 1000.0f;
+    float held = wanted < MAX_LEASE_SECONDS ? wanted : MAX_LEASE_SECONDS;
     memcpy(g->lease_v, data, 5u + name);
     memcpy(g->lease_v + 5 + name, &held, 4);
     g->lease.length = (uint16_t)(9u + name);
@@ -253,7 +229,7 @@ static int set_lease(struct asm_node *node, struct asm_object *o, const uint8_t 
 
 static int set_staged(struct asm_node *node, struct asm_object *o, const uint8_t *data, size_t length)
 {
-    struct asm_module *m = module_of(node);
+    struct asm_module *m = asm_module_of(node);
     struct asm_gait *g = &m->gait;
     if (length == 0) {
         g->staged_ok = 0;
@@ -263,8 +239,8 @@ static int set_staged(struct asm_node *node, struct asm_object *o, const uint8_t
     }
     if (length < 12 || data[0] != 'G' || data[1] != 'S' || data[2] != 1)
         return ASM_S_VALUE_ERROR;
-    uint32_t id = u32(data + 3);
-    float phase = f32(data + 7);
+    uint32_t id = asm_get_u32(data + 3);
+    float phase = asm_get_f32(data + 7);
     int8_t direction = (int8_t)data[11];
     if (id == 0 || !(phase >= 0.0f && phase < 1.0f) || (direction != 1 && direction != -1))
         return ASM_S_VALUE_ERROR;
@@ -283,9 +259,9 @@ static int set_staged(struct asm_node *node, struct asm_object *o, const uint8_t
 
 static int set_activate(struct asm_node *node, struct asm_object *o, const uint8_t *data, size_t length)
 {
-    struct asm_module *m = module_of(node);
+    struct asm_module *m = asm_module_of(node);
     struct asm_gait *g = &m->gait;
-    uint32_t id = length == 4 ? u32(data) : 0;
+    uint32_t id = length == 4 ? asm_get_u32(data) : 0;
     (void)o;
     if (length == 0) { /* RESET */
         g->activate_v = 0;
@@ -293,7 +269,7 @@ static int set_activate(struct asm_node *node, struct asm_object *o, const uint8
     }
     if (id == g->activate_v && g->service.running)
         return ASM_S_OK; /* a resent activation: already running it */
-    if (!g->staged_ok || u32(g->staged_v + 3) != id)
+    if (!g->staged_ok || asm_get_u32(g->staged_v + 3) != id)
         return ASM_S_VALUE_ERROR;
     asm_gait_halt(m);
     size_t table = g->staged.length - 12u;
@@ -301,7 +277,7 @@ static int set_activate(struct asm_node *node, struct asm_object *o, const uint8
     g->table.length = (uint16_t)table;
     g->program = g->staged_program;
     g->checksum_v = asm_crc32(g->table_v, table);
-    g->phase_v = f32(g->staged_v + 7);
+    g->phase_v = asm_get_f32(g->staged_v + 7);
     g->direction_v = (int8_t)g->staged_v[11];
     g->activate_v = id;
     start(m, node->now_ms);
@@ -322,7 +298,7 @@ void asm_gait_register(struct asm_module *m, int part)
         g->direction_v = g->heading = 1;
         asm_object_init(&g->table, "gait.table", C_TABLE, ASM_ATTRIBUTE, D_BYTES, 2, g->table_v, sizeof HOLD, ASM_TABLE_BYTES);
         g->table.set = set_table;
-        g->table.estop_refuses = WRITES;
+        g->table.estop_refuses = ASM_WRITES;
         asm_object_init(&g->checksum, "gait.checksum", C_CHECKSUM, ASM_ATTRIBUTE, D_UINT32, 1, &g->checksum_v, 4, 4);
         g->checksum.flags = ASM_F_READ_ONLY;
         asm_object_init(&g->phase, "gait.phase", C_PHASE, ASM_ATTRIBUTE, D_FLOAT32, 1, &g->phase_v, 4, 4);
@@ -339,14 +315,14 @@ void asm_gait_register(struct asm_module *m, int part)
     } else if (part == 1) {
         asm_object_init(&g->staged, "gait.staged", C_STAGED, ASM_ATTRIBUTE, D_BYTES, 2, g->staged_v, 0, ASM_STAGED_BYTES);
         g->staged.set = set_staged;
-        g->staged.estop_refuses = WRITES;
+        g->staged.estop_refuses = ASM_WRITES;
         g->staged_checksum_v = asm_crc32(g->staged_v, 0);
         asm_object_init(&g->staged_checksum, "gait.staged_checksum", C_STAGED_CHECKSUM, ASM_ATTRIBUTE, D_UINT32, 1,
                &g->staged_checksum_v, 4, 4);
         g->staged_checksum.flags = ASM_F_READ_ONLY;
         asm_object_init(&g->activate, "gait.activate", C_ACTIVATE, ASM_ATTRIBUTE, D_UINT32, 1, &g->activate_v, 4, 4);
         g->activate.set = set_activate;
-        g->activate.estop_refuses = WRITES;
+        g->activate.estop_refuses = ASM_WRITES;
         asm_object_init(&g->lease, "gait.lease", C_LEASE, ASM_ATTRIBUTE, D_LEASE, sizeof D_LEASE, g->lease_v, 0,
                sizeof g->lease_v);
         g->lease.set = set_lease;

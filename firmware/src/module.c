@@ -5,12 +5,8 @@
 
 enum { C_ESTOP = 0x03, C_GOAL = 0x10, C_ANGLE = 0x11, C_LIMITS = 0x12, C_TORQUE = 0x13, C_SERVO = 0x14,
        C_CONTACT = 0x30 };
-#define WRITES ((1u << ASM_SET) | (1u << ASM_RESET) | (1u << ASM_START) | (1u << ASM_STOP) | (1u << ASM_SUSPEND) | \
-                (1u << ASM_RESUME))
 
 static const uint8_t D_BOOL[] = {0x01}, D_FLOAT32[] = {0x0A}, D_LIMITS[] = {0x0E, 0x0A, 0x02}, D_JSON[] = {0x10};
-
-static struct asm_module *module_of(struct asm_node *node) { return (struct asm_module *)(void *)node; }
 
 static float clamp(float v, const float limits[2]) { return v < limits[0] ? limits[0] : v > limits[1] ? limits[1] : v; }
 
@@ -22,7 +18,7 @@ static void command(struct asm_module *m)
 
 static int set_goal(struct asm_node *node, struct asm_object *o, const uint8_t *data, size_t length)
 {
-    struct asm_module *m = module_of(node);
+    struct asm_module *m = asm_module_of(node);
     float v = 0.0f;
     (void)o;
     if (length == 4)
@@ -36,7 +32,7 @@ static int set_goal(struct asm_node *node, struct asm_object *o, const uint8_t *
 
 static int set_limits(struct asm_node *node, struct asm_object *o, const uint8_t *data, size_t length)
 {
-    struct asm_module *m = module_of(node);
+    struct asm_module *m = asm_module_of(node);
     float v[2];
     (void)o;
     if (length == 0) { /* RESET: the hardware's range */
@@ -60,7 +56,7 @@ void asm_module_set_goal(struct asm_module *m, float degrees)
 
 static void hold(struct asm_node *node, void *ctx)
 {
-    struct asm_module *m = module_of(node);
+    struct asm_module *m = asm_module_of(node);
     float torque;
     uint8_t contact;
     (void)ctx;
@@ -75,13 +71,13 @@ static int set_estop(struct asm_node *node, struct asm_object *o, const uint8_t 
 {
     (void)o;
     asm_node_set_estop(node, length == 1 && data[0] == 1); /* latching holds the joint; false releases */
-    module_of(node)->estop_v = node->estop;
+    asm_module_of(node)->estop_v = node->estop;
     return ASM_S_OK;
 }
 
 static int control_servo(struct asm_node *node, struct asm_object *o, uint8_t method)
 {
-    struct asm_module *m = module_of(node);
+    struct asm_module *m = asm_module_of(node);
     switch (method) {
     case ASM_START:
         if (o->started)
@@ -118,7 +114,7 @@ void asm_module_init(struct asm_module *m, const char *name, uint8_t node_id, co
     m->goal_v = clamp(0.0f, m->limits_v);
     asm_object_init(&m->goal, "joint.goal", C_GOAL, ASM_ATTRIBUTE, D_FLOAT32, 1, &m->goal_v, 4, 4);
     m->goal.set = set_goal;
-    m->goal.estop_refuses = WRITES;
+    m->goal.estop_refuses = ASM_WRITES;
     asm_object_init(&m->angle, "joint.angle", C_ANGLE, ASM_ATTRIBUTE, D_FLOAT32, 1, &m->angle_v, 4, 4);
     m->angle.flags = ASM_F_READ_ONLY;
     m->angle.publication = (struct asm_publication){.mode = ASM_PUB_DEADBAND, .deadband = 0.1f, .min_gap_ms = 40,
@@ -129,10 +125,10 @@ void asm_module_init(struct asm_module *m, const char *name, uint8_t node_id, co
                                                      .refresh_ms = 1000};
     asm_object_init(&m->limits, "joint.limits", C_LIMITS, ASM_ATTRIBUTE, D_LIMITS, 3, m->limits_v, 8, 8);
     m->limits.set = set_limits;
-    m->limits.estop_refuses = WRITES;
+    m->limits.estop_refuses = ASM_WRITES;
     asm_object_init(&m->servo, "servo.service", C_SERVO, ASM_SERVICE, D_JSON, 1, NULL, 0, 0);
     m->servo.control = control_servo;
-    m->servo.estop_refuses = WRITES;
+    m->servo.estop_refuses = ASM_WRITES;
     asm_object_init(&m->contact, "sensor.contact", C_CONTACT, ASM_ATTRIBUTE, D_BOOL, 1, &m->contact_v, 1, 1);
     m->contact.flags = ASM_F_READ_ONLY;
     m->contact.publication.mode = ASM_PUB_EVERY_SET;

@@ -5,10 +5,6 @@
 #include <math.h>
 #include <string.h>
 
-enum { PRIORITY_REPLY = 2, PRIORITY_PUBLICATION = 4, PRIORITY_HEARTBEAT = 6 };
-enum { SYSTEM_ESTOP = 0, SYSTEM_HEARTBEAT = 1, SYSTEM_LEAVE = 2 };
-#define WRITES ((1u << ASM_SET) | (1u << ASM_RESET) | (1u << ASM_START) | (1u << ASM_STOP) | (1u << ASM_SUSPEND) | \
-                (1u << ASM_RESUME))
 #define HEARTBEAT_MS 500u
 
 static int due(uint32_t now, uint32_t when) { return (int32_t)(now - when) >= 0; }
@@ -34,7 +30,7 @@ static void send_message(struct asm_node *n, uint8_t dest_kind, uint8_t dest, co
 
 static void heartbeat(struct asm_node *n)
 {
-    send_message(n, ASM_DEST_SYSTEM, SYSTEM_HEARTBEAT, (const uint8_t *)n->name, strlen(n->name), PRIORITY_HEARTBEAT);
+    send_message(n, ASM_DEST_SYSTEM, ASM_SYSTEM_HEARTBEAT, (const uint8_t *)n->name, strlen(n->name), ASM_PRIORITY_HEARTBEAT);
     n->next_heartbeat_ms = n->now_ms + n->heartbeat_ms;
 }
 
@@ -53,7 +49,7 @@ static void reply(struct asm_node *n, uint8_t source, uint8_t method, uint8_t tx
     n->out[1] = txn;
     n->out[2] = status;
     n->out[3] = object;
-    send_message(n, ASM_DEST_NODE, source, n->out, ASM_HEADER_SIZE + length, PRIORITY_REPLY);
+    send_message(n, ASM_DEST_NODE, source, n->out, ASM_HEADER_SIZE + length, ASM_PRIORITY_REPLY);
 }
 
 static int is_float32(const struct asm_object *o)
@@ -71,7 +67,7 @@ static void publish(struct asm_node *n, struct asm_object *o)
     n->out[2] = o->class_id;
     n->out[3] = o->id;
     memcpy(n->out + ASM_HEADER_SIZE, o->value, o->length);
-    send_message(n, ASM_DEST_BROADCAST, 0, n->out, ASM_HEADER_SIZE + o->length, PRIORITY_PUBLICATION);
+    send_message(n, ASM_DEST_BROADCAST, 0, n->out, ASM_HEADER_SIZE + o->length, ASM_PRIORITY_PUBLICATION);
     p->seq = (uint8_t)((p->seq + 1) & ASM_MAX_TXN);
     p->last_ms = n->now_ms;
     p->pending = 0;
@@ -299,7 +295,7 @@ static int execute(struct asm_node *n, uint8_t source, const struct asm_message 
         *length = describe(n, o);
         return ASM_S_OK;
     }
-    if ((WRITES >> m->method) & 1u) {
+    if ((ASM_WRITES >> m->method) & 1u) {
         if ((o->flags & ASM_F_READ_ONLY) && (m->method == ASM_SET || m->method == ASM_RESET))
             return ASM_S_READ_ONLY;
         if (n->estop && ((o->estop_refuses >> m->method) & 1u))
@@ -394,9 +390,9 @@ static int accepts(const struct asm_node *n, const struct asm_can_id *id)
                 return 1;
         return 0;
     case ASM_DEST_BROADCAST:
-        return id->priority != PRIORITY_PUBLICATION;
+        return id->priority != ASM_PRIORITY_PUBLICATION;
     default:
-        return id->dest == SYSTEM_ESTOP;
+        return id->dest == ASM_SYSTEM_ESTOP;
     }
 }
 
@@ -414,7 +410,7 @@ void asm_node_frame(struct asm_node *n, uint32_t can_id, const uint8_t *data, ui
     size_t length;
     n->now_ms = now_ms;
     asm_can_unpack(can_id, &id);
-    if (id.dest_kind == ASM_DEST_SYSTEM && id.dest == SYSTEM_ESTOP && (id.frame == ASM_SINGLE || id.frame == ASM_FIRST)) {
+    if (id.dest_kind == ASM_DEST_SYSTEM && id.dest == ASM_SYSTEM_ESTOP && (id.frame == ASM_SINGLE || id.frame == ASM_FIRST)) {
         asm_node_set_estop(n, 1); /* from any source, before anything else */
         return;
     }
@@ -461,7 +457,7 @@ void asm_node_poll(struct asm_node *n, uint32_t now_ms)
 void asm_node_leave(struct asm_node *n)
 {
     static const uint8_t nothing[1] = {0};
-    send_message(n, ASM_DEST_SYSTEM, SYSTEM_LEAVE, nothing, 0, PRIORITY_HEARTBEAT);
+    send_message(n, ASM_DEST_SYSTEM, ASM_SYSTEM_LEAVE, nothing, 0, ASM_PRIORITY_HEARTBEAT);
 }
 
 void asm_node_send_estop(struct asm_node *n, const char *reason)
@@ -474,7 +470,7 @@ void asm_node_send_estop(struct asm_node *n, const char *reason)
             length--;
     }
     id.dest_kind = ASM_DEST_SYSTEM;
-    id.dest = SYSTEM_ESTOP;
+    id.dest = ASM_SYSTEM_ESTOP;
     id.source = n->node_id;
     if (n->port.send(n->port.ctx, asm_can_pack(&id), (const uint8_t *)(length ? reason : ""), (uint8_t)length) != 0)
         n->send_errors++;

@@ -5,19 +5,6 @@
 
 #include "asm/wire.h"
 
-static float f32(const uint8_t *p)
-{
-    uint32_t bits = (uint32_t)p[0] | ((uint32_t)p[1] << 8) | ((uint32_t)p[2] << 16) | ((uint32_t)p[3] << 24);
-    float value;
-    memcpy(&value, &bits, sizeof value);
-    return value;
-}
-
-static uint16_t u16(const uint8_t *p)
-{
-    return (uint16_t)(p[0] | (p[1] << 8));
-}
-
 static int within(float target, const float limits[2])
 {
     return isfinite(target) && target >= limits[0] && target <= limits[1];
@@ -25,12 +12,12 @@ static int within(float target, const float limits[2])
 
 static int parse_v1(const uint8_t *data, size_t length, const float limits[2], struct asm_program *p)
 {
-    uint16_t n = u16(data + 3);
+    uint16_t n = asm_get_u16(data + 3);
     if (n < 1 || n > ASM_PROTOCOL_MAX_STATES || length != 5u + 9u * n)
         return ASM_E_FORMAT;
     for (uint16_t k = 0; k < n; k++) {
         const uint8_t *s = data + 5 + 9u * k;
-        float angle = f32(s), duration = f32(s + 4);
+        float angle = asm_get_f32(s), duration = asm_get_f32(s + 4);
         if (s[8] > 1 || !isfinite(duration) || !(duration > 0) || !isfinite(angle))
             return ASM_E_FORMAT;
         if (!within(angle, limits))
@@ -49,10 +36,10 @@ static int parse_v1(const uint8_t *data, size_t length, const float limits[2], s
 /* The checks of asm_py/module/wire.py decode_program, in the same order of importance. */
 static int parse_state(const uint8_t *s, struct asm_state *out)
 {
-    float angle = f32(s), duration = f32(s + 4), value = f32(s + 11);
+    float angle = asm_get_f32(s), duration = asm_get_f32(s + 4), value = asm_get_f32(s + 11);
     uint8_t interp = s[8], event = s[9], timeout = s[10], emit = s[18];
     int8_t neighbour = (int8_t)s[15];
-    uint16_t watch = u16(s + 16);
+    uint16_t watch = asm_get_u16(s + 16);
     if (interp > 1 || event > ASM_EV_SIGNAL || timeout > 1)
         return ASM_E_FORMAT;
     /* one form per program: what an event does not use is 0 */
@@ -84,17 +71,17 @@ static int parse_v2(const uint8_t *data, size_t length, const float limits[2], s
         return ASM_E_FORMAT;
     for (uint8_t q = 0; q < steps; q++, offset += 3) {
         p->sequence[q].mode = data[offset];
-        p->sequence[q].cycles = u16(data + offset + 1);
+        p->sequence[q].cycles = asm_get_u16(data + offset + 1);
     }
     uint32_t total = 0;
     int too_many = 0, outside = 0;
     for (uint8_t m = 0; m < modes; m++) {
         if (offset + 8 > length)
             return ASM_E_FORMAT;
-        float phase = f32(data + offset);
+        float phase = asm_get_f32(data + offset);
         int8_t direction = (int8_t)data[offset + 4];
         uint8_t flags = data[offset + 5];
-        uint16_t n = u16(data + offset + 6);
+        uint16_t n = asm_get_u16(data + offset + 6);
         offset += 8;
         total += n;
         if (n < 1 || total > ASM_PROTOCOL_MAX_STATES || (flags & ~1u))

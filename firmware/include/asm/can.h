@@ -30,8 +30,16 @@ struct asm_can_id {
     uint8_t counter;   /* 0..63 */
 };
 
+/* Priorities (identifier bits 28-26) of section 7: lower wins arbitration. */
 #define ASM_PRIORITY_ESTOP 0u
+#define ASM_PRIORITY_REPLY 2u
+#define ASM_PRIORITY_REQUEST 3u
+#define ASM_PRIORITY_PUBLICATION 4u
 #define ASM_PRIORITY_BULK 5u /* every frame of a message of several frames: a long transfer never delays a short one */
+#define ASM_PRIORITY_HEARTBEAT 6u
+
+/* System frames (destination kind 3): the code in the destination field. */
+enum asm_system { ASM_SYSTEM_ESTOP = 0, ASM_SYSTEM_HEARTBEAT = 1, ASM_SYSTEM_LEAVE = 2 };
 
 uint32_t asm_can_pack(const struct asm_can_id *id);
 /* How many frames a message of ``length`` bytes takes, and the priority they go out at. */

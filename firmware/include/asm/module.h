@@ -26,6 +26,9 @@ struct asm_module {
     struct asm_gait gait;
 };
 
+/* The module a node belongs to (the node is its first member): what an object's set or control function needs. */
+static inline struct asm_module *asm_module_of(struct asm_node *node) { return (struct asm_module *)(void *)node; }
+
 /* Register the objects, start the servo and send the first heartbeat. ``hardware`` is also the initial limits. */
 void asm_module_init(struct asm_module *m, const char *name, uint8_t node_id, const struct asm_port *port,
                      const struct asm_joint_port *joint, float hardware_min, float hardware_max, uint32_t now_ms);

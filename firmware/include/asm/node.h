@@ -40,6 +40,10 @@ enum asm_method {
     ASM_RESUME = 7, ASM_STATUS = 8, ASM_WAIT = 9, ASM_PEEK = 10, ASM_PUBLISH = 11
 };
 
+/* The methods that change an object: what a read-only attribute or a latched e-stop may refuse. */
+#define ASM_WRITES ((1u << ASM_SET) | (1u << ASM_RESET) | (1u << ASM_START) | (1u << ASM_STOP) | \
+                    (1u << ASM_SUSPEND) | (1u << ASM_RESUME))
+
 enum asm_object_kind { ASM_ATTRIBUTE = 0, ASM_EVENT = 1, ASM_SERVICE = 2 };
 
 /* Lookup flags (section 3). */

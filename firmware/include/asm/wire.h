@@ -6,6 +6,7 @@
 
 #include <stddef.h>
 #include <stdint.h>
+#include <string.h>
 
 #define ASM_VERSION 1u
 #define ASM_HEADER_SIZE 4u
@@ -46,6 +47,20 @@ int asm_decode(const uint8_t *raw, size_t length, struct asm_message *m);
  * ASM_FOREVER). */
 uint8_t asm_timeout_code(uint32_t ms);
 uint32_t asm_timeout_ms(uint8_t code);
+
+/* Little-endian fields of messages and tables. */
+static inline uint16_t asm_get_u16(const uint8_t *p) { return (uint16_t)(p[0] | p[1] << 8); }
+static inline uint32_t asm_get_u32(const uint8_t *p)
+{
+    return (uint32_t)p[0] | (uint32_t)p[1] << 8 | (uint32_t)p[2] << 16 | (uint32_t)p[3] << 24;
+}
+static inline float asm_get_f32(const uint8_t *p)
+{
+    uint32_t bits = asm_get_u32(p);
+    float value;
+    memcpy(&value, &bits, sizeof value);
+    return value;
+}
 
 uint16_t asm_crc16(const uint8_t *data, size_t length); /* CRC-16/CCITT-FALSE: CAN fragment preambles */
 uint32_t asm_crc32(const uint8_t *data, size_t length); /* CRC-32 (IEEE, zlib's): gait.checksum */
