@@ -42,8 +42,17 @@ _lock = threading.Lock()
 _library: ctypes.CDLL | None = None
 
 
+C_FLAGS = ["-std=c11", "-Wall", "-Wextra", "-Werror", "-pedantic", f"-I{FIRMWARE / 'include'}"]
+"""How every build of the firmware compiles it (the library, the board port, the test and fuzz programs)."""
+
+
+def runtime_sources() -> list[Path]:
+    """The portable runtime (firmware/src/), without a port."""
+    return sorted((FIRMWARE / "src").glob("*.c"))
+
+
 def _sources() -> list[Path]:
-    return [*sorted((FIRMWARE / "src").glob("*.c")), FIRMWARE / "port" / "host.c"]
+    return [*runtime_sources(), FIRMWARE / "port" / "host.c"]
 
 
 def build_library() -> Path:
@@ -55,9 +64,8 @@ def build_library() -> Path:
     fd, temporary = tempfile.mkstemp(dir=LIBRARY.parent, suffix=".so")  # then renamed: parallel builds never clash
     os.close(fd)
     try:
-        subprocess.run([os.environ.get("CC", "gcc"), "-std=c11", "-O2", "-fPIC", "-shared", "-Wall", "-Wextra",
-                        "-Werror", "-pedantic", f"-I{FIRMWARE / 'include'}", *map(str, _sources()), "-lm", "-o",
-                        temporary], check=True, capture_output=True, text=True)  # fmt: skip
+        subprocess.run([os.environ.get("CC", "gcc"), *C_FLAGS, "-O2", "-fPIC", "-shared", *map(str, _sources()), "-lm",
+                        "-o", temporary], check=True, capture_output=True, text=True)  # fmt: skip
         os.replace(temporary, LIBRARY)
     except subprocess.CalledProcessError as exc:
         raise RuntimeError(f"building the C module runtime failed:\n{exc.stderr}") from None
@@ -76,9 +84,8 @@ CORTEX_M4_FLAGS = [
 
 def build_cortex_m4(elf: Path) -> tuple[int, int, int]:
     """Link the example STM32F4 port (firmware/port/) with the runtime, -Os; its (text, data, bss) in bytes."""
-    sources = [*sorted((FIRMWARE / "src").glob("*.c")), FIRMWARE / "port" / "stm32f4_bxcan.c"]
-    subprocess.run(["arm-none-eabi-gcc", "-std=c11", "-Os", "-Wall", "-Wextra", "-Werror", "-pedantic",
-                    *CORTEX_M4_FLAGS, f"-I{FIRMWARE / 'include'}", *map(str, sources), "-nostartfiles",
+    sources = [*runtime_sources(), FIRMWARE / "port" / "stm32f4_bxcan.c"]
+    subprocess.run(["arm-none-eabi-gcc", *C_FLAGS, "-Os", *CORTEX_M4_FLAGS, *map(str, sources), "-nostartfiles",
                     "--specs=nano.specs", "--specs=nosys.specs", "-Wl,--gc-sections",
                     f"-T{FIRMWARE / 'port' / 'stm32f4.ld'}", "-lm", "-o", str(elf)], check=True, capture_output=True,
                    text=True)  # fmt: skip

@@ -21,19 +21,16 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 # bench/ holds a can.py: keep this directory off the path, or "import can" would import that script.
 sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != ROOT / "bench"]
-FIRMWARE = ROOT / "firmware"
+sys.path.insert(0, str(ROOT))
+
+from asm_py.firmware import C_FLAGS, runtime_sources  # noqa: E402
+from tests.test_firmware import build  # noqa: E402
+
 INPUTS = 10_000_000
 
 
-def sources() -> list[str]:
-    return [str(p) for p in sorted((FIRMWARE / "src").glob("*.c"))]
-
-
 def fuzz(workdir: Path) -> tuple[int, float]:
-    binary = workdir / "fuzz"
-    subprocess.run(["gcc", "-std=c11", "-O1", "-fsanitize=address,undefined", "-fno-sanitize-recover=all",
-                    f"-I{FIRMWARE / 'include'}", *sources(), str(FIRMWARE / "tests" / "fuzz.c"), "-lm", "-o",
-                    str(binary)], check=True)  # fmt: skip
+    binary = build(workdir / "fuzz", "fuzz")  # the test suite's build: both sanitizers, warnings as errors
     began = time.perf_counter()
     result = subprocess.run([str(binary), str(INPUTS), "1"], capture_output=True, text=True)
     seconds = time.perf_counter() - began
@@ -46,10 +43,9 @@ def fuzz(workdir: Path) -> tuple[int, float]:
 
 def size(compiler: str, flags: list[str], workdir: Path, tag: str) -> None:
     objects = []
-    for source in sources():
-        obj = workdir / f"{tag}-{Path(source).stem}.o"
-        subprocess.run([compiler, "-std=c11", "-Os", *flags, f"-I{FIRMWARE / 'include'}", "-c", source, "-o",
-                        str(obj)], check=True)  # fmt: skip
+    for source in runtime_sources():
+        obj = workdir / f"{tag}-{source.stem}.o"
+        subprocess.run([compiler, *C_FLAGS, "-Os", *flags, "-c", str(source), "-o", str(obj)], check=True)
         objects.append(str(obj))
     tool = compiler.replace("gcc", "size")
     report = subprocess.run([tool if shutil.which(tool) else "size", *objects], capture_output=True, text=True)
@@ -63,7 +59,6 @@ def size(compiler: str, flags: list[str], workdir: Path, tag: str) -> None:
 
 def cortex_m4(workdir: Path) -> tuple[int, int]:
     """(flash, RAM) bytes of the example STM32F4 port linked with the runtime: text + data, data + bss."""
-    sys.path.insert(0, str(ROOT))
     from asm_py.firmware import build_cortex_m4
 
     text, data, bss = build_cortex_m4(workdir / "m4.elf")
@@ -80,7 +75,6 @@ def gets_per_second(remote: object, count: int) -> float:
 
 def c_vs_python_gets() -> float:
     """Remote gets of joint.goal per second from a C module over a Python module, one virtual bus, rounds alternated."""
-    sys.path.insert(0, str(ROOT))
     from asm_py.firmware import CModule
     from asm_py.module.runtime import FakeDriver, ModuleRuntime
     from asm_py.node import Node
@@ -115,10 +109,9 @@ def vectors_reproduced(workdir: Path) -> tuple[int, int]:
     """(reproduced, present) over every golden vector in tests/vectors/: messages, CAN frames and codecs by the C
     runner (codecs both ways: the bytes checked against the descriptor, the value encoded to them), module objects
     by a C module on a virtual bus."""
-    sys.path.insert(0, str(ROOT))
     from asm_py.firmware import CModule
     from tests.test_c_module import reproduce_module_object_vectors
-    from tests.test_firmware import _can_vector_lines, _codec_lines, _message_lines, build
+    from tests.test_firmware import _can_vector_lines, _codec_lines, _message_lines
 
     lines = _message_lines() + _can_vector_lines() + _codec_lines()
     runner = build(workdir / "vectors", "vectors")
@@ -139,7 +132,6 @@ def vectors_reproduced(workdir: Path) -> tuple[int, int]:
 def mixed_vs_python() -> float:
     """Distance of the caterpillar with modules 1, 3, 5, 7 in C over the all-Python one, each deployed to its own
     robot process and measured over the same 10 s of wall time (bench/robot.py's live distance)."""
-    sys.path.insert(0, str(ROOT))
     from bench.robot import live_distance
     from gaits.model import LIBRARY
 

@@ -18,7 +18,7 @@ import pytest
 from asm_py.automaton import PhaseState
 from asm_py.canbus.fragments import fragment
 from asm_py.canbus.ids import CanId, frame_priority
-from asm_py.firmware import build_cortex_m4
+from asm_py.firmware import C_FLAGS, build_cortex_m4, runtime_sources
 from asm_py.module.program import EVENTS, Mode, ModeState, Program, Until
 from asm_py.module.wire import checksum, decode_program, encode_program, encode_table
 from asm_py.protocol import decode_timeout, encode_timeout
@@ -31,10 +31,9 @@ pytestmark = [pytest.mark.timeout(300), pytest.mark.skipif(shutil.which("gcc") i
 
 def build(out: Path, program: str) -> Path:
     """``firmware/tests/<program>.c`` with the firmware, warnings as errors, under both sanitizers."""
-    sources = [str(p) for p in sorted((FIRMWARE / "src").glob("*.c"))] + [str(FIRMWARE / "tests" / f"{program}.c")]
-    subprocess.run(["gcc", "-std=c11", "-O1", "-g", "-Wall", "-Wextra", "-Werror", "-pedantic",
-                    "-fsanitize=address,undefined", "-fno-sanitize-recover=all", f"-I{FIRMWARE / 'include'}",
-                    *sources, "-lm", "-o", str(out)], check=True, capture_output=True, text=True)  # fmt: skip
+    sources = [*runtime_sources(), FIRMWARE / "tests" / f"{program}.c"]
+    subprocess.run(["gcc", *C_FLAGS, "-O1", "-g", "-fsanitize=address,undefined", "-fno-sanitize-recover=all",
+                    *map(str, sources), "-lm", "-o", str(out)], check=True, capture_output=True, text=True)  # fmt: skip
     return out
 
 
