@@ -201,22 +201,12 @@ def test_a_request_longer_than_the_module_takes_is_answered_too_large_from_its_f
     module, _, channel = bus_pair
     raw = can.Bus(interface="virtual", channel=channel)
     try:
-        length = 5000  # beyond the host build's 4,096 (a board's 640)
-        header = bytes([0x52, 0x09, 0x27, 0x0D])  # version 1, request-reply SET, txn 9, gait.staged (object 13)
-        first = bytes([length & 0xFF, length >> 8, 0, 0]) + header
-        raw.send(can.Message(arbitration_id=5 << 26 | 0 << 24 | 5 << 16 | 77 << 8 | 1 << 6, data=first,
-                             is_extended_id=True))  # fmt: skip
-        deadline = time.monotonic() + 5
-        reply = None
-        while reply is None and time.monotonic() < deadline:
-            frame = raw.recv(timeout=0.5)
-            to_77_from_5 = frame is not None and (frame.arbitration_id >> 8) & 0x3FFFF == (77 << 8 | 5)
-            if to_77_from_5:
-                reply = frame
-        assert reply is not None, "the module answered"
-        first_frame = (reply.arbitration_id >> 6) & 3 == 1  # its header follows the length and CRC
-        head = reply.data[4:8] if first_frame else reply.data[:4]
-        assert head == bytes([0x62, 0x09, 13, 0x0D]), bytes(reply.data).hex()  # REPLY to SET, txn 9, TOO_LARGE
+        # 5,000 bytes: beyond the host build's 4,096 (a board's 640); version 1, request-reply SET, txn 9,
+        # gait.staged (object 13)
+        _send_first_frame(raw, 5000, bytes([0x52, 0x09, 0x27, 0x0D]))
+        head = _first_reply(raw)
+        assert head is not None, "the module answered"
+        assert head[:4] == bytes([0x62, 0x09, 13, 0x0D]), head.hex()  # REPLY to SET, txn 9, TOO_LARGE
     finally:
         raw.shutdown()
 
@@ -300,11 +290,7 @@ def _raw_request(bus: can.BusABC, message: bytes, *, dest_kind: int = 0, dest: i
     if not reply:
         return None
     reassembler = Reassembler(4096, 4, 1.0)
-    deadline = time.monotonic() + 5
-    while time.monotonic() < deadline:
-        frame = bus.recv(timeout=0.5)
-        if frame is None or (frame.arbitration_id >> 8) & 0x3FFFF != (source << 8 | 5):
-            continue
+    for frame in _frames_to(bus, source):
         cid = CanId.unpack(frame.arbitration_id)
         done = reassembler.feed((cid.source, cid.dest_kind, cid.dest), cid.frame, cid.counter, bytes(frame.data),
                                 time.monotonic())  # fmt: skip
@@ -353,8 +339,7 @@ def reproduce_module_object_vectors(module: CModule, channel: str) -> dict[str, 
         module_estop = _raw_request(bus, bytes([0x52, 0x0C, 0x03, 12, 1]))  # latch
         produced[11] = _raw_request(bus, bytes([0x52, 0x05, 0x10, 1, 0, 0, 0, 0]))  # SET of joint.goal: ESTOP
         _raw_request(bus, bytes([0x52, 0x0D, 0x03, 12, 0]))  # release
-        first = bytes([0x88, 0x13, 0, 0, 0x52, 0x05, 0x27, 13])  # a 5,000-byte SET: its first frame only
-        bus.send(can.Message(arbitration_id=(5 << 26 | 5 << 16 | 77 << 8 | 1 << 6), data=first, is_extended_id=True))
+        _send_first_frame(bus, 5000, bytes([0x52, 0x05, 0x27, 13]))  # a 5,000-byte SET: its first frame only
         produced[13] = _first_reply(bus)
         for vector in vectors["replies"]:
             got = produced.get(vector["status"])
@@ -367,13 +352,26 @@ def reproduce_module_object_vectors(module: CModule, channel: str) -> dict[str, 
     return done
 
 
-def _first_reply(bus: can.BusABC) -> bytes | None:
-    """The head of the next reply to node 77 from node 5 (its first frame's message bytes, or a single frame's)."""
+def _frames_to(bus: can.BusABC, node: int = 77) -> Iterator[can.Message]:
+    """The frames the C module (node 5) sends to ``node`` in the next 5 s."""
     deadline = time.monotonic() + 5
     while time.monotonic() < deadline:
         frame = bus.recv(timeout=0.5)
-        if frame is not None and (frame.arbitration_id >> 8) & 0x3FFFF == (77 << 8 | 5):
-            return bytes(frame.data[4:]) if (frame.arbitration_id >> 6) & 3 == 1 else bytes(frame.data)
+        if frame is not None and (frame.arbitration_id >> 8) & 0x3FFFF == (node << 8 | 5):
+            yield frame
+
+
+def _send_first_frame(bus: can.BusABC, length: int, header: bytes) -> None:
+    """Only the first frame of a ``length``-byte message from node 77 to the module: the length, a CRC, the header."""
+    data = bytes([length & 0xFF, length >> 8, 0, 0]) + header
+    bus.send(can.Message(arbitration_id=5 << 26 | 5 << 16 | 77 << 8 | 1 << 6, data=data, is_extended_id=True))
+
+
+def _first_reply(bus: can.BusABC) -> bytes | None:
+    """The head of the next reply to node 77 (its first frame's message bytes, after the length and CRC, or a single
+    frame's)."""
+    for frame in _frames_to(bus):
+        return bytes(frame.data[4:]) if (frame.arbitration_id >> 6) & 3 == 1 else bytes(frame.data)
     return None
 
 
