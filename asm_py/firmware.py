@@ -28,6 +28,7 @@ from .canbus.ids import Dest, Priority, SystemCode, dest_filter, priority_filter
 from .clock import Clock
 from .event import Event
 from .module.runtime import FakeDriver, JointDriver
+from .protocol import WELL_KNOWN_CLASSES, Kind, Method, Status, first_byte
 
 log = logging.getLogger("asm_py.firmware")
 FIRMWARE = Path(__file__).resolve().parent.parent / "firmware"
@@ -44,6 +45,11 @@ _library: ctypes.CDLL | None = None
 
 C_FLAGS = ["-std=c11", "-Wall", "-Wextra", "-Werror", "-pedantic", f"-I{FIRMWARE / 'include'}"]
 """How every build of the firmware compiles it (the library, the board port, the test and fuzz programs)."""
+
+
+HOST_FLAGS = ["-DASM_TABLE_BYTES=1400"]
+"""The host library's limits beyond the defaults: a gait table of 1,400 bytes, a version-2 program of 64 states in
+four modes (every gait of the library; a board keeps the default, a version-1 table of 64 states)."""
 
 
 def runtime_sources() -> list[Path]:
@@ -64,8 +70,9 @@ def build_library() -> Path:
     fd, temporary = tempfile.mkstemp(dir=LIBRARY.parent, suffix=".so")  # then renamed: parallel builds never clash
     os.close(fd)
     try:
-        subprocess.run([os.environ.get("CC", "gcc"), *C_FLAGS, "-O2", "-fPIC", "-shared", *map(str, _sources()), "-lm",
-                        "-o", temporary], check=True, capture_output=True, text=True)  # fmt: skip
+        subprocess.run([os.environ.get("CC", "gcc"), *C_FLAGS, *HOST_FLAGS, "-O2", "-fPIC", "-shared",
+                        *map(str, _sources()), "-lm", "-o", temporary], check=True, capture_output=True,
+                       text=True)  # fmt: skip
         os.replace(temporary, LIBRARY)
     except subprocess.CalledProcessError as exc:
         raise RuntimeError(f"building the C module runtime failed:\n{exc.stderr}") from None
@@ -78,8 +85,10 @@ def build_library() -> Path:
 CORTEX_M4_FLAGS = [
     *("-mcpu=cortex-m4", "-mthumb", "-mfloat-abi=hard", "-mfpu=fpv4-sp-d16", "-ffunction-sections", "-fdata-sections"),
     *("-DASM_CAN_PARTIALS=1", "-DASM_CAN_MAX_MESSAGE=640", "-DASM_NODE_OUT=640"),
+    "-fno-tree-loop-distribute-patterns",
 ]
-"""A small module's limits: one reassembly slot of 640 bytes (a staged 64-state table is 597), replies as long."""
+"""A small module's limits: one reassembly slot of 640 bytes (a staged 64-state table is 597), replies as long. And
+no loop turned into a library call: newlib's word-at-a-time strlen alone is 220 bytes, for names a few bytes long."""
 
 
 def build_cortex_m4(elf: Path) -> tuple[int, int, int]:
@@ -99,15 +108,29 @@ def library() -> ctypes.CDLL:
     global _library
     with _lock:
         if _library is None:
-            lib = ctypes.CDLL(str(build_library()))
+            # PyDLL: a call keeps the interpreter lock. Every call takes microseconds, and releasing the lock for
+            # it (CDLL) only to take it back for the send callback let other threads cut in on every frame.
+            lib = ctypes.PyDLL(str(build_library()))
             lib.asm_host_size.restype = ctypes.c_size_t
             lib.asm_host_init.argtypes = [ctypes.c_void_p, ctypes.c_char_p, ctypes.c_uint8, _SEND, _COMMAND, _RELAX,
                                           _READ, ctypes.c_float, ctypes.c_float, ctypes.c_uint32]  # fmt: skip
             lib.asm_host_frame.argtypes = [ctypes.c_void_p, ctypes.c_uint32, ctypes.c_char_p, ctypes.c_uint8,
                                            ctypes.c_uint32]  # fmt: skip
+            lib.asm_host_watch_changed.argtypes = [ctypes.c_void_p]
+            lib.asm_host_watched.argtypes = [ctypes.c_void_p, ctypes.c_void_p]
+            lib.asm_host_watched.restype = ctypes.c_int
+            lib.asm_host_local.argtypes = [ctypes.c_void_p, ctypes.c_char_p, ctypes.c_size_t, ctypes.c_uint32]
+            lib.asm_host_local.restype = ctypes.c_int
             lib.asm_host_tick.argtypes = [ctypes.c_void_p, ctypes.c_uint32]
             lib.asm_host_leave.argtypes = [ctypes.c_void_p]
-            for name in ("asm_host_latched", "asm_host_served", "asm_host_dropped", "asm_host_gait_started_ms"):
+            for name in (
+                "asm_host_done",
+                "asm_host_gait_running",
+                "asm_host_latched",
+                "asm_host_served",
+                "asm_host_dropped",
+                "asm_host_gait_started_ms",
+            ):
                 getattr(lib, name).argtypes = [ctypes.c_void_p]
                 getattr(lib, name).restype = ctypes.c_uint32
             lib.asm_host_goal.argtypes = [ctypes.c_void_p]
@@ -144,11 +167,8 @@ class CModule:
         self.clock = clock
         self._own_bus = bus is None
         self.bus = bus if bus is not None else can.Bus(**bus_options)
-        # what a module's CAN controller passes (docs/protocol.md §7): its ID, broadcast requests, the e-stop
-        self.bus.set_filters([dest_filter(Dest.NODE, node_id), priority_filter(Priority.REQUEST, Dest.BROADCAST, 0),
-                              priority_filter(Priority.BULK, Dest.BROADCAST, 0),
-                              dest_filter(Dest.SYSTEM, SystemCode.ESTOP)])  # fmt: skip
         self._lib = library()
+        self._filter([])
         self._memory = ctypes.create_string_buffer(self._lib.asm_host_size())
         self._name = name.encode("utf-8")  # the firmware keeps a pointer to it: it lives as long as this object
         self._t0 = time.monotonic()
@@ -164,9 +184,36 @@ class CModule:
         self._thread = threading.Thread(target=self._run, name=f"c-module:{name}", daemon=True)
         self._thread.start()
 
+    def _filter(self, neighbours: list[int]) -> None:
+        """What a module's CAN controller passes (docs/protocol.md §7): its ID, broadcast requests, the e-stop, and
+        the publications of the neighbours its program waits on (their gait.state), as a board's port would."""
+        published = (Priority.PUBLICATION << 26) | (Dest.BROADCAST << 24)
+        self.bus.set_filters([dest_filter(Dest.NODE, self.node_id),
+                              priority_filter(Priority.REQUEST, Dest.BROADCAST, 0),
+                              priority_filter(Priority.BULK, Dest.BROADCAST, 0),
+                              dest_filter(Dest.SYSTEM, SystemCode.ESTOP),
+                              *({"can_id": published | n << 8, "can_mask": 0x1FFFFF00, "extended": True}
+                                for n in neighbours)])  # fmt: skip
+
+    def _refilter(self) -> None:
+        """After a frame or a local request: if the program now waits on other neighbours, pass their frames."""
+        if self._lib.asm_host_watch_changed(self._memory):
+            ids = (ctypes.c_uint8 * 8)()
+            self._filter(list(ids[: self._lib.asm_host_watched(self._memory, ids)]))
+
     def _now_ms(self) -> int:
         seconds = self.clock.now() if self.clock is not None else time.monotonic() - self._t0
         return round(seconds * 1000) & 0xFFFFFFFF
+
+    def local(self, method: int, name: str, data: bytes = b"") -> None:
+        """A request of the module's own (as its application would make): ``method`` on well-known object ``name``,
+        with every check a remote request gets and no reply on the bus; ValueError naming the refusal."""
+        message = bytes((first_byte(Kind.REQUEST, method), 0, WELL_KNOWN_CLASSES[name], 0)) + data
+        with self._call_lock:
+            status = self._lib.asm_host_local(self._memory, message, len(message), self._now_ms())
+            self._refilter()
+        if status != Status.OK:
+            raise ValueError(f"{self.name}: {Method(method).name} of {name} refused: {Status(status).name}")
 
     def tick(self) -> None:
         """One control tick now (the firmware's asm_module_tick)."""
@@ -196,9 +243,18 @@ class CModule:
                 with self._call_lock:
                     self._lib.asm_host_frame(self._memory, frame.arbitration_id, bytes(frame.data), frame.dlc,
                                              self._now_ms())  # fmt: skip
+                    self._refilter()
             if ticking and time.monotonic() >= next_tick:
                 next_tick += self.period
                 self.tick()
+
+    def done(self) -> int:
+        """gait.done's last firing (1 finished, 2 a state timed out with stop), 0 if it never fired."""
+        return int(self._lib.asm_host_done(self._memory))
+
+    def gait_running(self) -> bool:
+        """gait.service runs."""
+        return bool(self._lib.asm_host_gait_running(self._memory))
 
     @property
     def latched(self) -> bool:

@@ -23,8 +23,11 @@ import numpy as np
 
 from asm_py import Event, Node
 from asm_py.clock import SimClock
+from asm_py.codec import FLOAT32, INT8, UINT8
 from asm_py.firmware import CModule
 from asm_py.module import JointDriver, JointReading, LocalNeighbours, ModuleRuntime
+from asm_py.module.gait_service import SWITCH
+from asm_py.protocol import Method
 
 from .deploy import module_name, module_tables
 from .mjcf import Physics, build_mjcf
@@ -217,12 +220,21 @@ class Simulation:
         """Load every module's table, phase and direction as a deployment would, then start all gaits at t."""
         tables = module_tables(self.gait)
         for assignment in self.gait.modules:
+            direction = assignment.direction * self.direction
+            if assignment.id in self.c_modules:  # as its own program would: the same checks, no bus round trip
+                c_module = self.c_modules[assignment.id]
+                c_module.local(Method.SET, "gait.table", tables[assignment.id])
+                c_module.local(Method.SET, "gait.phase", FLOAT32.encode(assignment.phase))
+                c_module.local(Method.SET, "gait.direction", INT8.encode(direction))
+                continue
             runtime = self.modules[assignment.id]
             runtime.table.set(tables[assignment.id])
             runtime.phase.set(assignment.phase)
-            runtime.gait.direction.set(assignment.direction * self.direction)
+            runtime.gait.direction.set(direction)
         for runtime in self.modules.values():
             runtime.gait.start()
+        for c_module in self.c_modules.values():
+            c_module.local(Method.START, "gait.service")
         self.clock.settle()
         self._started = True
 
@@ -233,18 +245,27 @@ class Simulation:
         for runtime in self.modules.values():
             if not runtime.gait.started:  # driving a stopped robot starts it (in its first gait) first
                 runtime.gait.start()
+        for c_module in self.c_modules.values():
+            if not c_module.gait_running():
+                c_module.local(Method.START, "gait.service")
         for runtime in self.modules.values():
             runtime.gait.switch.set(switch)
+        for c_module in self.c_modules.values():
+            c_module.local(Method.SET, "gait.switch", SWITCH.encode(switch))
 
     def signal(self, number: int) -> None:
         """Broadcast signal ``number`` to every module, as a tool's group SET of ``gait.signal`` does on a bus."""
         for runtime in self.modules.values():
             runtime.gait.signal.set(number)
+        for c_module in self.c_modules.values():
+            c_module.local(Method.SET, "gait.signal", UINT8.encode(number))
 
     def stop_gaits(self) -> None:
         """Stop every module's gait: the joints hold their last goals (the Drive panel's stop)."""
         for runtime in self.modules.values():
             runtime.gait.stop(timeout=5.0)
+        for c_module in self.c_modules.values():
+            c_module.local(Method.STOP, "gait.service")
 
     def push(self, force: tuple[float, float, float], seconds: float) -> None:
         """Apply ``force`` (N, world frame) at the root body's centre of mass for ``seconds`` from now."""
@@ -281,7 +302,13 @@ class Simulation:
         self.tick.set(self.data.time)
         if self.trace is not None:
             self.trace.times.append(self.data.time)
-            self.trace.goals.append([r.goal.peek() for r in self.modules.values()])
+            self.trace.goals.append([self.goal(a.id) for a in self.gait.modules])
+
+    def goal(self, module_id: int) -> float:
+        """What module ``module_id`` commands its joint to now (a Python or a C module)."""
+        if module_id in self.c_modules:
+            return self.c_modules[module_id].goal
+        return float(self.modules[module_id].goal.peek())
 
     def advance(self, seconds: float) -> None:
         end = self.data.time + seconds - 1e-9

@@ -181,6 +181,9 @@ def test_every_golden_vector_and_the_python_sides_bytes(runner: Path) -> None:
     for ms in (0, 1, 15, 16, 17, 31, 32, 33, 100, 999, 1000, 1234, 4096, 60000, 491520, 10**7):
         assert decode_timeout(encode_timeout(ms / 1000)) is not None
         lines.append(f"TIMEOUT {ms} {encode_timeout(ms / 1000)}")
+    # gait.tick's float64 in integer arithmetic (no soft-float division on a Cortex-M4): Python's division's bits
+    for ms in [0, 1, 2, 3, 7, 999, 1000, 1001, 1023, 1024, 1025, 2**31, 2**32 - 1, *rng.sample(range(2**32), 3000)]:
+        lines.append(f"SECONDS {ms} {struct.pack('<d', ms / 1000).hex()}")
     out = _run(runner, lines)
     assert out.strip() == f"ok {len(lines)} failed 0"
 

@@ -1,5 +1,6 @@
 """Preview equals deployment for every kind of automaton: the same gait on modules that hear each other over a CAN
-bus (as in the robot process) commands, tick for tick, what the preview's modules command in-process."""
+bus (as in the robot process) commands, tick for tick, what the preview's modules command in-process — with every
+module in Python, and with the odd modules running the C runtime (firmware/) on the same bus."""
 
 from __future__ import annotations
 
@@ -17,7 +18,8 @@ pytestmark = pytest.mark.timeout(180)
 TICK = 1 / 50
 
 
-def _trace(gait, seconds: float, *, bus: bool, drive_at: float | None = None) -> tuple[list[float], list[list[float]]]:
+def _trace(gait, seconds: float, *, bus: bool, drive_at: float | None = None,
+           c_modules: bool = False) -> tuple[list[float], list[list[float]]]:  # fmt: skip
     nodes: list[Node] = []
     channel = fresh_name("asm-program")
 
@@ -28,7 +30,9 @@ def _trace(gait, seconds: float, *, bus: bool, drive_at: float | None = None) ->
         return nodes[-1]
 
     try:
-        with Simulation(gait, trace=True, node_of=node_of if bus else None) as sim:
+        odd = [a.id for a in gait.modules if a.id % 2] if c_modules else []
+        options = {"interface": "virtual", "channel": channel}
+        with Simulation(gait, trace=True, node_of=node_of if bus else None, c_modules=odd, bus_options=options) as sim:
             sim.start()
             while sim.data.time < seconds - 1e-9:
                 began = time.monotonic()
@@ -53,12 +57,16 @@ def _assert_within_one_tick(preview, deployed) -> None:
             assert min(window) - 1e-3 <= value <= max(window) + 1e-3, (times[k], column + 1, value, window)
 
 
+MIXED = pytest.mark.parametrize("c_modules", [False, True], ids=["python", "half-c"])
+
+
+@MIXED
 @pytest.mark.parametrize("name", ["neighbour_caterpillar", "curl_into_loop", "contact_inchworm", "caterpillar_tour"])
-def test_preview_equals_deployment_for_neighbour_contact_one_shot_and_sequenced_gaits(name) -> None:
+def test_preview_equals_deployment_for_neighbour_contact_one_shot_and_sequenced_gaits(name, c_modules) -> None:
     gait = load(LIBRARY / f"{name}.toml")
     seconds = 6.5 if name == "caterpillar_tour" else 3.0  # the tour switches to left after 5 cycles
     preview = _trace(gait, seconds, bus=False)
-    deployed = _trace(gait, seconds, bus=True)
+    deployed = _trace(gait, seconds, bus=True, c_modules=c_modules)
     _assert_within_one_tick(preview, deployed)
     if name == "neighbour_caterpillar":  # it really is a wave: the modules are in different places
         last = preview[1][-1]
@@ -67,10 +75,11 @@ def test_preview_equals_deployment_for_neighbour_contact_one_shot_and_sequenced_
         assert preview[1][-1][1] == pytest.approx(20.0) and preview[1][int(4.5 * 50)][1] == pytest.approx(0.0)
 
 
-def test_preview_equals_deployment_across_a_switch() -> None:
+@MIXED
+def test_preview_equals_deployment_across_a_switch(c_modules) -> None:
     gait = load(LIBRARY / "steerable_caterpillar.toml")
     preview = _trace(gait, 3.0, bus=False, drive_at=0.5)
-    deployed = _trace(gait, 3.0, bus=True, drive_at=0.5)
+    deployed = _trace(gait, 3.0, bus=True, drive_at=0.5, c_modules=c_modules)
     _assert_within_one_tick(preview, deployed)
     yaw = [row[1] for row in preview[1]]
     assert yaw[0] == pytest.approx(0.0) and yaw[-1] == pytest.approx(20.0)  # the yaw joints bent to turn
@@ -94,14 +103,15 @@ states = [ { name = "wait", angle = 0.0, until = "signal", signal = 7, interpola
 """
 
 
-def test_preview_equals_deployment_with_a_broadcast_signal() -> None:
+@MIXED
+def test_preview_equals_deployment_with_a_broadcast_signal(c_modules) -> None:
     """A group/broadcast event: module 1 emits signal 7 each cycle (a group SET on the bus); the others wait for it.
     Over CAN they go at the same ticks as in the preview."""
     from gaits.model import loads
 
     gait = loads(SIGNALLED)
     preview = _trace(gait, 3.0, bus=False)
-    deployed = _trace(gait, 3.0, bus=True)
+    deployed = _trace(gait, 3.0, bus=True, c_modules=c_modules)
     _assert_within_one_tick(preview, deployed)
     followers = [row[1] for row in preview[1]]
     assert max(followers) > 35.0  # the signal arrived: the followers moved

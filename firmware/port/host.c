@@ -25,9 +25,29 @@ void asm_host_frame(struct asm_module *m, uint32_t id, const uint8_t *data, uint
     asm_node_frame(&m->node, id, data, dlc, now_ms);
 }
 
+/* 1 (once) when the program now waits on other neighbours: the acceptance filters must change (asm_host_watched). */
+int asm_host_watch_changed(struct asm_module *m)
+{
+    int changed = m->gait.run.watch_changed;
+    m->gait.run.watch_changed = 0;
+    return changed;
+}
+
+/* The node IDs whose gait.state publications the program waits on, into ``ids``; how many. */
+int asm_host_watched(const struct asm_module *m, uint8_t *ids) { return asm_program_watched(m, ids); }
+
+/* A request from the module itself (asm_node_local) at ``now_ms``: how a simulation loads a C module's gait. */
+int asm_host_local(struct asm_module *m, const uint8_t *message, size_t length, uint32_t now_ms)
+{
+    m->node.now_ms = now_ms;
+    return asm_node_local(&m->node, message, length);
+}
+
 void asm_host_tick(struct asm_module *m, uint32_t now_ms) { asm_module_tick(m, now_ms); }
 void asm_host_leave(struct asm_module *m) { asm_node_leave(&m->node); }
 int asm_host_latched(const struct asm_module *m) { return m->node.estop; }
+uint32_t asm_host_done(const struct asm_module *m) { return m->gait.done_v; } /* gait.done's last firing, 0: none */
+int asm_host_gait_running(const struct asm_module *m) { return m->gait.service.running; }
 uint32_t asm_host_served(const struct asm_module *m) { return m->node.served; }
 uint32_t asm_host_dropped(const struct asm_module *m) { return m->node.dropped + m->node.rx.dropped; }
 float asm_host_goal(const struct asm_module *m) { return m->goal_v; }

@@ -73,6 +73,25 @@ static void can_init(void)
         ;
 }
 
+/* Banks 4.. pass the gait.state publications of the neighbours the program waits on: set again whenever the program
+ * changes what it waits on (a new table, an activation), as asm_host_watch_changed tells the host port. */
+static void watch_neighbours(void)
+{
+    uint8_t ids[ASM_MAX_NEIGHBOURS], n;
+    if (!module.gait.run.watch_changed)
+        return;
+    module.gait.run.watch_changed = 0;
+    n = asm_program_watched(&module, ids);
+    CAN_FMR |= 1u;
+    for (uint8_t k = 0; k < ASM_MAX_NEIGHBOURS; k++) {
+        CAN_FA1R &= ~(1u << (4u + k));
+        if (k < n) /* priority 4, broadcast, from that node: its publications */
+            filter(4u + k, ASM_PRIORITY_PUBLICATION << 26 | (uint32_t)ASM_DEST_BROADCAST << 24 | (uint32_t)ids[k] << 8,
+                   0x1FFFFF00u);
+    }
+    CAN_FMR &= ~1u;
+}
+
 static int can_send(void *ctx, uint32_t id, const uint8_t *data, uint8_t dlc)
 {
     (void)ctx;
@@ -126,6 +145,7 @@ int main(void)
     uint32_t next_tick = milliseconds;
     for (;;) {
         can_receive();
+        watch_neighbours();
         if ((int32_t)(milliseconds - next_tick) >= 0) {
             next_tick += CONTROL_MS;
             asm_module_tick(&module, milliseconds);

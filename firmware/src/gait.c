@@ -1,112 +1,37 @@
 #include "asm/gait.h"
 
 #include <math.h>
+#include <stddef.h>
 #include <string.h>
 
 #include "asm/module.h"
 
 enum { C_TABLE = 0x20, C_PHASE = 0x21, C_DIRECTION = 0x22, C_STATE = 0x23, C_SERVICE = 0x24, C_TICK = 0x25,
-       C_CHECKSUM = 0x26, C_STAGED = 0x27, C_STAGED_CHECKSUM = 0x28, C_ACTIVATE = 0x29, C_LEASE = 0x2A };
-#define RAMP_MS 1000u
+       C_CHECKSUM = 0x26, C_STAGED = 0x27, C_STAGED_CHECKSUM = 0x28, C_ACTIVATE = 0x29, C_LEASE = 0x2A, C_SWITCH = 0x2B,
+       C_CYCLE = 0x2C, C_MODE = 0x2D, C_DONE = 0x2E, C_SIGNAL = 0x2F };
 #define MAX_LEASE_SECONDS 60.0f
-#define REANCHOR_MS 3600000u /* an hour: the elapsed milliseconds stay exact in a float */
 
 static const uint8_t D_BYTES[] = {0x0D, 0x00}, D_UINT32[] = {0x08}, D_FLOAT32[] = {0x0A}, D_JSON[] = {0x10},
-                     D_FLOAT64[] = {0x0B}, D_INT8[] = {0x02}, D_UINT16[] = {0x07},
+                     D_FLOAT64[] = {0x0B}, D_INT8[] = {0x02}, D_UINT16[] = {0x07}, D_UINT8[] = {0x06},
+                     D_SWITCH[] = {0x0F, 0x03, 0x04, 'm', 'o', 'd', 'e', 0x06, 0x09, 'd', 'i', 'r', 'e', 'c', 't', 'i',
+                                   'o', 'n', 0x02, 0x05, 'a', 'f', 't', 'e', 'r', 0x0A},
                      D_LEASE[] = {0x0F, 0x03, 0x06, 'h', 'o', 'l', 'd', 'e', 'r', 0x0C, 0x00, 0x05, 't', 'o', 'k',
                                   'e', 'n', 0x08, 0x07, 's', 'e', 'c', 'o', 'n', 'd', 's', 0x0A};
 
-/* A program this slice runs: one time-driven periodic mode (what a version-1 table says). */
-static int periodic(const struct asm_program *p)
+/* ASM_S_OK if this module can run table ``data``: well formed, within the joint's limits and the module's own. */
+static int check(struct asm_module *m, const uint8_t *data, size_t length)
 {
-    if (p->modes_n != 1 || p->sequence_n > 1 || p->modes[0].one_shot)
-        return 0;
-    for (uint16_t k = 0; k < p->states_n; k++)
-        if (p->states[k].event != ASM_EV_NONE || p->states[k].emit)
-            return 0;
-    return 1;
-}
-
-static int parse(struct asm_module *m, const uint8_t *data, size_t length, struct asm_program *into)
-{
-    if (asm_table_parse(data, length, m->limits_v, into) != ASM_OK || !periodic(into))
+    if (asm_table_parse(data, length, m->limits_v, NULL) != ASM_OK)
         return ASM_S_VALUE_ERROR;
-    return ASM_S_OK;
-}
-
-/* -- the automaton ----------------------------------------------------------------------------------------------- */
-
-static const struct asm_state *states(const struct asm_gait *g) { return g->program.states + g->program.modes[0].first; }
-static uint16_t count(const struct asm_gait *g) { return g->program.modes[0].count; }
-
-/* The state phase time ``tau`` falls in (bisect_right over the states' starts). */
-static uint16_t state_at(const struct asm_gait *g, float tau, float *start)
-{
-    float at = 0.0f;
-    uint16_t index = 0;
-    *start = 0.0f;
-    for (uint16_t k = 0; k < count(g); k++) {
-        if (at <= tau) {
-            index = k;
-            *start = at;
-        }
-        at += states(g)[k].duration;
-    }
-    return index;
-}
-
-/* The state phase time tau falls in becomes gait.state (written on a change), and its reference, ramped in from
- * the goal held at the start, becomes the goal. */
-static void output(struct asm_module *m, uint32_t now_ms)
-{
-    struct asm_gait *g = &m->gait;
-    const struct asm_state *s = states(g);
-    float start, previous, reference;
-    uint16_t index = state_at(g, g->tau, &start);
-    if (index != g->state_v || !g->state.valid)
-        asm_node_write(&m->node, &g->state, &index, 2);
-    reference = s[index].target;
-    if (s[index].linear) {
-        previous = s[(index + count(g) - 1) % count(g)].target;
-        reference = previous + (g->tau - start) / s[index].duration * (s[index].target - previous);
-    }
-    uint32_t since = now_ms - g->ramp_start_ms;
-    float ramp = since >= RAMP_MS ? 1.0f : (float)since / (float)RAMP_MS;
-    asm_module_set_goal(m, g->ramp_from + ramp * (reference - g->ramp_from));
-}
-
-static void start(struct asm_module *m, uint32_t now_ms)
-{
-    struct asm_gait *g = &m->gait;
-    g->period = 0.0f;
-    for (uint16_t k = 0; k < count(g); k++)
-        g->period += states(g)[k].duration;
-    g->heading = g->direction_v;
-    g->tau = g->tau0 = g->phase_v * g->period;
-    g->t0_ms = g->last_tick_ms = now_ms;
-    g->ramp_from = m->goal_v;
-    g->ramp_start_ms = now_ms;
-    g->service.started = g->service.running = 1;
-    output(m, now_ms);
+    return asm_program_fits(m, data, length);
 }
 
 void asm_gait_tick(struct asm_module *m, uint32_t now_ms)
 {
     struct asm_gait *g = &m->gait;
-    g->tick_v = now_ms / 1000.0;
+    g->tick_v = asm_seconds_f64(now_ms); /* a float64's bits: little-endian targets store it as the wire does */
     asm_node_write(&m->node, &g->tick, &g->tick_v, 8);
-    if (!g->service.running || m->node.estop)
-        return;
-    if (g->direction_v != g->heading || now_ms - g->t0_ms >= REANCHOR_MS) {
-        g->tau0 = g->tau; /* a direction set directly applies from the previous tick on */
-        g->t0_ms = g->last_tick_ms;
-        g->heading = g->direction_v;
-    }
-    g->tau = fmodf(g->tau0 + (float)g->heading * ((float)(now_ms - g->t0_ms) / 1000.0f), g->period);
-    if (g->tau < 0.0f)
-        g->tau += g->period;
-    g->last_tick_ms = now_ms;
-    output(m, now_ms);
+    asm_program_tick(m, now_ms);
 }
 
 void asm_gait_halt(struct asm_module *m) { m->gait.service.started = m->gait.service.running = 0; }
@@ -114,23 +39,23 @@ void asm_gait_halt(struct asm_module *m) { m->gait.service.started = m->gait.ser
 static int control(struct asm_node *node, struct asm_object *o, uint8_t method)
 {
     struct asm_module *m = asm_module_of(node);
-    struct asm_gait *g = &m->gait;
     switch (method) {
     case ASM_START:
         if (o->started)
             return ASM_S_SERVICE_ERROR;
-        start(m, node->now_ms);
+        asm_program_start(m, node->now_ms);
         return ASM_S_OK;
     case ASM_STOP:
         asm_gait_halt(m);
         return ASM_S_OK;
     case ASM_SUSPEND:
+        if (o->running)
+            asm_program_suspend(m);
         o->running = 0;
         return ASM_S_OK;
     case ASM_RESUME:
         if (o->started && !o->running) {
-            g->tau0 = g->tau; /* the phase time goes on from where it paused */
-            g->t0_ms = g->last_tick_ms = node->now_ms;
+            asm_program_resume(m, node->now_ms); /* the program goes on from where it paused */
             o->running = 1;
         }
         return ASM_S_OK;
@@ -147,12 +72,12 @@ static int set_table(struct asm_node *node, struct asm_object *o, const uint8_t 
     struct asm_gait *g = &m->gait;
     if (g->service.started)
         return ASM_S_SERVICE_ERROR; /* a table never changes mid-cycle */
-    if (length == 0 || parse(m, data, length, &g->program) != ASM_S_OK) {
-        parse(m, g->table_v, g->table.length, &g->program); /* the table in force stays */
-        return ASM_S_VALUE_ERROR;
-    }
+    if (length == 0 || check(m, data, length) != ASM_S_OK)
+        return ASM_S_VALUE_ERROR; /* the table in force stays */
     memcpy(o->value, data, length);
     o->length = (uint16_t)length;
+    asm_table_parse(data, length, m->limits_v, &g->program);
+    asm_program_loaded(m);
     g->checksum_v = asm_crc32(data, length);
     g->activate_v = 0; /* the gait is no longer a deployment's */
     return ASM_S_OK;
@@ -246,7 +171,7 @@ static int set_staged(struct asm_node *node, struct asm_object *o, const uint8_t
         return ASM_S_VALUE_ERROR;
     if (lease_in_force(m) && g->lease_token != id)
         return ASM_S_LOCKED;
-    if (parse(m, data + 12, length - 12, &g->staged_program) != ASM_S_OK) {
+    if (check(m, data + 12, length - 12) != ASM_S_OK) {
         g->staged_ok = 0;
         return ASM_S_VALUE_ERROR;
     }
@@ -271,72 +196,141 @@ static int set_activate(struct asm_node *node, struct asm_object *o, const uint8
         return ASM_S_OK; /* a resent activation: already running it */
     if (!g->staged_ok || asm_get_u32(g->staged_v + 3) != id)
         return ASM_S_VALUE_ERROR;
-    asm_gait_halt(m);
     size_t table = g->staged.length - 12u;
+    if (check(m, g->staged_v + 12, table) != ASM_S_OK)
+        return ASM_S_VALUE_ERROR; /* the joint limits changed since it was staged */
+    asm_gait_halt(m);
     memcpy(g->table_v, g->staged_v + 12, table);
     g->table.length = (uint16_t)table;
-    g->program = g->staged_program;
+    asm_table_parse(g->table_v, table, m->limits_v, &g->program);
+    asm_program_loaded(m);
     g->checksum_v = asm_crc32(g->table_v, table);
     g->phase_v = asm_get_f32(g->staged_v + 7);
     g->direction_v = (int8_t)g->staged_v[11];
     g->activate_v = id;
-    start(m, node->now_ms);
+    asm_program_start(m, node->now_ms);
     return ASM_S_OK;
+}
+
+/* -- a program's switches and signals, and its neighbours' states ------------------------------------------------ */
+
+static int set_switch(struct asm_node *node, struct asm_object *o, const uint8_t *data, size_t length)
+{
+    struct asm_module *m = asm_module_of(node);
+    struct asm_run *r = &m->gait.run;
+    static const uint8_t initial[6] = {0, 1, 0, 0, 0, 0}; /* a RESET: {mode 0, direction 1, after 0} */
+    if (length == 0)
+        data = initial;
+    float after = asm_get_f32(data + 2);
+    int8_t direction = (int8_t)data[1];
+    if (data[0] >= m->gait.program.modes_n || (direction != 1 && direction != -1) || !isfinite(after))
+        return ASM_S_VALUE_ERROR;
+    memcpy(o->value, data, 6);
+    o->length = 6;
+    r->after_us = asm_us_of(after);
+    r->switch_mode = data[0];
+    r->switch_direction = direction;
+    r->switch_pending = 1;
+    return ASM_S_OK;
+}
+
+static int set_signal(struct asm_node *node, struct asm_object *o, const uint8_t *data, size_t length)
+{
+    if (length == 0) /* a RESET: no signal heard */
+        return ASM_S_OK;
+    if (data[0] == 0)
+        return ASM_S_VALUE_ERROR; /* signals are numbered 1..255 */
+    o->value[0] = data[0];
+    asm_program_signal(asm_module_of(node), data[0]);
+    return ASM_S_OK;
+}
+
+static void heard(struct asm_node *node, uint8_t source, const struct asm_message *p)
+{
+    struct asm_module *m = asm_module_of(node);
+    /* every module registers the same objects in the same order: gait.state has the same ID on each */
+    if (p->class_id == C_STATE && p->object_id == m->gait.state.id && p->length == 2)
+        asm_program_neighbour(m, source, asm_get_u16(p->data));
 }
 
 /* -- registration ------------------------------------------------------------------------------------------------ */
 
+/* Every gait object, in the order of registration (the Python module's: object IDs match), as data: one table
+ * rather than a page of assignments. */
+struct spec {
+    const char *name;
+    const uint8_t *descriptor;
+    asm_set_fn set;
+    uint16_t object, value; /* offsets in struct asm_gait; value NONE: no value (a service) */
+    uint16_t length, capacity, refuses;
+    uint8_t class_id, kind, descriptor_length, flags, publish;
+};
+#define AT(field) (uint16_t) offsetof(struct asm_gait, field)
+#define NONE 0xFFFFu
+#define RO ASM_F_READ_ONLY
+static const uint8_t HOLD[] = {'G', 'T', 1, 1, 0, 0, 0, 0, 0, 0, 0, 0x80, 0x3F, 0}; /* hold 0 degrees */
+static const struct spec SPECS[] = {
+    {"gait.table", D_BYTES, set_table, AT(table), AT(table_v), sizeof HOLD, ASM_TABLE_BYTES, ASM_WRITES, C_TABLE,
+     ASM_ATTRIBUTE, 2, 0, 0},
+    {"gait.checksum", D_UINT32, NULL, AT(checksum), AT(checksum_v), 4, 4, 0, C_CHECKSUM, ASM_ATTRIBUTE, 1, RO, 0},
+    {"gait.phase", D_FLOAT32, set_phase, AT(phase), AT(phase_v), 4, 4, 0, C_PHASE, ASM_ATTRIBUTE, 1, 0, 0},
+    {"gait.service", D_JSON, NULL, AT(service), NONE, 0, 0, (1u << ASM_START) | (1u << ASM_RESUME), C_SERVICE,
+     ASM_SERVICE, 1, 0, 0},
+    /* an event: a GET waits for a firing; published once a second (it fires at every tick) */
+    {"gait.tick", D_FLOAT64, NULL, AT(tick), AT(tick_v), 8, 8, 0, C_TICK, ASM_EVENT, 1, RO | ASM_F_SYNC_GET,
+     ASM_PUB_RATE},
+    {"gait.staged", D_BYTES, set_staged, AT(staged), AT(staged_v), 0, ASM_STAGED_BYTES, ASM_WRITES, C_STAGED,
+     ASM_ATTRIBUTE, 2, 0, 0},
+    {"gait.staged_checksum", D_UINT32, NULL, AT(staged_checksum), AT(staged_checksum_v), 4, 4, 0,
+     C_STAGED_CHECKSUM, ASM_ATTRIBUTE, 1, RO, 0},
+    {"gait.activate", D_UINT32, set_activate, AT(activate), AT(activate_v), 4, 4, ASM_WRITES, C_ACTIVATE,
+     ASM_ATTRIBUTE, 1, 0, 0},
+    {"gait.lease", D_LEASE, set_lease, AT(lease), AT(lease_v), 0, sizeof(((struct asm_gait *)0)->lease_v), 0,
+     C_LEASE, ASM_ATTRIBUTE, sizeof D_LEASE, 0, 0},
+    {"gait.direction", D_INT8, set_direction, AT(direction), AT(direction_v), 1, 1, 0, C_DIRECTION, ASM_ATTRIBUTE,
+     1, 0, 0},
+    {"gait.state", D_UINT16, NULL, AT(state), AT(state_v), 2, 2, 0, C_STATE, ASM_ATTRIBUTE, 1, RO, ASM_PUB_EVERY_SET},
+    {"gait.switch", D_SWITCH, set_switch, AT(switch_), AT(switch_v), 6, 6, ASM_WRITES, C_SWITCH, ASM_ATTRIBUTE,
+     sizeof D_SWITCH, 0, 0},
+    {"gait.cycle", D_UINT32, NULL, AT(cycle), AT(cycle_v), 4, 4, 0, C_CYCLE, ASM_ATTRIBUTE, 1, RO, 0},
+    {"gait.mode", D_UINT8, NULL, AT(mode), AT(mode_v), 1, 1, 0, C_MODE, ASM_ATTRIBUTE, 1, RO, ASM_PUB_EVERY_SET},
+    {"gait.done", D_UINT8, NULL, AT(done), AT(done_v), 1, 1, 0, C_DONE, ASM_EVENT, 1, RO | ASM_F_SYNC_GET,
+     ASM_PUB_EVERY_SET},
+    {"gait.signal", D_UINT8, set_signal, AT(signal), AT(signal_v), 1, 1, 0, C_SIGNAL, ASM_ATTRIBUTE, 1, 0, 0},
+};
+static const uint8_t PARTS[] = {0, 5, 9, sizeof SPECS / sizeof SPECS[0]};
+
 void asm_gait_register(struct asm_module *m, int part)
 {
-    static const uint8_t HOLD[] = {'G', 'T', 1, 1, 0, 0, 0, 0, 0, 0, 0, 0x80, 0x3F, 0}; /* hold 0 degrees */
     struct asm_gait *g = &m->gait;
-    struct asm_node *n = &m->node;
     if (part == 0) {
+        g->run.last_ms = m->node.now_ms;
+        g->run.now_us = (int64_t)m->node.now_ms * 1000;
         memcpy(g->table_v, HOLD, sizeof HOLD);
-        parse(m, HOLD, sizeof HOLD, &g->program);
+        asm_table_parse(HOLD, sizeof HOLD, m->limits_v, &g->program);
         g->checksum_v = asm_crc32(HOLD, sizeof HOLD);
-        g->direction_v = g->heading = 1;
-        asm_object_init(&g->table, "gait.table", C_TABLE, ASM_ATTRIBUTE, D_BYTES, 2, g->table_v, sizeof HOLD, ASM_TABLE_BYTES);
-        g->table.set = set_table;
-        g->table.estop_refuses = ASM_WRITES;
-        asm_object_init(&g->checksum, "gait.checksum", C_CHECKSUM, ASM_ATTRIBUTE, D_UINT32, 1, &g->checksum_v, 4, 4);
-        g->checksum.flags = ASM_F_READ_ONLY;
-        asm_object_init(&g->phase, "gait.phase", C_PHASE, ASM_ATTRIBUTE, D_FLOAT32, 1, &g->phase_v, 4, 4);
-        g->phase.set = set_phase;
-        asm_object_init(&g->service, "gait.service", C_SERVICE, ASM_SERVICE, D_JSON, 1, NULL, 0, 0);
-        g->service.control = control;
-        g->service.estop_refuses = (1u << ASM_START) | (1u << ASM_RESUME);
-        asm_object_init(&g->tick, "gait.tick", C_TICK, ASM_EVENT, D_FLOAT64, 1, &g->tick_v, 8, 8);
-        g->tick.flags = ASM_F_READ_ONLY | ASM_F_SYNC_GET; /* an event: a GET waits for a firing */
-        g->tick.publication = (struct asm_publication){.mode = ASM_PUB_RATE, .refresh_ms = 1000};
-        struct asm_object *all[] = {&g->table, &g->checksum, &g->phase, &g->service, &g->tick};
-        for (size_t k = 0; k < sizeof all / sizeof all[0]; k++)
-            asm_node_register(n, all[k]);
-    } else if (part == 1) {
-        asm_object_init(&g->staged, "gait.staged", C_STAGED, ASM_ATTRIBUTE, D_BYTES, 2, g->staged_v, 0, ASM_STAGED_BYTES);
-        g->staged.set = set_staged;
-        g->staged.estop_refuses = ASM_WRITES;
         g->staged_checksum_v = asm_crc32(g->staged_v, 0);
-        asm_object_init(&g->staged_checksum, "gait.staged_checksum", C_STAGED_CHECKSUM, ASM_ATTRIBUTE, D_UINT32, 1,
-               &g->staged_checksum_v, 4, 4);
-        g->staged_checksum.flags = ASM_F_READ_ONLY;
-        asm_object_init(&g->activate, "gait.activate", C_ACTIVATE, ASM_ATTRIBUTE, D_UINT32, 1, &g->activate_v, 4, 4);
-        g->activate.set = set_activate;
-        g->activate.estop_refuses = ASM_WRITES;
-        asm_object_init(&g->lease, "gait.lease", C_LEASE, ASM_ATTRIBUTE, D_LEASE, sizeof D_LEASE, g->lease_v, 0,
-               sizeof g->lease_v);
-        g->lease.set = set_lease;
+        g->direction_v = 1;
+        g->switch_v[1] = 1; /* {mode 0, direction 1, after 0} */
         lease_free(g);
-        struct asm_object *all[] = {&g->staged, &g->staged_checksum, &g->activate, &g->lease};
-        for (size_t k = 0; k < sizeof all / sizeof all[0]; k++)
-            asm_node_register(n, all[k]);
-    } else {
-        asm_object_init(&g->direction, "gait.direction", C_DIRECTION, ASM_ATTRIBUTE, D_INT8, 1, &g->direction_v, 1, 1);
-        g->direction.set = set_direction;
-        asm_object_init(&g->state, "gait.state", C_STATE, ASM_ATTRIBUTE, D_UINT16, 1, &g->state_v, 2, 2);
-        g->state.flags = ASM_F_READ_ONLY;
-        g->state.publication.mode = ASM_PUB_EVERY_SET;
-        asm_node_register(n, &g->direction);
-        asm_node_register(n, &g->state);
+        m->node.on_publication = heard;
     }
+    for (uint8_t k = PARTS[part]; k < PARTS[part + 1]; k++) {
+        const struct spec *s = &SPECS[k];
+        struct asm_object *o = (struct asm_object *)(void *)((uint8_t *)g + s->object);
+        asm_object_init(o, s->name, s->class_id, s->kind, s->descriptor, s->descriptor_length,
+                        s->value == NONE ? NULL : (uint8_t *)g + s->value, s->length, s->capacity);
+        o->set = s->set;
+        o->estop_refuses = s->refuses;
+        o->flags = s->flags;
+        o->publication.mode = s->publish;
+        asm_node_register(&m->node, o);
+    }
+    if (part == 0) {
+        g->service.control = control;
+        g->tick.publication.refresh_ms = 1000;
+    } else if (part == 1) {
+        g->lease.length = 9; /* {holder "", token 0, seconds 0} */
+    } else
+        g->done.valid = 0; /* an event: nothing fired yet */
 }

@@ -9,10 +9,19 @@
 
 static int due(uint32_t now, uint32_t when) { return (int32_t)(now - when) >= 0; }
 
+/* A loop, not strlen: newlib's word-at-a-time strlen is 220 bytes of a Cortex-M4's flash, for names of a few. */
+static size_t length_of(const char *text)
+{
+    size_t n = 0;
+    while (text[n])
+        n++;
+    return n;
+}
+
 /* -- sending ----------------------------------------------------------------------------------------------------- */
 
-static void send_message(struct asm_node *n, uint8_t dest_kind, uint8_t dest, const uint8_t *msg, size_t length,
-                         uint8_t priority)
+void asm_node_send(struct asm_node *n, uint8_t dest_kind, uint8_t dest, const uint8_t *msg, size_t length,
+                   uint8_t priority)
 {
     struct asm_fragmenter f;
     struct asm_can_id id = {0};
@@ -30,7 +39,7 @@ static void send_message(struct asm_node *n, uint8_t dest_kind, uint8_t dest, co
 
 static void heartbeat(struct asm_node *n)
 {
-    send_message(n, ASM_DEST_SYSTEM, ASM_SYSTEM_HEARTBEAT, (const uint8_t *)n->name, strlen(n->name), ASM_PRIORITY_HEARTBEAT);
+    asm_node_send(n, ASM_DEST_SYSTEM, ASM_SYSTEM_HEARTBEAT, (const uint8_t *)n->name, length_of(n->name), ASM_PRIORITY_HEARTBEAT);
     n->next_heartbeat_ms = n->now_ms + n->heartbeat_ms;
 }
 
@@ -41,15 +50,15 @@ static void reply(struct asm_node *n, uint8_t source, uint8_t method, uint8_t tx
     if (length > ASM_NODE_OUT - ASM_HEADER_SIZE) {
         status = ASM_S_TOO_LARGE;
         data = "reply too large for this module";
-        length = strlen(data);
+        length = length_of(data);
     }
     if (data != n->out + ASM_HEADER_SIZE && length)
-        memmove(n->out + ASM_HEADER_SIZE, data, length);
+        memcpy(n->out + ASM_HEADER_SIZE, data, length); /* never overlapping: not from n->out */
     n->out[0] = (uint8_t)((ASM_VERSION << 6) | (ASM_REPLY << 4) | method);
     n->out[1] = txn;
     n->out[2] = status;
     n->out[3] = object;
-    send_message(n, ASM_DEST_NODE, source, n->out, ASM_HEADER_SIZE + length, ASM_PRIORITY_REPLY);
+    asm_node_send(n, ASM_DEST_NODE, source, n->out, ASM_HEADER_SIZE + length, ASM_PRIORITY_REPLY);
 }
 
 static int is_float32(const struct asm_object *o)
@@ -67,7 +76,7 @@ static void publish(struct asm_node *n, struct asm_object *o)
     n->out[2] = o->class_id;
     n->out[3] = o->id;
     memcpy(n->out + ASM_HEADER_SIZE, o->value, o->length);
-    send_message(n, ASM_DEST_BROADCAST, 0, n->out, ASM_HEADER_SIZE + o->length, ASM_PRIORITY_PUBLICATION);
+    asm_node_send(n, ASM_DEST_BROADCAST, 0, n->out, ASM_HEADER_SIZE + o->length, ASM_PRIORITY_PUBLICATION);
     p->seq = (uint8_t)((p->seq + 1) & ASM_MAX_TXN);
     p->last_ms = n->now_ms;
     p->pending = 0;
@@ -112,10 +121,18 @@ void asm_node_init(struct asm_node *n, const char *name, uint8_t node_id, const 
     heartbeat(n);
 }
 
+/* A loop, not strcmp: newlib's word-at-a-time strcmp alone is 732 bytes of a Cortex-M4's flash. */
+static int same_name(const char *a, const char *b)
+{
+    while (*a && *a == *b)
+        a++, b++;
+    return *a == *b;
+}
+
 struct asm_object *asm_node_find(struct asm_node *n, const char *name)
 {
     for (uint8_t k = 0; k < n->count; k++)
-        if (strcmp(n->objects[k]->name, name) == 0)
+        if (same_name(n->objects[k]->name, name))
             return n->objects[k];
     return NULL;
 }
@@ -218,7 +235,7 @@ static size_t describe(struct asm_node *n, const struct asm_object *o)
 {
     uint8_t *d = n->out + ASM_HEADER_SIZE;
     const char *class_name = o->class_name ? o->class_name : o->name;
-    size_t name_length = strlen(o->name), class_length = strlen(class_name);
+    size_t name_length = length_of(o->name), class_length = length_of(class_name);
     uint8_t published = o->publication.mode != ASM_PUB_NONE || o->kind == ASM_EVENT;
     if (5u + o->descriptor_length + 1u + name_length + class_length > ASM_NODE_OUT - ASM_HEADER_SIZE)
         return 0;
@@ -266,14 +283,14 @@ static int execute(struct asm_node *n, uint8_t source, const struct asm_message 
     if (m->method == ASM_LOOKUP && m->object_id == 0) {
         if (m->length == 0) {
             n->out[ASM_HEADER_SIZE] = n->count;
-            *length = 1 + strlen(n->name);
+            *length = 1 + length_of(n->name);
             memcpy(n->out + ASM_HEADER_SIZE + 1, n->name, *length - 1);
             return ASM_S_OK;
         }
         if (!asm_utf8_valid(m->data, m->length))
             return ASM_S_BAD_MESSAGE;
         for (uint8_t k = 0; k < n->count && o == NULL; k++)
-            if (strlen(n->objects[k]->name) == m->length && memcmp(n->objects[k]->name, m->data, m->length) == 0)
+            if (length_of(n->objects[k]->name) == m->length && memcmp(n->objects[k]->name, m->data, m->length) == 0)
                 o = n->objects[k];
         if (o == NULL)
             return ASM_S_NOT_FOUND;
@@ -339,6 +356,16 @@ static int execute(struct asm_node *n, uint8_t source, const struct asm_message 
     }
 }
 
+int asm_node_local(struct asm_node *n, const uint8_t *raw, size_t size)
+{
+    struct asm_message m;
+    size_t length;
+    if (asm_decode(raw, size, &m) != ASM_OK)
+        return ASM_S_BAD_MESSAGE;
+    int status = execute(n, n->node_id, &m, &length);
+    return status < 0 ? ASM_S_OK : status;
+}
+
 static const char *explain(int status)
 {
     switch (status) {
@@ -372,7 +399,7 @@ static void serve(struct asm_node *n, uint8_t source, const uint8_t *raw, size_t
         return;
     if (status != ASM_S_OK) {
         const char *text = explain(status);
-        reply(n, source, m.method, m.txn, (uint8_t)status, m.object_id, text, strlen(text));
+        reply(n, source, m.method, m.txn, (uint8_t)status, m.object_id, text, length_of(text));
     } else
         reply(n, source, m.method, m.txn, ASM_S_OK, m.object_id, n->out + ASM_HEADER_SIZE, length);
 }
@@ -414,7 +441,16 @@ void asm_node_frame(struct asm_node *n, uint32_t can_id, const uint8_t *data, ui
         asm_node_set_estop(n, 1); /* from any source, before anything else */
         return;
     }
-    if (id.source == 0 || id.source == 255 || !accepts(n, &id) || dlc > 64)
+    if (id.source == 0 || id.source == 255 || dlc > 64)
+        return;
+    if (id.dest_kind == ASM_DEST_BROADCAST && id.priority == ASM_PRIORITY_PUBLICATION) {
+        struct asm_message m; /* what the module listens to: one-frame publications, never through the reassembler */
+        if (n->on_publication != NULL && id.frame == ASM_SINGLE && asm_decode(data, dlc, &m) == ASM_OK &&
+            m.kind == ASM_PUBLICATION)
+            n->on_publication(n, id.source, &m);
+        return;
+    }
+    if (!accepts(n, &id))
         return;
     if (id.frame == ASM_FIRST && dlc >= 8 && (size_t)(data[0] | data[1] << 8) > ASM_CAN_MAX_MESSAGE) {
         /* longer than this module takes: its header is in the first frame, so say so at once (TOO_LARGE) */
@@ -439,7 +475,7 @@ void asm_node_poll(struct asm_node *n, uint32_t now_ms)
         if (w->used && !w->forever && due(now_ms, w->deadline_ms)) {
             const char *text = explain(ASM_S_TIMEOUT);
             w->used = 0;
-            reply(n, w->source, w->method, w->txn, ASM_S_TIMEOUT, w->object_byte, text, strlen(text));
+            reply(n, w->source, w->method, w->txn, ASM_S_TIMEOUT, w->object_byte, text, length_of(text));
         }
     }
     for (uint8_t k = 0; k < n->count; k++) {
@@ -457,12 +493,12 @@ void asm_node_poll(struct asm_node *n, uint32_t now_ms)
 void asm_node_leave(struct asm_node *n)
 {
     static const uint8_t nothing[1] = {0};
-    send_message(n, ASM_DEST_SYSTEM, ASM_SYSTEM_LEAVE, nothing, 0, ASM_PRIORITY_HEARTBEAT);
+    asm_node_send(n, ASM_DEST_SYSTEM, ASM_SYSTEM_LEAVE, nothing, 0, ASM_PRIORITY_HEARTBEAT);
 }
 
 void asm_node_send_estop(struct asm_node *n, const char *reason)
 {
-    size_t length = reason ? strlen(reason) : 0;
+    size_t length = reason ? length_of(reason) : 0;
     struct asm_can_id id = {0};
     if (length > 8) { /* cut to 8 bytes, never inside a UTF-8 character */
         length = 8;

@@ -24,8 +24,11 @@ static int parse_v1(const uint8_t *data, size_t length, const float limits[2], s
             return ASM_E_RANGE;
         if (k >= ASM_MAX_STATES)
             return ASM_E_TOO_LARGE;
-        p->states[k] = (struct asm_state){.target = angle, .duration = duration, .linear = s[8]};
+        if (p != NULL)
+            p->states[k] = (struct asm_state){.target = angle, .duration = duration, .linear = s[8]};
     }
+    if (p == NULL)
+        return ASM_OK;
     p->version = 1;
     p->modes_n = 1;
     p->states_n = n;
@@ -69,12 +72,13 @@ static int parse_v2(const uint8_t *data, size_t length, const float limits[2], s
     size_t offset = 5;
     if (offset + 3u * steps > length)
         return ASM_E_FORMAT;
-    for (uint8_t q = 0; q < steps; q++, offset += 3) {
-        p->sequence[q].mode = data[offset];
-        p->sequence[q].cycles = asm_get_u16(data + offset + 1);
+    for (uint8_t q = 0; q < steps && p != NULL; q++) {
+        p->sequence[q].mode = data[offset + 3u * q];
+        p->sequence[q].cycles = asm_get_u16(data + offset + 3u * q + 1);
     }
+    offset += 3u * steps;
     uint32_t total = 0;
-    int too_many = 0, outside = 0;
+    int too_many = 0, outside = 0, simple = modes == 1 && steps == 0;
     for (uint8_t m = 0; m < modes; m++) {
         if (offset + 8 > length)
             return ASM_E_FORMAT;
@@ -90,39 +94,40 @@ static int parse_v2(const uint8_t *data, size_t length, const float limits[2], s
             return ASM_E_FORMAT;
         if (!(phase >= 0.0f && phase < 1.0f) || (direction != 1 && direction != -1))
             return ASM_E_FORMAT;
-        p->modes[m] = (struct asm_mode){phase, direction, (uint8_t)(flags & 1u), (uint16_t)(total - n), n};
+        simple &= !(flags & 1u);
+        if (p != NULL)
+            p->modes[m] = (struct asm_mode){phase, direction, (uint8_t)(flags & 1u), (uint16_t)(total - n), n};
         for (uint16_t k = 0; k < n; k++, offset += 19) {
             struct asm_state state;
             int status = parse_state(data + offset, &state);
             if (status != ASM_OK)
                 return status;
             outside |= !within(state.target, limits);
-            if (total - n + k < ASM_MAX_STATES)
-                p->states[total - n + k] = state;
-            else
+            simple &= state.event == ASM_EV_NONE && state.emit == 0;
+            if (total - n + k >= ASM_MAX_STATES)
                 too_many = 1;
+            else if (p != NULL)
+                p->states[total - n + k] = state;
         }
     }
     if (offset != length)
         return ASM_E_FORMAT;
     for (uint8_t q = 0; q < steps; q++)
-        if (p->sequence[q].mode >= modes)
+        if (data[5 + 3u * q] >= modes)
             return ASM_E_FORMAT;
-    p->version = 2;
-    p->modes_n = modes;
-    p->sequence_n = steps;
-    p->states_n = (uint16_t)(total < ASM_MAX_STATES ? total : ASM_MAX_STATES);
-    /* what version 1 says is never version 2 (one program, one form, one checksum) */
-    if (modes == 1 && steps == 0 && !p->modes[0].one_shot) {
-        int simple = 1;
-        for (uint16_t k = 0; k < p->states_n; k++)
-            simple &= p->states[k].event == ASM_EV_NONE && p->states[k].emit == 0;
-        if (simple && !too_many)
-            return ASM_E_FORMAT;
-    }
+    if (simple) /* what version 1 says is never version 2 (one program, one form, one checksum) */
+        return ASM_E_FORMAT;
     if (outside)
         return ASM_E_RANGE;
-    return too_many ? ASM_E_TOO_LARGE : ASM_OK;
+    if (too_many)
+        return ASM_E_TOO_LARGE;
+    if (p != NULL) {
+        p->version = 2;
+        p->modes_n = modes;
+        p->sequence_n = steps;
+        p->states_n = (uint16_t)total;
+    }
+    return ASM_OK;
 }
 
 int asm_table_parse(const uint8_t *data, size_t length, const float limits[2], struct asm_program *program)

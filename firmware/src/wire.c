@@ -99,3 +99,48 @@ uint32_t asm_crc32(const uint8_t *data, size_t length)
     }
     return ~crc;
 }
+
+/* floor(n / 1000) of a 64-bit n with 32-bit divisions (16 bits at a time), the remainder in *rest. */
+static uint64_t div1000(uint64_t n, uint32_t *rest)
+{
+    uint64_t quotient = 0;
+    uint32_t remainder = 0;
+    for (int shift = 48; shift >= 0; shift -= 16) {
+        uint32_t part = remainder << 16 | (uint32_t)(n >> shift & 0xFFFFu);
+        quotient = quotient << 16 | part / 1000u;
+        remainder = part % 1000u;
+    }
+    *rest = remainder;
+    return quotient;
+}
+
+uint64_t asm_seconds_f64(uint32_t ms)
+{
+    if (ms == 0)
+        return 0;
+    /* scale so the quotient has 54 bits: 53 of mantissa and a guard bit; the remainder is the sticky bit */
+    int scale = 54;
+    for (uint32_t v = ms; v >= 1000u; v >>= 1)
+        scale--;
+    uint32_t rest;
+    uint64_t q = div1000((uint64_t)ms << scale, &rest);
+    while (q >> 54) {
+        scale--;
+        q = div1000((uint64_t)ms << scale, &rest);
+    }
+    while (!(q >> 53)) {
+        scale++;
+        q = div1000((uint64_t)ms << scale, &rest);
+    }
+    uint32_t guard = (uint32_t)(q & 1u);
+    uint32_t sticky = rest != 0;
+    uint64_t mantissa = q >> 1;
+    if (guard && (sticky || (mantissa & 1u)))
+        mantissa++;
+    int exponent = 53 - scale; /* value = mantissa / 2^52 * 2^exponent */
+    if (mantissa >> 53) {
+        mantissa >>= 1;
+        exponent++;
+    }
+    return (uint64_t)(exponent + 1023) << 52 | (mantissa & ((1ull << 52) - 1u));
+}

@@ -6,6 +6,7 @@
  *   CAN <fd> <priority> <dest_kind> <dest> <source> <message hex> <id>:<data> ...  fragment, then reassemble
  *   TABLE <ok|refused> <hex> <crc32>                                              parse; CRC-32 of the bytes
  *   TIMEOUT <ms> <code>                                                           the timeout byte both ways
+ *   SECONDS <ms> <hex>                                  ms / 1000 as float64 bits, little-endian (gait.tick)
  *   CODEC <ok|refused> <descriptor hex> <value hex> [token ...]   check the value's bytes against the descriptor;
  *         with tokens (one per scalar, str/bytes/json as hex), encode them and compare with the value's bytes */
 #include <stdio.h>
@@ -176,6 +177,21 @@ static void timeout_case(char *rest, const char *original)
     }
 }
 
+static void seconds_case(char *rest, const char *original)
+{
+    unsigned long ms;
+    char hex[40];
+    if (sscanf(rest, "%lu %39s", &ms, hex) != 2 || unhex(hex, bytes) != 8) {
+        fail("SECONDS syntax", original);
+        return;
+    }
+    uint64_t bits = asm_seconds_f64((uint32_t)ms), expected = 0;
+    for (int i = 7; i >= 0; i--)
+        expected = expected << 8 | bytes[i];
+    if (bits != expected)
+        fail("SECONDS bits", original);
+}
+
 static size_t put_leb128(uint8_t *out, size_t length)
 {
     size_t n = 0;
@@ -294,6 +310,8 @@ int main(void)
             table_case(rest, original);
         else if (strcmp(line, "TIMEOUT") == 0)
             timeout_case(rest, original);
+        else if (strcmp(line, "SECONDS") == 0)
+            seconds_case(rest, original);
         else if (strcmp(line, "CODEC") == 0)
             codec_case(rest, original);
         else

@@ -1,12 +1,16 @@
 /* A module's gait (docs/protocol.md section 9): the table, its checksum, phase, direction and state, the control
- * tick, the periodic phase automaton that turns the table into joint.goal, and a deployment's staging, activation
- * and lease. The automaton is the Python module's rule, step for step: phase time tau = phi * T + d * t from an
- * anchor, the reference of the state tau falls in, and a 1 s ramp from the goal held at the start. Single
- * precision throughout (a Cortex-M4 has no double-precision unit): it agrees with the Python module's float64
- * within microseconds of phase time, and on which state a tick falls in except at a tie with a state boundary.
+ * tick, the program that turns the table into joint.goal (src/program.c), and a deployment's staging, activation
+ * and lease.
  *
- * This slice runs time-driven periodic tables (every table version 1 can say); a program with event-ended or
- * one-shot states, several modes or a sequence is refused with VALUE_ERROR — its limit, declared, not a crash. */
+ * The program is the Python module's (asm_py/module/gait_service.py), rule for rule: a periodic time-driven mode by
+ * phase time (tau = phi * T + d * t), any other mode stepped state by state at each tick, ended by time or by an
+ * event — contact made or lost, at goal, torque, a neighbour's state, a broadcast signal — with cycles, a sequence,
+ * switches at cycle boundaries, one-shot modes, the 0.5 s blend at a switch and the 1 s ramp at a start. Times are
+ * integer microseconds (no double precision on a Cortex-M4, and no drift over days); angles single precision.
+ *
+ * Declared limits, refused with VALUE_ERROR beyond (never a crash): ASM_MAX_STATES states over all modes,
+ * ASM_MAX_NEIGHBOURS distinct neighbours and ASM_MAX_SIGNALS distinct signals waited on, and a table of at most
+ * ASM_TABLE_BYTES bytes (TOO_LARGE, from the node, beyond). */
 #ifndef ASM_GAIT_H
 #define ASM_GAIT_H
 
@@ -15,24 +19,52 @@
 #include "asm/node.h"
 #include "asm/table.h"
 
+#ifndef ASM_MAX_NEIGHBOURS
+#define ASM_MAX_NEIGHBOURS 4 /* distinct neighbours a program's states wait on */
+#endif
+#ifndef ASM_MAX_SIGNALS
+#define ASM_MAX_SIGNALS 8 /* distinct broadcast signals a program's states wait on */
+#endif
+#ifndef ASM_TABLE_BYTES
 #define ASM_TABLE_BYTES (5u + 9u * ASM_MAX_STATES) /* a version-1 table of ASM_MAX_STATES states */
+#endif
 #define ASM_STAGED_BYTES (12u + ASM_TABLE_BYTES)
 #define ASM_LEASE_HOLDER 32u /* bytes of a lease holder's name kept */
 
+/* What was heard from a neighbour (its gait.state) or of a broadcast signal, and when (the module's clock). */
+struct asm_heard {
+    int64_t at_us;
+    uint16_t value;  /* the neighbour's state */
+    int16_t key;     /* the neighbour's offset, or the signal's number; 0: a free slot */
+    uint8_t heard;
+};
+
+/* The program while gait.service runs (the fields of asm_py's ModuleGait). */
+struct asm_run {
+    int64_t now_us, entered_us, boundary_us, last_tick_us, tau_us, period_us, blend_since_us, paused_us, after_us;
+    uint32_t last_ms;
+    int32_t cycles_left;
+    float blend, reference, base_phase;
+    uint16_t index;
+    uint8_t mode, sequence_at, timed, finished, saw_free, saw_touch, switch_pending, switch_mode, watch_changed;
+    int8_t heading, drive, base_direction, switch_direction;
+};
+
 struct asm_gait {
-    struct asm_object table, checksum, phase, service, tick, staged, staged_checksum, activate, lease, direction, state;
-    uint8_t table_v[ASM_TABLE_BYTES], staged_v[ASM_STAGED_BYTES], lease_v[1 + ASM_LEASE_HOLDER + 8];
-    uint32_t checksum_v, staged_checksum_v, activate_v, lease_token, lease_expires_ms;
+    struct asm_object table, checksum, phase, service, tick, staged, staged_checksum, activate, lease, direction, state,
+        switch_, cycle, mode, done, signal;
+    uint8_t table_v[ASM_TABLE_BYTES], staged_v[ASM_STAGED_BYTES], lease_v[1 + ASM_LEASE_HOLDER + 8], switch_v[6];
+    uint32_t checksum_v, staged_checksum_v, activate_v, lease_token, lease_expires_ms, cycle_v;
     float phase_v;
     int8_t direction_v;
+    uint8_t mode_v, done_v, signal_v;
     uint16_t state_v;
-    double tick_v;
-    struct asm_program program, staged_program; /* what runs; what is staged, checked */
-    /* Phase time in float seconds within one period; wall time in integer milliseconds since an anchor, so a
-     * module running for days loses no precision (the anchor moves on every REANCHOR_MS). */
-    float period, tau, tau0, ramp_from;
-    uint32_t t0_ms, last_tick_ms, ramp_start_ms;
-    int8_t heading;
+    uint64_t tick_v; /* gait.tick: float64 bits */
+    struct asm_program program; /* what runs (a staged table stays bytes until activated) */
+    struct asm_run run;
+    struct asm_heard neighbours[ASM_MAX_NEIGHBOURS], signals[ASM_MAX_SIGNALS];
+    float ramp_from;
+    uint32_t ramp_start_ms;
     uint8_t staged_ok, lease_held;
 };
 
@@ -43,5 +75,24 @@ void asm_gait_register(struct asm_module *m, int part);
 void asm_gait_tick(struct asm_module *m, uint32_t now_ms);
 /* The e-stop latched: the gait stops where it is. */
 void asm_gait_halt(struct asm_module *m);
+
+/* src/program.c: the automaton. */
+int64_t asm_us_of(float seconds); /* microseconds, rounded, clamped to +-2e9 s */
+void asm_program_start(struct asm_module *m, uint32_t now_ms);
+void asm_program_tick(struct asm_module *m, uint32_t now_ms);
+void asm_program_suspend(struct asm_module *m);
+void asm_program_resume(struct asm_module *m, uint32_t now_ms);
+/* The program in g->program was replaced: what it waits on starts afresh (what was heard of the same neighbours and
+ * signals stays: they publish only on a change). */
+void asm_program_loaded(struct asm_module *m);
+/* VALUE_ERROR when table ``data`` (already parsed) waits on more neighbours or signals than this module keeps, or
+ * on a neighbour outside IDs 1..254; else OK. */
+int asm_program_fits(const struct asm_module *m, const uint8_t *data, size_t length);
+/* A publication of gait.state by node ``source``; a broadcast signal heard (a SET of gait.signal, or emitted). */
+void asm_program_neighbour(struct asm_module *m, uint8_t source, uint16_t state);
+void asm_program_signal(struct asm_module *m, uint8_t number);
+/* The node IDs whose gait.state publications the program waits on (what a port's acceptance filter must pass);
+ * returns how many, at most ASM_MAX_NEIGHBOURS. */
+uint8_t asm_program_watched(const struct asm_module *m, uint8_t ids[ASM_MAX_NEIGHBOURS]);
 
 #endif

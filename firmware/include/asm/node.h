@@ -122,6 +122,8 @@ struct asm_node {
     uint8_t estop; /* latched */
     void (*on_estop)(struct asm_node *node, void *ctx); /* the module's reaction: stop the gait, hold the joint */
     void *estop_ctx;
+    /* A one-frame publication another node broadcast (a neighbour's gait.state); NULL: publications are ignored. */
+    void (*on_publication)(struct asm_node *node, uint8_t source, const struct asm_message *publication);
     uint16_t heartbeat_ms;
     uint32_t next_heartbeat_ms;
     uint32_t now_ms;
@@ -143,6 +145,9 @@ int asm_node_join(struct asm_node *node, uint8_t group);
 
 /* One received frame (extended identifier), at ``now_ms``. */
 void asm_node_frame(struct asm_node *node, uint32_t id, const uint8_t *data, uint8_t dlc, uint32_t now_ms);
+/* A request message from the module itself (its application, a test harness): served with every check a remote
+ * one gets, without a reply; an asm_status. */
+int asm_node_local(struct asm_node *node, const uint8_t *message, size_t length);
 /* Heartbeats, publications due, waits that time out, stale partial messages. */
 void asm_node_poll(struct asm_node *node, uint32_t now_ms);
 
@@ -153,6 +158,9 @@ int asm_node_write(struct asm_node *node, struct asm_object *obj, const void *da
 void asm_node_set_estop(struct asm_node *node, int latched);
 /* Tell the bus this node leaves (system frame LEAVE). */
 void asm_node_leave(struct asm_node *node);
+/* Send ``msg`` (fragmented if it must be) to a node, a group or everyone (dest_kind: enum asm_dest_kind). */
+void asm_node_send(struct asm_node *node, uint8_t dest_kind, uint8_t dest, const uint8_t *msg, size_t length,
+                   uint8_t priority);
 /* Send an e-stop to every node (system frame, priority 0, one frame). */
 void asm_node_send_estop(struct asm_node *node, const char *reason);
 

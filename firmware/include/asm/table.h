@@ -47,7 +47,8 @@ struct asm_program {
 };
 
 /* ASM_OK; ASM_E_FORMAT for a malformed table; ASM_E_TOO_LARGE for a valid one with more states than
- * ASM_MAX_STATES (the module's declared limit). ``limits`` (min, max degrees) bounds every target. */
+ * ASM_MAX_STATES (the module's declared limit). ``limits`` (min, max degrees) bounds every target. ``program``
+ * NULL: only check (a staged table is kept as bytes and parsed when it is activated). */
 int asm_table_parse(const uint8_t *data, size_t length, const float limits[2], struct asm_program *program);
 
 #endif

@@ -62,6 +62,10 @@ static inline float asm_get_f32(const uint8_t *p)
     return value;
 }
 
+/* The IEEE 754 binary64 bits of ``ms`` / 1000 seconds, rounded to nearest-even as a double division would round,
+ * in integer arithmetic: a Cortex-M4's FPU has no double precision, and its soft-float division costs 2 KiB. */
+uint64_t asm_seconds_f64(uint32_t ms);
+
 uint16_t asm_crc16(const uint8_t *data, size_t length); /* CRC-16/CCITT-FALSE: CAN fragment preambles */
 uint32_t asm_crc32(const uint8_t *data, size_t length); /* CRC-32 (IEEE, zlib's): gait.checksum */
 

@@ -1,0 +1,90 @@
+"""The C runtime's program (firmware/src/program.c) against the Python module's (asm_py/module/gait_service.py),
+differentially: the same random programs — modes, sequences, one-shot modes, states ended by time, contact made
+and lost, at goal, torque and signals, with timeouts that stop — on a C module and a Python module ticked by one
+simulated clock, each on an identical simulated joint, give the same joint goal at every tick (within the one-tick
+window a state boundary tie allows: single precision against double), and end the same way."""
+
+from __future__ import annotations
+
+import random
+import shutil
+
+import pytest
+
+from asm_py import Event
+from asm_py.clock import SimClock
+from asm_py.codec import FLOAT32, INT8
+from asm_py.firmware import CModule
+from asm_py.module import LocalNeighbours, ModuleRuntime
+from asm_py.module.runtime import FakeDriver, JointReading
+from asm_py.module.wire import encode_program
+from asm_py.protocol import Method
+from tests.test_firmware import _random_program
+from tests.transports import fresh_name
+
+pytestmark = [pytest.mark.timeout(300), pytest.mark.skipif(shutil.which("gcc") is None, reason="needs gcc")]
+TICK = 1 / 50
+
+
+class ContactJoint(FakeDriver):
+    """A first-order servo whose foot touches the ground below 0° (so contact is made and lost as it moves)."""
+
+    def read(self) -> JointReading:
+        reading = super().read()
+        return JointReading(reading.angle, reading.torque, reading.angle < 0.0)
+
+
+def _programs(count: int, seed: int) -> list:
+    rng = random.Random(seed)
+    programs = []
+    while len(programs) < count:
+        program = _random_program(rng)
+        if not program.neighbours() and not program.simple:  # neighbours need a second module; see test_program_sim
+            programs.append(program)
+    return programs
+
+
+def _run(program, phase: float, direction: int, seconds: float) -> tuple[list[float], list[float], int, int]:
+    """(C goals, Python goals, C gait.done, Python gait.done) at every tick of ``seconds``."""
+    clock = SimClock()
+    tick = Event("gait.tick", codec="float64", clock=clock)
+    table = encode_program(program)
+    runtime = ModuleRuntime(ContactJoint(clock=clock, tau=0.1), clock=clock, tick=tick, inline=True, module_id=5,
+                            neighbours=LocalNeighbours())  # fmt: skip
+    done: list[int] = []
+    runtime.gait.done.on_change(done.append)
+    c_module = CModule("c5", 5, driver=ContactJoint(clock=clock, tau=0.1), clock=clock, tick=tick,
+                       interface="virtual", channel=fresh_name("c-program"))  # fmt: skip
+    c_goals: list[float] = []
+    p_goals: list[float] = []
+    try:
+        runtime.table.set(table)
+        runtime.phase.set(phase)
+        runtime.gait.direction.set(direction)
+        c_module.local(Method.SET, "gait.table", table)
+        c_module.local(Method.SET, "gait.phase", FLOAT32.encode(phase))
+        c_module.local(Method.SET, "gait.direction", INT8.encode(direction))
+        runtime.gait.start()
+        c_module.local(Method.START, "gait.service")
+        for k in range(1, round(seconds / TICK) + 1):
+            clock.advance_to(k * TICK)
+            tick.set(k * TICK)
+            c_goals.append(c_module.goal)
+            p_goals.append(float(runtime.goal.peek()))
+        return c_goals, p_goals, c_module.done(), done[-1] if done else 0
+    finally:
+        c_module.close()
+        runtime.close()
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_random_programs_run_in_c_as_in_python(seed: int) -> None:
+    rng = random.Random(1000 + seed)
+    for program in _programs(8, seed):
+        phase, direction = round(rng.random() * 0.99, 3), rng.choice([1, -1])
+        c_goals, p_goals, c_done, p_done = _run(program, phase, direction, 4.0)
+        for k in range(1, len(p_goals) - 1):
+            window = p_goals[k - 1 : k + 2]
+            assert min(window) - 1e-3 <= c_goals[k] <= max(window) + 1e-3, (program, phase, direction, k * TICK,
+                                                                            c_goals[k], window)  # fmt: skip
+        assert c_done == p_done, (program, c_done, p_done)
