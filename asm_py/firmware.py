@@ -15,10 +15,13 @@ from __future__ import annotations
 import ctypes
 import logging
 import os
+import struct
 import subprocess
 import tempfile
 import threading
 import time
+from collections import deque
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -27,6 +30,7 @@ import can
 from .canbus.ids import Dest, Priority, SystemCode, dest_filter, priority_filter
 from .clock import Clock
 from .event import Event
+from .module.neighbours import LocalNeighbours
 from .module.runtime import FakeDriver, JointDriver
 from .protocol import WELL_KNOWN_CLASSES, Kind, Method, Status, first_byte
 
@@ -133,6 +137,10 @@ def library() -> ctypes.CDLL:
             ):
                 getattr(lib, name).argtypes = [ctypes.c_void_p]
                 getattr(lib, name).restype = ctypes.c_uint32
+            lib.asm_host_object_id.argtypes = [ctypes.c_void_p, ctypes.c_char_p]
+            lib.asm_host_object_id.restype = ctypes.c_int
+            lib.asm_host_angle.argtypes = [ctypes.c_void_p]
+            lib.asm_host_angle.restype = ctypes.c_float
             lib.asm_host_goal.argtypes = [ctypes.c_void_p]
             lib.asm_host_goal.restype = ctypes.c_float
             _library = lib
@@ -145,6 +153,11 @@ class CModule:
     On its own it ticks every 1/``control_rate`` s of the wall clock. Given a ``clock`` and a ``tick`` event (a
     simulation's), it reads time from that clock and runs its control tick at every firing, in the firing thread,
     as a Python module runtime with ``inline=True`` does: the same ticks, so a deployed C module and a preview agree.
+
+    Given a ``hub`` instead of a bus (a preview: modules of one process without a bus), its frames go nowhere but
+    the two the hub carries — its ``gait.state`` publications and the signals it broadcasts — and what the hub says
+    of its neighbours and of signals reaches it as the frames a bus would carry, stamped with the time they were
+    said and handed over at its next tick (a neighbour's news counts from the tick after it arrived either way).
     """
 
     def __init__(
@@ -158,6 +171,7 @@ class CModule:
         hardware_range: tuple[float, float] = (-90.0, 90.0),
         clock: Clock | None = None,
         tick: Event | None = None,
+        hub: LocalNeighbours | None = None,
         **bus_options: Any,
     ) -> None:
         self.name = name
@@ -165,10 +179,13 @@ class CModule:
         self.driver = driver if driver is not None else FakeDriver()
         self.period = 1.0 / control_rate
         self.clock = clock
-        self._own_bus = bus is None
-        self.bus = bus if bus is not None else can.Bus(**bus_options)
+        self.hub = hub
+        self._own_bus = bus is None and hub is None
+        self.bus = bus if bus is not None or hub is not None else can.Bus(**bus_options)
+        self._inbox: deque[tuple[int, int, bytes]] = deque()  # from the hub: (ms, CAN ID, data), for the next tick
+        self._watching: list[Callable[[], None]] = []  # the hub's watches of neighbours
+        self._listening: Callable[[], None] | None = None  # the hub's signals
         self._lib = library()
-        self._filter([])
         self._memory = ctypes.create_string_buffer(self._lib.asm_host_size())
         self._name = name.encode("utf-8")  # the firmware keeps a pointer to it: it lives as long as this object
         self._t0 = time.monotonic()
@@ -179,15 +196,34 @@ class CModule:
         with self._call_lock:
             self._lib.asm_host_init(self._memory, self._name, node_id, *self._callbacks, *map(float, hardware_range),
                                     self._now_ms())  # fmt: skip
+        self._filter([])
         self._stop = threading.Event()
         self._unlisten = tick.on_change(lambda _: self.tick()) if tick is not None else None
         self._thread = threading.Thread(target=self._run, name=f"c-module:{name}", daemon=True)
-        self._thread.start()
+        if hub is not None:
+            self._listening = hub.listen(self._heard_signal)
+        else:
+            self._thread.start()
 
     def _filter(self, neighbours: list[int]) -> None:
         """What a module's CAN controller passes (docs/protocol.md §7): its ID, broadcast requests, the e-stop, and
         the publications of the neighbours its program waits on (their gait.state), as a board's port would."""
         published = (Priority.PUBLICATION << 26) | (Dest.BROADCAST << 24)
+        if self.hub is not None:
+            for remove in self._watching:
+                remove()
+            self._watching = []
+            state_object = self._lib.asm_host_object_id(self._memory, b"gait.state")
+            for n in neighbours:
+
+                def heard(state: int, n: int = n) -> None:
+                    data = bytes((first_byte(Kind.PUBLICATION, Method.PUBLISH), 0, WELL_KNOWN_CLASSES["gait.state"],
+                                  state_object)) + struct.pack("<H", state)  # fmt: skip
+                    self._inbox.append((self._now_ms(), published | n << 8, data))
+
+                self._watching.append(self.hub.watch(n, heard))
+            return
+        assert self.bus is not None
         self.bus.set_filters([dest_filter(Dest.NODE, self.node_id),
                               priority_filter(Priority.REQUEST, Dest.BROADCAST, 0),
                               priority_filter(Priority.BULK, Dest.BROADCAST, 0),
@@ -215,13 +251,34 @@ class CModule:
         if status != Status.OK:
             raise ValueError(f"{self.name}: {Method(method).name} of {name} refused: {Status(status).name}")
 
+    def _heard_signal(self, number: int) -> None:
+        message = bytes((first_byte(Kind.REQUEST, Method.SET), 0, WELL_KNOWN_CLASSES["gait.signal"], 0, number))
+        self._inbox.append((self._now_ms(), (Priority.REQUEST << 26) | (Dest.BROADCAST << 24) | self.node_id << 8,
+                            message))  # fmt: skip
+
+    def _hub_send(self, can_id: int, payload: bytes) -> None:
+        """What a hub carries of a frame this module sends: its gait.state publications and its signals."""
+        if (can_id >> 24) & 3 != Dest.BROADCAST or (can_id >> 6) & 3 != 0 or len(payload) < 5:
+            return
+        if payload[0] == first_byte(Kind.PUBLICATION, Method.PUBLISH) and payload[2] == WELL_KNOWN_CLASSES[
+                "gait.state"] and len(payload) == 6:  # fmt: skip
+            self.hub.announce(self.node_id, struct.unpack_from("<H", payload, 4)[0])  # type: ignore[union-attr]
+        elif payload[0] == first_byte(Kind.REQUEST, Method.SET) and payload[2] == WELL_KNOWN_CLASSES["gait.signal"]:
+            self.hub.broadcast(payload[4])  # type: ignore[union-attr]
+
     def tick(self) -> None:
-        """One control tick now (the firmware's asm_module_tick)."""
+        """One control tick now (the firmware's asm_module_tick), after what the hub said since the last one."""
         with self._call_lock:
+            while self._inbox:
+                ms, can_id, data = self._inbox.popleft()
+                self._lib.asm_host_frame(self._memory, can_id, data, len(data), ms)
             self._lib.asm_host_tick(self._memory, self._now_ms())
 
     def _send(self, _: object, can_id: int, data: int | None, dlc: int) -> int:
         payload = ctypes.string_at(data, dlc) if dlc else b""  # one copy, not a list of ints
+        if self.bus is None:
+            self._hub_send(can_id, payload)
+            return 0
         try:
             self.bus.send(can.Message(arbitration_id=can_id, data=payload, is_extended_id=True, is_fd=dlc > 8),
                           timeout=0.1)  # fmt: skip
@@ -262,6 +319,11 @@ class CModule:
         return bool(self._lib.asm_host_latched(self._memory))
 
     @property
+    def angle(self) -> float:
+        """joint.angle as the firmware last read it (degrees)."""
+        return float(self._lib.asm_host_angle(self._memory))
+
+    @property
     def goal(self) -> float:
         """What the firmware commands the joint to (degrees)."""
         return float(self._lib.asm_host_goal(self._memory))
@@ -285,11 +347,14 @@ class CModule:
             return
         if self._unlisten is not None:
             self._unlisten()
+        for remove in [*self._watching, *([self._listening] if self._listening else [])]:
+            remove()
         self._stop.set()
-        self._thread.join(5)
+        if self._thread.is_alive():
+            self._thread.join(5)
         with self._call_lock:
             self._lib.asm_host_leave(self._memory)
-        if self._own_bus:
+        if self._own_bus and self.bus is not None:
             self.bus.shutdown()
 
     def __enter__(self) -> CModule:

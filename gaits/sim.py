@@ -141,13 +141,24 @@ class Trace:
     goals: list[list[float]] = field(default_factory=list)
 
 
+def select_modules(selection: Collection[int] | str, gait: Gait) -> tuple[int, ...]:
+    """The module IDs of the gait's robot a ``--c-modules`` selection names: "odd", "even", "all" or IDs (those it
+    does not have are ignored)."""
+    ids = [a.id for a in gait.modules]
+    if isinstance(selection, str):
+        parity = {"odd": 1, "even": 0, "all": None}[selection]
+        return tuple(i for i in ids if parity is None or i % 2 == parity)
+    return tuple(i for i in ids if i in selection)
+
+
 class Simulation:
     """A gait's robot in MuJoCo, driven by one ModuleRuntime per module; see the module docstring.
 
     ``direction`` -1 runs every module's automaton backwards (the gait's own directions, negated). ``node_of``
     gives each module runtime its ASM node (a robot process puts them on a bus); without it they have none.
-    ``c_modules`` (IDs) run the C runtime instead (asm_py.firmware), on the python-can bus ``bus_options`` opens,
-    ticked by the same tick event; they have no Python runtime in ``modules`` and are reached over the bus only.
+    ``c_modules`` (IDs) run the C runtime instead (asm_py.firmware), on the python-can bus ``bus_options`` opens —
+    or, without one, on the in-process hub the Python modules of a preview share — ticked by the same tick event;
+    they have no Python runtime in ``modules`` (:meth:`goal` and :meth:`angle` read either kind).
     ``lock`` guards the model and data: the stepping thread holds it per control period, and a module's joint
     driver takes it, so a request arriving on a bus thread never touches MjData in the middle of a step.
     """
@@ -165,8 +176,6 @@ class Simulation:
         c_modules: Collection[int] = (),
         bus_options: Mapping[str, Any] | None = None,
     ) -> None:
-        if c_modules and bus_options is None:
-            raise ValueError("C modules are reached over a bus only: give bus_options")
         self.gait = gait
         self.lock = threading.RLock()
         self.physics = physics or Physics(friction=gait.ground.friction, anisotropic=gait.ground.anisotropic)
@@ -195,6 +204,7 @@ class Simulation:
                 self.c_modules[assignment.id] = CModule(module_name(assignment.id), assignment.id,
                                                         driver=MujocoJoint(self, assignment.id), clock=self.clock,
                                                         tick=self.tick, hardware_range=gait.limits,
+                                                        hub=hub if bus_options is None else None,
                                                         **dict(bus_options or {}))  # fmt: skip
                 continue
             node = node_of(assignment.id) if node_of is not None else None
@@ -309,6 +319,12 @@ class Simulation:
         if module_id in self.c_modules:
             return self.c_modules[module_id].goal
         return float(self.modules[module_id].goal.peek())
+
+    def angle(self, module_id: int) -> float:
+        """Module ``module_id``'s joint.angle, as the module last read it (a Python or a C module)."""
+        if module_id in self.c_modules:
+            return self.c_modules[module_id].angle
+        return float(self.modules[module_id].angle.peek())
 
     def advance(self, seconds: float) -> None:
         end = self.data.time + seconds - 1e-9

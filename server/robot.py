@@ -34,8 +34,8 @@ from asm_py.feed import PoseFrame, RobotStatus, encode_poses, mjcf_key, poses_ke
 from asm_py.node import Node
 from asm_py.transport.can import CanTransport
 from gaits.deploy import module_name
-from gaits.model import LIBRARY, Gait, load
-from gaits.sim import Simulation
+from gaits.model import LIBRARY, load
+from gaits.sim import Simulation, select_modules
 
 from .bridge import CanZenohBridge, add_zenoh_arguments, check_zenoh_arguments
 from .realtime import prefer_latency
@@ -157,7 +157,7 @@ class Robot:
                                              **can_options)  # fmt: skip
                     return Node(module_name(module_id), transport)
 
-                self.sim = Simulation(gait, node_of=node_of, c_modules=chosen(options.c_modules, gait),
+                self.sim = Simulation(gait, node_of=node_of, c_modules=select_modules(options.c_modules, gait),
                                       bus_options=can_options)  # fmt: skip
                 self.mjcf = self.sim.mjcf
             else:
@@ -248,15 +248,6 @@ def die_with_parent(parent: int) -> None:
         os._exit(1)  # a robot whose operator is gone must not linger, even if closing hangs
 
     threading.Thread(target=watch, name="parent-watch", daemon=True).start()
-
-
-def chosen(selection: tuple[int, ...] | str, gait: Gait) -> tuple[int, ...]:
-    """The module IDs of the gait's robot a ``--c-modules`` selection names (IDs it does not have are ignored)."""
-    ids = [a.id for a in gait.modules]
-    if isinstance(selection, str):
-        parity = {"odd": 1, "even": 0, "all": None}[selection]
-        return tuple(i for i in ids if parity is None or i % 2 == parity)
-    return tuple(i for i in ids if i in selection)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -139,6 +139,7 @@ class Studio:
     def __init__(self, options: StudioOptions) -> None:
         self.options = options
         self.robot_name = options.robot_name
+        self.c_modules = options.c_modules
         raw = read(options.gait)  # once: the gait, and its text for a download that keeps its comments
         self.gait: Gait = loads(raw, source=str(options.gait))
         self.gait_text: str | None = raw.decode("utf-8-sig")  # it decoded as the gait above
@@ -266,7 +267,7 @@ def main(argv: list[str] | None = None) -> int:
     cli.add_argument("--view", choices=["preview", "live"], default="preview",
                      help="what the 3D view shows at start (default: the preview of the edited gait)")  # fmt: skip
     cli.add_argument("--c-modules", type=module_selection, metavar="IDS", help="simulated modules that run the C "
-                     "runtime (firmware/): IDs as 1,3,5, or odd, even, all")  # fmt: skip
+                     "runtime (firmware/), in the robot and in the preview: IDs as 1,3,5, or odd, even, all")  # fmt: skip
     args = cli.parse_args(argv)
     check_zenoh_arguments(cli, args)
     if args.c_modules and (args.can or args.robot):

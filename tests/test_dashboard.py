@@ -279,13 +279,15 @@ def test_each_module_is_labelled_at_its_joint_in_the_3d_view(studio):
 
 
 def test_the_studio_deploys_to_and_estops_a_robot_whose_odd_modules_run_in_c() -> None:
-    """asm-studio --c-modules odd: modules 1, 3, 5, 7 of its robot run the C runtime; the page's Deploy, E-STOP and
-    release treat them like the others."""
+    """asm-studio --c-modules odd: modules 1, 3, 5, 7 of its robot and of its preview run the C runtime; the page's
+    Deploy, E-STOP and release treat them like the others."""
     from server.studio import Studio, StudioOptions
 
     studio = Studio(StudioOptions(port=0, c_modules="odd"))
     try:
         app = studio.app
+        assert sorted(app.loop.sim.c_modules) == [1, 3, 5, 7], "the preview runs the same modules in C"
+        assert wait_until(lambda: len({round(f.goals[2], 1) for f in list(app.loop.frames)}) > 5, 20), "and they move"
         assert wait_until(lambda: len(app.modules()) == 8, 20)
         gait = app.doc.gait()
         app.deployer.start(gait, app.deployer.stage(gait))  # Deploy, then Start in the dialog that follows

@@ -31,7 +31,7 @@ def _trace(gait, seconds: float, *, bus: bool, drive_at: float | None = None,
 
     try:
         odd = [a.id for a in gait.modules if a.id % 2] if c_modules else []
-        options = {"interface": "virtual", "channel": channel}
+        options = {"interface": "virtual", "channel": channel} if bus else None  # no bus: the preview's hub
         with Simulation(gait, trace=True, node_of=node_of if bus else None, c_modules=odd, bus_options=options) as sim:
             sim.start()
             while sim.data.time < seconds - 1e-9:
@@ -73,6 +73,23 @@ def test_preview_equals_deployment_for_neighbour_contact_one_shot_and_sequenced_
         assert max(last) - min(last) > 20.0
     if name == "caterpillar_tour":  # its own sequence switched it to left after 5 cycles: the yaw joints bend
         assert preview[1][-1][1] == pytest.approx(20.0) and preview[1][int(4.5 * 50)][1] == pytest.approx(0.0)
+
+
+@pytest.mark.parametrize("name", ["neighbour_caterpillar", "contact_inchworm", "curl_into_loop"])
+def test_a_preview_with_c_modules_equals_the_all_python_preview(name) -> None:
+    """The studio's preview with --c-modules: the odd modules run the C runtime on the preview's in-process hub
+    (no bus), hearing and telling neighbours' states as the Python modules do."""
+    gait = load(LIBRARY / f"{name}.toml")
+    _assert_within_one_tick(_trace(gait, 3.0, bus=False), _trace(gait, 3.0, bus=False, c_modules=True))
+
+
+def test_a_preview_with_c_modules_hears_a_broadcast_signal() -> None:
+    from gaits.model import loads
+
+    gait = loads(SIGNALLED)
+    preview = _trace(gait, 3.0, bus=False, c_modules=True)
+    _assert_within_one_tick(_trace(gait, 3.0, bus=False), preview)
+    assert max(row[2] for row in preview[1]) > 35.0  # module 3, in C, heard module 1's signal (in C too) and moved
 
 
 @MIXED

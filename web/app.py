@@ -67,6 +67,8 @@ class Backend(Protocol):
     """The robot is simulated (it publishes poses); else a real bus."""
     robot_name: str
     """The robot's name in its Zenoh keys."""
+    c_modules: str | None
+    """The simulated modules that run the C runtime ("odd", "even", "all", "1,3,5"), in the robot and the preview."""
 
     def ensure_robot(self, gait: Gait) -> str | None:
         """Make a simulated robot the one ``gait`` describes; a message when it was rebuilt."""
@@ -82,7 +84,7 @@ class Dashboard:
         self.server = guarded_server(self.guard, host=host, port=port, label="ASM Studio", verbose=False)
         self.port = self.server.get_port()
         self.doc = GaitDocument(studio.gait, text=studio.gait_text)
-        self.loop = PreviewLoop(studio.gait)
+        self.loop = PreviewLoop(studio.gait, c_modules=studio.c_modules)
         self.feed = LiveFeed(studio.node.transport.session, studio.robot_name)  # type: ignore[attr-defined]
         self.view = SceneView(self.server, self.loop, self.feed)
         self.view.on_pick = self.pick_module

@@ -21,7 +21,7 @@ import numpy as np
 import viser
 
 from gaits.model import Gait
-from gaits.sim import Metrics, Simulation
+from gaits.sim import Metrics, Simulation, select_modules
 
 FRAME_RATE = 60.0
 """Recorded frames per simulated second: the timeline's resolution, and what the view draws at speed 1."""
@@ -47,7 +47,9 @@ class Frame:
 class PreviewLoop:
     """Runs a gait's Simulation in real time × ``speed`` on its own thread; see the module docstring."""
 
-    def __init__(self, gait: Gait) -> None:
+    def __init__(self, gait: Gait, *, c_modules: str | None = None) -> None:
+        self.c_modules = c_modules
+        """Modules the preview runs in C, as the robot does (``--c-modules``: "odd", "even", "all" or "1,3,5")."""
         self._requests: queue.Queue[tuple[str, Any]] = queue.Queue()
         self._lock = threading.Lock()
         self.frames: deque[Frame] = deque(maxlen=int(HISTORY_SECONDS * FRAME_RATE))
@@ -68,7 +70,12 @@ class PreviewLoop:
         self._thread.start()
 
     def _new_sim(self, gait: Gait) -> Simulation:
-        sim = Simulation(gait)
+        c_modules: tuple[int, ...] = ()
+        if self.c_modules:
+            selection = self.c_modules
+            ids = selection if selection in ("odd", "even", "all") else tuple(int(i) for i in selection.split(","))
+            c_modules = select_modules(ids, gait)
+        sim = Simulation(gait, c_modules=c_modules)
         sim.start()
         return sim
 
@@ -168,8 +175,8 @@ class PreviewLoop:
             if sim.data.time >= self._next_frame - 1e-9:  # frames on a 1/60 s grid of simulated time
                 while self._next_frame <= sim.data.time + 1e-9:
                     self._next_frame += 1 / FRAME_RATE
-                goals = tuple(float(r.goal.peek()) for r in sim.modules.values())
-                angles = tuple(float(r.angle.peek()) for r in sim.modules.values())
+                goals = tuple(sim.goal(a.id) for a in sim.gait.modules)
+                angles = tuple(sim.angle(a.id) for a in sim.gait.modules)
                 metrics = sim.measure(self._start_com, sim.data.time)
                 self.frames.append(Frame(sim.data.time, sim.data.qpos.copy(), goals, angles, metrics))
                 self._changed.set()

@@ -50,6 +50,13 @@ uint32_t asm_host_done(const struct asm_module *m) { return m->gait.done_v; } /*
 int asm_host_gait_running(const struct asm_module *m) { return m->gait.service.running; }
 uint32_t asm_host_served(const struct asm_module *m) { return m->node.served; }
 uint32_t asm_host_dropped(const struct asm_module *m) { return m->node.dropped + m->node.rx.dropped; }
+float asm_host_angle(const struct asm_module *m) { return m->angle_v; }
+/* The ID of the object called ``name`` (the same on every module), 0 if there is none. */
+int asm_host_object_id(struct asm_module *m, const char *name)
+{
+    struct asm_object *o = asm_node_find(&m->node, name);
+    return o != NULL ? o->id : 0;
+}
 float asm_host_goal(const struct asm_module *m) { return m->goal_v; }
 /* When the gait last started (its ramp's start), in the milliseconds the caller gives; 0 before any start. */
 uint32_t asm_host_gait_started_ms(const struct asm_module *m) { return m->gait.ramp_start_ms; }
