@@ -14,7 +14,7 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 run: $(STAMP)
-	$(VENV)/bin/asm-studio
+	$(VENV)/bin/asm-studio $(ARGS)
 
 # The browser tests drive Debian's Chromium (never a browser downloaded by a tool).
 CHROMIUM := /usr/bin/chromium

@@ -267,7 +267,7 @@ def main(argv: list[str] | None = None) -> int:
     cli.add_argument("--view", choices=["preview", "live"], default="preview",
                      help="what the 3D view shows at start (default: the preview of the edited gait)")  # fmt: skip
     cli.add_argument("--c-modules", type=module_selection, metavar="IDS", help="simulated modules that run the C "
-                     "runtime (firmware/), in the robot and in the preview: IDs as 1,3,5, or odd, even, all")  # fmt: skip
+                     "runtime (firmware/), in the robot and the preview: IDs as 1,3,5, or odd, even, all")  # fmt: skip
     args = cli.parse_args(argv)
     check_zenoh_arguments(cli, args)
     if args.c_modules and (args.can or args.robot):

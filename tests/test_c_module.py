@@ -387,3 +387,71 @@ def test_a_c_module_reproduces_the_module_object_vectors(bus_pair) -> None:
     module, _, channel = bus_pair
     done = reproduce_module_object_vectors(module, channel)
     assert all(done.values()) and len(done) == 11, done
+
+
+def _verdict(port: object, class_id: int, object_id: int, data: bytes) -> str:
+    from asm_py.protocol import Method
+
+    try:
+        port.call(Method.SET, class_id, object_id, data, timeout=5)  # type: ignore[attr-defined]
+    except Exception as exc:  # the reply's status, as its local exception type
+        return type(exc).__name__
+    return "ok"
+
+
+def test_a_programs_objects_refuse_what_the_python_module_refuses() -> None:
+    """Hostile values of gait.switch, gait.signal, gait.direction and gait.table (programs a module cannot run) get
+    the same status from a C module as from a Python module, and what both accept is accepted."""
+    import math
+    import struct
+
+    from asm_py.module.program import Mode, ModeState, Program, Until
+    from asm_py.module.runtime import ModuleRuntime
+    from asm_py.module.wire import encode_program
+
+    channel = fresh_name("c-hostile")
+    c_module = CModule("m1", 1, interface="virtual", channel=channel)
+    python_node = Node("m2", CanTransport(2, interface="virtual", channel=channel, watch_bus=False))
+    runtime = ModuleRuntime(FakeDriver(), node=python_node, module_id=2)
+    tool = Node("tool", CanTransport(100, interface="virtual", channel=channel, heartbeat_period=0.1))
+    two_modes = Program((Mode((ModeState(10.0, 0.5),)), Mode((ModeState(-10.0, 0.5),), one_shot=True)))
+    behind = Program((Mode((ModeState(0.0, None, until=Until("neighbour", neighbour=-5, state=1)),)),))
+    emits = Program((Mode((ModeState(0.0, 0.5, emit=3), ModeState(5.0, 0.5))),))
+    cases = [
+        ("gait.table", encode_program(two_modes)),
+        *(
+            ("gait.switch", struct.pack("<Bbf", mode, direction, after))
+            for mode, direction, after in [
+                (0, 1, 0.0),
+                (1, -1, 12.5),
+                (2, 1, 0.0),
+                (255, 1, 0.0),
+                (0, 0, 0.0),
+                (0, 2, 1.0),
+                (0, 1, math.nan),
+                (0, -1, math.inf),
+                (1, 1, -1e30),
+            ]
+        ),
+        ("gait.switch", b"\x00\x01"),  # short
+        *(("gait.signal", bytes([n])) for n in (0, 1, 255)),
+        ("gait.signal", b"\x01\x02"),
+        *(("gait.direction", struct.pack("<b", d)) for d in (1, -1, 0, 2, -128)),
+        ("gait.table", encode_program(behind)),  # a neighbour below ID 1 on both modules
+        ("gait.table", encode_program(emits)),
+        ("gait.table", encode_program(two_modes)[:-1]),  # cut short
+        ("gait.table", b"GT\x02" + bytes(60)),
+    ]
+    try:
+        assert wait_until(lambda: {"m1", "m2"} <= set(tool.discover()), timeout=10)
+        ids = {e.name: (e.class_id, e.object_id) for e in _python_module_entries()}
+        for name, data in cases:
+            verdicts = [_verdict(tool.port(module), *ids[name], data) for module in ("m1", "m2")]
+            assert verdicts[0] == verdicts[1], (name, data.hex(), verdicts)
+        seen = {_verdict(tool.port("m1"), *ids[name], data) for name, data in cases}
+        assert "ok" in seen and len(seen) > 1, seen
+    finally:
+        tool.close()
+        runtime.close()
+        python_node.close()
+        c_module.close()

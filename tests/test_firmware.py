@@ -8,6 +8,7 @@ from __future__ import annotations
 import json
 import math
 import random
+import re
 import shutil
 import struct
 import subprocess
@@ -213,11 +214,14 @@ def test_mutated_tables_get_the_same_verdict_in_c_as_in_python(runner: Path) -> 
 
 
 def test_hostile_frames_and_bytes_crash_nothing_and_the_module_still_answers(tmp_path: Path) -> None:
-    """200,000 random and mutated frames, messages and tables under the sanitizers (bench: 10 million)."""
+    """200,000 random and mutated frames, messages and tables, and random programs run with random sensors,
+    neighbours, signals and switches, under the sanitizers (bench: 10 million)."""
     fuzz = build(tmp_path / "fuzz", "fuzz")
     result = subprocess.run([str(fuzz), "200000", "7"], capture_output=True, text=True, timeout=240)
     assert result.returncode == 0, result.stderr[-3000:]
     assert "still answers" in result.stdout and "runtime error" not in result.stderr
+    programs, ticks = (int(n) for n in re.search(r"ran (\d+) random programs \((\d+) ticks\)", result.stdout).groups())
+    assert programs > 100 and ticks > 1000, result.stdout
 
 
 @pytest.mark.skipif(shutil.which("arm-none-eabi-gcc") is None, reason="make test installs gcc-arm-none-eabi")
