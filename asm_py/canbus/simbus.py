@@ -5,7 +5,9 @@ frame is read, so on a simulated robot every node's receive thread handles every
 frame costs as much as there are nodes, and a long transfer to one node backs up every other node's queue. A CAN
 controller filters in hardware: frames its acceptance filters reject never reach its FIFO. This bus does the same:
 ``send`` puts a frame only into the queues of the buses whose filters accept it, so a frame costs the same whatever
-the module count.
+the module count: the channel indexes its buses' filters by mask (a controller's filters are a few masks, the same on
+every module), so finding the receivers of a frame is one dictionary lookup per distinct mask, not one filter test
+per bus.
 
 It also models a controller's second receive FIFO: frames of priority 0 (the three top identifier bits clear — the
 ASM e-stop) go to an urgent FIFO that ``recv`` empties first, so a stop never waits behind bulk frames that arrived
@@ -30,10 +32,29 @@ URGENT_MASK = 0x7 << 26
 """Extended identifiers with these bits clear (priority 0) go to the urgent FIFO."""
 
 
+class _Receivers:
+    """Who receives what on one channel: the buses without filters, and per (mask, extended) the buses by masked ID."""
+
+    def __init__(self, buses: list[SimBus]) -> None:
+        self.everything = [bus for bus in buses if bus._accept is None]
+        self.by_mask: dict[tuple[int, bool | None], dict[int, list[SimBus]]] = {}
+        for bus in buses:
+            for can_id, mask, extended in bus._accept or ():
+                self.by_mask.setdefault((mask, extended), {}).setdefault(can_id & mask, []).append(bus)
+
+    def of(self, arbitration_id: int, extended: bool) -> list[SimBus]:
+        found = list(self.everything)
+        for (mask, only), table in self.by_mask.items():
+            if only is None or only == extended:
+                found.extend(table.get(arbitration_id & mask, ()))
+        return list(dict.fromkeys(found)) if len(found) > 1 else found
+
+
 class SimBus(can.BusABC):
     """One controller on an in-process channel; see the module docstring."""
 
     _channels: ClassVar[dict[str, list[SimBus]]] = {}
+    _receivers: ClassVar[dict[str, _Receivers]] = {}
     _lock: ClassVar[threading.Lock] = threading.Lock()
 
     def __init__(self, channel: Any = "asm_sim", receive_own_messages: bool = False, **kwargs: Any) -> None:
@@ -48,17 +69,30 @@ class SimBus(can.BusABC):
         super().__init__(channel=channel, **kwargs)
         with SimBus._lock:
             SimBus._channels.setdefault(self._channel, []).append(self)
+            self._reindex()
+
+    def _reindex(self) -> None:
+        """Index the channel's filters again (under the lock: a bus joined, left or changed its filters)."""
+        buses = SimBus._channels.get(self._channel)
+        if buses:
+            SimBus._receivers[self._channel] = _Receivers(buses)
+        else:
+            SimBus._receivers.pop(self._channel, None)
 
     def _apply_filters(self, filters: can.typechecking.CanFilters | None) -> None:
-        if not filters:
-            self._accept = None
-            return
-        self._accept = tuple(
-            (f["can_id"], f["can_mask"], f.get("extended"))
-            for f in filters  # type: ignore[misc]
-        )
+        accept = None
+        if filters:
+            accept = tuple(
+                (f["can_id"], f["can_mask"], f.get("extended"))
+                for f in filters  # type: ignore[misc]
+            )
+        with SimBus._lock:
+            self._accept = accept
+            if self in SimBus._channels.get(self._channel, ()):
+                self._reindex()
 
     def _accepts(self, message: can.Message) -> bool:
+        """Whether this bus's filters pass ``message``: the definition the channel's index agrees with (tests)."""
         accept = self._accept
         if accept is None:
             return True
@@ -79,8 +113,9 @@ class SimBus(can.BusABC):
                           error_state_indicator=msg.error_state_indicator, channel=self._channel)  # fmt: skip
         urgent = msg.is_extended_id and not msg.arbitration_id & URGENT_MASK
         with SimBus._lock:  # one order of frames on the channel, as on a wire
-            for bus in SimBus._channels.get(self._channel, ()):
-                if (bus is not self or self._own) and bus._accepts(msg):
+            receivers = SimBus._receivers.get(self._channel)
+            for bus in receivers.of(msg.arbitration_id, msg.is_extended_id) if receivers else ():
+                if bus is not self or self._own:
                     (bus._urgent if urgent else bus._normal).put(msg)
                     bus._ready.release()
 
@@ -100,5 +135,6 @@ class SimBus(can.BusABC):
                 buses.remove(self)
             if not buses:
                 SimBus._channels.pop(self._channel, None)
+            self._reindex()
         self._open = False
         super().shutdown()
