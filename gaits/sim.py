@@ -282,6 +282,10 @@ class Simulation:
         self._push = (self.data.time + seconds, np.asarray(force, dtype=float))
         self.data.xfrc_applied[self._root, :3] = self._push[1]
 
+    def steps_to_tick(self) -> int:
+        """Physics steps from now to the next control tick (a whole period when at a period's start)."""
+        return self.steps_per_tick - self._into_tick
+
     def step_tick(self) -> None:
         """The rest of the current control period (a whole one when at a period's start)."""
         self.step_physics(self.steps_per_tick - self._into_tick)

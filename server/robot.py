@@ -82,7 +82,7 @@ class RealTimeLoop:
 
     def _run(self) -> None:
         sim = self.sim
-        period = sim.steps_per_tick * sim.model.opt.timestep
+        timestep = sim.model.opt.timestep
         wall0, sim0 = time.monotonic(), sim.data.time
         window_wall, window_sim = wall0, sim0
         next_pose = wall0
@@ -93,9 +93,10 @@ class RealTimeLoop:
                 wall0, sim0 = now, sim.data.time
                 target = sim.data.time
                 self._behind(True)
-            try:
-                while sim.data.time < target - 1e-9:
-                    sim.step_tick()
+            try:  # to the wall clock by physics steps, not whole ticks: each 60 Hz pose frame is a new pose
+                steps = int((target - sim.data.time) / timestep + 1e-6)
+                if steps > 0:
+                    sim.step_physics(steps)
             except Exception as exc:  # a diverged model, a stalled module: say so, and stop stepping
                 log.error("the simulation stopped: %s", exc)
                 self.status.behind = True
@@ -111,7 +112,8 @@ class RealTimeLoop:
                 self.status.estop = sim.latched()
                 self._publish(status_key(self.status.robot), self.status.to_json())
                 window_wall, window_sim = now, sim.data.time
-            due = min(next_pose, wall0 + (sim.data.time - sim0) + period)
+            next_tick = sim.data.time + sim.steps_to_tick() * timestep  # a module tick is due then
+            due = min(next_pose, wall0 + (next_tick - sim0))
             self._stop.wait(max(0.0, due - time.monotonic()))
 
     def _behind(self, behind: bool) -> None:
