@@ -86,6 +86,7 @@ class RealTimeLoop:
         wall0, sim0 = time.monotonic(), sim.data.time
         window_wall, window_sim = wall0, sim0
         next_pose = wall0
+        posed = -1.0  # the simulated time of the last pose frame sent
         while not self._stop.is_set():
             now = time.monotonic()
             target = sim0 + (now - wall0)
@@ -101,8 +102,9 @@ class RealTimeLoop:
                 log.error("the simulation stopped: %s", exc)
                 self.status.behind = True
                 return
-            if now >= next_pose:
+            if now >= next_pose and sim.data.time > posed:  # a frame per new pose: catching up never repeats one
                 next_pose = max(next_pose + 1.0 / self.pose_rate, now)
+                posed = sim.data.time
                 self._send_poses()
             if now - window_wall >= 1.0:
                 self.status.real_time_factor = round((sim.data.time - window_sim) / (now - window_wall), 3)
@@ -113,7 +115,8 @@ class RealTimeLoop:
                 self._publish(status_key(self.status.robot), self.status.to_json())
                 window_wall, window_sim = now, sim.data.time
             next_tick = sim.data.time + sim.steps_to_tick() * timestep  # a module tick is due then
-            due = min(next_pose, wall0 + (next_tick - sim0))
+            pose_due = next_pose if sim.data.time > posed else max(next_pose, wall0 + (sim.data.time + timestep - sim0))
+            due = min(pose_due, wall0 + (next_tick - sim0))
             self._stop.wait(max(0.0, due - time.monotonic()))
 
     def _behind(self, behind: bool) -> None:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import os
 import signal
 import threading
@@ -82,6 +83,25 @@ def test_a_pose_frame_round_trips_and_matches_its_golden_vector() -> None:
 
 
 @pytest.mark.parametrize("robot", [(), ("--c-modules", "odd")], ids=["python", "half-C"], indirect=True)
+def test_every_pose_frame_of_the_feed_is_a_new_pose(robot) -> None:
+    """The robot steps its physics to the wall clock by physics steps (2 ms), not by whole module ticks (20 ms):
+    its 60 Hz feed carries a new pose in every frame, times strictly increasing, about 1/60 s apart."""
+    _, endpoint = robot
+    client = Node("tool", ZenohTransport(connect=[endpoint]))
+    viewer = Viewer(client.transport.session)  # type: ignore[attr-defined]
+    try:
+        assert wait_until(lambda: len(viewer.frames) > 120, 20)
+        with viewer._lock:
+            frames = list(viewer.frames[-120:])
+        gaps = [b.time - a.time for a, b in itertools.pairwise(frames) if b.seq == a.seq + 1]
+        assert len(gaps) > 100
+        assert min(gaps) > 0, "no frame repeats the one before"
+        assert sorted(gaps)[len(gaps) // 2] == pytest.approx(1 / 60, abs=0.004)
+    finally:
+        viewer.close()
+        client.close()
+
+
 def test_the_deployed_robot_crawls_in_physics_stops_on_estop_and_starts_again(robot) -> None:
     """All modules Python, or modules 1, 3, 5, 7 running the C runtime on the same bus: the same behaviour."""
     _, endpoint = robot
