@@ -27,6 +27,21 @@ static float seconds_of(int64_t us)
     return (float)(int32_t)(us >> 20) * (1048576 * 1e-6f) + (float)(int32_t)(us & 0xFFFFF) * 1e-6f;
 }
 
+/* ``v`` modulo ``period`` in [0, period), by subtracting doubled periods: no 64-bit division (libgcc's is 600 bytes
+ * of a Cortex-M4's flash), and a clock that jumped by an hour over a microsecond's period costs 64² steps, not 10⁹. */
+static int64_t wrap(int64_t v, int64_t period)
+{
+    if (v < 0)
+        return period - 1 - wrap(-(v + 1), period);
+    while (v >= period) {
+        int64_t p = period;
+        while (p <= v - p)
+            p <<= 1;
+        v -= p;
+    }
+    return v;
+}
+
 /* A state's duration in microseconds: at least 1, so a period is never 0. */
 static int64_t duration_us(const struct asm_state *s)
 {
@@ -385,11 +400,7 @@ static void step_timed(struct asm_module *m, int64_t now)
         }
     }
     r->heading = g->direction_v; /* a direction set directly applies from the previous tick on */
-    r->tau_us += r->heading * (now - r->last_tick_us);
-    while (r->tau_us >= r->period_us)
-        r->tau_us -= r->period_us;
-    while (r->tau_us < 0)
-        r->tau_us += r->period_us;
+    r->tau_us = wrap(r->tau_us + r->heading * (now - r->last_tick_us), r->period_us);
     r->last_tick_us = now;
     uint16_t index = 0;
     int64_t start = 0;

@@ -160,7 +160,7 @@ int main(int argc, char **argv)
     unsigned long completed = 0, parsed = 0, programs = 0, running = 0;
     uint32_t now = 0;
     for (unsigned long k = 0; k < iterations; k++) {
-        now += next() % 50;
+        now += next() % 4096 == 0 ? 3600000u : next() % 50; /* now and then the clock jumps by an hour */
         /* a frame: random identifier and data, or a piece of a real fragmentation with one thing changed */
         struct asm_can_id id;
         asm_can_unpack(next() & 0x1FFFFFFFu, &id);
