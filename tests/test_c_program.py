@@ -88,3 +88,67 @@ def test_random_programs_run_in_c_as_in_python(seed: int) -> None:
             assert min(window) - 1e-3 <= c_goals[k] <= max(window) + 1e-3, (program, phase, direction, k * TICK,
                                                                             c_goals[k], window)  # fmt: skip
         assert c_done == p_done, (program, c_done, p_done)
+
+
+@pytest.mark.parametrize("how", ["sequence", "switch"])
+def test_after_a_long_gap_in_ticks_c_crosses_the_boundaries_as_python_does(how: str) -> None:
+    """A 3.77 ms period (no tick falls on a state boundary before 7.54 s) and ticks that stop for 5 s (a stalled
+    host): the boundaries crossed in one tick still count, and the one where the sequence's next step or a
+    commanded switch is due still switches — at once in C (it crosses boundaries that only count a cycle together),
+    one by one in Python."""
+    from asm_py.module.gait_service import SWITCH
+    from asm_py.module.program import Mode, ModeState, Program
+
+    fast = Mode((ModeState(10.0, 0.00131), ModeState(-10.0, 0.00246)))
+    other = Mode((ModeState(40.0, 0.5), ModeState(35.0, 0.5)))
+    program = Program((fast, other), ((0, 1000), (1, 0)) if how == "sequence" else ())
+    clock = SimClock()
+    tick = Event("gait.tick", codec="float64", clock=clock)
+    runtime = ModuleRuntime(ContactJoint(clock=clock), clock=clock, tick=tick, inline=True, module_id=5,
+                            neighbours=LocalNeighbours())  # fmt: skip
+    c_module = CModule("c5", 5, driver=ContactJoint(clock=clock), clock=clock, tick=tick, interface="virtual",
+                       channel=fresh_name("c-gap"))  # fmt: skip
+    try:
+        table = encode_program(program)
+        runtime.table.set(table)
+        c_module.local(Method.SET, "gait.table", table)
+        runtime.gait.start()
+        c_module.local(Method.START, "gait.service")
+        if how == "switch":
+            switch = {"mode": 1, "direction": 1, "after": 3.0}
+            runtime.gait.switch.set(switch)
+            c_module.local(Method.SET, "gait.switch", SWITCH.encode(switch))
+        times = [k * TICK for k in range(1, 51)] + [6.0 + k * TICK for k in range(50)]  # nothing from 1 s to 6 s
+        for t in times:
+            clock.advance_to(t)
+            tick.set(t)
+            assert c_module.goal == pytest.approx(float(runtime.goal.peek()), abs=1e-3), t
+        assert 35.0 <= c_module.goal <= 40.0, "both switched to the other mode during the gap"
+        assert int(runtime.gait.cycle.peek()) > 700, "hundreds of boundaries crossed in one tick"
+    finally:
+        c_module.close()
+        runtime.close()
+
+
+def test_an_hour_without_ticks_over_a_microsecond_period_costs_a_c_module_no_time() -> None:
+    """1.8 billion boundaries in one tick: crossed together (a few 64-bit steps), not one by one (minutes)."""
+    import time
+
+    from asm_py.module.program import Mode, ModeState, Program
+
+    program = Program((Mode((ModeState(10.0, 1e-6), ModeState(-10.0, 1e-6))), Mode((ModeState(5.0, 1.0),))))
+    clock = SimClock()
+    tick = Event("gait.tick", codec="float64", clock=clock)
+    c_module = CModule("c5", 5, clock=clock, tick=tick, interface="virtual", channel=fresh_name("c-hour"))
+    try:
+        c_module.local(Method.SET, "gait.table", encode_program(program))
+        c_module.local(Method.START, "gait.service")
+        clock.advance_to(TICK)
+        tick.set(TICK)
+        began = time.monotonic()
+        clock.advance_to(3600.0)
+        tick.set(3600.0)
+        assert time.monotonic() - began < 5.0
+        assert c_module.gait_running()
+    finally:
+        c_module.close()

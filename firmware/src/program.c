@@ -27,19 +27,30 @@ static float seconds_of(int64_t us)
     return (float)(int32_t)(us >> 20) * (1048576 * 1e-6f) + (float)(int32_t)(us & 0xFFFFF) * 1e-6f;
 }
 
-/* ``v`` modulo ``period`` in [0, period), by subtracting doubled periods: no 64-bit division (libgcc's is 600 bytes
- * of a Cortex-M4's flash), and a clock that jumped by an hour over a microsecond's period costs 64² steps, not 10⁹. */
+/* floor(v / period) for v >= 0, and v modulo ``period`` in [0, period) for any v, by subtracting doubled periods:
+ * no 64-bit division (libgcc's is 600 bytes of a Cortex-M4's flash), and a clock that jumped by an hour over a
+ * microsecond's period costs 64² steps, not 10⁹. */
+static int64_t quotient(int64_t v, int64_t period, int64_t *rest)
+{
+    int64_t q = 0;
+    while (v >= period) {
+        int64_t p = period, k = 1;
+        while (p <= v - p)
+            p <<= 1, k <<= 1;
+        v -= p;
+        q += k;
+    }
+    *rest = v;
+    return q;
+}
+
 static int64_t wrap(int64_t v, int64_t period)
 {
+    int64_t rest;
     if (v < 0)
         return period - 1 - wrap(-(v + 1), period);
-    while (v >= period) {
-        int64_t p = period;
-        while (p <= v - p)
-            p <<= 1;
-        v -= p;
-    }
-    return v;
+    quotient(v, period, &rest);
+    return rest;
 }
 
 /* A state's duration in microseconds: at least 1, so a period is never 0. */
@@ -68,6 +79,7 @@ static int timed(const struct asm_program *p, const struct asm_mode *mode)
 }
 
 static int64_t clock_us(struct asm_gait *g, uint32_t now_ms);
+static int64_t min64(int64_t a, int64_t b) { return a < b ? a : b; }
 
 /* -- what was heard ---------------------------------------------------------------------------------------------- */
 
@@ -392,6 +404,20 @@ static void step_timed(struct asm_module *m, int64_t now)
     struct asm_gait *g = &m->gait;
     struct asm_run *r = &g->run;
     while (r->timed && now >= r->boundary_us) {
+        /* boundaries that only count a cycle — before a switch is due, before the sequence's next step — are
+         * crossed together: a long pause over a short period costs a few steps, not one per boundary */
+        int64_t rest, skip = quotient(now - r->boundary_us, r->period_us, &rest);
+        if (r->switch_pending)
+            skip = r->after_us <= r->boundary_us ? 0 : min64(skip, quotient(r->after_us - r->boundary_us - 1,
+                                                                             r->period_us, &rest));
+        if (r->sequence_at + 1 < g->program.sequence_n)
+            skip = min64(skip, r->cycles_left > 1 ? r->cycles_left - 1 : 0);
+        if (skip > 0) {
+            uint32_t cycle = g->cycle_v + (uint32_t)skip;
+            asm_node_write(&m->node, &g->cycle, &cycle, 4);
+            r->boundary_us += skip * r->period_us;
+            r->cycles_left -= (int32_t)(r->sequence_at + 1 < g->program.sequence_n ? skip : 0);
+        }
         int64_t boundary = r->boundary_us;
         r->boundary_us += r->period_us;
         if (cross_boundary(m, boundary) && !r->timed) {
