@@ -27,7 +27,7 @@ from typing import Any
 
 import can
 
-from .canbus.ids import Dest, Priority, SystemCode, dest_filter, priority_filter
+from .canbus.ids import CanId, Dest, FrameType, Priority, SystemCode, dest_filter, priority_filter, source_filter
 from .clock import Clock
 from .event import Event
 from .module.neighbours import LocalNeighbours
@@ -208,7 +208,6 @@ class CModule:
     def _filter(self, neighbours: list[int]) -> None:
         """What a module's CAN controller passes (docs/protocol.md §7): its ID, broadcast requests, the e-stop, and
         the publications of the neighbours its program waits on (their gait.state), as a board's port would."""
-        published = (Priority.PUBLICATION << 26) | (Dest.BROADCAST << 24)
         if self.hub is not None:
             for remove in self._watching:
                 remove()
@@ -219,7 +218,8 @@ class CModule:
                 def heard(state: int, n: int = n) -> None:
                     data = bytes((first_byte(Kind.PUBLICATION, Method.PUBLISH), 0, WELL_KNOWN_CLASSES["gait.state"],
                                   state_object)) + struct.pack("<H", state)  # fmt: skip
-                    self._inbox.append((self._now_ms(), published | n << 8, data))
+                    can_id = CanId(Priority.PUBLICATION, Dest.BROADCAST, 0, n, FrameType.SINGLE).pack()
+                    self._inbox.append((self._now_ms(), can_id, data))
 
                 self._watching.append(self.hub.watch(n, heard))
             return
@@ -228,13 +228,13 @@ class CModule:
                               priority_filter(Priority.REQUEST, Dest.BROADCAST, 0),
                               priority_filter(Priority.BULK, Dest.BROADCAST, 0),
                               dest_filter(Dest.SYSTEM, SystemCode.ESTOP),
-                              *({"can_id": published | n << 8, "can_mask": 0x1FFFFF00, "extended": True}
+                              *(source_filter(Priority.PUBLICATION, Dest.BROADCAST, 0, n)
                                 for n in neighbours)])  # fmt: skip
 
     def _refilter(self) -> None:
         """After a frame or a local request: if the program now waits on other neighbours, pass their frames."""
         if self._lib.asm_host_watch_changed(self._memory):
-            ids = (ctypes.c_uint8 * 8)()
+            ids = (ctypes.c_uint8 * 254)()  # room for every node ID, whatever ASM_MAX_NEIGHBOURS the build has
             self._filter(list(ids[: self._lib.asm_host_watched(self._memory, ids)]))
 
     def _now_ms(self) -> int:
@@ -253,12 +253,13 @@ class CModule:
 
     def _heard_signal(self, number: int) -> None:
         message = bytes((first_byte(Kind.REQUEST, Method.SET), 0, WELL_KNOWN_CLASSES["gait.signal"], 0, number))
-        self._inbox.append((self._now_ms(), (Priority.REQUEST << 26) | (Dest.BROADCAST << 24) | self.node_id << 8,
-                            message))  # fmt: skip
+        can_id = CanId(Priority.REQUEST, Dest.BROADCAST, 0, self.node_id, FrameType.SINGLE).pack()
+        self._inbox.append((self._now_ms(), can_id, message))
 
     def _hub_send(self, can_id: int, payload: bytes) -> None:
         """What a hub carries of a frame this module sends: its gait.state publications and its signals."""
-        if (can_id >> 24) & 3 != Dest.BROADCAST or (can_id >> 6) & 3 != 0 or len(payload) < 5:
+        cid = CanId.unpack(can_id)
+        if cid.dest_kind != Dest.BROADCAST or cid.frame != FrameType.SINGLE or len(payload) < 5:
             return
         if payload[0] == first_byte(Kind.PUBLICATION, Method.PUBLISH) and payload[2] == WELL_KNOWN_CLASSES[
                 "gait.state"] and len(payload) == 6:  # fmt: skip

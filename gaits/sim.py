@@ -288,7 +288,7 @@ class Simulation:
 
     def step_tick(self) -> None:
         """The rest of the current control period (a whole one when at a period's start)."""
-        self.step_physics(self.steps_per_tick - self._into_tick)
+        self.step_physics(self.steps_to_tick())
 
     def step_physics(self, steps: int) -> None:
         """``steps`` physics steps; each control period begins with the tick (every module reacts).

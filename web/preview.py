@@ -20,6 +20,7 @@ import mujoco
 import numpy as np
 import viser
 
+from asm_py.cli import module_selection
 from gaits.model import Gait
 from gaits.sim import Metrics, Simulation, select_modules
 
@@ -70,11 +71,7 @@ class PreviewLoop:
         self._thread.start()
 
     def _new_sim(self, gait: Gait) -> Simulation:
-        c_modules: tuple[int, ...] = ()
-        if self.c_modules:
-            selection = self.c_modules
-            ids = selection if selection in ("odd", "even", "all") else tuple(int(i) for i in selection.split(","))
-            c_modules = select_modules(ids, gait)
+        c_modules = select_modules(module_selection(self.c_modules), gait) if self.c_modules else ()
         sim = Simulation(gait, c_modules=c_modules)
         sim.start()
         return sim

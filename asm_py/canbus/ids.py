@@ -109,6 +109,13 @@ def priority_filter(priority: int, dest_kind: int, dest: int) -> dict[str, int |
             "extended": True}  # fmt: skip
 
 
+def source_filter(priority: int, dest_kind: int, dest: int, source: int) -> dict[str, int | bool]:
+    """A python-can ``can_filters`` entry accepting frames of one priority to (dest_kind, dest) from one node (a
+    neighbour's publications, for a module whose program waits on them)."""
+    return {"can_id": priority << 26 | dest_kind << 24 | dest << 16 | source << 8,
+            "can_mask": 0x7 << 26 | DEST_MASK | 0xFF << 8, "extended": True}  # fmt: skip
+
+
 def check_node_id(node_id: int) -> int:
     if not isinstance(node_id, int) or not MIN_NODE_ID <= node_id <= MAX_NODE_ID:
         raise ValueError(f"CAN node IDs are {MIN_NODE_ID}..{MAX_NODE_ID}, not {node_id!r}")

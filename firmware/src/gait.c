@@ -26,6 +26,17 @@ static int check(struct asm_module *m, const uint8_t *data, size_t length)
     return asm_program_fits(m, data, length);
 }
 
+/* Make table ``data`` (already checked) the module's: its bytes, its program, its checksum. */
+static void load_table(struct asm_module *m, const uint8_t *data, size_t length)
+{
+    struct asm_gait *g = &m->gait;
+    memcpy(g->table_v, data, length);
+    g->table.length = (uint16_t)length;
+    asm_table_parse(g->table_v, length, m->limits_v, &g->program);
+    asm_program_loaded(m);
+    g->checksum_v = asm_crc32(g->table_v, length);
+}
+
 void asm_gait_tick(struct asm_module *m, uint32_t now_ms)
 {
     struct asm_gait *g = &m->gait;
@@ -72,13 +83,10 @@ static int set_table(struct asm_node *node, struct asm_object *o, const uint8_t 
     struct asm_gait *g = &m->gait;
     if (g->service.started)
         return ASM_S_SERVICE_ERROR; /* a table never changes mid-cycle */
+    (void)o;
     if (length == 0 || check(m, data, length) != ASM_S_OK)
         return ASM_S_VALUE_ERROR; /* the table in force stays */
-    memcpy(o->value, data, length);
-    o->length = (uint16_t)length;
-    asm_table_parse(data, length, m->limits_v, &g->program);
-    asm_program_loaded(m);
-    g->checksum_v = asm_crc32(data, length);
+    load_table(m, data, length);
     g->activate_v = 0; /* the gait is no longer a deployment's */
     return ASM_S_OK;
 }
@@ -200,11 +208,7 @@ static int set_activate(struct asm_node *node, struct asm_object *o, const uint8
     if (check(m, g->staged_v + 12, table) != ASM_S_OK)
         return ASM_S_VALUE_ERROR; /* the joint limits changed since it was staged */
     asm_gait_halt(m);
-    memcpy(g->table_v, g->staged_v + 12, table);
-    g->table.length = (uint16_t)table;
-    asm_table_parse(g->table_v, table, m->limits_v, &g->program);
-    asm_program_loaded(m);
-    g->checksum_v = asm_crc32(g->table_v, table);
+    load_table(m, g->staged_v + 12, table);
     g->phase_v = asm_get_f32(g->staged_v + 7);
     g->direction_v = (int8_t)g->staged_v[11];
     g->activate_v = id;
@@ -214,13 +218,14 @@ static int set_activate(struct asm_node *node, struct asm_object *o, const uint8
 
 /* -- a program's switches and signals, and its neighbours' states ------------------------------------------------ */
 
+static const uint8_t SWITCH_INITIAL[6] = {0, 1, 0, 0, 0, 0}; /* {mode 0, direction 1, after 0} */
+
 static int set_switch(struct asm_node *node, struct asm_object *o, const uint8_t *data, size_t length)
 {
     struct asm_module *m = asm_module_of(node);
     struct asm_run *r = &m->gait.run;
-    static const uint8_t initial[6] = {0, 1, 0, 0, 0, 0}; /* a RESET: {mode 0, direction 1, after 0} */
     if (length == 0)
-        data = initial;
+        data = SWITCH_INITIAL; /* a RESET */
     float after = asm_get_f32(data + 2);
     int8_t direction = (int8_t)data[1];
     if (data[0] >= m->gait.program.modes_n || (direction != 1 && direction != -1) || !isfinite(after))
@@ -306,13 +311,10 @@ void asm_gait_register(struct asm_module *m, int part)
     if (part == 0) {
         g->run.last_ms = m->node.now_ms;
         g->run.now_us = (int64_t)m->node.now_ms * 1000;
-        memcpy(g->table_v, HOLD, sizeof HOLD);
-        asm_table_parse(HOLD, sizeof HOLD, m->limits_v, &g->program);
-        g->checksum_v = asm_crc32(HOLD, sizeof HOLD);
+        load_table(m, HOLD, sizeof HOLD);
         g->staged_checksum_v = asm_crc32(g->staged_v, 0);
         g->direction_v = 1;
-        g->switch_v[1] = 1; /* {mode 0, direction 1, after 0} */
-        lease_free(g);
+        memcpy(g->switch_v, SWITCH_INITIAL, sizeof SWITCH_INITIAL);
         m->node.on_publication = heard;
     }
     for (uint8_t k = PARTS[part]; k < PARTS[part + 1]; k++) {
@@ -330,7 +332,7 @@ void asm_gait_register(struct asm_module *m, int part)
         g->service.control = control;
         g->tick.publication.refresh_ms = 1000;
     } else if (part == 1) {
-        g->lease.length = 9; /* {holder "", token 0, seconds 0} */
+        lease_free(g);
     } else
         g->done.valid = 0; /* an event: nothing fired yet */
 }

@@ -66,6 +66,23 @@ static const struct asm_state *state_of(const struct asm_gait *g, uint16_t k)
     return &g->program.states[mode_of(g)->first + k];
 }
 static uint16_t first_mode(const struct asm_program *p) { return p->sequence_n ? p->sequence[0].mode : 0; }
+/* The sequence has a step after the current one: a boundary counts down its cycles. */
+static int sequenced(const struct asm_gait *g) { return g->run.sequence_at + 1 < g->program.sequence_n; }
+
+/* The state of the current (timed) mode phase time ``tau`` falls in — bisect_right over the states' starts — and
+ * its start. */
+static uint16_t state_at(const struct asm_gait *g, int64_t tau, int64_t *start)
+{
+    uint16_t index = 0;
+    int64_t at = 0;
+    *start = 0;
+    for (uint16_t k = 0; k < mode_of(g)->count; at += duration_us(state_of(g, k)), k++)
+        if (at <= tau) {
+            index = k;
+            *start = at;
+        }
+    return index;
+}
 
 /* Periodic and time-driven: run by phase time. */
 static int timed(const struct asm_program *p, const struct asm_mode *mode)
@@ -121,7 +138,7 @@ static int keys(const uint8_t *data, size_t length, uint8_t event, int16_t *out,
                 continue;
             int16_t key = event == ASM_EV_NEIGHBOUR ? (int16_t)(int8_t)s[15] : (int16_t)asm_get_u16(s + 16);
             uint8_t j = 0;
-            while (j < found && j < size && out[j] != key)
+            while (j < found && out[j] != key)
                 j++;
             if (j == found) {
                 if (found == size)
@@ -186,9 +203,8 @@ static float reference(const struct asm_gait *g, int64_t now)
     float frac;
     uint16_t previous;
     if (r->timed) { /* from the previous state of the table, by phase time */
-        int64_t start = 0;
-        for (uint16_t k = 0; k < r->index; k++)
-            start += duration_us(state_of(g, k));
+        int64_t start;
+        state_at(g, r->tau_us, &start);
         previous = (uint16_t)((r->index + n - 1) % n);
         frac = seconds_of(r->tau_us - start) / s->duration;
     } else {
@@ -253,8 +269,8 @@ static void enter_mode(struct asm_module *m, uint8_t index, int64_t at, float ph
     r->mode = index;
     if (index != g->mode_v || !g->mode.valid)
         asm_node_write(&m->node, &g->mode, &index, 1);
-    g->direction_v = r->heading = heading;
-    uint16_t n = mode_of(g)->count, now_index = 0;
+    g->direction_v = heading;
+    uint16_t n = mode_of(g)->count, now_index;
     r->timed = (uint8_t)timed(&g->program, mode_of(g));
     if (r->timed) {
         float period = 0.0f;
@@ -267,9 +283,8 @@ static void enter_mode(struct asm_module *m, uint8_t index, int64_t at, float ph
         r->tau_us = r->tau_us < r->period_us ? r->tau_us : r->period_us - 1;
         r->last_tick_us = at;
         r->boundary_us = at + r->period_us;
-        for (int64_t start = 0, k = 0; k < n; start += duration_us(state_of(g, (uint16_t)k)), k++)
-            if (start <= r->tau_us)
-                now_index = (uint16_t)k; /* bisect_right over the states' starts */
+        int64_t start;
+        now_index = state_at(g, r->tau_us, &start);
     } else {
         now_index = (uint16_t)(phase * (float)n);
         now_index = now_index < n ? now_index : (uint16_t)(n - 1);
@@ -308,7 +323,7 @@ static int next_step(struct asm_module *m, int64_t at)
 {
     struct asm_gait *g = &m->gait;
     struct asm_run *r = &g->run;
-    if (r->sequence_at + 1 >= g->program.sequence_n)
+    if (!sequenced(g))
         return 0;
     r->sequence_at++;
     r->cycles_left = g->program.sequence[r->sequence_at].cycles;
@@ -325,7 +340,7 @@ static int cross_boundary(struct asm_module *m, int64_t at)
     asm_node_write(&m->node, &g->cycle, &cycle, 4);
     if (switch_due(m, at))
         return 1;
-    if (r->sequence_at + 1 < g->program.sequence_n && --r->cycles_left <= 0)
+    if (sequenced(g) && --r->cycles_left <= 0)
         return next_step(m, at);
     return 0;
 }
@@ -410,13 +425,13 @@ static void step_timed(struct asm_module *m, int64_t now)
         if (r->switch_pending)
             skip = r->after_us <= r->boundary_us ? 0 : min64(skip, quotient(r->after_us - r->boundary_us - 1,
                                                                              r->period_us, &rest));
-        if (r->sequence_at + 1 < g->program.sequence_n)
+        if (sequenced(g))
             skip = min64(skip, r->cycles_left > 1 ? r->cycles_left - 1 : 0);
         if (skip > 0) {
             uint32_t cycle = g->cycle_v + (uint32_t)skip;
             asm_node_write(&m->node, &g->cycle, &cycle, 4);
             r->boundary_us += skip * r->period_us;
-            r->cycles_left -= (int32_t)(r->sequence_at + 1 < g->program.sequence_n ? skip : 0);
+            r->cycles_left -= (int32_t)(sequenced(g) ? skip : 0);
         }
         int64_t boundary = r->boundary_us;
         r->boundary_us += r->period_us;
@@ -425,14 +440,11 @@ static void step_timed(struct asm_module *m, int64_t now)
             return;
         }
     }
-    r->heading = g->direction_v; /* a direction set directly applies from the previous tick on */
-    r->tau_us = wrap(r->tau_us + r->heading * (now - r->last_tick_us), r->period_us);
+    /* a direction set directly applies from the previous tick on */
+    r->tau_us = wrap(r->tau_us + g->direction_v * (now - r->last_tick_us), r->period_us);
     r->last_tick_us = now;
-    uint16_t index = 0;
-    int64_t start = 0;
-    for (uint16_t k = 0; k < mode_of(g)->count; start += duration_us(state_of(g, k)), k++)
-        if (start <= r->tau_us)
-            index = k;
+    int64_t start;
+    uint16_t index = state_at(g, r->tau_us, &start);
     if (index != r->index)
         enter_state(m, index, now);
 }

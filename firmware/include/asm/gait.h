@@ -47,7 +47,7 @@ struct asm_run {
     float blend, reference, base_phase;
     uint16_t index;
     uint8_t mode, sequence_at, timed, finished, saw_free, saw_touch, switch_pending, switch_mode, watch_changed;
-    int8_t heading, drive, base_direction, switch_direction;
+    int8_t drive, base_direction, switch_direction;
 };
 
 struct asm_gait {
