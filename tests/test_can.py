@@ -388,7 +388,8 @@ def test_bus_configured_from_python_can_environment(monkeypatch: pytest.MonkeyPa
 
 def test_a_quiet_module_hears_only_what_it_must_act_on() -> None:
     """watch_bus=False: requests to it, broadcast requests and e-stops pass its filters; the other nodes'
-    publications and heartbeats do not, until it subscribes to something."""
+    publications (fragmented ones too: a float64 takes two frames) and heartbeats do not, until it subscribes to
+    something."""
     from asm_py import Attribute
     from asm_py.canbus.ids import Priority
 
@@ -404,10 +405,14 @@ def test_a_quiet_module_hears_only_what_it_must_act_on() -> None:
         angle = Attribute("joint.angle", 0.0, codec="float32")
         talker.register(angle)
         angle.publish()
+        tick = Attribute("gait.tick", 0.0, codec="float64")  # 12 bytes published: two frames at priority 7
+        talker.register(tick)
+        tick.publish()
         goal = Attribute("joint.goal", 0.0, codec="float32")
         quiet.register(goal)
         for k in range(20):
             angle.set(float(k))
+            tick.set(k / 50)
         time.sleep(0.3)
         assert quiet.transport.frames_received == 0  # nobody's publications or heartbeats reached it
         assert wait_until(lambda: "quiet" in tool.discover())
@@ -422,7 +427,11 @@ def test_a_quiet_module_hears_only_what_it_must_act_on() -> None:
         copy.subscribe(quiet.lookup("can.1", "joint.angle", timeout=2))
         angle.set(42.0)
         assert wait_until(lambda: copy.peek() == 42.0)  # subscribing turned publications on
-        assert Priority.PUBLICATION == 4
+        ticks = Attribute("ticks", codec="float64")
+        ticks.subscribe(quiet.lookup("can.1", "gait.tick", timeout=2))
+        tick.set(7.25)
+        assert wait_until(lambda: ticks.peek() == 7.25)  # fragmented ones too
+        assert (Priority.PUBLICATION, Priority.BULK_PUBLICATION) == (4, 7)
     finally:
         for node in (tool, quiet, talker):
             node.close()

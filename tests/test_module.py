@@ -136,6 +136,40 @@ def test_gait_ramps_in_and_then_follows_the_table_on_a_sim_clock():
         runtime.close()
 
 
+def test_a_tick_racing_a_gait_start_waits_for_the_start_to_finish():
+    """A simulated robot's physics thread ticks the modules inline while an activation starts a gait on the bus's
+    thread: a tick landing between the start's subscription and its initialisation must not run the automaton
+    half-initialised (it did: AttributeError on the anchor, and the gait stopped)."""
+    import threading
+
+    from asm_py import Event
+
+    clock = SimClock()
+    tick = Event("gait.tick", codec="float64", clock=clock)
+    runtime = ModuleRuntime(FakeDriver(clock=clock), clock=clock, tick=tick, inline=True)
+    gait = runtime.gait
+    original = gait.initialize
+    racer: list[threading.Thread] = []
+
+    def initialize(phase: float) -> None:
+        thread = threading.Thread(target=tick.set, args=(0.0,))  # the physics thread's tick, mid-start
+        racer.append(thread)
+        thread.start()
+        thread.join(0.3)  # with the fix it waits for the start to finish, so it is still blocked here
+        original(phase)
+
+    gait.initialize = initialize  # type: ignore[method-assign]
+    try:
+        runtime.table.set(encode_table([PhaseState(60.0, 1.0, "step")]))
+        gait.start()
+        racer[0].join(5)
+        assert not racer[0].is_alive()
+        assert gait.last_error is None
+        assert gait.running
+    finally:
+        runtime.close()
+
+
 def test_table_wire_format_round_trips_and_rejects_damage():
     data = encode_table(WAVE)
     assert decode_table(data) == WAVE

@@ -141,7 +141,7 @@ def build(nodes: Iterable[int], tool: int = 254, classes: Mapping[str, str] | No
             f"replies of {n} to {tool}: a reply does not name its class; the request with the same txn does "
             f"(decode value_raw with that class's codec, e.g. asm_py.codec.parse_codec)")  # fmt: skip
         if fragments:
-            fragmented(Priority.BULK, Dest.BROADCAST, 0, n, f"PUB_N{n}")
+            fragmented(Priority.BULK_PUBLICATION, Dest.BROADCAST, 0, n, f"PUB_N{n}")
             fragmented(Priority.BULK, Dest.NODE, n, tool, f"N{tool}_TO_N{n}")
             fragmented(Priority.BULK, Dest.NODE, tool, n, f"N{n}_TO_N{tool}")
     add(_frame_id(Priority.REQUEST, Dest.BROADCAST, 0, tool), f"ASM_BROADCAST_N{tool}", muxed(), tool,

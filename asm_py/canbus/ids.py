@@ -56,11 +56,17 @@ class Priority(IntEnum):
     BULK = 5
     """Fragmented messages: a long transfer never delays a short control message."""
     HEARTBEAT = 6
+    BULK_PUBLICATION = 7
+    """Fragmented publications: apart from fragmented requests, so that a node that does not watch publications
+    (a module) filters them out in hardware like single-frame ones, instead of receiving every node's."""
 
 
 def frame_priority(priority: int, frames: int) -> int:
     """The priority a message's frames go out at: a fragmented message at BULK at best (a long transfer never
-    delays a short control message), except an e-stop, which always goes at its own."""
+    delays a short control message), a fragmented publication at BULK_PUBLICATION, and an e-stop always at its
+    own."""
+    if frames > 1 and priority == Priority.PUBLICATION:
+        return Priority.BULK_PUBLICATION
     if frames > 1 and priority != Priority.ESTOP:
         return max(priority, Priority.BULK)
     return priority

@@ -48,6 +48,7 @@ from .base import BROADCAST, PublicationHandler, Transport
 log = logging.getLogger("asm_py.transport.can")
 
 ALIAS_PREFIX = "can."
+_PUBLICATIONS = (Priority.PUBLICATION, Priority.BULK_PUBLICATION)
 
 
 def message_priority(data: bytes) -> int:
@@ -167,7 +168,8 @@ class CanTransport(Transport):
             filters += [dest_filter(Dest.BROADCAST, 0), {"can_id": Dest.SYSTEM << 24, "can_mask": 0x3 << 24,
                                                          "extended": True}]  # fmt: skip
         else:
-            priorities = [Priority.REQUEST, Priority.BULK, *([Priority.PUBLICATION] if self._hear_publications else [])]
+            publications = [Priority.PUBLICATION, Priority.BULK_PUBLICATION] if self._hear_publications else []
+            priorities = [Priority.REQUEST, Priority.BULK, *publications]
             filters += [priority_filter(p, Dest.BROADCAST, 0) for p in priorities]
             filters.append(dest_filter(Dest.SYSTEM, SystemCode.ESTOP))
         self._bus.set_filters(filters)
@@ -366,7 +368,7 @@ class CanTransport(Transport):
         if self.watch_bus:
             return True
         if cid.dest_kind == Dest.BROADCAST:
-            return cid.priority != Priority.PUBLICATION or self._hear_publications
+            return cid.priority not in _PUBLICATIONS or self._hear_publications
         return cid.dest == SystemCode.ESTOP
 
     def on_message(self, source_id: int, dest_kind: int, dest: int, data: bytes) -> None:

@@ -65,7 +65,7 @@ static void can_init(void)
     CAN_FFA1R = 0;                                       /* FIFO 0 */
     filter(0, (uint32_t)ASM_DEST_NODE << 24 | NODE_ID << 16, 0x03FF0000u); /* to this node */
     filter(1, ASM_PRIORITY_REQUEST << 26 | (uint32_t)ASM_DEST_BROADCAST << 24, 0x1F000000u); /* broadcast requests */
-    filter(2, ASM_PRIORITY_BULK << 26 | (uint32_t)ASM_DEST_BROADCAST << 24, 0x1F000000u); /* ... fragmented */
+    filter(2, ASM_PRIORITY_BULK << 26 | (uint32_t)ASM_DEST_BROADCAST << 24, 0x1F000000u); /* ... fragmented (not publications) */
     filter(3, (uint32_t)ASM_DEST_SYSTEM << 24 | (uint32_t)ASM_SYSTEM_ESTOP << 16, 0x03FF0000u); /* the e-stop */
     CAN_FMR &= ~1u;
     CAN_MCR = 0; /* normal mode */

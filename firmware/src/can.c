@@ -49,6 +49,8 @@ size_t asm_fragment_count(size_t length, int fd)
 
 uint8_t asm_frame_priority(uint8_t priority, size_t frames)
 {
+    if (frames > 1 && priority == ASM_PRIORITY_PUBLICATION)
+        return ASM_PRIORITY_BULK_PUBLICATION;
     if (frames > 1 && priority != ASM_PRIORITY_ESTOP && priority < ASM_PRIORITY_BULK)
         return ASM_PRIORITY_BULK;
     return priority;

@@ -37,6 +37,7 @@ struct asm_can_id {
 #define ASM_PRIORITY_PUBLICATION 4u
 #define ASM_PRIORITY_BULK 5u /* every frame of a message of several frames: a long transfer never delays a short one */
 #define ASM_PRIORITY_HEARTBEAT 6u
+#define ASM_PRIORITY_BULK_PUBLICATION 7u /* every frame of a publication of several frames: modules filter them out */
 
 /* System frames (destination kind 3): the code in the destination field. */
 enum asm_system { ASM_SYSTEM_ESTOP = 0, ASM_SYSTEM_HEARTBEAT = 1, ASM_SYSTEM_LEAVE = 2 };
