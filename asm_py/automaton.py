@@ -106,10 +106,9 @@ class PhaseAutomaton(EventDrivenService):
             raise ValueError(f"initial phase of {self.name!r} must be in [0, 1), not {phase}")
         if direction is not None:
             self.direction.set(_check_direction(direction))
-        with self._handling:  # a firing from another thread (inline) waits until the automaton is initialised
-            super()._starting()
-            self.phase = phase
-            self.initialize(phase)
+        super()._starting()
+        self.phase = phase
+        self.initialize(phase)
 
 
 @dataclass(frozen=True)

@@ -67,7 +67,9 @@ class EventDrivenService(Service):
         self._unlisten: Callable[[], None] | None = None
         self._tail_is_coalesced = False  # the newest pending firing arrived while suspended (coalesce policy)
         self.inline = inline
-        self._handling = threading.Lock()  # one handle() at a time, whichever thread runs it
+        # one handle() at a time, whichever thread runs it; re-entrant so that a start whose own on_start fires the
+        # event still handles that firing inline, as before
+        self._handling = threading.RLock()
         self.dropped = 0
         self.overruns = 0
         self.handled = 0
@@ -95,6 +97,13 @@ class EventDrivenService(Service):
                     value = pending.popleft()
                 self.handle(value)
                 self.handled += 1
+
+    def start(self, *params: Any, wait: bool = True) -> None:
+        """As Service.start; an inline firing from another thread waits until the start is complete: the service
+        listens to its event from ``_starting`` on, before ``on_start`` (a phase automaton's initialisation) has
+        run, and a tick handled in between would run a half-initialised service."""
+        with self._handling:
+            super().start(*params, wait=wait)
 
     def _starting(self, *params: Any) -> None:
         self._pending.clear()

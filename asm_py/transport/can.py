@@ -168,8 +168,7 @@ class CanTransport(Transport):
             filters += [dest_filter(Dest.BROADCAST, 0), {"can_id": Dest.SYSTEM << 24, "can_mask": 0x3 << 24,
                                                          "extended": True}]  # fmt: skip
         else:
-            publications = [Priority.PUBLICATION, Priority.BULK_PUBLICATION] if self._hear_publications else []
-            priorities = [Priority.REQUEST, Priority.BULK, *publications]
+            priorities = [Priority.REQUEST, Priority.BULK, *(_PUBLICATIONS if self._hear_publications else ())]
             filters += [priority_filter(p, Dest.BROADCAST, 0) for p in priorities]
             filters.append(dest_filter(Dest.SYSTEM, SystemCode.ESTOP))
         self._bus.set_filters(filters)
