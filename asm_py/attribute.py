@@ -154,8 +154,9 @@ class Attribute:
             self._valid = False
             mon.notify_all()
 
-    def peek(self) -> Any:
-        """The current value without consuming it: for monitors and displays, not for synchronization."""
+    def peek(self, timeout: float | None = None) -> Any:
+        """The current value without consuming it: for monitors and displays, not for synchronization.
+        (``timeout`` is the client object's, for the same interface: a local peek never waits.)"""
         return self._value
 
     def on_change(self, callback: ChangeCallback) -> Callable[[], None]:

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import signal
 import sys
 import threading
@@ -112,6 +113,28 @@ def stop_requested() -> threading.Event:
     signal.signal(signal.SIGTERM, lambda *_: done.set())
     signal.signal(signal.SIGINT, lambda *_: done.set())
     return done
+
+
+EXIT_GRACE = 4.0
+"""Seconds a server command gets to close in order after SIGTERM before it exits anyway: a signal ends the process
+within 5 s whatever the load (a flood of requests, a wedged module, a hung session close)."""
+
+
+def close_in_time(close: Callable[[], None], prog: str, grace: float = EXIT_GRACE) -> None:
+    """Run ``close`` (a command's orderly shutdown) for at most ``grace`` seconds; past that, say so and end the
+    process at once (``os._exit``: the children it started die with it, the kernel closes its sockets)."""
+    done = threading.Event()
+
+    def closing() -> None:
+        try:
+            close()
+        finally:
+            done.set()
+
+    threading.Thread(target=closing, name=f"{prog}-close", daemon=True).start()
+    if not done.wait(grace):
+        print(f"{prog}: closing took longer than {grace:g} s: exiting now", file=sys.stderr, flush=True)
+        os._exit(1)
 
 
 def run(prog: str, body: Callable[[], int]) -> int:

@@ -1,11 +1,12 @@
 """What a robot process publishes for viewers: its keys, the binary layout of its body poses, and its status.
 
-Keys (docs/protocol.md §10), all under ``asm/@robot/<robot>/``:
+Keys (docs/protocol.md §10), all under ``asm/<robot>/@robot/`` (asm_py.keys):
 
     poses   the simulated robot's body poses, at up to 60 Hz (binary, below); a real robot publishes none
     status  JSON, once a second and on a change: {"robot", "mode": "simulated"|"real", "modules", "real_time_factor",
             "behind", "estop": [module IDs latched] (null when unknown: a real bus), "time"}
     mjcf    a queryable answering the simulated robot's MuJoCo model (MJCF text), so a viewer draws the bodies
+    alive/<session>  the robot process's liveliness token: it vanishes the moment the process does
 
 Pose frame, little-endian::
 
@@ -22,11 +23,12 @@ from __future__ import annotations
 
 import json
 import struct
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-PREFIX = "asm/@robot"
+from .keys import RobotKeys
+
 MAGIC = b"RP"
 VERSION = 1
 _HEAD = struct.Struct("<2sBBIdH")
@@ -34,15 +36,15 @@ _BODY = np.dtype([("pos", "<f4", 3), ("quat", "<f4", 4)])
 
 
 def poses_key(robot: str) -> str:
-    return f"{PREFIX}/{robot}/poses"
+    return RobotKeys(robot).robot_key("poses")
 
 
 def status_key(robot: str) -> str:
-    return f"{PREFIX}/{robot}/status"
+    return RobotKeys(robot).robot_key("status")
 
 
 def mjcf_key(robot: str) -> str:
-    return f"{PREFIX}/{robot}/mjcf"
+    return RobotKeys(robot).robot_key("mjcf")
 
 
 @dataclass(frozen=True)
@@ -90,10 +92,21 @@ class RobotStatus:
     estop: list[int] | None = None
     """Modules whose e-stop is latched (None: not known, on a real bus)."""
     time: float = 0.0
+    unread_tables: list[str] = field(default_factory=list)
+    """Modules whose object table the bridge has not read yet: their publications do not reach Zenoh yet."""
 
     def to_json(self) -> str:
         return json.dumps(asdict(self))
 
     @classmethod
     def from_json(cls, text: str | bytes) -> RobotStatus:
-        return cls(**json.loads(text))
+        """The status in ``text``; ValueError for text that is not one (fields this version does not know are
+        ignored, so an older viewer reads a newer robot)."""
+        data = json.loads(text)
+        if not isinstance(data, dict):
+            raise ValueError("a robot status is a JSON object")
+        known = {k: v for k, v in data.items() if k in cls.__dataclass_fields__}
+        try:
+            return cls(**known)
+        except TypeError as exc:
+            raise ValueError(f"not a robot status: {exc}") from None

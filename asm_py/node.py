@@ -28,6 +28,7 @@ from .codec import JSON, Codec
 from .errors import AsmTimeout, EstopLatched, Locked, MessageTooLarge, ReadOnlyError, RemoteError, ServiceError
 from .event import Event
 from .group import GroupPort
+from .keys import parse_address
 from .protocol import (
     LOCAL_CLASS_BASE,
     MAX_MESSAGE,
@@ -190,8 +191,11 @@ class Node:
     # -- the client side ------------------------------------------------------------------------------------------
 
     def port(self, remote: str) -> Port:
-        """The client port to node ``remote`` (one per remote node, shared by every client object and thread)."""
-        check_name(remote)
+        """The client port to node ``remote`` (one per remote node, shared by every client object and thread).
+
+        ``remote`` is an address (asm_py.keys): ``m3``, a tool's ``~studio``, or ``b/m3`` on a medium with robots."""
+        if remote not in self._ports:
+            parse_address(remote)
         with self._lock:
             port = self._ports.get(remote)
             if port is None:
@@ -212,6 +216,9 @@ class Node:
         """Give discovery up to ``timeout`` to see ``remote`` (a just-opened session may not have met it yet)."""
         if remote in self._seen:
             return
+        robot = parse_address(remote).robot
+        if robot is not None and robot != self.transport.robot:
+            return  # discovery lists this node's own robot: another robot's node answers or times out
         deadline = WALL_CLOCK.now() + timeout
         while remote not in self.discover():
             if WALL_CLOCK.now() >= deadline:
@@ -248,9 +255,10 @@ class Node:
         """Call ``callback(node_name, alive)`` when a node joins or leaves; returns a remover."""
         return self.transport.on_peer(callback)
 
-    def estop(self, reason: str = "") -> None:
-        """Emergency stop: every node on the transport (this one included) runs its e-stop handlers at once."""
-        self.transport.estop(reason)
+    def estop(self, reason: str = "", *, lab: bool = False) -> None:
+        """Emergency stop: every node of this node's robot (this one included) runs its e-stop handlers at once;
+        with ``lab``, every node of every robot on the medium (the lab-wide stop)."""
+        self.transport.estop(reason, lab=lab)
 
     def on_estop(self, callback: Callable[[str, str], None]) -> Callable[[], None]:
         """Call ``callback(source, reason)`` on every emergency stop; returns a remover."""

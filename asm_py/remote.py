@@ -38,6 +38,7 @@ from .protocol import (
     encode_timeout,
     first_byte,
 )
+from .service import ServiceStatus
 
 if TYPE_CHECKING:
     from .node import Entry, Node
@@ -346,9 +347,9 @@ class RemoteAttribute(RemoteObject):
         """Whether the remote value is valid (a round trip)."""
         return bool(self._call(Method.STATUS)[0] & 1)
 
-    def peek(self) -> Any:
-        """The remote value without consuming it."""
-        return self.codec.decode(self._call(Method.PEEK))
+    def peek(self, timeout: float | None = None) -> Any:
+        """The remote value without consuming it (``timeout``: how long to wait for the reply, at most)."""
+        return self.codec.decode(self._call(Method.PEEK, timeout=timeout))
 
     def on_change(self, callback: Callable[[Any], None]) -> Callable[[], None]:
         """Call ``callback(value)`` for every publication of the remote attribute; returns a remover."""
@@ -398,19 +399,21 @@ class RemoteService(RemoteObject):
     def reset(self, *, wait: bool = False) -> None:
         self._request(Method.RESET, b"", wait)
 
-    def _status(self) -> tuple[int, str | None]:
-        data = self._call(Method.STATUS)
-        return data[0], (data[1:].decode("utf-8", errors="replace") or None) if data[0] & 8 else None
+    def status(self, timeout: float | None = None) -> ServiceStatus:
+        """started, running and the last error in one round trip (``timeout``: how long to wait, at most)."""
+        data = self._call(Method.STATUS, timeout=timeout)
+        error = (data[1:].decode("utf-8", errors="replace") or None) if data[0] & 8 else None
+        return ServiceStatus(bool(data[0] & 2), bool(data[0] & 4), error)
 
     @property
     def started(self) -> bool:
-        return bool(self._status()[0] & 2)
+        return self.status().started
 
     @property
     def running(self) -> bool:
-        return bool(self._status()[0] & 4)
+        return self.status().running
 
     @property
     def last_error(self) -> str | None:
         """The remote service's last error, as text (the exception itself stays on its node)."""
-        return self._status()[1]
+        return self.status().error

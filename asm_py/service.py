@@ -18,10 +18,19 @@ from __future__ import annotations
 
 import logging
 import threading
-from typing import Any
+from typing import Any, NamedTuple
 
 from .clock import Clock, Monitor, _set_current_service
 from .errors import AsmTimeout, ServiceError, ServiceStopped
+
+
+class ServiceStatus(NamedTuple):
+    """A service's flags, as one STATUS request reads them (the error as text: a remote one arrives as text)."""
+
+    started: bool
+    running: bool
+    error: str | None
+
 
 log = logging.getLogger("asm_py.service")
 
@@ -62,6 +71,11 @@ class Service:
     def last_error(self) -> BaseException | None:
         """The exception that ended the last run, if one did (also logged when it happened)."""
         return self._last_error
+
+    def status(self, timeout: float | None = None) -> ServiceStatus:
+        """started, running and the last error at once, as a client object reads them in one round trip."""
+        error = self._last_error
+        return ServiceStatus(self.started, self.running, None if error is None else repr(error))
 
     def start(self, *params: Any, wait: bool = True) -> None:
         """Start the service with ``params``; returns at once. ServiceError if already started.

@@ -15,8 +15,12 @@ def parser(description: str) -> argparse.ArgumentParser:
     )
     parser.add_argument("--listen", action="append", default=[], help="endpoint to listen on, e.g. tcp/127.0.0.1:7447")
     parser.add_argument("--mode", default="peer", choices=["peer", "client"], help="zenoh mode (client: via a router)")
+    parser.add_argument("--robot", default="robot", help="the robot (Zenoh namespace) to join (default robot)")
     return parser
 
 
-def open_node(name: str, args: argparse.Namespace) -> Node:
-    return Node(name, ZenohTransport(mode=args.mode, listen=args.listen, connect=args.connect))
+def open_node(name: str, args: argparse.Namespace, *, role: str = "tool") -> Node:
+    """A node of robot ``--robot``: a tool (it calls modules), or with ``role="module"`` a module (it answers for
+    its name, which must not be alive in the robot yet)."""
+    transport = ZenohTransport(robot=args.robot, role=role, mode=args.mode, listen=args.listen, connect=args.connect)
+    return Node(name, transport)

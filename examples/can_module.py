@@ -17,6 +17,7 @@ from asm_py import Node
 from asm_py.cli import can_channel
 from asm_py.transport.can import CanTransport
 from server.bridge import CanZenohBridge
+from server.zenoh_args import ZenohOptions
 
 
 def main() -> int:
@@ -29,7 +30,8 @@ def main() -> int:
     node = Node(args.name, CanTransport(args.node_id, **args.can))
     bridge = None
     if args.bridge:
-        bridge = CanZenohBridge(args.can, zenoh_mode=args.mode, zenoh_listen=args.listen, zenoh_connect=args.connect)
+        network = ZenohOptions(args.mode, tuple(args.listen), tuple(args.connect))
+        bridge = CanZenohBridge(args.can, robot=args.robot, network=network)
     services = populate(node)
     serve(args.name, node, services, *([bridge] if bridge else []))
     return 0

@@ -68,7 +68,7 @@ def main() -> int:
     cli = parser(__doc__.splitlines()[0])
     cli.add_argument("--name", default="m1")
     args = cli.parse_args()
-    node = open_node(args.name, args)
+    node = open_node(args.name, args, role="module")
     serve(args.name, node, populate(node))
     return 0
 

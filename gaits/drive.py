@@ -16,7 +16,8 @@ from asm_py.group import BROADCAST
 from asm_py.module.gait_service import SWITCH
 from asm_py.node import Node
 
-from .deploy import DeployError, _Modules, start_all, stop_all
+from .calls import DeployError, ModuleCalls
+from .deploy import start_all, stop_all
 from .model import Gait
 from .programs import mode_index
 
@@ -45,11 +46,11 @@ def drive(
     if direction not in (1, -1):
         raise ValueError(f"direction must be +1 or -1, not {direction}")
     by_index = dict(enumerate(modules, start=1))
-    checker = _Modules(node, by_index, 2.0, 3)
+    checker = ModuleCalls(node, by_index, 2.0, 3)
     checker.check_not_latched(list(by_index), f"drive {command}")
     if not all(checker.running(m, "drive") for m in by_index):
         start_all(node, modules, group=group)
-    now = float(checker.peek(1, "gait.tick", "drive"))  # type: ignore[arg-type]
+    now = float(checker.peek(1, "gait.tick", "drive"))
     node.group(group).attribute("gait.switch", SWITCH).set(
         {"mode": mode, "direction": direction, "after": now + MARGIN}
     )
@@ -65,8 +66,8 @@ def drive(
     return list(modules)
 
 
-def _switched(checker: _Modules, module: int, mode: int) -> bool:
+def _switched(checker: ModuleCalls, module: int, mode: int) -> bool:
     try:
-        return int(checker.on(module, "gait.mode", "drive", lambda obj: obj.get())) == mode  # type: ignore[attr-defined,arg-type]
+        return int(checker.get(module, "gait.mode", "drive")) == mode
     except DeployError:
         return False

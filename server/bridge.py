@@ -1,27 +1,23 @@
-"""The CAN ↔ Zenoh bridge: every node on a CAN bus appears on Zenoh as a Zenoh node, reachable like any other.
+"""The CAN ↔ Zenoh bridge: every node on a robot's CAN bus appears on Zenoh, in that robot's namespace, as a module.
 
-For each CAN node heard (by its heartbeat) the bridge declares, on Zenoh, the node's liveliness token and its
-request keys (docs/protocol.md, "Zenoh key space"); it forwards the ASM message bytes unchanged both ways:
+For each CAN node heard (by its heartbeat) the bridge declares, on Zenoh, under ``asm/<robot>/`` (asm_py.keys), the
+node's liveliness token and its request keys — unless the name is already alive in the robot (another process
+answers for it: the bridge refuses to shadow it, says so, and looks again later). It forwards the ASM message bytes
+unchanged both ways:
 
-- a Zenoh query ``asm/<N>/req/<C>`` becomes the same message on CAN from an *alias* node ID standing for client C
-  (one alias per Zenoh session — name and session ID — from a pool, least recently used reused first), with its
-  transaction id replaced by one the bridge allocates and its timeout byte capped, and N's reply to that alias
-  becomes the query's reply with the client's own transaction id back in place (so two sessions that share a name
-  never receive each other's replies);
-- puts on ``asm/<N>/msg/<C>`` and ``asm/@group/<G>/msg/<C>`` become node and group frames from C's alias;
-- each publication of a CAN node becomes a put on ``asm/<N>/pub/<object>`` and its JSON view (object names and
-  codecs come from a lookup of N's table, made once when N appears);
-- e-stops cross in both directions.
+- a Zenoh query ``asm/<robot>/<N>/req/<C>`` becomes the same message on CAN from an *alias* node ID standing for
+  client C (server/bridge_clients.py), with its transaction id replaced by one the bridge allocates and its timeout
+  byte capped; N's reply to that alias becomes the query's reply with the client's own transaction id back;
+- puts on ``asm/<robot>/<N>/msg/<C>`` and ``asm/<robot>/@group/<G>/msg/<C>`` become node and group frames from C's
+  alias;
+- each publication of a CAN node becomes a put on ``asm/<robot>/<N>/pub/<object>`` and its JSON view. Object names
+  and codecs come from N's table, read by lookups when N appears — one lookup at a time, each retried with backoff
+  until the whole table is read or N leaves, so a lost frame delays a module's publications, never silences them;
+- the robot's e-stop and the lab-wide e-stop go onto the bus as one priority-0 frame at once, bypassing every queue;
+  an e-stop from the bus becomes the robot's e-stop on Zenoh.
 
-The bridge is an edge, so it enforces the protocol's bounds before anything reaches the bus: a message over
-``MAX_MESSAGE`` bytes is refused at once (TOO_LARGE) and never fragmented; each client has at most
-``max_pending_per_client`` queries waiting for a reply (``max_pending`` in all) and a queue of at most
-``max_queued_per_client`` messages; beyond that it is told BUSY. Queues are served round-robin, one message per
-client in turn, by one sender thread, so a client flooding the bridge only delays itself. E-stops never queue: they
-go straight to the bus as one priority-0 frame, from whichever Zenoh session sent them.
-
-Zenoh clients therefore see CAN modules with lookup, get/set, services, events, publications and discovery, and
-nothing is re-encoded. CLI: ``python -m server.bridge --can virtual:bus0 --zenoh-listen tcp/127.0.0.1:7447``.
+The bridge is an edge, so it enforces the protocol's bounds before anything reaches the bus (bridge_clients.py).
+CLI: ``asm-bridge --can virtual:bus0 --robot-name a --zenoh-connect tcp/127.0.0.1:7447``.
 """
 
 from __future__ import annotations
@@ -29,51 +25,38 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import math
 import queue
 import threading
 import time
-from collections import OrderedDict, deque
 from collections.abc import Sequence
-from dataclasses import dataclass, field
 from typing import Any
 
 import zenoh
 
 from asm_py.canbus.fragments import frame_count
-from asm_py.canbus.ids import Dest, check_node_id
-from asm_py.cli import bitrate, can_channel, describe, input_file, node_id, run, stop_requested, zenoh_endpoint
+from asm_py.canbus.ids import Dest
+from asm_py.cli import bitrate, can_channel, name, node_id, run, stop_requested
 from asm_py.codec import to_json
+from asm_py.keys import DEFAULT_ROBOT, RobotKeys, concrete, lab_estop, last, split
 from asm_py.node import Node
-from asm_py.protocol import (
-    MAX_MESSAGE,
-    MAX_TXN,
-    Kind,
-    Status,
-    decode_timeout,
-    encode_timeout,
-    kind_of,
-    reply_head,
-    too_large,
-)
-from asm_py.remote import RemoteObject
+from asm_py.protocol import MAX_MESSAGE, MAX_TXN, Kind, Method, Status, kind_of, reply_head, too_large
+from asm_py.remote import RemoteObject, make_client
 from asm_py.transport.can import CanTransport, group_id, message_priority
-from asm_py.transport.zenoh import make_config
 
+from .bridge_clients import DEFAULT_FRAME_RATE, ClientTable, Pacer, Refusal
 from .heap import HeapTrimmer
 from .realtime import prefer_latency
+from .zenoh_args import ZenohOptions, add_zenoh_arguments, zenoh_options
 
 log = logging.getLogger("server.bridge")
 
-REPLY_MARGIN = 5.0
-"""Seconds a forwarded query waits for its CAN reply beyond the request's own timeout."""
-MAX_BLOCK = 60.0
-"""The longest a forwarded request may ask a CAN node to block: a longer (or endless) timeout byte is capped."""
-MAX_BLOCK_CODE = encode_timeout(MAX_BLOCK)
-DEFAULT_FRAME_RATE = 4000.0
-"""Frames per second the bridge puts on the bus for Zenoh clients, at most: about half of what a 1 Mbit/s bus
-carries (~7,700 frames of 8 bytes), so the modules' own traffic always has room and no receiver falls behind."""
-BURST_FRAMES = 600
-"""Frames the bridge may send at once after a quiet spell (one maximum-size message and some)."""
+TABLE_LOOKUP_TIMEOUT = 0.3
+"""Seconds one lookup of a CAN node's table may take before it is tried again (a lookup is a round trip of ~1 ms)."""
+TABLE_BACKOFF = (0.05, 2.0)
+"""First and longest pause between attempts to read a table (doubling)."""
+TAKEN_RETRY = 5.0
+"""Seconds before the bridge looks again at a name that another process answered for."""
 
 
 class _GatewayTransport(CanTransport):
@@ -91,32 +74,17 @@ class _GatewayTransport(CanTransport):
 
 
 class _Mirror:
-    """What the bridge declared on Zenoh for one CAN node."""
+    """What the bridge declared on Zenoh for one CAN node, and how far it has read the node's object table."""
 
     def __init__(self, name: str, node_id: int) -> None:
         self.name = name
         self.node_id = node_id
         self.entities: list[Any] = []
         self.objects: dict[int, RemoteObject] = {}
-
-
-@dataclass
-class _Pending:
-    """A forwarded query waiting for its CAN reply."""
-
-    query: zenoh.Query
-    txn: int
-    """The client's own transaction id, put back into the reply."""
-    deadline: float
-
-
-@dataclass
-class _Client:
-    """One Zenoh session as the bus sees it: an alias node ID and a bounded queue of messages to send."""
-
-    alias: int
-    queue: deque[tuple[int, int, bytes]] = field(default_factory=deque)
-    pending: int = 0
+        self.table_read = False
+        self.next_attempt = 0.0
+        self.backoff = TABLE_BACKOFF[0]
+        self.attempts = 0
 
 
 class CanZenohBridge:
@@ -126,36 +94,29 @@ class CanZenohBridge:
         self,
         can_transport_options: dict[str, Any],
         *,
+        robot: str = DEFAULT_ROBOT,
+        network: ZenohOptions | None = None,
         node_id: int = 254,
         name: str = "bridge",
         aliases: Sequence[int] = range(200, 254),
-        zenoh_mode: str = "peer",
-        zenoh_listen: Sequence[str] = (),
-        zenoh_connect: Sequence[str] = (),
-        zenoh_config: str | None = None,
-        insecure: bool = False,
         max_pending: int = 1024,
         max_pending_per_client: int = 32,
         max_queued_per_client: int = 64,
         max_frame_rate: float | None = DEFAULT_FRAME_RATE,
     ) -> None:
-        self._lock = threading.Lock()
-        self._ready = threading.Condition(self._lock)
+        self.keys = RobotKeys(robot)
+        self.robot = self.keys.robot
         self._mirrors: dict[str, _Mirror] = {}
-        self._alias_pool = [check_node_id(a) for a in aliases if a != node_id]
-        self._clients: OrderedDict[tuple[str, bytes], _Client] = OrderedDict()  # (name, session) -> client, LRU
-        self._pending: dict[tuple[int, int, int], _Pending] = {}  # (alias, CAN node ID, bridge txn) -> query
-        self._next_txn = 0
-        self.max_pending = max_pending
-        self.max_pending_per_client = max_pending_per_client
-        self.max_queued_per_client = max_queued_per_client
-        self.max_frame_rate = max_frame_rate
-        self._budget = float(BURST_FRAMES)
-        self._budget_time = time.monotonic()
+        self._taken: dict[str, float] = {}  # name -> when to look again (another process answers for it)
+        self.clients = ClientTable([a for a in aliases if a != node_id], max_pending=max_pending,
+                                   max_pending_per_client=max_pending_per_client,
+                                   max_queued_per_client=max_queued_per_client)  # fmt: skip
+        self._lock = self.clients.lock
+        self._pacer = Pacer(max_frame_rate)
         self._work: queue.Queue[str | None] = queue.Queue()
         self.forwarded = {"to_can": 0, "to_zenoh": 0, "publications": 0, "unanswered": 0, "refused": 0}
-        self.session = zenoh.open(make_config(mode=zenoh_mode, listen=zenoh_listen, connect=zenoh_connect,
-                                              config_file=zenoh_config, insecure=insecure))  # fmt: skip
+        self.session = (network or ZenohOptions()).open()
+        self._zid = str(self.session.info.zid())
         self._stop = threading.Event()
         self.heap = HeapTrimmer(lambda: sum(self.forwarded.values()))
         try:
@@ -167,10 +128,11 @@ class CanZenohBridge:
             raise
         remote = zenoh.Locality.REMOTE  # what this session put itself never comes back
         self._keep: list[Any] = [
-            self.session.declare_subscriber("asm/@group/*/msg/*", self._group_from_zenoh, allowed_origin=remote),
-            self.session.declare_subscriber("asm/@estop/*", self._estop_from_zenoh, allowed_origin=remote),
+            self.session.declare_subscriber(self.keys.group("*"), self._group_from_zenoh, allowed_origin=remote),
+            self.session.declare_subscriber(self.keys.estop(), self._estop_from_zenoh, allowed_origin=remote),
+            self.session.declare_subscriber(lab_estop(), self._estop_from_zenoh, allowed_origin=remote),
         ]
-        for alias in self._alias_pool:
+        for alias in self.clients.alias_pool:
             self.can.accept_node_id(alias)
         self.can.on_estop(self._estop_from_can)
         self.node.on_discovery(self._can_peer)
@@ -191,47 +153,75 @@ class CanZenohBridge:
         self._work.put(name if alive else f"-{name}")
 
     def _work_loop(self) -> None:
+        """Mirror the nodes that appeared and unmirror those that left (all of them, at once), then read one more
+        entry of a table that is due; between the two, the housekeeping."""
         while not self._stop.is_set():
             try:
-                item = self._work.get(timeout=0.2)
+                wait = self._table_wait()
+                item = self._work.get_nowait() if wait <= 0 else self._work.get(timeout=wait)
             except queue.Empty:
-                item = ""  # nothing to bridge: only the housekeeping below
+                item = ""
+            while item is not None:
+                self._handle(item)
+                try:
+                    item = self._work.get_nowait()
+                except queue.Empty:
+                    break
             if item is None:
                 return
-            try:
-                if item.startswith("-"):
-                    self._unmirror(item[1:])
-                elif item:
-                    self._mirror(item)
-            except Exception:
-                log.exception("bridging %s failed", item)
-            self._expire_pending()
+            self._retry_taken()
+            for _ in range(64):  # back to back, but never long without looking at nodes that came or went
+                if not self._read_a_table() or not self._work.empty():
+                    break
+            for query in self.clients.expire():
+                query.drop()
             self.heap.tick()
+
+    def _handle(self, item: str) -> None:
+        try:
+            if item.startswith("-"):
+                self._unmirror(item[1:])
+            elif item:
+                self._mirror(item)
+        except Exception:
+            log.exception("bridging %s failed", item)
+
+    def _claimed_elsewhere(self, name: str) -> str | None:
+        """The session of another process that answers for ``name`` in this robot, if any."""
+        for reply in self.session.liveliness().get(self.keys.alive(name), timeout=2.0):
+            if reply.ok is not None and last(reply.ok.key_expr) != self._zid:
+                return last(reply.ok.key_expr)
+        return None
 
     def _mirror(self, name: str) -> None:
         node_id = self.can.resolve(name)
         if node_id is None or name in self._mirrors:
             return
+        other = self._claimed_elsewhere(name)
+        if other is not None:
+            if name not in self._taken:
+                log.error("not bridging CAN node %s: a node named %s is already alive in robot %r (session %s)",
+                          name, name, self.robot, other)  # fmt: skip
+            self._taken[name] = time.monotonic() + TAKEN_RETRY
+            return
+        self._taken.pop(name, None)
         mirror = _Mirror(name, node_id)
-        session = self.session
+        session, keys = self.session, self.keys
         mirror.entities = [
-            session.declare_queryable(f"asm/{name}/req/*", lambda q, m=mirror: self._query_from_zenoh(m, q)),
+            session.declare_queryable(keys.requests(name), lambda q, m=mirror: self._query_from_zenoh(m, q)),
             session.declare_subscriber(
-                f"asm/{name}/msg/*",
+                keys.messages(name),
                 lambda s, m=mirror: self._put_from_zenoh(m, s),
                 allowed_origin=zenoh.Locality.REMOTE,
             ),
-            session.liveliness().declare_token(f"asm/@alive/{name}"),
+            session.liveliness().declare_token(keys.alive(name, self._zid)),
         ]
         with self._lock:
             self._mirrors[name] = mirror
-        try:
-            mirror.objects = {obj.info.object_id: obj for obj in self.node.list_objects(name, timeout=2.0)}
-        except Exception as exc:  # still bridged for requests; publications wait for the table
-            log.warning("could not read the object table of %s: %s", name, exc)
-        log.info("bridging CAN node %s (ID %d, %d objects)", name, node_id, len(mirror.objects))
+        log.info("bridging CAN node %s (ID %d) as %s/%s", name, node_id, self.robot, name)
 
     def _unmirror(self, name: str) -> None:
+        self._taken.pop(name, None)
         with self._lock:
             mirror = self._mirrors.pop(name, None)
         if mirror is not None:
@@ -239,92 +229,90 @@ class CanZenohBridge:
                 entity.undeclare()
             log.info("CAN node %s left", name)
 
-    # -- Zenoh -> CAN ---------------------------------------------------------------------------------------------
+    def _retry_taken(self) -> None:
+        now = time.monotonic()
+        for node in [n for n, when in self._taken.items() if when <= now]:
+            if node in self.can.peers():
+                self._mirror(node)
+            else:
+                self._taken.pop(node, None)
 
-    def _client(self, name: str, session: bytes) -> _Client:
-        """The client for a Zenoh session (lock held): its alias, least recently used reused first."""
-        key = (name, session)
-        client = self._clients.get(key)
-        if client is not None:
-            self._clients.move_to_end(key)
-            return client
-        used = {c.alias for c in self._clients.values()}
-        free = [a for a in self._alias_pool if a not in used]
-        if free:
-            alias = free[0]
-        else:  # reuse the alias of the least recently used client without work in flight
-            idle = next((k for k, c in self._clients.items() if not c.pending and not c.queue), None)
-            if idle is None:
-                raise _Refusal(Status.BUSY, "the bridge has no free alias: too many clients at work")
-            alias = self._clients.pop(idle).alias
-        client = self._clients[key] = _Client(alias)
-        return client
+    def _table_wait(self) -> float:
+        """Seconds until a table read is due (0: now), at most the housekeeping period."""
+        attempts = [m.next_attempt for m in list(self._mirrors.values()) if not m.table_read]
+        return min(0.2, max(0.0, min(attempts, default=math.inf) - time.monotonic()))
+
+    def _read_a_table(self) -> bool:
+        """One lookup of the first table that is due: the next object, or a retry after a backoff; False when no
+        table was due."""
+        now = time.monotonic()
+        due = [m for m in list(self._mirrors.values()) if not m.table_read and m.next_attempt <= now]
+        if not due:
+            return False
+        mirror = min(due, key=lambda m: m.next_attempt)
+        object_id = len(mirror.objects) + 1
+        try:
+            reply = self.node.port(mirror.name).call(Method.LOOKUP, 0, object_id, timeout=TABLE_LOOKUP_TIMEOUT)
+        except LookupError:  # past the last object: the table is complete
+            mirror.table_read = True
+            log.info("read the table of %s: %d objects (%d retries)", mirror.name, len(mirror.objects),
+                     mirror.attempts)  # fmt: skip
+            return True
+        except Exception as exc:  # a lost frame, a busy module: try again a little later
+            mirror.attempts += 1
+            mirror.next_attempt = now + mirror.backoff
+            mirror.backoff = min(TABLE_BACKOFF[1], mirror.backoff * 2)
+            log.debug("reading the table of %s (object %d): %s", mirror.name, object_id, exc)
+            return True
+        mirror.objects[object_id] = make_client(self.node.port(mirror.name), reply.data)
+        mirror.backoff = TABLE_BACKOFF[0]
+        return True
+
+    @property
+    def unread_tables(self) -> list[str]:
+        """Bridged nodes whose object table is not read yet: their publications do not reach Zenoh yet."""
+        return sorted(n for n, m in list(self._mirrors.items()) if not m.table_read)
+
+    # -- Zenoh -> CAN ---------------------------------------------------------------------------------------------
 
     @staticmethod
     def _sender(key_expr: Any, attachment: Any) -> tuple[str, bytes]:
-        name = str(key_expr).rsplit("/", 1)[-1]
-        return name, (attachment.to_bytes()[:64] if attachment is not None else b"")
+        return last(key_expr), (attachment.to_bytes()[:64] if attachment is not None else b"")
 
     def _query_from_zenoh(self, mirror: _Mirror, query: zenoh.Query) -> None:
         data = query.payload.to_bytes() if query.payload is not None else b""
         wants_reply = len(data) >= 4 and kind_of(data) == Kind.REQUEST_REPLY and data[0] >> 6 == 1
         try:
             if len(data) < 4:
-                raise _Refusal(None, "")
+                raise Refusal(None, "")
             if len(data) > MAX_MESSAGE:
-                raise _Refusal(Status.TOO_LARGE, too_large(len(data)))
-            name, session = self._sender(query.key_expr, query.attachment)
+                raise Refusal(Status.TOO_LARGE, too_large(len(data)))
             with self._lock:
-                client = self._client(name, session)
-                self._check_room(client)
+                client = self.clients.client(*self._sender(query.key_expr, query.attachment))
+                if len(client.queue) >= self.clients.max_queued_per_client:
+                    raise Refusal(Status.BUSY, "your queue at the bridge is full")
                 if wants_reply:
-                    data = self._await_reply(client, mirror, query, data)
-                self._enqueue(client, Dest.NODE, mirror.node_id, data)
-        except _Refusal as refusal:
+                    data = self.clients.await_reply(client, mirror.node_id, query, data, self._reply_key(mirror, query))
+                self.clients.enqueue(client, Dest.NODE, mirror.node_id, data)
+        except Refusal as refusal:
             self.forwarded["refused"] += 1
             if wants_reply and refusal.status is not None:
-                query.reply(query.key_expr, reply_head(data, refusal.status) + refusal.text.encode("utf-8")[:120])
+                reply = reply_head(data, refusal.status) + refusal.text.encode("utf-8")[:120]
+                query.reply(self._reply_key(mirror, query), reply)
             query.drop()
             return
         if not wants_reply:
             query.drop()
 
-    def _await_reply(self, client: _Client, mirror: _Mirror, query: zenoh.Query, data: bytes) -> bytes:
-        """Register ``query`` as waiting for its reply (lock held); the request as it goes on the bus: a bridge
-        transaction id, and a timeout byte of at most MAX_BLOCK."""
-        if client.pending >= self.max_pending_per_client or len(self._pending) >= self.max_pending:
-            raise _Refusal(Status.BUSY, f"too many requests in flight through the bridge ({client.pending} of yours)")
-        for _ in range(MAX_TXN + 1):
-            txn, self._next_txn = self._next_txn, (self._next_txn + 1) & MAX_TXN
-            if (client.alias, mirror.node_id, txn) not in self._pending:
-                break
-        else:
-            raise _Refusal(Status.BUSY, "all transaction ids to this node are in use")
-        has_timeout = bool(data[1] & 0x80) and len(data) > 4
-        limit = decode_timeout(data[4]) if has_timeout else 0.0
-        if limit is None or limit > MAX_BLOCK:
-            data = data[:4] + bytes((MAX_BLOCK_CODE,)) + data[5:]
-            limit = MAX_BLOCK
-        deadline = time.monotonic() + limit + REPLY_MARGIN
-        self._pending[(client.alias, mirror.node_id, txn)] = _Pending(query, data[1] & MAX_TXN, deadline)
-        client.pending += 1
-        return data[:1] + bytes(((data[1] & 0x80) | txn,)) + data[2:]
-
-    def _check_room(self, client: _Client) -> None:
-        """BUSY when the client's queue is full (lock held)."""
-        if len(client.queue) >= self.max_queued_per_client:
-            raise _Refusal(Status.BUSY, "your queue at the bridge is full")
-
-    def _enqueue(self, client: _Client, dest_kind: int, dest: int, data: bytes) -> None:
-        """Queue a message for the bus (lock held, room checked)."""
-        client.queue.append((dest_kind, dest, data))
-        self._ready.notify()
+    def _reply_key(self, mirror: _Mirror, query: zenoh.Query) -> str:
+        """The replier's own concrete key, whatever wildcard the query used."""
+        return self.keys.requests(mirror.name, concrete(last(query.key_expr)))
 
     def _put_from_zenoh(self, mirror: _Mirror, sample: zenoh.Sample) -> None:
         self._forward_put(sample, Dest.NODE, mirror.node_id)
 
     def _group_from_zenoh(self, sample: zenoh.Sample) -> None:
-        group = str(sample.key_expr).split("/")[2]
+        group = split(sample.key_expr)[3]  # asm/<robot>/@group/<group>/msg/<source>
         if group == "all":
             self._forward_put(sample, Dest.BROADCAST, 0)
         else:
@@ -337,43 +325,21 @@ class CanZenohBridge:
             return
         try:
             with self._lock:
-                client = self._client(*self._sender(sample.key_expr, sample.attachment))
-                self._check_room(client)
-                self._enqueue(client, dest_kind, dest, data)
-        except _Refusal:
+                client = self.clients.client(*self._sender(sample.key_expr, sample.attachment))
+                self.clients.enqueue(client, dest_kind, dest, data)
+        except Refusal:
             self.forwarded["refused"] += 1
 
     def _send_loop(self) -> None:
         """Send the clients' queued messages round-robin, one message per client in turn."""
-        while True:
-            with self._lock:
-                while not self._stop.is_set() and not any(c.queue for c in self._clients.values()):
-                    self._ready.wait(0.5)
-                if self._stop.is_set():
-                    return
-                batch = [(c.alias, c.queue.popleft()) for c in self._clients.values() if c.queue]
+        while (batch := self.clients.next_batch(self._stop)) is not None:
             for alias, (dest_kind, dest, data) in batch:
-                self._pace(frame_count(len(data), frame_size=self.can.frame_size))
+                self._pacer.wait(frame_count(len(data), frame_size=self.can.frame_size), self._stop)
                 try:
                     self.can.send_message(dest_kind, dest, data, message_priority(data), source=alias)
                     self.forwarded["to_can"] += 1
                 except Exception:
                     log.exception("forwarding a message to the bus failed")
-
-    def _pace(self, frames: int) -> None:
-        """Wait until ``frames`` fit the bridge's frame rate (a token bucket of BURST_FRAMES)."""
-        rate = self.max_frame_rate
-        if rate is None:
-            return
-        now = time.monotonic()
-        self._budget = min(BURST_FRAMES, self._budget + (now - self._budget_time) * rate)
-        self._budget_time = now
-        if self._budget < frames:
-            self._stop.wait((frames - self._budget) / rate)
-            self._budget_time = time.monotonic()
-            self._budget = 0.0
-        else:
-            self._budget -= frames
 
     def _estop_from_zenoh(self, sample: zenoh.Sample) -> None:
         self.can.estop(sample.payload.to_bytes()[:64].decode("utf-8", errors="replace"))
@@ -384,25 +350,16 @@ class CanZenohBridge:
         if len(data) < 4 or kind_of(data) != Kind.REPLY:
             return
         with self._lock:
-            waiting = self._pending.pop((alias, source_id, data[1] & MAX_TXN), None)
-            if waiting is not None:
-                self._release(alias)
+            waiting = self.clients.answered(alias, source_id, data[1] & MAX_TXN)
         if waiting is None:
             self.forwarded["unanswered"] += 1
             return
         query = waiting.query
         try:
-            query.reply(query.key_expr, data[:1] + bytes((waiting.txn,)) + data[2:])
+            query.reply(waiting.key, data[:1] + bytes((waiting.txn,)) + data[2:])
         finally:
             query.drop()
         self.forwarded["to_zenoh"] += 1
-
-    def _release(self, alias: int) -> None:
-        """One query of ``alias`` is done (lock held)."""
-        for client in self._clients.values():
-            if client.alias == alias:
-                client.pending = max(0, client.pending - 1)
-                return
 
     def _publication_from_can(self, source_id: int, data: bytes) -> None:
         mirror = self._mirrors.get(self.can.name_of(source_id))
@@ -411,36 +368,25 @@ class CanZenohBridge:
         obj = mirror.objects.get(data[3])
         if obj is None:
             return
-        self.session.put(f"asm/{mirror.name}/pub/{obj.name}", data)
+        self.session.put(self.keys.publication(mirror.name, obj.name), data)
         try:
-            value = obj.codec.decode(data[4:])  # type: ignore[attr-defined]
+            value = obj.codec.decode(data[4:])  # type: ignore[attr-defined]  # published objects are attributes
         except ValueError:
             return
         view = {"node": mirror.name, "object": obj.name, "class": obj.info.class_name, "seq": data[1] & 0x7F,
                 "t": time.time(), "value": to_json(value)}  # fmt: skip
-        self.session.put(f"asm/{mirror.name}/json/{obj.name}", json.dumps(view))
+        self.session.put(self.keys.json_view(mirror.name, obj.name), json.dumps(view))
         self.forwarded["publications"] += 1
 
     def _estop_from_can(self, source: str, reason: str) -> None:
         if source != self.node.name:  # the bridge's own e-stops came from Zenoh
-            self.session.put(f"asm/@estop/{source}", reason.encode("utf-8"), priority=zenoh.Priority.REAL_TIME,
+            self.session.put(self.keys.estop(source), reason.encode("utf-8"), priority=zenoh.Priority.REAL_TIME,
                              congestion_control=zenoh.CongestionControl.BLOCK, express=True)  # fmt: skip
-
-    def _expire_pending(self) -> None:
-        now = time.monotonic()
-        with self._lock:
-            expired = [k for k, p in self._pending.items() if p.deadline < now]
-            queries = []
-            for key in expired:
-                queries.append(self._pending.pop(key).query)
-                self._release(key[0])
-        for query in queries:
-            query.drop()
 
     @property
     def pending(self) -> int:
         """Forwarded queries waiting for a CAN reply now (bounded by ``max_pending``)."""
-        return len(self._pending)
+        return len(self.clients.pending)
 
     @property
     def bridged(self) -> list[str]:
@@ -451,74 +397,44 @@ class CanZenohBridge:
         for entity in self._keep:  # no new work from Zenoh first
             entity.undeclare()
         self._keep.clear()
-        for name in list(self._mirrors):
-            self._unmirror(name)
-        with self._lock:
-            self._stop.set()
-            self._ready.notify_all()
+        for node in list(self._mirrors):
+            self._unmirror(node)
+        self._stop.set()
+        for query in self.clients.clear():
+            query.drop()
         self._work.put(None)
         for thread in self._threads:
             thread.join(5)
         self.node.close()
-        with self._lock:
-            queries = [p.query for p in self._pending.values()]
-            self._pending.clear()
-            self._clients.clear()
-        for query in queries:
+        for query in self.clients.clear():
             query.drop()
         self.session.close()
 
 
-class _Refusal(Exception):
-    """A request the bridge answers itself (status None: dropped without an answer)."""
-
-    def __init__(self, status: int | None, text: str) -> None:
-        super().__init__(text)
-        self.status = status
-        self.text = text
-
-
-def add_zenoh_arguments(cli: argparse.ArgumentParser, *, listen_help: str | None = None) -> None:
-    """The Zenoh options every command shares (as python-can's ``add_bus_arguments`` gives every tool the same bus
-    flags); :func:`check_zenoh_arguments` checks them once parsed."""
-    cli.add_argument("--zenoh-listen", action="append", default=[], type=zenoh_endpoint, metavar="ENDPOINT",
-                     help=listen_help)  # fmt: skip
-    cli.add_argument("--zenoh-connect", action="append", default=[], type=zenoh_endpoint, metavar="ENDPOINT")
-    cli.add_argument("--zenoh-config", type=input_file, metavar="FILE",
-                     help="a Zenoh JSON5 configuration (TLS, access control)")  # fmt: skip
-    cli.add_argument("--insecure", action="store_true", help="allow Zenoh to listen beyond loopback without TLS "
-                     "and access control (anyone who reaches the port can command the robot)")  # fmt: skip
-
-
-def check_zenoh_arguments(cli: argparse.ArgumentParser, args: argparse.Namespace) -> None:
-    """A usage error (exit 2, one line) for Zenoh endpoints that would be insecure or a config file that is bad."""
-    try:
-        make_config(mode=getattr(args, "zenoh_mode", "peer"), listen=args.zenoh_listen, connect=args.zenoh_connect,
-                    config_file=args.zenoh_config, insecure=args.insecure)  # fmt: skip
-    except (ValueError, OSError, zenoh.ZError) as exc:
-        cli.error(describe(exc))
+def add_bus_arguments(cli: argparse.ArgumentParser) -> None:
+    """The options of a process that bridges a CAN bus beside ``--can``: its bit rate, FD, the bridge's node ID."""
+    cli.add_argument("--bitrate", type=bitrate)
+    cli.add_argument("--fd", action="store_true", help="a CAN FD bus (with --can)")
+    cli.add_argument("--node-id", type=node_id, default=254, help="the bridge's own CAN node ID (default 254)")
 
 
 def main(argv: list[str] | None = None) -> int:
     cli = argparse.ArgumentParser(prog="asm-bridge", description=__doc__.splitlines()[0])
     cli.add_argument("--can", type=can_channel, required=True, metavar="INTERFACE:CHANNEL")
-    cli.add_argument("--bitrate", type=bitrate)
-    cli.add_argument("--fd", action="store_true")
-    cli.add_argument("--node-id", type=node_id, default=254, help="the bridge's own CAN node ID (default 254)")
+    add_bus_arguments(cli)
+    cli.add_argument("--robot-name", type=name, default=DEFAULT_ROBOT,
+                     help="the robot (Zenoh namespace) the bus's modules belong to (default robot)")  # fmt: skip
     add_zenoh_arguments(cli)
-    cli.add_argument("--zenoh-mode", default="peer", choices=["peer", "client"])
     args = cli.parse_args(argv)
-    check_zenoh_arguments(cli, args)
-    return run(cli.prog, lambda: _serve(args))
+    options = zenoh_options(cli, args)
+    return run(cli.prog, lambda: _serve(args, options))
 
 
-def _serve(args: argparse.Namespace) -> int:
+def _serve(args: argparse.Namespace, zenoh_opts: ZenohOptions) -> int:
     prefer_latency()
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
     options = {**args.can, "fd": args.fd, **({"bitrate": args.bitrate} if args.bitrate else {})}
-    bridge = CanZenohBridge(options, node_id=args.node_id, zenoh_mode=args.zenoh_mode,
-                            zenoh_listen=args.zenoh_listen, zenoh_connect=args.zenoh_connect,
-                            zenoh_config=args.zenoh_config, insecure=args.insecure)  # fmt: skip
+    bridge = CanZenohBridge(options, robot=args.robot_name, network=zenoh_opts, node_id=args.node_id)
     done = stop_requested()
     print("READY bridge", flush=True)
     done.wait()

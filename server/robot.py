@@ -23,22 +23,23 @@ import os
 import signal
 import threading
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import zenoh
-
-from asm_py.cli import bitrate, can_channel, input_file, module_selection, name, node_id, run, stop_requested
-from asm_py.feed import PoseFrame, RobotStatus, encode_poses, mjcf_key, poses_key, status_key
+from asm_py.cli import can_channel, close_in_time, input_file, module_selection, name, run, stop_requested
+from asm_py.feed import PoseFrame, RobotStatus, encode_poses
+from asm_py.keys import DEFAULT_ROBOT
 from asm_py.node import Node
 from asm_py.transport.can import CanTransport
 from gaits.deploy import module_name
 from gaits.model import LIBRARY, load
 from gaits.sim import Simulation, select_modules
 
-from .bridge import CanZenohBridge, add_zenoh_arguments, check_zenoh_arguments
+from .bridge import CanZenohBridge, add_bus_arguments
 from .realtime import prefer_latency
+from .robot_feed import RobotFeed
+from .zenoh_args import ZenohOptions, add_zenoh_arguments, zenoh_options
 
 log = logging.getLogger("asm_robot")
 POSE_RATE = 60.0
@@ -52,16 +53,13 @@ class RobotOptions:
     """The gait file whose robot is simulated; None with ``can``."""
     can: dict[str, Any] | None = None
     """python-can options of a real bus."""
-    name: str = "robot"
-    zenoh_listen: tuple[str, ...] = ()
-    zenoh_connect: tuple[str, ...] = ()
-    zenoh_config: str | None = None
-    insecure: bool = False
+    name: str = DEFAULT_ROBOT
+    """The robot's name: its namespace on the Zenoh network (asm_py.keys)."""
+    network: ZenohOptions = field(default_factory=ZenohOptions)
     heartbeat_period: float = 0.5
     pose_rate: float = POSE_RATE
     node_id: int = 254
     """The bridge's own CAN node ID on the bus."""
-    zenoh_mode: str = "peer"
     c_modules: tuple[int, ...] | str = ()
     """Simulated modules that run the C runtime (firmware/) instead of the Python one: IDs, or "odd", "even",
     "all"."""
@@ -70,10 +68,10 @@ class RobotOptions:
 class RealTimeLoop:
     """Steps a Simulation at the wall clock's pace on its own thread and publishes what viewers need."""
 
-    def __init__(self, sim: Simulation, publish: Any, status: RobotStatus, pose_rate: float) -> None:
+    def __init__(self, sim: Simulation, feed: RobotFeed, pose_rate: float) -> None:
         self.sim = sim
-        self._publish = publish
-        self.status = status
+        self.feed = feed
+        self.status = feed.status
         self.pose_rate = pose_rate
         self.frames = 0
         self._stop = threading.Event()
@@ -112,7 +110,7 @@ class RealTimeLoop:
                     self._behind(False)
                 self.status.time = sim.data.time
                 self.status.estop = sim.latched()
-                self._publish(status_key(self.status.robot), self.status.to_json())
+                self.feed.publish_status()
                 window_wall, window_sim = now, sim.data.time
             next_tick = sim.data.time + sim.steps_to_tick() * timestep  # a module tick is due then
             pose_due = next_pose if sim.data.time > posed else max(next_pose, wall0 + (sim.data.time + timestep - sim0))
@@ -125,14 +123,14 @@ class RealTimeLoop:
             if behind:
                 log.warning("the simulation cannot keep up with real time (real-time factor %.2f)",
                             self.status.real_time_factor or 0.0)  # fmt: skip
-            self._publish(status_key(self.status.robot), self.status.to_json())
+            self.feed.publish_status()
 
     def _send_poses(self) -> None:
         sim = self.sim
         with sim.lock:
             frame = PoseFrame(self.frames, sim.data.time, sim.data.xpos[1:].copy(), sim.data.xquat[1:].copy())
         self.frames += 1
-        self._publish(poses_key(self.status.robot), encode_poses(frame))
+        self.feed.publish_poses(encode_poses(frame))
 
     def close(self) -> None:
         self._stop.set()
@@ -146,14 +144,13 @@ class Robot:
         self.options = options
         self.sim: Simulation | None = None
         self.bridge: CanZenohBridge | None = None
+        self.feed: RobotFeed | None = None
         self.loop: RealTimeLoop | None = None
-        self._keep: list[Any] = []
-        self._publishers: dict[str, Any] = {}
         self._stop = threading.Event()
         self._status_timer: threading.Thread | None = None
         try:
             if options.can is None:
-                gait = load(options.sim or RobotOptions.sim)  # type: ignore[arg-type]
+                gait = load(options.sim or LIBRARY / "caterpillar.toml")
                 channel = f"asm-robot-{os.getpid()}-{id(self)}"
                 can_options: dict[str, Any] = {"interface": "asm_sim", "channel": channel}
 
@@ -164,51 +161,46 @@ class Robot:
 
                 self.sim = Simulation(gait, node_of=node_of, c_modules=select_modules(options.c_modules, gait),
                                       bus_options=can_options)  # fmt: skip
-                self.mjcf = self.sim.mjcf
             else:
                 can_options = dict(options.can)
             self.bridge = CanZenohBridge({**can_options, "heartbeat_period": options.heartbeat_period},
-                                         node_id=options.node_id, zenoh_mode=options.zenoh_mode,
-                                         zenoh_listen=options.zenoh_listen, zenoh_connect=options.zenoh_connect,
-                                         zenoh_config=options.zenoh_config, insecure=options.insecure)  # fmt: skip
-            session = self.bridge.session
+                                         robot=options.name, network=options.network,
+                                         node_id=options.node_id)  # fmt: skip
             modules = self.sim.gait.robot.modules if self.sim is not None else 0
             self.status = RobotStatus(options.name, "simulated" if self.sim else "real", modules,
                                       estop=[] if self.sim else None)  # fmt: skip
-            publishers = self._publishers
-
-            def publish(key: str, payload: bytes | str) -> None:
-                try:
-                    publisher = publishers.get(key)
-                    if publisher is None:
-                        publisher = publishers[key] = session.declare_publisher(key, express=True)
-                    publisher.put(payload)
-                except zenoh.ZError as exc:  # closing: the session or the publisher is gone
-                    log.debug("not published on %s: %s", key, exc)
-
-            self._publish = publish
+            sim = self.sim
+            refresh = None if sim is None else lambda status: setattr(status, "estop", sim.latched())
+            self.feed = RobotFeed(self.bridge.session, self.status, sim.mjcf if sim else None, refresh)
+            self.feed.publish_status()
             if self.sim is not None:
-                self._keep.append(session.declare_queryable(mjcf_key(options.name), self._answer_mjcf))
-                self.loop = RealTimeLoop(self.sim, publish, self.status, options.pose_rate)
-            else:
-                self._status_timer = threading.Thread(target=self._report, name="asm-robot-status", daemon=True)
-                self._status_timer.start()
+                self.loop = RealTimeLoop(self.sim, self.feed, options.pose_rate)
+            self._status_timer = threading.Thread(target=self._report, name="asm-robot-status", daemon=True)
+            self._status_timer.start()
         except BaseException:
             self.close()
             raise
 
-    def _answer_mjcf(self, query: zenoh.Query) -> None:
-        try:
-            query.reply(query.key_expr, self.mjcf)
-        finally:
-            query.drop()
+    @property
+    def mjcf(self) -> str | None:
+        return self.sim.mjcf if self.sim is not None else None
 
     def _report(self) -> None:
-        """A real robot's status, once a second (the modules on the bus, as the bridge sees them)."""
-        while not self._stop.wait(1.0):
-            assert self.bridge is not None
-            self.status.modules = len(self.bridge.bridged)
-            self._publish(status_key(self.status.robot), self.status.to_json())
+        """What the bridge knows, in the status: a real robot's modules once a second, and on both kinds the tables
+        not read yet (published at once when that changes)."""
+        while not self._stop.wait(0.25):
+            bridge, feed = self.bridge, self.feed
+            if bridge is None or feed is None:
+                return
+            unread = bridge.unread_tables
+            changed = unread != self.status.unread_tables
+            self.status.unread_tables = unread
+            if self.sim is None:
+                modules = len(bridge.bridged)
+                changed |= modules != self.status.modules
+                self.status.modules = modules
+            if changed or (self.sim is None and time.monotonic() % 1.0 < 0.25):
+                feed.publish_status()
 
     def close(self) -> None:
         if self.loop is not None:
@@ -218,12 +210,9 @@ class Robot:
         if self._status_timer is not None:
             self._status_timer.join(5)
             self._status_timer = None
-        for entity in self._keep:
-            entity.undeclare()
-        self._keep.clear()
-        for publisher in self._publishers.values():
-            publisher.undeclare()
-        self._publishers.clear()
+        if self.feed is not None:
+            self.feed.close()
+            self.feed = None
         if self.bridge is not None:
             self.bridge.close()
             self.bridge = None
@@ -261,11 +250,10 @@ def main(argv: list[str] | None = None) -> int:
     where.add_argument("--sim", type=input_file, metavar="FILE", help="simulate the robot of this gait file (default: "
                        "the caterpillar)")  # fmt: skip
     where.add_argument("--can", type=can_channel, metavar="INTERFACE:CHANNEL", help="a real bus: bridge its modules")
-    cli.add_argument("--bitrate", type=bitrate)
-    cli.add_argument("--fd", action="store_true", help="a real CAN FD bus (with --can)")
-    cli.add_argument("--node-id", type=node_id, default=254, help="the bridge's own CAN node ID (default 254)")
-    cli.add_argument("--zenoh-mode", default="peer", choices=["peer", "client"])
-    cli.add_argument("--name", type=name, default="robot", help="the robot's name in its Zenoh keys (default robot)")
+    add_bus_arguments(cli)
+    cli.add_argument(
+        "--name", type=name, default=DEFAULT_ROBOT, help="the robot's namespace on Zenoh, unique there (default robot)"
+    )
     add_zenoh_arguments(cli)
     cli.add_argument(
         "--c-modules",
@@ -280,11 +268,11 @@ def main(argv: list[str] | None = None) -> int:
         cli.error("--fd describes a real bus: use it with --can")
     if args.c_modules and args.can is not None:
         cli.error("--c-modules chooses simulated modules: use it with --sim")
-    check_zenoh_arguments(cli, args)
-    return run(cli.prog, lambda: _serve(args))
+    network = zenoh_options(cli, args)
+    return run(cli.prog, lambda: _serve(args, network))
 
 
-def _serve(args: argparse.Namespace) -> int:
+def _serve(args: argparse.Namespace, network: ZenohOptions) -> int:
     if args.parent_pid:
         die_with_parent(args.parent_pid)
     prefer_latency()
@@ -292,15 +280,13 @@ def _serve(args: argparse.Namespace) -> int:
     can_options = None if args.can is None else {**args.can, "fd": args.fd,
                                                  **({"bitrate": args.bitrate} if args.bitrate else {})}  # fmt: skip
     options = RobotOptions(sim=None if args.can else (args.sim or RobotOptions.sim), can=can_options, name=args.name,
-                           zenoh_listen=tuple(args.zenoh_listen), zenoh_connect=tuple(args.zenoh_connect),
-                           zenoh_config=args.zenoh_config, insecure=args.insecure, node_id=args.node_id,
-                           zenoh_mode=args.zenoh_mode, c_modules=args.c_modules)  # fmt: skip
+                           network=network, node_id=args.node_id, c_modules=args.c_modules)  # fmt: skip
     done = stop_requested()
-    robot = Robot(options)  # a bad gait file, a busy port or a missing bus: asm-robot: error: … (asm_py.cli.run)
+    robot = Robot(options)  # a bad gait file, a busy port, a taken name: asm-robot: error: … (asm_py.cli.run)
     kind = "simulated" if robot.sim is not None else f"CAN {args.can}"
     print(f"READY robot {args.name} ({kind}, {robot.status.modules} modules)", flush=True)
     done.wait()
-    robot.close()
+    close_in_time(robot.close, "asm-robot")
     return 0
 
 

@@ -1,14 +1,17 @@
-"""``asm-studio``: the dashboard, as a client of a robot — one command for everything.
+"""``asm-studio``: the dashboard, as a client of robots — one command for everything.
 
-By default the studio starts a simulated robot, ``asm-robot --sim GAIT`` (server/robot.py: the opened gait's robot
-in real-time MuJoCo physics, its modules on a CAN bus, the CAN↔Zenoh bridge), as a child process on a private
-loopback Zenoh link, and serves the page at http://127.0.0.1:8080. The child ends with the studio, even when the
-studio is killed. ``--can INTERFACE:CHANNEL`` starts ``asm-robot --can`` for a real bus instead; ``--robot
-ENDPOINT`` attaches to a robot process already running elsewhere (a robot's computer, or another machine's
-simulation) and starts nothing.
+By default the studio starts a simulated robot, ``asm-robot --sim GAIT --name robot`` (server/robot.py: the opened
+gait's robot in real-time MuJoCo physics, its modules on a CAN bus, the CAN↔Zenoh bridge), as a child process on a
+private loopback Zenoh link, and serves the page at http://127.0.0.1:8080. The child ends with the studio, even when
+the studio is killed; should the child die, the studio says so at once and starts it again. ``--can
+INTERFACE:CHANNEL`` starts ``asm-robot --can`` for a real bus instead; ``--robot ENDPOINT`` joins a Zenoh network
+(a router, or a robot's own endpoint) and starts nothing.
 
-The dashboard is an ordinary Zenoh ASM node named ``studio``: it reaches the modules only through the bridge, by
-lookup, get/set, services and subscriptions, like any tool. It hosts no module runtime.
+On a network the studio lists every robot (its name, simulated or real, module count, real-time factor, e-stop),
+attaches to one — ``--robot-name``, else its own, else the only one, else the first — and switches between them from
+the page. It is a *tool* of the robot it is attached to (asm_py.keys): node ``studio``, or ``studio-2``, … when
+another studio already watches that robot; ``--name`` insists on one name, and the studio refuses to start when it
+is taken. It reaches the modules only through ASM, like any tool; it hosts no module runtime.
 """
 
 from __future__ import annotations
@@ -22,7 +25,8 @@ import subprocess
 import sys
 import tempfile
 import threading
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -32,6 +36,7 @@ from asm_py import Node
 from asm_py.cli import (
     bitrate,
     can_channel,
+    close_in_time,
     input_file,
     module_selection,
     name,
@@ -40,16 +45,19 @@ from asm_py.cli import (
     stop_requested,
     zenoh_endpoint,
 )
-from asm_py.feed import RobotStatus, status_key
-from asm_py.transport.zenoh import ZenohTransport
+from asm_py.feed import RobotStatus
+from asm_py.keys import ALL_ROBOTS, DEFAULT_ROBOT, robot_of
+from asm_py.transport.zenoh import NameTaken
 from gaits.model import LIBRARY, Gait, dumps, loads
 from gaits.validate import read
 
-from .bridge import add_zenoh_arguments, check_zenoh_arguments
 from .realtime import prefer_latency
+from .zenoh_args import ZenohOptions, add_zenoh_arguments, zenoh_options
 
 log = logging.getLogger("asm_studio")
 ROBOT_START_TIMEOUT = 60.0
+STUDIO_NAME = "studio"
+FIND_ROBOT_TIMEOUT = 10.0
 
 
 @dataclass
@@ -59,16 +67,14 @@ class StudioOptions:
     can: dict[str, Any] | None = None
     """python-can options of a real bus (``asm-robot --can``); None: a simulated robot."""
     robot: str | None = None
-    """A Zenoh endpoint of a robot process already running: attach to it, start none."""
-    robot_name: str = "robot"
+    """A Zenoh endpoint (a router, or a robot process): join that network, start no robot."""
+    robot_name: str | None = None
+    """The robot to attach to (and the name of the studio's own robot, default ``robot``)."""
+    name: str | None = None
+    """The studio's node name; None: ``studio``, or the first of ``studio-2``, ``studio-3``, … that is free."""
     bitrate: int | None = None
-    zenoh_listen: tuple[str, ...] = ()
-    """More endpoints the robot listens on (so tools elsewhere reach the modules)."""
-    zenoh_connect: tuple[str, ...] = ()
-    zenoh_config: str | None = None
-    """A Zenoh JSON5 configuration file (TLS, access control) for the robot and the studio's own session."""
-    insecure: bool = False
-    """Allow the robot to listen beyond loopback without TLS and access control."""
+    network: ZenohOptions = field(default_factory=ZenohOptions)
+    """The Zenoh options: with ``robot``, the studio's own; else its robot's (more endpoints, a router, TLS)."""
     host: str = "127.0.0.1"
     port: int = 8080
     view: str = "preview"
@@ -87,14 +93,14 @@ def free_loopback_port() -> int:
 
 
 class RobotChild:
-    """An ``asm-robot`` child process on a private loopback endpoint; it dies with this process."""
+    """An ``asm-robot`` child process; it dies with this process."""
 
-    def __init__(self, args: list[str], endpoint: str) -> None:
-        self.endpoint = endpoint
+    def __init__(self, args: list[str]) -> None:
+        self.args = args
         env = {**os.environ, "PYTHONUNBUFFERED": "1"}
-        self.popen = subprocess.Popen([sys.executable, "-m", "server.robot", "--zenoh-listen", endpoint,
-                                       "--parent-pid", str(os.getpid()), *args], stdout=subprocess.PIPE,
-                                      stderr=subprocess.STDOUT, text=True, env=env)  # fmt: skip
+        self.popen = subprocess.Popen([sys.executable, "-m", "server.robot", "--parent-pid", str(os.getpid()), *args],
+                                      stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                                      env=env)  # fmt: skip
         self.output: list[str] = []
         self._lines: queue.Queue[str | None] = queue.Queue()
         self._reader = threading.Thread(target=self._read, name="robot-output", daemon=True)
@@ -122,11 +128,15 @@ class RobotChild:
             if line.startswith("READY robot"):
                 return
 
+    def exit_code(self) -> int | None:
+        """The child's exit code once it has ended, else None."""
+        return self.popen.poll()
+
     def stop(self) -> None:
         if self.popen.poll() is None:
             self.popen.terminate()
             try:
-                self.popen.wait(15)
+                self.popen.wait(6)
             except subprocess.TimeoutExpired:
                 self.popen.kill()
                 self.popen.wait(5)
@@ -134,114 +144,215 @@ class RobotChild:
 
 
 class Studio:
-    """The backend: the robot (a child process, or one attached to), the dashboard's node and the web app."""
+    """The backend: the robots (a child process of its own, or a network's), the page's links and the web app."""
 
     def __init__(self, options: StudioOptions) -> None:
         self.options = options
-        self.robot_name = options.robot_name
         self.c_modules = options.c_modules
         raw = read(options.gait)  # once: the gait, and its text for a download that keeps its comments
         self.gait: Gait = loads(raw, source=str(options.gait))
         self.gait_text: str | None = raw.decode("utf-8-sig")  # it decoded as the gait above
         self.child: RobotChild | None = None
-        self.node: Node | None = None
-        self.app: Any = None
-        self.token: str | None = None
+        self.own_robot: str | None = None
+        """The name of the robot this studio started (and restarts should it die); None when attached."""
         self.robot_gait: Gait | None = None
         """The gait whose robot the simulated child runs (None when the robot is not ours to rebuild)."""
+        self.session: zenoh.Session | None = None
+        self.app: Any = None
+        self.token: str | None = None
         self._gait_file: Path | None = None
+        self._child_endpoint: str | None = None
+        self._notices: list[Callable[[str, str, bool], None]] = []
+        self._stop = threading.Event()
+        self._child_lock = threading.Lock()
+        self._watcher: threading.Thread | None = None
+        self._link: Any = None
         try:
-            endpoint = options.robot or self._start_robot(self.gait)
-            self.node = Node("studio", ZenohTransport(connect=[endpoint], config_file=options.zenoh_config))
-            self.status = self.read_status(timeout=10.0)
-            self.simulated = self.status.mode == "simulated"
+            self.network = self._start_robot(self.gait) if options.robot is None else self._join(options.robot)
+            self.session = self.network.open()
+            robot = options.robot_name or self.own_robot or self._find_robot()
             from web.app import Dashboard  # viser loads only for the studio
             from web.guard import is_loopback, new_token
 
+            self._link = self.connect(robot)  # the page's, once it is built; closed here if it cannot be
+            self.status = self._wait_status(self._link.feed, timeout=10.0)
             self.token = options.token or (None if is_loopback(options.host) else new_token())
-            self.app = Dashboard(self, host=options.host, port=options.port, token=self.token)
+            self.app = Dashboard(self, self._link, host=options.host, port=options.port, token=self.token)
+            self._link = None
             self.app.show(options.view)
+            if self.child is not None:
+                self._watcher = threading.Thread(target=self._watch_child, name="studio-robot-watch", daemon=True)
+                self._watcher.start()
         except BaseException:
             self.close()
             raise
 
+    # -- the robots -----------------------------------------------------------------------------------------------
+
+    def _join(self, endpoint: str) -> ZenohOptions:
+        network = self.options.network
+        return network if endpoint in network.connect else network.with_(connect=(endpoint, *network.connect))
+
     def _robot_args(self, gait: Gait) -> list[str]:
         options = self.options
-        args = ["--name", options.robot_name]
+        args = ["--name", self.own_robot or DEFAULT_ROBOT]
         if options.can is not None:
             args += ["--can", f"{options.can['interface']}:{options.can['channel']}"]
             if options.bitrate:
                 args += ["--bitrate", str(options.bitrate)]
         else:
             if self._gait_file is None:
-                handle, name = tempfile.mkstemp(prefix="asm-studio-robot-", suffix=".toml")
+                handle, path = tempfile.mkstemp(prefix="asm-studio-robot-", suffix=".toml")
                 os.close(handle)
-                self._gait_file = Path(name)
+                self._gait_file = Path(path)
             self._gait_file.write_text(dumps(gait))
             args += ["--sim", str(self._gait_file)]
             if options.c_modules:
                 args += ["--c-modules", options.c_modules]
             self.robot_gait = gait
-        for endpoint in options.zenoh_listen:
-            args += ["--zenoh-listen", endpoint]
-        for endpoint in options.zenoh_connect:
-            args += ["--zenoh-connect", endpoint]
-        if options.zenoh_config:
-            args += ["--zenoh-config", options.zenoh_config]
-        if options.insecure:
-            args.append("--insecure")
-        return args
+        network = options.network
+        if network.mode == "peer":  # a private loopback endpoint for this studio, beside any the user gave
+            assert self._child_endpoint is not None
+            network = network.with_(listen=(self._child_endpoint, *network.listen))
+        return args + network.args()
 
-    def _start_robot(self, gait: Gait) -> str:
-        endpoint = f"tcp/127.0.0.1:{free_loopback_port()}"
-        self.child = RobotChild(self._robot_args(gait), endpoint)
-        return endpoint
+    def _start_robot(self, gait: Gait) -> ZenohOptions:
+        """Start the studio's own robot; the Zenoh options that reach it."""
+        self.own_robot = self.options.robot_name or DEFAULT_ROBOT
+        network = self.options.network
+        if network.mode == "peer":
+            self._child_endpoint = f"tcp/127.0.0.1:{free_loopback_port()}"
+            network = network.with_(listen=(), connect=(self._child_endpoint, *network.connect))
+        self.child = RobotChild(self._robot_args(gait))
+        return network
 
-    def read_status(self, timeout: float = 5.0) -> RobotStatus:
-        """The robot's status, as it publishes it (waits for the next publication)."""
-        assert self.node is not None
-        session: zenoh.Session = self.node.transport.session  # type: ignore[attr-defined]
-        box: queue.Queue[bytes] = queue.Queue()
-        subscriber = session.declare_subscriber(status_key(self.options.robot_name),
-                                                lambda sample: box.put(sample.payload.to_bytes()))  # fmt: skip
-        try:
-            return RobotStatus.from_json(box.get(timeout=timeout))
-        except queue.Empty:
-            raise RuntimeError(f"no status from robot {self.options.robot_name!r} within {timeout:g} s") from None
-        finally:
-            subscriber.undeclare()
+    def robots(self, timeout: float = 1.0) -> list[RobotStatus]:
+        """The robots on the network, by name, as their processes answer now."""
+        assert self.session is not None
+        found: dict[str, RobotStatus] = {}
+        for reply in self.session.get(ALL_ROBOTS.robot_key("status"), timeout=timeout):
+            if reply.ok is None:
+                continue
+            try:
+                status = RobotStatus.from_json(reply.ok.payload.to_bytes())
+            except ValueError:
+                continue
+            if status.robot == robot_of(str(reply.ok.key_expr)):  # a reply under its own key, naming itself
+                found[status.robot] = status
+        return [found[n] for n in sorted(found)]
+
+    def _find_robot(self) -> str:
+        """The robot to attach to when none was named: the only one on the network, else the first by name."""
+        deadline = threading.Event()
+        for _ in range(int(FIND_ROBOT_TIMEOUT / 0.5)):
+            robots = self.robots()
+            if robots:
+                return robots[0].robot
+            deadline.wait(0.5)
+        raise RuntimeError(f"no robot answered on this network within {FIND_ROBOT_TIMEOUT:g} s")
+
+    def connect(self, robot: str) -> Any:
+        """A new link to robot ``robot``: the page's own node, a tool of that robot (web/link.py)."""
+        from web.link import RobotLink
+
+        names = [self.options.name] if self.options.name else [STUDIO_NAME, *(f"{STUDIO_NAME}-{k}" for k in
+                                                                              range(2, 100))]  # fmt: skip
+        for candidate in names:
+            try:
+                node = Node(candidate, self.network.transport(robot=robot, role="tool"))
+            except NameTaken:
+                if self.options.name:
+                    raise
+                continue
+            return RobotLink(node)
+        raise RuntimeError(f"no free studio name in robot {robot!r}")
+
+    @staticmethod
+    def _wait_status(feed: Any, timeout: float) -> RobotStatus:
+        waited = threading.Event()
+        for _ in range(int(timeout / 0.05)):
+            if feed.status is not None:
+                return feed.status
+            waited.wait(0.05)
+        raise RuntimeError(f"no status from robot {feed.name!r} within {timeout:g} s")
+
+    def on_notice(self, callback: Callable[[str, str, bool], None]) -> None:
+        """Call ``callback(title, text, error)`` with what the backend has to say (its robot died, restarted)."""
+        self._notices.append(callback)
+
+    def _notice(self, title: str, text: str, error: bool = False) -> None:
+        log.warning("%s: %s", title, text) if error else log.info("%s: %s", title, text)
+        for callback in list(self._notices):
+            try:
+                callback(title, text, error)
+            except Exception:
+                log.exception("a notice could not be shown")
+
+    def _watch_child(self) -> None:
+        """Start the studio's own robot again should it die (a notice at once, and when it is back)."""
+        while not self._stop.wait(0.1):
+            with self._child_lock:
+                child = self.child
+                code = child.exit_code() if child is not None else None
+                if child is None or code is None:
+                    continue
+                tail = "".join(child.output[-3:]).strip().replace("\n", " / ")
+                self._notice("Robot lost", f"the simulated robot process ended (exit code {code}); restarting it"
+                             + (f" — its last words: {tail[-200:]}" if tail else ""), True)  # fmt: skip
+                try:
+                    self.child = RobotChild(child.args)
+                except Exception as exc:
+                    self.child = None
+                    self._notice("Robot lost", f"the simulated robot could not be restarted: {exc}", True)
+                    return
+            self._notice("Robot restarted", "the simulated robot is back, its modules holding 0°: deploy a gait "
+                         "to run one")  # fmt: skip
 
     def ensure_robot(self, gait: Gait) -> str | None:
         """Make the simulated robot the one ``gait`` describes (a new child when it differs); a message saying what
         changed, or None. On a robot that is not ours to rebuild, ValueError when the module counts differ."""
-        if self.robot_gait is None:
-            modules = self.read_status().modules
+        running = self.robot_gait
+        if running is None or self.app is None or self.app.link.robot != self.own_robot:
+            status = self.app.link.status if self.app is not None else None
+            modules = status.modules if status is not None else 0
             if modules and modules != gait.robot.modules:
                 raise ValueError(f"the robot has {modules} modules; this gait needs {gait.robot.modules}")
             return None
-        running = self.robot_gait
         if (gait.robot, gait.ground, gait.limits) == (running.robot, running.ground, running.limits):
             return None
         before = running.robot.modules
-        assert self.child is not None
-        self.child.stop()
-        self.child = RobotChild(self._robot_args(gait), self.child.endpoint)
+        with self._child_lock:
+            assert self.child is not None
+            self.child.stop()
+            self.child = RobotChild(self._robot_args(gait))
         return f"simulated robot rebuilt: {before} → {gait.robot.modules} modules"
+
+    @property
+    def simulated(self) -> bool:
+        status = self.app.link.status if self.app is not None else self.status
+        return status is not None and status.mode == "simulated"
 
     @property
     def port(self) -> int:
         return self.app.port if self.app is not None else self.options.port
 
     def close(self) -> None:
+        self._stop.set()
+        if self._watcher is not None:
+            self._watcher.join(5)
         if self.app is not None:
             self.app.close()
             self.app = None
-        if self.node is not None:
-            self.node.close()
-            self.node = None
-        if self.child is not None:
-            self.child.stop()
-            self.child = None
+        if self._link is not None:
+            self._link.close()
+            self._link = None
+        if self.session is not None:
+            self.session.close()
+            self.session = None
+        with self._child_lock:
+            if self.child is not None:
+                self.child.stop()
+                self.child = None
         if self._gait_file is not None:
             self._gait_file.unlink(missing_ok=True)
             self._gait_file = None
@@ -254,10 +365,11 @@ def main(argv: list[str] | None = None) -> int:
     where = cli.add_mutually_exclusive_group()
     where.add_argument("--can", type=can_channel, metavar="INTERFACE:CHANNEL", help="a real CAN bus instead of a "
                        "simulated robot, e.g. socketcan:can0 (starts asm-robot --can)")  # fmt: skip
-    where.add_argument("--robot", type=zenoh_endpoint, metavar="ENDPOINT", help="attach to a robot process already "
-                       "running, e.g. tcp/192.0.2.5:7447 (with --zenoh-config for TLS); starts none")  # fmt: skip
-    cli.add_argument("--robot-name", type=name, default="robot",
-                     help="the robot's name in its Zenoh keys (default robot)")  # fmt: skip
+    where.add_argument("--robot", type=zenoh_endpoint, metavar="ENDPOINT", help="join the Zenoh network of this "
+                       "router or robot, e.g. tcp/192.0.2.5:7447 (TLS: --zenoh-config); starts no robot")  # fmt: skip
+    cli.add_argument("--robot-name", type=name, help="the robot to attach to (default: the studio's own, named "
+                     "robot; with --robot, the only or first one on the network)")  # fmt: skip
+    cli.add_argument("--name", type=name, help="the studio's node name (default studio, or studio-2, … if taken)")
     cli.add_argument("--bitrate", type=bitrate)
     add_zenoh_arguments(cli, listen_help="more endpoints the robot listens on, for tools elsewhere")
     cli.add_argument("--no-zenoh", action="store_true", help="accepted for compatibility: the robot's Zenoh link "
@@ -269,10 +381,12 @@ def main(argv: list[str] | None = None) -> int:
     cli.add_argument("--c-modules", type=module_selection, metavar="IDS", help="simulated modules that run the C "
                      "runtime (firmware/), in the robot and the preview: IDs as 1,3,5, or odd, even, all")  # fmt: skip
     args = cli.parse_args(argv)
-    check_zenoh_arguments(cli, args)
+    if args.robot:  # the network to join is the robot's (or its router's): every session of the studio connects
+        args.zenoh_connect = [args.robot, *args.zenoh_connect]
+    network = zenoh_options(cli, args)
     if args.c_modules and (args.can or args.robot):
         cli.error("--c-modules chooses simulated modules of the studio's own robot: not with --can or --robot")
-    return run(cli.prog, lambda: _serve(args))
+    return run(cli.prog, lambda: _serve(args, network))
 
 
 def _selection_text(selection: tuple[int, ...] | str | None) -> str | None:
@@ -281,24 +395,23 @@ def _selection_text(selection: tuple[int, ...] | str | None) -> str | None:
     return selection if isinstance(selection, str) else ",".join(map(str, selection))
 
 
-def _serve(args: argparse.Namespace) -> int:
+def _serve(args: argparse.Namespace, network: ZenohOptions) -> int:
     prefer_latency()
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
     options = StudioOptions(gait=args.gait, can=args.can, robot=args.robot, robot_name=args.robot_name,
-                            bitrate=args.bitrate, zenoh_listen=tuple(args.zenoh_listen),
-                            zenoh_connect=tuple(args.zenoh_connect), zenoh_config=args.zenoh_config,
-                            insecure=args.insecure, host=args.host, port=args.port, view=args.view,
-                            c_modules=_selection_text(args.c_modules))  # fmt: skip
+                            name=args.name, bitrate=args.bitrate, network=network, host=args.host, port=args.port,
+                            view=args.view, c_modules=_selection_text(args.c_modules))  # fmt: skip
     done = stop_requested()
     studio = Studio(options)  # a bad gait file, a busy port, no robot: asm-studio: error: … (asm_py.cli.run)
-    where = "simulated robot" if studio.simulated else f"robot {args.robot or args.can}"
+    link = studio.app.link
+    where = f"simulated robot {link.robot}" if studio.child else f"robot {link.robot} via {args.robot or args.can}"
     query = f"/?token={studio.token}" if studio.token else ""
     print(f"READY studio http://{args.host}:{studio.port}{query} ({where})", flush=True)
     if studio.token:
         print("The page is served beyond this machine: open it with the token above (it is asked once, then kept "
               "in a cookie).", flush=True)  # fmt: skip
     done.wait()
-    studio.close()
+    close_in_time(studio.close, "asm-studio")
     return 0
 
 

@@ -15,6 +15,7 @@ from asm_py.transport.can import CanTransport
 from asm_py.transport.zenoh import ZenohTransport
 from server.bridge import CanZenohBridge
 from server.heap import MALLOC_TRIM, HeapTrimmer
+from server.zenoh_args import ZenohOptions
 
 from .helpers import wait_until
 from .processes import Process
@@ -45,7 +46,7 @@ def can_world() -> Iterator[tuple[Node, Node, CanZenohBridge, dict]]:
             module.register(obj, class_name=cls)
         angle.publish()
         objects[module.name] = {"angle": angle, "goal": goal, "gait": gait, "contact": contact}
-    bridge = CanZenohBridge(can_options, zenoh_listen=[endpoint])
+    bridge = CanZenohBridge(can_options, network=ZenohOptions(listen=(endpoint,)))
     client = Node("dashboard", ZenohTransport(connect=[endpoint]))
     try:
         assert wait_until(lambda: {"m1", "m2"} <= set(client.discover()), timeout=10)

@@ -97,27 +97,31 @@ def test_deploying_another_robot_resizes_the_simulated_modules(studio):
     assert app.doc.gait().robot.modules == 12
     gait = app.doc.gait()
     app.deployer.start(gait, app.deployer.stage(gait))  # Deploy, then Start in the dialog that follows
-    assert studio.read_status().modules == 12
-    assert wait_until(lambda: all(app.node.lookup(f"m{i}", "gait.service", timeout=2).running for i in (1, 12)), 20)
+    assert wait_until(lambda: app.link.status.modules == 12, 20)
+    assert wait_until(
+        lambda: all(app.link.node.lookup(f"m{i}", "gait.service", timeout=2).running for i in (1, 12)), 20
+    )
     app.editor.modules.value = 6
     gait = app.doc.gait()
     report = app.deployer.stage(gait)
-    assert not any(app.node.lookup(f"m{i}", "gait.service", timeout=2).running for i in range(1, 7))  # nothing moves
+    assert not any(
+        app.link.node.lookup(f"m{i}", "gait.service", timeout=2).running for i in range(1, 7)
+    )  # nothing moves
     app.deployer.start(gait, report)
-    assert studio.read_status().modules == 6
+    assert wait_until(lambda: app.link.status.modules == 6, 20)
     assert "simulated robot rebuilt: 12 → 6 modules" in app.deployer.log_html.content
-    assert wait_until(lambda: [n for n, _, _ in app.roster.rows()] == [f"m{i}" for i in range(1, 7)], 20)
+    assert wait_until(lambda: [n for n, _, _ in app.link.roster.rows()] == [f"m{i}" for i in range(1, 7)], 20)
 
 
 def test_the_attribute_browser_gives_each_type_its_input(studio):
     app = studio.app
-    assert wait_until(lambda: "m1" in app.browse_module.options, timeout=10)
-    app.browse_module.value = "m1"
-    app._list()
+    assert wait_until(lambda: "m1" in app.monitor.browse_module.options, timeout=10)
+    app.monitor.browse_module.value = "m1"
+    app.monitor.list_objects()
     kinds = {}
     for name in ("joint.goal", "estop", "joint.limits", "gait.table", "gait.service", "gait.checksum"):
-        app.browse_object.value = name  # the user's choice builds the input
-        kinds[name] = (type(app._value_input.handle).__name__, app._value_input.kind)
+        app.monitor.browse_object.value = name  # the user's choice builds the input
+        kinds[name] = (type(app.monitor._value_input.handle).__name__, app.monitor._value_input.kind)
     assert kinds == {
         "joint.goal": ("GuiNumberHandle", "float"),
         "estop": ("GuiCheckboxHandle", "bool"),
@@ -128,30 +132,30 @@ def test_the_attribute_browser_gives_each_type_its_input(studio):
     }
 
     def remote(name: str):  # read back from the module, as any other tool would
-        return app.node.lookup("m1", name, timeout=5)
+        return app.link.node.lookup("m1", name, timeout=5)
 
-    app.browse_object.value = "joint.limits"
-    app._value_input.handle.value = (-30.0, 45.0)
-    app._value_input.write()
+    app.monitor.browse_object.value = "joint.limits"
+    app.monitor._value_input.handle.value = (-30.0, 45.0)
+    app.monitor._value_input.write()
     assert remote("joint.limits").peek() == (-30.0, 45.0)
-    app.browse_object.value = "joint.goal"
-    app._value_input.handle.value = 60.0
-    app._value_input.write()
+    app.monitor.browse_object.value = "joint.goal"
+    app.monitor._value_input.handle.value = 60.0
+    app.monitor._value_input.write()
     assert remote("joint.goal").peek() == 45.0  # the module clamps to its limits, whatever the page sends
-    assert app._value_input.refresh() == 45.0 and app._value_input.handle.value == 45.0
-    app.browse_object.value = "gait.service"
-    app._value_input.handle.value = True
-    app._value_input.write()
+    assert app.monitor._value_input.refresh() == 45.0 and app.monitor._value_input.handle.value == 45.0
+    app.monitor.browse_object.value = "gait.service"
+    app.monitor._value_input.handle.value = True
+    app.monitor._value_input.write()
     assert wait_until(lambda: remote("gait.service").running, 5)
-    app._value_input.handle.value = False
-    app._value_input.write()
+    app.monitor._value_input.handle.value = False
+    app.monitor._value_input.write()
     assert wait_until(lambda: not remote("gait.service").started, 5)
 
 
 def test_a_failing_action_becomes_a_notification(studio):
     app = studio.app
-    app.browse_module.value = "nobody"
-    app.safe(lambda _: app._list())(None)
+    app.monitor.browse_module.value = "nobody"
+    app.safe(lambda _: app.monitor.list_objects())(None)
     assert app.status.content.startswith("**Error**")
 
 
@@ -180,12 +184,12 @@ def test_a_failing_grid_edit_becomes_a_notification(studio):
 def test_every_plot_is_against_seconds_with_units_and_the_live_window_is_chosen(studio):
     """uPlot takes an x axis as UNIX dates unless told otherwise: the page showed "1/1/70 12:00am" for 0 s."""
     app = studio.app
-    for plot in (app.angles, app.lives[0].handle, app.editor.expanded):
+    for plot in (app.preview.angles, app.monitor.lives[0].handle, app.editor.expanded):
         assert plot.scales == {"x": {"time": False}}
         assert plot.axes[0]["label"] == "time (s)" and plot.axes[1]["label"]
-    assert app.plot.window == 10.0
-    app.window.value = "300"  # as the page's dropdown sets it
-    assert app.plot.window == 300.0
+    assert app.monitor.plot.window == 10.0
+    app.monitor.window.value = "300"  # as the page's dropdown sets it
+    assert app.monitor.plot.window == 300.0
 
 
 def test_one_toast_per_distinct_problem_and_the_status_line_is_always_current(studio):
@@ -242,7 +246,7 @@ def test_clicking_a_module_in_3d_selects_it_in_the_editor_the_plot_and_the_brows
             break
     else:
         raise AssertionError("no piece of body b5 in the scene")
-    assert app.editor.module_index.value == 5 and app.plot_module.value == 5
+    assert app.editor.module_index.value == 5 and app.preview.plot_module.value == 5
     assert "Selected module 5" in app.status.content
     assert (app.editor.control.image[4 * 12, 10] == (255, 170, 0)).all()  # the control table frames module 5
 
@@ -251,17 +255,17 @@ def test_the_live_plot_can_be_paused_and_resumed(studio):
     import numpy as np
 
     app = studio.app
-    app.plot.series[("m1", "joint.angle")] = deque([(0.0, 1.0), (1.0, 2.0)])
-    app.plot.t0 -= 1.0  # the samples are recent
-    assert wait_until(lambda: len(app.lives[0].handle.data[0]) == 2, timeout=10)
-    app.freeze.value = True
-    app.plot.series[("m1", "joint.angle")].append((1.5, 3.0))
+    app.monitor.plot.series[("m1", "joint.angle")] = deque([(0.0, 1.0), (1.0, 2.0)])
+    app.monitor.plot.t0 -= 1.0  # the samples are recent
+    assert wait_until(lambda: len(app.monitor.lives[0].handle.data[0]) == 2, timeout=10)
+    app.monitor.freeze.value = True
+    app.monitor.plot.series[("m1", "joint.angle")].append((1.5, 3.0))
     time.sleep(0.5)  # ten refreshes
-    assert len(app.lives[0].handle.data[0]) == 2  # held still
-    app.freeze.value = False
-    assert wait_until(lambda: len(app.lives[0].handle.data[0]) == 3, timeout=10)
-    assert np.asarray(app.lives[0].handle.data[1])[-1] == 3.0
-    app.plot.unwatch_all()
+    assert len(app.monitor.lives[0].handle.data[0]) == 2  # held still
+    app.monitor.freeze.value = False
+    assert wait_until(lambda: len(app.monitor.lives[0].handle.data[0]) == 3, timeout=10)
+    assert np.asarray(app.monitor.lives[0].handle.data[1])[-1] == 3.0
+    app.monitor.plot.unwatch_all()
 
 
 def test_each_module_is_labelled_at_its_joint_in_the_3d_view(studio):
@@ -288,18 +292,19 @@ def test_the_studio_deploys_to_and_estops_a_robot_whose_odd_modules_run_in_c() -
         app = studio.app
         assert sorted(app.loop.sim.c_modules) == [1, 3, 5, 7], "the preview runs the same modules in C"
         assert wait_until(lambda: len({round(f.goals[2], 1) for f in list(app.loop.frames)}) > 5, 20), "and they move"
-        assert wait_until(lambda: len(app.modules()) == 8, 20)
+        assert wait_until(lambda: len(app.link.alive_modules()) == 8, 20)
         gait = app.doc.gait()
         app.deployer.start(gait, app.deployer.stage(gait))  # Deploy, then Start in the dialog that follows
-        running = lambda: [app.node.lookup(f"m{i}", "gait.service", timeout=2).running for i in range(1, 9)]  # noqa: E731
+        running = lambda: [app.link.node.lookup(f"m{i}", "gait.service", timeout=2).running for i in range(1, 9)]  # noqa: E731
         assert wait_until(lambda: all(running()), 20)
-        goal = app.node.lookup("m3", "joint.goal", timeout=2)  # a C module: its gait moves its goal
+        goal = app.link.node.lookup("m3", "joint.goal", timeout=2)  # a C module: its gait moves its goal
         first = goal.peek()
         assert wait_until(lambda: abs(goal.peek() - first) > 1.0, 10)
-        app._on_estop(None)  # the E-STOP button's callback
-        assert wait_until(lambda: len(studio.read_status().estop or []) == 8, 10), "every module latched, C too"
+        assert app.bar.press_estop() is None  # the E-STOP button's callback
+        assert wait_until(lambda: len(app.link.status.estop or []) == 8, 10), "every module latched, C too"
+        assert "latched on 8 of 8 modules (read back)" in app.status.content
         assert not any(running())
-        app._release(app.modules())
-        assert wait_until(lambda: not studio.read_status().estop, 10)
+        app.bar._release(app.link.modules())
+        assert wait_until(lambda: not app.link.status.estop, 10)
     finally:
         studio.close()

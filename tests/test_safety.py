@@ -29,7 +29,9 @@ from asm_py.transport.can import CanTransport
 from asm_py.transport.zenoh import ZenohTransport
 from gaits.deploy import DeployError, deploy, module_name, start_all
 from gaits.model import LIBRARY, load
-from server.bridge import MAX_BLOCK, REPLY_MARGIN, CanZenohBridge
+from server.bridge import CanZenohBridge
+from server.bridge_clients import MAX_BLOCK, REPLY_MARGIN
+from server.zenoh_args import ZenohOptions
 
 from .helpers import wait_until
 from .transports import free_port, fresh_name
@@ -100,7 +102,7 @@ def robot() -> Iterator[Robot]:
 def bridged(robot: Robot, **options) -> Iterator[tuple[CanZenohBridge, str]]:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     bridge = CanZenohBridge({"interface": "asm_sim", "channel": robot.channel, **robot.options},
-                            zenoh_listen=[endpoint], **options)  # fmt: skip
+                            network=ZenohOptions(listen=(endpoint,)), **options)  # fmt: skip
     try:
         yield bridge, endpoint
     finally:
@@ -185,10 +187,12 @@ def test_an_oversized_request_is_refused_at_the_bridge_before_any_frame(robot: R
         listener = can.Bus(interface="asm_sim", channel=robot.channel)
         # 60 KB: refused by the bridge with a status (beyond 64 KiB, Zenoh drops a message at the link)
         request = encode(Message(Kind.REQUEST_REPLY, Method.SET, 5, 0x20, 1, data=bytes(60_000)))
-        replies = list(session.get("asm/m1/req/flooder", payload=request, timeout=5))
+        replies = list(session.get("asm/robot/m1/req/flooder", payload=request, timeout=5))
         reply = decode(replies[0].ok.payload.to_bytes())
         assert reply.status == Status.TOO_LARGE and reply.txn == 5
-        session.put("asm/m1/msg/flooder", encode(Message(Kind.REQUEST, Method.SET, 0, 0x20, 1, data=bytes(70000))))
+        session.put(
+            "asm/robot/m1/msg/flooder", encode(Message(Kind.REQUEST, Method.SET, 0, 0x20, 1, data=bytes(70000)))
+        )
         time.sleep(0.2)
         from_clients = []
         while (frame := listener.recv(timeout=0)) is not None:
@@ -345,7 +349,7 @@ def test_the_bridge_caps_queries_that_are_never_answered(robot: Robot) -> None:
 
         for txn in range(60):  # "wait forever" (0xFF): the bridge caps it and keeps at most 4 for this client
             wait = encode(Message(Kind.REQUEST_REPLY, Method.WAIT, txn, blocker_class(robot), object_id, timeout=0xFF))
-            session.get("asm/m1/req/hog", on_reply, payload=wait, timeout=1.0)
+            session.get("asm/robot/m1/req/hog", on_reply, payload=wait, timeout=1.0)
         assert wait_until(lambda: len(statuses) >= 56, 5), statuses
         assert bridge.pending == bridge.max_pending_per_client
         assert set(statuses) == {Status.BUSY}
@@ -361,13 +365,16 @@ def blocker_class(robot: Robot) -> int:
 
 
 def test_two_clients_with_one_name_never_get_each_others_replies(robot: Robot) -> None:
+    """Names are unique inside a robot, but a tool of another robot may carry the same name (``~studio``) into this
+    one's keys: the bridge tells the two sessions apart by their session IDs."""
     robot.runtimes[0].goal.set(12.5)
     robot.runtimes[0].phase.set(0.75)
-    with bridged(robot) as (_, endpoint), zenoh_client("studio", endpoint) as a, zenoh_client("studio", endpoint) as b:
+    with bridged(robot) as (_, endpoint), zenoh_client("studio", endpoint) as a:
+        b = Node("studio", ZenohTransport(robot="elsewhere", connect=[endpoint]))
         wrong: list[object] = []
 
-        def read(client: Node, name: str, expected: float) -> None:
-            obj = client.lookup("m1", name, timeout=5)
+        def read(client: Node, address: str, name: str, expected: float) -> None:
+            obj = client.lookup(address, name, timeout=5)
             for _ in range(300):
                 try:
                     value = obj.get()
@@ -376,12 +383,15 @@ def test_two_clients_with_one_name_never_get_each_others_replies(robot: Robot) -
                 if value != expected:
                     wrong.append((name, value))
 
-        threads = [threading.Thread(target=read, args=(a, "joint.goal", 12.5)),
-                   threading.Thread(target=read, args=(b, "gait.phase", 0.75))]  # fmt: skip
-        for thread in threads:
-            thread.start()
-        for thread in threads:
-            thread.join(60)
+        threads = [threading.Thread(target=read, args=(a, "m1", "joint.goal", 12.5)),
+                   threading.Thread(target=read, args=(b, "robot/m1", "gait.phase", 0.75))]  # fmt: skip
+        try:
+            for thread in threads:
+                thread.start()
+            for thread in threads:
+                thread.join(60)
+        finally:
+            b.close()
         assert wrong == []
 
 
@@ -490,10 +500,10 @@ oversized = encode(Message(Kind.REQUEST_REPLY, Method.SET, 1, 0x27, 0, timeout=0
 end = time.monotonic() + float(sys.argv[2])
 while time.monotonic() < end:
     for module in range(1, 9):
-        session.put(f"asm/m{module}/msg/flooder", huge)
-        session.put(f"asm/m{module}/msg/flooder", largest)
-    session.put("asm/@group/all/msg/flooder", largest)
-    session.get("asm/m1/req/flooder", lambda reply: None, payload=oversized, timeout=30.0)
+        session.put(f"asm/robot/m{module}/msg/flooder", huge)
+        session.put(f"asm/robot/m{module}/msg/flooder", largest)
+    session.put("asm/robot/@group/all/msg/flooder", largest)
+    session.get("asm/robot/m1/req/flooder", lambda reply: None, payload=oversized, timeout=30.0)
     time.sleep(0.02)
 print("FLOODED", flush=True)
 session.close()

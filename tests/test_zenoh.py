@@ -42,14 +42,14 @@ def router() -> Iterator[str]:
 
 
 def test_client_mode_nodes_talk_through_a_router(router: str) -> None:
-    module = Node("module", ZenohTransport(mode="client", connect=[router]))
+    module = Node("module", ZenohTransport(mode="client", connect=[router], role="module"))
     tool = Node("tool", ZenohTransport(mode="client", connect=[router]))
     angle = Attribute("joint.angle", 0.25, codec="float32")
     idle = Idle("idle")
     try:
         module.register(angle)
         module.register(idle, class_name="gait.service")
-        assert wait_until(lambda: {"module", "tool"} <= set(tool.discover()), timeout=10)
+        assert wait_until(lambda: {"module", "~tool"} <= set(tool.discover()), timeout=10)
         remote = tool.lookup("module", "joint.angle", timeout=5)
         assert remote.get() == 0.25
         remote.set(1.5, wait=True)
@@ -87,7 +87,7 @@ def test_client_mode_connects_to_nothing_but_its_router() -> None:
 
 def test_json_view_reaches_a_plain_zenoh_subscriber() -> None:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    node = Node("module", ZenohTransport(listen=[endpoint]))
+    node = Node("module", ZenohTransport(listen=[endpoint], role="module"))
     watcher = zenoh.open(make_config(connect=[endpoint]))
     seen: list[dict] = []
     try:
@@ -95,7 +95,7 @@ def test_json_view_reaches_a_plain_zenoh_subscriber() -> None:
         node.register(angle)
         angle.publish()
         subscriber = watcher.declare_subscriber(
-            "asm/module/json/joint.angle", lambda sample: seen.append(json.loads(sample.payload.to_string()))
+            "asm/robot/module/json/joint.angle", lambda sample: seen.append(json.loads(sample.payload.to_string()))
         )
         value = iter(range(1, 10_000))
         assert wait_until(lambda: (angle.set(float(next(value))), seen)[1], timeout=10)
@@ -111,14 +111,14 @@ def test_json_view_reaches_a_plain_zenoh_subscriber() -> None:
 @pytest.fixture
 def exposed() -> Iterator[tuple[Node, zenoh.Session, Attribute]]:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    node = Node("target", ZenohTransport(listen=[endpoint]), max_daemons_per_client=2)
+    node = Node("target", ZenohTransport(listen=[endpoint], role="module"), max_daemons_per_client=2)
     angle = Attribute("joint.angle", 0.5, codec="float32")
     node.register(angle)
     node.register(Attribute("fresh", sync_get=True, codec="int16"))
     attacker = zenoh.open(make_config(connect=[endpoint]))
     try:
         assert wait_until(
-            lambda: any(r.ok is not None for r in attacker.liveliness().get("asm/@alive/target", timeout=1)),
+            lambda: any(r.ok is not None for r in attacker.liveliness().get("asm/robot/@alive/target/*", timeout=1)),
             timeout=10,
         )
         yield node, attacker, angle
@@ -141,12 +141,12 @@ def test_hostile_bytes_through_a_zenoh_session(exposed, data: bytes, as_query: b
     """Random and mutated messages as queries and as puts: only well-formed replies come back, quickly."""
     node, attacker, _ = exposed
     if as_query:
-        for reply in attacker.get("asm/target/req/attacker", payload=data, timeout=3.0):
+        for reply in attacker.get("asm/robot/target/req/attacker", payload=data, timeout=3.0):
             if reply.ok is not None:
                 assert decode(reply.ok.payload.to_bytes()).kind == Kind.REPLY
     else:
-        attacker.put("asm/target/msg/attacker", data)
-        attacker.put("asm/@group/all/msg/attacker", data)
+        attacker.put("asm/robot/target/msg/attacker", data)
+        attacker.put("asm/robot/@group/all/msg/attacker", data)
 
 
 def test_node_still_answers_after_the_hostile_session(exposed) -> None:
@@ -192,8 +192,9 @@ config.insert_json5("connect/endpoints", f'["{sys.argv[1]}"]')
 session = zenoh.open(config)
 big = bytes(100_000)
 for _ in range(3):
-    session.put("asm/target/msg/local", big)
-    list(session.get("asm/target/req/local", payload=big, timeout=2.0))
+    session.put("asm/robot/target/msg/local", big)
+    list(session.get("asm/robot/target/req/local", payload=big, timeout=2.0))
+    session.put("asm/robot/@group/all/msg/local", big)
 print("SENT", flush=True)
 session.close()
 """

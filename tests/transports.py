@@ -35,12 +35,14 @@ def memory_transports() -> Iterator[Callable[[], Transport]]:
 
 @contextmanager
 def zenoh_transports() -> Iterator[Callable[[], Transport]]:
-    """The first transport listens on a free loopback port; every later one connects to it (peer mode)."""
+    """The first transport listens on a free loopback port; every later one connects to it (peer mode). Every node
+    is a module of one robot: each may serve and call the others."""
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     made: list[Transport] = []
 
     def make() -> Transport:
-        transport = ZenohTransport(listen=[endpoint]) if not made else ZenohTransport(connect=[endpoint])
+        where = {"listen": [endpoint]} if not made else {"connect": [endpoint]}
+        transport = ZenohTransport(role="module", **where)
         made.append(transport)
         return transport
 

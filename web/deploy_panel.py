@@ -1,16 +1,22 @@
 """The Deploy tab: stage and verify the edited gait on every module (nothing moves), then start it with one
-broadcast when the user who clicked says Start — all or nothing (gaits/deploy.py) — and a log that keeps every line.
+broadcast when the user says Start — all or nothing (gaits/deploy.py) — and a log that keeps every line.
 
-On a simulated robot the robot first becomes the edited gait's robot; on a real bus the user confirms first, told
-which modules on the bus are not in the gait."""
+The deploy lease is held from staging until Start (or Cancel, or the question expiring), so no other deployer can
+stage or start meanwhile; the tab says who holds the robot's lease when it is not this page. On a simulated robot
+the robot first becomes the edited gait's robot; on a real bus the user confirms first, told which modules on the
+bus are not in the gait. Questions are rows of the tab, never a dialog over the E-STOP (web/confirm.py)."""
 
 from __future__ import annotations
 
 import html
+import threading
 import time
 from typing import TYPE_CHECKING, Any
 
-from gaits.deploy import activate, deploy, module_name, start_all, stop_all
+from gaits.deploy import DeployReport, module_name
+from gaits.model import Gait
+
+from .confirm import InlineConfirm
 
 if TYPE_CHECKING:
     from .app import Dashboard
@@ -25,34 +31,46 @@ class DeployPanel:
     def __init__(self, app: Dashboard) -> None:
         self.app = app
         gui = app.server.gui
-        target = "the simulated modules" if app.studio.simulated else "the modules on the REAL CAN bus"
-        gui.add_markdown(f"Deploy the edited gait to {target}: validate, stage it beside the running gait and "
-                         "verify each checksum (nothing moves yet); then, when you say Start, switch every module "
-                         "with one broadcast and confirm each — all or nothing.")  # fmt: skip
+        self.intro = gui.add_markdown("")
+        self._describe_target()
         self.button = gui.add_button("Deploy")
-        self.button.on_click(app.safe(self.on_deploy))
+        self.button.on_click(app.safe(lambda _: self.on_deploy()))
+        self.confirm = InlineConfirm(gui, app.safe)
+        self.lease_md = gui.add_markdown("")
         self.progress = gui.add_progress_bar(0.0)
         self.log_html = gui.add_html("")
         self._lines: list[str] = []
         self.run_buttons = gui.add_button_group("Modules", ["Start all", "Stop all"])
         self.run_buttons.on_click(app.safe(self.on_run))
+        self._staged: DeployReport | None = None
+        self._staged_lock = threading.Lock()
 
-    def on_deploy(self, event: Any) -> None:
+    def _describe_target(self) -> None:
+        target = "the simulated modules" if self.app.studio.simulated else "the modules on the REAL CAN bus"
+        self.intro.content = (f"Deploy the edited gait to {target} of robot **{self.app.link.robot}**: validate, "
+                              "stage it beside the running gait and verify each checksum (nothing moves yet); then, "
+                              "when you say Start, switch every module with one broadcast and confirm each — all or "
+                              "nothing.")  # fmt: skip
+
+    def relink(self) -> None:
+        """The page now commands another robot: a deployment staged on the old one is given up."""
+        self.confirm.withdraw()
+        self._describe_target()
+        self.lease_md.content = ""
+
+    def on_deploy(self) -> None:
         gait = self.app.doc.gait()  # GaitError (shown) if the edited gait is invalid
+        self.app.link.require("deploy")
         if not self.app.studio.simulated:
-            self._confirm_real(event, gait)
+            wanted = {module_name(a.id) for a in gait.modules}
+            others = [n for n in self.app.link.alive_modules() if n not in wanted]
+            question = f"Deploy {gait.name} to the {gait.robot.modules} modules of the REAL robot?"
+            if others:
+                question += (f" ⚠ {', '.join(others)} on the bus are not in this gait: they keep running what they "
+                             "run.")  # fmt: skip
+            self.confirm.ask(question, "Yes, deploy", lambda: self._deploy(gait))
             return
-        self._deploy(event, gait)
-
-    def _confirm_real(self, event: Any, gait: Any) -> None:
-        wanted = {module_name(a.id) for a in gait.modules}
-        others = [n for n in self.app.modules() if n not in wanted]
-        lines = [f"{gait.name} will be written to {gait.robot.modules} modules on the bus."]
-        if others:
-            lines.append(f"⚠ {', '.join(others)} on the bus are not in this gait: they keep running what they run "
-                         "(the activation reaches only the modules that staged this gait).")  # fmt: skip
-        self.app.confirm(event, "Deploy to the real robot?", lines, "Yes, deploy", "red",
-                         lambda: self._deploy(event, gait))  # fmt: skip
+        self._deploy(gait)
 
     def log(self, line: str) -> None:
         """One more line in the deploy log, which keeps every line and scrolls (newest at the bottom)."""
@@ -62,17 +80,24 @@ class DeployPanel:
                                  'display:flex;flex-direction:column-reverse"><div>'
                                  + "<br>".join(self._lines) + "</div></div>")  # fmt: skip
 
-    def _deploy(self, event: Any, gait: Any) -> None:
-        """Stage and verify (nothing moves), then ask the user who clicked before starting."""
+    def _deploy(self, gait: Gait) -> None:
+        """Stage and verify (nothing moves, the lease stays held), then ask before starting."""
         report = self.stage(gait)
-        lines = [
-            f"{_staged(gait, report)}.",
-            "Start it now? Every module switches to it at once, from where it stands.",
-        ]
-        self.app.confirm(event, f"Start {gait.name}?", lines, "Start", "green", lambda: self.start(gait, report))
+        with self._staged_lock:
+            self._staged = report
+        self.confirm.ask(f"{_staged(gait, report)}. Start it now? Every module switches to it at once, from where "
+                         "it stands.", "Start", lambda: self.start(gait, report),
+                         on_cancel=lambda: self._give_up(report, "cancelled"))  # fmt: skip
 
-    def stage(self, gait: Any) -> Any:
-        """Deploy steps 1-3 (lease, stage, verify); the DeployReport to start from."""
+    def _give_up(self, report: DeployReport, why: str) -> None:
+        report.cancel()
+        with self._staged_lock:
+            if self._staged is report:
+                self._staged = None
+        self.log(f"{report.gait}: not started ({why}); the lease is released, every module runs what it ran")
+
+    def stage(self, gait: Gait) -> DeployReport:
+        """Deploy steps 1-3 (lease, stage, verify); the DeployReport to start from, still holding the lease."""
         app = self.app
 
         def progress(done: int, total: int, message: str) -> None:
@@ -80,46 +105,64 @@ class DeployPanel:
             self.log(message)
 
         self.progress.value = 0.0
-        self.log(f"— deploy {gait.name} at {time.strftime('%H:%M:%S')} —")
-        before = set(app.roster.alive())
+        self.log(f"— deploy {gait.name} to robot {app.link.robot} at {time.strftime('%H:%M:%S')} —")
         rebuilt = app.studio.ensure_robot(gait)  # the simulated robot becomes the edited one
         if rebuilt:
             self.log(rebuilt)
             wanted = {module_name(a.id) for a in gait.modules}
-            removed = sorted(n for n in before if n.startswith("m") and n[1:].isdigit() and n not in wanted)
-            app.roster.forget(removed)
-            for plot in app.plots:
+            removed = [n for n in app.link.modules() if n not in wanted]
+            app.link.roster.forget(removed)
+            for plot in app.monitor.plots:
                 plot.forget(removed)
             deadline = time.monotonic() + 30.0
-            while not wanted <= set(app.node.discover()) and time.monotonic() < deadline:  # type: ignore[union-attr]
+            while not wanted <= set(app.link.node.discover()) and time.monotonic() < deadline:
                 time.sleep(0.1)
-        report = deploy(app.node, gait, progress=progress, timeout=5.0, start=False)  # type: ignore[arg-type]
-        self.log(_staged(gait, report) + "; nothing moves until Start")
+        report = app.link.stage(gait, progress)
+        self.log(_staged(gait, report) + "; nothing moves until Start (the deploy lease is held until then)")
         app.notify("Staged", _staged(gait, report))
         return report
 
-    def start(self, gait: Any, report: Any) -> None:
+    def start(self, gait: Gait, report: DeployReport) -> None:
         """Deploy steps 4-5: one broadcast activates the staged gait; each module confirms; the view goes Live."""
         app = self.app
-        report = activate(app.node, report, timeout=5.0)  # type: ignore[arg-type]
+        with self._staged_lock:
+            self._staged = None
+        report = app.link.start(report)
         app.drive.deployed = gait
         self.log(f"started: {len(report.running)} of {gait.robot.modules} modules confirmed running {gait.name}")
         app.notify("Deployed", f"{_staged(gait, report)}; "
                    f"{len(report.running)} of {gait.robot.modules} confirmed running it")  # fmt: skip
         for assignment in gait.modules[:4]:
-            app.plot.watch(module_name(assignment.id), "joint.angle")
+            app.monitor.plot.watch(module_name(assignment.id), "joint.angle")
         app.show("live")
 
     def on_run(self, event: Any) -> None:
         app = self.app
         if event.target.value == "Start all":
             names = [module_name(a.id) for a in app.doc.gait().modules]
-            running = start_all(app.node, names)  # type: ignore[arg-type]
+            running = app.link.start_all(names)
             app.notify("Modules", f"{len(running)} of {len(names)} modules confirmed running")
         else:
-            stop_all(app.node)  # type: ignore[arg-type]
+            app.link.stop_all()
             app.notify("Modules", "stop sent to every module")
 
+    def poll_lease(self) -> None:
+        """Say who holds the robot's deploy lease (once a second, from the page's refresh)."""
+        with self._staged_lock:
+            mine = self._staged is not None
+        holder = None if mine else self.app.link.lease_holder()
+        if mine:
+            text = "Deploy lease: **held by this page** until you Start or Cancel"
+        elif holder:
+            text = f"Deploy lease: held by **{holder}** — deploying here is refused until it is released"
+        else:
+            text = ""
+        if self.lease_md.content != text:
+            self.lease_md.content = text
 
-def _staged(gait: Any, report: Any) -> str:
+    def close(self) -> None:
+        self.confirm.withdraw()
+
+
+def _staged(gait: Gait, report: DeployReport) -> str:
     return f"{gait.name}: staged and verified on {len(report.checksums)} modules"

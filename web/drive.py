@@ -11,9 +11,8 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
-from asm_py.module.neighbours import send_signal
 from gaits.deploy import module_name
-from gaits.drive import STOP, drive
+from gaits.drive import STOP
 from gaits.model import FORWARD, Gait
 
 if TYPE_CHECKING:
@@ -72,7 +71,7 @@ class DrivePanel:
         if not 1 <= number <= 255:
             raise ValueError(f"a signal is numbered 1..255, not {number}")
         if self.app.view.source == "live":
-            send_signal(self.app.node, number)  # type: ignore[arg-type]
+            self.app.link.signal(number)
             self.state.content = f"Robot: signal **{number}** sent to every module"
         else:
             self.app.loop.request("signal", number)
@@ -92,6 +91,10 @@ class DrivePanel:
             return
         names = [module_name(a.id) for a in gait.modules]
         self.state.content = f"Robot: switching to **{what}** …"
-        confirmed = drive(app.node, gait, name, names, direction=direction)  # type: ignore[arg-type]
+        try:
+            confirmed = app.link.drive(gait, name, names, direction)
+        except Exception as exc:
+            self.state.content = f"Robot: **{what}** refused: {exc}"
+            raise
         self.state.content = f"Robot: **{what}**, confirmed by {len(confirmed)} of {len(names)} modules"
         app.notify("Drive", f"{what}: {len(confirmed)} of {len(names)} modules confirmed")

@@ -33,6 +33,8 @@ import websockets.asyncio.server
 from websockets.datastructures import Headers
 from websockets.http11 import Request, Response
 
+from .page_script import inject
+
 COOKIE = "asm_studio_token"
 LOOPBACK_NAMES = ("127.0.0.1", "localhost", "[::1]")
 _STARTING = threading.Lock()
@@ -107,11 +109,25 @@ class AccessGuard:
             if refusal is not None:
                 return refusal
             response = inner(connection, request) if inner is not None else None
-            if response is not None and self.token is not None:
+            if response is None:
+                return None
+            if response.status_code == 200 and response.headers.get("Content-Type", "").startswith("text/html"):
+                response = _with_page_script(response)
+            if self.token is not None:
                 response.headers["Set-Cookie"] = f"{COOKIE}={self.token}; HttpOnly; SameSite=Strict; Path=/"
             return response
 
         return process_request
+
+
+def _with_page_script(response: Response) -> Response:
+    """The page with the studio's script and style in it (web/page_script.py)."""
+    gzipped = response.headers.get("Content-Encoding") == "gzip"
+    body = inject(response.body, gzipped=gzipped)
+    headers = Headers(response.headers)
+    del headers["Content-Length"]  # a Headers item set twice holds both values
+    headers["Content-Length"] = str(len(body))
+    return Response(response.status_code, response.reason_phrase, headers, body)
 
 
 class _ServerModule:

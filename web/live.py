@@ -34,6 +34,7 @@ class LiveFeed:
         self.name = name
         self.model: mujoco.MjModel | None = None
         self.status: RobotStatus | None = None
+        self._status_at: float | None = None
         self.latest: PoseFrame | None = None
         self.generation = 0
         """Incremented when the model changes (the view rebuilds its meshes)."""
@@ -71,9 +72,21 @@ class LiveFeed:
             self.status = RobotStatus.from_json(sample.payload.to_bytes())
         except (ValueError, TypeError):
             return
+        self._status_at = time.monotonic()
         self._changed.set()
 
+    def status_age(self) -> float | None:
+        """Seconds since the last status arrived (None: none yet)."""
+        at = self._status_at
+        return None if at is None else time.monotonic() - at
+
     def _fetch_models(self) -> None:
+        try:  # the status at once, rather than at the robot's next publication (up to a second away)
+            for reply in self.session.get(status_key(self.name), timeout=2.0):
+                if reply.ok is not None and self.status is None:
+                    self._on_status(reply.ok)
+        except Exception as exc:  # the session closing
+            log.debug("asking the robot's status failed: %s", exc)
         while not self._stop.is_set():
             if not self._want_model.wait(0.5):
                 continue

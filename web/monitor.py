@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from asm_py import Node
+from asm_py.keys import TOOL
 from asm_py.remote import RemoteAttribute, RemoteObject
 
 PLOT_SECONDS = 10.0
@@ -34,12 +35,18 @@ class Roster:
         self.entries: dict[str, dict[str, Any]] = {}
         self._forgotten: set[str] = set()
         self._gait_objects: dict[str, tuple[Any, ...]] = {}
+        self.tools: set[str] = set()
+        """The other tools of the robot now (other studios, scripts), by name."""
         for name in node.discover():
             self._changed(name, True)
         self._unlisten = node.on_discovery(self._changed)
 
     def _changed(self, name: str, alive: bool) -> None:
-        if name == self.node.name:
+        if name == self.node.transport.address:
+            return
+        if name.startswith(TOOL):  # another tool watching the robot (a studio, a script): listed apart
+            with self._lock:
+                (self.tools.add if alive else self.tools.discard)(name[len(TOOL) :])
             return
         with self._lock:
             if name in self._forgotten:

@@ -14,7 +14,9 @@ A deploying tool must never leave a robot half running a new gait. So a module k
                                    one deployer at a time: a set is granted when the lease is free, expired, or
                                    already this token's; otherwise LOCKED, naming the holder. While a lease is held,
                                    only a staged record carrying its token as deploy ID is accepted. seconds 0
-                                   releases it. A lease lasts at most MAX_LEASE seconds.
+                                   releases it. A lease lasts at most MAX_LEASE seconds. While a lease is in
+                                   force, clearing gait.staged (an empty value, which names no deploy ID) is LOCKED
+                                   too.
 
 Everything here refuses while the e-stop is latched (the node's guard answers ESTOP before these checks run).
 """
@@ -72,7 +74,11 @@ class Staging:
         return {"holder": wanted["holder"], "token": wanted["token"], "seconds": seconds}
 
     def _stage(self, data: bytes) -> bytes:
-        if not data:  # clears what was staged
+        if not data:  # clears what was staged; an empty value names no deploy ID, so not under anyone's lease
+            current = self.holder()
+            if current is not None:
+                raise Locked(f"the robot is being deployed by {current['holder']!r}: nothing may clear its staged "
+                             "gait until the lease is released")  # fmt: skip
             self._record = None
             self.staged_checksum.set(checksum(b""))
             return data

@@ -12,10 +12,11 @@ message sent to it is the broadcast of the paper.
 from __future__ import annotations
 
 import logging
-import re
 import threading
 from abc import ABC, abstractmethod
 from collections.abc import Callable
+
+from ..keys import check_name
 
 log = logging.getLogger("asm_py.transport")
 
@@ -34,14 +35,7 @@ BROADCAST = "all"
 ESTOP_REASON_MAX = 8
 """Bytes of an e-stop's reason that travel: an e-stop is one classic CAN frame on every medium, never fragmented
 (a fragment lost or queued behind bulk traffic must not delay or drop a stop)."""
-_NAME = re.compile(r"^[A-Za-z0-9_.\-]{1,64}$")
-
-
-def check_name(name: str, what: str = "node name") -> str:
-    """``name`` if it is a valid node, group or object name (it becomes part of keys and logs)."""
-    if not isinstance(name, str) or not _NAME.match(name):
-        raise ValueError(f"{what} {name!r} must be 1-64 characters of letters, digits, '_', '.', '-'")
-    return name
+__all__ = ["BROADCAST", "ESTOP_REASON_MAX", "Responder", "Transport", "check_name", "short_reason"]
 
 
 def short_reason(reason: str) -> str:
@@ -54,6 +48,9 @@ class Transport(ABC):
 
     direct_requests = False
     """True when :meth:`request` does a round trip in the caller's thread, faster than send + deliver."""
+    robot: str | None = None
+    """The robot (namespace) the node belongs to on media that carry several robots (Zenoh); None elsewhere: a CAN
+    bus or an in-process network is one robot."""
 
     def __init__(self) -> None:
         self._name: str | None = None
@@ -71,6 +68,11 @@ class Transport(ABC):
         if self._name is None:
             raise RuntimeError("transport is not attached to a node yet")
         return self._name
+
+    @property
+    def address(self) -> str:
+        """This node as others address it and as :meth:`peers` lists it: its name (a Zenoh tool's is ``~name``)."""
+        return self.name
 
     def attach(self, name: str, on_message: MessageHandler) -> None:
         """Connect as node ``name``; ``on_message`` is called for every message to it, its groups or everyone."""
@@ -117,14 +119,15 @@ class Transport(ABC):
 
         return remove
 
-    def estop(self, reason: str = "") -> None:
-        """Send an emergency stop to every node at the medium's highest priority, and act on it here too.
+    def estop(self, reason: str = "", *, lab: bool = False) -> None:
+        """Send an emergency stop to every node of this node's robot at the medium's highest priority — with
+        ``lab``, to every node of every robot on the medium — and act on it here too.
 
         Handlers here run first (this node stops at once, even if the medium fails); the reason is cut to
         ESTOP_REASON_MAX bytes of UTF-8 so the stop is one frame everywhere."""
         reason = short_reason(reason)
         self._estop_received(self.name, reason)
-        self._send_estop(reason)
+        self._send_estop(reason, lab)
 
     def close(self) -> None:
         """Leave the network; idempotent."""
@@ -195,8 +198,9 @@ class Transport(ABC):
         """
 
     @abstractmethod
-    def _send_estop(self, reason: str) -> None:
-        """Broadcast an emergency stop (every other node calls its e-stop handlers)."""
+    def _send_estop(self, reason: str, lab: bool) -> None:
+        """Broadcast an emergency stop (every other node calls its e-stop handlers); ``lab``: beyond this robot, on
+        media that carry several."""
 
     @abstractmethod
     def peers(self) -> list[str]:

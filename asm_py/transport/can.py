@@ -232,7 +232,7 @@ class CanTransport(Transport):
     def publish(self, object_name: str, data: bytes, json_text: Callable[[], str] | None = None) -> None:
         self.send_message(Dest.BROADCAST, 0, data, Priority.PUBLICATION)
 
-    def _send_estop(self, reason: str) -> None:
+    def _send_estop(self, reason: str, lab: bool) -> None:
         """One priority-0 system frame, sent without waiting for the send lock: a long fragmented message being
         sent by another thread never holds back a stop (the e-stop's identifier is its own reassembly key, so it
         cannot tear that message's fragments apart)."""

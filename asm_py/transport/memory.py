@@ -78,7 +78,7 @@ class MemoryTransport(Transport):
         if target is not None:
             target._post(lambda: target._deliver(source, data))
 
-    def _send_estop(self, reason: str) -> None:
+    def _send_estop(self, reason: str, lab: bool) -> None:
         source = self.name
         with self.network.lock:
             others = [t for t in self.network.nodes.values() if t is not self]

@@ -1,30 +1,20 @@
-"""ASM over Zenoh: peers on loopback by default, client mode towards a router for many machines.
+"""ASM over Zenoh: peers on loopback by default, client mode towards a router for many machines and robots.
 
 The payload of every Zenoh message is the ASM protocol message, byte for byte as on CAN, so a bridge forwards it
-without re-encoding. Key space (docs/protocol.md, "Zenoh key space"):
+without re-encoding. Every key comes from asm_py.keys: a session belongs to one **robot** (its namespace, default
+``robot``) and has a **role** — ``"module"`` (it answers for a module name) or ``"tool"`` (the default: a studio, a
+script, a command; its keys carry ``~`` before its name, so it can never answer for a module). A session refuses to
+open, with :class:`NameTaken`, when its name is already alive in its robot and role.
 
-    asm/<node>/req/<source>        queryable: requests that want a reply (the reply is the query's reply)
-    asm/<node>/msg/<source>        subscriber: requests that want no reply, and replies sent as messages
-    asm/@group/<group>/msg/<source> subscriber: one-to-many requests (group "all": every node)
-    asm/<node>/pub/<object>        publications of <node>'s attribute <object> (binary ASM message)
-    asm/<node>/json/<object>       the same publication as JSON text, for any Zenoh tool or language
-    asm/@alive/<node>              liveliness token: the node is up (discovery)
-    asm/@estop/<source>            emergency stop from <source>, at Zenoh's real-time priority (data: reason)
+Addresses (asm_py.keys): ``m3`` is module m3 of the session's robot, ``~studio`` a tool of it, ``b/m3`` module m3
+of robot b. The robot e-stop reaches every node of the session's robot; the lab-wide one (``estop(lab=True)``)
+every node of every robot.
 
-Defaults are safe: peer mode, multicast scouting off, and a peer listens on a free loopback port
-(``tcp/127.0.0.1:0``) unless endpoints are given — never on every interface; ``connect`` lists the peers or
-router to reach. Peers that meet through a common peer connect to each other directly (gossip scouting).
-
-Listening beyond loopback lets other machines command the robot, so :func:`make_config` allows it only with a
-Zenoh configuration file that secures it — TLS (or QUIC) endpoints, mutual TLS (every peer shows a certificate
-of the robot's CA) and access control enabled — or with ``insecure=True`` (the ``--insecure`` flag of the
-commands), which logs a warning. docs/security.md shows a secured two-machine setup.
+Configuration (safe defaults, the rules for listening beyond loopback) is in asm_py.transport.zenoh_config.
 """
 
 from __future__ import annotations
 
-import ipaddress
-import json
 import logging
 import threading
 from collections.abc import Callable, Sequence
@@ -32,100 +22,55 @@ from typing import Any
 
 import zenoh
 
-from ..protocol import MAX_MESSAGE, Kind, decode_timeout, kind_of
+from ..keys import (
+    DEFAULT_ROBOT,
+    Address,
+    RobotKeys,
+    check_name,
+    concrete,
+    lab_estop,
+    last,
+    parse_address,
+    segment,
+    split,
+)
+from ..protocol import Kind, decode_timeout, kind_of
 from .base import ESTOP_REASON_MAX, PublicationHandler, Transport
+from .zenoh_config import (  # noqa: F401  (re-exported: the configuration is part of this transport's interface)
+    MAX_LINK_MESSAGE,
+    InsecureEndpoint,
+    endpoint_host,
+    is_loopback_endpoint,
+    make_config,
+    security_problems,
+)
 
 log = logging.getLogger("asm_py.transport.zenoh")
 
-MAX_LINK_MESSAGE = 16 * MAX_MESSAGE
-"""The largest Zenoh message a session accepts from its links (the rest is dropped by Zenoh, never buffered)."""
 FOREVER_QUERY = 86_400.0
 """Seconds a query for a request that may block forever stays open on the client (Zenoh needs a number)."""
 QUERY_MARGIN = 5.0
+CLAIM_QUERY_TIMEOUT = 2.0
+"""Seconds a session waits for the network to say whether its name is taken."""
+ROLES = ("module", "tool")
+
+
+class NameTaken(RuntimeError):
+    """Another session already claims this node's name in its robot."""
 
 
 def _ignore(reply: zenoh.Reply) -> None:
     """The (absent) reply to a request that wants none."""
 
 
-class InsecureEndpoint(ValueError):
-    """A listening endpoint beyond loopback without TLS, mutual authentication and access control."""
+class _Route:
+    """Where messages to one address go: its robot's keys and its segment (resolved once per address)."""
 
+    __slots__ = ("keys", "segment")
 
-def endpoint_host(endpoint: str) -> str:
-    """The host of a Zenoh endpoint such as ``tcp/127.0.0.1:7447`` or ``tls/[::1]:7447#iface=lo``."""
-    address = endpoint.split("#", 1)[0].split("?", 1)[0].partition("/")[2]
-    return address.rpartition(":")[0].strip("[]") if ":" in address else address
-
-
-def is_loopback_endpoint(endpoint: str) -> bool:
-    host = endpoint_host(endpoint)
-    if host == "localhost":
-        return True
-    try:
-        return ipaddress.ip_address(host).is_loopback
-    except ValueError:
-        return False
-
-
-def security_problems(config: zenoh.Config, endpoints: Sequence[str]) -> list[str]:
-    """What keeps ``endpoints`` (listening beyond loopback) from being secured by ``config``; empty when secured."""
-    problems = [f"{e} is not a tls/ or quic/ endpoint" for e in endpoints if not e.startswith(("tls/", "quic/"))]
-    if json.loads(config.get_json("transport/link/tls/enable_mtls") or "null") is not True:
-        problems.append("mutual TLS is off (transport/link/tls/enable_mtls)")
-    if json.loads(config.get_json("access_control/enabled") or "false") is not True:
-        problems.append("access control is off (access_control/enabled)")
-    return problems
-
-
-def make_config(
-    *,
-    mode: str = "peer",
-    listen: Sequence[str] = (),
-    connect: Sequence[str] = (),
-    config_file: str | None = None,
-    insecure: bool = False,
-) -> zenoh.Config:
-    """A Zenoh configuration: ``mode`` peer/client/router, explicit endpoints, multicast scouting off.
-
-    ``config_file`` (JSON5) gives everything else — TLS certificates, access control; the endpoints always come
-    from ``listen`` and ``connect`` (no listen: a free loopback port, whatever the file says).
-
-    InsecureEndpoint when a listening endpoint is beyond loopback and not secured (see the module docstring), unless
-    ``insecure``.
-    """
-    if mode not in ("peer", "client", "router"):
-        raise ValueError(f"zenoh mode must be 'peer', 'client' or 'router', not {mode!r}")
-    config = zenoh.Config.from_file(config_file) if config_file else zenoh.Config()
-    config.insert_json5("mode", json.dumps(mode))
-    config.insert_json5("scouting/multicast/enabled", "false")
-    # Never Zenoh's default listener (all interfaces): a peer or router listens on loopback unless told otherwise.
-    if not listen and mode != "client":
-        listen = ["tcp/127.0.0.1:0"]
-    exposed = [e for e in listen if not is_loopback_endpoint(e)]
-    if exposed:
-        problems = security_problems(config, exposed)
-        if problems and not insecure:
-            raise InsecureEndpoint(f"refusing to listen on {', '.join(exposed)} beyond this machine: "
-                                   f"{'; '.join(problems)}. Give a Zenoh config with TLS, mutual TLS and access "
-                                   "control (docs/security.md), or --insecure")  # fmt: skip
-        if problems:
-            log.warning("INSECURE: listening on %s without %s: anyone who can reach it can command the robot",
-                        ", ".join(exposed), "; ".join(problems))  # fmt: skip
-    config.insert_json5("listen/endpoints", json.dumps(list(listen)))
-    # Zenoh buffers a message whole before anything sees it: bound that at the link (ASM messages are at most
-    # MAX_MESSAGE bytes; between that and this bound a node answers TOO_LARGE, beyond it the message is dropped)
-    config.insert_json5("transport/link/rx/max_message_size", str(MAX_LINK_MESSAGE))
-    # Zenoh's shared-memory transport carries any message over 3 KiB as a reference into the sender's 16 MiB pool:
-    # it bypasses the link limit above (a 10 MB query arrives whole) and lets every local client make this process
-    # map its pool. ASM messages are at most MAX_MESSAGE bytes, so shared memory buys nothing here: off.
-    config.insert_json5("transport/shared_memory/enabled", "false")
-    # and drop what is larger before it reaches any callback
-    config.insert_json5("low_pass_filter", json.dumps([{"flows": ["ingress"], "messages": ["put", "delete", "query",
-                        "reply"], "key_exprs": ["**"], "size_limit": MAX_LINK_MESSAGE}]))  # fmt: skip
-    if connect:
-        config.insert_json5("connect/endpoints", json.dumps(list(connect)))
-    return config
+    def __init__(self, keys: RobotKeys, segment: str) -> None:
+        self.keys = keys
+        self.segment = segment
 
 
 class ZenohTransport(Transport):
@@ -136,6 +81,8 @@ class ZenohTransport(Transport):
     def __init__(
         self,
         *,
+        robot: str = DEFAULT_ROBOT,
+        role: str = "tool",
         mode: str = "peer",
         listen: Sequence[str] = (),
         connect: Sequence[str] = (),
@@ -143,19 +90,29 @@ class ZenohTransport(Transport):
         insecure: bool = False,
     ) -> None:
         super().__init__()
+        if role not in ROLES:
+            raise ValueError(f"a Zenoh session's role is 'module' or 'tool', not {role!r}")
         self._config = make_config(mode=mode, listen=listen, connect=connect, config_file=config_file,
                                    insecure=insecure)  # fmt: skip
+        self.keys = RobotKeys(robot)
+        self.robot = self.keys.robot
+        self.role = role
         self.mode = mode
         self.listen = tuple(listen)
         self.connect = tuple(connect)
+        self.segment = ""
+        """This node's chunk in keys: its name, or ``~name`` for a tool."""
         self._session: zenoh.Session | None = None
+        self._zid = ""
         self._attachment = b""
         """Sent with every request: this session's Zenoh ID, so a bridge tells apart sessions of the same name."""
         self._keep: list[Any] = []  # declared entities, kept alive until close
         self._publishers: dict[str, zenoh.Publisher] = {}
         self._queriers: dict[tuple[str, float], zenoh.Querier] = {}
+        self._routes: dict[str, _Route] = {}
         self._pub_keys: dict[str, tuple[str, str]] = {}  # object -> its publication and JSON view keys
         self._watched: dict[str, bool] = {}  # JSON key -> a subscriber matches it (kept by matching listeners)
+        self._claims: dict[str, set[str]] = {}  # segment -> sessions whose liveliness token claims it
         self._pub_lock = threading.Lock()
 
     @property
@@ -164,31 +121,70 @@ class ZenohTransport(Transport):
             raise RuntimeError("zenoh transport is not open")
         return self._session
 
+    @property
+    def address(self) -> str:
+        return self.segment
+
+    @property
+    def zid(self) -> str:
+        """This session's Zenoh ID (hex)."""
+        return self._zid
+
+    # -- opening --------------------------------------------------------------------------------------------------
+
     def _open(self, name: str) -> None:
+        self.segment = segment(name, tool=self.role == "tool")
         session = self._session = zenoh.open(self._config)
-        self._keep += [
-            session.declare_queryable(f"asm/{name}/req/*", self._on_query),
-            session.declare_subscriber(f"asm/{name}/msg/*", self._on_sample),
-            session.liveliness().declare_token(f"asm/@alive/{name}"),
-            session.liveliness().declare_subscriber("asm/@alive/*", self._on_alive, history=True),
-            # every e-stop from elsewhere, whatever its sender's name (this node's own runs its handlers directly)
-            session.declare_subscriber("asm/@estop/*", self._on_estop, allowed_origin=zenoh.Locality.REMOTE),
-        ]
-        self._attachment = str(session.info.zid()).encode()
+        self._zid = str(session.info.zid())
+        self._attachment = self._zid.encode()
+        try:
+            self._refuse_if_taken()
+            keys = self.keys
+            self._keep += [
+                session.declare_queryable(keys.requests(self.segment), self._on_query),
+                session.declare_subscriber(keys.messages(self.segment), self._on_sample),
+                session.liveliness().declare_token(keys.alive(self.segment, self._zid)),
+                session.liveliness().declare_subscriber(keys.alive(), self._on_alive, history=True),
+                # every e-stop from elsewhere, whatever its sender's name (this node's own runs its handlers directly)
+                session.declare_subscriber(keys.estop(), self._on_estop, allowed_origin=zenoh.Locality.REMOTE),
+                session.declare_subscriber(lab_estop(), self._on_estop, allowed_origin=zenoh.Locality.REMOTE),
+            ]
+            self._refuse_if_taken(after_claim=True)
+        except BaseException:
+            self._close()
+            raise
+
+    def claimants(self, seg: str) -> set[str]:
+        """The sessions whose liveliness token claims segment ``seg`` in this robot now (a query of the network)."""
+        found = set()
+        for reply in self.session.liveliness().get(self.keys.alive(seg), timeout=CLAIM_QUERY_TIMEOUT):
+            if reply.ok is not None:
+                found.add(last(reply.ok.key_expr))
+        return found
+
+    def _refuse_if_taken(self, *, after_claim: bool = False) -> None:
+        """NameTaken if another session claims this node's name. Two sessions that claimed it at the same moment
+        both see each other once their tokens have met: the one with the greater session ID gives way."""
+        others = self.claimants(self.segment) - {self._zid}
+        if not others or (after_claim and min(others) > self._zid):
+            return
+        role = "tool" if self.role == "tool" else "module"
+        raise NameTaken(f"a {role} named {self.segment.lstrip('~')!r} is already alive in robot {self.robot!r} "
+                        f"(session {min(others)}): choose another name")  # fmt: skip
 
     def _join(self, group: str) -> None:
-        self._keep.append(self.session.declare_subscriber(f"asm/@group/{group}/msg/*", self._on_sample))
+        self._keep.append(self.session.declare_subscriber(self.keys.group(group), self._on_sample))
 
     # -- receiving ------------------------------------------------------------------------------------------------
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
-        source = str(sample.key_expr).rsplit("/", 1)[-1]
-        if source != self._name:
+        source = last(sample.key_expr)
+        if source != self.segment:
             self._deliver(source, sample.payload.to_bytes())
 
     def _on_query(self, query: zenoh.Query) -> None:
-        source = str(query.key_expr).rsplit("/", 1)[-1]
-        key = query.key_expr
+        source = last(query.key_expr)
+        key = self.keys.requests(self.segment, concrete(source))  # a reply carries the replier's own, concrete key
         data = query.payload.to_bytes() if query.payload is not None else b""
         answered = False
 
@@ -210,13 +206,39 @@ class ZenohTransport(Transport):
         return kind_of(data) == Kind.REQUEST_REPLY
 
     def _on_estop(self, sample: zenoh.Sample) -> None:
-        source = str(sample.key_expr).rsplit("/", 1)[-1]
+        source = last(sample.key_expr)
         self._estop_received(source, sample.payload.to_bytes()[:ESTOP_REASON_MAX].decode("utf-8", errors="replace"))
 
     def _on_alive(self, sample: zenoh.Sample) -> None:
-        name = str(sample.key_expr).rsplit("/", 1)[-1]
-        if name != self._name:
-            self._peer_changed(name, sample.kind == zenoh.SampleKind.PUT)
+        chunks = split(sample.key_expr)  # asm/<robot>/@alive/<segment>/<session>
+        if len(chunks) != 5:
+            return
+        seg, zid = chunks[3], chunks[4]
+        alive = sample.kind == zenoh.SampleKind.PUT
+        with self._lock:
+            claims = self._claims.setdefault(seg, set())
+            before = bool(claims)
+            (claims.add if alive else claims.discard)(zid)
+            now = bool(claims)
+        if seg == self.segment:
+            if alive and zid != self._zid:
+                log.error("another session (%s) claims this node's name %r in robot %r", zid, seg, self.robot)
+            return
+        if before != now:
+            self._peer_changed(seg, now)
+
+    # -- addresses ------------------------------------------------------------------------------------------------
+
+    def _route(self, dest: str) -> _Route:
+        route = self._routes.get(dest)  # the hot path: one dictionary lookup per message
+        if route is None:
+            address: Address = parse_address(dest)
+            keys = self.keys if address.robot in (None, self.robot) else RobotKeys(address.robot)
+            route = _Route(keys, address.segment)
+            if len(self._routes) > 4096:  # bounded: addresses come from callers, possibly many
+                self._routes.clear()
+            self._routes[dest] = route
+        return route
 
     # -- sending --------------------------------------------------------------------------------------------------
 
@@ -245,18 +267,22 @@ class ZenohTransport(Transport):
             # node in the order it sent them, as a local call and a CAN bus do.
             self._querier(dest, QUERY_MARGIN).get(_ignore, payload=data, attachment=self._attachment)
         else:
-            self._publisher(f"asm/{dest}/msg/{self.name}", reliable=True).put(data, attachment=self._attachment)
+            route = self._route(dest)
+            self._publisher(route.keys.messages(route.segment, self.segment), reliable=True).put(
+                data, attachment=self._attachment
+            )
 
     def _query(self, dest: str, data: bytes) -> None:
         has_timeout = len(data) > 4 and data[1] & 0x80
         limit = decode_timeout(data[4]) if has_timeout else None
         timeout = FOREVER_QUERY if limit is None else limit + QUERY_MARGIN
+        route = self._route(dest)
 
         def on_reply(reply: zenoh.Reply) -> None:
             if reply.ok is not None:
                 self._deliver(dest, reply.ok.payload.to_bytes())
 
-        self.session.get(f"asm/{dest}/req/{self.name}", on_reply, payload=data, timeout=timeout,
+        self.session.get(route.keys.requests(route.segment, self.segment), on_reply, payload=data, timeout=timeout,
                          congestion_control=zenoh.CongestionControl.BLOCK, attachment=self._attachment)  # fmt: skip
 
     def request(self, dest: str, data: bytes, wait: float) -> bytes | None:
@@ -273,30 +299,32 @@ class ZenohTransport(Transport):
         """The Querier for ``dest``'s requests with deadline ``wait``, declared once (Zenoh resolves its key once)."""
         querier = self._queriers.get((dest, wait))
         if querier is None:
+            route = self._route(dest)
             with self._pub_lock:
                 querier = self._queriers.get((dest, wait))
                 if querier is None:
                     if len(self._queriers) > 256:  # bounded: forget the oldest
                         for old in list(self._queriers)[:64]:
                             self._queriers.pop(old).undeclare()
-                    querier = self.session.declare_querier(
-                        f"asm/{dest}/req/{self.name}", timeout=wait, congestion_control=zenoh.CongestionControl.BLOCK
-                    )
+                    key = route.keys.requests(route.segment, self.segment)
+                    congestion = zenoh.CongestionControl.BLOCK
+                    querier = self.session.declare_querier(key, timeout=wait, congestion_control=congestion)
                     self._queriers[(dest, wait)] = querier
         return querier
 
-    def _send_estop(self, reason: str) -> None:
-        self.session.put(f"asm/@estop/{self.name}", reason.encode("utf-8"), priority=zenoh.Priority.REAL_TIME,
+    def _send_estop(self, reason: str, lab: bool) -> None:
+        key = lab_estop(self.segment) if lab else self.keys.estop(self.segment)
+        self.session.put(key, reason.encode("utf-8"), priority=zenoh.Priority.REAL_TIME,
                          congestion_control=zenoh.CongestionControl.BLOCK, express=True)  # fmt: skip
 
     def send_group(self, group: str, data: bytes) -> None:
-        self._publisher(f"asm/@group/{group}/msg/{self.name}", reliable=True).put(data, attachment=self._attachment)
+        self._publisher(self.keys.group(group, self.segment), reliable=True).put(data, attachment=self._attachment)
 
     def publish(self, object_name: str, data: bytes, json_text: Callable[[], str] | None = None) -> None:
         keys = self._pub_keys.get(object_name)
         if keys is None:
-            keys = self._pub_keys[object_name] = (f"asm/{self.name}/pub/{object_name}",
-                                                  f"asm/{self.name}/json/{object_name}")  # fmt: skip
+            keys = self._pub_keys[object_name] = (self.keys.publication(self.segment, object_name),
+                                                  self.keys.json_view(self.segment, object_name))  # fmt: skip
         binary, view = keys
         self._publisher(binary, reliable=False, express=False).put(data)  # lock-free once declared
         if json_text is not None:
@@ -322,13 +350,16 @@ class ZenohTransport(Transport):
     def subscribe(
         self, node: str, object_name: str, callback: PublicationHandler, *, object_id: int | None = None
     ) -> Callable[[], None]:
+        check_name(object_name, "object name")
+        route = self._route(node)
+
         def on_sample(sample: zenoh.Sample) -> None:
             try:
                 callback(sample.payload.to_bytes())
             except Exception:
                 log.exception("subscriber of %s/%s failed", node, object_name)
 
-        subscriber = self.session.declare_subscriber(f"asm/{node}/pub/{object_name}", on_sample)
+        subscriber = self.session.declare_subscriber(route.keys.publication(route.segment, object_name), on_sample)
 
         def remove() -> None:
             if self._session is not None:
@@ -337,10 +368,12 @@ class ZenohTransport(Transport):
         return remove
 
     def peers(self) -> list[str]:
-        names = set()
-        for reply in self.session.liveliness().get("asm/@alive/*", timeout=2.0):
+        names = {self.segment}
+        for reply in self.session.liveliness().get(self.keys.alive(), timeout=2.0):
             if reply.ok is not None:
-                names.add(str(reply.ok.key_expr).rsplit("/", 1)[-1])
+                chunks = split(reply.ok.key_expr)
+                if len(chunks) == 5:
+                    names.add(chunks[3])
         return sorted(names)
 
     def _close(self) -> None:

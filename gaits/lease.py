@@ -1,0 +1,112 @@
+"""One deployer at a time: the ``gait.lease`` of every module, held from staging through Start and cleanup.
+
+A lease is granted for LEASE_SECONDS and renewed by a thread of the deployer every RENEW_EVERY seconds for as long as
+the deployer holds it, so the lease of a deployer that dies — a studio killed, a bridge gone — frees the robot
+within a few seconds, while a deployer that waits for its user's "Start" keeps it however long the user thinks.
+Every refusal names the holder (the module's LOCKED text).
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import socket
+import threading
+from collections.abc import Sequence
+
+from asm_py import Node
+from asm_py.errors import EstopLatched, Locked
+
+from .calls import DeployError, ModuleCalls
+
+log = logging.getLogger("gaits.lease")
+
+LEASE_SECONDS = 5.0
+"""How long one grant lasts: a dead deployer's lease frees the robot within this."""
+RENEW_EVERY = 1.5
+"""Seconds between renewals while the deployer holds the lease."""
+
+
+def default_holder(node: Node) -> str:
+    """Who a lease names: the deploying node, its host and process, so a second deployer knows whom to ask."""
+    return f"{node.name}@{socket.gethostname()}:{os.getpid()}"[:64]
+
+
+class Lease:
+    """The lease ``token`` on ``modules`` for ``holder``; see the module docstring. A context manager."""
+
+    def __init__(self, calls: ModuleCalls, modules: Sequence[int], holder: str, token: int) -> None:
+        self.calls = calls
+        self.modules = list(modules)
+        self.holder = holder
+        self.token = token
+        self.held: list[int] = []
+        self.lost: str | None = None
+        """Why the lease was lost while held (another deployer took it after an expiry), or None."""
+        self._stop = threading.Event()
+        self._renewer: threading.Thread | None = None
+        self._lock = threading.Lock()
+
+    def _record(self, seconds: float) -> dict[str, object]:
+        return {"holder": self.holder, "token": self.token, "seconds": seconds}
+
+    def take(self) -> None:
+        """Take the lease on every module, in module order (two deployers never each hold part of the robot), and
+        keep renewing it; DeployError naming the holder (or the latched e-stop) otherwise."""
+        for module in self.modules:
+            try:
+                self.calls.set(module, "gait.lease", self._record(LEASE_SECONDS), "lease")
+            except DeployError as exc:
+                if isinstance(exc.__cause__, EstopLatched):
+                    raise DeployError(f"lease: the emergency stop is latched on module {module} "
+                                      f"({self.calls.names[module]}); release it first") from None  # fmt: skip
+                raise
+            self.held.append(module)
+        self._renewer = threading.Thread(target=self._renew_loop, name="asm-lease", daemon=True)
+        self._renewer.start()
+
+    def renew(self) -> None:
+        """Renew the lease on every module now; DeployError if another deployer holds a module's lease."""
+        with self._lock:
+            for module in self.held:
+                try:
+                    self.calls.set(module, "gait.lease", self._record(LEASE_SECONDS), "lease")
+                except DeployError as exc:
+                    if isinstance(exc.__cause__, Locked | EstopLatched):
+                        self.lost = str(exc)
+                    raise
+
+    def check(self) -> None:
+        """DeployError if the lease was lost while held (a step must not go on without it)."""
+        if self.lost is not None:
+            raise DeployError(f"the deploy lease was lost: {self.lost}")
+        self.renew()
+
+    def _renew_loop(self) -> None:
+        while not self._stop.wait(RENEW_EVERY):
+            try:
+                self.renew()
+            except DeployError as exc:
+                log.warning("renewing the deploy lease failed: %s", exc)
+                if self.lost is not None:
+                    return
+
+    def release(self) -> None:
+        """Release the lease (best effort: a lease also expires by itself)."""
+        self._stop.set()
+        if self._renewer is not None and self._renewer is not threading.current_thread():
+            self._renewer.join(5)
+        with self._lock:
+            for module in self.held:
+                try:
+                    self.calls.set(module, "gait.lease", self._record(0.0), "release")
+                except DeployError:
+                    pass
+            self.held.clear()
+
+    def __enter__(self) -> Lease:
+        self.take()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.release()

@@ -1,0 +1,148 @@
+"""The Monitor tab: the roster, an attribute browser whose input fits each type, and which live plot an attribute
+joins — every read and write through the page's robot link (web/link.py), never into a module object."""
+
+from __future__ import annotations
+
+import threading
+from typing import TYPE_CHECKING, Any
+
+from .inputs import ValueInput
+from .monitor import PLOT_SECONDS, WINDOWS, LivePlot, SeriesPlot, describe, format_value
+
+if TYPE_CHECKING:
+    from .app import Dashboard
+
+LIVE_PLOTS = {"Live plot 1": "Live 1: module attributes (from the robot)",
+              "Live plot 2": "Live 2: module attributes (from the robot)"}  # fmt: skip
+
+
+class MonitorPanel:
+    """The Monitor tab of ``app``; the live plots it feeds are drawn in the page's plots panel."""
+
+    def __init__(self, app: Dashboard, plots_tab: Any) -> None:
+        self.app = app
+        gui = app.server.gui
+        self.plots = [LivePlot(app.link.node) for _ in LIVE_PLOTS]
+        self.roster_md = gui.add_markdown("")
+        with gui.add_folder("Attribute browser"):
+            self.browse_module = gui.add_dropdown("Node", ["-"])
+            self.browse_object = gui.add_dropdown("Object", ["-"])
+            self.browse_module.on_update(app.safe(lambda _: None if app.syncing else self.list_objects()))
+            self.browse_object.on_update(app.safe(lambda _: None if app.syncing else self._choose()))
+            self.browse_value = gui.add_markdown("")
+            self.value_folder = gui.add_folder("Value")
+            actions = gui.add_button_group("Browse", ["List", "Get", "Set", "Plot"])
+            actions.on_click(app.safe(self._on_browse))
+        self.plot_into = gui.add_dropdown("Plot into", list(LIVE_PLOTS), hint="which live plot Plot adds to")
+        self.window = gui.add_dropdown("Window (s)", [f"{w:g}" for w in WINDOWS], initial_value=f"{PLOT_SECONDS:g}")
+        self.window.on_update(app.safe(lambda e: [setattr(p, "window", float(e.target.value)) for p in self.plots]))
+        self.freeze = gui.add_checkbox("Pause the live plots", initial_value=False,
+                                       hint="hold the plots still to read them; the samples keep arriving")  # fmt: skip
+        clear = gui.add_button_group("Clear", list(LIVE_PLOTS))
+        clear.on_click(app.safe(lambda e: self.plots[list(LIVE_PLOTS).index(e.target.value)].unwatch_all()))
+        # several plots at once, one under the other
+        self.lives = [SeriesPlot(gui, plots_tab, title=title, y_label="value", aspect=3.0)
+                      for title in LIVE_PLOTS.values()]  # fmt: skip
+        self._value_input: ValueInput | None = None
+        self._browsing = threading.RLock()  # the user's choices (viser's pool) and the refresh's first listing
+
+    @property
+    def plot(self) -> LivePlot:
+        """The first live plot (a deploy watches the modules' angles in it)."""
+        return self.plots[0]
+
+    def relink(self) -> None:
+        """The page now shows another robot: the plots follow its modules, the browser starts afresh."""
+        for plot in self.plots:
+            plot.unwatch_all()
+            plot.node = self.app.link.node
+        if self._value_input is not None:
+            self._value_input.remove()
+            self._value_input = None
+        with self.app.programmatic():
+            self.browse_module.options = ["-"]
+            self.browse_object.options = ["-"]
+        self.browse_value.content = ""
+
+    def _on_browse(self, event: Any) -> None:
+        action = event.target.value
+        if action == "List" or self._value_input is None:
+            self.list_objects()
+            return
+        value = self._value_input
+        if action == "Get":
+            self.browse_value.content = (
+                f"`{value.obj.name}` ({describe(value.obj)}) = **{format_value(value.refresh())}**"
+            )
+        elif action == "Set":
+            try:
+                written = value.write()
+            except (ValueError, TypeError) as exc:  # refused in the page: nothing was sent to the module
+                self.browse_value.content = f"⚠ `{value.obj.name}` not set: {exc}"
+                raise
+            self.browse_value.content = f"`{value.obj.name}` set to **{format_value(written)}**"
+        else:
+            self.plots[list(LIVE_PLOTS).index(self.plot_into.value)].watch(self.browse_module.value, value.obj.name)
+            self.app.panel.expand()
+
+    def list_objects(self) -> None:
+        """List the chosen node's objects and choose the first."""
+        with self._browsing:
+            self._list_objects()
+
+    def _list_objects(self) -> None:
+        if self.browse_module.value == "-":
+            return
+        objects = self.app.link.list_objects(self.browse_module.value, timeout=2.0)
+        with self.app.programmatic():
+            self.browse_object.options = [o.name for o in objects] or ["-"]
+        self.browse_value.content = "  \n".join(f"`{o.name}` {describe(o)}" for o in objects)
+        if objects:
+            self._choose_now()
+
+    def _choose(self) -> None:
+        """Show an input that fits the chosen object's type, holding its current value."""
+        with self._browsing:
+            self._choose_now()
+
+    def _choose_now(self) -> None:
+        if self._value_input is not None:
+            self._value_input.remove()
+            self._value_input = None
+        if self.browse_object.value == "-":
+            return
+        obj = self.app.link.lookup(self.browse_module.value, self.browse_object.value, timeout=2.0)
+        with self.value_folder:
+            self._value_input = ValueInput(self.app.server.gui, obj)
+
+    def select(self, module: str) -> None:
+        """A module picked elsewhere (the 3D view): browse it."""
+        if module in self.browse_module.options:
+            self.browse_module.value = module
+
+    def refresh(self) -> None:
+        """The roster, the browser's node list and the live plots, now (the page's 20 Hz refresh)."""
+        roster = self.app.link.roster
+        rows = roster.rows()
+        names = [n for n, _, _ in rows]
+        if names and list(self.browse_module.options) != names:
+            with self.app.programmatic():
+                chosen = self.browse_module.value
+                self.browse_module.options = names
+            if chosen == "-" and not self.app.syncing:
+                self.list_objects()  # the first node's objects, without a click on List
+        others = sorted(roster.tools)
+        watching = f"  \nAlso attached: {', '.join(others)}" if others else ""
+        self.roster_md.content = "**Nodes**" + watching + "  \n" + "  \n".join(
+            f"{'🟢' if alive else '🔴'} `{name}` {'live' if alive else 'LOST'} · last heard {age:.1f} s ago"
+            f"{' · ' + roster.gait(name) if roster.gait(name) else ''}"
+            for name, alive, age in rows
+        )  # fmt: skip
+        for plot, live in zip(self.plots, self.lives, strict=True):
+            labels, data = plot.data()
+            if labels and not self.freeze.value:
+                live.show(labels, data)
+
+    def close(self) -> None:
+        for plot in self.plots:
+            plot.close()

@@ -1,0 +1,60 @@
+"""What the studio adds to viser's page: the E-STOP key, and nothing that hides the E-STOP or publishes the page.
+
+viser's client is a prebuilt bundle; the studio serves it through its own request handler (web/guard.py), which
+puts this script and style into the page's ``<head>``:
+
+- **Escape stops the robot from anywhere on the page** — focus in a text or number field included, a menu open
+  included: a key listener on the window, in the capture phase (before any field or menu sees the key), clicks the
+  E-STOP button. Typing never produces Escape. The key still does what it did (a menu still closes).
+- viser's *Configuration & diagnostics* toggle is hidden: it replaced the whole panel, E-STOP included, with the
+  scene tree. (The *Share* button, which offers a public URL of the page, is turned off by the theme.)
+"""
+
+from __future__ import annotations
+
+import gzip
+
+ESTOP_KEY = "Escape"
+
+SCRIPT = """<script>
+(function () {
+  var KEY = "ESTOP_KEY";
+  function estopButton() {
+    var buttons = document.querySelectorAll("button");
+    for (var i = 0; i < buttons.length; i++) {
+      if (/^E-STOP/.test((buttons[i].textContent || "").trim())) return buttons[i];
+    }
+    return null;
+  }
+  window.addEventListener("keydown", function (event) {
+    if (event.key !== KEY || event.repeat) return;
+    var button = estopButton();
+    if (button) button.click();
+  }, true);
+  function hideSettings() {
+    var icons = document.querySelectorAll("svg.tabler-icon-adjustments, svg.tabler-icon-arrow-back");
+    for (var i = 0; i < icons.length; i++) {
+      var action = icons[i].closest("button, .mantine-ActionIcon-root");
+      if (action && action.style.display !== "none") action.style.display = "none";
+    }
+  }
+  new MutationObserver(hideSettings).observe(document.documentElement, {childList: true, subtree: true});
+})();
+</script>""".replace("ESTOP_KEY", ESTOP_KEY)
+
+STYLE = """<style>
+button:has(> svg.tabler-icon-adjustments), .mantine-ActionIcon-root:has(svg.tabler-icon-adjustments) {
+  display: none !important;
+}
+</style>"""
+
+
+def inject(body: bytes, *, gzipped: bool) -> bytes:
+    """The page ``body`` (gzip-compressed when ``gzipped``) with the script and style in its head."""
+    html = gzip.decompress(body) if gzipped else body
+    marker = b"</head>"
+    at = html.find(marker)
+    if at < 0:
+        return body
+    html = html[:at] + (STYLE + SCRIPT).encode("utf-8") + html[at:]
+    return gzip.compress(html) if gzipped else html

@@ -1,0 +1,151 @@
+"""The top of the side panel: E-STOP, its release, the status line, the robots on the network, and what the 3D view
+shows — above every tab, so none of it is ever more than one click (or the Escape key) away.
+
+The E-STOP reports what the modules confirmed (web/link.py), never what was merely sent; the line under it says at
+once when the robot is lost. The robots of the network are listed (name, simulated or real, modules, real-time
+factor, e-stop) by a thread of their own, and choosing one attaches the page to it.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+from typing import TYPE_CHECKING, Any
+
+from asm_py.feed import RobotStatus
+
+from .confirm import InlineConfirm
+from .page_script import ESTOP_KEY
+
+if TYPE_CHECKING:
+    from .app import Dashboard
+
+log = logging.getLogger("asm_studio.robots")
+LIST_EVERY = 2.0
+"""Seconds between two listings of the robots on the network."""
+
+
+def describe_robot(status: RobotStatus) -> str:
+    """One line about a robot, as the list shows it."""
+    rtf = "" if status.real_time_factor is None else f" · real-time factor {status.real_time_factor:.2f}"
+    if status.estop is None:
+        estop = ""
+    else:
+        estop = f" · **E-STOP latched on {len(status.estop)}**" if status.estop else " · e-stop clear"
+    return f"**{status.robot}**: {status.mode}, {status.modules} modules{rtf}{estop}"
+
+
+class RobotBar:
+    """See the module docstring; ``tick`` is called by the page's refresh (20 Hz)."""
+
+    def __init__(self, app: Dashboard) -> None:
+        self.app = app
+        gui = app.server.gui
+        self.estop = gui.add_button("E-STOP", color="red", hint=f"stop every module of this robot: gaits stopped, "
+                                    f"joints holding (key: {ESTOP_KEY}, from anywhere on the page)")  # fmt: skip
+        self.estop.on_click(app.safe(lambda _: self.press_estop()))
+        self.release = gui.add_button("Release e-stop", color="green", hint="let every module move again (asks first)")
+        self.release.on_click(app.safe(lambda _: self.ask_release()))
+        self.confirm = InlineConfirm(gui, app.safe)
+        self.status = gui.add_markdown("Ready.")
+        hint = "the robots on this Zenoh network; the page shows and commands this one"
+        self.robot = gui.add_dropdown("Robot", [app.link.robot], initial_value=app.link.robot, hint=hint)
+        self.robot.on_update(app.safe(self._chosen))
+        self.robots_md = gui.add_markdown("")
+        hint = "the edited gait in the preview simulation, or the robot itself"
+        self.source = gui.add_button_group("View", ["Preview", "Live"], hint=hint)
+        self.source.on_click(app.safe(lambda e: app.show(e.target.value.lower())))
+        self.source_md = gui.add_markdown("Showing: **Preview** (the edited gait, simulated here)")
+        self.robots: list[RobotStatus] = []
+        self._stop = threading.Event()
+        self._lister = threading.Thread(target=self._list_loop, name="studio-robots", daemon=True)
+        self._lister.start()
+
+    # -- E-STOP ---------------------------------------------------------------------------------------------------
+
+    def press_estop(self) -> None:
+        """Stop every module of the robot shown, and say per module what latched."""
+        report = self.app.link.estop()
+        self.app.notify("E-STOP", report.text(), error=True)
+
+    def ask_release(self) -> None:
+        modules = self.app.link.modules()
+        self.confirm.ask(f"Release the emergency stop of every module ({len(modules)})? Joints stay where they hold "
+                         "and nothing starts until you start or deploy a gait.", "Yes, release",
+                         lambda: self._release(modules))  # fmt: skip
+
+    def _release(self, modules: list[str]) -> None:
+        released = self.app.link.release(modules)
+        self.app.notify("E-STOP released", f"released on {len(released)} of {len(modules)} modules")
+
+    # -- the robots of the network --------------------------------------------------------------------------------
+
+    def _list_loop(self) -> None:
+        while not self._stop.wait(0.0 if not self.robots else LIST_EVERY):
+            try:
+                self.robots = self.app.studio.robots()
+            except Exception as exc:  # the session closing
+                log.debug("listing the robots failed: %s", exc)
+                self.robots = self.robots or []
+                self._stop.wait(LIST_EVERY)
+                continue
+            names = [r.robot for r in self.robots]
+            shown = self.app.link.robot
+            if shown not in names:
+                names.append(shown)
+            with self.app.programmatic():
+                if list(self.robot.options) != names:
+                    self.robot.options = names
+                if self.robot.value != shown:
+                    self.robot.value = shown
+            self.robots_md.content = "  \n".join(describe_robot(r) for r in self.robots) or "no robot answers"
+
+    def _chosen(self, event: Any) -> None:
+        if self.app.syncing or event.target.value == self.app.link.robot:
+            return
+        self.app.attach(event.target.value)
+
+    # -- each refresh ---------------------------------------------------------------------------------------------
+
+    def tick(self) -> None:
+        link = self.app.link
+        lost = link.lost()
+        status = link.status
+        latched = status.estop if status is not None and lost is None else None
+        if lost is not None:
+            label = "E-STOP — robot LOST"
+        elif latched:
+            label = f"E-STOP — LATCHED on {len(latched)} modules"
+        else:
+            label = "E-STOP"
+        if self.estop.label != label:
+            self.estop.label = label
+        if self.app.view.source == "live":
+            kind = "simulated" if self.app.studio.simulated else "real: no poses, angles only"
+            shown = f"Showing: **Live** (robot {link.robot}, {kind})"
+        else:
+            shown = "Showing: **Preview** (the edited gait, simulated here)"
+        content = shown + self._live_line(lost)
+        if self.source_md.content != content:
+            self.source_md.content = content
+        self.confirm.expire()
+
+    def _live_line(self, lost: str | None) -> str:
+        if lost is not None:
+            return f"  \n⚠ **ROBOT LOST**: {lost}. Deploy, start and drive refuse until it is back."
+        link = self.app.link
+        status = link.status
+        if status is None:
+            return f"  \nLive: no status from robot {link.robot} yet"
+        moved, speed = link.feed.speed()
+        rtf = "" if status.real_time_factor is None else f" · real-time factor {status.real_time_factor:.2f}"
+        latched = f" · **E-STOP latched** on {len(status.estop)} modules" if status.estop else ""
+        behind = " · ⚠ the simulation cannot keep up with real time" if status.behind else ""
+        unread = (f" · ⚠ tables not read yet (publications pending): {', '.join(status.unread_tables)}"
+                  if status.unread_tables else "")  # fmt: skip
+        return (f"  \nLive: {status.mode} robot {status.robot}, {status.modules} modules{rtf} · moved {moved:.3f} m "
+                f"in the last 10 s ({speed:.3f} m/s){latched}{behind}{unread}")  # fmt: skip
+
+    def close(self) -> None:
+        self._stop.set()
+        self._lister.join(5)
