@@ -94,6 +94,9 @@ class RobotStatus:
     time: float = 0.0
     unread_tables: list[str] = field(default_factory=list)
     """Modules whose object table the bridge has not read yet: their publications do not reach Zenoh yet."""
+    traffic: dict[str, int] = field(default_factory=dict)
+    """The bridge's counters: messages from Zenoh put on the bus (``to_can``), replies and publications put on
+    Zenoh, refusals, e-stops from Zenoh (``estops``) — what reached this robot."""
 
     def to_json(self) -> str:
         return json.dumps(asdict(self))

@@ -53,7 +53,7 @@ class Burst(Service):
 
 
 def serve(endpoint: str) -> None:
-    transport = ZenohTransport(listen=[endpoint])
+    transport = ZenohTransport(listen=[endpoint], role="module")
     node = Node("bench-server", transport)
     session = transport.session
 

@@ -33,6 +33,7 @@ import zenoh  # noqa: E402
 
 from asm_py.feed import RobotStatus, decode_poses, poses_key, status_key  # noqa: E402
 from asm_py.node import Node  # noqa: E402
+from server.zenoh_args import ZenohOptions  # noqa: E402
 from asm_py.transport.zenoh import ZenohTransport  # noqa: E402
 from gaits.deploy import deploy  # noqa: E402
 from gaits.model import LIBRARY, dumps, load  # noqa: E402
@@ -144,7 +145,7 @@ def live_vs_preview(path: Path) -> tuple[float, float]:
 
 def skew_and_estop(path: Path) -> tuple[float, list[float]]:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    robot = Robot(RobotOptions(sim=path, zenoh_listen=(endpoint,)))
+    robot = Robot(RobotOptions(sim=path, network=ZenohOptions(listen=(endpoint,))))
     client = Node("operator", ZenohTransport(connect=[endpoint]))
     try:
         assert robot.sim is not None

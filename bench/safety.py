@@ -28,6 +28,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from asm_py import Event  # noqa: E402
 from asm_py.node import Node  # noqa: E402
+from server.zenoh_args import ZenohOptions  # noqa: E402
 from asm_py.transport.zenoh import ZenohTransport  # noqa: E402
 from server.bridge import CanZenohBridge  # noqa: E402
 from server.realtime import prefer_latency  # noqa: E402
@@ -53,7 +54,7 @@ end = time.monotonic() + seconds
 sent = 0
 if mode == "max":  # the largest message allowed, as fast as the session takes it: sets of gait.staged on m1
     data = encode(Message(Kind.REQUEST, Method.SET, 0, 0x27, 0, data=bytes(4092)))
-    publisher = session.declare_publisher("asm/m1/msg/flooder", congestion_control=zenoh.CongestionControl.BLOCK)
+    publisher = session.declare_publisher("asm/robot/m1/msg/flooder", congestion_control=zenoh.CongestionControl.BLOCK)
     while time.monotonic() < end:
         publisher.put(data)
         sent += 1
@@ -62,11 +63,11 @@ else:  # oversized queries with the longest timeout, and waits that are never an
     txn = 0
     while time.monotonic() < end:
         if mode != "waits":
-            session.get("asm/m1/req/hog", lambda reply: None, payload=big, timeout=30.0)
+            session.get("asm/robot/m1/req/hog", lambda reply: None, payload=big, timeout=30.0)
         for _ in range(20 if mode != "big" else 0):
             txn = (txn + 1) & 0x7F
             wait = encode(Message(Kind.REQUEST_REPLY, Method.WAIT, txn, class_id, object_id, timeout=0xFF))
-            session.get(f"asm/m{1 + txn % 8}/req/hog{txn % 16}", lambda reply: None, payload=wait, timeout=30.0)
+            session.get(f"asm/robot/m{1 + txn % 8}/req/hog{txn % 16}", lambda reply: None, payload=wait, timeout=30.0)
         sent += 21
         time.sleep(0.01)
 print("SENT", sent, flush=True)
@@ -124,7 +125,7 @@ def main() -> None:
     entry = robot.nodes[0].entry("never")
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     bridge = CanZenohBridge({"interface": "asm_sim", "channel": robot.channel, **robot.options},
-                            zenoh_listen=[endpoint])  # fmt: skip
+                            network=ZenohOptions(listen=(endpoint,)))  # fmt: skip
     operator = Node("operator", ZenohTransport(connect=[endpoint]))
     flooder: subprocess.Popen[str] | None = None
     try:

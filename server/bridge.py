@@ -114,7 +114,7 @@ class CanZenohBridge:
         self._lock = self.clients.lock
         self._pacer = Pacer(max_frame_rate)
         self._work: queue.Queue[str | None] = queue.Queue()
-        self.forwarded = {"to_can": 0, "to_zenoh": 0, "publications": 0, "unanswered": 0, "refused": 0}
+        self.forwarded = {"to_can": 0, "to_zenoh": 0, "publications": 0, "unanswered": 0, "refused": 0, "estops": 0}
         self.session = (network or ZenohOptions()).open()
         self._zid = str(self.session.info.zid())
         self._stop = threading.Event()
@@ -343,6 +343,7 @@ class CanZenohBridge:
 
     def _estop_from_zenoh(self, sample: zenoh.Sample) -> None:
         self.can.estop(sample.payload.to_bytes()[:64].decode("utf-8", errors="replace"))
+        self.forwarded["estops"] += 1
 
     # -- CAN -> Zenoh ---------------------------------------------------------------------------------------------
 

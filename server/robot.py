@@ -169,17 +169,35 @@ class Robot:
             modules = self.sim.gait.robot.modules if self.sim is not None else 0
             self.status = RobotStatus(options.name, "simulated" if self.sim else "real", modules,
                                       estop=[] if self.sim else None)  # fmt: skip
-            sim = self.sim
-            refresh = None if sim is None else lambda status: setattr(status, "estop", sim.latched())
+            sim, bridge = self.sim, self.bridge
+
+            def refresh(status: RobotStatus) -> None:
+                status.traffic = dict(bridge.forwarded)
+                if sim is not None:
+                    status.estop = sim.latched()
+
             self.feed = RobotFeed(self.bridge.session, self.status, sim.mjcf if sim else None, refresh)
             self.feed.publish_status()
             if self.sim is not None:
                 self.loop = RealTimeLoop(self.sim, self.feed, options.pose_rate)
             self._status_timer = threading.Thread(target=self._report, name="asm-robot-status", daemon=True)
             self._status_timer.start()
+            if self.sim is not None:
+                self._await_bridged(modules)
         except BaseException:
             self.close()
             raise
+
+    def _await_bridged(self, modules: int, timeout: float = 15.0) -> None:
+        """Wait until the simulated modules are on Zenoh (so "READY" means a tool can reach every one); a robot
+        that takes longer says so and goes on (the bridge keeps trying)."""
+        deadline = time.monotonic() + timeout
+        assert self.bridge is not None
+        while len(self.bridge.bridged) < modules:
+            if time.monotonic() > deadline:
+                log.warning("only %d of %d modules are bridged after %g s", len(self.bridge.bridged), modules, timeout)
+                return
+            time.sleep(0.02)
 
     @property
     def mjcf(self) -> str | None:

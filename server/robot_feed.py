@@ -72,6 +72,8 @@ class RobotFeed:
             log.debug("not published on %s: %s", key, exc)
 
     def publish_status(self) -> None:
+        if self.refresh is not None:
+            self.refresh(self.status)
         self._put("status", self.status.to_json())
 
     def publish_poses(self, frame: bytes) -> None:

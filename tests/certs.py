@@ -37,11 +37,12 @@ class Authority:
         self.path = folder / f"{name}.pem"
         self.path.write_bytes(self.cert.public_bytes(serialization.Encoding.PEM))
 
-    def issue(self, common_name: str) -> tuple[Path, Path]:
-        """(key file, certificate file) for ``common_name``, valid for localhost and 127.0.0.1."""
+    def issue(self, common_name: str, addresses: tuple[str, ...] = ()) -> tuple[Path, Path]:
+        """(key file, certificate file) for ``common_name``, valid for localhost, 127.0.0.1 and ``addresses``."""
         key = ec.generate_private_key(ec.SECP256R1())
         now = datetime.datetime.now(datetime.UTC)
-        names = [x509.DNSName("localhost"), x509.IPAddress(ipaddress.ip_address("127.0.0.1"))]
+        names = [x509.DNSName("localhost"), x509.IPAddress(ipaddress.ip_address("127.0.0.1")),
+                 *(x509.IPAddress(ipaddress.ip_address(a)) for a in addresses)]  # fmt: skip
         cert = (
             x509.CertificateBuilder()
             .subject_name(_name(common_name))

@@ -3,6 +3,7 @@ secure configuration (docs/zenoh-secure.json5) works, tested on loopback with ce
 
 from __future__ import annotations
 
+import json
 import logging
 import subprocess
 import sys
@@ -20,11 +21,21 @@ from .transports import free_port
 TEMPLATE = Path(__file__).resolve().parent.parent / "docs" / "zenoh-secure.json5"
 
 
-def secure_config(folder: Path, authority: Authority, common_name: str) -> str:
-    """The documented template, filled in for a certificate ``common_name`` issued by ``authority``."""
-    key, cert = authority.issue(common_name)
+def secure_config(
+    folder: Path,
+    authority: Authority,
+    common_name: str,
+    addresses: tuple[str, ...] = (),
+    operators: tuple[str, ...] = (),
+) -> str:
+    """The documented template, filled in for a certificate ``common_name`` issued by ``authority`` (valid for
+    ``addresses`` too); ``operators``: more common names the access control allows."""
+    key, cert = authority.issue(common_name, addresses)
     text = TEMPLATE.read_text().replace("ROOT_CA", str(authority.path))
     text = text.replace("PRIVATE_KEY", str(key)).replace("CERTIFICATE", str(cert))
+    if operators:
+        text = text.replace('cert_common_names: ["robot", "operator"]',
+                            f"cert_common_names: {json.dumps(['robot', 'operator', *operators])}")  # fmt: skip
     path = folder / f"{common_name}.json5"
     path.write_text(text)
     return str(path)

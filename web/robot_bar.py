@@ -143,8 +143,8 @@ class RobotBar:
         behind = " · ⚠ the simulation cannot keep up with real time" if status.behind else ""
         unread = (f" · ⚠ tables not read yet (publications pending): {', '.join(status.unread_tables)}"
                   if status.unread_tables else "")  # fmt: skip
-        return (f"  \nLive: {status.mode} robot {status.robot}, {status.modules} modules{rtf} · moved {moved:.3f} m "
-                f"in the last 10 s ({speed:.3f} m/s){latched}{behind}{unread}")  # fmt: skip
+        return (f"  \nLive: {status.mode} robot, {status.modules} modules{rtf} · moved {moved:.3f} m in the last "
+                f"10 s ({speed:.3f} m/s){latched}{behind}{unread}")  # fmt: skip
 
     def close(self) -> None:
         self._stop.set()

@@ -193,7 +193,7 @@ class ZenohTransport(Transport):
             if not answered:
                 answered = True
                 try:
-                    query.reply(key, reply)
+                    query.reply(key, reply, express=True)
                 finally:
                     query.drop()
 
@@ -308,7 +308,13 @@ class ZenohTransport(Transport):
                             self._queriers.pop(old).undeclare()
                     key = route.keys.requests(route.segment, self.segment)
                     congestion = zenoh.CongestionControl.BLOCK
-                    querier = self.session.declare_querier(key, timeout=wait, congestion_control=congestion)
+                    querier = self.session.declare_querier(
+                        key,
+                        timeout=wait,
+                        congestion_control=congestion,
+                        express=True,
+                        consolidation=zenoh.ConsolidationMode.NONE,
+                    )
                     self._queriers[(dest, wait)] = querier
         return querier
 
