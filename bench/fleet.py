@@ -26,17 +26,17 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-import zenoh  # noqa: E402
+import zenoh
 
-from asm_py import Attribute, Node  # noqa: E402
-from asm_py.feed import RobotStatus  # noqa: E402
-from asm_py.keys import RobotKeys, lab_estop  # noqa: E402
-from asm_py.transport.zenoh import ZenohTransport  # noqa: E402
-from bench._processes import Child, free_port  # noqa: E402
-from gaits.deploy import deploy, module_name, start_all  # noqa: E402
-from gaits.drive import STOP, drive  # noqa: E402
-from gaits.model import LIBRARY, load  # noqa: E402
-from server.zenoh_args import ZenohOptions  # noqa: E402
+from asm_py import Attribute, Node
+from asm_py.feed import RobotStatus
+from asm_py.keys import RobotKeys, lab_estop
+from asm_py.transport.zenoh import ZenohTransport
+from bench._processes import Child, free_port
+from gaits.deploy import deploy, module_name, start_all
+from gaits.drive import STOP, drive
+from gaits.model import LIBRARY, load
+from server.zenoh_args import ZenohOptions
 
 ROBOTS = ("a", "b", "c", "d")
 MODULES = [module_name(i) for i in range(1, 9)]
@@ -129,8 +129,10 @@ def estops(router: str, session: zenoh.Session) -> tuple[float, float]:
         for _ in range(ESTOPS):
             robot_ms.append(estop_ms(session, ("a",), lambda: tools["a"].estop("bench")))
             release(tools["a"])
-            lab_ms.append(estop_ms(session, ROBOTS, lambda: session.put(lab_estop("~bench"), b"bench",
-                                                                        priority=zenoh.Priority.REAL_TIME)))  # fmt: skip
+            lab = lab_estop("~bench")
+            lab_ms.append(
+                estop_ms(session, ROBOTS, lambda: session.put(lab, b"bench", priority=zenoh.Priority.REAL_TIME))
+            )
             for node in tools.values():
                 release(node)
         return statistics.median(robot_ms), statistics.median(lab_ms)

@@ -33,13 +33,13 @@ import zenoh  # noqa: E402
 
 from asm_py.feed import RobotStatus, decode_poses, poses_key, status_key  # noqa: E402
 from asm_py.node import Node  # noqa: E402
-from server.zenoh_args import ZenohOptions  # noqa: E402
 from asm_py.transport.zenoh import ZenohTransport  # noqa: E402
 from gaits.deploy import deploy  # noqa: E402
 from gaits.model import LIBRARY, dumps, load  # noqa: E402
 from gaits.sim import Simulation  # noqa: E402
 from server.realtime import prefer_latency  # noqa: E402
 from server.robot import Robot, RobotOptions  # noqa: E402
+from server.zenoh_args import ZenohOptions  # noqa: E402
 from tests.processes import Process  # noqa: E402
 from tests.transports import free_port  # noqa: E402
 from web.document import GaitDocument  # noqa: E402

@@ -28,10 +28,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from asm_py import Event  # noqa: E402
 from asm_py.node import Node  # noqa: E402
-from server.zenoh_args import ZenohOptions  # noqa: E402
 from asm_py.transport.zenoh import ZenohTransport  # noqa: E402
 from server.bridge import CanZenohBridge  # noqa: E402
 from server.realtime import prefer_latency  # noqa: E402
+from server.zenoh_args import ZenohOptions  # noqa: E402
 from tests.test_safety import Robot  # noqa: E402
 from tests.transports import free_port  # noqa: E402
 

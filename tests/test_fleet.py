@@ -55,8 +55,8 @@ def snapshot(node: Node) -> list[tuple[object, ...]]:
     """What a robot's modules run, read back from each: deploy ID, gait running, mode, e-stop, lease holder."""
     rows = []
     for module in MODULES:
-        read = {name: node.lookup(module, name, timeout=5) for name in ("gait.activate", "gait.service",
-                                                                          "gait.mode", "estop", "gait.lease")}  # fmt: skip
+        names = ("gait.activate", "gait.service", "gait.mode", "estop", "gait.lease")
+        read = {name: node.lookup(module, name, timeout=5) for name in names}
         rows.append((read["gait.activate"].peek(), read["gait.service"].running, read["gait.mode"].peek(),
                      read["estop"].peek(), read["gait.lease"].peek()["holder"]))  # fmt: skip
     return rows
