@@ -126,10 +126,10 @@ def estops(router: str, session: zenoh.Session) -> tuple[float, float]:
     tools = {r: Node("bench", ZenohTransport(robot=r, mode="client", connect=[router])) for r in ROBOTS}
     try:
         robot_ms, lab_ms = [], []
+        lab = lab_estop("~bench")
         for _ in range(ESTOPS):
             robot_ms.append(estop_ms(session, ("a",), lambda: tools["a"].estop("bench")))
             release(tools["a"])
-            lab = lab_estop("~bench")
             lab_ms.append(
                 estop_ms(session, ROBOTS, lambda: session.put(lab, b"bench", priority=zenoh.Priority.REAL_TIME))
             )
