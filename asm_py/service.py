@@ -115,17 +115,9 @@ class Service:
         service's own thread, it only asks: the thread ends when ``run`` returns.
         """
         mon = self._mon
-        with mon:
-            thread = self._thread
-            if not self._started or (thread is None and self._stop_requested):
-                return
-            self._stop_requested = True
-            mon.notify_all()
-            # Read after setting the flag: the service thread publishes _blocked_on before testing the flag.
-            blocked = self._blocked_on
-        if blocked is not None and blocked is not mon:
-            with blocked:
-                blocked.notify_all()
+        asked, thread = self._ask_to_stop()
+        if not asked:
+            return
         if thread is None:
             self._finish()
             return
@@ -137,6 +129,30 @@ class Service:
             raise AsmTimeout(f"service {self._name!r} did not stop within {timeout}s")
         if thread.ident is not None:
             thread.join()
+
+    def request_stop(self) -> None:
+        """Ask the service to stop and return at once, whatever it is doing: its thread ends at its next checkpoint,
+        an event-driven service handles no further firing. For a caller that must never wait on the service (a
+        module's e-stop path); ``stop`` waits for the end."""
+        asked, thread = self._ask_to_stop()
+        if asked and thread is None:
+            self._finish()
+
+    def _ask_to_stop(self) -> tuple[bool, threading.Thread | None]:
+        """Set the stop flag and wake the service; (whether it was running, its thread)."""
+        mon = self._mon
+        with mon:
+            thread = self._thread
+            if not self._started or (thread is None and self._stop_requested):
+                return False, thread
+            self._stop_requested = True
+            mon.notify_all()
+            # Read after setting the flag: the service thread publishes _blocked_on before testing the flag.
+            blocked = self._blocked_on
+        if blocked is not None and blocked is not mon:
+            with blocked:
+                blocked.notify_all()
+        return True, thread
 
     def suspend(self, *, wait: bool = True) -> None:
         """Pause the service; it holds at its next checkpoint or sleep. ServiceError if not started."""

@@ -154,6 +154,11 @@ def activate(
     try:
         lease.check()
         lease.calls.check_not_latched(ids, "activate")
+        for module in ids:  # what was staged is still there: nobody staged over it meanwhile
+            reported = lease.calls.peek(module, "gait.staged_checksum", "activate")
+            if reported != report.checksums[module]:
+                raise DeployError(f"activate: module {module} ({lease.calls.names[module]}) holds another staged "
+                                  f"gait (checksum {reported:#010x}): nothing was started")  # fmt: skip
         _activate(node, lease.calls, lease, report, ids, deadline, None)
     finally:
         report.cancel()

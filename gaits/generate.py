@@ -17,6 +17,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from asm_py.module.program import MIN_DURATION, MIN_DURATION_TEXT
 from asm_py.module.wire import MAX_STATES
 
 from .model import MAX_MODULES, Gait, Robot
@@ -113,4 +114,8 @@ def _check(spec: WaveSpec) -> None:
     number(spec.pitch_amplitude, "the pitch amplitude", -spec.limit, spec.limit)
     number(spec.offset, "the offset", -spec.limit, spec.limit)
     number(spec.period, "the period", 0, 60, open_low=True)
+    if spec.period / spec.states < MIN_DURATION:
+        raise ValueError(f"{spec.states} states per period of {spec.period:g} s last {spec.period / spec.states:.4g} s "
+                         f"each: a state lasts at least one control tick ({MIN_DURATION_TEXT}); use at most "
+                         f"{int(spec.period / MIN_DURATION)} states or a longer period")  # fmt: skip
     number(abs(spec.wavelength), "the wavelength's size", 0.5, 10_000)

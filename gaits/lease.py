@@ -12,6 +12,7 @@ import logging
 import os
 import socket
 import threading
+import time
 from collections.abc import Sequence
 
 from asm_py import Node
@@ -25,6 +26,9 @@ LEASE_SECONDS = 5.0
 """How long one grant lasts: a dead deployer's lease frees the robot within this."""
 RENEW_EVERY = 1.5
 """Seconds between renewals while the deployer holds the lease."""
+MAX_HOLD = 300.0
+"""Seconds a lease is renewed at most: a staged deployment nobody starts or cancels does not lock the robot for
+good (the studio withdraws its question after a minute)."""
 
 
 def default_holder(node: Node) -> str:
@@ -41,6 +45,7 @@ class Lease:
         self.holder = holder
         self.token = token
         self.held: list[int] = []
+        self._renewed_at = 0.0
         self.lost: str | None = None
         """Why the lease was lost while held (another deployer took it after an expiry), or None."""
         self._stop = threading.Event()
@@ -62,12 +67,20 @@ class Lease:
                                       f"({self.calls.names[module]}); release it first") from None  # fmt: skip
                 raise
             self.held.append(module)
+        self._renewed_at = time.monotonic()
         self._renewer = threading.Thread(target=self._renew_loop, name="asm-lease", daemon=True)
         self._renewer.start()
 
     def renew(self) -> None:
-        """Renew the lease on every module now; DeployError if another deployer holds a module's lease."""
+        """Renew the lease on every module now; DeployError if another deployer holds a module's lease, or if the
+        lease lapsed since the last renewal (a module would grant it again, but another deployer may have held it
+        in between: what this deployer staged may be gone)."""
         with self._lock:
+            began = time.monotonic()
+            if self.lost is None and began - self._renewed_at >= LEASE_SECONDS:
+                self.lost = f"not renewed for {began - self._renewed_at:.1f} s: it lapsed"
+            if self.lost is not None:
+                raise DeployError(f"the deploy lease was lost: {self.lost}")
             for module in self.held:
                 try:
                     self.calls.set(module, "gait.lease", self._record(LEASE_SECONDS), "lease")
@@ -75,15 +88,15 @@ class Lease:
                     if isinstance(exc.__cause__, Locked | EstopLatched):
                         self.lost = str(exc)
                     raise
+            self._renewed_at = began
 
     def check(self) -> None:
-        """DeployError if the lease was lost while held (a step must not go on without it)."""
-        if self.lost is not None:
-            raise DeployError(f"the deploy lease was lost: {self.lost}")
+        """DeployError if the lease was lost or lapsed while held (a step must not go on without it)."""
         self.renew()
 
     def _renew_loop(self) -> None:
-        while not self._stop.wait(RENEW_EVERY):
+        until = time.monotonic() + MAX_HOLD
+        while not self._stop.wait(RENEW_EVERY) and time.monotonic() < until:
             try:
                 self.renew()
             except DeployError as exc:

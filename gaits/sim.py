@@ -107,12 +107,32 @@ class MujocoJoint(JointDriver):
             float(model.actuator_biasprm[self._actuator, 2]),
         )
         self._relaxed = False
+        self._held: float | None = None
+        """The control value (radians) an e-stop holds, or None."""
 
     def command(self, degrees: float) -> None:
         with self._sim.lock:
+            if self._held is not None:
+                return
             self._sim.data.ctrl[self._actuator] = math.radians(degrees)
             if self._relaxed:
                 self._power(*self._gains)
+            if self._held is not None:  # an e-stop held the joint meanwhile (it takes no lock): the hold wins
+                self._sim.data.ctrl[self._actuator] = self._held
+
+    def hold(self) -> float:
+        """Hold the joint where it is, without the simulation's lock: a step or a tick in progress never delays an
+        e-stop (one float written, as a servo's register would be)."""
+        data = self._sim.data
+        held = float(data.qpos[self._qpos])
+        self._held = held
+        data.ctrl[self._actuator] = held
+        if self._relaxed:
+            self._power(*self._gains)
+        return math.degrees(held)
+
+    def release(self) -> None:
+        self._held = None
 
     def read(self) -> JointReading:
         with self._sim.lock:

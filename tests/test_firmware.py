@@ -153,7 +153,7 @@ def _random_program(rng: random.Random) -> Program:
             until = Until(event, round(rng.uniform(0, 5), 2))
         elif event is not None:
             until = Until(event)
-        duration = None if until is not None and rng.random() < 0.3 else round(rng.uniform(0.01, 2), 3)
+        duration = None if until is not None and rng.random() < 0.3 else round(rng.uniform(0.02, 2), 3)
         return ModeState(round(rng.uniform(-90, 90), 2), duration, rng.choice(["step", "linear"]), until,
                          rng.choice([0, 0, 0, rng.randrange(1, 256)]))  # fmt: skip
 

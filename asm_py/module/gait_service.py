@@ -104,13 +104,16 @@ class ModuleGait(PhaseAutomaton):
 
     # -- starting -----------------------------------------------------------------------------------------------
 
-    def start(self, phase: float | None = None, direction: int | None = None, *, wait: bool = True) -> None:  # type: ignore[override]
+    def start(self, *params: Any, wait: bool = True) -> None:
+        """Start at the module's gait.phase and gait.direction. A START carries no parameters (docs/protocol.md
+        §9): a phase and a direction are set first, each checked by its own attribute."""
+        if params:
+            raise ValueError(f"gait.service starts without parameters (set gait.phase and gait.direction first), "
+                             f"not {list(params)!r}"[:200])  # fmt: skip
         if self._runtime.latched:
             raise EstopLatched("the module is in emergency stop; set estop to false before starting the gait")
-        if phase is None:
-            phase = float(self._runtime.phase.peek())
         self._runtime._begin_ramp()
-        super().start(phase, direction)
+        super().start(float(self._runtime.phase.peek()))
 
     def initialize(self, phase: float) -> None:
         now = self.clock.now()
@@ -164,7 +167,7 @@ class ModuleGait(PhaseAutomaton):
     # -- each tick ----------------------------------------------------------------------------------------------
 
     def handle(self, value: Any) -> None:
-        if self._finished:
+        if self._finished or self._runtime.latched:  # latched: a tick racing the e-stop does nothing
             return
         now = self.clock.now()
         if self._current.timed:
@@ -176,6 +179,12 @@ class ModuleGait(PhaseAutomaton):
 
     def _step_timed(self, now: float) -> None:
         while now >= self._boundary - _EPS and self._current.timed:
+            quiet = self._quiet_boundaries(now)
+            if quiet:  # boundaries that only count a cycle are crossed together: bounded work per tick, always
+                self.cycle.set(int(self.cycle.peek()) + quiet)
+                self._boundary += quiet * self.period
+                if self._sequence_at + 1 < len(self.program.sequence):
+                    self._cycles_left -= quiet
             boundary = self._boundary
             self._boundary = boundary + self.period
             if self._cross_boundary(boundary) and not self._current.timed:
@@ -189,6 +198,19 @@ class ModuleGait(PhaseAutomaton):
         index = bisect.bisect_right(self._starts, self.tau) - 1
         if index != self._index:
             self._enter_state(index, now)
+
+    def _quiet_boundaries(self, now: float) -> int:
+        """How many of the cycle boundaries due by ``now``, before the last one, do nothing but count a cycle: none
+        past a pending switch's time, none past the sequence's next step (as the C runtime does, firmware/src)."""
+        crossed = int((now - self._boundary + _EPS) // self.period) + 1
+        quiet = crossed - 1
+        with self._lock:
+            pending = self._switch_request
+        if pending is not None:
+            quiet = min(quiet, max(0, math.ceil((pending[2] - self._boundary) / self.period - _EPS)))
+        if self._sequence_at + 1 < len(self.program.sequence):
+            quiet = min(quiet, self._cycles_left - 1)
+        return max(0, quiet)
 
     def _step_states(self, now: float) -> None:
         for _ in range(4 * len(self._current.states) + 1):  # several short states may end within one tick

@@ -28,12 +28,19 @@ Timing rules, the same on every module so that modules agree without talking:
 from __future__ import annotations
 
 import math
+import struct
 from dataclasses import dataclass
 from typing import Literal
 
 from ..automaton import PhaseState
 
 EventName = Literal["contact", "no_contact", "at_goal", "torque", "neighbour", "signal"]
+CONTROL_PERIOD = 0.02
+"""Seconds between two control ticks of a module (50 Hz): the shortest state a module can execute."""
+MIN_DURATION = struct.unpack("<f", struct.pack("<f", CONTROL_PERIOD))[0]
+"""The shortest duration a table may carry: one control tick, as float32 (what the wire holds for 0.02)."""
+MIN_DURATION_TEXT = f"{CONTROL_PERIOD:g} s"
+
 EVENTS: tuple[EventName, ...] = ("contact", "no_contact", "at_goal", "torque", "neighbour", "signal")
 """contact: the contact sensor goes from free to touching during the state; no_contact: from touching to free;
 at_goal: |joint.angle - target| <= value degrees; torque: |joint.torque| >= value N·m; neighbour: module
@@ -93,8 +100,9 @@ class ModeState:
         if self.duration is None:
             if self.until is None:
                 raise ValueError("a state needs a duration, an event, or both")
-        elif not (self.duration > 0 and math.isfinite(self.duration)):
-            raise ValueError(f"state duration must be a positive number of seconds, not {self.duration}")
+        elif not (self.duration >= MIN_DURATION and math.isfinite(self.duration)):
+            raise ValueError(f"state duration must be a finite number of seconds, at least one control tick "
+                             f"({MIN_DURATION_TEXT}), not {self.duration}")  # fmt: skip
         if not math.isfinite(self.target):
             raise ValueError(f"state target must be a finite number, not {self.target}")
         if self.interpolation not in ("step", "linear"):

@@ -85,6 +85,19 @@ class JointDriver(ABC):
     def relax(self) -> None:
         """Stop driving the joint (servo off)."""
 
+    def hold(self) -> float:
+        """Hold the joint where it is now and ignore every command until :meth:`release`; the angle held.
+
+        The e-stop path calls this on the thread the stop arrived on: it must finish at once, taking no lock that a
+        control tick or a simulation step holds (a real driver writes its PWM register). This default commands the
+        angle read; a driver whose read or command can wait overrides it."""
+        angle = self.read().angle
+        self.command(angle)
+        return angle
+
+    def release(self) -> None:
+        """Follow commands again (the e-stop was released)."""
+
 
 class FakeDriver(JointDriver):
     """A position servo model: the angle follows the command as a first-order lag with time constant ``tau``
@@ -98,6 +111,7 @@ class FakeDriver(JointDriver):
         self._goal = 0.0
         self._angle = 0.0
         self._powered = True
+        self._held = False
         self._time = self.clock.now()
 
     def _advance(self) -> None:
@@ -109,8 +123,21 @@ class FakeDriver(JointDriver):
     def command(self, degrees: float) -> None:
         with self._lock:
             self._advance()
+            if self._held:
+                return
             self._goal = degrees
             self._powered = True
+
+    def hold(self) -> float:
+        with self._lock:  # its own, held for microseconds by its own methods alone
+            self._advance()
+            self._goal = self._angle
+            self._held = True
+            return self._angle
+
+    def release(self) -> None:
+        with self._lock:
+            self._held = False
 
     def read(self) -> JointReading:
         with self._lock:
@@ -133,6 +160,11 @@ class _Servo(EventDrivenService):
 
     def handle(self, value: Any) -> None:
         self._runtime.sense()
+
+    def start(self, *params: Any, wait: bool = True) -> None:
+        if params:  # a module's services start without parameters, on every module (the C runtime's too)
+            raise ValueError(f"servo.service starts without parameters, not {list(params)!r}"[:200])
+        super().start(wait=wait)
 
     def on_start(self, *params: Any) -> None:
         self._runtime.driver.command(self._runtime.goal.peek())
@@ -168,9 +200,10 @@ class ModuleRuntime:
         self.clock = clock or (node.clock if node is not None else WALL_CLOCK)
         self.hardware_range = hardware_range
         self.ramp = ramp
-        self._motion = threading.Lock()  # the hold of an e-stop and the gait's next goal never interleave
         self.latched = False
-        """The e-stop is latched (set before the hold, so no goal from a racing tick follows it)."""
+        """The e-stop is latched (set first: a racing tick's goal is never commanded after it)."""
+        self._held_at: float | None = None
+        """The angle the e-stop holds (joint.goal reads it from the next tick on)."""
         self.limits = CheckedAttribute("joint.limits", self._check_limits(limits), codec=float_array(2),
                                        check=self._check_limits, clock=self.clock)  # fmt: skip
         self.goal = CheckedAttribute("joint.goal", 0.0, codec=FLOAT32, check=self._clamp_goal, clock=self.clock)
@@ -265,8 +298,8 @@ class ModuleRuntime:
         return (lo, hi)
 
     def _clamp_goal(self, value: float) -> float:
-        if math.isnan(value):
-            raise ValueError("joint.goal cannot be NaN")
+        if not math.isfinite(value):
+            raise ValueError(f"joint.goal must be a finite number of degrees, not {value}")
         lo, hi = self.limits.peek()
         return min(max(value, lo), hi)
 
@@ -276,9 +309,10 @@ class ModuleRuntime:
         return value
 
     def _check_estop(self, value: bool) -> bool:
-        self.latched = bool(value)
         if value:
-            self._halt()
+            self._latch()
+        else:
+            self._unlatch()
         return value
 
     def check_table(self, data: bytes) -> Program:
@@ -341,20 +375,22 @@ class ModuleRuntime:
 
     def _follow(self, reference: float) -> None:
         """The automaton's reference becomes the goal, ramped in from the goal held when the gait started."""
-        with self._motion:
-            if self.latched:
-                return  # a tick that raced the e-stop: the hold wins
-            s = 1.0 if self.ramp <= 0 else min(1.0, (self.clock.now() - self._ramp_start) / self.ramp)
-            self.goal.set(self._ramp_from + s * (reference - self._ramp_from))
+        if self.latched:
+            return  # a tick that raced the e-stop: the hold wins (and the driver ignores what slips through)
+        s = 1.0 if self.ramp <= 0 else min(1.0, (self.clock.now() - self._ramp_start) / self.ramp)
+        self.goal.set(self._ramp_from + s * (reference - self._ramp_from))
 
     def _reclamp(self, limits: Any) -> None:
         self.goal.set(self.goal.peek())
 
     def _command(self, goal: float) -> None:
-        if self.servo.running:
+        if self.servo.running and not self.latched:
             self.driver.command(goal)
 
     def sense(self) -> None:
+        held = self._held_at
+        if self.latched and held is not None and self.goal.peek() != held:  # the e-stop's goal, set by the tick
+            self.goal.set(held)
         reading = self.driver.read()
         self.angle.set(reading.angle)
         self.torque.set(reading.torque)
@@ -365,14 +401,32 @@ class ModuleRuntime:
         self._ramp_from = float(self.goal.peek())
         self._ramp_start = self.clock.now()
 
-    def _halt(self) -> None:
-        self.gait.stop(wait=False)
-        with self._motion:
-            self.goal.set(self.driver.read().angle)
+    def _latch(self) -> None:
+        """The e-stop's own path, run on the thread the stop arrived on (a bus's receive thread): flags and the
+        driver's hold, nothing a gait, a service or a simulation step can hold — a gait however busy cannot delay
+        it. The gait service is asked to stop (its thread ends by itself, no tick handles anything meanwhile), and
+        joint.goal reads the held angle (a tick that raced the latch and wrote its own goal is corrected by the
+        next tick)."""
+        self.latched = True
+        if self.servo.running:
+            self._held_at = self.driver.hold()
+        self.gait.request_stop()
+        if self._held_at is not None:
+            self.goal.set(self._held_at)  # the goal's own lock, for microseconds: it commands nothing while latched
+
+    def _unlatch(self) -> None:
+        """Released: commands reach the joint again, which stays where it holds until a new goal or gait."""
+        if self.latched:
+            self.latched = False
+            held, self._held_at = self._held_at, None
+            self.driver.release()
+            if held is not None:
+                self.goal.set(held)
 
     def emergency_stop(self, reason: str = "") -> None:
-        """Stop the gait and hold the joint where it is; latched until ``estop`` is set to false."""
-        self.estop.set(True)
+        """Stop the gait and hold the joint where it is; latched until ``estop`` is set to false (see _latch)."""
+        self._latch()
+        Attribute.set(self.estop, True)  # the value only: _latch has done what a set would
 
     def close(self) -> None:
         if self._own_timer is not None:

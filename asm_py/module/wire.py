@@ -6,7 +6,8 @@ list of states in a compact little-endian layout that firmware can parse without
     offset 0   2 bytes  magic b"GT"
     offset 2   1 byte   version (1)
     offset 3   2 bytes  uint16 number of states N (1..1024)
-    then N × 9 bytes:   float32 angle (degrees), float32 duration (seconds, > 0), uint8 interpolation (0 step, 1 linear)
+    then N × 9 bytes:   float32 angle (degrees), float32 duration (seconds, at least one control tick:
+                        0.02), uint8 interpolation (0 step, 1 linear)
 
 Version 2 holds a program (asm_py/module/program.py): several modes (gaits), a sequence, sensor- and
 neighbour-driven states and one-shot modes. A program that version 1 can say is always written as version 1, so
@@ -44,7 +45,19 @@ from dataclasses import dataclass
 
 from ..automaton import PhaseState
 from ..protocol import HEADER_SIZE, MAX_MESSAGE
-from .program import EVENTS, MAX_MODES, MAX_SEQUENCE, OUTCOMES, Mode, ModeState, Program, Until, program_of
+from .program import (
+    EVENTS,
+    MAX_MODES,
+    MAX_SEQUENCE,
+    MIN_DURATION,
+    MIN_DURATION_TEXT,
+    OUTCOMES,
+    Mode,
+    ModeState,
+    Program,
+    Until,
+    program_of,
+)
 
 MAGIC = b"GT"
 VERSION = 1
@@ -95,8 +108,9 @@ def decode_table(data: bytes) -> list[PhaseState]:
         angle, duration, code = _STATE.unpack_from(data, _HEADER.size + k * _STATE.size)
         if code not in _BY_CODE:
             raise ValueError(f"state {k}: unknown interpolation code {code}")
-        if not (math.isfinite(angle) and math.isfinite(duration) and duration > 0):
-            raise ValueError(f"state {k}: angle {angle} and duration {duration} must be finite, duration > 0")
+        if not (math.isfinite(angle) and math.isfinite(duration) and duration >= MIN_DURATION):
+            raise ValueError(f"state {k}: angle {angle} and duration {duration} must be finite, the duration at "
+                             f"least one control tick ({MIN_DURATION_TEXT})")  # fmt: skip
         states.append(PhaseState(float(angle), float(duration), _BY_CODE[code]))  # type: ignore[arg-type]
     return states
 

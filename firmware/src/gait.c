@@ -165,6 +165,8 @@ static int set_staged(struct asm_node *node, struct asm_object *o, const uint8_t
     struct asm_module *m = asm_module_of(node);
     struct asm_gait *g = &m->gait;
     if (length == 0) {
+        if (lease_in_force(m))
+            return ASM_S_LOCKED; /* an empty value names no deploy ID: nobody clears under another's lease */
         g->staged_ok = 0;
         o->length = 0;
         g->staged_checksum_v = asm_crc32(data, 0);

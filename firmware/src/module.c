@@ -23,8 +23,8 @@ static int set_goal(struct asm_node *node, struct asm_object *o, const uint8_t *
     (void)o;
     if (length == 4)
         memcpy(&v, data, 4);
-    if (isnan(v))
-        return ASM_S_VALUE_ERROR;
+    if (!isfinite(v))
+        return ASM_S_VALUE_ERROR; /* NaN and ±inf: a goal is a finite number of degrees */
     m->goal_v = clamp(v, m->limits_v); /* a RESET (no data) goes back to 0°, clamped */
     command(m);
     return ASM_S_OK;

@@ -320,7 +320,11 @@ static int execute(struct asm_node *n, uint8_t source, const struct asm_message 
     }
     if (o->kind == ASM_SERVICE) {
         switch (m->method) {
-        case ASM_START: case ASM_STOP: case ASM_SUSPEND: case ASM_RESUME: case ASM_RESET:
+        case ASM_START:
+            if (m->length > 0)
+                return ASM_S_VALUE_ERROR; /* this runtime's services start without parameters */
+            /* fall through */
+        case ASM_STOP: case ASM_SUSPEND: case ASM_RESUME: case ASM_RESET:
             return o->control != NULL ? o->control(n, o, m->method) : ASM_S_UNSUPPORTED;
         case ASM_STATUS:
             n->out[ASM_HEADER_SIZE] = (uint8_t)((o->started ? 2 : 0) | (o->running ? 4 : 0) | (o->failed ? 8 : 0));

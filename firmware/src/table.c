@@ -18,7 +18,7 @@ static int parse_v1(const uint8_t *data, size_t length, const float limits[2], s
     for (uint16_t k = 0; k < n; k++) {
         const uint8_t *s = data + 5 + 9u * k;
         float angle = asm_get_f32(s), duration = asm_get_f32(s + 4);
-        if (s[8] > 1 || !isfinite(duration) || !(duration > 0) || !isfinite(angle))
+        if (s[8] > 1 || !isfinite(duration) || !(duration >= ASM_MIN_DURATION) || !isfinite(angle))
             return ASM_E_FORMAT;
         if (!within(angle, limits))
             return ASM_E_RANGE;
@@ -53,6 +53,8 @@ static int parse_state(const uint8_t *s, struct asm_state *out)
         return ASM_E_FORMAT;
     if (duration == 0 && event == ASM_EV_NONE)
         return ASM_E_FORMAT; /* a state needs a duration, an event, or both */
+    if (duration != 0 && !(duration >= ASM_MIN_DURATION))
+        return ASM_E_FORMAT; /* no state shorter than one control tick */
     if (event == ASM_EV_NEIGHBOUR && neighbour == 0)
         return ASM_E_FORMAT;
     if (event == ASM_EV_SIGNAL && (watch < 1 || watch > 255))

@@ -1,7 +1,7 @@
 /* Hostile input for the parsers: random and mutated frames into the reassembler, random and mutated bytes into the
  * message decoder and the gait-table parser, and random, mutated and well-formed request frames into a module (the
  * node's request server and the module objects); and random programs — every event, one-shot modes, sequences,
- * signals, neighbours, durations from a microsecond to hours — loaded, mutated and run by the module with random
+ * signals, neighbours, durations from one control tick (20 ms) to hours, and some just below it (refused) — loaded, mutated and run by the module with random
  * sensor readings, neighbours' states, signals and switches arriving. Run under AddressSanitizer and UndefinedBehaviorSanitizer: no
  * crash, no report; afterwards the reassembler still completes a well-formed message and the module still answers
  * a lookup.
@@ -62,7 +62,7 @@ static size_t put(uint8_t *out, size_t n, const void *value, size_t size)
 /* A version-2 program with every field random within its domain (or, one time in eight, a byte changed after). */
 static size_t random_program(uint8_t *out)
 {
-    static const float durations[] = {0.02f, 0.05f, 0.1f, 0.37f, 1.0f, 1e-6f, 3600.0f, 1e-9f};
+    static const float durations[] = {0.02f, 0.05f, 0.1f, 0.37f, 1.0f, 0.021f, 3600.0f, 0.0199f}; /* the last: refused */
     static const int8_t neighbours[] = {-2, -1, 1};
     uint8_t modes = (uint8_t)(1 + next() % 3), steps = (uint8_t)(next() % 3);
     size_t n = 0;

@@ -13,6 +13,7 @@
 #define ASM_PROTOCOL_MAX_STATES 1024
 #define ASM_MAX_MODES 16
 #define ASM_MAX_SEQUENCE 32
+#define ASM_MIN_DURATION 0.02f /* seconds: one control tick at 50 Hz, the shortest state a module executes */
 
 enum asm_event { ASM_EV_NONE, ASM_EV_CONTACT, ASM_EV_NO_CONTACT, ASM_EV_AT_GOAL, ASM_EV_TORQUE, ASM_EV_NEIGHBOUR,
                  ASM_EV_SIGNAL };
