@@ -24,7 +24,6 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 # bench/ holds a can.py: keep this directory off the path, or "import can" would import that script.
-sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != ROOT / "bench"]
 sys.path.insert(0, str(ROOT))
 
 from asm_py.firmware import C_FLAGS, runtime_sources  # noqa: E402

@@ -16,7 +16,6 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != Path(__file__).resolve().parent]  # bench/can.py
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from asm_py import Node

@@ -25,7 +25,6 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
-sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != ROOT / "bench"]  # bench/can.py is not python-can
 sys.path.insert(0, str(ROOT))
 
 import numpy as np  # noqa: E402

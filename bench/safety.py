@@ -23,7 +23,6 @@ import time
 from pathlib import Path
 
 # bench/ holds a can.py: keep this directory off the path, or "import can" would import that script.
-sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != Path(__file__).resolve().parent]
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from asm_py import Event  # noqa: E402

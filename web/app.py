@@ -100,7 +100,8 @@ class Dashboard:
         studio.on_notice(lambda title, text, error: self.notify(title, text, error=error))
         self.server.on_client_connect(self._frame_camera)
         self._threads = [threading.Thread(target=self._render, name="studio-render", daemon=True),
-                         threading.Thread(target=self._refresh, name="studio-refresh", daemon=True)]  # fmt: skip
+                         threading.Thread(target=self._refresh, name="studio-refresh", daemon=True),
+                         threading.Thread(target=self._poll, name="studio-poll", daemon=True)]  # fmt: skip
         for thread in self._threads:
             thread.start()
 
@@ -274,16 +275,23 @@ class Dashboard:
                 log.exception("drawing the preview failed")
 
     def _refresh(self) -> None:
-        ticks = 0
-        while not self._stop.wait(0.05):  # 20 Hz
-            ticks += 1
+        """The page from what is known (20 Hz): never a round trip to the robot, so a robot that stops answering
+        never freezes the page (the E-STOP's label, the "robot lost" line)."""
+        while not self._stop.wait(0.05):
             try:
                 self._refresh_once()
-                if ticks % 20 == 0:  # once a second: every module's gait status, and the lease, by asking
+            except Exception:
+                log.exception("refreshing the dashboard failed")
+
+    def _poll(self) -> None:
+        """Once a second, by asking the modules: every module's gait status, and who holds the deploy lease."""
+        while not self._stop.wait(1.0):
+            try:
+                if self.link.lost() is None:
                     self.link.roster.poll_gaits()
                     self.deployer.poll_lease()
             except Exception:
-                log.exception("refreshing the dashboard failed")
+                log.exception("polling the robot failed")
 
     def _refresh_once(self) -> None:
         self.bar.tick()

@@ -3,6 +3,7 @@ joins — every read and write through the page's robot link (web/link.py), neve
 
 from __future__ import annotations
 
+import logging
 import threading
 from typing import TYPE_CHECKING, Any
 
@@ -12,6 +13,7 @@ from .monitor import PLOT_SECONDS, WINDOWS, LivePlot, SeriesPlot, describe, form
 if TYPE_CHECKING:
     from .app import Dashboard
 
+log = logging.getLogger("asm_studio.monitor")
 LIVE_PLOTS = {"Live plot 1": "Live 1: module attributes (from the robot)",
               "Live plot 2": "Live 2: module attributes (from the robot)"}  # fmt: skip
 
@@ -90,6 +92,12 @@ class MonitorPanel:
         with self._browsing:
             self._list_objects()
 
+    def _list_quietly(self) -> None:
+        try:
+            self.list_objects()
+        except Exception as exc:  # the robot went away meanwhile: List says why when pressed
+            log.debug("listing the objects of %s failed: %s", self.browse_module.value, exc)
+
     def _list_objects(self) -> None:
         if self.browse_module.value == "-":
             return
@@ -129,8 +137,8 @@ class MonitorPanel:
             with self.app.programmatic():
                 chosen = self.browse_module.value
                 self.browse_module.options = names
-            if chosen == "-" and not self.app.syncing:
-                self.list_objects()  # the first node's objects, without a click on List
+            if chosen == "-":  # the first node's objects without a click on List: looked up off the refresh thread
+                threading.Thread(target=self._list_quietly, name="studio-list-objects", daemon=True).start()
         others = sorted(roster.tools)
         watching = f"  \nAlso attached: {', '.join(others)}" if others else ""
         self.roster_md.content = "**Nodes**" + watching + "  \n" + "  \n".join(

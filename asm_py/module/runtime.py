@@ -139,6 +139,11 @@ class FakeDriver(JointDriver):
         with self._lock:
             self._held = False
 
+    @property
+    def held(self) -> bool:
+        """An e-stop holds the joint: commands are ignored."""
+        return self._held
+
     def read(self) -> JointReading:
         with self._lock:
             self._advance()

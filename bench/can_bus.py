@@ -17,8 +17,6 @@ import threading
 import time
 from pathlib import Path
 
-# This file is bench/can.py: keep its directory off the path, or "import can" would import this script.
-sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != Path(__file__).resolve().parent]
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 import can
@@ -109,7 +107,7 @@ def main() -> None:
     modules, rate = 100, 50
     load = bus_load([(8, modules * rate), (2, modules * 2)], 1_000_000)  # angles, and heartbeats ("m1".."m99")
 
-    print("# bench/can.py: python-can virtual bus, one process")
+    print("# bench/can_bus.py: python-can virtual bus, one process")
     print(f"frames per remote get: {get_frames}, per remote set (reply wanted): {set_frames}")
     print(f"remote gets: ASM {asm_rate:,.0f}/s, raw python-can send/recv of the same frames {raw_rate:,.0f}/s")
     print(f"1 KiB message: classic {wire_bytes(1024)} data bytes, FD {wire_bytes(1024, frame_size=64)}")
