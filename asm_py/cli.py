@@ -15,6 +15,7 @@ import os
 import signal
 import sys
 import threading
+import traceback
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -131,9 +132,13 @@ def close_in_time(close: Callable[[], None], prog: str, grace: float = EXIT_GRAC
         finally:
             done.set()
 
-    threading.Thread(target=closing, name=f"{prog}-close", daemon=True).start()
+    closer = threading.Thread(target=closing, name=f"{prog}-close", daemon=True)
+    closer.start()
     if not done.wait(grace):
-        print(f"{prog}: closing took longer than {grace:g} s: exiting now", file=sys.stderr, flush=True)
+        frame = sys._current_frames().get(closer.ident or 0)
+        where = "".join(traceback.format_stack(frame)[-6:]) if frame is not None else ""
+        print(f"{prog}: closing took longer than {grace:g} s: exiting now; it was at\n{where}", file=sys.stderr,
+              flush=True)  # fmt: skip
         os._exit(1)
 
 

@@ -176,11 +176,12 @@ def _zombie(pid: int) -> bool:
 def test_asm_robot_can_takes_the_bridge_options_fd_and_node_id() -> None:
     """`asm-robot --can` is the one command for a real bus: it takes what asm-bridge takes (FD, its node ID)."""
     from server.robot import Robot, RobotOptions
+    from server.zenoh_args import ZenohOptions
     from tests.transports import free_port
 
     channel = f"asm-robot-fd-{os.getpid()}"
     robot = Robot(RobotOptions(sim=None, can={"interface": "virtual", "channel": channel, "fd": True}, node_id=77,
-                               zenoh_listen=(f"tcp/127.0.0.1:{free_port()}",)))  # fmt: skip
+                               network=ZenohOptions(listen=(f"tcp/127.0.0.1:{free_port()}",))))  # fmt: skip
     try:
         assert robot.bridge.can.node_id == 77 and robot.bridge.can.fd
     finally:

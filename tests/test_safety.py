@@ -447,7 +447,7 @@ def _gait_with_states(count: int):
 
     automata = {}
     for name, automaton in CATERPILLAR.automata.items():
-        states = [replace(automaton.states[k % len(automaton.states)], duration=1.0 / count) for k in range(count)]
+        states = [replace(automaton.states[k % len(automaton.states)], duration=0.02) for k in range(count)]
         automata[name] = replace(automaton, states=states)
     return replace(CATERPILLAR, automata=automata)
 

@@ -66,7 +66,8 @@ def test_only_certified_and_allowed_peers_reach_the_robot_over_tls(tmp_path: Pat
     endpoint = f"tls/localhost:{free_port()}"
     nodes: list[Node] = []
     try:
-        robot = Node("m1", ZenohTransport(listen=[endpoint], config_file=secure_config(tmp_path, authority, "robot")))
+        robot = Node("m1", ZenohTransport(listen=[endpoint], role="module",
+                                          config_file=secure_config(tmp_path, authority, "robot")))  # fmt: skip
         nodes.append(robot)
         robot.register(Attribute("joint.goal", 3.5, codec="float32"))
         operator = Node("op", ZenohTransport(connect=[endpoint],

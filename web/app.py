@@ -288,7 +288,7 @@ class Dashboard:
         while not self._stop.wait(1.0):
             try:
                 if self.link.lost() is None:
-                    self.link.roster.poll_gaits()
+                    self.link.roster.poll_gaits(stop=self._stop)
                     self.deployer.poll_lease()
             except Exception:
                 log.exception("polling the robot failed")

@@ -55,9 +55,12 @@ class Roster:
                 self._forgotten.discard(name)
             self.entries[name] = {"alive": alive, "since": time.monotonic()}
 
-    def poll_gaits(self, timeout: float = 0.3) -> None:
-        """Ask each live module whether its gait runs and in which state (a STATUS and a PEEK each)."""
+    def poll_gaits(self, timeout: float = 0.3, stop: threading.Event | None = None) -> None:
+        """Ask each live module whether its gait runs and in which state (a STATUS and a PEEK each); ``stop`` ends
+        the round early (the page is closing)."""
         for name in self.alive():
+            if stop is not None and stop.is_set():
+                return
             try:
                 if name not in self._gait_objects:  # looked up once: a lookup by name is a few frames each way
                     self._gait_objects[name] = tuple(self.node.lookup(name, o, timeout=timeout)
