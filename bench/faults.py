@@ -26,19 +26,19 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-import zenoh  # noqa: E402
+import zenoh
 
-from asm_py import Node  # noqa: E402
-from asm_py.module.program import MIN_DURATION, Mode, ModeState, Program  # noqa: E402
-from asm_py.module.wire import encode_program  # noqa: E402
-from asm_py.protocol import Kind, Message, Method, encode  # noqa: E402
-from bench._processes import Child, free_port  # noqa: E402
-from bench._robot import BusRobot  # noqa: E402
-from gaits.deploy import deploy, module_name  # noqa: E402
-from gaits.model import LIBRARY, load  # noqa: E402
-from server.bridge import CanZenohBridge  # noqa: E402
-from server.realtime import prefer_latency  # noqa: E402
-from server.zenoh_args import ZenohOptions  # noqa: E402
+from asm_py import Node
+from asm_py.module.program import MIN_DURATION, Mode, ModeState, Program
+from asm_py.module.wire import encode_program
+from asm_py.protocol import Kind, Message, Method, encode
+from bench._processes import Child, free_port
+from bench._robot import BusRobot
+from gaits.deploy import deploy, module_name
+from gaits.model import LIBRARY, load
+from server.bridge import CanZenohBridge
+from server.realtime import prefer_latency
+from server.zenoh_args import ZenohOptions
 
 LOSSY = {"drop": 0.01, "duplicate": 0.01}
 CATERPILLAR = load(LIBRARY / "caterpillar.toml")

@@ -25,14 +25,14 @@ from pathlib import Path
 # bench/ holds a can.py: keep this directory off the path, or "import can" would import that script.
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from asm_py import Event  # noqa: E402
-from asm_py.node import Node  # noqa: E402
-from asm_py.transport.zenoh import ZenohTransport  # noqa: E402
-from server.bridge import CanZenohBridge  # noqa: E402
-from server.realtime import prefer_latency  # noqa: E402
-from server.zenoh_args import ZenohOptions  # noqa: E402
-from tests.test_safety import Robot  # noqa: E402
-from tests.transports import free_port  # noqa: E402
+from asm_py import Event
+from asm_py.node import Node
+from asm_py.transport.zenoh import ZenohTransport
+from server.bridge import CanZenohBridge
+from server.realtime import prefer_latency
+from server.zenoh_args import ZenohOptions
+from tests.test_safety import Robot
+from tests.transports import free_port
 
 STOPS = 25
 FLOOD_SECONDS = float(os.environ.get("FLOOD_SECONDS", "60"))
