@@ -8,12 +8,12 @@ import os
 
 import can
 
+from asm_module import FakeDriver, ModuleRuntime
+from asm_module.names import module_name
 from asm_py import Event, Node, TimerTrigger
 from asm_py.canbus.faults import FaultyBus
 from asm_py.codec import FLOAT64
-from asm_py.module import FakeDriver, ModuleRuntime
 from asm_py.transport.can import CanTransport
-from gaits.deploy import module_name
 
 _channels = itertools.count()
 

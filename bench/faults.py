@@ -28,13 +28,14 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 import zenoh
 
+from asm_module.names import module_name
+from asm_module.program import MIN_DURATION, Mode, ModeState, Program
+from asm_module.wire import encode_program
 from asm_py import Node
-from asm_py.module.program import MIN_DURATION, Mode, ModeState, Program
-from asm_py.module.wire import encode_program
 from asm_py.protocol import Kind, Message, Method, encode
 from bench._processes import Child, free_port
 from bench._robot import BusRobot
-from gaits.deploy import deploy, module_name
+from gaits.deploy import deploy
 from gaits.model import LIBRARY, load
 from server.bridge import CanZenohBridge
 from server.realtime import prefer_latency

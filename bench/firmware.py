@@ -22,12 +22,10 @@ import time
 from collections.abc import Iterable
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parent.parent
-# bench/ holds a can.py: keep this directory off the path, or "import can" would import that script.
-sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from asm_py.firmware import C_FLAGS, runtime_sources  # noqa: E402
-from tests.test_firmware import build  # noqa: E402
+from asm_module.firmware_build import C_FLAGS, runtime_sources
+from asm_module.firmware_build import build_test_program as build
 
 INPUTS = 10_000_000
 
@@ -62,7 +60,7 @@ def size(compiler: str, flags: list[str], workdir: Path, tag: str) -> None:
 
 def cortex_m4(workdir: Path) -> tuple[int, int]:
     """(flash, RAM) bytes of the example STM32F4 port linked with the runtime: text + data, data + bss."""
-    from asm_py.firmware import build_cortex_m4
+    from asm_module.firmware_build import build_cortex_m4
 
     text, data, bss = build_cortex_m4(workdir / "m4.elf")
     print(f"# Cortex-M4 (STM32F4 example port, -Os): text {text}, data {data}, bss {bss} bytes")
@@ -133,8 +131,9 @@ def c_vs_python_gets() -> float:
     bursts alternated; also, for context, per second of wall time, and one Python client's round trips."""
     import can
 
-    from asm_py.firmware import CModule
-    from asm_py.module.runtime import FakeDriver, ModuleRuntime
+    from asm_module.c_module import CModule
+    from asm_module.drivers import FakeDriver
+    from asm_module.runtime import ModuleRuntime
     from asm_py.node import Node
     from asm_py.transport.can import CanTransport
 
@@ -186,11 +185,10 @@ def vectors_reproduced(workdir: Path) -> tuple[int, int]:
     """(reproduced, present) over every golden vector in tests/vectors/: messages, CAN frames and codecs by the C
     runner (codecs both ways: the bytes checked against the descriptor, the value encoded to them), module objects
     by a C module on a virtual bus."""
-    from asm_py.firmware import CModule
-    from tests.test_c_module import reproduce_module_object_vectors
-    from tests.test_firmware import _can_vector_lines, _codec_lines, _message_lines
+    from asm_module.c_module import CModule
+    from asm_module.golden import can_vector_lines, codec_lines, message_lines, reproduce_module_object_vectors
 
-    lines = _message_lines() + _can_vector_lines() + _codec_lines()
+    lines = message_lines() + can_vector_lines() + codec_lines()
     runner = build(workdir / "vectors", "vectors")
     out = subprocess.run([str(runner)], input="\n".join(lines) + "\n", capture_output=True, text=True).stdout
     wire = len(lines) if out.strip() == f"ok {len(lines)} failed 0" else 0

@@ -28,12 +28,13 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 import zenoh
 
+from asm_module.feed import RobotStatus
+from asm_module.names import module_name
 from asm_py import Attribute, Node
-from asm_py.feed import RobotStatus
 from asm_py.keys import RobotKeys, lab_estop
 from asm_py.transport.zenoh import ZenohTransport
 from bench._processes import Child, free_port
-from gaits.deploy import deploy, module_name, start_all
+from gaits.deploy import deploy, start_all
 from gaits.drive import STOP, drive
 from gaits.model import LIBRARY, load
 from server.zenoh_args import ZenohOptions

@@ -18,9 +18,9 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+from asm_module.names import module_name
 from asm_py import Node
 from asm_py.transport.can import CanTransport
-from gaits.deploy import module_name
 from gaits.drive import drive
 from gaits.model import LIBRARY, load
 from gaits.sim import Simulation

@@ -24,24 +24,22 @@ import threading
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-import numpy as np  # noqa: E402
-import zenoh  # noqa: E402
+import numpy as np
+import zenoh
 
-from asm_py.feed import RobotStatus, decode_poses, poses_key, status_key  # noqa: E402
-from asm_py.node import Node  # noqa: E402
-from asm_py.transport.zenoh import ZenohTransport  # noqa: E402
-from gaits.deploy import deploy  # noqa: E402
-from gaits.model import LIBRARY, dumps, load  # noqa: E402
-from gaits.sim import Simulation  # noqa: E402
-from server.realtime import prefer_latency  # noqa: E402
-from server.robot import Robot, RobotOptions  # noqa: E402
-from server.zenoh_args import ZenohOptions  # noqa: E402
-from tests.processes import Process  # noqa: E402
-from tests.transports import free_port  # noqa: E402
-from web.document import GaitDocument  # noqa: E402
+from asm_module.feed import RobotStatus, decode_poses, poses_key, status_key
+from asm_py.node import Node
+from asm_py.transport.zenoh import ZenohTransport
+from bench._processes import Child, free_port
+from gaits.deploy import deploy
+from gaits.model import LIBRARY, dumps, load
+from gaits.sim import Simulation
+from server.realtime import prefer_latency
+from server.robot import Robot, RobotOptions
+from server.zenoh_args import ZenohOptions
+from web.document import GaitDocument
 
 
 def resized(name: str, modules: int, folder: Path) -> Path:
@@ -78,10 +76,10 @@ class Watch:
             sub.undeclare()
 
 
-def robot_process(path: Path, *options: str) -> tuple[Process, Node, Watch]:
+def robot_process(path: Path, *options: str) -> tuple[Child, Node, Watch]:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    process = Process("-m", "server.robot", "--sim", str(path), "--zenoh-listen", endpoint, *options)
-    process.wait_for_line("READY robot", timeout=120)
+    process = Child("robot", "-m", "server.robot", "--sim", str(path), "--zenoh-listen", endpoint, *options)
+    process.ready("READY robot", timeout=120)
     client = Node("bench", ZenohTransport(connect=[endpoint]))
     return process, client, Watch(client.transport.session)  # type: ignore[attr-defined]
 

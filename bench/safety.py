@@ -28,11 +28,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from asm_py import Event
 from asm_py.node import Node
 from asm_py.transport.zenoh import ZenohTransport
+from bench._processes import free_port
+from bench._robot import BusRobot as Robot
 from server.bridge import CanZenohBridge
 from server.realtime import prefer_latency
 from server.zenoh_args import ZenohOptions
-from tests.test_safety import Robot
-from tests.transports import free_port
 
 STOPS = 25
 FLOOD_SECONDS = float(os.environ.get("FLOOD_SECONDS", "60"))

@@ -22,13 +22,11 @@ import tempfile
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from gaits.model import LIBRARY, dumps, load  # noqa: E402
-from tests.processes import Process  # noqa: E402
-from tests.transports import free_port  # noqa: E402
-from web.document import GaitDocument  # noqa: E402
+from bench._processes import Child, free_port
+from gaits.model import LIBRARY, dumps, load
+from web.document import GaitDocument
 
 CHROMIUM = "/usr/bin/chromium"
 MODULES = 32
@@ -67,13 +65,13 @@ def draw_cost(path: Path) -> float:
         server.stop()
 
 
-def studio(path: Path, endpoint: str, view: str = "preview") -> tuple[Process, int]:
+def studio(path: Path, endpoint: str, view: str = "preview") -> tuple[Child, int]:
     """`asm-studio` on ``path`` in its own process (its robot listening on ``endpoint``), once ready; and its port."""
     port = free_port()
-    proc = Process("-m", "server.studio", "--gait", str(path), "--port", str(port), "--zenoh-listen", endpoint,
+    proc = Child("studio", "-m", "server.studio", "--gait", str(path), "--port", str(port), "--zenoh-listen", endpoint,
                    "--view", view)  # fmt: skip
     try:
-        proc.wait_for_line("READY studio", timeout=60)
+        proc.ready("READY studio", timeout=60)
     except BaseException:
         proc.stop()
         raise

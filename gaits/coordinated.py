@@ -2,7 +2,7 @@
 contact-driven inchworm and a one-shot curl (``python -m gaits.serpenoid`` writes them with the others).
 
 Each is a phase automaton of the kinds the paper lists beyond the periodic time-driven one, run on the modules
-(asm_py/module/program.py): several gaits of one program, sensor-driven states, neighbour events, one-shot modes.
+(asm_module/program.py): several gaits of one program, sensor-driven states, neighbour events, one-shot modes.
 """
 
 from __future__ import annotations

@@ -30,8 +30,9 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
+from asm_module.names import module_name
+from asm_module.wire import Staged, checksum, encode_program, encode_staged
 from asm_py import Node
-from asm_py.module.wire import Staged, checksum, encode_program, encode_staged
 from asm_py.transport.base import BROADCAST
 
 from .calls import DeployError, ModuleCalls
@@ -42,8 +43,6 @@ from .programs import module_program
 __all__ = ["DeployError", "DeployReport", "activate", "deploy", "module_name", "module_tables", "release_all",
            "start_all", "stop_all"]  # fmt: skip
 
-MODULE_IDS = range(1, 200)
-"""Node IDs modules may take: 200-253 are the bridge's aliases for Zenoh clients, 254 the bridge."""
 CALL_TIMEOUT = 2.0
 """Seconds one call to a module may take at most (the adaptive timeout is usually far shorter)."""
 
@@ -66,11 +65,6 @@ class DeployReport:
         if self.lease is not None:
             self.lease.release()
             self.lease = None
-
-
-def module_name(module_id: int) -> str:
-    """The node name of gait module ``module_id`` (the studio and ``asm-module`` use it: m1, m2, …)."""
-    return f"m{module_id}"
 
 
 def module_tables(gait: Gait) -> dict[int, bytes]:

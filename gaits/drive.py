@@ -1,6 +1,6 @@
 """Drive a running robot: switch every module to another gait of its program at one cycle boundary, confirmed.
 
-The PC only sends commands; the modules switch themselves (asm_py/module/gait_service.py). One group message
+The PC only sends commands; the modules switch themselves (asm_module/gait_service.py). One group message
 ``gait.switch`` = {mode, direction, after} reaches every module; ``after`` is a time on the modules' clock a little
 ahead of their latest tick, so every module picks the same boundary even when the message reaches them at slightly
 different moments. The switch is then read back from each module's ``gait.mode`` and ``gait.direction``: a drive
@@ -12,8 +12,8 @@ from __future__ import annotations
 import time
 from collections.abc import Sequence
 
+from asm_module.gait_service import SWITCH
 from asm_py.group import BROADCAST
-from asm_py.module.gait_service import SWITCH
 from asm_py.node import Node
 
 from .calls import DeployError, ModuleCalls

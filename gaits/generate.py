@@ -17,8 +17,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from asm_py.module.program import MIN_DURATION, MIN_DURATION_TEXT
-from asm_py.module.wire import MAX_STATES
+from asm_module.program import MIN_DURATION, MIN_DURATION_TEXT
+from asm_module.wire import MAX_STATES
 
 from .model import MAX_MODULES, Gait, Robot
 from .serpenoid import sine, wave_gait

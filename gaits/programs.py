@@ -1,4 +1,4 @@
-"""From a gait file to what each module runs: its program (asm_py/module/program.py).
+"""From a gait file to what each module runs: its program (asm_module/program.py).
 
 Mode k of every module's program is gait k of the file (``modules`` first, then ``[gaits]`` in order), so a switch
 names the same gait on every module. A neighbour's state, named in the file by name or 1-based number, becomes the
@@ -7,7 +7,7 @@ names the same gait on every module. A neighbour's state, named in the file by n
 
 from __future__ import annotations
 
-from asm_py.module.program import Mode, ModeState, Program, Until
+from asm_module.program import Mode, ModeState, Program, Until
 
 from .model import FORWARD, Automaton, Gait, State, state_index
 

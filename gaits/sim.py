@@ -1,6 +1,6 @@
 """A gait in MuJoCo, run by the modules' own runtime on the simulation clock.
 
-Every module is a :class:`asm_py.module.ModuleRuntime` — the program a real module runs — with a MuJoCo actuator as
+Every module is a :class:`asm_module.ModuleRuntime` — the program a real module runs — with a MuJoCo actuator as
 its joint driver. Its gait table arrives as the bytes a deploying tool would send, and its PeriodicAutomaton runs on
 a :class:`~asm_py.clock.SimClock` that this loop advances: one ``gait.tick`` per control period (every module's
 automaton and servo react to it, inline, before the physics continues), then the physics steps of that period. The
@@ -21,15 +21,16 @@ from typing import Any
 import mujoco
 import numpy as np
 
+from asm_module import JointDriver, JointReading, LocalNeighbours, ModuleRuntime
+from asm_module.c_module import CModule
+from asm_module.gait_service import SWITCH
+from asm_module.names import module_name
 from asm_py import Event, Node
 from asm_py.clock import SimClock
 from asm_py.codec import FLOAT32, INT8, UINT8
-from asm_py.firmware import CModule
-from asm_py.module import JointDriver, JointReading, LocalNeighbours, ModuleRuntime
-from asm_py.module.gait_service import SWITCH
 from asm_py.protocol import Method
 
-from .deploy import module_name, module_tables
+from .deploy import module_tables
 from .mjcf import Physics, build_mjcf
 from .model import Gait
 from .programs import mode_index
@@ -176,7 +177,7 @@ class Simulation:
 
     ``direction`` -1 runs every module's automaton backwards (the gait's own directions, negated). ``node_of``
     gives each module runtime its ASM node (a robot process puts them on a bus); without it they have none.
-    ``c_modules`` (IDs) run the C runtime instead (asm_py.firmware), on the python-can bus ``bus_options`` opens —
+    ``c_modules`` (IDs) run the C runtime instead (asm_module.c_module), on the python-can bus ``bus_options`` opens —
     or, without one, on the in-process hub the Python modules of a preview share — ticked by the same tick event;
     they have no Python runtime in ``modules`` (:meth:`goal` and :meth:`angle` read either kind).
     ``lock`` guards the model and data: the stepping thread holds it per control period, and a module's joint

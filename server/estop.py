@@ -17,8 +17,8 @@ import time
 
 import zenoh
 
+from asm_module.feed import RobotStatus
 from asm_py.cli import name, run
-from asm_py.feed import RobotStatus
 from asm_py.keys import ALL_ROBOTS, TOOL, RobotKeys, lab_estop, robot_of
 from asm_py.transport.base import short_reason
 

@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import argparse
 
+from asm_module import FakeDriver, ModuleRuntime
 from asm_py.cli import bitrate, bounded, can_channel, name, node_id, rate, run, stop_requested
-from asm_py.module import FakeDriver, ModuleRuntime
 from asm_py.node import Node
 from asm_py.transport.can import CanTransport
 from server.realtime import prefer_latency

@@ -5,7 +5,7 @@ real time (paced to the wall clock), one module runtime per module whose joint d
 joint sensor and contact sensor in the physics (torque limited by the actuator, limp when ``servo.service`` stops,
 holding on e-stop), the modules as ASM nodes on an in-process CAN bus that filters like CAN controllers
 (``asm_sim``), and the CAN↔Zenoh bridge. It publishes its body poses at up to 60 Hz and its status once a second
-(asm_py/feed.py, docs/protocol.md §10), with its real-time factor; when it cannot keep up it says so in the status
+(asm_module/feed.py, docs/protocol.md §10), with its real-time factor; when it cannot keep up it says so in the status
 and in its log.
 
 Real (``--can INTERFACE:CHANNEL``): no physics, only the bridge for the modules on that bus, and the status.
@@ -27,12 +27,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from asm_module.feed import PoseFrame, RobotStatus, encode_poses
+from asm_module.names import module_name
 from asm_py.cli import can_channel, close_in_time, input_file, module_selection, name, run, stop_requested
-from asm_py.feed import PoseFrame, RobotStatus, encode_poses
 from asm_py.keys import DEFAULT_ROBOT
 from asm_py.node import Node
 from asm_py.transport.can import CanTransport
-from gaits.deploy import module_name
 from gaits.model import LIBRARY, load
 from gaits.sim import Simulation, select_modules
 

@@ -19,7 +19,7 @@ from typing import Any
 
 import zenoh
 
-from asm_py.feed import RobotStatus
+from asm_module.feed import RobotStatus
 from asm_py.keys import RobotKeys, last
 
 log = logging.getLogger("asm_robot.feed")

@@ -32,6 +32,7 @@ from typing import Any
 
 import zenoh
 
+from asm_module.feed import RobotStatus
 from asm_py import Node
 from asm_py.cli import (
     bitrate,
@@ -45,7 +46,6 @@ from asm_py.cli import (
     stop_requested,
     zenoh_endpoint,
 )
-from asm_py.feed import RobotStatus
 from asm_py.keys import ALL_ROBOTS, DEFAULT_ROBOT, robot_of
 from asm_py.transport.zenoh import NameTaken
 from gaits.model import LIBRARY, Gait, dumps, loads

@@ -12,9 +12,10 @@ from collections.abc import Iterator
 import can
 import pytest
 
+from asm_module.c_module import CModule
+from asm_module.drivers import FakeDriver
+from asm_module.golden import first_reply, reproduce_module_object_vectors, send_first_frame
 from asm_py import EstopLatched, ReadOnlyError
-from asm_py.firmware import CModule
-from asm_py.module.runtime import FakeDriver
 from asm_py.node import Node
 from asm_py.transport.can import CanTransport
 
@@ -67,7 +68,8 @@ def test_a_client_lists_reads_and_writes_a_c_module(bus_pair) -> None:
 
 
 def _python_module_entries() -> list:
-    from asm_py.module.runtime import FakeDriver, ModuleRuntime
+    from asm_module.drivers import FakeDriver
+    from asm_module.runtime import ModuleRuntime
     from asm_py.transport import MemoryNetwork, MemoryTransport
 
     node = Node("reference", MemoryTransport(MemoryNetwork()))
@@ -152,8 +154,9 @@ def test_hostile_frames_leave_the_c_module_answering(bus_pair) -> None:
 
 def test_a_mixed_robot_is_deployed_to_runs_and_stops_like_an_all_python_one() -> None:
     """A 2-module caterpillar: m1 in C, m2 in Python, one bus; the studio's deploy, then the e-stop."""
-    from asm_py.module.runtime import FakeDriver, ModuleRuntime
-    from asm_py.module.wire import checksum
+    from asm_module.drivers import FakeDriver
+    from asm_module.runtime import ModuleRuntime
+    from asm_module.wire import checksum
     from gaits.deploy import DeployError, deploy, module_tables
     from gaits.model import LIBRARY, load
     from web.document import GaitDocument
@@ -202,8 +205,8 @@ def test_a_request_longer_than_the_module_takes_is_answered_too_large_from_its_f
     try:
         # 5,000 bytes: beyond the host build's 4,096 (a board's 640); version 1, request-reply SET, txn 9,
         # gait.staged (object 13)
-        _send_first_frame(raw, 5000, bytes([0x52, 0x09, 0x27, 0x0D]))
-        head = _first_reply(raw)
+        send_first_frame(raw, 5000, bytes([0x52, 0x09, 0x27, 0x0D]))
+        head = first_reply(raw)
         assert head is not None, "the module answered"
         assert head[:4] == bytes([0x62, 0x09, 13, 0x0D]), head.hex()  # REPLY to SET, txn 9, TOO_LARGE
     finally:
@@ -225,7 +228,7 @@ class _Recording(FakeDriver):
 def test_preview_equals_deployment_for_c_and_python_modules_alike() -> None:
     """The caterpillar with modules 1, 3, 5, 7 in C and the rest in Python on one virtual bus: at every tick each
     module commands what the preview's module commanded at that time since the start, within one control tick."""
-    from asm_py.module.runtime import ModuleRuntime
+    from asm_module.runtime import ModuleRuntime
     from gaits.deploy import activate, deploy, stop_all
     from gaits.model import LIBRARY, load
     from gaits.sim import Simulation
@@ -276,113 +279,6 @@ def test_preview_equals_deployment_for_c_and_python_modules_alike() -> None:
         assert_follows_preview(sim_times, sim_goals, column, records[a.id], started)
 
 
-def _raw_request(bus: can.BusABC, message: bytes, *, dest_kind: int = 0, dest: int = 5, source: int = 77,
-                 priority: int = 3, reply: bool = True) -> bytes | None:  # fmt: skip
-    """Send ``message`` as frames from node ``source``; the reply addressed back to it, reassembled (or None)."""
-    from asm_py.canbus.fragments import Reassembler, fragment
-    from asm_py.canbus.ids import CanId, frame_priority
-
-    pieces = list(fragment(message))
-    for kind, counter, data in pieces:
-        cid = CanId(frame_priority(priority, len(pieces)), dest_kind, dest, source, kind, counter)
-        bus.send(can.Message(arbitration_id=cid.pack(), data=data, is_extended_id=True))
-    if not reply:
-        return None
-    reassembler = Reassembler(4096, 4, 1.0)
-    for frame in _frames_to(bus, source):
-        cid = CanId.unpack(frame.arbitration_id)
-        done = reassembler.feed((cid.source, cid.dest_kind, cid.dest), cid.frame, cid.counter, bytes(frame.data),
-                                time.monotonic())  # fmt: skip
-        if done is not None:
-            return done
-    return None
-
-
-def reproduce_module_object_vectors(module: CModule, channel: str) -> dict[str, bool]:
-    """Each vector of tests/vectors/module_objects.json a C module reproduces on the bus, byte for byte (a reply's
-    status bytes for the §1 statuses), by name; False where it does not."""
-    import json
-    import struct
-    from pathlib import Path
-
-    from asm_py.module.wire import checksum
-
-    vectors = json.loads((Path(__file__).parent / "vectors" / "module_objects.json").read_text())
-    bus = can.Bus(interface="virtual", channel=channel)
-    done: dict[str, bool] = {}
-    try:
-        lookup = vectors["lookup_reply_read_only"]
-        request = bytes([0x50, 0x04, 0x00, 0x00]) + lookup["object"].encode()  # LOOKUP by name, txn 4
-        done["lookup_reply_read_only"] = _raw_request(bus, request) == bytes.fromhex(lookup["hex"])
-        staged = bytes.fromhex(vectors["staged"]["hex"])
-        set_staged = _raw_request(bus, bytes([0x52, 0x06, 0x27, 13]) + staged)
-        peek = _raw_request(bus, bytes([0x5A, 0x07, 0x28, 14]))
-        done["staged"] = (set_staged is not None and set_staged[2] == 0 and peek is not None
-                          and peek[4:] == struct.pack("<I", checksum(staged)))  # fmt: skip
-        _raw_request(bus, bytes.fromhex(vectors["activate"]["hex"]), dest_kind=2, dest=0, reply=False)
-        time.sleep(0.2)
-        activated = _raw_request(bus, bytes([0x5A, 0x08, 0x29, 15]))
-        status = _raw_request(bus, bytes([0x58, 0x09, 0x24, 9]))
-        deploy_id = struct.pack("<I", vectors["activate"]["deploy_id"])
-        done["activate"] = (activated is not None and activated[4:] == deploy_id and status is not None
-                            and status[4] & 4 != 0)  # fmt: skip
-        lease = bytes.fromhex(vectors["lease"]["hex"])
-        taken = _raw_request(bus, bytes([0x52, 0x0A, 0x2A, 16]) + lease)
-        held = _raw_request(bus, bytes([0x5A, 0x0B, 0x2A, 16]))
-        done["lease"] = taken is not None and taken[2] == 0 and held is not None and held[4:] == lease
-        other = bytes([6]) + b"intrud" + struct.pack("<If", 99, 30.0)
-        produced = {
-            10: _raw_request(bus, bytes([0x52, 0x05, 0x26, 7, 0, 0, 0, 0])),  # SET of gait.checksum: READ_ONLY
-            12: _raw_request(bus, bytes([0x52, 0x05, 0x2A, 16]) + other),  # another deployer's lease: LOCKED
-        }
-        module_estop = _raw_request(bus, bytes([0x52, 0x0C, 0x03, 12, 1]))  # latch
-        produced[11] = _raw_request(bus, bytes([0x52, 0x05, 0x10, 1, 0, 0, 0, 0]))  # SET of joint.goal: ESTOP
-        _raw_request(bus, bytes([0x52, 0x0D, 0x03, 12, 0]))  # release
-        _send_first_frame(bus, 5000, bytes([0x52, 0x05, 0x27, 13]))  # a 5,000-byte SET: its first frame only
-        produced[13] = _first_reply(bus)
-        for vector in vectors["replies"]:
-            got = produced.get(vector["status"])
-            done[f"reply {vector['name']}"] = (module_estop is not None and got is not None
-                                               and got[:3] == bytes.fromhex(vector["hex"])[:3])  # fmt: skip
-        _raw_request(bus, bytes([0x55, 0x0E, 0x24, 9]))  # STOP gait.service: a table changes only while stopped
-        program = vectors["program"]
-        loaded = _raw_request(bus, bytes([0x52, 0x0F, 0x20, 6]) + bytes.fromhex(program["hex"]))
-        crc = _raw_request(bus, bytes([0x5A, 0x10, 0x26, 7]))
-        done["program"] = (loaded is not None and loaded[2] == 0 and crc is not None
-                           and crc[4:] == struct.pack("<I", checksum(bytes.fromhex(program["hex"]))))  # fmt: skip
-        for name, object_id in (("switch", 19), ("signal", 23)):  # group SETs, then read back from the object
-            message = bytes.fromhex(vectors[name]["hex"])
-            _raw_request(bus, message, dest_kind=2, dest=0, reply=False)
-            value = _raw_request(bus, bytes([0x5A, 0x11, message[2], object_id]))
-            done[name] = value is not None and value[2] == 0 and value[4:] == message[4:]
-    finally:
-        bus.shutdown()
-    return done
-
-
-def _frames_to(bus: can.BusABC, node: int = 77) -> Iterator[can.Message]:
-    """The frames the C module (node 5) sends to ``node`` in the next 5 s."""
-    deadline = time.monotonic() + 5
-    while time.monotonic() < deadline:
-        frame = bus.recv(timeout=0.5)
-        if frame is not None and (frame.arbitration_id >> 8) & 0x3FFFF == (node << 8 | 5):
-            yield frame
-
-
-def _send_first_frame(bus: can.BusABC, length: int, header: bytes) -> None:
-    """Only the first frame of a ``length``-byte message from node 77 to the module: the length, a CRC, the header."""
-    data = bytes([length & 0xFF, length >> 8, 0, 0]) + header
-    bus.send(can.Message(arbitration_id=5 << 26 | 5 << 16 | 77 << 8 | 1 << 6, data=data, is_extended_id=True))
-
-
-def _first_reply(bus: can.BusABC) -> bytes | None:
-    """The head of the next reply to node 77 (its first frame's message bytes, after the length and CRC, or a single
-    frame's)."""
-    for frame in _frames_to(bus):
-        return bytes(frame.data[4:]) if (frame.arbitration_id >> 6) & 3 == 1 else bytes(frame.data)
-    return None
-
-
 def test_a_c_module_reproduces_the_module_object_vectors(bus_pair) -> None:
     module, _, channel = bus_pair
     done = reproduce_module_object_vectors(module, channel)
@@ -405,9 +301,9 @@ def test_a_programs_objects_refuse_what_the_python_module_refuses() -> None:
     import math
     import struct
 
-    from asm_py.module.program import Mode, ModeState, Program, Until
-    from asm_py.module.runtime import ModuleRuntime
-    from asm_py.module.wire import encode_program
+    from asm_module.program import Mode, ModeState, Program, Until
+    from asm_module.runtime import ModuleRuntime
+    from asm_module.wire import encode_program
 
     channel = fresh_name("c-hostile")
     c_module = CModule("m1", 1, interface="virtual", channel=channel)

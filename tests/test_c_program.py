@@ -1,4 +1,4 @@
-"""The C runtime's program (firmware/src/program.c) against the Python module's (asm_py/module/gait_service.py),
+"""The C runtime's program (firmware/src/program.c) against the Python module's (asm_module/gait_service.py),
 differentially: the same random programs — modes, sequences, one-shot modes, states ended by time, contact made
 and lost, at goal, torque and signals, with timeouts that stop — on a C module and a Python module ticked by one
 simulated clock, each on an identical simulated joint, give the same joint goal at every tick (within the one-tick
@@ -11,13 +11,13 @@ import shutil
 
 import pytest
 
+from asm_module import LocalNeighbours, ModuleRuntime
+from asm_module.c_module import CModule
+from asm_module.drivers import FakeDriver, JointReading
+from asm_module.wire import encode_program
 from asm_py import Event
 from asm_py.clock import SimClock
 from asm_py.codec import FLOAT32, INT8
-from asm_py.firmware import CModule
-from asm_py.module import LocalNeighbours, ModuleRuntime
-from asm_py.module.runtime import FakeDriver, JointReading
-from asm_py.module.wire import encode_program
 from asm_py.protocol import Method
 from tests.test_firmware import _random_program
 from tests.transports import fresh_name
@@ -96,8 +96,8 @@ def test_after_a_long_gap_in_ticks_c_crosses_the_boundaries_as_python_does(how: 
     host): the boundaries crossed in one tick still count, and the one where the sequence's next step or a
     commanded switch is due still switches — C and Python alike cross the boundaries that only count a cycle
     together, and stop at the one where something is due."""
-    from asm_py.module.gait_service import SWITCH
-    from asm_py.module.program import Mode, ModeState, Program
+    from asm_module.gait_service import SWITCH
+    from asm_module.program import Mode, ModeState, Program
 
     fast = Mode((ModeState(10.0, 0.0213), ModeState(-10.0, 0.0264)))
     other = Mode((ModeState(40.0, 0.5), ModeState(35.0, 0.5)))
@@ -137,8 +137,8 @@ def test_an_hour_without_ticks_over_the_shortest_period_costs_a_module_no_time()
     cycle."""
     import time
 
-    from asm_py.module import FakeDriver, ModuleRuntime
-    from asm_py.module.program import MIN_DURATION, Mode, ModeState, Program
+    from asm_module import FakeDriver, ModuleRuntime
+    from asm_module.program import MIN_DURATION, Mode, ModeState, Program
 
     program = Program((Mode((ModeState(10.0, MIN_DURATION), ModeState(-10.0, MIN_DURATION))),
                        Mode((ModeState(5.0, 1.0),))))  # fmt: skip

@@ -13,11 +13,11 @@ import can
 import cantools
 import pytest
 
+from asm_module import FakeDriver, ModuleRuntime
+from asm_module.wire import encode_table
 from asm_py import Attribute, PhaseState
 from asm_py.canbus import busload, dbc
 from asm_py.canbus.ids import CanId, Dest, Priority
-from asm_py.module import FakeDriver, ModuleRuntime
-from asm_py.module.wire import encode_table
 from asm_py.node import Node
 from asm_py.transport.can import CanTransport
 

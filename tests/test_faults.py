@@ -19,17 +19,18 @@ from collections.abc import Iterator
 import can
 import pytest
 
+from asm_module import FakeDriver, ModuleRuntime
+from asm_module.c_module import CModule
+from asm_module.names import module_name
+from asm_module.wire import encode_program
 from asm_py import Event, Node
 from asm_py.canbus.ids import CanId, Dest, FrameType
 from asm_py.codec import FLOAT64
 from asm_py.errors import Locked
-from asm_py.firmware import CModule
-from asm_py.module import FakeDriver, ModuleRuntime
-from asm_py.module.wire import encode_program
 from asm_py.protocol import Kind, Method
 from asm_py.transport.can import CanTransport
 from asm_py.transport.zenoh import ZenohTransport
-from gaits.deploy import DeployError, activate, deploy, module_name
+from gaits.deploy import DeployError, activate, deploy
 from gaits.model import LIBRARY, load
 from gaits.programs import module_program
 from server.bridge import CanZenohBridge

@@ -16,26 +16,20 @@ from pathlib import Path
 
 import pytest
 
+from asm_module.firmware_build import build_cortex_m4
+from asm_module.firmware_build import build_test_program as build
+from asm_module.golden import can_vector_lines, codec_lines, message_lines
+from asm_module.program import EVENTS, Mode, ModeState, Program, Until
+from asm_module.wire import checksum, decode_program, encode_program, encode_table
 from asm_py.automaton import PhaseState
 from asm_py.canbus.fragments import fragment
 from asm_py.canbus.ids import CanId, frame_priority
-from asm_py.firmware import C_FLAGS, build_cortex_m4, runtime_sources
-from asm_py.module.program import EVENTS, Mode, ModeState, Program, Until
-from asm_py.module.wire import checksum, decode_program, encode_program, encode_table
 from asm_py.protocol import decode_timeout, encode_timeout
 
 ROOT = Path(__file__).resolve().parent.parent
 FIRMWARE = ROOT / "firmware"
 VECTORS = ROOT / "tests" / "vectors"
 pytestmark = [pytest.mark.timeout(300), pytest.mark.skipif(shutil.which("gcc") is None, reason="needs gcc")]
-
-
-def build(out: Path, program: str) -> Path:
-    """``firmware/tests/<program>.c`` with the firmware, warnings as errors, under both sanitizers."""
-    sources = [*runtime_sources(), FIRMWARE / "tests" / f"{program}.c"]
-    subprocess.run(["gcc", *C_FLAGS, "-O1", "-g", "-fsanitize=address,undefined", "-fno-sanitize-recover=all",
-                    *map(str, sources), "-lm", "-o", str(out)], check=True, capture_output=True, text=True)  # fmt: skip
-    return out
 
 
 @pytest.fixture(scope="module")
@@ -50,32 +44,12 @@ def _run(runner: Path, lines: list[str]) -> str:
     return result.stdout
 
 
-def _message_lines() -> list[str]:
-    lines = []
-    for case in json.loads((VECTORS / "messages.json").read_text())["messages"]:
-        m = case["message"]
-        timeout = -1 if m["timeout"] is None else m["timeout"]
-        status = m["status"] if m["kind"] == 2 else 0
-        lines.append(f"MSG {case['hex']} {m['kind']} {m['method']} {m['txn']} {m['class_id'] if m['kind'] != 2 else 0} "
-                     f"{status} {m['object_id']} {timeout}")  # fmt: skip
-    return lines
-
-
 def _can_line(priority: int, dest_kind: int, dest: int, source: int, fd: bool, message: bytes) -> str:
     pieces = list(fragment(message, frame_size=64 if fd else 8))
     at = frame_priority(priority, len(pieces))  # as the CAN transport sends them
     frames = " ".join(f"{CanId(at, dest_kind, dest, source, kind, counter).pack():08x}:{data.hex() or '-'}"
                       for kind, counter, data in pieces)  # fmt: skip
     return f"CAN {int(fd)} {priority} {dest_kind} {dest} {source} {message.hex() or '-'} {frames}"
-
-
-def _can_vector_lines() -> list[str]:
-    lines = []
-    for case in json.loads((VECTORS / "can_frames.json").read_text())["frames"]:
-        frames = " ".join(f"{f['id']}:{f['data'] or '-'}" for f in case["frames"])
-        lines.append(f"CAN {int(case['fd'])} {case['priority']} {case['dest_kind']} {case['dest']} {case['source']} "
-                     f"{case['message_hex'] or '-'} {frames}")  # fmt: skip
-    return lines
 
 
 def _verdict(data: bytes) -> str:
@@ -89,56 +63,6 @@ def _verdict(data: bytes) -> str:
 
 def _table_line(data: bytes) -> str:
     return f"TABLE {_verdict(data)} {data.hex() or '-'} {checksum(data):08x}"
-
-
-def _varint(data: bytes, at: int) -> tuple[int, int]:
-    value = shift = 0
-    while True:
-        byte = data[at]
-        at += 1
-        value |= (byte & 0x7F) << shift
-        shift += 7
-        if not byte & 0x80:
-            return value, at
-
-
-def _tokens(descriptor: bytes, at: int, value: object) -> tuple[list[str], int]:
-    """The C runner's tokens for ``value`` of the codec at ``descriptor[at]``: one per scalar, text as hex."""
-    tag = descriptor[at]
-    at += 1
-    if tag == 0x01:
-        return ["1" if value else "0"], at
-    if 0x02 <= tag <= 0x09:
-        return [str(int(value))], at  # type: ignore[call-overload]
-    if tag in (0x0A, 0x0B):
-        return [repr(float(value))], at  # type: ignore[arg-type]
-    if tag in (0x0C, 0x0D):
-        _, at = _varint(descriptor, at)
-        raw = value.encode("utf-8") if tag == 0x0C else bytes.fromhex(value)  # type: ignore[union-attr,arg-type]
-        return [raw.hex() or "-"], at
-    if tag == 0x10:
-        return [json.dumps(value, separators=(",", ":")).encode().hex()], at
-    if tag == 0x0E:
-        at += 1
-        count, at = _varint(descriptor, at)
-        return [repr(float(v)) for v in value], at  # type: ignore[union-attr]
-    count, at = _varint(descriptor, at)  # a record
-    tokens: list[str] = []
-    for _ in range(count):
-        length, at = _varint(descriptor, at)
-        name = descriptor[at : at + length].decode()
-        more, at = _tokens(descriptor, at + length, value[name])  # type: ignore[index]
-        tokens += more
-    return tokens, at
-
-
-def _codec_lines() -> list[str]:
-    lines = []
-    for case in json.loads((VECTORS / "codecs.json").read_text())["codecs"]:
-        descriptor = bytes.fromhex(case["descriptor_hex"])
-        tokens, _ = _tokens(descriptor, 0, case["value"])
-        lines.append(f"CODEC ok {case['descriptor_hex']} {case['hex'] or '-'} {' '.join(tokens)}")
-    return lines
 
 
 def _random_program(rng: random.Random) -> Program:
@@ -164,7 +88,7 @@ def _random_program(rng: random.Random) -> Program:
 
 
 def test_every_golden_vector_and_the_python_sides_bytes(runner: Path) -> None:
-    lines = _message_lines() + _can_vector_lines() + _codec_lines()
+    lines = message_lines() + can_vector_lines() + codec_lines()
     objects = json.loads((VECTORS / "module_objects.json").read_text())
     lines += [
         _table_line(bytes.fromhex(objects["staged"]["table_hex"])),

@@ -14,9 +14,10 @@ from pathlib import Path
 
 import pytest
 
+from asm_module.names import module_name
 from asm_py import Attribute, Node
 from asm_py.transport.zenoh import NameTaken, ZenohTransport
-from gaits.deploy import deploy, module_name
+from gaits.deploy import deploy
 from gaits.drive import drive
 from gaits.model import LIBRARY, load
 

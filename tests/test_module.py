@@ -1,4 +1,4 @@
-"""The module runtime (asm_py/module/): what a module exposes, and how it protects its joint whatever it is sent."""
+"""The module runtime (asm_module/): what a module exposes, and how it protects its joint whatever it is sent."""
 
 from __future__ import annotations
 
@@ -8,12 +8,12 @@ import sys
 
 import pytest
 
+from asm_module import FakeDriver, ModuleRuntime
+from asm_module.wire import checksum, decode_table, encode_table
 from asm_py import Node
 from asm_py.automaton import PhaseState
 from asm_py.clock import SimClock
 from asm_py.errors import EstopLatched, RemoteError, ServiceError
-from asm_py.module import FakeDriver, ModuleRuntime
-from asm_py.module.wire import checksum, decode_table, encode_table
 from asm_py.transport import MemoryNetwork, MemoryTransport
 from asm_py.transport.can import CanTransport
 from gaits.deploy import DeployError, activate, deploy, stop_all

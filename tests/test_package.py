@@ -33,7 +33,7 @@ def test_public_names_exist() -> None:
 
 def test_demo_runs_and_stops_cleanly() -> None:
     out = subprocess.run(
-        [sys.executable, "-m", "asm_py.demo", "--seconds", "1", "--modules", "3"],
+        [sys.executable, "-m", "asm_module.demo", "--seconds", "1", "--modules", "3"],
         capture_output=True, text=True, timeout=60, cwd=ROOT,
     )  # fmt: skip
     assert out.returncode == 0, out.stderr

@@ -12,10 +12,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from asm_py import Event
-from asm_py.automaton import PhaseState
-from asm_py.clock import SimClock
-from asm_py.module import (
+from asm_module import (
     JointDriver,
     JointReading,
     LocalNeighbours,
@@ -28,8 +25,11 @@ from asm_py.module import (
     encode_program,
     encode_table,
 )
-from asm_py.module.gait_service import FINISHED, SWITCH_BLEND, TIMED_OUT
-from asm_py.module.wire import checksum
+from asm_module.gait_service import FINISHED, SWITCH_BLEND, TIMED_OUT
+from asm_module.wire import checksum
+from asm_py import Event
+from asm_py.automaton import PhaseState
+from asm_py.clock import SimClock
 
 TICK = 0.02
 
@@ -320,7 +320,7 @@ def test_a_sequence_runs_its_gaits_for_their_cycles_and_keeps_the_last(bench) ->
 
 
 def test_a_group_switch_matches_its_golden_vector() -> None:
-    from asm_py.module.gait_service import SWITCH
+    from asm_module.gait_service import SWITCH
     from asm_py.protocol import Kind, Message, Method, encode
 
     vector = json.loads((Path(__file__).parent / "vectors" / "module_objects.json").read_text())["switch"]

@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 import zenoh
 
+from asm_module.feed import PoseFrame, RobotStatus, decode_poses, encode_poses, mjcf_key, poses_key, status_key
 from asm_py.errors import AsmTimeout
-from asm_py.feed import PoseFrame, RobotStatus, decode_poses, encode_poses, mjcf_key, poses_key, status_key
 from asm_py.node import Node
 from asm_py.transport.zenoh import ZenohTransport
 from gaits.deploy import deploy

@@ -16,18 +16,19 @@ import can
 import pytest
 import zenoh
 
+from asm_module import FakeDriver, ModuleRuntime
+from asm_module.names import module_name
+from asm_module.wire import MAX_STAGED_STATES, PhaseState, encode_table
 from asm_py import Event
 from asm_py.canbus.faults import FaultyBus
 from asm_py.codec import FLOAT64
 from asm_py.errors import EstopLatched, MessageTooLarge, ReadOnlyError, RemoteError
 from asm_py.event import TimerTrigger
-from asm_py.module import FakeDriver, ModuleRuntime
-from asm_py.module.wire import MAX_STAGED_STATES, PhaseState, encode_table
 from asm_py.node import Node
 from asm_py.protocol import MAX_MESSAGE, Kind, Message, Method, Status, decode, encode
 from asm_py.transport.can import CanTransport
 from asm_py.transport.zenoh import ZenohTransport
-from gaits.deploy import DeployError, deploy, module_name, start_all
+from gaits.deploy import DeployError, deploy, start_all
 from gaits.model import LIBRARY, load
 from server.bridge import CanZenohBridge
 from server.bridge_clients import MAX_BLOCK, REPLY_MARGIN
@@ -459,8 +460,8 @@ def test_golden_module_object_vectors() -> None:
     import json
     from pathlib import Path
 
-    from asm_py.module.staging import LEASE
-    from asm_py.module.wire import Staged, decode_staged, encode_staged
+    from asm_module.staging import LEASE
+    from asm_module.wire import Staged, decode_staged, encode_staged
     from asm_py.remote import describe_entry
 
     vectors = json.loads((Path(__file__).parent / "vectors" / "module_objects.json").read_text())

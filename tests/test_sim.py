@@ -11,8 +11,8 @@ import time
 import mujoco
 import pytest
 
+from asm_module import FakeDriver, ModuleRuntime
 from asm_py import Node
-from asm_py.module import FakeDriver, ModuleRuntime
 from asm_py.transport.can import CanTransport
 from gaits.deploy import activate, deploy, stop_all
 from gaits.model import Robot, load

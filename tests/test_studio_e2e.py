@@ -98,7 +98,7 @@ class _PoseWatch:
     def __init__(self, client) -> None:
         import threading
 
-        from asm_py.feed import decode_poses, poses_key
+        from asm_module.feed import decode_poses, poses_key
 
         self._lock = threading.Lock()
         self._points: list = []
@@ -270,7 +270,7 @@ def test_edit_preview_deploy_watch_and_estop(studio):
 def test_upload_grid_history_robot_size_and_attribute_browser(studio, tmp_path):
     from playwright.sync_api import expect, sync_playwright
 
-    from asm_py.module.wire import decode_table
+    from asm_module.wire import decode_table
     from gaits.model import dumps, load
 
     url, endpoint, log = studio

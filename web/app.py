@@ -22,7 +22,7 @@ import time
 from collections.abc import Callable, Iterator
 from typing import Any, Protocol
 
-from asm_py.feed import RobotStatus
+from asm_module.feed import RobotStatus
 from gaits.model import Gait
 
 from .deploy_panel import DeployPanel

@@ -13,7 +13,8 @@ import threading
 import time
 from typing import TYPE_CHECKING, Any
 
-from gaits.deploy import DeployReport, module_name
+from asm_module.names import module_name
+from gaits.deploy import DeployReport
 from gaits.model import Gait
 
 from .confirm import InlineConfirm

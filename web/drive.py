@@ -11,7 +11,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
-from gaits.deploy import module_name
+from asm_module.names import module_name
 from gaits.drive import STOP
 from gaits.model import FORWARD, Gait
 

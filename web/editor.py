@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from gaits.deploy import MODULE_IDS
+from asm_module.names import MODULE_IDS
 from gaits.model import AXES, FORWARD, LIBRARY, SHAPES, GaitError
 from gaits.table import expand
 

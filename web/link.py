@@ -22,12 +22,13 @@ from typing import Any
 
 import zenoh
 
+from asm_module.feed import RobotStatus
+from asm_module.names import module_name
 from asm_py import Node
-from asm_py.feed import RobotStatus
 from asm_py.keys import RobotKeys
 from asm_py.transport.zenoh import ZenohTransport
 from gaits.calls import DeployError, ModuleCalls
-from gaits.deploy import DeployReport, activate, deploy, module_name, release_all, start_all, stop_all
+from gaits.deploy import DeployReport, activate, deploy, release_all, start_all, stop_all
 from gaits.drive import drive
 from gaits.model import Gait
 
@@ -209,7 +210,7 @@ class RobotLink:
         return drive(self.node, gait, command, names, direction=direction)
 
     def signal(self, number: int) -> None:
-        from asm_py.module.neighbours import send_signal
+        from asm_module.neighbours import send_signal
 
         self.require("signal")
         send_signal(self.node, number)

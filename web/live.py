@@ -1,6 +1,6 @@
 """The Live source of the 3D view: the robot process's pose feed, as any viewer receives it over Zenoh.
 
-A simulated robot publishes its bodies' poses (asm_py/feed.py) and answers its MuJoCo model on request; this keeps
+A simulated robot publishes its bodies' poses (asm_module/feed.py) and answers its MuJoCo model on request; this keeps
 the newest frame and the model to draw it with. A real robot has no poses: :class:`KinematicTwin` poses a model of
 the edited gait's robot from the modules' ``joint.angle`` publications, with its base fixed where the model puts it
 (it shows the joints, not where the robot went). Callbacks run on Zenoh's or the bus's threads and only store; the
@@ -18,8 +18,8 @@ import mujoco
 import numpy as np
 import zenoh
 
-from asm_py.feed import PoseFrame, RobotStatus, decode_poses, mjcf_key, poses_key, status_key
-from gaits.deploy import module_name
+from asm_module.feed import PoseFrame, RobotStatus, decode_poses, mjcf_key, poses_key, status_key
+from asm_module.names import module_name
 from gaits.mjcf import build_mjcf
 from gaits.model import Gait
 

@@ -12,7 +12,7 @@ import logging
 import threading
 from typing import TYPE_CHECKING, Any
 
-from asm_py.feed import RobotStatus
+from asm_module.feed import RobotStatus
 
 from .confirm import InlineConfirm
 from .page_script import ESTOP_KEY

@@ -1,4 +1,4 @@
-/* The host port: the C module as a shared library for the simulation (asm_py/firmware.py loads it with ctypes).
+/* The host port: the C module as a shared library for the simulation (asm_module/c_module.py loads it with ctypes).
  * Python owns the memory (asm_host_size bytes) and supplies the frame sender and the joint as callbacks; time comes
  * with every call, so a simulated clock drives the module as it drives the Python runtime. */
 #include <stddef.h>

@@ -36,7 +36,7 @@ static int parse_v1(const uint8_t *data, size_t length, const float limits[2], s
     return ASM_OK;
 }
 
-/* The checks of asm_py/module/wire.py decode_program, in the same order of importance. */
+/* The checks of asm_module/wire.py decode_program, in the same order of importance. */
 static int parse_state(const uint8_t *s, struct asm_state *out)
 {
     float angle = asm_get_f32(s), duration = asm_get_f32(s + 4), value = asm_get_f32(s + 11);

@@ -2,7 +2,7 @@
  * tick, the program that turns the table into joint.goal (src/program.c), and a deployment's staging, activation
  * and lease.
  *
- * The program is the Python module's (asm_py/module/gait_service.py), rule for rule: a periodic time-driven mode by
+ * The program is the Python module's (asm_module/gait_service.py), rule for rule: a periodic time-driven mode by
  * phase time (tau = phi * T + d * t), any other mode stepped state by state at each tick, ended by time or by an
  * event — contact made or lost, at goal, torque, a neighbour's state, a broadcast signal — with cycles, a sequence,
  * switches at cycle boundaries, one-shot modes, the 0.5 s blend at a switch and the 1 s ramp at a start. Times are

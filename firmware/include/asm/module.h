@@ -1,6 +1,6 @@
 /* A module's objects (docs/protocol.md section 9) on an asm_node: the joint, its limits, the servo, contact, the
  * latched e-stop and the gait (asm/gait.h). The joint itself is behind a port of three calls, so the same code drives a simulated actuator
- * (the host library, asm_py/firmware.py) or a board's servo. */
+ * (the host library, asm_module/c_module.py) or a board's servo. */
 #ifndef ASM_MODULE_H
 #define ASM_MODULE_H
 

@@ -25,9 +25,10 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any
 
-from ..attribute import Attribute, CheckedAttribute
-from ..codec import BYTES, FLOAT32, STR, UINT32, record
-from ..errors import EstopLatched, Locked
+from asm_py.attribute import Attribute, CheckedAttribute
+from asm_py.codec import BYTES, FLOAT32, STR, UINT32, record
+from asm_py.errors import EstopLatched, Locked
+
 from .wire import Staged, checksum, decode_staged
 
 if TYPE_CHECKING:

@@ -27,7 +27,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from .keys import RobotKeys
+from asm_py.keys import RobotKeys
 
 MAGIC = b"RP"
 VERSION = 1

@@ -4,7 +4,7 @@ Every module has a joint-goal attribute and a periodic automaton started with it
 timer trigger fires one tick event that all automata share, exactly as a gait runs on PolyBot-like modules. Half way
 through, the direction attribute of every automaton is flipped and the wave runs backward.
 
-    python -m asm_py.demo --modules 6 --seconds 10
+    python -m asm_module.demo --modules 6 --seconds 10
 """
 
 from __future__ import annotations
@@ -13,8 +13,8 @@ import argparse
 import sys
 import time
 
-from . import Attribute, Event, PeriodicAutomaton, PhaseState, TimerTrigger
-from .cli import bounded, rate
+from asm_py import Attribute, Event, PeriodicAutomaton, PhaseState, TimerTrigger
+from asm_py.cli import bounded, rate
 
 # One period of a caterpillar joint, as eight states with linear interpolation: a sine sampled at 45° steps.
 CATERPILLAR = [PhaseState(round(60.0 * s, 1), 0.125, "linear") for s in (0.71, 1, 0.71, 0, -0.71, -1, -0.71, 0)]

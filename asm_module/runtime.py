@@ -7,7 +7,7 @@ What a module has is what it exposes (well-known classes, so groups and tools ad
     joint.torque    float32  the measured torque, N·m, published
     joint.limits    float32[2]  (min, max) degrees; settable only within the hardware's range
     servo.service   the servo loop: running = joint powered and following joint.goal; stopped = limp
-    gait.table      bytes    this module's automaton (asm_py.module.wire); settable only while the gait is stopped
+    gait.table      bytes    this module's automaton (asm_module.wire); settable only while the gait is stopped
     gait.checksum   uint32   CRC-32 of gait.table, for a deploying tool to verify the transfer
     gait.phase      float32  the initial phase delay φ ∈ [0, 1) used when the gait starts without one
     gait.direction  int8     +1 forward, -1 backward (the automaton's direction)
@@ -19,7 +19,7 @@ What a module has is what it exposes (well-known classes, so groups and tools ad
                              remote request that would move it (goal, limits, tables, staging, activation, gait and
                              servo starts and stops) is refused with status ESTOP until estop is set back to false
     gait.staged, gait.staged_checksum, gait.activate, gait.lease
-                             a deployment as a transaction (asm_py/module/staging.py)
+                             a deployment as a transaction (asm_module/staging.py)
 
 Measurements and what only the module computes (joint.angle, joint.torque, sensor.contact, gait.checksum,
 gait.staged_checksum, gait.state, gait.tick) are read-only from outside: a remote set is answered READ_ONLY.
@@ -35,21 +35,20 @@ from __future__ import annotations
 
 import logging
 import math
-import threading
-from abc import ABC, abstractmethod
 from collections.abc import Callable
-from dataclasses import dataclass
 from typing import Any
 
-from ..attribute import Attribute, CheckedAttribute
-from ..automaton import PhaseState
-from ..clock import WALL_CLOCK, Clock
-from ..codec import BOOL, BYTES, FLOAT32, FLOAT64, UINT32, float_array
-from ..eds import EventDrivenService
-from ..errors import EstopLatched
-from ..event import Event, TimerTrigger
-from ..node import WRITES, Node
-from ..protocol import Method
+from asm_py.attribute import Attribute, CheckedAttribute
+from asm_py.automaton import PhaseState
+from asm_py.clock import WALL_CLOCK, Clock
+from asm_py.codec import BOOL, BYTES, FLOAT32, FLOAT64, UINT32, float_array
+from asm_py.eds import EventDrivenService
+from asm_py.errors import EstopLatched
+from asm_py.event import Event, TimerTrigger
+from asm_py.node import WRITES, Node
+from asm_py.protocol import Method
+
+from .drivers import JointDriver
 from .gait_service import ModuleGait
 from .neighbours import BusNeighbours, LocalNeighbours, Neighbours
 from .program import Program, program_of
@@ -59,101 +58,6 @@ from .wire import checksum, decode_program, encode_table
 log = logging.getLogger("asm_py.module")
 HOLD = [PhaseState(0.0, 1.0, "step")]
 """The table of a module that has not been given a gait: hold 0°."""
-
-
-@dataclass(frozen=True)
-class JointReading:
-    angle: float
-    """Measured joint angle, degrees."""
-    torque: float = 0.0
-    """Measured joint torque, N·m."""
-    contact: bool = False
-    """The module touches the ground."""
-
-
-class JointDriver(ABC):
-    """The joint of one module in degrees: what a simulated or real module plugs into the runtime."""
-
-    @abstractmethod
-    def command(self, degrees: float) -> None:
-        """Drive the joint towards ``degrees`` (already within the module's limits)."""
-
-    @abstractmethod
-    def read(self) -> JointReading:
-        """The joint's measured state now."""
-
-    def relax(self) -> None:
-        """Stop driving the joint (servo off)."""
-
-    def hold(self) -> float:
-        """Hold the joint where it is now and ignore every command until :meth:`release`; the angle held.
-
-        The e-stop path calls this on the thread the stop arrived on: it must finish at once, taking no lock that a
-        control tick or a simulation step holds (a real driver writes its PWM register). This default commands the
-        angle read; a driver whose read or command can wait overrides it."""
-        angle = self.read().angle
-        self.command(angle)
-        return angle
-
-    def release(self) -> None:
-        """Follow commands again (the e-stop was released)."""
-
-
-class FakeDriver(JointDriver):
-    """A position servo model: the angle follows the command as a first-order lag with time constant ``tau``
-    seconds of ``clock``, computed when read (no thread of its own, so it is deterministic on a SimClock)."""
-
-    def __init__(self, *, tau: float = 0.05, stiffness: float = 0.02, clock: Clock | None = None) -> None:
-        self.tau = tau
-        self.stiffness = stiffness  # N·m per degree of error, for the torque estimate
-        self.clock = clock or WALL_CLOCK
-        self._lock = threading.Lock()
-        self._goal = 0.0
-        self._angle = 0.0
-        self._powered = True
-        self._held = False
-        self._time = self.clock.now()
-
-    def _advance(self) -> None:
-        now = self.clock.now()
-        if self._powered:
-            self._angle = self._goal + (self._angle - self._goal) * math.exp(-(now - self._time) / self.tau)
-        self._time = now
-
-    def command(self, degrees: float) -> None:
-        with self._lock:
-            self._advance()
-            if self._held:
-                return
-            self._goal = degrees
-            self._powered = True
-
-    def hold(self) -> float:
-        with self._lock:  # its own, held for microseconds by its own methods alone
-            self._advance()
-            self._goal = self._angle
-            self._held = True
-            return self._angle
-
-    def release(self) -> None:
-        with self._lock:
-            self._held = False
-
-    @property
-    def held(self) -> bool:
-        """An e-stop holds the joint: commands are ignored."""
-        return self._held
-
-    def read(self) -> JointReading:
-        with self._lock:
-            self._advance()
-            torque = self.stiffness * (self._goal - self._angle) if self._powered else 0.0
-            return JointReading(self._angle, max(-1.5, min(1.5, torque)), False)
-
-    def relax(self) -> None:
-        with self._lock:
-            self._advance()
-            self._powered = False
 
 
 class _Servo(EventDrivenService):

@@ -32,7 +32,7 @@ import struct
 from dataclasses import dataclass
 from typing import Literal
 
-from ..automaton import PhaseState
+from asm_py.automaton import PhaseState
 
 EventName = Literal["contact", "no_contact", "at_goal", "torque", "neighbour", "signal"]
 CONTROL_PERIOD = 0.02

@@ -14,9 +14,9 @@ import threading
 from collections.abc import Callable
 from typing import Protocol
 
-from ..codec import UINT8
-from ..node import Node
-from ..protocol import HEADER_SIZE, Kind, Method, first_byte
+from asm_py.codec import UINT8
+from asm_py.node import Node
+from asm_py.protocol import HEADER_SIZE, Kind, Method, first_byte
 
 StateCallback = Callable[[int], None]
 _STATE = struct.Struct("<H")

@@ -4,40 +4,34 @@ The firmware is what a module's microcontroller would run; built as a shared lib
 code answers on any python-can bus — a virtual one in tests, the simulated robot's, a real interface — so a tool
 cannot tell a C module from a Python one except by how fast it answers. :class:`CModule` owns the C module's
 memory (one buffer of ``asm_host_size()`` bytes: the firmware allocates nothing), gives it frames from the bus and
-a control tick, and lends it a :class:`~asm_py.module.runtime.JointDriver` as its joint.
+a control tick, and lends it a :class:`~asm_module.runtime.JointDriver` as its joint.
 
-The library is built from firmware/ with the system's C compiler when it is missing or older than its sources
-(firmware/build/, ignored by git), so a fresh checkout needs nothing but gcc.
+The library is built by asm_module.firmware_build when it is missing or older than its sources.
 """
 
 from __future__ import annotations
 
 import ctypes
 import logging
-import os
 import struct
-import subprocess
-import tempfile
 import threading
 import time
 from collections import deque
 from collections.abc import Callable
-from pathlib import Path
 from typing import Any
 
 import can
 
-from .canbus.ids import CanId, Dest, FrameType, Priority, SystemCode, dest_filter, priority_filter, source_filter
-from .clock import Clock
-from .event import Event
-from .module.neighbours import LocalNeighbours
-from .module.runtime import FakeDriver, JointDriver
-from .protocol import WELL_KNOWN_CLASSES, Kind, Method, Status, first_byte
+from asm_py.canbus.ids import CanId, Dest, FrameType, Priority, SystemCode, dest_filter, priority_filter, source_filter
+from asm_py.clock import Clock
+from asm_py.event import Event
+from asm_py.protocol import WELL_KNOWN_CLASSES, Kind, Method, Status, first_byte
 
-log = logging.getLogger("asm_py.firmware")
-FIRMWARE = Path(__file__).resolve().parent.parent / "firmware"
-LIBRARY = FIRMWARE / "build" / "libasm_host.so"
+from .drivers import FakeDriver, JointDriver
+from .firmware_build import build_library
+from .neighbours import LocalNeighbours
 
+log = logging.getLogger("asm_module.c_module")
 _SEND = ctypes.CFUNCTYPE(ctypes.c_int, ctypes.c_void_p, ctypes.c_uint32, ctypes.c_void_p, ctypes.c_uint8)
 _COMMAND = ctypes.CFUNCTYPE(None, ctypes.c_void_p, ctypes.c_float)
 _RELAX = ctypes.CFUNCTYPE(None, ctypes.c_void_p)
@@ -45,66 +39,6 @@ _READ = ctypes.CFUNCTYPE(None, ctypes.c_void_p, ctypes.POINTER(ctypes.c_float), 
                          ctypes.POINTER(ctypes.c_uint8))  # fmt: skip
 _lock = threading.Lock()
 _library: ctypes.CDLL | None = None
-
-
-C_FLAGS = ["-std=c11", "-Wall", "-Wextra", "-Werror", "-pedantic", f"-I{FIRMWARE / 'include'}"]
-"""How every build of the firmware compiles it (the library, the board port, the test and fuzz programs)."""
-
-
-HOST_FLAGS = ["-DASM_TABLE_BYTES=1400"]
-"""The host library's limits beyond the defaults: a gait table of 1,400 bytes, a version-2 program of 64 states in
-four modes (every gait of the library; a board keeps the default, a version-1 table of 64 states)."""
-
-
-def runtime_sources() -> list[Path]:
-    """The portable runtime (firmware/src/), without a port."""
-    return sorted((FIRMWARE / "src").glob("*.c"))
-
-
-def _sources() -> list[Path]:
-    return [*runtime_sources(), FIRMWARE / "port" / "host.c"]
-
-
-def build_library() -> Path:
-    """firmware/build/libasm_host.so, compiled now if missing or older than a source or header."""
-    inputs = [*_sources(), *(FIRMWARE / "include" / "asm").glob("*.h")]
-    if LIBRARY.exists() and LIBRARY.stat().st_mtime >= max(p.stat().st_mtime for p in inputs):
-        return LIBRARY
-    LIBRARY.parent.mkdir(exist_ok=True)
-    fd, temporary = tempfile.mkstemp(dir=LIBRARY.parent, suffix=".so")  # then renamed: parallel builds never clash
-    os.close(fd)
-    try:
-        subprocess.run([os.environ.get("CC", "gcc"), *C_FLAGS, *HOST_FLAGS, "-O2", "-fPIC", "-shared",
-                        *map(str, _sources()), "-lm", "-o", temporary], check=True, capture_output=True,
-                       text=True)  # fmt: skip
-        os.replace(temporary, LIBRARY)
-    except subprocess.CalledProcessError as exc:
-        raise RuntimeError(f"building the C module runtime failed:\n{exc.stderr}") from None
-    finally:
-        if os.path.exists(temporary):
-            os.unlink(temporary)
-    return LIBRARY
-
-
-CORTEX_M4_FLAGS = [
-    *("-mcpu=cortex-m4", "-mthumb", "-mfloat-abi=hard", "-mfpu=fpv4-sp-d16", "-ffunction-sections", "-fdata-sections"),
-    *("-DASM_CAN_PARTIALS=1", "-DASM_CAN_MAX_MESSAGE=640", "-DASM_NODE_OUT=640"),
-    "-fno-tree-loop-distribute-patterns",
-]
-"""A small module's limits: one reassembly slot of 640 bytes (a staged 64-state table is 597), replies as long. And
-no loop turned into a library call: newlib's word-at-a-time strlen alone is 220 bytes, for names a few bytes long."""
-
-
-def build_cortex_m4(elf: Path) -> tuple[int, int, int]:
-    """Link the example STM32F4 port (firmware/port/) with the runtime, -Os; its (text, data, bss) in bytes."""
-    sources = [*runtime_sources(), FIRMWARE / "port" / "stm32f4_bxcan.c"]
-    subprocess.run(["arm-none-eabi-gcc", *C_FLAGS, "-Os", *CORTEX_M4_FLAGS, *map(str, sources), "-nostartfiles",
-                    "--specs=nano.specs", "--specs=nosys.specs", "-Wl,--gc-sections",
-                    f"-T{FIRMWARE / 'port' / 'stm32f4.ld'}", "-lm", "-o", str(elf)], check=True, capture_output=True,
-                   text=True)  # fmt: skip
-    report = subprocess.run(["arm-none-eabi-size", str(elf)], capture_output=True, text=True, check=True)
-    text, data, bss = (int(v) for v in report.stdout.splitlines()[1].split()[:3])
-    return text, data, bss
 
 
 def library() -> ctypes.CDLL:

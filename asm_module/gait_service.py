@@ -14,11 +14,12 @@ import threading
 from collections import Counter
 from typing import TYPE_CHECKING, Any
 
-from ..attribute import Attribute, CheckedAttribute
-from ..automaton import PhaseAutomaton, reference_at, state_starts
-from ..codec import FLOAT32, FLOAT64, INT8, UINT8, UINT32, record
-from ..errors import EstopLatched, ServiceError
-from ..event import Event
+from asm_py.attribute import Attribute, CheckedAttribute
+from asm_py.automaton import PhaseAutomaton, reference_at, state_starts
+from asm_py.codec import FLOAT32, FLOAT64, INT8, UINT8, UINT32, record
+from asm_py.errors import EstopLatched, ServiceError
+from asm_py.event import Event
+
 from .program import SWITCH_BLEND, Mode, ModeState, Program
 
 if TYPE_CHECKING:

@@ -9,7 +9,7 @@ list of states in a compact little-endian layout that firmware can parse without
     then N × 9 bytes:   float32 angle (degrees), float32 duration (seconds, at least one control tick:
                         0.02), uint8 interpolation (0 step, 1 linear)
 
-Version 2 holds a program (asm_py/module/program.py): several modes (gaits), a sequence, sensor- and
+Version 2 holds a program (asm_module/program.py): several modes (gaits), a sequence, sensor- and
 neighbour-driven states and one-shot modes. A program that version 1 can say is always written as version 1, so
 its bytes and checksum do not change:
 
@@ -43,8 +43,9 @@ import zlib
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from ..automaton import PhaseState
-from ..protocol import HEADER_SIZE, MAX_MESSAGE
+from asm_py.automaton import PhaseState
+from asm_py.protocol import HEADER_SIZE, MAX_MESSAGE
+
 from .program import (
     EVENTS,
     MAX_MODES,

@@ -1,0 +1,85 @@
+"""Building the C module runtime (firmware/): the flags every build uses, the host library the Python binding loads,
+and the Cortex-M4 image of the example board port.
+
+The library is built from firmware/ with the system's C compiler when it is missing or older than its sources
+(firmware/build/, ignored by git), so a fresh checkout needs nothing but gcc; the board image with Debian's
+arm-none-eabi toolchain.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import tempfile
+from pathlib import Path
+
+FIRMWARE = Path(__file__).resolve().parent.parent / "firmware"
+LIBRARY = FIRMWARE / "build" / "libasm_host.so"
+
+C_FLAGS = ["-std=c11", "-Wall", "-Wextra", "-Werror", "-pedantic", f"-I{FIRMWARE / 'include'}"]
+"""How every build of the firmware compiles it (the library, the board port, the test and fuzz programs)."""
+
+
+HOST_FLAGS = ["-DASM_TABLE_BYTES=1400"]
+"""The host library's limits beyond the defaults: a gait table of 1,400 bytes, a version-2 program of 64 states in
+four modes (every gait of the library; a board keeps the default, a version-1 table of 64 states)."""
+
+
+def runtime_sources() -> list[Path]:
+    """The portable runtime (firmware/src/), without a port."""
+    return sorted((FIRMWARE / "src").glob("*.c"))
+
+
+def _sources() -> list[Path]:
+    return [*runtime_sources(), FIRMWARE / "port" / "host.c"]
+
+
+def build_library() -> Path:
+    """firmware/build/libasm_host.so, compiled now if missing or older than a source or header."""
+    inputs = [*_sources(), *(FIRMWARE / "include" / "asm").glob("*.h")]
+    if LIBRARY.exists() and LIBRARY.stat().st_mtime >= max(p.stat().st_mtime for p in inputs):
+        return LIBRARY
+    LIBRARY.parent.mkdir(exist_ok=True)
+    fd, temporary = tempfile.mkstemp(dir=LIBRARY.parent, suffix=".so")  # then renamed: parallel builds never clash
+    os.close(fd)
+    try:
+        subprocess.run([os.environ.get("CC", "gcc"), *C_FLAGS, *HOST_FLAGS, "-O2", "-fPIC", "-shared",
+                        *map(str, _sources()), "-lm", "-o", temporary], check=True, capture_output=True,
+                       text=True)  # fmt: skip
+        os.replace(temporary, LIBRARY)
+    except subprocess.CalledProcessError as exc:
+        raise RuntimeError(f"building the C module runtime failed:\n{exc.stderr}") from None
+    finally:
+        if os.path.exists(temporary):
+            os.unlink(temporary)
+    return LIBRARY
+
+
+CORTEX_M4_FLAGS = [
+    *("-mcpu=cortex-m4", "-mthumb", "-mfloat-abi=hard", "-mfpu=fpv4-sp-d16", "-ffunction-sections", "-fdata-sections"),
+    *("-DASM_CAN_PARTIALS=1", "-DASM_CAN_MAX_MESSAGE=640", "-DASM_NODE_OUT=640"),
+    "-fno-tree-loop-distribute-patterns",
+]
+"""A small module's limits: one reassembly slot of 640 bytes (a staged 64-state table is 597), replies as long. And
+no loop turned into a library call: newlib's word-at-a-time strlen alone is 220 bytes, for names a few bytes long."""
+
+
+def build_cortex_m4(elf: Path) -> tuple[int, int, int]:
+    """Link the example STM32F4 port (firmware/port/) with the runtime, -Os; its (text, data, bss) in bytes."""
+    sources = [*runtime_sources(), FIRMWARE / "port" / "stm32f4_bxcan.c"]
+    subprocess.run(["arm-none-eabi-gcc", *C_FLAGS, "-Os", *CORTEX_M4_FLAGS, *map(str, sources), "-nostartfiles",
+                    "--specs=nano.specs", "--specs=nosys.specs", "-Wl,--gc-sections",
+                    f"-T{FIRMWARE / 'port' / 'stm32f4.ld'}", "-lm", "-o", str(elf)], check=True, capture_output=True,
+                   text=True)  # fmt: skip
+    report = subprocess.run(["arm-none-eabi-size", str(elf)], capture_output=True, text=True, check=True)
+    text, data, bss = (int(v) for v in report.stdout.splitlines()[1].split()[:3])
+    return text, data, bss
+
+
+def build_test_program(out: Path, program: str) -> Path:
+    """``firmware/tests/<program>.c`` with the runtime, warnings as errors, under both sanitizers (the vector runner
+    and the fuzz of the test suite and the benches)."""
+    sources = [*runtime_sources(), FIRMWARE / "tests" / f"{program}.c"]
+    subprocess.run(["gcc", *C_FLAGS, "-O1", "-g", "-fsanitize=address,undefined", "-fno-sanitize-recover=all",
+                    *map(str, sources), "-lm", "-o", str(out)], check=True, capture_output=True, text=True)  # fmt: skip
+    return out
