@@ -5,7 +5,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: run test lint format bench clean
+.PHONY: run test lint format bench clean contract
 
 $(STAMP): pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -27,6 +27,11 @@ ARM_GCC := /usr/bin/arm-none-eabi-gcc
 $(ARM_GCC):
 	if [ "$$(id -u)" = 0 ]; then apt-get update && apt-get install -y gcc-arm-none-eabi libnewlib-arm-none-eabi; \
 	else sudo apt-get update && sudo apt-get install -y gcc-arm-none-eabi libnewlib-arm-none-eabi; fi
+
+# The wire contract (contract/*.toml) generates asm_py/_contract.py, asm_module/_profile.py, the C headers and the
+# tables of docs/protocol.md; the test suite fails when one of them is stale.
+contract: $(STAMP)
+	$(PY) contract/generate.py
 
 lint: $(STAMP)
 	$(PY) -m ruff check .

@@ -25,8 +25,9 @@ import can
 from asm_py.canbus.ids import CanId, Dest, FrameType, Priority, SystemCode, dest_filter, priority_filter, source_filter
 from asm_py.clock import Clock
 from asm_py.event import Event
-from asm_py.protocol import WELL_KNOWN_CLASSES, Kind, Method, Status, first_byte
+from asm_py.protocol import Kind, Method, Status, first_byte
 
+from ._profile import CLASSES
 from .drivers import FakeDriver, JointDriver
 from .firmware_build import build_library
 from .neighbours import LocalNeighbours
@@ -150,7 +151,7 @@ class CModule:
             for n in neighbours:
 
                 def heard(state: int, n: int = n) -> None:
-                    data = bytes((first_byte(Kind.PUBLICATION, Method.PUBLISH), 0, WELL_KNOWN_CLASSES["gait.state"],
+                    data = bytes((first_byte(Kind.PUBLICATION, Method.PUBLISH), 0, CLASSES["gait.state"],
                                   state_object)) + struct.pack("<H", state)  # fmt: skip
                     can_id = CanId(Priority.PUBLICATION, Dest.BROADCAST, 0, n, FrameType.SINGLE).pack()
                     self._inbox.append((self._now_ms(), can_id, data))
@@ -178,7 +179,7 @@ class CModule:
     def local(self, method: int, name: str, data: bytes = b"") -> None:
         """A request of the module's own (as its application would make): ``method`` on well-known object ``name``,
         with every check a remote request gets and no reply on the bus; ValueError naming the refusal."""
-        message = bytes((first_byte(Kind.REQUEST, method), 0, WELL_KNOWN_CLASSES[name], 0)) + data
+        message = bytes((first_byte(Kind.REQUEST, method), 0, CLASSES[name], 0)) + data
         with self._call_lock:
             status = self._lib.asm_host_local(self._memory, message, len(message), self._now_ms())
             self._refilter()
@@ -186,7 +187,7 @@ class CModule:
             raise ValueError(f"{self.name}: {Method(method).name} of {name} refused: {Status(status).name}")
 
     def _heard_signal(self, number: int) -> None:
-        message = bytes((first_byte(Kind.REQUEST, Method.SET), 0, WELL_KNOWN_CLASSES["gait.signal"], 0, number))
+        message = bytes((first_byte(Kind.REQUEST, Method.SET), 0, CLASSES["gait.signal"], 0, number))
         can_id = CanId(Priority.REQUEST, Dest.BROADCAST, 0, self.node_id, FrameType.SINGLE).pack()
         self._inbox.append((self._now_ms(), can_id, message))
 
@@ -195,10 +196,10 @@ class CModule:
         cid = CanId.unpack(can_id)
         if cid.dest_kind != Dest.BROADCAST or cid.frame != FrameType.SINGLE or len(payload) < 5:
             return
-        if payload[0] == first_byte(Kind.PUBLICATION, Method.PUBLISH) and payload[2] == WELL_KNOWN_CLASSES[
+        if payload[0] == first_byte(Kind.PUBLICATION, Method.PUBLISH) and payload[2] == CLASSES[
                 "gait.state"] and len(payload) == 6:  # fmt: skip
             self.hub.announce(self.node_id, struct.unpack_from("<H", payload, 4)[0])  # type: ignore[union-attr]
-        elif payload[0] == first_byte(Kind.REQUEST, Method.SET) and payload[2] == WELL_KNOWN_CLASSES["gait.signal"]:
+        elif payload[0] == first_byte(Kind.REQUEST, Method.SET) and payload[2] == CLASSES["gait.signal"]:
             self.hub.broadcast(payload[4])  # type: ignore[union-attr]
 
     def tick(self) -> None:

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import os
 import subprocess
+import sys
 import tempfile
 from pathlib import Path
 
@@ -25,6 +26,22 @@ HOST_FLAGS = ["-DASM_TABLE_BYTES=1400"]
 four modes (every gait of the library; a board keeps the default, a version-1 table of 64 states)."""
 
 
+CONTRACT = FIRMWARE.parent / "contract"
+
+
+def ensure_contract() -> None:
+    """Regenerate the headers (and every other copy) of the wire contract when contract/*.toml changed: the C build
+    always compiles what the contract says (contract/generate.py)."""
+    generator = CONTRACT / "generate.py"
+    if not generator.exists():  # an installed package without the repository: the headers are what they are
+        return
+    headers = [FIRMWARE / "include" / "asm" / name for name in ("contract.h", "profile.h")]
+    newest = max(p.stat().st_mtime for p in (generator, *CONTRACT.glob("*.toml")))
+    if all(h.exists() and h.stat().st_mtime >= newest for h in headers):
+        return
+    subprocess.run([sys.executable, str(generator)], check=True, capture_output=True, text=True)
+
+
 def runtime_sources() -> list[Path]:
     """The portable runtime (firmware/src/), without a port."""
     return sorted((FIRMWARE / "src").glob("*.c"))
@@ -36,6 +53,7 @@ def _sources() -> list[Path]:
 
 def build_library() -> Path:
     """firmware/build/libasm_host.so, compiled now if missing or older than a source or header."""
+    ensure_contract()
     inputs = [*_sources(), *(FIRMWARE / "include" / "asm").glob("*.h")]
     if LIBRARY.exists() and LIBRARY.stat().st_mtime >= max(p.stat().st_mtime for p in inputs):
         return LIBRARY
@@ -66,6 +84,7 @@ no loop turned into a library call: newlib's word-at-a-time strlen alone is 220 
 
 def build_cortex_m4(elf: Path) -> tuple[int, int, int]:
     """Link the example STM32F4 port (firmware/port/) with the runtime, -Os; its (text, data, bss) in bytes."""
+    ensure_contract()
     sources = [*runtime_sources(), FIRMWARE / "port" / "stm32f4_bxcan.c"]
     subprocess.run(["arm-none-eabi-gcc", *C_FLAGS, "-Os", *CORTEX_M4_FLAGS, *map(str, sources), "-nostartfiles",
                     "--specs=nano.specs", "--specs=nosys.specs", "-Wl,--gc-sections",
@@ -79,6 +98,7 @@ def build_cortex_m4(elf: Path) -> tuple[int, int, int]:
 def build_test_program(out: Path, program: str) -> Path:
     """``firmware/tests/<program>.c`` with the runtime, warnings as errors, under both sanitizers (the vector runner
     and the fuzz of the test suite and the benches)."""
+    ensure_contract()
     sources = [*runtime_sources(), FIRMWARE / "tests" / f"{program}.c"]
     subprocess.run(["gcc", *C_FLAGS, "-O1", "-g", "-fsanitize=address,undefined", "-fno-sanitize-recover=all",
                     *map(str, sources), "-lm", "-o", str(out)], check=True, capture_output=True, text=True)  # fmt: skip

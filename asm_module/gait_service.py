@@ -43,7 +43,7 @@ class ModuleGait(PhaseAutomaton):
         super().__init__("gait.service", tick, program.modes[0].states, inline=inline, clock=clock)
         self.program = program
         self.switch = CheckedAttribute("gait.switch", {"mode": 0, "direction": 1, "after": 0.0}, codec=SWITCH,
-                                       check=self._check_switch, clock=clock)  # fmt: skip
+                                       check=self._check_switch, reset=self._forget_switch, clock=clock)  # fmt: skip
         self.cycle = Attribute("gait.cycle", 0, codec=UINT32, clock=clock)
         self.mode = Attribute("gait.mode", 0, codec=UINT8, clock=clock)
         self.done = Event("gait.done", codec=UINT8, clock=clock)
@@ -90,6 +90,12 @@ class ModuleGait(PhaseAutomaton):
         with self._lock:
             self._switch_request = (mode, direction, after)
         return {"mode": mode, "direction": direction, "after": after}
+
+    def _forget_switch(self) -> dict[str, Any]:
+        """A RESET of gait.switch withdraws a switch not made yet (it schedules none)."""
+        with self._lock:
+            self._switch_request = None
+        return {"mode": 0, "direction": 1, "after": 0.0}
 
     def _heard_signal(self, number: int) -> int:
         if not 1 <= int(number) <= 255:

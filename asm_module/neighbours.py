@@ -16,7 +16,7 @@ from typing import Protocol
 
 from asm_py.codec import UINT8
 from asm_py.node import Node
-from asm_py.protocol import HEADER_SIZE, Kind, Method, first_byte
+from asm_py.protocol import HEADER_SIZE, Kind, Method, first_byte, has_timeout
 
 StateCallback = Callable[[int], None]
 _STATE = struct.Struct("<H")
@@ -78,7 +78,7 @@ class BusNeighbours:
         head = first_byte(Kind.PUBLICATION, Method.PUBLISH)
 
         def on_publication(data: bytes) -> None:
-            if len(data) == HEADER_SIZE + _STATE.size and data[0] == head and not data[1] & 0x80:
+            if len(data) == HEADER_SIZE + _STATE.size and data[0] == head and not has_timeout(data):
                 callback(_STATE.unpack_from(data, HEADER_SIZE)[0])
 
         name = f"can.{module_id}" if hasattr(node.transport, "node_id") else f"m{module_id}"

@@ -115,11 +115,13 @@ class ModuleRuntime:
         """The angle the e-stop holds (joint.goal reads it from the next tick on)."""
         self.limits = CheckedAttribute("joint.limits", self._check_limits(limits), codec=float_array(2),
                                        check=self._check_limits, clock=self.clock)  # fmt: skip
-        self.goal = CheckedAttribute("joint.goal", 0.0, codec=FLOAT32, check=self._clamp_goal, clock=self.clock)
+        self.goal = CheckedAttribute("joint.goal", 0.0, codec=FLOAT32, check=self._clamp_goal, reset=self._reset_goal,
+                                     clock=self.clock)  # fmt: skip
         self.angle = Attribute("joint.angle", 0.0, codec=FLOAT32, clock=self.clock)
         self.torque = Attribute("joint.torque", 0.0, codec=FLOAT32, clock=self.clock)
         self.contact = Attribute("sensor.contact", False, codec=BOOL, clock=self.clock)
-        self.estop = CheckedAttribute("estop", False, codec=BOOL, check=self._check_estop, clock=self.clock)
+        self.estop = CheckedAttribute("estop", False, codec=BOOL, check=self._check_estop, reset=self._refuse_reset,
+                                      clock=self.clock)  # fmt: skip
         self.phase = CheckedAttribute("gait.phase", 0.0, codec=FLOAT32, check=self._check_phase, clock=self.clock)
         self._own_timer: TimerTrigger | None = None
         if tick is None:
@@ -211,6 +213,15 @@ class ModuleRuntime:
             raise ValueError(f"joint.goal must be a finite number of degrees, not {value}")
         lo, hi = self.limits.peek()
         return min(max(value, lo), hi)
+
+    def _reset_goal(self) -> float:
+        goal = self._clamp_goal(0.0)
+        self._command(goal)  # a reset of the goal commands it, as a set does
+        return goal
+
+    @staticmethod
+    def _refuse_reset() -> bool:
+        raise ValueError("estop is released by a SET to false, module by module: a RESET does not release it")
 
     def _check_phase(self, value: float) -> float:
         if not 0.0 <= value < 1.0:
@@ -320,6 +331,7 @@ class ModuleRuntime:
         if self.servo.running:
             self._held_at = self.driver.hold()
         self.gait.request_stop()
+        self.staging.discard()  # no deployment begun before the stop may start after it
         if self._held_at is not None:
             self.goal.set(self._held_at)  # the goal's own lock, for microseconds: it commands nothing while latched
 

@@ -23,6 +23,7 @@ Everything here refuses while the e-stop is latched (the node's guard answers ES
 
 from __future__ import annotations
 
+import math
 from typing import TYPE_CHECKING, Any
 
 from asm_py.attribute import Attribute, CheckedAttribute
@@ -49,9 +50,12 @@ class Staging:
         self._record: Staged | None = None
         self._expires = 0.0
         self.lease = CheckedAttribute("gait.lease", dict(FREE), codec=LEASE, check=self._take_lease, clock=clock)
+        # a RESET of either is checked as the empty value a set would carry: it names no token, so it frees nothing
+        # another holds
         self.staged = CheckedAttribute("gait.staged", b"", codec=BYTES, check=self._stage, clock=clock)
         self.staged_checksum = Attribute("gait.staged_checksum", checksum(b""), codec=UINT32, clock=clock)
-        self.activate = CheckedAttribute("gait.activate", 0, codec=UINT32, check=self._activate, clock=clock)
+        self.activate = CheckedAttribute("gait.activate", 0, codec=UINT32, check=self._activate, reset=lambda: 0,
+                                         clock=clock)  # fmt: skip
 
     def holder(self) -> dict[str, Any] | None:
         """The lease now in force, or None when it is free or expired."""
@@ -61,6 +65,8 @@ class Staging:
         return lease
 
     def _take_lease(self, wanted: dict[str, Any]) -> dict[str, Any]:
+        if math.isnan(wanted["seconds"]):  # its domain first, as the C module checks it
+            raise ValueError(f"a lease lasts a number of seconds, not {wanted['seconds']}")
         if self._runtime.latched and wanted["seconds"] > 0:
             raise EstopLatched("the module's emergency stop is latched: no deploy until it is released")
         current = self.holder()
@@ -92,10 +98,16 @@ class Staging:
         self.staged_checksum.set(checksum(data))
         return data
 
+    def discard(self) -> None:
+        """Forget what was staged, whoever holds the lease (an e-stop: a deployment in progress is abandoned)."""
+        self._record = None
+        Attribute.set(self.staged, b"")
+        self.staged_checksum.set(checksum(b""))
+
     def _activate(self, deploy_id: int) -> int:
         runtime = self._runtime
-        if deploy_id == self.activate.peek() and runtime.gait.running:
-            return deploy_id  # a resent activation: already running it
+        if deploy_id == self.activate.peek():
+            return deploy_id  # a resent activation: done once, never a restart (an e-stop may have stopped it)
         staged = self._record
         if staged is None or staged.deploy_id != deploy_id:
             raise ValueError(f"no gait is staged with deploy ID {deploy_id:#010x}")

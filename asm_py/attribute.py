@@ -249,15 +249,36 @@ class Attribute:
 
 
 class CheckedAttribute(Attribute):
-    """An attribute whose every value, however it arrives (a local or remote set, a publication), passes
+    """An attribute whose every value, however it arrives (a local or remote set, a reset, a publication), passes
     ``check(value)`` first: the check may return the value to store (a goal clamped to its limits) or raise, and
-    then nothing is stored. The domain of a value lives with the value, so no path around it exists."""
+    then nothing is stored. The domain of a value lives with the value, so no path around it exists.
 
-    __slots__ = ("_check",)
+    A reset goes through ``reset()`` when given — it returns the value to go back to, or raises to refuse — and
+    otherwise through ``check`` with the initial value: a reset is a write like any other (a lease, a staged gait,
+    a table are never emptied behind their rules)."""
 
-    def __init__(self, name: str, initial: Any = None, *, check: Callable[[Any], Any], **options: Any) -> None:
+    __slots__ = ("_check", "_reset_to")
+
+    def __init__(
+        self,
+        name: str,
+        initial: Any = None,
+        *,
+        check: Callable[[Any], Any],
+        reset: Callable[[], Any] | None = None,
+        **options: Any,
+    ) -> None:
         super().__init__(name, initial, **options)
         self._check = check
+        self._reset_to = reset
+
+    def reset(self, *, wait: bool = True) -> None:
+        value = self._reset_to() if self._reset_to is not None else self._check(self._initial)
+        mon = self._mon
+        with mon.lock:
+            self._value = value
+            self._valid = False
+            mon.notify_all()
 
     def set(self, value: Any, timeout: float | None = None, *, wait: bool = True) -> None:
         value = self._codec.normalize(value) if self._codec is not None else value

@@ -21,6 +21,8 @@ from abc import ABC, abstractmethod
 from collections.abc import Mapping, Sequence
 from typing import Any
 
+from ._contract import CodecTag
+
 Buffer = bytes | bytearray | memoryview
 
 
@@ -110,7 +112,7 @@ class _Fixed(Codec):
 
 class BoolCodec(_Fixed):
     def __init__(self) -> None:
-        super().__init__("bool", "B", 0x01)
+        super().__init__("bool", "B", CodecTag.BOOL)
 
     def normalize(self, value: Any) -> bool:
         if value is True or value is False:
@@ -133,7 +135,7 @@ class IntCodec(_Fixed):
     def __init__(self, bits: int, signed: bool) -> None:
         fmt = {8: "b", 16: "h", 32: "i", 64: "q"}[bits]
         spec = f"{'' if signed else 'u'}int{bits}"
-        tag = {8: 0x02, 16: 0x03, 32: 0x04, 64: 0x05}[bits] + (0 if signed else 4)
+        tag = CodecTag[spec.upper()]
         super().__init__(spec, fmt if signed else fmt.upper(), tag)
         self.min = -(1 << (bits - 1)) if signed else 0
         self.max = (1 << (bits - 1)) - 1 if signed else (1 << bits) - 1
@@ -155,7 +157,9 @@ class IntCodec(_Fixed):
 
 class FloatCodec(_Fixed):
     def __init__(self, bits: int) -> None:
-        super().__init__(f"float{bits}", "f" if bits == 32 else "d", 0x0A if bits == 32 else 0x0B)
+        super().__init__(
+            f"float{bits}", "f" if bits == 32 else "d", CodecTag.FLOAT32 if bits == 32 else CodecTag.FLOAT64
+        )
 
     def normalize(self, value: Any) -> float:
         if isinstance(value, bool | str | bytes):
@@ -244,7 +248,7 @@ class _Variable(Codec):
 
 
 class StrCodec(_Variable):
-    _tag = 0x0C
+    _tag = CodecTag.STR
 
     def __init__(self, max_len: int | None = None) -> None:
         super().__init__(max_len)
@@ -273,7 +277,7 @@ class StrCodec(_Variable):
 
 
 class BytesCodec(_Variable):
-    _tag = 0x0D
+    _tag = CodecTag.BYTES
 
     def __init__(self, max_len: int | None = None) -> None:
         super().__init__(max_len)
@@ -316,7 +320,7 @@ class FloatArrayCodec(Codec):
         return tuple(self.element.normalize(item) for item in value)
 
     def descriptor(self) -> bytes:
-        out = bytearray([0x0E, self.element._tag])
+        out = bytearray([CodecTag.FLOAT_ARRAY, self.element._tag])
         _pack_varint(out, self.length)
         return bytes(out)
 
@@ -366,7 +370,7 @@ class RecordCodec(Codec):
         return result
 
     def descriptor(self) -> bytes:
-        out = bytearray([0x0F])
+        out = bytearray([CodecTag.RECORD])
         _pack_varint(out, len(self.fields))
         for name, codec in self.fields:
             raw = name.encode("utf-8")
@@ -397,7 +401,7 @@ class JsonCodec(_Variable):
     """
 
     spec = "json"
-    _tag = 0x10
+    _tag = CodecTag.JSON
 
     def __init__(self) -> None:
         super().__init__(None)
@@ -523,21 +527,21 @@ def _from_descriptor(data: memoryview, offset: int, depth: int) -> tuple[Codec, 
     offset += 1
     if tag in _BY_TAG:
         return _BY_TAG[tag], offset
-    if tag == 0x10:
+    if tag == CodecTag.JSON:
         return JSON, offset
-    if tag in (0x0C, 0x0D):
+    if tag in (CodecTag.STR, CodecTag.BYTES):
         max_len, offset = _unpack_varint(data, offset)
         limit = max_len or None
-        return (StrCodec(limit) if tag == 0x0C else BytesCodec(limit)), offset
-    if tag == 0x0E:
-        if offset >= len(data) or data[offset] not in (0x0A, 0x0B):
+        return (StrCodec(limit) if tag == CodecTag.STR else BytesCodec(limit)), offset
+    if tag == CodecTag.FLOAT_ARRAY:
+        if offset >= len(data) or data[offset] not in (CodecTag.FLOAT32, CodecTag.FLOAT64):
             raise ValueError("float array descriptor without a float element type")
-        element = FLOAT32 if data[offset] == 0x0A else FLOAT64
+        element = FLOAT32 if data[offset] == CodecTag.FLOAT32 else FLOAT64
         length, offset = _unpack_varint(data, offset + 1)
         if not 1 <= length <= 65535:
             raise ValueError(f"float array length {length} out of range")
         return FloatArrayCodec(length, element), offset
-    if tag == 0x0F:
+    if tag == CodecTag.RECORD:
         count, offset = _unpack_varint(data, offset)
         if not 1 <= count <= 255:
             raise ValueError(f"record field count {count} out of range")

@@ -2,7 +2,7 @@
 one-to-many"; MDCN's group and broadcast destinations).
 
 A group message addresses *the object of a class* on each member (object ID 0 in the header), so the class must
-mean the same thing on every node: one of the well-known classes (``protocol.WELL_KNOWN_CLASSES``: "joint.goal",
+mean the same thing on every node: one of the well-known classes (``asm_py.classes.well_known()``: "joint.goal",
 "gait.service", …) or an explicit class ID. Group requests never ask for a reply — with many receivers there is no
 single answer to wait for, and on CAN one frame reaches every member at once. To read values back, use each
 member's one-to-one port (``node.lookup``) or subscribe to its publications.
@@ -17,8 +17,9 @@ from __future__ import annotations
 import json
 from typing import TYPE_CHECKING, Any
 
+from .classes import well_known
 from .codec import Codec, parse_codec
-from .protocol import WELL_KNOWN_CLASSES, Kind, Message, Method, check_size, encode
+from .protocol import Kind, Message, Method, check_size, encode
 from .transport.base import BROADCAST, check_name
 
 if TYPE_CHECKING:
@@ -32,11 +33,11 @@ def class_id_of(cls: str | int) -> int:
             raise ValueError(f"class ID {cls} must be 1..255")
         return cls
     try:
-        return WELL_KNOWN_CLASSES[cls]
+        return well_known()[cls]
     except (KeyError, TypeError):
         raise LookupError(
             f"class {cls!r} has no network-wide ID; group messages need a well-known class "
-            f"({', '.join(sorted(WELL_KNOWN_CLASSES))}) or an explicit class ID"
+            f"({', '.join(sorted(well_known()))}) or an explicit class ID"
         ) from None
 
 

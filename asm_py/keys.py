@@ -38,12 +38,12 @@ DEFAULT_ROBOT = "robot"
 TOOL = "~"
 """Marks a tool's segment: tools and modules never share a name on the network."""
 LAB = "@lab"
-_NAME = re.compile(r"^[A-Za-z0-9_.\-]{1,64}$")
+_NAME = re.compile(r"[A-Za-z0-9_.\-]{1,64}")
 
 
 def check_name(name: str, what: str = "node name") -> str:
     """``name`` if it is a valid node, robot, group or object name (it becomes a chunk of keys and of logs)."""
-    if not isinstance(name, str) or not _NAME.match(name):
+    if not isinstance(name, str) or not _NAME.fullmatch(name):
         raise ValueError(f"{what} {name!r} must be 1-64 characters of letters, digits, '_', '.', '-'")
     return name
 

@@ -22,7 +22,9 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
+from ._contract import MAX_PARAMS_DEPTH
 from .attribute import Attribute, PublishPolicy
+from .classes import well_known
 from .clock import WALL_CLOCK, Clock
 from .codec import JSON, Codec
 from .errors import AsmTimeout, EstopLatched, Locked, MessageTooLarge, ReadOnlyError, RemoteError, ServiceError
@@ -32,7 +34,7 @@ from .keys import parse_address
 from .protocol import (
     LOCAL_CLASS_BASE,
     MAX_MESSAGE,
-    WELL_KNOWN_CLASSES,
+    VERSION,
     Kind,
     Message,
     Method,
@@ -41,8 +43,10 @@ from .protocol import (
     Status,
     decode,
     first_byte,
+    kind_of,
     reply_head,
     too_large,
+    version_of,
 )
 from .publisher import Publisher
 from .remote import Port, RemoteObject, describe_entry, make_client
@@ -57,8 +61,6 @@ Guard = Callable[[int], None]
 """Called with the method of each request that would change an object, before it runs; raises to refuse it."""
 WRITES = frozenset({Method.SET, Method.RESET, Method.START, Method.STOP, Method.SUSPEND, Method.RESUME})
 """The methods that change an object (what read-only attributes and guards refuse)."""
-MAX_PARAMS_DEPTH = 32
-"""Nesting depth of START parameters beyond which a request is a BAD_MESSAGE (no recursion on hostile input)."""
 
 
 @dataclass
@@ -159,8 +161,9 @@ class Node:
         return entry
 
     def _class_id(self, class_name: str) -> int:
-        if class_name in WELL_KNOWN_CLASSES:
-            return WELL_KNOWN_CLASSES[class_name]
+        known = well_known()
+        if class_name in known:
+            return known[class_name]
         if class_name not in self._local_classes:
             class_id = LOCAL_CLASS_BASE + len(self._local_classes)
             if class_id > 0xFF:
@@ -216,9 +219,13 @@ class Node:
         """Give discovery up to ``timeout`` to see ``remote`` (a just-opened session may not have met it yet)."""
         if remote in self._seen:
             return
-        robot = parse_address(remote).robot
-        if robot is not None and robot != self.transport.robot:
+        address = parse_address(remote)
+        if address.robot is not None and address.robot != self.transport.robot:
             return  # discovery lists this node's own robot: another robot's node answers or times out
+        if address.robot is not None:  # this robot's node, named with its robot: discovery lists its segment
+            remote = address.segment
+            if remote in self._seen:
+                return
         deadline = WALL_CLOCK.now() + timeout
         while remote not in self.discover():
             if WALL_CLOCK.now() >= deadline:
@@ -333,7 +340,7 @@ class Node:
     def _refuse_oversized(self, source: str, data: bytes, respond: Responder | None) -> None:
         """A message over MAX_MESSAGE is not decoded; a request that wants a reply is told why (TOO_LARGE)."""
         self.dropped += 1
-        if data[0] >> 6 != 1 or (data[0] >> 4) & 0x03 != Kind.REQUEST_REPLY:
+        if version_of(data) != VERSION or kind_of(data) != Kind.REQUEST_REPLY:
             return
         reply = reply_head(data, Status.TOO_LARGE) + too_large(len(data)).encode()
         if respond is None:

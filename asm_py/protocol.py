@@ -16,92 +16,48 @@ A get or set of a value of up to 4 bytes is 8 bytes: one classic CAN frame each 
 
 from __future__ import annotations
 
-from enum import IntEnum
 from typing import NamedTuple
 
+from ._contract import (
+    HEADER_SIZE,
+    KIND_MASK,
+    KIND_SHIFT,
+    LOCAL_CLASS_BASE,
+    MAX_ERROR_TEXT,
+    MAX_MESSAGE,
+    MAX_TXN,
+    METHOD_MASK,
+    TIMEOUT_FLAG_MASK,
+    TIMEOUT_FLAG_SHIFT,
+    TIMEOUT_FOREVER,
+    TIMEOUT_LONGEST,
+    VERSION,
+    VERSION_SHIFT,
+    WRITES,
+    Kind,
+    LookupFlag,
+    Method,
+    ObjectKind,
+    Status,
+    StatusFlag,
+)
 from .errors import AsmError, MessageTooLarge
 
-VERSION = 1
-HEADER_SIZE = 4
-MAX_TXN = 0x7F
-MAX_MESSAGE = 4096
-"""The largest ASM message in bytes, header included, on every transport and through every bridge. A sender refuses
-a longer message before sending it (TOO_LARGE); a receiver drops it at its edge, so no layer ever buffers more."""
+__all__ = [
+    "FOREVER", "HEADER_SIZE", "LOCAL_CLASS_BASE", "MAX_ERROR_TEXT", "MAX_MESSAGE", "MAX_TXN", "TIMEOUT_FLAG", "VERSION",
+    "WRITES", "Kind", "LookupFlag", "Message", "Method", "ObjectKind", "ProtocolError", "Status", "StatusFlag",
+    "check_size", "decode", "decode_timeout", "encode", "encode_timeout", "first_byte", "has_timeout", "kind_of",
+    "reply_head", "reply_to", "too_large", "txn_of", "with_txn",
+]  # fmt: skip
+
+FOREVER = TIMEOUT_FOREVER
+"""Timeout byte meaning 'block without limit'."""
+TIMEOUT_FLAG = TIMEOUT_FLAG_MASK << TIMEOUT_FLAG_SHIFT
+"""Byte 1's flag: a timeout byte follows the header."""
 
 
 class ProtocolError(AsmError, ValueError):
     """Bytes that are not a valid ASM message of a version this implementation speaks."""
-
-
-class Kind(IntEnum):
-    REQUEST = 0
-    """A request whose sender wants no reply."""
-    REQUEST_REPLY = 1
-    """A request whose sender waits for a reply (the paper's reply flag)."""
-    REPLY = 2
-    """The answer to a REQUEST_REPLY, with a status in byte 2."""
-    PUBLICATION = 3
-    """A value an attribute publishes to its subscribers (method PUBLISH)."""
-
-
-class Method(IntEnum):
-    LOOKUP = 0
-    """Find an object by name (data: UTF-8 name, object ID 0) or describe one by ID (no data)."""
-    GET = 1
-    """Read an attribute's value and make it invalid (blocks on a sync_get attribute)."""
-    SET = 2
-    """Write an attribute's value (data: the value; blocks on a sync_set attribute while valid)."""
-    RESET = 3
-    """Reset an attribute or a service."""
-    START = 4
-    """Start a service (data: its parameters, encoded by its parameter codec)."""
-    STOP = 5
-    """Stop a service; with a reply wanted, the reply comes once it has stopped."""
-    SUSPEND = 6
-    """Suspend a service."""
-    RESUME = 7
-    """Resume (continue) a suspended service."""
-    STATUS = 8
-    """Read flags: attribute valid; service started, running, failed (reply data: flags byte, then error text)."""
-    WAIT = 9
-    """Wait for the next firing of an event (reply data: the firing's value)."""
-    PEEK = 10
-    """Read an attribute's value without consuming it (for monitors)."""
-    PUBLISH = 11
-    """A publication (kind 3): data is the attribute's current value."""
-
-
-class Status(IntEnum):
-    OK = 0
-    TIMEOUT = 1
-    SERVICE_ERROR = 2
-    TYPE_ERROR = 3
-    VALUE_ERROR = 4
-    NOT_FOUND = 5
-    UNSUPPORTED = 6
-    BAD_MESSAGE = 7
-    BUSY = 8
-    INTERNAL = 9
-    READ_ONLY = 10
-    """A remote SET or RESET of an attribute that only its node writes (a measurement, a checksum, a state)."""
-    ESTOP = 11
-    """Refused: the node's emergency stop is latched, and the request would move a joint (or load a gait)."""
-    LOCKED = 12
-    """Refused: another client holds the lease this request needs (the data names the holder)."""
-    TOO_LARGE = 13
-    """The message is longer than :data:`MAX_MESSAGE` bytes (answered at the edge that saw it, before forwarding)."""
-
-
-class ObjectKind(IntEnum):
-    """What a lookup reply says an object is."""
-
-    ATTRIBUTE = 0
-    EVENT = 1
-    SERVICE = 2
-
-
-FOREVER = 0xFF
-"""Timeout byte meaning 'block without limit'."""
 
 
 def encode_timeout(seconds: float | None) -> int:
@@ -117,9 +73,9 @@ def encode_timeout(seconds: float | None) -> int:
         return ms
     exponent = ms.bit_length() - 4  # so that (ms >> (exponent - 1)) is in 16..31
     if exponent > 15:
-        return 0xFE
+        return TIMEOUT_LONGEST
     mantissa = (ms >> (exponent - 1)) - 16
-    return min((exponent << 4) | mantissa, 0xFE)
+    return min((exponent << 4) | mantissa, TIMEOUT_LONGEST)
 
 
 def decode_timeout(code: int) -> float | None:
@@ -163,33 +119,58 @@ class Message(NamedTuple):
 
 def first_byte(kind: int, method: int) -> int:
     """Byte 0 of a message — version, kind, method — laid out in this one place (hot paths build headers in place)."""
-    return (VERSION << 6) | (kind << 4) | method
+    return (VERSION << VERSION_SHIFT) | (kind << KIND_SHIFT) | method
 
 
 def kind_of(raw: bytes) -> int | None:
     """The kind of a message, read from its first byte without decoding the rest (None for no bytes)."""
-    return (raw[0] >> 4) & 0x03 if raw else None
+    return (raw[0] >> KIND_SHIFT) & KIND_MASK if raw else None
+
+
+def version_of(raw: bytes) -> int:
+    """The protocol version in byte 0 of a message (at least one byte)."""
+    return raw[0] >> VERSION_SHIFT
+
+
+def method_of(raw: bytes) -> int:
+    """The method in byte 0 of a message (at least one byte)."""
+    return raw[0] & METHOD_MASK
+
+
+def txn_of(raw: bytes) -> int:
+    """The transaction id in byte 1 of a message (at least two bytes)."""
+    return raw[1] & MAX_TXN
+
+
+def has_timeout(raw: bytes) -> bool:
+    """Whether byte 1 of a request says a timeout byte follows the header (at least two bytes)."""
+    return bool(raw[1] & TIMEOUT_FLAG)
+
+
+def with_txn(raw: bytes, txn: int) -> bytes:
+    """``raw`` with its transaction id replaced by ``txn``, the timeout flag kept (a bridge's or a client's)."""
+    return raw[:1] + bytes(((raw[1] & TIMEOUT_FLAG) | (txn & MAX_TXN),)) + raw[2:]
 
 
 def encode(message: Message) -> bytes:
     """The wire bytes of ``message``; ValueError if a field is out of range."""
-    if not 0 <= message.method <= 0x0F:
+    if not 0 <= message.method <= METHOD_MASK:
         raise ValueError(f"method {message.method} does not fit 4 bits")
     if not 0 <= message.txn <= MAX_TXN:
         raise ValueError(f"transaction id {message.txn} does not fit 7 bits")
     third = message.status if message.kind == Kind.REPLY else message.class_id
     if not 0 <= third <= 0xFF or not 0 <= message.object_id <= 0xFF:
         raise ValueError("class ID, status and object ID are single bytes")
-    has_timeout = message.timeout is not None
+    timed = message.timeout is not None
     head = bytes(
         (
             first_byte(int(message.kind), message.method),
-            (0x80 if has_timeout else 0) | message.txn,
+            (TIMEOUT_FLAG if timed else 0) | message.txn,
             third,
             message.object_id,
         )
     )
-    if has_timeout:
+    if timed:
         if message.kind == Kind.REPLY or not 0 <= message.timeout <= 0xFF:  # type: ignore[operator]
             raise ValueError("a timeout byte belongs to requests and fits one byte")
         head += bytes((message.timeout,))  # type: ignore[arg-type]
@@ -201,15 +182,15 @@ def decode(data: bytes | bytearray | memoryview) -> Message:
     raw = data if type(data) is bytes else bytes(data)
     if len(raw) < HEADER_SIZE:
         raise ProtocolError(f"message of {len(raw)} bytes is shorter than the {HEADER_SIZE}-byte header")
-    version = raw[0] >> 6
+    version = version_of(raw)
     if version != VERSION:
         raise ProtocolError(f"protocol version {version} is not supported (this node speaks {VERSION})")
     kind = kind_of(raw)
-    method = raw[0] & 0x0F
-    has_timeout = bool(raw[1] & 0x80)
+    method = method_of(raw)
+    timed = has_timeout(raw)
     offset = HEADER_SIZE
     timeout = None
-    if has_timeout:
+    if timed:
         if kind == Kind.REPLY or len(raw) < HEADER_SIZE + 1:
             raise ProtocolError("timeout flag on a reply, or a missing timeout byte")
         timeout = raw[HEADER_SIZE]
@@ -236,42 +217,9 @@ def check_size(raw: bytes, what: object = None) -> bytes:
 def reply_head(request: bytes, status: int) -> bytes:
     """The 4-byte reply header to the raw request ``request`` (at least 4 bytes), for an edge that answers a
     request it will not decode: same method, transaction and object ID, the given status."""
-    return bytes((first_byte(Kind.REPLY, request[0] & 0x0F), request[1] & MAX_TXN, status, request[3]))
+    return bytes((first_byte(Kind.REPLY, method_of(request)), txn_of(request), status, request[3]))
 
 
 def reply_to(request: Message, status: int = Status.OK, data: bytes = b"") -> Message:
     """The reply message for ``request``."""
     return Message(Kind.REPLY, request.method, request.txn, 0, request.object_id, status, None, data)
-
-
-# Classes with a fixed ID on every node, so that "joint.angle" means the same thing on every module and a group
-# message can address "the object of this class" on each member. Other classes get node-local IDs from 0x80 up,
-# in the order they are registered.
-WELL_KNOWN_CLASSES: dict[str, int] = {
-    "node": 0x01,
-    "heartbeat": 0x02,
-    "estop": 0x03,
-    "joint.goal": 0x10,
-    "joint.angle": 0x11,
-    "joint.limits": 0x12,
-    "joint.torque": 0x13,
-    "servo.service": 0x14,
-    "gait.table": 0x20,
-    "gait.phase": 0x21,
-    "gait.direction": 0x22,
-    "gait.state": 0x23,
-    "gait.service": 0x24,
-    "gait.tick": 0x25,
-    "gait.checksum": 0x26,
-    "gait.staged": 0x27,
-    "gait.staged_checksum": 0x28,
-    "gait.activate": 0x29,
-    "gait.lease": 0x2A,
-    "gait.switch": 0x2B,
-    "gait.cycle": 0x2C,
-    "gait.mode": 0x2D,
-    "gait.done": 0x2E,
-    "gait.signal": 0x2F,
-    "sensor.contact": 0x30,
-}
-LOCAL_CLASS_BASE = 0x80

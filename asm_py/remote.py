@@ -21,6 +21,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
+from ._contract import TIMEOUT_LONGEST
 from .clock import WALL_CLOCK, Clock, Monitor
 from .codec import Codec, codec_from_descriptor
 from .errors import AsmTimeout, EstopLatched, Locked, MessageTooLarge, ReadOnlyError, RemoteError, ServiceError
@@ -37,13 +38,14 @@ from .protocol import (
     encode,
     encode_timeout,
     first_byte,
+    has_timeout,
 )
 from .service import ServiceStatus
 
 if TYPE_CHECKING:
     from .node import Entry, Node
 
-MAX_TIMEOUT_CODE = 0xFE
+MAX_TIMEOUT_CODE = TIMEOUT_LONGEST
 REPLY_MARGIN = 1.0
 """Seconds a client waits for a reply beyond the time the server may block."""
 
@@ -361,7 +363,7 @@ class RemoteAttribute(RemoteObject):
 
         def on_publication(data: bytes) -> None:
             # A publication never carries a timeout byte: header byte 0 says all, the value starts at byte 4.
-            if len(data) >= HEADER_SIZE and data[0] == head0 and not data[1] & 0x80:
+            if len(data) >= HEADER_SIZE and data[0] == head0 and not has_timeout(data):
                 try:
                     value = decode_value(data[HEADER_SIZE:])
                 except ValueError:

@@ -97,11 +97,12 @@ def answered_per_second(bus: object, client_id: int, module_id: int, object_id: 
     answer with a processor of its own, as every module on a robot has."""
     import can
 
+    from asm_module._profile import CLASSES
     from asm_py.canbus.ids import CanId, Dest, FrameType, Priority
-    from asm_py.protocol import WELL_KNOWN_CLASSES, Kind, Message, Method, encode
+    from asm_py.protocol import Kind, Message, Method, encode
 
     request_id = CanId(Priority.REQUEST, Dest.NODE, module_id, client_id, FrameType.SINGLE).pack()
-    goal = WELL_KNOWN_CLASSES["joint.goal"]
+    goal = CLASSES["joint.goal"]
     frames = [
         can.Message(arbitration_id=request_id, is_extended_id=True,
                     data=encode(Message(Kind.REQUEST_REPLY, Method.PEEK, i & 0x7F, goal, object_id)))

@@ -170,14 +170,22 @@ def _activate(
 ) -> None:
     until = time.monotonic() + (deadline if deadline is not None else 2.0 + 0.25 * len(ids))
     activation = node.group(BROADCAST).attribute("gait.activate", "uint32")
-    waiting = list(ids)
-    while True:
-        activation.set(report.deploy_id)
-        time.sleep(0.02)
-        waiting = [m for m in waiting if not _confirmed(calls, m, report.deploy_id)]
-        if not waiting or time.monotonic() >= until:
-            break
+    stopped: list[str] = []  # an e-stop heard meanwhile: not one more activation goes out after it
+    forget = node.on_estop(lambda source, reason: stopped.append(source))
+    try:
+        waiting = list(ids)
+        while not stopped:
+            activation.set(report.deploy_id)
+            time.sleep(0.02)
+            waiting = [m for m in waiting if not _confirmed(calls, m, report.deploy_id)]
+            if not waiting or time.monotonic() >= until:
+                break
+    finally:
+        forget()
     report.running = [m for m in ids if m not in waiting]
+    if stopped:
+        raise DeployError(f"activate: an emergency stop (from {stopped[0]}) came while {report.gait} was starting; "
+                          "no activation was sent after it, and every module dropped what was staged")  # fmt: skip
     if waiting:
         listed = ", ".join(f"module {m} ({calls.names[m]})" for m in waiting)
         if lease.lost is None:  # still ours: no other deployer can have started anything, so stopping is safe

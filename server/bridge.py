@@ -40,7 +40,20 @@ from asm_py.cli import bitrate, can_channel, name, node_id, run, stop_requested
 from asm_py.codec import to_json
 from asm_py.keys import DEFAULT_ROBOT, RobotKeys, concrete, lab_estop, last, split
 from asm_py.node import Node
-from asm_py.protocol import MAX_MESSAGE, MAX_TXN, Kind, Method, Status, kind_of, reply_head, too_large
+from asm_py.protocol import (
+    HEADER_SIZE,
+    MAX_MESSAGE,
+    VERSION,
+    Kind,
+    Method,
+    Status,
+    kind_of,
+    reply_head,
+    too_large,
+    txn_of,
+    version_of,
+    with_txn,
+)
 from asm_py.remote import RemoteObject, make_client
 from asm_py.transport.can import CanTransport, group_id, message_priority
 
@@ -281,7 +294,7 @@ class CanZenohBridge:
 
     def _query_from_zenoh(self, mirror: _Mirror, query: zenoh.Query) -> None:
         data = query.payload.to_bytes() if query.payload is not None else b""
-        wants_reply = len(data) >= 4 and kind_of(data) == Kind.REQUEST_REPLY and data[0] >> 6 == 1
+        wants_reply = len(data) >= HEADER_SIZE and kind_of(data) == Kind.REQUEST_REPLY and version_of(data) == VERSION
         try:
             if len(data) < 4:
                 raise Refusal(None, "")
@@ -351,13 +364,13 @@ class CanZenohBridge:
         if len(data) < 4 or kind_of(data) != Kind.REPLY:
             return
         with self._lock:
-            waiting = self.clients.answered(alias, source_id, data[1] & MAX_TXN)
+            waiting = self.clients.answered(alias, source_id, txn_of(data))
         if waiting is None:
             self.forwarded["unanswered"] += 1
             return
         query = waiting.query
         try:
-            query.reply(waiting.key, data[:1] + bytes((waiting.txn,)) + data[2:])
+            query.reply(waiting.key, with_txn(data, waiting.txn))
         finally:
             query.drop()
         self.forwarded["to_zenoh"] += 1
@@ -374,7 +387,7 @@ class CanZenohBridge:
             value = obj.codec.decode(data[4:])  # type: ignore[attr-defined]  # published objects are attributes
         except ValueError:
             return
-        view = {"node": mirror.name, "object": obj.name, "class": obj.info.class_name, "seq": data[1] & 0x7F,
+        view = {"node": mirror.name, "object": obj.name, "class": obj.info.class_name, "seq": txn_of(data),
                 "t": time.time(), "value": to_json(value)}  # fmt: skip
         self.session.put(self.keys.json_view(mirror.name, obj.name), json.dumps(view))
         self.forwarded["publications"] += 1

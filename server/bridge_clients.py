@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from asm_py.canbus.ids import check_node_id
-from asm_py.protocol import MAX_TXN, Status, decode_timeout, encode_timeout
+from asm_py.protocol import HEADER_SIZE, MAX_TXN, Status, decode_timeout, encode_timeout, has_timeout, txn_of, with_txn
 
 REPLY_MARGIN = 5.0
 """Seconds a forwarded query waits for its CAN reply beyond the request's own timeout."""
@@ -115,15 +115,15 @@ class ClientTable:
                 break
         else:
             raise Refusal(Status.BUSY, "all transaction ids to this node are in use")
-        has_timeout = bool(data[1] & 0x80) and len(data) > 4
-        limit = decode_timeout(data[4]) if has_timeout else 0.0
+        timed = has_timeout(data) and len(data) > HEADER_SIZE
+        limit = decode_timeout(data[HEADER_SIZE]) if timed else 0.0
         if limit is None or limit > MAX_BLOCK:
-            data = data[:4] + bytes((MAX_BLOCK_CODE,)) + data[5:]
+            data = data[:HEADER_SIZE] + bytes((MAX_BLOCK_CODE,)) + data[HEADER_SIZE + 1 :]
             limit = MAX_BLOCK
         deadline = time.monotonic() + limit + REPLY_MARGIN
-        self.pending[(client.alias, node_id, txn)] = Pending(query, key, data[1] & MAX_TXN, deadline)
+        self.pending[(client.alias, node_id, txn)] = Pending(query, key, txn_of(data), deadline)
         client.pending += 1
-        return data[:1] + bytes(((data[1] & 0x80) | txn,)) + data[2:]
+        return with_txn(data, txn)
 
     def enqueue(self, client: Client, dest_kind: int, dest: int, data: bytes) -> None:
         """Queue a message for the bus; BUSY when the client's queue is full."""

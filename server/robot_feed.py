@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import logging
 import threading
+import time
 from collections.abc import Callable
 from typing import Any
 
@@ -21,6 +22,7 @@ import zenoh
 
 from asm_module.feed import RobotStatus
 from asm_py.keys import RobotKeys, last
+from asm_py.transport.zenoh import CLAIM_SETTLE
 
 log = logging.getLogger("asm_robot.feed")
 
@@ -50,15 +52,24 @@ class RobotFeed:
         self._publishers: dict[str, zenoh.Publisher] = {}
         self._keep: list[Any] = []
         zid = str(session.info.zid())
-        others = [last(r.ok.key_expr) for r in session.liveliness().get(self.keys.robot_alive(), timeout=2.0)
-                  if r.ok is not None and last(r.ok.key_expr) != zid]  # fmt: skip
-        if others:
-            raise RobotNameTaken(f"a robot named {status.robot!r} is already on this Zenoh network (session "
-                                 f"{others[0]}): give this one another --name")  # fmt: skip
+        self._refuse_if_taken(zid, lambda others: bool(others))
         self._keep.append(session.liveliness().declare_token(self.keys.robot_alive(zid)))
+        time.sleep(CLAIM_SETTLE)  # two robots named alike at the same moment see each other's token by then:
+        try:  # the one with the greater session ID gives way
+            self._refuse_if_taken(zid, lambda others: min(others) < zid)
+        except RobotNameTaken:
+            self.close()
+            raise
         self._keep.append(session.declare_queryable(self.keys.robot_key("status"), self._answer_status))
         if mjcf is not None:
             self._keep.append(session.declare_queryable(self.keys.robot_key("mjcf"), self._answer_mjcf))
+
+    def _refuse_if_taken(self, zid: str, taken: Callable[[list[str]], bool]) -> None:
+        others = [last(r.ok.key_expr) for r in self.session.liveliness().get(self.keys.robot_alive(), timeout=2.0)
+                  if r.ok is not None and last(r.ok.key_expr) != zid]  # fmt: skip
+        if others and taken(others):
+            raise RobotNameTaken(f"a robot named {self.status.robot!r} is already on this Zenoh network (session "
+                                 f"{min(others)}): give this one another --name")  # fmt: skip
 
     def _put(self, what: str, payload: bytes | str) -> None:
         key = self.keys.robot_key(what)

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from asm_py import demo
+from asm_module import demo
 from asm_py.canbus import busload, dbc
 from gaits import cli as gaits_cli
 from server import bridge, module, robot, studio

@@ -308,3 +308,21 @@ def test_the_studio_deploys_to_and_estops_a_robot_whose_odd_modules_run_in_c() -
         assert wait_until(lambda: not app.link.status.estop, 10)
     finally:
         studio.close()
+
+
+def test_a_second_deploy_while_start_waits_replaces_the_first_instead_of_blaming_the_page(studio):
+    """Found by an adversarial run: Deploy, then Deploy again while "Start it now?" waits — the page refused itself,
+    naming its own lease as another deployer's."""
+    from types import SimpleNamespace
+
+    app = studio.app
+    app.deployer.on_deploy()
+    assert app.deployer.confirm.pending and "held by this page" in (
+        app.deployer.poll_lease() or app.deployer.lease_md.content
+    )
+    app.deployer.on_deploy()  # again: the first deployment is given up, the new one staged
+    assert app.deployer.confirm.pending and "not started (cancelled)" in app.deployer.log_html.content
+    assert not app.status.content.startswith("**Error**")
+    app.deployer.confirm._on_click(SimpleNamespace(target=SimpleNamespace(value="Start")))
+    node = app.link.node
+    assert wait_until(lambda: all(node.lookup(f"m{i}", "gait.service", timeout=2).running for i in range(1, 9)), 20)

@@ -102,7 +102,7 @@ def test_the_page_offers_no_public_url_and_no_panel_that_hides_the_estop(studio)
                      .map(e => (e.getAttribute('aria-label') || '') + ' ' + (e.textContent || '') + ' ' +
                                Array.from(e.querySelectorAll('svg')).map(s => s.getAttribute('class')).join(' '))"""
             )
-            assert not [s for s in shown if re.search(r"share|tabler-icon-adjustments", s, re.I)], shown
+            assert not [s for s in shown if re.search(r"share|tabler-icon-adjustments|collapse panel", s, re.I)], shown
             assert any("E-STOP" in s for s in shown)
             page.screenshot(path=str(ARTIFACTS / "no-share-no-settings.png"))
         finally:

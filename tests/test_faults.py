@@ -26,7 +26,7 @@ from asm_module.wire import encode_program
 from asm_py import Event, Node
 from asm_py.canbus.ids import CanId, Dest, FrameType
 from asm_py.codec import FLOAT64
-from asm_py.errors import Locked
+from asm_py.errors import EstopLatched, Locked
 from asm_py.protocol import Kind, Method
 from asm_py.transport.can import CanTransport
 from asm_py.transport.zenoh import ZenohTransport
@@ -353,3 +353,111 @@ def test_sigterm_ends_the_studio_and_its_robot_within_five_seconds_during_a_floo
     finally:
         stop.set()
         studio.stop()
+
+
+# -- found by an adversarial run: each reproduced ---------------------------------------------------------------
+
+
+def test_a_release_after_an_estop_during_a_start_restarts_nothing(robot: Robot) -> None:
+    """Alice's Start keeps resending the activation to m8, which never confirms; an operator's e-stop, then a release:
+    no module may run again (before, the next activation restarted m1-m7 at once)."""
+    alice = robot.tool("alice", 201)
+    operator = robot.tool("operator", 202)
+    staged = deploy(alice, CATERPILLAR, start=False)
+    deaf = robot.runtimes[7].staging
+
+    def never(deploy_id: int) -> int:
+        raise ValueError("m8 missed it")
+
+    deaf._activate = never  # type: ignore[method-assign]  # m8 never hears the activation
+    deaf.activate._check = never
+    result: list[object] = []
+    starting = threading.Thread(target=lambda: result.append(_try(lambda: activate(alice, staged, deadline=6.0))))
+    starting.start()
+    assert wait_until(lambda: any(r.gait.running for r in robot.runtimes[:7]), timeout=5)
+    operator.estop("stop")
+    assert wait_until(lambda: all(r.latched for r in robot.runtimes), timeout=5)
+    time.sleep(0.5)
+    for runtime in robot.runtimes:
+        runtime.estop.set(False)  # released, module by module
+    time.sleep(1.5)  # Alice's loop would have resent the activation several times by now
+    assert not any(r.gait.running for r in robot.runtimes), "nothing moves until someone starts it again"
+    starting.join(10)
+    assert isinstance(result[0], DeployError) and "emergency stop" in str(result[0])
+    assert all(r.staging.staged.peek() == b"" for r in robot.runtimes), "the e-stop dropped what was staged"
+
+
+def _try(call):  # type: ignore[no-untyped-def]
+    try:
+        return call()
+    except Exception as exc:
+        return exc
+
+
+def test_lease_and_staged_resets_and_a_nan_lease_are_refused_python_and_c(robot: Robot) -> None:
+    from asm_py.errors import Locked as LockedError
+
+    channel = fresh_name("c-resets")
+    c_module = CModule("m1", 1, interface="virtual", channel=channel)
+    c_tool = Node("holder", CanTransport(200, interface="virtual", channel=channel, heartbeat_period=0.05))
+    c_other = Node("other", CanTransport(201, interface="virtual", channel=channel, heartbeat_period=0.05))
+    try:
+        for holder, other, module in ((robot.tool("holder", 201), robot.tool("other", 202), "m1"),
+                                      (c_tool, c_other, "m1")):  # fmt: skip
+            lease = holder.lookup(module, "gait.lease", timeout=5)
+            lease.set({"holder": "holder", "token": 7, "seconds": 30.0}, timeout=5)
+            with pytest.raises(LockedError):
+                other.lookup(module, "gait.lease", timeout=5).reset(wait=True)  # names no token: frees nothing
+            with pytest.raises(LockedError):
+                other.lookup(module, "gait.staged", timeout=5).reset(wait=True)
+            assert lease.peek(timeout=5)["holder"] == "holder"
+            with pytest.raises(ValueError):
+                other.lookup(module, "gait.lease", timeout=5).set({"holder": "x", "token": 9,
+                                                                  "seconds": float("nan")}, timeout=5)  # fmt: skip
+            lease.set({"holder": "holder", "token": 7, "seconds": 0.0}, timeout=5)  # released by its holder
+            with pytest.raises(ValueError):
+                other.lookup(module, "gait.lease", timeout=5).set({"holder": "x", "token": 9,
+                                                                  "seconds": float("nan")}, timeout=5)  # fmt: skip
+    finally:
+        c_other.close()
+        c_tool.close()
+        c_module.close()
+
+
+def test_a_reset_of_estop_is_refused_and_the_module_stays_latched_python_and_c(robot: Robot) -> None:
+    channel = fresh_name("c-estop-reset")
+    c_module = CModule("m1", 1, interface="virtual", channel=channel)
+    c_tool = Node("tool", CanTransport(200, interface="virtual", channel=channel, heartbeat_period=0.05))
+    try:
+        for tool in (robot.tool(), c_tool):
+            estop = tool.lookup("m1", "estop", timeout=5)
+            estop.set(True, timeout=5)
+            with pytest.raises(ValueError):  # VALUE_ERROR, from either
+                estop.reset(wait=True)
+            assert estop.peek(timeout=5) is True
+            with pytest.raises(EstopLatched):
+                tool.lookup("m1", "joint.goal", timeout=5).set(20.0, timeout=5)
+            estop.set(False, timeout=5)
+            tool.lookup("m1", "joint.goal", timeout=5).set(20.0, timeout=5)
+    finally:
+        c_tool.close()
+        c_module.close()
+
+
+def test_a_refused_stage_leaves_what_was_staged_on_a_c_module() -> None:
+    channel = fresh_name("c-refused-stage")
+    c_module = CModule("m1", 1, interface="virtual", channel=channel)
+    tool = Node("tool", CanTransport(200, interface="virtual", channel=channel, heartbeat_period=0.05))
+    try:
+        one = load(CATERPILLAR_FILE)
+        one = one.__class__(**{**one.__dict__, "modules": one.modules[:1]})
+        staged = deploy(tool, one, start=False)
+        record = bytearray(tool.lookup("m1", "gait.staged", timeout=5).peek(timeout=5))
+        struct.pack_into("<f", record, 12 + 5 + 4, float("nan"))  # the table's first duration
+        with pytest.raises(ValueError):
+            tool.lookup("m1", "gait.staged", timeout=5).set(bytes(record), timeout=5)
+        activate(tool, staged)  # what was staged stays staged, and starts
+        assert c_module.gait_running()
+    finally:
+        tool.close()
+        c_module.close()

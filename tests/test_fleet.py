@@ -9,10 +9,13 @@ import shutil
 import subprocess
 import sys
 import textwrap
+import threading
+import time
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+import zenoh
 
 from asm_module.names import module_name
 from asm_py import Attribute, Node
@@ -115,6 +118,63 @@ def test_a_taken_name_is_refused_in_one_line_and_a_tool_never_answers_for_a_modu
     finally:
         client.close()
         impostor.close()
+
+
+def _race(claim, count: int = 2) -> list[object]:  # type: ignore[no-untyped-def]
+    """``claim()`` in ``count`` threads released at the same moment; what each returned or raised."""
+    barrier = threading.Barrier(count)
+    results: list[object] = []
+
+    def run() -> None:
+        barrier.wait()
+        try:
+            results.append(claim())
+        except Exception as exc:
+            results.append(exc)
+
+    threads = [threading.Thread(target=run) for _ in range(count)]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join(30)
+    return results
+
+
+def test_two_sessions_claiming_one_name_at_the_same_moment_never_both_start(lab: str) -> None:
+    """The tie-break after a claim: of two sessions started together for one name, exactly one keeps it (modules
+    and robots alike), however the race falls."""
+    from asm_module.feed import RobotStatus
+    from asm_py.transport.zenoh_config import make_config
+    from server.robot_feed import RobotFeed, RobotNameTaken
+
+    for trial in range(4):
+        name = f"m{90 + trial}"
+        nodes = _race(lambda name=name: Node(name, ZenohTransport(robot="a", role="module", mode="client",
+                                                                  connect=[lab])))  # fmt: skip
+        kept = [n for n in nodes if isinstance(n, Node)]
+        assert len(kept) == 1 and any(isinstance(n, NameTaken) for n in nodes), (trial, nodes)
+        for node in kept:
+            node.close()
+        sessions = [zenoh.open(make_config(mode="client", connect=[lab])) for _ in range(2)]
+        free = list(sessions)  # each racer takes one (list.pop is atomic)
+        feeds = _race(lambda robot=f"z{trial}", free=free: RobotFeed(free.pop(), RobotStatus(robot, "real", 0)))
+        kept_feeds = [f for f in feeds if isinstance(f, RobotFeed)]
+        assert len(kept_feeds) == 1 and any(isinstance(f, RobotNameTaken) for f in feeds), (trial, feeds)
+        for feed in kept_feeds:
+            feed.close()
+        for session in sessions:
+            session.close()
+
+
+def test_a_tool_names_a_module_of_its_own_robot_with_or_without_the_robot(lab: str) -> None:
+    client = tool("a", lab)
+    try:
+        for address in ("m3", "a/m3"):
+            began = time.monotonic()
+            assert client.lookup(address, "estop", timeout=5).peek() in (True, False)
+            assert time.monotonic() - began < 1.0, address  # not the whole timeout
+    finally:
+        client.close()
 
 
 def test_a_query_of_every_robots_model_is_answered_under_each_robots_own_key(lab: str) -> None:

@@ -5,9 +5,9 @@ from __future__ import annotations
 import pytest
 
 from asm_py import Attribute, GroupPort, Service
+from asm_py.classes import well_known
 from asm_py.group import class_id_of
 from asm_py.node import Node
-from asm_py.protocol import WELL_KNOWN_CLASSES
 
 from .helpers import wait_until
 from .transports import FACTORIES
@@ -75,7 +75,7 @@ def test_group_messages_for_an_absent_class_are_ignored() -> None:
 
 
 def test_group_class_must_mean_the_same_everywhere() -> None:
-    assert class_id_of("joint.angle") == WELL_KNOWN_CLASSES["joint.angle"]
+    assert class_id_of("joint.angle") == well_known()["joint.angle"]
     assert class_id_of(0x90) == 0x90
     with pytest.raises(LookupError, match="well-known"):
         class_id_of("my.private.thing")

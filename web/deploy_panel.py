@@ -82,7 +82,9 @@ class DeployPanel:
                                  + "<br>".join(self._lines) + "</div></div>")  # fmt: skip
 
     def _deploy(self, gait: Gait) -> None:
-        """Stage and verify (nothing moves, the lease stays held), then ask before starting."""
+        """Stage and verify (nothing moves, the lease stays held), then ask before starting. A deployment of this
+        page still waiting for its Start is given up first (its lease released): the new one replaces it."""
+        self.confirm.withdraw()
         report = self.stage(gait)
         with self._staged_lock:
             self._staged = report

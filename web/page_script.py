@@ -7,7 +7,9 @@ puts this script and style into the page's ``<head>``:
   included: a key listener on the window, in the capture phase (before any field or menu sees the key), clicks the
   E-STOP button. Typing never produces Escape. The key still does what it did (a menu still closes).
 - viser's *Configuration & diagnostics* toggle is hidden: it replaced the whole panel, E-STOP included, with the
-  scene tree. (The *Share* button, which offers a public URL of the page, is turned off by the theme.)
+  scene tree; so is the dock's *Collapse panel area*, which folded the side panel, E-STOP included, into a strip
+  (and left Escape nothing to press). (The *Share* button, which offers a public URL of the page, is turned off by
+  the theme.)
 """
 
 from __future__ import annotations
@@ -26,12 +28,20 @@ SCRIPT = """<script>
     }
     return null;
   }
+  function expandPanels() {
+    var handles = document.querySelectorAll('[aria-label*="Expand"], [title*="Expand"]');
+    for (var i = 0; i < handles.length; i++) handles[i].click();
+  }
   window.addEventListener("keydown", function (event) {
     if (event.key !== KEY || event.repeat) return;
     var button = estopButton();
-    if (button) button.click();
+    if (button) { button.click(); return; }
+    expandPanels();  // a folded panel holds the E-STOP: unfold it, then press
+    setTimeout(function () { var again = estopButton(); if (again) again.click(); }, 50);
   }, true);
   function hideSettings() {
+    var collapse = document.querySelectorAll('[aria-label="Collapse panel area"]');
+    for (var j = 0; j < collapse.length; j++) collapse[j].style.display = "none";
     var icons = document.querySelectorAll("svg.tabler-icon-adjustments, svg.tabler-icon-arrow-back");
     for (var i = 0; i < icons.length; i++) {
       var action = icons[i].closest("button, .mantine-ActionIcon-root");
@@ -43,7 +53,8 @@ SCRIPT = """<script>
 </script>""".replace("ESTOP_KEY", ESTOP_KEY)
 
 STYLE = """<style>
-button:has(> svg.tabler-icon-adjustments), .mantine-ActionIcon-root:has(svg.tabler-icon-adjustments) {
+button:has(> svg.tabler-icon-adjustments), .mantine-ActionIcon-root:has(svg.tabler-icon-adjustments),
+[aria-label="Collapse panel area"] {
   display: none !important;
 }
 </style>"""

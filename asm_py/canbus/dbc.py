@@ -26,9 +26,10 @@ from collections.abc import Iterable, Mapping
 from cantools.database.can import Database, Message, Signal
 from cantools.database.conversion import BaseConversion
 
+from ..classes import well_known
 from ..cli import node_id, output_file, run
 from ..codec import Codec, parse_codec
-from ..protocol import WELL_KNOWN_CLASSES, Kind, Method, Status
+from ..protocol import Kind, Method, Status
 from .ids import MAX_NODE_ID, MIN_NODE_ID, CanId, Dest, FrameType, Priority, SystemCode
 
 CLASS_CODECS: dict[str, str] = {
@@ -84,12 +85,12 @@ def _header(third: str, *, multiplexed: bool) -> list[Signal]:
 def _values(classes: Mapping[str, Codec], frame_size: int) -> list[Signal]:
     signals = []
     for class_name, codec in classes.items():
-        if codec.spec not in _STRUCT or class_name not in WELL_KNOWN_CLASSES:
+        if codec.spec not in _STRUCT or class_name not in well_known():
             continue
         length, signed, is_float = _STRUCT[codec.spec]
         if 4 + length // 8 > frame_size:  # a float64 value makes a 12-byte message: fragmented on classic CAN
             continue
-        mux = {"multiplexer_ids": [WELL_KNOWN_CLASSES[class_name]], "multiplexer_signal": "class_id"}
+        mux = {"multiplexer_ids": [well_known()[class_name]], "multiplexer_signal": "class_id"}
         signals.append(_signal(class_name.replace(".", "_"), 32, length, signed=signed, is_float=is_float, **mux))
     typed = {i for signal in signals for i in signal.multiplexer_ids or ()}
     others = [i for i in range(256) if i not in typed]  # services, tables, local classes: their bytes, undecoded

@@ -13,52 +13,34 @@ only the first frame of a fragmented message spends 4 bytes on its total length 
 
 from __future__ import annotations
 
-from enum import IntEnum
 from typing import NamedTuple
 
-MIN_NODE_ID = 1
-MAX_NODE_ID = 254
-MAX_PRIORITY = 7
+from .._contract import (
+    CAN_COUNTER_MASK,
+    CAN_COUNTER_SHIFT,
+    CAN_DEST_KIND_MASK,
+    CAN_DEST_KIND_SHIFT,
+    CAN_DEST_MASK,
+    CAN_DEST_SHIFT,
+    CAN_FRAME_MASK,
+    CAN_FRAME_SHIFT,
+    CAN_PRIORITY_MASK,
+    CAN_PRIORITY_SHIFT,
+    CAN_SOURCE_MASK,
+    CAN_SOURCE_SHIFT,
+    MAX_NODE_ID,
+    MIN_NODE_ID,
+    Dest,
+    FrameType,
+    Priority,
+    SystemCode,
+)
 
+__all__ = ["DEST_MASK", "MAX_NODE_ID", "MAX_PRIORITY", "MIN_NODE_ID", "CanId", "Dest", "FrameType", "Priority",
+           "SystemCode", "check_node_id", "dest_filter", "frame_priority", "kind_filter", "priority_filter",
+           "source_filter"]  # fmt: skip
 
-class Dest(IntEnum):
-    NODE = 0
-    GROUP = 1
-    BROADCAST = 2
-    SYSTEM = 3
-
-
-class FrameType(IntEnum):
-    SINGLE = 0
-    FIRST = 1
-    MIDDLE = 2
-    LAST = 3
-
-
-class SystemCode(IntEnum):
-    """Destination byte of system frames: what the frame is, not where it goes (system frames reach everyone)."""
-
-    ESTOP = 0x00
-    """Emergency stop: every node acts at once. Data: optional UTF-8 reason."""
-    HEARTBEAT = 0x01
-    """I am alive. Data: the node's name (UTF-8), so that names resolve to IDs on the bus."""
-    LEAVE = 0x02
-    """I am going offline (sent on an orderly close): others report the node lost at once."""
-
-
-class Priority(IntEnum):
-    """The priorities ASM uses; 8 levels exist and any may be configured."""
-
-    ESTOP = 0
-    REPLY = 2
-    REQUEST = 3
-    PUBLICATION = 4
-    BULK = 5
-    """Fragmented messages: a long transfer never delays a short control message."""
-    HEARTBEAT = 6
-    BULK_PUBLICATION = 7
-    """Fragmented publications: apart from fragmented requests, so that a node that does not watch publications
-    (a module) filters them out in hardware like single-frame ones, instead of receiving every node's."""
+MAX_PRIORITY = CAN_PRIORITY_MASK
 
 
 def frame_priority(priority: int, frames: int) -> int:
@@ -82,44 +64,51 @@ class CanId(NamedTuple):
 
     def pack(self) -> int:
         """The 29-bit identifier; ValueError when a field is out of range."""
-        if not (0 <= self.priority <= MAX_PRIORITY and 0 <= self.dest_kind <= 3 and 0 <= self.dest <= 0xFF
-                and 0 <= self.source <= 0xFF and 0 <= self.frame <= 3 and 0 <= self.counter <= 0x3F):  # fmt: skip
+        fields = zip(self, _FIELDS, strict=True)
+        if not all(0 <= value <= mask for value, (_, mask) in fields):
             raise ValueError(f"CAN identifier field out of range: {self}")
-        return (self.priority << 26 | self.dest_kind << 24 | self.dest << 16 | self.source << 8
-                | self.frame << 6 | self.counter)  # fmt: skip
+        return (self.priority << CAN_PRIORITY_SHIFT | self.dest_kind << CAN_DEST_KIND_SHIFT
+                | self.dest << CAN_DEST_SHIFT | self.source << CAN_SOURCE_SHIFT | self.frame << CAN_FRAME_SHIFT
+                | self.counter)  # fmt: skip
 
     @classmethod
     def unpack(cls, arbitration_id: int) -> CanId:
-        return cls(
-            (arbitration_id >> 26) & 0x7,
-            (arbitration_id >> 24) & 0x3,
-            (arbitration_id >> 16) & 0xFF,
-            (arbitration_id >> 8) & 0xFF,
-            (arbitration_id >> 6) & 0x3,
-            arbitration_id & 0x3F,
-        )
+        return cls(*((arbitration_id >> shift) & mask for shift, mask in _FIELDS))
 
 
-DEST_MASK = 0x3 << 24 | 0xFF << 16
+_FIELDS = ((CAN_PRIORITY_SHIFT, CAN_PRIORITY_MASK), (CAN_DEST_KIND_SHIFT, CAN_DEST_KIND_MASK),
+           (CAN_DEST_SHIFT, CAN_DEST_MASK), (CAN_SOURCE_SHIFT, CAN_SOURCE_MASK), (CAN_FRAME_SHIFT, CAN_FRAME_MASK),
+           (CAN_COUNTER_SHIFT, CAN_COUNTER_MASK))  # fmt: skip
+"""(shift, mask) of each field of the identifier, in CanId's order."""
+_PRIORITY_BITS = CAN_PRIORITY_MASK << CAN_PRIORITY_SHIFT
+DEST_MASK = CAN_DEST_KIND_MASK << CAN_DEST_KIND_SHIFT | CAN_DEST_MASK << CAN_DEST_SHIFT
 """Mask of the destination fields: acceptance filters select frames by it."""
 
 
 def dest_filter(dest_kind: int, dest: int) -> dict[str, int | bool]:
     """A python-can ``can_filters`` entry accepting every frame to (dest_kind, dest)."""
-    return {"can_id": dest_kind << 24 | dest << 16, "can_mask": DEST_MASK, "extended": True}
+    can_id = dest_kind << CAN_DEST_KIND_SHIFT | dest << CAN_DEST_SHIFT
+    return {"can_id": can_id, "can_mask": DEST_MASK, "extended": True}
+
+
+def kind_filter(dest_kind: int) -> dict[str, int | bool]:
+    """A python-can ``can_filters`` entry accepting every frame of one destination kind (every system frame)."""
+    return {"can_id": dest_kind << CAN_DEST_KIND_SHIFT, "can_mask": CAN_DEST_KIND_MASK << CAN_DEST_KIND_SHIFT,
+            "extended": True}  # fmt: skip
 
 
 def priority_filter(priority: int, dest_kind: int, dest: int) -> dict[str, int | bool]:
     """A python-can ``can_filters`` entry accepting frames of one priority to (dest_kind, dest)."""
-    return {"can_id": priority << 26 | dest_kind << 24 | dest << 16, "can_mask": 0x7 << 26 | DEST_MASK,
-            "extended": True}  # fmt: skip
+    return {"can_id": priority << CAN_PRIORITY_SHIFT | dest_kind << CAN_DEST_KIND_SHIFT | dest << CAN_DEST_SHIFT,
+            "can_mask": _PRIORITY_BITS | DEST_MASK, "extended": True}  # fmt: skip
 
 
 def source_filter(priority: int, dest_kind: int, dest: int, source: int) -> dict[str, int | bool]:
     """A python-can ``can_filters`` entry accepting frames of one priority to (dest_kind, dest) from one node (a
     neighbour's publications, for a module whose program waits on them)."""
-    return {"can_id": priority << 26 | dest_kind << 24 | dest << 16 | source << 8,
-            "can_mask": 0x7 << 26 | DEST_MASK | 0xFF << 8, "extended": True}  # fmt: skip
+    return {"can_id": priority << CAN_PRIORITY_SHIFT | dest_kind << CAN_DEST_KIND_SHIFT | dest << CAN_DEST_SHIFT
+            | source << CAN_SOURCE_SHIFT, "can_mask": _PRIORITY_BITS | DEST_MASK | CAN_SOURCE_MASK << CAN_SOURCE_SHIFT,
+            "extended": True}  # fmt: skip
 
 
 def check_node_id(node_id: int) -> int:

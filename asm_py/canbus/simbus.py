@@ -28,7 +28,9 @@ from typing import Any, ClassVar
 
 import can
 
-URGENT_MASK = 0x7 << 26
+from .._contract import CAN_PRIORITY_MASK, CAN_PRIORITY_SHIFT
+
+URGENT_MASK = CAN_PRIORITY_MASK << CAN_PRIORITY_SHIFT
 """Extended identifiers with these bits clear (priority 0) go to the urgent FIFO."""
 
 

@@ -16,6 +16,7 @@ import threading
 from abc import ABC, abstractmethod
 from collections.abc import Callable
 
+from .._contract import ESTOP_REASON_MAX
 from ..keys import check_name
 
 log = logging.getLogger("asm_py.transport")
@@ -32,9 +33,6 @@ EstopHandler = Callable[[str, str], None]
 """Called with (source node name, reason) when an emergency stop arrives."""
 
 BROADCAST = "all"
-ESTOP_REASON_MAX = 8
-"""Bytes of an e-stop's reason that travel: an e-stop is one classic CAN frame on every medium, never fragmented
-(a fragment lost or queued behind bulk traffic must not delay or drop a stop)."""
 __all__ = ["BROADCAST", "ESTOP_REASON_MAX", "Responder", "Transport", "check_name", "short_reason"]
 
 

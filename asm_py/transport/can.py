@@ -39,6 +39,7 @@ from ..canbus.ids import (
     check_node_id,
     dest_filter,
     frame_priority,
+    kind_filter,
     priority_filter,
 )
 from ..errors import MessageTooLarge
@@ -165,8 +166,7 @@ class CanTransport(Transport):
         filters = [dest_filter(Dest.NODE, i) for i in sorted(self._accept_ids)]
         filters += [dest_filter(Dest.GROUP, g) for g in sorted(self._group_ids)]
         if self.watch_bus:
-            filters += [dest_filter(Dest.BROADCAST, 0), {"can_id": Dest.SYSTEM << 24, "can_mask": 0x3 << 24,
-                                                         "extended": True}]  # fmt: skip
+            filters += [dest_filter(Dest.BROADCAST, 0), kind_filter(Dest.SYSTEM)]
         else:
             priorities = [Priority.REQUEST, Priority.BULK, *(_PUBLICATIONS if self._hear_publications else ())]
             filters += [priority_filter(p, Dest.BROADCAST, 0) for p in priorities]

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import logging
 import threading
+import time
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -34,7 +35,7 @@ from ..keys import (
     segment,
     split,
 )
-from ..protocol import Kind, decode_timeout, kind_of
+from ..protocol import HEADER_SIZE, Kind, decode_timeout, has_timeout, kind_of
 from .base import ESTOP_REASON_MAX, PublicationHandler, Transport
 from .zenoh_config import (  # noqa: F401  (re-exported: the configuration is part of this transport's interface)
     MAX_LINK_MESSAGE,
@@ -52,6 +53,9 @@ FOREVER_QUERY = 86_400.0
 QUERY_MARGIN = 5.0
 CLAIM_QUERY_TIMEOUT = 2.0
 """Seconds a session waits for the network to say whether its name is taken."""
+CLAIM_SETTLE = 0.05
+"""Seconds a session lets its own token travel before it asks again (two sessions claiming one name at the same
+moment each see the other's token by then, and the one with the greater session ID gives way)."""
 ROLES = ("module", "tool")
 
 
@@ -149,6 +153,7 @@ class ZenohTransport(Transport):
                 session.declare_subscriber(keys.estop(), self._on_estop, allowed_origin=zenoh.Locality.REMOTE),
                 session.declare_subscriber(lab_estop(), self._on_estop, allowed_origin=zenoh.Locality.REMOTE),
             ]
+            time.sleep(CLAIM_SETTLE)
             self._refuse_if_taken(after_claim=True)
         except BaseException:
             self._close()
@@ -273,8 +278,7 @@ class ZenohTransport(Transport):
             )
 
     def _query(self, dest: str, data: bytes) -> None:
-        has_timeout = len(data) > 4 and data[1] & 0x80
-        limit = decode_timeout(data[4]) if has_timeout else None
+        limit = decode_timeout(data[HEADER_SIZE]) if len(data) > HEADER_SIZE and has_timeout(data) else None
         timeout = FOREVER_QUERY if limit is None else limit + QUERY_MARGIN
         route = self._route(dest)
 

@@ -5,21 +5,23 @@
 #define PREAMBLE 4u
 static const uint8_t FD_SIZES[] = {0, 1, 2, 3, 4, 5, 6, 7, 8, 12, 16, 20, 24, 32, 48, 64};
 
+#define FIELD(value, name) (((uint32_t)(value) & ASM_CAN_##name##_MASK) << ASM_CAN_##name##_SHIFT)
+#define UNFIELD(id, name) ((uint8_t)(((id) >> ASM_CAN_##name##_SHIFT) & ASM_CAN_##name##_MASK))
+
 uint32_t asm_can_pack(const struct asm_can_id *id)
 {
-    return ((uint32_t)(id->priority & 7u) << 26) | ((uint32_t)(id->dest_kind & 3u) << 24) |
-           ((uint32_t)id->dest << 16) | ((uint32_t)id->source << 8) | ((uint32_t)(id->frame & 3u) << 6) |
-           (id->counter & 0x3Fu);
+    return FIELD(id->priority, PRIORITY) | FIELD(id->dest_kind, DEST_KIND) | FIELD(id->dest, DEST) |
+           FIELD(id->source, SOURCE) | FIELD(id->frame, FRAME) | FIELD(id->counter, COUNTER);
 }
 
 void asm_can_unpack(uint32_t arbitration_id, struct asm_can_id *id)
 {
-    id->priority = (uint8_t)((arbitration_id >> 26) & 7u);
-    id->dest_kind = (uint8_t)((arbitration_id >> 24) & 3u);
-    id->dest = (uint8_t)(arbitration_id >> 16);
-    id->source = (uint8_t)(arbitration_id >> 8);
-    id->frame = (uint8_t)((arbitration_id >> 6) & 3u);
-    id->counter = (uint8_t)(arbitration_id & 0x3Fu);
+    id->priority = UNFIELD(arbitration_id, PRIORITY);
+    id->dest_kind = UNFIELD(arbitration_id, DEST_KIND);
+    id->dest = UNFIELD(arbitration_id, DEST);
+    id->source = UNFIELD(arbitration_id, SOURCE);
+    id->frame = UNFIELD(arbitration_id, FRAME);
+    id->counter = UNFIELD(arbitration_id, COUNTER);
 }
 
 static int fd_valid(size_t length)

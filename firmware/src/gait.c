@@ -6,17 +6,24 @@
 
 #include "asm/module.h"
 
-enum { C_TABLE = 0x20, C_PHASE = 0x21, C_DIRECTION = 0x22, C_STATE = 0x23, C_SERVICE = 0x24, C_TICK = 0x25,
-       C_CHECKSUM = 0x26, C_STAGED = 0x27, C_STAGED_CHECKSUM = 0x28, C_ACTIVATE = 0x29, C_LEASE = 0x2A, C_SWITCH = 0x2B,
-       C_CYCLE = 0x2C, C_MODE = 0x2D, C_DONE = 0x2E, C_SIGNAL = 0x2F };
-#define MAX_LEASE_SECONDS 60.0f
 
-static const uint8_t D_BYTES[] = {0x0D, 0x00}, D_UINT32[] = {0x08}, D_FLOAT32[] = {0x0A}, D_JSON[] = {0x10},
-                     D_FLOAT64[] = {0x0B}, D_INT8[] = {0x02}, D_UINT16[] = {0x07}, D_UINT8[] = {0x06},
-                     D_SWITCH[] = {0x0F, 0x03, 0x04, 'm', 'o', 'd', 'e', 0x06, 0x09, 'd', 'i', 'r', 'e', 'c', 't', 'i',
-                                   'o', 'n', 0x02, 0x05, 'a', 'f', 't', 'e', 'r', 0x0A},
-                     D_LEASE[] = {0x0F, 0x03, 0x06, 'h', 'o', 'l', 'd', 'e', 'r', 0x0C, 0x00, 0x05, 't', 'o', 'k',
-                                  'e', 'n', 0x08, 0x07, 's', 'e', 'c', 'o', 'n', 'd', 's', 0x0A};
+/* Each object's codec descriptor, from the module profile (contract/module.toml, asm/profile.h). */
+static const uint8_t D_TABLE[] = {ASM_D_GAIT_TABLE},
+                     D_CHECKSUM[] = {ASM_D_GAIT_CHECKSUM},
+                     D_PHASE[] = {ASM_D_GAIT_PHASE},
+                     D_SERVICE[] = {ASM_D_GAIT_SERVICE},
+                     D_TICK[] = {ASM_D_GAIT_TICK},
+                     D_STAGED[] = {ASM_D_GAIT_STAGED},
+                     D_STAGED_CHECKSUM[] = {ASM_D_GAIT_STAGED_CHECKSUM},
+                     D_ACTIVATE[] = {ASM_D_GAIT_ACTIVATE},
+                     D_LEASE[] = {ASM_D_GAIT_LEASE},
+                     D_DIRECTION[] = {ASM_D_GAIT_DIRECTION},
+                     D_STATE[] = {ASM_D_GAIT_STATE},
+                     D_SWITCH[] = {ASM_D_GAIT_SWITCH},
+                     D_CYCLE[] = {ASM_D_GAIT_CYCLE},
+                     D_MODE[] = {ASM_D_GAIT_MODE},
+                     D_DONE[] = {ASM_D_GAIT_DONE},
+                     D_SIGNAL[] = {ASM_D_GAIT_SIGNAL};
 
 /* ASM_S_OK if this module can run table ``data``: well formed, within the joint's limits and the module's own. */
 static int check(struct asm_module *m, const uint8_t *data, size_t length)
@@ -46,6 +53,13 @@ void asm_gait_tick(struct asm_module *m, uint32_t now_ms)
 }
 
 void asm_gait_halt(struct asm_module *m) { m->gait.service.started = m->gait.service.running = 0; }
+
+void asm_gait_discard_staged(struct asm_module *m)
+{
+    m->gait.staged_ok = 0;
+    m->gait.staged.length = 0;
+    m->gait.staged_checksum_v = asm_crc32(m->gait.staged_v, 0);
+}
 
 static int control(struct asm_node *node, struct asm_object *o, uint8_t method)
 {
@@ -131,7 +145,9 @@ static int set_lease(struct asm_node *node, struct asm_object *o, const uint8_t 
     struct asm_module *m = asm_module_of(node);
     struct asm_gait *g = &m->gait;
     (void)o;
-    if (length == 0) { /* RESET */
+    if (length == 0) { /* RESET: like a release, which names no token: only a lease no longer in force */
+        if (lease_in_force(m))
+            return ASM_S_LOCKED;
         lease_free(g);
         return ASM_S_OK;
     }
@@ -150,7 +166,7 @@ static int set_lease(struct asm_node *node, struct asm_object *o, const uint8_t 
         lease_free(g);
         return ASM_S_OK;
     }
-    float held = wanted < MAX_LEASE_SECONDS ? wanted : MAX_LEASE_SECONDS;
+    float held = wanted < ASM_MAX_LEASE_S ? wanted : ASM_MAX_LEASE_S;
     memcpy(g->lease_v, data, 5u + name);
     memcpy(g->lease_v + 5 + name, &held, 4);
     g->lease.length = (uint16_t)(9u + name);
@@ -181,10 +197,8 @@ static int set_staged(struct asm_node *node, struct asm_object *o, const uint8_t
         return ASM_S_VALUE_ERROR;
     if (lease_in_force(m) && g->lease_token != id)
         return ASM_S_LOCKED;
-    if (check(m, data + 12, length - 12) != ASM_S_OK) {
-        g->staged_ok = 0;
-        return ASM_S_VALUE_ERROR;
-    }
+    if (check(m, data + 12, length - 12) != ASM_S_OK)
+        return ASM_S_VALUE_ERROR; /* refused: what was staged stays staged */
     memcpy(o->value, data, length);
     o->length = (uint16_t)length;
     g->staged_ok = 1;
@@ -202,8 +216,8 @@ static int set_activate(struct asm_node *node, struct asm_object *o, const uint8
         g->activate_v = 0;
         return ASM_S_OK;
     }
-    if (id == g->activate_v && g->service.running)
-        return ASM_S_OK; /* a resent activation: already running it */
+    if (id == g->activate_v)
+        return ASM_S_OK; /* a resent activation: done once, never a restart (an e-stop may have stopped it) */
     if (!g->staged_ok || asm_get_u32(g->staged_v + 3) != id)
         return ASM_S_VALUE_ERROR;
     size_t table = g->staged.length - 12u;
@@ -256,7 +270,7 @@ static void heard(struct asm_node *node, uint8_t source, const struct asm_messag
 {
     struct asm_module *m = asm_module_of(node);
     /* every module registers the same objects in the same order: gait.state has the same ID on each */
-    if (p->class_id == C_STATE && p->object_id == m->gait.state.id && p->length == 2)
+    if (p->class_id == ASM_C_GAIT_STATE && p->object_id == m->gait.state.id && p->length == 2)
         asm_program_neighbour(m, source, asm_get_u16(p->data));
 }
 
@@ -277,33 +291,33 @@ struct spec {
 #define RO ASM_F_READ_ONLY
 static const uint8_t HOLD[] = {'G', 'T', 1, 1, 0, 0, 0, 0, 0, 0, 0, 0x80, 0x3F, 0}; /* hold 0 degrees */
 static const struct spec SPECS[] = {
-    {"gait.table", D_BYTES, set_table, AT(table), AT(table_v), sizeof HOLD, ASM_TABLE_BYTES, ASM_WRITES, C_TABLE,
-     ASM_ATTRIBUTE, 2, 0, 0},
-    {"gait.checksum", D_UINT32, NULL, AT(checksum), AT(checksum_v), 4, 4, 0, C_CHECKSUM, ASM_ATTRIBUTE, 1, RO, 0},
-    {"gait.phase", D_FLOAT32, set_phase, AT(phase), AT(phase_v), 4, 4, 0, C_PHASE, ASM_ATTRIBUTE, 1, 0, 0},
-    {"gait.service", D_JSON, NULL, AT(service), NONE, 0, 0, (1u << ASM_START) | (1u << ASM_RESUME), C_SERVICE,
-     ASM_SERVICE, 1, 0, 0},
+    {"gait.table", D_TABLE, set_table, AT(table), AT(table_v), sizeof HOLD, ASM_TABLE_BYTES, ASM_WRITES, ASM_C_GAIT_TABLE,
+     ASM_ATTRIBUTE, sizeof D_TABLE, 0, 0},
+    {"gait.checksum", D_CHECKSUM, NULL, AT(checksum), AT(checksum_v), 4, 4, 0, ASM_C_GAIT_CHECKSUM, ASM_ATTRIBUTE, sizeof D_CHECKSUM, RO, 0},
+    {"gait.phase", D_PHASE, set_phase, AT(phase), AT(phase_v), 4, 4, 0, ASM_C_GAIT_PHASE, ASM_ATTRIBUTE, sizeof D_PHASE, 0, 0},
+    {"gait.service", D_SERVICE, NULL, AT(service), NONE, 0, 0, (1u << ASM_START) | (1u << ASM_RESUME), ASM_C_GAIT_SERVICE,
+     ASM_SERVICE, sizeof D_SERVICE, 0, 0},
     /* an event: a GET waits for a firing; published once a second (it fires at every tick) */
-    {"gait.tick", D_FLOAT64, NULL, AT(tick), AT(tick_v), 8, 8, 0, C_TICK, ASM_EVENT, 1, RO | ASM_F_SYNC_GET,
+    {"gait.tick", D_TICK, NULL, AT(tick), AT(tick_v), 8, 8, 0, ASM_C_GAIT_TICK, ASM_EVENT, sizeof D_TICK, RO | ASM_F_SYNC_GET,
      ASM_PUB_RATE},
-    {"gait.staged", D_BYTES, set_staged, AT(staged), AT(staged_v), 0, ASM_STAGED_BYTES, ASM_WRITES, C_STAGED,
-     ASM_ATTRIBUTE, 2, 0, 0},
-    {"gait.staged_checksum", D_UINT32, NULL, AT(staged_checksum), AT(staged_checksum_v), 4, 4, 0,
-     C_STAGED_CHECKSUM, ASM_ATTRIBUTE, 1, RO, 0},
-    {"gait.activate", D_UINT32, set_activate, AT(activate), AT(activate_v), 4, 4, ASM_WRITES, C_ACTIVATE,
-     ASM_ATTRIBUTE, 1, 0, 0},
+    {"gait.staged", D_STAGED, set_staged, AT(staged), AT(staged_v), 0, ASM_STAGED_BYTES, ASM_WRITES, ASM_C_GAIT_STAGED,
+     ASM_ATTRIBUTE, sizeof D_STAGED, 0, 0},
+    {"gait.staged_checksum", D_STAGED_CHECKSUM, NULL, AT(staged_checksum), AT(staged_checksum_v), 4, 4, 0,
+     ASM_C_GAIT_STAGED_CHECKSUM, ASM_ATTRIBUTE, sizeof D_STAGED_CHECKSUM, RO, 0},
+    {"gait.activate", D_ACTIVATE, set_activate, AT(activate), AT(activate_v), 4, 4, ASM_WRITES, ASM_C_GAIT_ACTIVATE,
+     ASM_ATTRIBUTE, sizeof D_ACTIVATE, 0, 0},
     {"gait.lease", D_LEASE, set_lease, AT(lease), AT(lease_v), 0, sizeof(((struct asm_gait *)0)->lease_v), 0,
-     C_LEASE, ASM_ATTRIBUTE, sizeof D_LEASE, 0, 0},
-    {"gait.direction", D_INT8, set_direction, AT(direction), AT(direction_v), 1, 1, 0, C_DIRECTION, ASM_ATTRIBUTE,
-     1, 0, 0},
-    {"gait.state", D_UINT16, NULL, AT(state), AT(state_v), 2, 2, 0, C_STATE, ASM_ATTRIBUTE, 1, RO, ASM_PUB_EVERY_SET},
-    {"gait.switch", D_SWITCH, set_switch, AT(switch_), AT(switch_v), 6, 6, ASM_WRITES, C_SWITCH, ASM_ATTRIBUTE,
+     ASM_C_GAIT_LEASE, ASM_ATTRIBUTE, sizeof D_LEASE, 0, 0},
+    {"gait.direction", D_DIRECTION, set_direction, AT(direction), AT(direction_v), 1, 1, 0, ASM_C_GAIT_DIRECTION, ASM_ATTRIBUTE,
+     sizeof D_DIRECTION, 0, 0},
+    {"gait.state", D_STATE, NULL, AT(state), AT(state_v), 2, 2, 0, ASM_C_GAIT_STATE, ASM_ATTRIBUTE, sizeof D_STATE, RO, ASM_PUB_EVERY_SET},
+    {"gait.switch", D_SWITCH, set_switch, AT(switch_), AT(switch_v), 6, 6, ASM_WRITES, ASM_C_GAIT_SWITCH, ASM_ATTRIBUTE,
      sizeof D_SWITCH, 0, 0},
-    {"gait.cycle", D_UINT32, NULL, AT(cycle), AT(cycle_v), 4, 4, 0, C_CYCLE, ASM_ATTRIBUTE, 1, RO, 0},
-    {"gait.mode", D_UINT8, NULL, AT(mode), AT(mode_v), 1, 1, 0, C_MODE, ASM_ATTRIBUTE, 1, RO, ASM_PUB_EVERY_SET},
-    {"gait.done", D_UINT8, NULL, AT(done), AT(done_v), 1, 1, 0, C_DONE, ASM_EVENT, 1, RO | ASM_F_SYNC_GET,
+    {"gait.cycle", D_CYCLE, NULL, AT(cycle), AT(cycle_v), 4, 4, 0, ASM_C_GAIT_CYCLE, ASM_ATTRIBUTE, sizeof D_CYCLE, RO, 0},
+    {"gait.mode", D_MODE, NULL, AT(mode), AT(mode_v), 1, 1, 0, ASM_C_GAIT_MODE, ASM_ATTRIBUTE, sizeof D_MODE, RO, ASM_PUB_EVERY_SET},
+    {"gait.done", D_DONE, NULL, AT(done), AT(done_v), 1, 1, 0, ASM_C_GAIT_DONE, ASM_EVENT, sizeof D_DONE, RO | ASM_F_SYNC_GET,
      ASM_PUB_EVERY_SET},
-    {"gait.signal", D_UINT8, set_signal, AT(signal), AT(signal_v), 1, 1, 0, C_SIGNAL, ASM_ATTRIBUTE, 1, 0, 0},
+    {"gait.signal", D_SIGNAL, set_signal, AT(signal), AT(signal_v), 1, 1, 0, ASM_C_GAIT_SIGNAL, ASM_ATTRIBUTE, sizeof D_SIGNAL, 0, 0},
 };
 static const uint8_t PARTS[] = {0, 5, 9, sizeof SPECS / sizeof SPECS[0]};
 

@@ -3,10 +3,11 @@
 #include <math.h>
 #include <string.h>
 
-enum { C_ESTOP = 0x03, C_GOAL = 0x10, C_ANGLE = 0x11, C_LIMITS = 0x12, C_TORQUE = 0x13, C_SERVO = 0x14,
-       C_CONTACT = 0x30 };
-
-static const uint8_t D_BOOL[] = {0x01}, D_FLOAT32[] = {0x0A}, D_LIMITS[] = {0x0E, 0x0A, 0x02}, D_JSON[] = {0x10};
+/* Each object's codec descriptor, from the module profile (contract/module.toml, asm/profile.h); the e-stop's is
+ * ASM's. */
+static const uint8_t D_GOAL[] = {ASM_D_JOINT_GOAL}, D_ANGLE[] = {ASM_D_JOINT_ANGLE}, D_TORQUE[] = {ASM_D_JOINT_TORQUE},
+                     D_LIMITS[] = {ASM_D_JOINT_LIMITS}, D_SERVO[] = {ASM_D_SERVO_SERVICE},
+                     D_CONTACT[] = {ASM_D_SENSOR_CONTACT}, D_ESTOP[] = {ASM_TAG_BOOL};
 
 static float clamp(float v, const float limits[2]) { return v < limits[0] ? limits[0] : v > limits[1] ? limits[1] : v; }
 
@@ -62,6 +63,7 @@ static void hold(struct asm_node *node, void *ctx)
     (void)ctx;
     m->estop_v = 1;
     asm_gait_halt(m);
+    asm_gait_discard_staged(m); /* a deployment in progress is abandoned: deploy again after the release */
     m->joint.read(m->joint.ctx, &m->goal_v, &torque, &contact); /* hold where it is now */
     m->goal_v = clamp(m->goal_v, m->limits_v);
     command(m);
@@ -70,7 +72,9 @@ static void hold(struct asm_node *node, void *ctx)
 static int set_estop(struct asm_node *node, struct asm_object *o, const uint8_t *data, size_t length)
 {
     (void)o;
-    asm_node_set_estop(node, length == 1 && data[0] == 1); /* latching holds the joint; false releases */
+    if (length == 0)
+        return ASM_S_VALUE_ERROR; /* a RESET does not release: a SET to false does, module by module */
+    asm_node_set_estop(node, data[0] == 1); /* latching holds the joint; false releases */
     asm_module_of(node)->estop_v = node->estop;
     return ASM_S_OK;
 }
@@ -112,27 +116,27 @@ void asm_module_init(struct asm_module *m, const char *name, uint8_t node_id, co
     m->hardware[0] = m->limits_v[0] = hardware_min;
     m->hardware[1] = m->limits_v[1] = hardware_max;
     m->goal_v = clamp(0.0f, m->limits_v);
-    asm_object_init(&m->goal, "joint.goal", C_GOAL, ASM_ATTRIBUTE, D_FLOAT32, 1, &m->goal_v, 4, 4);
+    asm_object_init(&m->goal, "joint.goal", ASM_C_JOINT_GOAL, ASM_ATTRIBUTE, D_GOAL, sizeof D_GOAL, &m->goal_v, 4, 4);
     m->goal.set = set_goal;
     m->goal.estop_refuses = ASM_WRITES;
-    asm_object_init(&m->angle, "joint.angle", C_ANGLE, ASM_ATTRIBUTE, D_FLOAT32, 1, &m->angle_v, 4, 4);
+    asm_object_init(&m->angle, "joint.angle", ASM_C_JOINT_ANGLE, ASM_ATTRIBUTE, D_ANGLE, sizeof D_ANGLE, &m->angle_v, 4, 4);
     m->angle.flags = ASM_F_READ_ONLY;
     m->angle.publication = (struct asm_publication){.mode = ASM_PUB_DEADBAND, .deadband = 0.1f, .min_gap_ms = 40,
                                                     .refresh_ms = 500};
-    asm_object_init(&m->torque, "joint.torque", C_TORQUE, ASM_ATTRIBUTE, D_FLOAT32, 1, &m->torque_v, 4, 4);
+    asm_object_init(&m->torque, "joint.torque", ASM_C_JOINT_TORQUE, ASM_ATTRIBUTE, D_TORQUE, sizeof D_TORQUE, &m->torque_v, 4, 4);
     m->torque.flags = ASM_F_READ_ONLY;
     m->torque.publication = (struct asm_publication){.mode = ASM_PUB_DEADBAND, .deadband = 0.05f, .min_gap_ms = 80,
                                                      .refresh_ms = 1000};
-    asm_object_init(&m->limits, "joint.limits", C_LIMITS, ASM_ATTRIBUTE, D_LIMITS, 3, m->limits_v, 8, 8);
+    asm_object_init(&m->limits, "joint.limits", ASM_C_JOINT_LIMITS, ASM_ATTRIBUTE, D_LIMITS, sizeof D_LIMITS, m->limits_v, 8, 8);
     m->limits.set = set_limits;
     m->limits.estop_refuses = ASM_WRITES;
-    asm_object_init(&m->servo, "servo.service", C_SERVO, ASM_SERVICE, D_JSON, 1, NULL, 0, 0);
+    asm_object_init(&m->servo, "servo.service", ASM_C_SERVO_SERVICE, ASM_SERVICE, D_SERVO, sizeof D_SERVO, NULL, 0, 0);
     m->servo.control = control_servo;
     m->servo.estop_refuses = ASM_WRITES;
-    asm_object_init(&m->contact, "sensor.contact", C_CONTACT, ASM_ATTRIBUTE, D_BOOL, 1, &m->contact_v, 1, 1);
+    asm_object_init(&m->contact, "sensor.contact", ASM_C_SENSOR_CONTACT, ASM_ATTRIBUTE, D_CONTACT, sizeof D_CONTACT, &m->contact_v, 1, 1);
     m->contact.flags = ASM_F_READ_ONLY;
     m->contact.publication.mode = ASM_PUB_EVERY_SET;
-    asm_object_init(&m->estop, "estop", C_ESTOP, ASM_ATTRIBUTE, D_BOOL, 1, &m->estop_v, 1, 1);
+    asm_object_init(&m->estop, "estop", ASM_CLASS_ESTOP, ASM_ATTRIBUTE, D_ESTOP, sizeof D_ESTOP, &m->estop_v, 1, 1);
     m->estop.set = set_estop;
     /* the order of the Python module, so object IDs match (docs/protocol.md's example: gait.checksum is 7) */
     struct asm_object *joint_objects[] = {&m->goal, &m->angle, &m->torque, &m->limits, &m->servo};

@@ -54,7 +54,7 @@ static void reply(struct asm_node *n, uint8_t source, uint8_t method, uint8_t tx
     }
     if (data != n->out + ASM_HEADER_SIZE && length)
         memcpy(n->out + ASM_HEADER_SIZE, data, length); /* never overlapping: not from n->out */
-    n->out[0] = (uint8_t)((ASM_VERSION << 6) | (ASM_REPLY << 4) | method);
+    n->out[0] = asm_first_byte(ASM_REPLY, method);
     n->out[1] = txn;
     n->out[2] = status;
     n->out[3] = object;
@@ -71,7 +71,7 @@ static void publish(struct asm_node *n, struct asm_object *o)
     struct asm_publication *p = &o->publication;
     if (o->length > ASM_NODE_OUT - ASM_HEADER_SIZE)
         return;
-    n->out[0] = (uint8_t)((ASM_VERSION << 6) | (ASM_PUBLICATION << 4) | ASM_PUBLISH);
+    n->out[0] = asm_first_byte(ASM_PUBLICATION, ASM_PUBLISH);
     n->out[1] = p->seq;
     n->out[2] = o->class_id;
     n->out[3] = o->id;
@@ -460,8 +460,8 @@ void asm_node_frame(struct asm_node *n, uint32_t can_id, const uint8_t *data, ui
         /* longer than this module takes: its header is in the first frame, so say so at once (TOO_LARGE) */
         static const char text[] = "message longer than this module takes";
         n->dropped++;
-        if (data[4] >> 6 == ASM_VERSION && ((data[4] >> 4) & 3u) == ASM_REQUEST_REPLY)
-            reply(n, id.source, data[4] & 0x0Fu, data[5] & ASM_MAX_TXN, ASM_S_TOO_LARGE, data[7], text,
+        if (asm_version_of(data[4]) == ASM_VERSION && asm_kind_of(data[4]) == ASM_REQUEST_REPLY)
+            reply(n, id.source, (uint8_t)asm_method_of(data[4]), data[5] & ASM_MAX_TXN, ASM_S_TOO_LARGE, data[7], text,
                   sizeof text - 1);
         return;
     }

@@ -2,7 +2,7 @@
 
 long asm_encode(const struct asm_message *m, uint8_t *out, size_t size)
 {
-    if (m->method > 0x0F || m->txn > ASM_MAX_TXN || m->kind > ASM_PUBLICATION)
+    if (m->method > ASM_METHOD_MASK || m->txn > ASM_MAX_TXN || m->kind > ASM_PUBLICATION)
         return ASM_E_RANGE;
     int has_timeout = m->timeout >= 0;
     if (has_timeout && (m->kind == ASM_REPLY || m->timeout > 0xFF))
@@ -10,8 +10,8 @@ long asm_encode(const struct asm_message *m, uint8_t *out, size_t size)
     size_t total = ASM_HEADER_SIZE + (has_timeout ? 1u : 0u) + m->length;
     if (total > ASM_MAX_MESSAGE || total > size)
         return ASM_E_TOO_LARGE;
-    out[0] = (uint8_t)((ASM_VERSION << 6) | ((unsigned)m->kind << 4) | m->method);
-    out[1] = (uint8_t)((has_timeout ? 0x80u : 0u) | m->txn);
+    out[0] = asm_first_byte(m->kind, m->method);
+    out[1] = asm_second_byte(has_timeout, m->txn);
     out[2] = m->kind == ASM_REPLY ? m->status : m->class_id;
     out[3] = m->object_id;
     size_t offset = ASM_HEADER_SIZE;
@@ -28,15 +28,15 @@ int asm_decode(const uint8_t *raw, size_t length, struct asm_message *m)
         return ASM_E_SHORT;
     if (length > ASM_MAX_MESSAGE)
         return ASM_E_TOO_LARGE;
-    if ((raw[0] >> 6) != ASM_VERSION)
+    if (asm_version_of(raw[0]) != ASM_VERSION)
         return ASM_E_VERSION;
-    m->kind = (uint8_t)((raw[0] >> 4) & 0x03);
-    m->method = raw[0] & 0x0F;
+    m->kind = (uint8_t)asm_kind_of(raw[0]);
+    m->method = (uint8_t)asm_method_of(raw[0]);
     m->txn = raw[1] & ASM_MAX_TXN;
     m->object_id = raw[3];
     m->timeout = -1;
     size_t offset = ASM_HEADER_SIZE;
-    if (raw[1] & 0x80) {
+    if (asm_has_timeout(raw[1])) {
         if (m->kind == ASM_REPLY || length < ASM_HEADER_SIZE + 1)
             return ASM_E_FORMAT;
         m->timeout = raw[ASM_HEADER_SIZE];

@@ -16,10 +16,9 @@
 #ifndef ASM_CAN_MAX_MESSAGE
 #define ASM_CAN_MAX_MESSAGE ASM_MAX_MESSAGE /* the longest message a slot takes; a longer one is dropped */
 #endif
-#define ASM_CAN_TIMEOUT_MS 1000u /* a partial message without a fragment for this long is discarded */
-
-enum asm_frame_type { ASM_SINGLE = 0, ASM_FIRST = 1, ASM_MIDDLE = 2, ASM_LAST = 3 };
-enum asm_dest_kind { ASM_DEST_NODE = 0, ASM_DEST_GROUP = 1, ASM_DEST_BROADCAST = 2, ASM_DEST_SYSTEM = 3 };
+/* ASM_CAN_TIMEOUT_MS (a partial message's life), enum asm_frame_type, enum asm_dest_kind, enum asm_system, the
+ * identifier's fields (ASM_CAN_*_SHIFT, ASM_CAN_*_MASK) and the priorities (ASM_PRIORITY_*) are in the generated
+ * asm/contract.h, included by asm/wire.h. */
 
 struct asm_can_id {
     uint8_t priority;  /* 0..7 */
@@ -29,18 +28,6 @@ struct asm_can_id {
     uint8_t frame;     /* enum asm_frame_type */
     uint8_t counter;   /* 0..63 */
 };
-
-/* Priorities (identifier bits 28-26) of section 7: lower wins arbitration. */
-#define ASM_PRIORITY_ESTOP 0u
-#define ASM_PRIORITY_REPLY 2u
-#define ASM_PRIORITY_REQUEST 3u
-#define ASM_PRIORITY_PUBLICATION 4u
-#define ASM_PRIORITY_BULK 5u /* every frame of a message of several frames: a long transfer never delays a short one */
-#define ASM_PRIORITY_HEARTBEAT 6u
-#define ASM_PRIORITY_BULK_PUBLICATION 7u /* every frame of a publication of several frames: modules filter them out */
-
-/* System frames (destination kind 3): the code in the destination field. */
-enum asm_system { ASM_SYSTEM_ESTOP = 0, ASM_SYSTEM_HEARTBEAT = 1, ASM_SYSTEM_LEAVE = 2 };
 
 uint32_t asm_can_pack(const struct asm_can_id *id);
 /* How many frames a message of ``length`` bytes takes, and the priority they go out at. */

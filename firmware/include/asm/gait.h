@@ -75,6 +75,8 @@ void asm_gait_register(struct asm_module *m, int part);
 void asm_gait_tick(struct asm_module *m, uint32_t now_ms);
 /* The e-stop latched: the gait stops where it is. */
 void asm_gait_halt(struct asm_module *m);
+/* Forget what was staged (an e-stop: no deployment begun before it may start after it). */
+void asm_gait_discard_staged(struct asm_module *m);
 
 /* src/program.c: the automaton. */
 int64_t asm_us_of(float seconds); /* microseconds, rounded, clamped to +-2e9 s */

@@ -28,29 +28,9 @@
 #define ASM_NODE_OUT 1536u /* the longest reply or publication this node builds (a 64-state gait table fits) */
 #endif
 
-/* Statuses of replies (docs/protocol.md section 1, "Status"). */
-enum asm_status {
-    ASM_S_OK = 0, ASM_S_TIMEOUT = 1, ASM_S_SERVICE_ERROR = 2, ASM_S_TYPE_ERROR = 3, ASM_S_VALUE_ERROR = 4,
-    ASM_S_NOT_FOUND = 5, ASM_S_UNSUPPORTED = 6, ASM_S_BAD_MESSAGE = 7, ASM_S_BUSY = 8, ASM_S_INTERNAL = 9,
-    ASM_S_READ_ONLY = 10, ASM_S_ESTOP = 11, ASM_S_LOCKED = 12, ASM_S_TOO_LARGE = 13
-};
-
-enum asm_method {
-    ASM_LOOKUP = 0, ASM_GET = 1, ASM_SET = 2, ASM_RESET = 3, ASM_START = 4, ASM_STOP = 5, ASM_SUSPEND = 6,
-    ASM_RESUME = 7, ASM_STATUS = 8, ASM_WAIT = 9, ASM_PEEK = 10, ASM_PUBLISH = 11
-};
-
-/* The methods that change an object: what a read-only attribute or a latched e-stop may refuse. */
-#define ASM_WRITES ((1u << ASM_SET) | (1u << ASM_RESET) | (1u << ASM_START) | (1u << ASM_STOP) | \
-                    (1u << ASM_SUSPEND) | (1u << ASM_RESUME))
-
-enum asm_object_kind { ASM_ATTRIBUTE = 0, ASM_EVENT = 1, ASM_SERVICE = 2 };
-
-/* Lookup flags (section 3). */
-#define ASM_F_SYNC_GET 0x01u
-#define ASM_F_SYNC_SET 0x02u
-#define ASM_F_PUBLISHED 0x04u
-#define ASM_F_READ_ONLY 0x08u
+/* Statuses (enum asm_status), methods (enum asm_method, ASM_WRITES: the methods that change an object, what a
+ * read-only attribute or a latched e-stop may refuse), object kinds and lookup flags (ASM_F_*) are in the generated
+ * asm/contract.h, included by asm/wire.h. */
 
 /* When a published attribute sends (section 5): every set; a float32 moving beyond a deadband at most every
  * min_gap_ms and at least every refresh_ms; or only every refresh_ms (an event that fires at every control tick). */

@@ -10,13 +10,8 @@
 #ifndef ASM_MAX_STATES
 #define ASM_MAX_STATES 64 /* what this module holds, over all modes; the protocol allows up to 1024 */
 #endif
-#define ASM_PROTOCOL_MAX_STATES 1024
-#define ASM_MAX_MODES 16
-#define ASM_MAX_SEQUENCE 32
-#define ASM_MIN_DURATION 0.02f /* seconds: one control tick at 50 Hz, the shortest state a module executes */
-
-enum asm_event { ASM_EV_NONE, ASM_EV_CONTACT, ASM_EV_NO_CONTACT, ASM_EV_AT_GOAL, ASM_EV_TORQUE, ASM_EV_NEIGHBOUR,
-                 ASM_EV_SIGNAL };
+#include "asm/profile.h" /* the module profile's numbers (ASM_PROTOCOL_MAX_STATES, ASM_MAX_MODES, ASM_MAX_SEQUENCE,
+                           * ASM_MIN_DURATION, enum asm_event, the class IDs): generated from contract/module.toml */
 
 struct asm_state { /* 20 bytes: floats, then the small fields */
     float target;        /* degrees */

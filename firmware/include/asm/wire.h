@@ -8,13 +8,7 @@
 #include <stdint.h>
 #include <string.h>
 
-#define ASM_VERSION 1u
-#define ASM_HEADER_SIZE 4u
-#define ASM_MAX_MESSAGE 4096u /* bytes, header included */
-#define ASM_MAX_TXN 0x7Fu
-#define ASM_FOREVER 0xFFu /* timeout byte: block without limit */
-
-enum asm_kind { ASM_REQUEST = 0, ASM_REQUEST_REPLY = 1, ASM_REPLY = 2, ASM_PUBLICATION = 3 };
+#include "asm/contract.h" /* the protocol's numbers: generated from contract/asm.toml */
 
 enum asm_result {
     ASM_OK = 0,
@@ -37,6 +31,20 @@ struct asm_message {
     const uint8_t *data;
     size_t length;     /* bytes of data */
 };
+
+/* Byte 0 of a message (version, kind, method) and byte 1's flag and transaction, laid out in this one place. */
+static inline uint8_t asm_first_byte(unsigned kind, unsigned method)
+{
+    return (uint8_t)((ASM_VERSION << ASM_VERSION_SHIFT) | (kind << ASM_KIND_SHIFT) | (method & ASM_METHOD_MASK));
+}
+static inline unsigned asm_version_of(uint8_t b0) { return (b0 >> ASM_VERSION_SHIFT) & ASM_VERSION_MASK; }
+static inline unsigned asm_kind_of(uint8_t b0) { return (b0 >> ASM_KIND_SHIFT) & ASM_KIND_MASK; }
+static inline unsigned asm_method_of(uint8_t b0) { return b0 & ASM_METHOD_MASK; }
+static inline unsigned asm_has_timeout(uint8_t b1) { return (b1 >> ASM_TIMEOUT_FLAG_SHIFT) & ASM_TIMEOUT_FLAG_MASK; }
+static inline uint8_t asm_second_byte(unsigned has_timeout, unsigned txn)
+{
+    return (uint8_t)((has_timeout ? ASM_TIMEOUT_FLAG_MASK << ASM_TIMEOUT_FLAG_SHIFT : 0u) | (txn & ASM_TXN_MASK));
+}
 
 /* Encode ``m`` into ``out`` (capacity ``size``); the number of bytes written, or a negative asm_result. */
 long asm_encode(const struct asm_message *m, uint8_t *out, size_t size);
