@@ -5,7 +5,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: run test lint format bench clean contract
+.PHONY: run test test-serial lint format bench clean contract
 
 $(STAMP): pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -36,16 +36,24 @@ contract: $(STAMP)
 lint: $(STAMP)
 	$(PY) -m ruff check .
 	$(PY) -m ruff format --check .
+	$(PY) -m basedpyright --level error
 
 format: $(STAMP)
 	$(PY) -m ruff format .
 	$(PY) -m ruff check --fix .
 
+# Two workers (pytest-xdist), one per core; the browser tests share one worker (their xdist group), since one
+# Chromium drawing WebGL in software takes a core. `make test-serial` runs the same tests in one process.
+PYTEST := PLAYWRIGHT_SKIP_BROWSER_DOWNLOAD=1 $(PY) -m pytest -m "not slow"
 test: lint $(CHROMIUM) $(ARM_GCC)
-	PLAYWRIGHT_SKIP_BROWSER_DOWNLOAD=1 $(PY) -m pytest -m "not slow"
+	$(PYTEST) -n 2 --dist loadgroup $(PYTEST_ARGS)
 
+test-serial: lint $(CHROMIUM) $(ARM_GCC)
+	$(PYTEST) $(PYTEST_ARGS)
+
+# Every bench but the suite's own timing (bench/make_test.py runs `make test`).
 bench: $(STAMP) $(ARM_GCC)
-	for script in bench/*.py; do $(PY) $$script || exit 1; done
+	for script in $(filter-out bench/make_test.py,$(wildcard bench/*.py)); do $(PY) $$script || exit 1; done
 
 clean:
 	rm -rf $(VENV) build *.egg-info .pytest_cache .ruff_cache

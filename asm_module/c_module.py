@@ -18,18 +18,20 @@ import threading
 import time
 from collections import deque
 from collections.abc import Callable
-from typing import Any
+from typing import Any, Literal
 
 import can
 
 from asm_py.canbus.ids import CanId, Dest, FrameType, Priority, SystemCode, dest_filter, priority_filter, source_filter
 from asm_py.clock import Clock
+from asm_py.codec import FLOAT32, INT8, UINT8
 from asm_py.event import Event
 from asm_py.protocol import Kind, Method, Status, first_byte
 
 from ._profile import CLASSES
 from .drivers import FakeDriver, JointDriver
 from .firmware_build import build_library
+from .gait_service import SWITCH
 from .neighbours import LocalNeighbours
 
 log = logging.getLogger("asm_module.c_module")
@@ -193,14 +195,16 @@ class CModule:
 
     def _hub_send(self, can_id: int, payload: bytes) -> None:
         """What a hub carries of a frame this module sends: its gait.state publications and its signals."""
-        cid = CanId.unpack(can_id)
+        cid, hub = CanId.unpack(can_id), self.hub
+        if hub is None:
+            return
         if cid.dest_kind != Dest.BROADCAST or cid.frame != FrameType.SINGLE or len(payload) < 5:
             return
         if payload[0] == first_byte(Kind.PUBLICATION, Method.PUBLISH) and payload[2] == CLASSES[
                 "gait.state"] and len(payload) == 6:  # fmt: skip
-            self.hub.announce(self.node_id, struct.unpack_from("<H", payload, 4)[0])  # type: ignore[union-attr]
+            hub.announce(self.node_id, struct.unpack_from("<H", payload, 4)[0])
         elif payload[0] == first_byte(Kind.REQUEST, Method.SET) and payload[2] == CLASSES["gait.signal"]:
-            self.hub.broadcast(payload[4])  # type: ignore[union-attr]
+            hub.broadcast(payload[4])
 
     def tick(self) -> None:
         """One control tick now (the firmware's asm_module_tick), after what the hub said since the last one."""
@@ -211,7 +215,7 @@ class CModule:
             self._lib.asm_host_tick(self._memory, self._now_ms())
 
     def _send(self, _: object, can_id: int, data: int | None, dlc: int) -> int:
-        payload = ctypes.string_at(data, dlc) if dlc else b""  # one copy, not a list of ints
+        payload = ctypes.string_at(data, dlc) if dlc and data is not None else b""  # one copy, not a list of ints
         if self.bus is None:
             self._hub_send(can_id, payload)
             return 0
@@ -230,8 +234,10 @@ class CModule:
     def _run(self) -> None:
         ticking = self._unlisten is None  # else the simulation's tick event drives it
         next_tick = time.monotonic()
+        bus = self.bus
+        assert bus is not None, "a module on a hub has no receive thread"
         while not self._stop.is_set():
-            frame = self.bus.recv(timeout=max(0.0, next_tick - time.monotonic()) if ticking else 0.1)
+            frame = bus.recv(timeout=max(0.0, next_tick - time.monotonic()) if ticking else 0.1)
             if frame is not None and frame.is_extended_id and not frame.is_error_frame:
                 with self._call_lock:
                     self._lib.asm_host_frame(self._memory, frame.arbitration_id, bytes(frame.data), frame.dlc,
@@ -263,6 +269,38 @@ class CModule:
     def goal(self) -> float:
         """What the firmware commands the joint to (degrees)."""
         return float(self._lib.asm_host_goal(self._memory))
+
+    # -- the in-process interface every module has (asm_module.module.Module) -----------------------------------
+
+    language: Literal["python", "c"] = "c"
+
+    @property
+    def module_id(self) -> int:
+        return self.node_id
+
+    def load_gait(self, table: bytes, phase: float, direction: int) -> None:
+        self.local(Method.SET, "gait.table", table)
+        self.local(Method.SET, "gait.phase", FLOAT32.encode(phase))
+        self.local(Method.SET, "gait.direction", INT8.encode(direction))
+
+    def start_gait(self) -> None:
+        if not self.gait_running():
+            self.local(Method.START, "gait.service")
+
+    def switch_mode(self, mode: int, direction: int, after: float) -> None:
+        self.local(Method.SET, "gait.switch", SWITCH.encode({"mode": mode, "direction": direction, "after": after}))
+
+    def hear_signal(self, number: int) -> None:
+        self.local(Method.SET, "gait.signal", UINT8.encode(number))
+
+    def stop_gait(self) -> None:
+        self.local(Method.STOP, "gait.service")
+
+    def goal_now(self) -> float:
+        return self.goal
+
+    def angle_now(self) -> float:
+        return self.angle
 
     def gait_started(self) -> float:
         """When the gait last started (its 1 s ramp began), in seconds of this module's clock (a wall clock's:

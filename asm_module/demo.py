@@ -28,7 +28,7 @@ def bar(angle: float, width: int = 9) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="asm-demo", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="asm-demo", description=(__doc__ or "").splitlines()[0])
     parser.add_argument("--modules", type=bounded(int, 1, 254, what="a module count"), default=6,
                         help="modules in the chain (default 6)")  # fmt: skip
     parser.add_argument("--seconds", type=bounded(float, 0, 86_400, what="a run time"), default=0.0,

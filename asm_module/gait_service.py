@@ -111,7 +111,7 @@ class ModuleGait(PhaseAutomaton):
 
     # -- starting -----------------------------------------------------------------------------------------------
 
-    def start(self, *params: Any, wait: bool = True) -> None:
+    def start(self, *params: Any, wait: bool = True) -> None:  # pyright: ignore[reportIncompatibleMethodOverride]  # the module's START: no parameters, phase and direction are attributes
         """Start at the module's gait.phase and gait.direction. A START carries no parameters (docs/protocol.md
         §9): a phase and a direction are set first, each checked by its own attribute."""
         if params:
@@ -331,7 +331,9 @@ class ModuleGait(PhaseAutomaton):
 
     def _reference(self, now: float) -> float:
         if self._current.timed:
-            return float(reference_at(self._phase_states, self._starts, self.period, self.tau))
+            value = reference_at(self._phase_states, self._starts, self.period, self.tau)
+            assert not isinstance(value, tuple), "a module's joint is one angle"
+            return float(value)
         states = self._current.states
         state = states[self._index]
         if state.interpolation == "step" or state.duration is None:

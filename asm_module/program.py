@@ -32,7 +32,7 @@ import struct
 from dataclasses import dataclass
 from typing import Literal
 
-from asm_py.automaton import PhaseState
+from asm_py.automaton import Interpolation, PhaseState
 
 EventName = Literal["contact", "no_contact", "at_goal", "torque", "neighbour", "signal"]
 CONTROL_PERIOD = 0.02
@@ -89,7 +89,7 @@ class ModeState:
     target: float
     duration: float | None
     """Seconds (time-driven), or the timeout of an event; None only with an event: no timeout."""
-    interpolation: Literal["step", "linear"] = "step"
+    interpolation: Interpolation = "step"
     until: Until | None = None
     emit: int = 0
     """Broadcast signal 1..255 on entering the state (0: none): a global event other modules' states can end on."""
@@ -132,12 +132,18 @@ class Mode:
         """Periodic and time-driven: run by the phase-time rule of PeriodicAutomaton."""
         return not self.one_shot and all(s.until is None for s in self.states)
 
+    def _durations(self) -> list[float]:
+        durations = [s.duration for s in self.states if s.duration is not None]
+        if len(durations) != len(self.states):
+            raise ValueError("a state that waits for an event without a timeout has no fixed duration")
+        return durations
+
     def phase_states(self) -> list[PhaseState]:
-        return [PhaseState(s.target, s.duration, s.interpolation) for s in self.states]  # type: ignore[arg-type]
+        return [PhaseState(s.target, d, s.interpolation) for s, d in zip(self.states, self._durations(), strict=True)]
 
     @property
     def period(self) -> float | None:
-        return math.fsum(s.duration for s in self.states) if self.timed else None  # type: ignore[misc]
+        return math.fsum(self._durations()) if self.timed else None
 
 
 @dataclass(frozen=True)
@@ -182,4 +188,9 @@ class Program:
 
 def program_of(states: list[PhaseState]) -> Program:
     """A version-1 table's states as a program of one mode."""
-    return Program((Mode(tuple(ModeState(float(s.target), s.duration, s.interpolation) for s in states)),))  # type: ignore[arg-type]
+    modes = []
+    for s in states:
+        if isinstance(s.target, tuple):
+            raise ValueError(f"a module's table holds one angle per state, not {s.target!r}")
+        modes.append(ModeState(float(s.target), s.duration, s.interpolation))
+    return Program((Mode(tuple(modes)),))

@@ -36,7 +36,7 @@ from __future__ import annotations
 import logging
 import math
 from collections.abc import Callable
-from typing import Any
+from typing import Any, Literal
 
 from asm_py.attribute import Attribute, CheckedAttribute
 from asm_py.automaton import PhaseState
@@ -45,8 +45,8 @@ from asm_py.codec import BOOL, BYTES, FLOAT32, FLOAT64, UINT32, float_array
 from asm_py.eds import EventDrivenService
 from asm_py.errors import EstopLatched
 from asm_py.event import Event, TimerTrigger
-from asm_py.node import WRITES, Node
-from asm_py.protocol import Method
+from asm_py.node import Node
+from asm_py.protocol import WRITES, Method
 
 from .drivers import JointDriver
 from .gait_service import ModuleGait
@@ -348,6 +348,34 @@ class ModuleRuntime:
         """Stop the gait and hold the joint where it is; latched until ``estop`` is set to false (see _latch)."""
         self._latch()
         Attribute.set(self.estop, True)  # the value only: _latch has done what a set would
+
+    # -- the in-process interface every module has (asm_module.module.Module) -----------------------------------
+
+    language: Literal["python", "c"] = "python"
+
+    def load_gait(self, table: bytes, phase: float, direction: int) -> None:
+        self.table.set(table)
+        self.phase.set(phase)
+        self.gait.direction.set(direction)
+
+    def start_gait(self) -> None:
+        if not self.gait.started:
+            self.gait.start()
+
+    def switch_mode(self, mode: int, direction: int, after: float) -> None:
+        self.gait.switch.set({"mode": mode, "direction": direction, "after": after})
+
+    def hear_signal(self, number: int) -> None:
+        self.gait.signal.set(number)
+
+    def stop_gait(self) -> None:
+        self.gait.stop(timeout=5.0)
+
+    def goal_now(self) -> float:
+        return float(self.goal.peek())
+
+    def angle_now(self) -> float:
+        return float(self.angle.peek())
 
     def close(self) -> None:
         if self._own_timer is not None:

@@ -43,7 +43,7 @@ import zlib
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from asm_py.automaton import PhaseState
+from asm_py.automaton import Interpolation, PhaseState
 from asm_py.protocol import HEADER_SIZE, MAX_MESSAGE
 
 from .program import (
@@ -70,8 +70,8 @@ _PROGRAM = struct.Struct("<2sBBB")
 _STEP = struct.Struct("<BH")
 _MODE = struct.Struct("<fbBH")
 _STATE2 = struct.Struct("<ffBBBfbHB")
-_INTERPOLATION = {"step": 0, "linear": 1}
-_BY_CODE = {code: name for name, code in _INTERPOLATION.items()}
+_BY_CODE: dict[int, Interpolation] = {0: "step", 1: "linear"}
+_INTERPOLATION = {name: code for code, name in _BY_CODE.items()}
 STAGED_MAGIC = b"GS"
 _STAGED = struct.Struct("<2sBIfb")
 MAX_STAGED_STATES = (MAX_MESSAGE - HEADER_SIZE - _STAGED.size - _HEADER.size) // _STATE.size
@@ -112,7 +112,7 @@ def decode_table(data: bytes) -> list[PhaseState]:
         if not (math.isfinite(angle) and math.isfinite(duration) and duration >= MIN_DURATION):
             raise ValueError(f"state {k}: angle {angle} and duration {duration} must be finite, the duration at "
                              f"least one control tick ({MIN_DURATION_TEXT})")  # fmt: skip
-        states.append(PhaseState(float(angle), float(duration), _BY_CODE[code]))  # type: ignore[arg-type]
+        states.append(PhaseState(float(angle), float(duration), _BY_CODE[code]))
     return states
 
 
@@ -180,8 +180,8 @@ def decode_program(data: bytes) -> Program:
             try:
                 kind = EVENTS[event - 1] if event else None
                 watch = (neighbour, state) if kind == "neighbour" else (-1, state) if kind == "signal" else (-1, 0)
-                until = None if kind is None else Until(kind, value, *watch, OUTCOMES[timeout])  # type: ignore[arg-type]
-                states.append(ModeState(angle, duration if duration != 0 else None, _BY_CODE[interp], until, emit))  # type: ignore[arg-type]
+                until = None if kind is None else Until(kind, value, *watch, OUTCOMES[timeout])
+                states.append(ModeState(angle, duration if duration != 0 else None, _BY_CODE[interp], until, emit))
             except ValueError as exc:
                 raise ValueError(f"mode {m} state {k}: {exc}") from None
         try:

@@ -19,11 +19,10 @@ from .codec import (
     UINT32,
     UINT64,
     Codec,
-    codec_from_descriptor,
     float_array,
-    parse_codec,
     record,
 )
+from .codec_parse import codec_from_descriptor, parse_codec
 from .eds import EventDrivenService
 from .errors import (
     AsmError,

@@ -15,7 +15,8 @@ from dataclasses import dataclass
 from typing import Any
 
 from .clock import Clock, Monitor
-from .codec import Codec, parse_codec
+from .codec import Codec
+from .codec_parse import parse_codec
 from .errors import AsmTimeout
 
 log = logging.getLogger("asm_py.attribute")

@@ -67,7 +67,7 @@ class PhaseAutomaton(EventDrivenService):
         self._next_state = next_state
         self._action = action
 
-    def start(self, phase: float = 0.0, direction: int | None = None, *, wait: bool = True) -> None:  # type: ignore[override]
+    def start(self, phase: float = 0.0, direction: int | None = None, *, wait: bool = True) -> None:  # pyright: ignore[reportIncompatibleMethodOverride]  # a phase automaton's start parameters are its phase and direction (paper §4)
         """Start with initial phase delay ``phase`` ∈ [0, 1) and, if given, a new direction (±1)."""
         super().start(phase, direction)
 
@@ -100,7 +100,7 @@ class PhaseAutomaton(EventDrivenService):
         self.state.set(state)
         self.action(state, value)
 
-    def _starting(self, phase: float = 0.0, direction: int | None = None) -> None:
+    def _starting(self, phase: float = 0.0, direction: int | None = None) -> None:  # pyright: ignore[reportIncompatibleMethodOverride]  # see start
         phase = float(phase)
         if not 0.0 <= phase < 1.0:
             raise ValueError(f"initial phase of {self.name!r} must be in [0, 1), not {phase}")
@@ -111,6 +111,18 @@ class PhaseAutomaton(EventDrivenService):
         self.initialize(phase)
 
 
+Interpolation = Literal["step", "linear"]
+INTERPOLATIONS: tuple[Interpolation, ...] = ("step", "linear")
+
+
+def interpolation_of(name: str) -> Interpolation:
+    """``name`` as an interpolation; ValueError for any other text (gait files are checked before this)."""
+    for known in INTERPOLATIONS:
+        if known == name:
+            return known
+    raise ValueError(f"interpolation is one of {', '.join(INTERPOLATIONS)}, not {name!r}")
+
+
 @dataclass(frozen=True)
 class PhaseState:
     """One state of a periodic automaton."""
@@ -119,7 +131,7 @@ class PhaseState:
     """The output value of this state (a float, or a tuple of floats for several joints)."""
     duration: float
     """Seconds spent in this state per period; > 0."""
-    interpolation: Literal["step", "linear"] = "step"
+    interpolation: Interpolation = "step"
     """``step`` holds ``target`` for the whole state; ``linear`` ramps from the previous state's target to it."""
 
     def __post_init__(self) -> None:
@@ -149,9 +161,20 @@ def reference_at(
         return state.target
     previous = states[index - 1].target
     frac = (tau - starts[index]) / state.duration
-    if isinstance(state.target, tuple):
-        return tuple(p + frac * (t - p) for p, t in zip(previous, state.target, strict=True))  # type: ignore[arg-type]
-    return previous + frac * (state.target - previous)  # type: ignore[operator]
+    target = state.target
+    if isinstance(target, tuple) and isinstance(previous, tuple):
+        return tuple(p + frac * (t - p) for p, t in zip(previous, target, strict=True))
+    if isinstance(target, tuple) or isinstance(previous, tuple):
+        raise TypeError(f"states of one automaton mix scalar and vector targets: {previous!r}, {target!r}")
+    return previous + frac * (target - previous)
+
+
+def scalar_reference_at(states: Sequence[PhaseState], starts: Sequence[float], period: float, tau: float) -> float:
+    """:func:`reference_at` for one joint: gait tables and module programs hold one angle per state."""
+    value = reference_at(states, starts, period, tau)
+    if isinstance(value, tuple):
+        raise TypeError(f"a joint's states have scalar targets, not {value!r}")
+    return float(value)
 
 
 class PeriodicAutomaton(PhaseAutomaton):

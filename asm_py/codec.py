@@ -104,9 +104,9 @@ class _Fixed(Codec):
         return self._struct.pack(value)
 
     def _unpack(self, data: memoryview, offset: int) -> tuple[Any, int]:
-        end = offset + self.size
+        end = offset + self._struct.size
         if end > len(data):
-            raise ValueError(f"{self.spec}: needs {self.size} bytes, {len(data) - offset} left")
+            raise ValueError(f"{self.spec}: needs {self._struct.size} bytes, {len(data) - offset} left")
         return self._struct.unpack_from(data, offset)[0], end
 
 
@@ -186,7 +186,7 @@ def _pack_varint(out: bytearray, number: int) -> None:
     out.append(number)
 
 
-def _unpack_varint(data: memoryview, offset: int) -> tuple[int, int]:
+def unpack_varint(data: memoryview, offset: int) -> tuple[int, int]:
     number = shift = 0
     while True:
         if offset >= len(data):
@@ -205,6 +205,7 @@ class _Variable(Codec):
     """str or bytes: raw at top level, varint-length-prefixed inside a record."""
 
     size = None
+    _tag: int
 
     def __init__(self, max_len: int | None) -> None:
         self.max_len = max_len
@@ -233,7 +234,7 @@ class _Variable(Codec):
         out += raw
 
     def _unpack(self, data: memoryview, offset: int) -> tuple[Any, int]:
-        length, offset = _unpack_varint(data, offset)
+        length, offset = unpack_varint(data, offset)
         end = offset + length
         if end > len(data):
             raise ValueError(f"{self.spec}: field of {length} bytes runs past the end of the data")
@@ -332,9 +333,9 @@ class FloatArrayCodec(Codec):
         out += self._struct.pack(*value)
 
     def _unpack(self, data: memoryview, offset: int) -> tuple[Any, int]:
-        end = offset + self.size
+        end = offset + self._struct.size
         if end > len(data):
-            raise ValueError(f"{self.spec}: needs {self.size} bytes, {len(data) - offset} left")
+            raise ValueError(f"{self.spec}: needs {self._struct.size} bytes, {len(data) - offset} left")
         return self._struct.unpack_from(data, offset), end
 
 
@@ -452,7 +453,7 @@ SCALARS: dict[str, Codec] = {
     c.spec: c
     for c in (BOOL, INT8, INT16, INT32, INT64, UINT8, UINT16, UINT32, UINT64, FLOAT32, FLOAT64, STR, BYTES, JSON)
 }
-_BY_TAG: dict[int, Codec] = {c._tag: c for c in SCALARS.values() if isinstance(c, _Fixed)}
+BY_TAG: dict[int, Codec] = {c._tag: c for c in SCALARS.values() if isinstance(c, _Fixed)}
 
 
 def float_array(length: int, element: FloatCodec = FLOAT32) -> FloatArrayCodec:
@@ -461,96 +462,3 @@ def float_array(length: int, element: FloatCodec = FLOAT32) -> FloatArrayCodec:
 
 def record(fields: Sequence[tuple[str, Codec]] | Mapping[str, Codec]) -> RecordCodec:
     return RecordCodec(fields)
-
-
-def parse_codec(spec: str | Codec) -> Codec:
-    """The codec named by ``spec`` (its ``.spec`` text); a Codec is returned as it is."""
-    if isinstance(spec, Codec):
-        return spec
-    codec, end = _parse(spec.replace(" ", ""), 0)
-    if end != len(spec.replace(" ", "")):
-        raise ValueError(f"unexpected text after position {end} in codec spec {spec!r}")
-    return codec
-
-
-def _parse(text: str, pos: int) -> tuple[Codec, int]:
-    if text.startswith("record{", pos):
-        pos += len("record{")
-        fields: list[tuple[str, Codec]] = []
-        while True:
-            colon = text.find(":", pos)
-            if colon < 0:
-                raise ValueError(f"record field without ':' in codec spec {text!r}")
-            name = text[pos:colon]
-            codec, pos = _parse(text, colon + 1)
-            fields.append((name, codec))
-            if pos < len(text) and text[pos] == ",":
-                pos += 1
-                continue
-            if pos < len(text) and text[pos] == "}":
-                return RecordCodec(fields), pos + 1
-            raise ValueError(f"record not closed with '}}' in codec spec {text!r}")
-    end = pos
-    while end < len(text) and (text[end].isalnum()):
-        end += 1
-    word = text[pos:end]
-    if word in ("str", "bytes") and text.startswith("<", end):
-        close = text.index(">", end)
-        max_len = int(text[end + 1 : close])
-        return (StrCodec(max_len) if word == "str" else BytesCodec(max_len)), close + 1
-    if word not in SCALARS:
-        raise ValueError(f"unknown type {word!r} in codec spec {text!r}")
-    codec = SCALARS[word]
-    if text.startswith("[", end):
-        close = text.index("]", end)
-        if not isinstance(codec, FloatCodec):
-            raise ValueError(f"arrays are of float32 or float64, not {word!r}")
-        return FloatArrayCodec(int(text[end + 1 : close]), codec), close + 1
-    return codec, end
-
-
-def codec_from_descriptor(data: Buffer) -> Codec:
-    """Rebuild a codec from its binary descriptor; ValueError if malformed."""
-    view = memoryview(data)
-    codec, end = _from_descriptor(view, 0, depth=0)
-    if end != len(view):
-        raise ValueError(f"{len(view) - end} trailing byte(s) after a codec descriptor")
-    return codec
-
-
-def _from_descriptor(data: memoryview, offset: int, depth: int) -> tuple[Codec, int]:
-    if depth > 8:
-        raise ValueError("codec descriptor nested too deeply")
-    if offset >= len(data):
-        raise ValueError("codec descriptor is truncated")
-    tag = data[offset]
-    offset += 1
-    if tag in _BY_TAG:
-        return _BY_TAG[tag], offset
-    if tag == CodecTag.JSON:
-        return JSON, offset
-    if tag in (CodecTag.STR, CodecTag.BYTES):
-        max_len, offset = _unpack_varint(data, offset)
-        limit = max_len or None
-        return (StrCodec(limit) if tag == CodecTag.STR else BytesCodec(limit)), offset
-    if tag == CodecTag.FLOAT_ARRAY:
-        if offset >= len(data) or data[offset] not in (CodecTag.FLOAT32, CodecTag.FLOAT64):
-            raise ValueError("float array descriptor without a float element type")
-        element = FLOAT32 if data[offset] == CodecTag.FLOAT32 else FLOAT64
-        length, offset = _unpack_varint(data, offset + 1)
-        if not 1 <= length <= 65535:
-            raise ValueError(f"float array length {length} out of range")
-        return FloatArrayCodec(length, element), offset
-    if tag == CodecTag.RECORD:
-        count, offset = _unpack_varint(data, offset)
-        if not 1 <= count <= 255:
-            raise ValueError(f"record field count {count} out of range")
-        fields = []
-        for _ in range(count):
-            length, offset = _unpack_varint(data, offset)
-            name = bytes(data[offset : offset + length]).decode("utf-8", errors="strict")
-            offset += length
-            codec, offset = _from_descriptor(data, offset, depth + 1)
-            fields.append((name, codec))
-        return RecordCodec(fields), offset
-    raise ValueError(f"unknown codec tag {tag:#04x}")

@@ -119,7 +119,7 @@ class TimerTrigger(Service, Trigger):
         self.period = float(period)
         self.one_shot = one_shot
 
-    def run(self) -> None:
+    def run(self, *params: Any) -> None:
         clock = self.clock
         origin = clock.now()
         tick = 1
@@ -204,7 +204,7 @@ class ConditionTrigger(Service, Trigger):
         self.predicate = predicate
         self.poll_period = float(poll_period)
 
-    def run(self) -> None:
+    def run(self, *params: Any) -> None:
         was_true = False
         while self.checkpoint():
             now_true = bool(self.predicate())

@@ -18,7 +18,8 @@ import json
 from typing import TYPE_CHECKING, Any
 
 from .classes import well_known
-from .codec import Codec, parse_codec
+from .codec import Codec
+from .codec_parse import parse_codec
 from .protocol import Kind, Message, Method, check_size, encode
 from .transport.base import BROADCAST, check_name
 
@@ -32,13 +33,13 @@ def class_id_of(cls: str | int) -> int:
         if not 1 <= cls <= 0xFF:
             raise ValueError(f"class ID {cls} must be 1..255")
         return cls
-    try:
-        return well_known()[cls]
-    except (KeyError, TypeError):
-        raise LookupError(
-            f"class {cls!r} has no network-wide ID; group messages need a well-known class "
-            f"({', '.join(sorted(well_known()))}) or an explicit class ID"
-        ) from None
+    known = well_known()
+    if isinstance(cls, str) and cls in known:
+        return known[cls]
+    raise LookupError(
+        f"class {cls!r} has no network-wide ID; group messages need a well-known class "
+        f"({', '.join(sorted(known))}) or an explicit class ID"
+    )
 
 
 class GroupPort:

@@ -136,8 +136,8 @@ ALL_ROBOTS = RobotKeys.__new__(RobotKeys)
 ALL_ROBOTS.robot, ALL_ROBOTS.prefix = "*", f"{ROOT}/*"
 
 
-def split(key: str) -> list[str]:
-    """A key's chunks."""
+def split(key: object) -> list[str]:
+    """A key's chunks (of a str or a zenoh.KeyExpr)."""
     return str(key).split("/")
 
 
@@ -146,8 +146,9 @@ def robot_of(key: str) -> str:
     return split(key)[1]
 
 
-def last(key: str) -> str:
-    """A key's last chunk: the source of a request or an e-stop, the object of a publication."""
+def last(key: object) -> str:
+    """A key's last chunk (of a str or a zenoh.KeyExpr): the source of a request or an e-stop, the object of a
+    publication."""
     return str(key).rsplit("/", 1)[-1]
 
 

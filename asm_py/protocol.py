@@ -161,7 +161,8 @@ def encode(message: Message) -> bytes:
     third = message.status if message.kind == Kind.REPLY else message.class_id
     if not 0 <= third <= 0xFF or not 0 <= message.object_id <= 0xFF:
         raise ValueError("class ID, status and object ID are single bytes")
-    timed = message.timeout is not None
+    timeout = message.timeout
+    timed = timeout is not None
     head = bytes(
         (
             first_byte(int(message.kind), message.method),
@@ -170,10 +171,10 @@ def encode(message: Message) -> bytes:
             message.object_id,
         )
     )
-    if timed:
-        if message.kind == Kind.REPLY or not 0 <= message.timeout <= 0xFF:  # type: ignore[operator]
+    if timeout is not None:
+        if message.kind == Kind.REPLY or not 0 <= timeout <= 0xFF:
             raise ValueError("a timeout byte belongs to requests and fits one byte")
-        head += bytes((message.timeout,))  # type: ignore[arg-type]
+        head += bytes((timeout,))
     return head + message.data
 
 
@@ -185,7 +186,7 @@ def decode(data: bytes | bytearray | memoryview) -> Message:
     version = version_of(raw)
     if version != VERSION:
         raise ProtocolError(f"protocol version {version} is not supported (this node speaks {VERSION})")
-    kind = kind_of(raw)
+    kind = (raw[0] >> KIND_SHIFT) & KIND_MASK  # at least a header's bytes: never None as kind_of's can be
     method = method_of(raw)
     timed = has_timeout(raw)
     offset = HEADER_SIZE

@@ -90,8 +90,10 @@ class Publisher(Service):
             return  # too soon: the next change after the gap, or the refresh, publishes the value then
         self.publish(value)
 
-    def run(self) -> None:
-        period = 1.0 / self.policy.rate  # type: ignore[operator]
+    def run(self, *params: Any) -> None:
+        rate = self.policy.rate
+        assert rate is not None  # the node runs this service only for a policy with a rate
+        period = 1.0 / rate
         origin = self.clock.now()
         tick = 1
         due = origin + period

@@ -15,263 +15,23 @@ local objects, but on a client object each read is a round trip (and may raise T
 
 from __future__ import annotations
 
-import itertools
 import json
 from collections.abc import Callable
-from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
-from ._contract import TIMEOUT_LONGEST
-from .clock import WALL_CLOCK, Clock, Monitor
-from .codec import Codec, codec_from_descriptor
-from .errors import AsmTimeout, EstopLatched, Locked, MessageTooLarge, ReadOnlyError, RemoteError, ServiceError
-from .protocol import (
-    HEADER_SIZE,
-    MAX_TXN,
-    Kind,
-    Message,
-    Method,
-    ObjectKind,
-    ProtocolError,
-    Status,
-    check_size,
-    encode,
-    encode_timeout,
-    first_byte,
-    has_timeout,
-)
+from .clock import Clock
+from .codec import Codec
+from .lookup import ObjectInfo, parse_description
+from .port import Port
+from .protocol import HEADER_SIZE, Kind, Method, ObjectKind, StatusFlag, encode_timeout, first_byte, has_timeout
 from .service import ServiceStatus
-
-if TYPE_CHECKING:
-    from .node import Entry, Node
-
-MAX_TIMEOUT_CODE = TIMEOUT_LONGEST
-REPLY_MARGIN = 1.0
-"""Seconds a client waits for a reply beyond the time the server may block."""
-
-
-@dataclass(frozen=True)
-class ObjectInfo:
-    """What a lookup reply tells about an object."""
-
-    class_id: int
-    object_id: int
-    kind: ObjectKind
-    sync_get: bool
-    sync_set: bool
-    published: bool
-    codec: Codec
-    name: str
-    class_name: str
-    read_only: bool = False
-    """Only the node writes it: a remote set or reset is answered READ_ONLY."""
-
-
-def describe_entry(entry: Entry) -> bytes:
-    """The data of a LOOKUP reply (docs/protocol.md, "Lookup")."""
-    obj = entry.obj
-    published = getattr(obj, "publish_policy", None) is not None or entry.kind == ObjectKind.EVENT
-    flags = (int(getattr(obj, "sync_get", False)) | int(getattr(obj, "sync_set", False)) << 1 | int(published) << 2
-             | int(entry.read_only) << 3)  # fmt: skip
-    descriptor = entry.codec.descriptor()
-    name = entry.name.encode("utf-8")
-    return (bytes([entry.class_id, entry.object_id, entry.kind, flags, len(descriptor)]) + descriptor
-            + bytes([len(name)]) + name + entry.class_name.encode("utf-8"))  # fmt: skip
-
-
-def parse_description(data: bytes) -> ObjectInfo:
-    try:
-        class_id, object_id, kind, flags, length = data[:5]
-        descriptor = data[5 : 5 + length]
-        offset = 5 + length
-        name_length = data[offset]
-        name = data[offset + 1 : offset + 1 + name_length].decode("utf-8")
-        class_name = data[offset + 1 + name_length :].decode("utf-8")
-        return ObjectInfo(class_id, object_id, ObjectKind(kind), bool(flags & 1), bool(flags & 2), bool(flags & 4),
-                          codec_from_descriptor(descriptor), name, class_name, bool(flags & 8))  # fmt: skip
-    except (ValueError, IndexError) as exc:
-        raise ProtocolError(f"malformed lookup reply: {exc}") from None
 
 
 def make_client(port: Port, description: bytes) -> RemoteObject:
+    """The client object for the object a LOOKUP reply's data describes."""
     info = parse_description(description)
     cls = {ObjectKind.ATTRIBUTE: RemoteAttribute, ObjectKind.EVENT: RemoteEvent, ObjectKind.SERVICE: RemoteService}
     return cls[info.kind](port, info)
-
-
-_STATUS_ERRORS: dict[int, type[Exception]] = {
-    Status.TIMEOUT: AsmTimeout,
-    Status.SERVICE_ERROR: ServiceError,
-    Status.TYPE_ERROR: TypeError,
-    Status.VALUE_ERROR: ValueError,
-    Status.NOT_FOUND: LookupError,
-    Status.READ_ONLY: ReadOnlyError,
-    Status.ESTOP: EstopLatched,
-    Status.LOCKED: Locked,
-    Status.TOO_LARGE: MessageTooLarge,
-}
-
-
-class _What:
-    """Names a call in error messages; formatted only when an error is raised (off the hot path)."""
-
-    __slots__ = ("method", "subject")
-
-    def __init__(self, method: int, subject: str) -> None:
-        self.method = method
-        self.subject = subject
-
-    def __str__(self) -> str:
-        method = Method(self.method).name.lower() if self.method in Method._value2member_map_ else self.method
-        return f"{method} on {self.subject}"
-
-
-def raise_for_status(reply: Message, what: object) -> None:
-    if reply.status == Status.OK:
-        return
-    text = f"{what}: {reply.data.decode('utf-8', errors='replace')}"
-    error = _STATUS_ERRORS.get(reply.status)
-    if error is not None:
-        raise error(text)
-    name = Status(reply.status).name if reply.status in Status._value2member_map_ else str(reply.status)
-    raise RemoteError(f"{text} (status {name})", reply.status)
-
-
-class _Call:
-    __slots__ = ("failure", "method", "object_id", "reply")
-
-    def __init__(self, method: int, object_id: int) -> None:
-        self.method = method
-        self.object_id = object_id
-        self.reply: Message | None = None
-        self.failure: str | None = None
-
-
-class Port:
-    """The client port from a node to one remote node."""
-
-    def __init__(self, node: Node, remote: str) -> None:
-        self.node = node
-        self.remote = remote
-        self._mon = Monitor(WALL_CLOCK)
-        self._pending: dict[int, _Call] = {}
-        self._next_txn = 0
-        self._direct_txns = itertools.count()
-        self.stale_replies = 0
-
-    def send(
-        self, method: int, class_id: int, object_id: int, data: bytes = b"", *, timeout: int | None = None
-    ) -> None:
-        """Send a request that wants no reply."""
-        message = Message(Kind.REQUEST, method, 0, class_id, object_id, timeout=timeout, data=data)
-        self.node.transport.send(self.remote, check_size(encode(message), _What(method, self.remote)))
-
-    def call(
-        self,
-        method: int,
-        class_id: int,
-        object_id: int,
-        data: bytes = b"",
-        *,
-        timeout: float | None = None,
-        blocking: bool = False,
-        subject: str = "",
-    ) -> Message:
-        """Send a request and wait for its reply; raise the reply's error as its local exception type.
-
-        ``blocking``: the server may block up to ``timeout`` (None: without limit); the client waits that long plus
-        a margin. Otherwise the client waits ``timeout`` or the node's ``call_timeout``.
-        """
-        what = _What(method, subject or self.remote)
-        if not blocking:
-            wait = timeout or self.node.call_timeout
-            if self.node.transport.direct_requests:
-                return self._direct(method, class_id, object_id, data, wait, what)
-            return self._round_trip(method, class_id, object_id, data, None, wait, what)
-        deadline = None if timeout is None else WALL_CLOCK.now() + timeout
-        while True:
-            remaining = None if deadline is None else max(0.0, deadline - WALL_CLOCK.now())
-            code = None if remaining is None else encode_timeout(remaining)
-            wait = None if remaining is None else remaining + REPLY_MARGIN
-            try:
-                return self._round_trip(method, class_id, object_id, data, code, wait, what)
-            except AsmTimeout:
-                # A timeout beyond what one timeout byte holds (0xFE): the server gave up early; ask for the rest.
-                if code != MAX_TIMEOUT_CODE or deadline is None or deadline <= WALL_CLOCK.now():
-                    raise
-
-    def _round_trip(
-        self,
-        method: int,
-        class_id: int,
-        object_id: int,
-        data: bytes,
-        code: int | None,
-        wait: float | None,
-        what: object,
-    ) -> Message:
-        mon = self._mon
-        raw = check_size(encode(Message(Kind.REQUEST_REPLY, method, 0, class_id, object_id, timeout=code, data=data)),
-                          what)  # fmt: skip
-        call = _Call(method, object_id)
-        with mon:
-            if not mon.wait_for(lambda: len(self._pending) <= MAX_TXN, wait):
-                raise AsmTimeout(f"{what}: all {MAX_TXN + 1} transaction ids of the port are in use")
-            txn = self._next_txn
-            while txn in self._pending:
-                txn = (txn + 1) & MAX_TXN
-            self._next_txn = (txn + 1) & MAX_TXN
-            self._pending[txn] = call
-        try:
-            self.node.transport.send(self.remote, raw[:1] + bytes((raw[1] | txn,)) + raw[2:])
-            with mon:
-                mon.wait_for(lambda: call.reply is not None or call.failure is not None, wait)
-        finally:
-            with mon:
-                if self._pending.get(txn) is call:
-                    del self._pending[txn]
-                mon.notify_all()
-        if call.reply is None:
-            reason = call.failure or f"no reply within {wait:.3g}s"  # done without a reply means a failure
-            raise AsmTimeout(f"{what} timed out: {reason}")
-        raise_for_status(call.reply, what)
-        return call.reply
-
-    def _direct(self, method: int, class_id: int, object_id: int, data: bytes, wait: float, what: object) -> Message:
-        """A round trip in the caller's thread, on transports that can (requests that cannot block).
-
-        The hot path of a remote get: the 4-byte header is built in place and the reply checked by its header bytes.
-        """
-        txn = next(self._direct_txns) & MAX_TXN  # atomic; these replies never pass through _pending
-        head = bytes((first_byte(Kind.REQUEST_REPLY, method), txn, class_id, object_id))
-        raw = self.node.transport.request(self.remote, check_size(head + data, what), wait)
-        if raw is None:
-            raise AsmTimeout(f"{what} timed out: no reply within {wait:.3g}s")
-        if len(raw) < HEADER_SIZE or raw[0] != first_byte(Kind.REPLY, method) or raw[1] != txn or raw[3] != object_id:
-            raise ProtocolError(f"{what}: answer is not the reply to transaction {txn}")
-        reply = Message(Kind.REPLY, method, txn, 0, raw[3], raw[2], None, raw[HEADER_SIZE:])
-        if reply.status:
-            raise_for_status(reply, what)
-        return reply
-
-    def deliver(self, reply: Message) -> None:
-        """A reply arrived for this port (from the node's receive path)."""
-        with self._mon:
-            call = self._pending.get(reply.txn)
-            if call is None or call.method != reply.method or call.object_id != reply.object_id:
-                self.stale_replies += 1  # its caller gave up already, or it answers another request
-                return
-            del self._pending[reply.txn]
-            call.reply = reply
-            self._mon.notify_all()
-
-    def fail_all(self, reason: str) -> None:
-        """Fail every call in flight (the peer left, or the node closed)."""
-        with self._mon:
-            for call in self._pending.values():
-                call.failure = reason
-            self._pending.clear()
-            self._mon.notify_all()
 
 
 class RemoteObject:
@@ -347,7 +107,7 @@ class RemoteAttribute(RemoteObject):
     @property
     def valid(self) -> bool:
         """Whether the remote value is valid (a round trip)."""
-        return bool(self._call(Method.STATUS)[0] & 1)
+        return bool(self._call(Method.STATUS)[0] & StatusFlag.VALID)
 
     def peek(self, timeout: float | None = None) -> Any:
         """The remote value without consuming it (``timeout``: how long to wait for the reply, at most)."""
@@ -404,8 +164,8 @@ class RemoteService(RemoteObject):
     def status(self, timeout: float | None = None) -> ServiceStatus:
         """started, running and the last error in one round trip (``timeout``: how long to wait, at most)."""
         data = self._call(Method.STATUS, timeout=timeout)
-        error = (data[1:].decode("utf-8", errors="replace") or None) if data[0] & 8 else None
-        return ServiceStatus(bool(data[0] & 2), bool(data[0] & 4), error)
+        error = (data[1:].decode("utf-8", errors="replace") or None) if data[0] & StatusFlag.FAILED else None
+        return ServiceStatus(bool(data[0] & StatusFlag.STARTED), bool(data[0] & StatusFlag.RUNNING), error)
 
     @property
     def started(self) -> bool:

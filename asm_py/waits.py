@@ -97,7 +97,7 @@ class EventWaits(Service):
             remove()
         return True
 
-    def run(self) -> None:
+    def run(self, *params: Any) -> None:
         mon = self._mon
         while True:
             with mon:

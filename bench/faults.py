@@ -28,13 +28,13 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 import zenoh
 
+from asm_module.bus_robot import BusRobot
 from asm_module.names import module_name
 from asm_module.program import MIN_DURATION, Mode, ModeState, Program
 from asm_module.wire import encode_program
 from asm_py import Node
 from asm_py.protocol import Kind, Message, Method, encode
 from bench._processes import Child, free_port
-from bench._robot import BusRobot
 from gaits.deploy import deploy
 from gaits.model import LIBRARY, load
 from server.bridge import CanZenohBridge
@@ -47,8 +47,8 @@ MODULES = [module_name(i) for i in range(1, 9)]
 
 
 def estop_runaway_ms() -> float:
-    robot = BusRobot(2)
-    tool = robot.tool("tool", 200)
+    robot = BusRobot(2, watch_bus=False)
+    tool = robot.tool("tool", 200, faulty=False)
     try:
         fastest = Program((Mode((ModeState(30.0, MIN_DURATION), ModeState(-30.0, MIN_DURATION))),))
         runaway, wedged = robot.runtimes
@@ -81,7 +81,7 @@ def estop_runaway_ms() -> float:
 
 
 def deploy_seconds(faults: dict | None, rounds: int = 7) -> list[float]:
-    robot = BusRobot(8, faults=faults)
+    robot = BusRobot(8, faults=faults, watch_bus=False)
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     bridge = CanZenohBridge({"interface": "asm_sim", "channel": robot.channel, **robot.options},
                             network=ZenohOptions(listen=(endpoint,)))  # fmt: skip
@@ -105,7 +105,7 @@ def deploy_seconds(faults: dict | None, rounds: int = 7) -> list[float]:
 
 
 def tables_read_at_loss() -> int:
-    robot = BusRobot(8, faults=LOSSY)
+    robot = BusRobot(8, faults=LOSSY, watch_bus=False)
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     began = time.monotonic()
     bridge = CanZenohBridge({"interface": "asm_sim", "channel": robot.channel, **robot.options},

@@ -25,11 +25,11 @@ from pathlib import Path
 # bench/ holds a can.py: keep this directory off the path, or "import can" would import that script.
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+from asm_module.bus_robot import BusRobot as Robot
 from asm_py import Event
 from asm_py.node import Node
 from asm_py.transport.zenoh import ZenohTransport
 from bench._processes import free_port
-from bench._robot import BusRobot as Robot
 from server.bridge import CanZenohBridge
 from server.realtime import prefer_latency
 from server.zenoh_args import ZenohOptions
@@ -117,7 +117,7 @@ def flood(endpoint: str, mode: str, seconds: float, never: tuple[int, int]) -> s
 
 def main() -> None:
     prefer_latency()
-    robot = Robot(8, heartbeat_period=0.5)
+    robot = Robot(8, heartbeat_period=0.5, watch_bus=False)
     never = Event("never", codec="float32")  # a WAIT on it is never answered
     for node in robot.nodes:
         node.register(never)

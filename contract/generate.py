@@ -183,7 +183,7 @@ def c_core(core: dict[str, Any]) -> str:
 def _descriptor(spec: str) -> bytes:
     """The codec descriptor (§2) of a codec spec, as asm_py's codecs write it."""
     sys.path.insert(0, str(ROOT))
-    from asm_py.codec import parse_codec
+    from asm_py.codec_parse import parse_codec
 
     return parse_codec(spec).descriptor()
 

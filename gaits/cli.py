@@ -18,7 +18,7 @@ from .table import format_table
 
 
 def main(argv: list[str] | None = None) -> int:
-    cli = argparse.ArgumentParser(prog="gaits", description=__doc__.splitlines()[0])
+    cli = argparse.ArgumentParser(prog="gaits", description=(__doc__ or "").splitlines()[0])
     commands = cli.add_subparsers(dest="command", required=True)
     validate = commands.add_parser("validate", help="check gait files")
     validate.add_argument("files", nargs="+")

@@ -152,8 +152,8 @@ class _Writer:
         for level, k in enumerate(backward, start=depth + 1):
             back = 0.0 if k == root else -lengths[k]  # b(k) is framed at hinge k + 1, except the root
             self.emit(level, f'<body name="b{k - 1}" pos="{_f(back)} 0 0">')
-            axis = tuple(-a for a in self.axis(k - 1))
-            self.hinge(level + 1, k, axis, limits)  # type: ignore[arg-type]
+            x, y, z = self.axis(k - 1)
+            self.hinge(level + 1, k, (-x, -y, -z), limits)
             self.segment(level + 1, f"b{k - 1}", lengths[k - 1], masses[k - 1], -1.0)
         self.close_bodies(depth + 1, len(backward))
         self.emit(depth, "</body>")

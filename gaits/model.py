@@ -91,7 +91,7 @@ class Automaton:
         """Seconds per cycle, or None when a state waits for an event or the automaton is one-shot."""
         if self.one_shot or any(s.duration is None or s.until is not None for s in self.states):
             return None
-        return math.fsum(s.duration for s in self.states)  # type: ignore[misc]
+        return math.fsum(s.duration for s in self.states if s.duration is not None)
 
 
 @dataclass
@@ -147,10 +147,10 @@ class Gait:
     @property
     def period(self) -> float:
         """Seconds per cycle of its periodic time-driven automata (ValueError when it has none)."""
-        periods = {a.period for a in self.automata.values()} - {None}
+        periods = {p for a in self.automata.values() if (p := a.period) is not None}
         if len(periods) != 1:
             raise ValueError("the gait has no periodic time-driven automaton, so no fixed period")
-        return periods.pop()  # type: ignore[return-value]
+        return periods.pop()
 
     @property
     def timed(self) -> bool:
@@ -221,7 +221,12 @@ def from_dict(data: Any, *, source: str = "<gait>", text: str | None = None) -> 
     low, high = limits.get("min", -90.0), limits.get("max", 90.0)
     if not low < high:
         bad("limits", f"min must be below max, not {low}..{high}")
-    ground = Ground(**{k: (tuple(v) if k == "anisotropic" else v) for k, v in data.get("ground", {}).items()})
+    ground_data = data.get("ground", {})
+    anisotropic = ground_data.get("anisotropic")
+    ground = Ground(
+        friction=ground_data.get("friction", Ground.friction),
+        anisotropic=None if anisotropic is None else (anisotropic[0], anisotropic[1]),  # the schema: two numbers
+    )
 
     automata: dict[str, Automaton] = {}
     for name, auto in data["automata"].items():

@@ -7,7 +7,10 @@ names the same gait on every module. A neighbour's state, named in the file by n
 
 from __future__ import annotations
 
-from asm_module.program import Mode, ModeState, Program, Until
+from typing import Literal
+
+from asm_module.program import EVENTS, Mode, ModeState, Program, Until
+from asm_py.automaton import interpolation_of
 
 from .model import FORWARD, Automaton, Gait, State, state_index
 
@@ -20,7 +23,7 @@ DEFAULT_THRESHOLD = 1.0
 def _until(gait: Gait, gait_name: str, module_id: int, state: State) -> Until | None:
     if state.until is None:
         return None
-    outcome = state.on_timeout or "next"
+    outcome: Literal["next", "stop"] = "stop" if state.on_timeout == "stop" else "next"
     if state.until == "at_goal":
         return Until("at_goal", DEFAULT_TOLERANCE if state.tolerance is None else state.tolerance, on_timeout=outcome)
     if state.until == "torque":
@@ -33,14 +36,17 @@ def _until(gait: Gait, gait_name: str, module_id: int, state: State) -> Until | 
         return Until("neighbour", neighbour=offset, state=index, on_timeout=outcome)
     if state.until == "signal":
         return Until("signal", state=state.signal or 0, on_timeout=outcome)
-    return Until(state.until, on_timeout=outcome)  # type: ignore[arg-type]
+    for event in EVENTS:  # the loader checked the name against the same list
+        if event == state.until:
+            return Until(event, on_timeout=outcome)
+    raise ValueError(f"unknown event {state.until!r}")
 
 
 def _mode(gait: Gait, gait_name: str, module_id: int) -> Mode:
     assignment = gait.assignment(module_id, gait_name)
     automaton: Automaton = gait.automata[assignment.automaton]
-    states = tuple(ModeState(s.angle, s.duration, s.interpolation, _until(gait, gait_name, module_id, s),  # type: ignore[arg-type]
-                             s.emit or 0) for s in automaton.states)  # fmt: skip
+    states = tuple(ModeState(s.angle, s.duration, interpolation_of(s.interpolation),
+                             _until(gait, gait_name, module_id, s), s.emit or 0) for s in automaton.states)  # fmt: skip
     return Mode(states, assignment.phase, assignment.direction, automaton.one_shot)
 
 

@@ -23,12 +23,10 @@ import numpy as np
 
 from asm_module import JointDriver, JointReading, LocalNeighbours, ModuleRuntime
 from asm_module.c_module import CModule
-from asm_module.gait_service import SWITCH
+from asm_module.module import Module
 from asm_module.names import module_name
 from asm_py import Event, Node
 from asm_py.clock import SimClock
-from asm_py.codec import FLOAT32, INT8, UINT8
-from asm_py.protocol import Method
 
 from .deploy import module_tables
 from .mjcf import Physics, build_mjcf
@@ -178,8 +176,8 @@ class Simulation:
     ``direction`` -1 runs every module's automaton backwards (the gait's own directions, negated). ``node_of``
     gives each module runtime its ASM node (a robot process puts them on a bus); without it they have none.
     ``c_modules`` (IDs) run the C runtime instead (asm_module.c_module), on the python-can bus ``bus_options`` opens —
-    or, without one, on the in-process hub the Python modules of a preview share — ticked by the same tick event;
-    they have no Python runtime in ``modules`` (:meth:`goal` and :meth:`angle` read either kind).
+    or, without one, on the in-process hub the Python modules of a preview share — ticked by the same tick event.
+    ``modules`` holds both kinds, driven through one interface (asm_module.module.Module).
     ``lock`` guards the model and data: the stepping thread holds it per control period, and a module's joint
     driver takes it, so a request arriving on a bus thread never touches MjData in the middle of a step.
     """
@@ -214,25 +212,27 @@ class Simulation:
         self._floor = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_GEOM, "floor")
         self._module_of_body = self._module_bodies()
         self._root = int(self.model.joint("root").bodyid[0])  # the body with the free joint (mjcf chose it)
-        self.modules: dict[int, ModuleRuntime] = {}
-        self.c_modules: dict[int, CModule] = {}
+        self.modules: dict[int, Module] = {}
+        """Every module by ID, Python or C: driven through the one interface (asm_module.module)."""
+        self._nodes: list[Node] = []
         self._push: tuple[float, np.ndarray] | None = None
         self.peak_torque = 0.0
         self._started = False
         hub = LocalNeighbours() if node_of is None else None  # without a bus, neighbours are heard in-process
         for assignment in gait.modules:
+            driver = MujocoJoint(self, assignment.id)
             if assignment.id in c_modules:
-                self.c_modules[assignment.id] = CModule(module_name(assignment.id), assignment.id,
-                                                        driver=MujocoJoint(self, assignment.id), clock=self.clock,
-                                                        tick=self.tick, hardware_range=gait.limits,
-                                                        hub=hub if bus_options is None else None,
-                                                        **dict(bus_options or {}))  # fmt: skip
+                self.modules[assignment.id] = CModule(module_name(assignment.id), assignment.id, driver=driver,
+                                                      clock=self.clock, tick=self.tick, hardware_range=gait.limits,
+                                                      hub=hub if bus_options is None else None,
+                                                      **dict(bus_options or {}))  # fmt: skip
                 continue
             node = node_of(assignment.id) if node_of is not None else None
-            runtime = ModuleRuntime(MujocoJoint(self, assignment.id), node=node, clock=self.clock, tick=self.tick,
-                                    limits=gait.limits, ramp=ramp, inline=True, module_id=assignment.id,
-                                    neighbours=hub)  # fmt: skip
-            self.modules[assignment.id] = runtime
+            if node is not None:
+                self._nodes.append(node)
+            self.modules[assignment.id] = ModuleRuntime(driver, node=node, clock=self.clock, tick=self.tick,
+                                                        limits=gait.limits, ramp=ramp, inline=True,
+                                                        module_id=assignment.id, neighbours=hub)  # fmt: skip
         mujoco.mj_forward(self.model, self.data)
 
     def _module_bodies(self) -> np.ndarray:
@@ -251,52 +251,31 @@ class Simulation:
         """Load every module's table, phase and direction as a deployment would, then start all gaits at t."""
         tables = module_tables(self.gait)
         for assignment in self.gait.modules:
-            direction = assignment.direction * self.direction
-            if assignment.id in self.c_modules:  # as its own program would: the same checks, no bus round trip
-                c_module = self.c_modules[assignment.id]
-                c_module.local(Method.SET, "gait.table", tables[assignment.id])
-                c_module.local(Method.SET, "gait.phase", FLOAT32.encode(assignment.phase))
-                c_module.local(Method.SET, "gait.direction", INT8.encode(direction))
-                continue
-            runtime = self.modules[assignment.id]
-            runtime.table.set(tables[assignment.id])
-            runtime.phase.set(assignment.phase)
-            runtime.gait.direction.set(direction)
-        for runtime in self.modules.values():
-            runtime.gait.start()
-        for c_module in self.c_modules.values():
-            c_module.local(Method.START, "gait.service")
+            self.modules[assignment.id].load_gait(tables[assignment.id], assignment.phase,
+                                                  assignment.direction * self.direction)  # fmt: skip
+        for module in self.modules.values():
+            module.start_gait()
         self.clock.settle()
         self._started = True
 
     def drive(self, gait: str, direction: int = 1) -> None:
         """Switch every module to program gait ``gait`` (``direction`` -1: backwards) at the next cycle boundary,
         as a deployed robot's Drive does (one ``gait.switch`` per module, the same on each)."""
-        switch = {"mode": mode_index(self.gait, gait), "direction": direction, "after": self.clock.now()}
-        for runtime in self.modules.values():
-            if not runtime.gait.started:  # driving a stopped robot starts it (in its first gait) first
-                runtime.gait.start()
-        for c_module in self.c_modules.values():
-            if not c_module.gait_running():
-                c_module.local(Method.START, "gait.service")
-        for runtime in self.modules.values():
-            runtime.gait.switch.set(switch)
-        for c_module in self.c_modules.values():
-            c_module.local(Method.SET, "gait.switch", SWITCH.encode(switch))
+        mode, after = mode_index(self.gait, gait), self.clock.now()
+        for module in self.modules.values():  # driving a stopped robot starts it (in its first gait) first
+            module.start_gait()
+        for module in self.modules.values():
+            module.switch_mode(mode, direction, after)
 
     def signal(self, number: int) -> None:
         """Broadcast signal ``number`` to every module, as a tool's group SET of ``gait.signal`` does on a bus."""
-        for runtime in self.modules.values():
-            runtime.gait.signal.set(number)
-        for c_module in self.c_modules.values():
-            c_module.local(Method.SET, "gait.signal", UINT8.encode(number))
+        for module in self.modules.values():
+            module.hear_signal(number)
 
     def stop_gaits(self) -> None:
         """Stop every module's gait: the joints hold their last goals (the Drive panel's stop)."""
-        for runtime in self.modules.values():
-            runtime.gait.stop(timeout=5.0)
-        for c_module in self.c_modules.values():
-            c_module.local(Method.STOP, "gait.service")
+        for module in self.modules.values():
+            module.stop_gait()
 
     def push(self, force: tuple[float, float, float], seconds: float) -> None:
         """Apply ``force`` (N, world frame) at the root body's centre of mass for ``seconds`` from now."""
@@ -340,16 +319,12 @@ class Simulation:
             self.trace.goals.append([self.goal(a.id) for a in self.gait.modules])
 
     def goal(self, module_id: int) -> float:
-        """What module ``module_id`` commands its joint to now (a Python or a C module)."""
-        if module_id in self.c_modules:
-            return self.c_modules[module_id].goal
-        return float(self.modules[module_id].goal.peek())
+        """What module ``module_id`` commands its joint to now."""
+        return self.modules[module_id].goal_now()
 
     def angle(self, module_id: int) -> float:
-        """Module ``module_id``'s joint.angle, as the module last read it (a Python or a C module)."""
-        if module_id in self.c_modules:
-            return self.c_modules[module_id].angle
-        return float(self.modules[module_id].angle.peek())
+        """Module ``module_id``'s joint.angle, as the module last read it."""
+        return self.modules[module_id].angle_now()
 
     def advance(self, seconds: float) -> None:
         end = self.data.time + seconds - 1e-9
@@ -401,17 +376,14 @@ class Simulation:
         return self.measure(start, seconds, (warmup + seconds) / wall if wall > 0 else 0.0)
 
     def latched(self) -> list[int]:
-        """The modules whose e-stop is latched, C modules included."""
-        python = [i for i, r in self.modules.items() if r.latched]
-        return sorted(python + [i for i, c in self.c_modules.items() if c.latched])
+        """The modules whose e-stop is latched."""
+        return sorted(i for i, module in self.modules.items() if module.latched)
 
     def close(self) -> None:
-        for c_module in self.c_modules.values():
-            c_module.close()
-        for runtime in self.modules.values():
-            runtime.close()
-            if runtime.node is not None:
-                runtime.node.close()
+        for module in self.modules.values():
+            module.close()
+        for node in self._nodes:
+            node.close()
 
     def __enter__(self) -> Simulation:
         return self

@@ -11,7 +11,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 
-from asm_py.automaton import PhaseState, reference_at, state_starts
+from asm_py.automaton import PhaseState, interpolation_of, scalar_reference_at, state_starts
 
 from .model import Assignment, Automaton, Gait, State
 
@@ -20,7 +20,7 @@ def phase_states(automaton: Automaton) -> list[PhaseState]:
     """The automaton's states as the module runtime runs them (degrees, seconds)."""
     if automaton.period is None:
         raise ValueError(f"automaton {automaton.name!r} waits for events: it has no fixed timing to expand")
-    return [PhaseState(s.angle, s.duration, s.interpolation) for s in automaton.states]  # type: ignore[arg-type]
+    return [PhaseState(s.angle, s.duration or 0.0, interpolation_of(s.interpolation)) for s in automaton.states]
 
 
 def angle_at(gait: Gait, module_id: int, t: float) -> float:
@@ -28,8 +28,8 @@ def angle_at(gait: Gait, module_id: int, t: float) -> float:
     assignment = gait.assignment(module_id)
     states = phase_states(gait.automata[assignment.automaton])
     period = math.fsum(s.duration for s in states)
-    return float(
-        reference_at(states, state_starts(states), period, assignment.phase * period + assignment.direction * t)
+    return scalar_reference_at(
+        states, state_starts(states), period, assignment.phase * period + assignment.direction * t
     )
 
 
@@ -42,7 +42,7 @@ def expand(gait: Gait, *, samples: int = 16, periods: float = 1.0) -> tuple[list
     for assignment in gait.modules:
         states = phase_states(gait.automata[assignment.automaton])
         starts = state_starts(states)
-        rows.append([float(reference_at(states, starts, period, assignment.phase * period + assignment.direction * t))
+        rows.append([scalar_reference_at(states, starts, period, assignment.phase * period + assignment.direction * t)
                      for t in times])  # fmt: skip
     return times, rows
 

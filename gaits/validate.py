@@ -104,8 +104,12 @@ def _range(schema: dict[str, Any]) -> str:
 
 def _problems(error: ValidationError) -> Iterator[tuple[list[str | int], str]]:
     """One schema error as (path, message) pairs, worded for a person editing the file."""
-    path = list(error.absolute_path)
-    kind, value, schema, instance = error.validator, error.validator_value, error.schema, error.instance
+    path: list[str | int] = list(error.absolute_path)
+    # jsonschema types these as "maybe unset" for errors built by hand; a validator's own errors always set them.
+    kind: Any = error.validator
+    value: Any = error.validator_value
+    schema: Any = error.schema
+    instance: Any = error.instance
     if "propertyNames" in error.schema_path:  # a table key (an automaton's name) that breaks the rules for names
         yield [*path, instance], f"names must be 1 to 64 characters long, not {len(instance)}"
     elif kind == "additionalProperties" and value is False:

@@ -42,6 +42,7 @@ from asm_py.keys import DEFAULT_ROBOT, RobotKeys, concrete, lab_estop, last, spl
 from asm_py.node import Node
 from asm_py.protocol import (
     HEADER_SIZE,
+    MAX_ERROR_TEXT,
     MAX_MESSAGE,
     VERSION,
     Kind,
@@ -54,7 +55,7 @@ from asm_py.protocol import (
     version_of,
     with_txn,
 )
-from asm_py.remote import RemoteObject, make_client
+from asm_py.remote import RemoteAttribute, RemoteObject, make_client
 from asm_py.transport.can import CanTransport, group_id, message_priority
 
 from .bridge_clients import DEFAULT_FRAME_RATE, ClientTable, Pacer, Refusal
@@ -310,7 +311,7 @@ class CanZenohBridge:
         except Refusal as refusal:
             self.forwarded["refused"] += 1
             if wants_reply and refusal.status is not None:
-                reply = reply_head(data, refusal.status) + refusal.text.encode("utf-8")[:120]
+                reply = reply_head(data, refusal.status) + refusal.text.encode("utf-8")[:MAX_ERROR_TEXT]
                 query.reply(self._reply_key(mirror, query), reply)
             query.drop()
             return
@@ -383,8 +384,10 @@ class CanZenohBridge:
         if obj is None:
             return
         self.session.put(self.keys.publication(mirror.name, obj.name), data)
+        if not isinstance(obj, RemoteAttribute):  # only attributes and events publish; a JSON view needs a codec
+            return
         try:
-            value = obj.codec.decode(data[4:])  # type: ignore[attr-defined]  # published objects are attributes
+            value = obj.codec.decode(data[4:])
         except ValueError:
             return
         view = {"node": mirror.name, "object": obj.name, "class": obj.info.class_name, "seq": txn_of(data),
@@ -433,7 +436,7 @@ def add_bus_arguments(cli: argparse.ArgumentParser) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    cli = argparse.ArgumentParser(prog="asm-bridge", description=__doc__.splitlines()[0])
+    cli = argparse.ArgumentParser(prog="asm-bridge", description=(__doc__ or "").splitlines()[0])
     cli.add_argument("--can", type=can_channel, required=True, metavar="INTERFACE:CHANNEL")
     add_bus_arguments(cli)
     cli.add_argument("--robot-name", type=name, default=DEFAULT_ROBOT,

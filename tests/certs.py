@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import datetime
 import ipaddress
+import json
 from pathlib import Path
 
 from cryptography import x509
@@ -63,3 +64,27 @@ class Authority:
         )
         cert_path.write_bytes(cert.public_bytes(serialization.Encoding.PEM))
         return key_path, cert_path
+
+
+TEMPLATE = Path(__file__).resolve().parent.parent / "docs" / "zenoh-secure.json5"
+"""The documented secure Zenoh configuration (docs/security.md) that secure_config fills in."""
+
+
+def secure_config(
+    folder: Path,
+    authority: Authority,
+    common_name: str,
+    addresses: tuple[str, ...] = (),
+    operators: tuple[str, ...] = (),
+) -> str:
+    """The documented template, filled in for a certificate ``common_name`` issued by ``authority`` (valid for
+    ``addresses`` too); ``operators``: more common names the access control allows."""
+    key, cert = authority.issue(common_name, addresses)
+    text = TEMPLATE.read_text().replace("ROOT_CA", str(authority.path))
+    text = text.replace("PRIVATE_KEY", str(key)).replace("CERTIFICATE", str(cert))
+    if operators:
+        text = text.replace('cert_common_names: ["robot", "operator"]',
+                            f"cert_common_names: {json.dumps(['robot', 'operator', *operators])}")  # fmt: skip
+    path = folder / f"{common_name}.json5"
+    path.write_text(text)
+    return str(path)

@@ -4,6 +4,14 @@ from __future__ import annotations
 
 import threading
 import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+"""The repository."""
+VECTORS = ROOT / "tests" / "vectors"
+"""The golden vectors every implementation checks (Python, C)."""
+ARTIFACTS = ROOT / "tests" / "artifacts"
+"""Screenshots and logs a test leaves for a person to look at."""
 
 
 def run_in_thread(target, *args) -> tuple[threading.Thread, dict]:

@@ -7,23 +7,21 @@ second panel over the 3D view's lower left shows the plots and the gait control 
 E-STOP: confirmations are rows of the panel (web/confirm.py), and Escape presses E-STOP from anywhere
 (web/page_script.py).
 
-Everything the page does to a robot goes through its link (web/link.py), which the page swaps when the user picks
-another robot. Every callback either takes the document's lock or queues a request to the preview loop, and is
-wrapped so that an exception becomes a notification in the page, never a dead server.
+The dashboard builds the page (web/page.py) and the panels, answers the page events that are the page's own
+(attach another robot, show the preview or the live robot), and runs three threads: drawing the 3D view, a 20 Hz
+refresh from what is known, and a 1 Hz poll of the robot. Panels see only the Page.
 """
 
 from __future__ import annotations
 
 import contextlib
-import functools
 import logging
 import threading
 import time
-from collections.abc import Callable, Iterator
-from typing import Any, Protocol
+from collections.abc import Callable
+from typing import Any
 
-from asm_module.feed import RobotStatus
-from gaits.model import Gait
+from viser._messages import HotkeyKey, KeyModifier
 
 from .deploy_panel import DeployPanel
 from .document import GaitDocument
@@ -33,44 +31,18 @@ from .guard import AccessGuard, guarded_server
 from .link import RobotLink
 from .live import KinematicTwin
 from .monitor_panel import MonitorPanel
+from .page import Backend, Page
 from .preview import PreviewLoop, SceneView
 from .preview_panel import PreviewPanel
 from .robot_bar import RobotBar
 
+__all__ = ["Backend", "Dashboard"]
+
 log = logging.getLogger("asm_studio.web")
-TOAST_SECONDS = 6.0
 PANEL_WIDTH, PANEL_HEIGHT = 560, 330
 """The table-and-plots panel, floating over the 3D view's lower left (it fits a 1366×768 screen beside the side
 panel)."""
 MIN_DRAW_INTERVAL = 1 / 100
-
-
-class Backend(Protocol):
-    """What the page needs of the backend that builds it (server.studio.Studio is one): the page imports nothing
-    of server/, so the two never import each other."""
-
-    gait: Gait
-    """The gait opened at start."""
-    gait_text: str | None
-    """The text of its file (a download keeps its comments)."""
-    c_modules: str | None
-    """The simulated modules that run the C runtime ("odd", "even", "all", "1,3,5"), in the robot and the preview."""
-
-    @property
-    def simulated(self) -> bool:
-        """The robot shown is simulated (it publishes poses); else a real bus."""
-
-    def connect(self, robot: str) -> RobotLink:
-        """A new link to robot ``robot``."""
-
-    def robots(self) -> list[RobotStatus]:
-        """The robots on the network now."""
-
-    def ensure_robot(self, gait: Gait) -> str | None:
-        """Make a simulated robot the one ``gait`` describes; a message when it was rebuilt."""
-
-    def on_notice(self, callback: Callable[[str, str, bool], None]) -> None:
-        """Call ``callback(title, text, error)`` with what the backend has to say."""
 
 
 class Dashboard:
@@ -80,24 +52,19 @@ class Dashboard:
         self, studio: Backend, link: RobotLink, *, host: str = "127.0.0.1", port: int = 8080, token: str | None = None
     ) -> None:
         self.studio = studio
-        self.link = link
         self.guard = AccessGuard(host, token)
         self.server = guarded_server(self.guard, host=host, port=port, label="ASM Studio", verbose=False)
         self.port = self.server.get_port()
         self.doc = GaitDocument(studio.gait, text=studio.gait_text)
         self.loop = PreviewLoop(studio.gait, c_modules=studio.c_modules)
         self.view = SceneView(self.server, self.loop, link.feed)
-        self.view.on_pick = self.pick_module
+        self.page = Page(self.server, studio, link, self.doc, self.loop, self.view)
+        self.view.on_pick = lambda module_id: self.page.emit("pick", module_id)
         self.twin: KinematicTwin | None = None
         self._stop = threading.Event()
-        self._programmatic = threading.local()
-        self._last_toast: tuple[tuple[str, str], float] | None = None
-        self.toasts = 0
-        """Toasts sent (a repeat within TOAST_SECONDS is not)."""
-        self._rebuild_lock = threading.RLock()
         self._link_lock = threading.Lock()
         self._build()
-        studio.on_notice(lambda title, text, error: self.notify(title, text, error=error))
+        studio.on_notice(lambda title, text, error: self.page.notify(title, text, error=error))
         self.server.on_client_connect(self._frame_camera)
         self._threads = [threading.Thread(target=self._render, name="studio-render", daemon=True),
                          threading.Thread(target=self._refresh, name="studio-refresh", daemon=True),
@@ -105,55 +72,10 @@ class Dashboard:
         for thread in self._threads:
             thread.start()
 
-    # -- helpers --------------------------------------------------------------------------------------------------
-
-    def safe(self, fn: Callable[..., Any]) -> Callable[[Any], None]:
-        """A callback whose failure is shown as a notification instead of escaping into viser's thread pool."""
-
-        @functools.wraps(fn)
-        def wrapped(event: Any) -> None:
-            try:
-                fn(event)
-            except Exception as exc:
-                log.info("action failed: %s", exc)
-                self.notify("Error", str(exc), error=True)
-
-        return wrapped
-
-    def pick_module(self, module_id: int) -> None:
-        """A module clicked in the 3D view: select it in the editor, the preview's plot and the attribute browser."""
-        modules = self.doc.data()["modules"]
-        index = next((k for k, m in enumerate(sorted(modules, key=lambda m: m["id"])) if m["id"] == module_id), None)
-        if index is not None:
-            self.editor.module_index.value = index + 1  # its callback resyncs the editor (and the control table)
-        if module_id <= self.preview.plot_module.max:
-            self.preview.plot_module.value = module_id
-        self.monitor.select(f"m{module_id}")
-        self.status.content = f"Selected module {module_id}"
-
     @property
-    def status(self) -> Any:
-        """The status line (the robot bar's)."""
-        return self.bar.status
-
-    def notify(self, title: str, body: str, *, error: bool = False) -> None:
-        """Say it in the status line, and as a toast unless the same toast went out less than TOAST_SECONDS ago
-        (typing into a field with a problem used to pile up one toast per keystroke)."""
-        self.status.content = f"**{title}**: {body}"
-        now = time.monotonic()
-        last = self._last_toast
-        if last is not None and last[0] == (title, body) and now - last[1] < TOAST_SECONDS:
-            return
-        self._last_toast = ((title, body), now)
-        self.toasts += 1
-        for client in self.server.get_clients().values():
-            client.add_notification(title, body, color="red" if error else "blue", auto_close_seconds=TOAST_SECONDS)
-
-    def resolved(self, title: str, now: str) -> None:
-        """The problem the status line reports under ``title`` is gone: say ``now`` instead (one status, current)."""
-        if self.status.content.startswith(f"**{title}**"):
-            self.status.content = now
-            self._last_toast = None
+    def link(self) -> RobotLink:
+        """The robot the page shows and commands now."""
+        return self.page.robot
 
     def _frame_camera(self, client: Any) -> None:
         """Look at the robot from close enough to see its modules move."""
@@ -165,32 +87,37 @@ class Dashboard:
     # -- layout ---------------------------------------------------------------------------------------------------
 
     def _build(self) -> None:
-        gui = self.server.gui
+        gui, page = self.server.gui, self.page
         gui.configure_theme(control_width="large", show_share_button=False)  # a page that commands a robot
-        self.bar = RobotBar(self)  # E-STOP first: above every tab
+        self.bar = RobotBar(page)  # E-STOP first: above every tab
         gui.main_panel.dock_right()
         self.panel = gui.add_panel()
-        self.plots_tab = self.panel.add_tab("Plots")  # first: what the page shows at once
-        self.table_tab = self.expanded_tab = self.panel.add_tab("Control table")
+        plots_tab = self.panel.add_tab("Plots")  # first: what the page shows at once
+        table_tab = self.panel.add_tab("Control table")
         self.panel.float(x=12, y=-12, width=PANEL_WIDTH, height=PANEL_HEIGHT)
         tabs = gui.add_tab_group()
         with tabs.add_tab("Gait"):
-            self.editor = GaitEditor(self, initial=self.studio.gait.name)
+            self.editor = GaitEditor(page, self.studio.gait.name, table_tab, table_tab)
         with tabs.add_tab("Preview"):
-            self.preview = PreviewPanel(self, self.plots_tab)
+            self.preview = PreviewPanel(page, plots_tab)
         with tabs.add_tab("Deploy"):
-            self.deployer = DeployPanel(self)
+            self.deployer = DeployPanel(page)
         with tabs.add_tab("Drive"):
-            self.drive = DrivePanel(self)
+            self.drive = DrivePanel(page)
         with tabs.add_tab("Monitor"):
-            self.monitor = MonitorPanel(self, self.plots_tab)
+            self.monitor = MonitorPanel(page, plots_tab)
+        page.on("attach", self.attach)
+        page.on("show", self.show)
+        page.on("deployed", lambda gait: self.show("live"))
+        page.on("plotted", self.panel.expand)
+        page.on("pick", lambda module_id: setattr(page.status, "content", f"Selected module {module_id}"))
         self._build_keys()
         self.editor.sync()
 
     def _build_keys(self) -> None:
         """Keyboard shortcuts, as viser's command-palette hotkeys (a key typed into a field stays the field's; the
         E-STOP's Escape is the page script's, which no field keeps)."""
-        keys = (
+        keys: tuple[tuple[str, HotkeyKey, KeyModifier | None, Callable[[], object]], ...] = (
             ("Play / pause the preview", "space", None, lambda: self.loop.request("play", not self.loop.playing)),
             ("Step the preview back", "arrowleft", "shift", lambda: self.loop.request("step", -1)),
             ("Step the preview forward", "arrowright", "shift", lambda: self.loop.request("step", 1)),
@@ -198,34 +125,13 @@ class Dashboard:
             ("Redo", "Z", "cmd/ctrl+shift", lambda: self.editor.history("Redo")),
         )
 
-        def add(label: str, key: str, action: Any, modifier: str | None = None) -> None:
-            command = self.server.gui.add_command(label, hotkey=key, modifier=modifier)  # type: ignore[arg-type]  # viser's Literal of keys
-            command.on_trigger(self.safe(lambda _: action()))
+        def add(label: str, key: HotkeyKey, action: Any, modifier: KeyModifier | None = None) -> None:
+            command = self.server.gui.add_command(label, hotkey=key, modifier=modifier)
+            command.on_trigger(self.page.safe(lambda _: action()))
 
         for label, key, modifier, action in keys:
             add(label, key, action, modifier)
         self.drive.bind_keys(add)  # the arrow keys drive
-
-    @contextlib.contextmanager
-    def programmatic(self) -> Iterator[None]:
-        """Controls set by the server (not the user) inside this block: their update callbacks do nothing.
-
-        viser calls a control's callbacks synchronously, in the thread that sets its value: the flag is that
-        thread's alone. (It was one flag for the process: a user's edit arriving on viser's thread pool while the
-        20 Hz refresh was setting the timeline was taken for the server's own and silently dropped.) The lock
-        keeps the editor's resync and the refresh from interleaving."""
-        with self._rebuild_lock:
-            outer = self.syncing
-            self._programmatic.active = True
-            try:
-                yield
-            finally:
-                self._programmatic.active = outer
-
-    @property
-    def syncing(self) -> bool:
-        """True in a thread that is setting controls itself (see :meth:`programmatic`)."""
-        return getattr(self._programmatic, "active", False)
 
     # -- which robot, which view ----------------------------------------------------------------------------------
 
@@ -233,14 +139,13 @@ class Dashboard:
         """Show and command robot ``robot`` from now on (a new link; the old one is closed)."""
         with self._link_lock:
             new = self.studio.connect(robot)
-            old, self.link = self.link, new
-            self.deployer.relink()
-            self.monitor.relink()
+            old = self.page.relink(new)
+            self.page.emit("relinked")
             self.twin = None
             self.view.live = new.feed
             self.view.set_source(self.view.source)
         old.close()
-        self.notify("Robot", f"now showing and commanding robot {robot!r}")
+        self.page.notify("Robot", f"now showing and commanding robot {robot!r}")
 
     def show(self, source: str) -> None:
         """Show the "preview" or the "live" robot in the 3D view (and say which, under the buttons).
@@ -249,7 +154,7 @@ class Dashboard:
         modules' joint.angle publications (made once, on the first look)."""
         if source == "live" and not self.studio.simulated and self.twin is None:
             self.twin = KinematicTwin(self.doc.gait())
-            self.twin.follow(self.link.feed, self.link.node)
+            self.twin.follow(self.link.feed, self.link.lookup)
         self.view.set_source(source)
         # the preview simulation pauses while the live robot is shown (its CPU is the live view's), and plays again
         self.loop.request("play", source == "preview")
@@ -297,11 +202,11 @@ class Dashboard:
         self.bar.tick()
         self.preview.refresh()
         loop = self.loop
-        with self.programmatic():
-            self.drive.sync(loop.sim.gait)
+        with self.page.programmatic():
+            self.drive.sync(loop.gait)
         shown = loop.shown()
         with contextlib.suppress(ValueError):  # a gait with no single period has no cursor
-            self.editor.draw_control_table(cursor=None if shown is None else shown.time / loop.sim.gait.period)
+            self.editor.draw_control_table(cursor=None if shown is None else shown.time / loop.gait.period)
         self.monitor.refresh()
 
     def close(self) -> None:

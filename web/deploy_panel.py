@@ -20,35 +20,36 @@ from gaits.model import Gait
 from .confirm import InlineConfirm
 
 if TYPE_CHECKING:
-    from .app import Dashboard
+    from .page import Page
 
 LOG_LINES = 500
 """Lines the deploy log keeps (it scrolls)."""
 
 
 class DeployPanel:
-    """The Deploy tab of ``app``; see the module docstring."""
+    """The Deploy tab of ``page``; see the module docstring."""
 
-    def __init__(self, app: Dashboard) -> None:
-        self.app = app
-        gui = app.server.gui
+    def __init__(self, page: Page) -> None:
+        self.page = page
+        gui = page.gui
         self.intro = gui.add_markdown("")
         self._describe_target()
         self.button = gui.add_button("Deploy")
-        self.button.on_click(app.safe(lambda _: self.on_deploy()))
-        self.confirm = InlineConfirm(gui, app.safe)
+        self.button.on_click(page.safe(lambda _: self.on_deploy()))
+        self.confirm = InlineConfirm(gui, page.safe)
         self.lease_md = gui.add_markdown("")
         self.progress = gui.add_progress_bar(0.0)
         self.log_html = gui.add_html("")
         self._lines: list[str] = []
         self.run_buttons = gui.add_button_group("Modules", ["Start all", "Stop all"])
-        self.run_buttons.on_click(app.safe(self.on_run))
+        self.run_buttons.on_click(page.safe(self.on_run))
         self._staged: DeployReport | None = None
         self._staged_lock = threading.Lock()
+        page.on("relinked", self.relink)
 
     def _describe_target(self) -> None:
-        target = "the simulated modules" if self.app.studio.simulated else "the modules on the REAL CAN bus"
-        self.intro.content = (f"Deploy the edited gait to {target} of robot **{self.app.link.robot}**: validate, "
+        target = "the simulated modules" if self.page.simulated else "the modules on the REAL CAN bus"
+        self.intro.content = (f"Deploy the edited gait to {target} of robot **{self.page.robot.robot}**: validate, "
                               "stage it beside the running gait and verify each checksum (nothing moves yet); then, "
                               "when you say Start, switch every module with one broadcast and confirm each — all or "
                               "nothing.")  # fmt: skip
@@ -60,11 +61,11 @@ class DeployPanel:
         self.lease_md.content = ""
 
     def on_deploy(self) -> None:
-        gait = self.app.doc.gait()  # GaitError (shown) if the edited gait is invalid
-        self.app.link.require("deploy")
-        if not self.app.studio.simulated:
+        gait = self.page.doc.gait()  # GaitError (shown) if the edited gait is invalid
+        self.page.robot.require("deploy")
+        if not self.page.simulated:
             wanted = {module_name(a.id) for a in gait.modules}
-            others = [n for n in self.app.link.alive_modules() if n not in wanted]
+            others = [n for n in self.page.robot.alive_modules() if n not in wanted]
             question = f"Deploy {gait.name} to the {gait.robot.modules} modules of the REAL robot?"
             if others:
                 question += (f" ⚠ {', '.join(others)} on the bus are not in this gait: they keep running what they "
@@ -101,59 +102,52 @@ class DeployPanel:
 
     def stage(self, gait: Gait) -> DeployReport:
         """Deploy steps 1-3 (lease, stage, verify); the DeployReport to start from, still holding the lease."""
-        app = self.app
+        page, robot = self.page, self.page.robot
 
         def progress(done: int, total: int, message: str) -> None:
             self.progress.value = 100.0 * done / total
             self.log(message)
 
         self.progress.value = 0.0
-        self.log(f"— deploy {gait.name} to robot {app.link.robot} at {time.strftime('%H:%M:%S')} —")
-        rebuilt = app.studio.ensure_robot(gait)  # the simulated robot becomes the edited one
+        self.log(f"— deploy {gait.name} to robot {robot.robot} at {time.strftime('%H:%M:%S')} —")
+        rebuilt = page.ensure_robot(gait)  # the simulated robot becomes the edited one
         if rebuilt:
             self.log(rebuilt)
             wanted = {module_name(a.id) for a in gait.modules}
-            removed = [n for n in app.link.modules() if n not in wanted]
-            app.link.roster.forget(removed)
-            for plot in app.monitor.plots:
-                plot.forget(removed)
-            deadline = time.monotonic() + 30.0
-            while not wanted <= set(app.link.node.discover()) and time.monotonic() < deadline:
-                time.sleep(0.1)
-        report = app.link.stage(gait, progress)
+            removed = [n for n in robot.modules() if n not in wanted]
+            robot.forget(removed)
+            page.emit("modules_removed", removed)
+            robot.await_modules(wanted, timeout=30.0)
+        report = robot.stage(gait, progress)
         self.log(_staged(gait, report) + "; nothing moves until Start (the deploy lease is held until then)")
-        app.notify("Staged", _staged(gait, report))
+        page.notify("Staged", _staged(gait, report))
         return report
 
     def start(self, gait: Gait, report: DeployReport) -> None:
         """Deploy steps 4-5: one broadcast activates the staged gait; each module confirms; the view goes Live."""
-        app = self.app
         with self._staged_lock:
             self._staged = None
-        report = app.link.start(report)
-        app.drive.deployed = gait
+        report = self.page.robot.start(report)
         self.log(f"started: {len(report.running)} of {gait.robot.modules} modules confirmed running {gait.name}")
-        app.notify("Deployed", f"{_staged(gait, report)}; "
-                   f"{len(report.running)} of {gait.robot.modules} confirmed running it")  # fmt: skip
-        for assignment in gait.modules[:4]:
-            app.monitor.plot.watch(module_name(assignment.id), "joint.angle")
-        app.show("live")
+        self.page.notify("Deployed", f"{_staged(gait, report)}; "
+                         f"{len(report.running)} of {gait.robot.modules} confirmed running it")  # fmt: skip
+        self.page.emit("deployed", gait)
 
     def on_run(self, event: Any) -> None:
-        app = self.app
+        page = self.page
         if event.target.value == "Start all":
-            names = [module_name(a.id) for a in app.doc.gait().modules]
-            running = app.link.start_all(names)
-            app.notify("Modules", f"{len(running)} of {len(names)} modules confirmed running")
+            names = [module_name(a.id) for a in page.doc.gait().modules]
+            running = page.robot.start_all(names)
+            page.notify("Modules", f"{len(running)} of {len(names)} modules confirmed running")
         else:
-            app.link.stop_all()
-            app.notify("Modules", "stop sent to every module")
+            page.robot.stop_all()
+            page.notify("Modules", "stop sent to every module")
 
     def poll_lease(self) -> None:
         """Say who holds the robot's deploy lease (once a second, from the page's refresh)."""
         with self._staged_lock:
             mine = self._staged is not None
-        holder = None if mine else self.app.link.lease_holder()
+        holder = None if mine else self.page.robot.lease_holder()
         if mine:
             text = "Deploy lease: **held by this page** until you Start or Cancel"
         elif holder:

@@ -25,6 +25,9 @@ EVENT_FIELDS = ("tolerance", "threshold", "neighbour", "state", "on_timeout", "s
 TYPING = 1.0
 """Seconds between two edits of one field that still count as typing one value (one undo step)."""
 
+Snapshot = tuple[dict[str, Any], str | None]
+"""One undo step: the gait's data and the file text it was opened from."""
+
 
 class GaitDocument:
     """An editable gait with undo/redo; thread-safe (viser runs GUI callbacks on a thread pool)."""
@@ -34,11 +37,11 @@ class GaitDocument:
         self._clock = clock
         self._last_edit: tuple[Any, float] | None = None
         """(what was edited, when): the next edit of the same field within TYPING seconds joins its undo step."""
-        self._data = to_dict(gait)
+        self._data: dict[str, Any] = to_dict(gait)
         self._source: str | None = text
         """The TOML text the gait was opened from: saving keeps its comments and layout (gaits.roundtrip)."""
-        self._undo: list[tuple[dict[str, Any], str | None]] = []
-        self._redo: list[tuple[dict[str, Any], str | None]] = []
+        self._undo: list[Snapshot] = []
+        self._redo: list[Snapshot] = []
         self._valid: Gait | None = gait
         self.problems: list[Problem] = []
         self.version = 0
@@ -255,7 +258,7 @@ class GaitDocument:
     def redo(self) -> bool:
         return self._travel(self._redo, self._undo)
 
-    def _travel(self, source: list[dict[str, Any]], target: list[dict[str, Any]]) -> bool:
+    def _travel(self, source: list[Snapshot], target: list[Snapshot]) -> bool:
         """Go back to the newest state of ``source``, keeping the present on ``target``; False if none."""
         with self._lock:
             if not source:
@@ -274,7 +277,7 @@ class GaitDocument:
             now = self._clock()
             typing = (field is not None and self._last_edit is not None and self._last_edit[0] == field
                       and now - self._last_edit[1] < TYPING and self._undo and not self._redo)  # fmt: skip
-            before = (copy.deepcopy(self._data), self._source)
+            before: Snapshot = (copy.deepcopy(self._data), self._source)
             edit(self._data)
             if opened:  # a gait opened in place of this one: its own file's text (or none)
                 self._source = text

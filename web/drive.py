@@ -11,12 +11,14 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
+from viser._messages import HotkeyKey
+
 from asm_module.names import module_name
 from gaits.drive import STOP
 from gaits.model import FORWARD, Gait
 
 if TYPE_CHECKING:
-    from .app import Dashboard
+    from .page import Page
 
 COMMANDS: dict[str, tuple[str, int]] = {
     "▲ Forward": (FORWARD, 1),
@@ -26,32 +28,33 @@ COMMANDS: dict[str, tuple[str, int]] = {
     "■ Stop": (STOP, 1),
 }
 """Button label → (program gait, direction)."""
-KEYS: dict[str, str] = {"arrowup": "▲ Forward", "arrowleft": "◀ Left", "arrowright": "▶ Right",
+KEYS: dict[HotkeyKey, str] = {"arrowup": "▲ Forward", "arrowleft": "◀ Left", "arrowright": "▶ Right",
                         "arrowdown": "▼ Reverse", "S": "■ Stop"}  # fmt: skip
 
 
 class DrivePanel:
     """The Drive tab's controls; ``command`` is what the buttons and the keys call."""
 
-    def __init__(self, app: Dashboard) -> None:
-        self.app = app
-        gui = app.server.gui
+    def __init__(self, page: Page) -> None:
+        self.page = page
+        gui = page.gui
         gui.add_markdown("Drive the running program: the modules switch gait together at their next cycle "
                          "boundary, without stopping. Keys: ↑ forward, ← left, → right, ↓ reverse, S stop. "
                          "It drives what the View shows: the Preview, or the deployed robot (Live).")  # fmt: skip
         self.buttons = gui.add_button_group("Drive", list(COMMANDS))
-        self.buttons.on_click(app.safe(lambda e: self.command(e.target.value)))
+        self.buttons.on_click(page.safe(lambda e: self.command(e.target.value)))
         self.gaits = gui.add_dropdown("Program gait", [FORWARD])
         go = gui.add_button_group("Run gait", ["Run forwards", "Run backwards"])
-        go.on_click(app.safe(lambda e: self.run(self.gaits.value, -1 if "back" in e.target.value else 1)))
+        go.on_click(page.safe(lambda e: self.run(self.gaits.value, -1 if "back" in e.target.value else 1)))
         self.signal = gui.add_number("Signal", initial_value=1, step=1,
                                      hint="broadcast 1..255, for states that wait on it (until = signal)")  # fmt: skip
-        gui.add_button("Send signal").on_click(app.safe(lambda _: self.send_signal(int(self.signal.value))))
+        gui.add_button("Send signal").on_click(page.safe(lambda _: self.send_signal(int(self.signal.value))))
         self.state = gui.add_markdown("")
         self.deployed: Gait | None = None
         """The gait last deployed to the robot (the one its modules' programs come from)."""
+        page.on("deployed", lambda gait: setattr(self, "deployed", gait))
 
-    def bind_keys(self, add: Callable[[str, str, Any], None]) -> None:
+    def bind_keys(self, add: Callable[[str, HotkeyKey, Any], None]) -> None:
         for key, label in KEYS.items():
             add(f"Drive: {label[2:].lower()}", key, lambda label=label: self.command(label))
 
@@ -70,31 +73,31 @@ class DrivePanel:
         SET of gait.signal, as a module's emitting state sends it)."""
         if not 1 <= number <= 255:
             raise ValueError(f"a signal is numbered 1..255, not {number}")
-        if self.app.view.source == "live":
-            self.app.link.signal(number)
+        if self.page.view.source == "live":
+            self.page.robot.signal(number)
             self.state.content = f"Robot: signal **{number}** sent to every module"
         else:
-            self.app.loop.request("signal", number)
+            self.page.loop.request("signal", number)
             self.state.content = f"Preview: signal **{number}** sent to every module"
 
     def run(self, name: str, direction: int = 1) -> None:
-        app = self.app
-        live = app.view.source == "live"
-        gait = (self.deployed or app.doc.gait()) if live else app.loop.sim.gait
+        page = self.page
+        live = page.view.source == "live"
+        gait = (self.deployed or page.doc.gait()) if live else page.loop.gait
         if name not in (STOP, *gait.program_gaits()):
             raise ValueError(f"{gait.name} has no {name!r} gait: add [gaits.{name}] to the file (see "
                              "steerable_caterpillar in the library)")  # fmt: skip
         what = "stop" if name == STOP else f"{name}{' (backwards)' if direction < 0 else ''}"
         if not live:
-            app.loop.request("drive", (name, direction))
+            page.loop.request("drive", (name, direction))
             self.state.content = f"Preview: **{what}** at the next cycle boundary"
             return
         names = [module_name(a.id) for a in gait.modules]
         self.state.content = f"Robot: switching to **{what}** …"
         try:
-            confirmed = app.link.drive(gait, name, names, direction)
+            confirmed = page.robot.drive(gait, name, names, direction)
         except Exception as exc:
             self.state.content = f"Robot: **{what}** refused: {exc}"
             raise
         self.state.content = f"Robot: **{what}**, confirmed by {len(confirmed)} of {len(names)} modules"
-        app.notify("Drive", f"{what}: {len(confirmed)} of {len(names)} modules confirmed")
+        page.notify("Drive", f"{what}: {len(confirmed)} of {len(names)} modules confirmed")

@@ -32,17 +32,18 @@ from .monitor import empty_plot, seconds_axes, stroke
 from .program_editor import EventControls, ProgramPanel
 
 if TYPE_CHECKING:
-    from .app import Dashboard
+    from .page import Page
 
 
 class GaitEditor:
-    """The controls of the Gait tab of ``app``; see the module docstring."""
+    """The controls of the Gait tab of ``page``; the control table and the expanded table go into the page's
+    floating panel (``table_tab``, ``expanded_tab``). See the module docstring."""
 
-    def __init__(self, app: Dashboard, initial: str) -> None:
-        self.app = app
-        self.doc = app.doc
-        gui = app.server.gui
-        safe = app.safe
+    def __init__(self, page: Page, initial: str, table_tab: Any, expanded_tab: Any) -> None:
+        self.page = page
+        self.doc = page.doc
+        gui = page.gui
+        safe = page.safe
         names = sorted(p.stem for p in LIBRARY.glob("*.toml"))
         self.library = gui.add_dropdown("Library", names, initial_value=initial if initial in names else names[0])
         gui.add_button("Open from library").on_click(
@@ -55,9 +56,9 @@ class GaitEditor:
         gui.add_button("Download .toml").on_click(safe(lambda e: e.client.send_file_download(
             f"{self.doc.gait().name}.toml", self.doc.text().encode(), save_immediately=True)))  # fmt: skip
         self.problems = gui.add_markdown("")
-        self.tools = GaitTools(gui, self.doc, edited=self.after_edit, safe=safe, syncing=lambda: app.syncing)
+        self.tools = GaitTools(gui, self.doc, edited=self.after_edit, safe=safe, syncing=lambda: page.syncing)
         grid_folder = gui.add_folder("States")
-        self.grid = StateGrid(app.server, grid_folder, on_edit=self._on_grid, syncing=lambda: app.syncing, safe=safe)
+        self.grid = StateGrid(page.server, grid_folder, on_edit=self._on_grid, syncing=lambda: page.syncing, safe=safe)
         with gui.add_folder("Selected state"):
             self.automaton = gui.add_dropdown("Automaton", ["-"])
             self.state_index = gui.add_slider("State", min=1, max=2, step=1, initial_value=1)
@@ -67,7 +68,7 @@ class GaitEditor:
             self.duration = gui.add_number("Duration (s)", initial_value=0.1, step=0.005)
             self.interp = gui.add_dropdown("Interpolation", ["linear", "step"])
             selected = lambda: (self.automaton.value, int(self.state_index.value) - 1)  # noqa: E731
-            self.events = EventControls(gui, self.doc, edited=self.after_edit, safe=safe, syncing=lambda: app.syncing,
+            self.events = EventControls(gui, self.doc, edited=self.after_edit, safe=safe, syncing=lambda: page.syncing,
                                         selected=selected)  # fmt: skip
             self.state_problem = gui.add_markdown("")
             states = gui.add_button_group("Edit states", ["Insert after", "Remove"])
@@ -78,7 +79,7 @@ class GaitEditor:
             self.module_automaton = gui.add_dropdown("Runs", ["-"])
             self.module_problem = gui.add_markdown("")
         with gui.add_folder("Program", expand_by_default=False):
-            self.program = ProgramPanel(gui, self.doc, edited=self.after_edit, safe=safe, syncing=lambda: app.syncing)
+            self.program = ProgramPanel(gui, self.doc, edited=self.after_edit, safe=safe, syncing=lambda: page.syncing)
         with gui.add_folder("Robot"):
             self.modules = gui.add_number("Modules", initial_value=8, step=1, hint=f"1..{MODULE_IDS[-1]}")
             self.shape = gui.add_dropdown("Shape", SHAPES)
@@ -88,20 +89,20 @@ class GaitEditor:
             self.friction = gui.add_number("Friction", initial_value=1.0, step=0.05, hint="in (0, 10]")
             self.robot_problem = gui.add_markdown("")
         self.table_html = gui.add_html("")
-        with app.table_tab:  # beside the 3D view, in the page's own panel, not in the side panel
+        with table_tab:  # beside the 3D view, in the page's own panel, not in the side panel
             gui.add_markdown("Modules 1… top to bottom, one period across; blue −, red + (full at the limits); "
                              "black: where the preview is; framed: the selected module")  # fmt: skip
             self.control = gui.add_image(control_table([], (-90.0, 90.0)), label=None, format="png")
         self._table: tuple[list[list[float]], tuple[float, float]] = ([], (-90.0, 90.0))
         self._table_drawn: tuple[int, int | None, int | None] | None = None
-        with app.expanded_tab:
+        with expanded_tab:
             self.expanded = gui.add_uplot(data=empty_plot(2), series=({"label": "t"}, {"label": "m1"}),
                                           title="Expanded table: commanded angle per module", aspect=2.2,
                                           **seconds_axes("degrees"))  # fmt: skip
 
         def field(setter: Callable[[Any], None]) -> Callable[[Any], None]:
             def callback(event: Any) -> None:
-                if not app.syncing:
+                if not page.syncing:
                     setter(event.target.value)
                     self.after_edit()
 
@@ -127,32 +128,40 @@ class GaitEditor:
         for control, name, convert in robot_fields:
             control.on_update(field(lambda v, name=name, convert=convert: self.doc.set_robot(name, convert(v))))
         for control in (self.automaton, self.state_index, self.module_index):
-            control.on_update(safe(lambda _: None if app.syncing else self.sync()))
+            control.on_update(safe(lambda _: None if page.syncing else self.sync()))
         states.on_click(safe(self._on_states))
+        page.on("pick", self.pick)
 
     # -- actions --------------------------------------------------------------------------------------------------
+
+    def pick(self, module_id: int) -> None:
+        """A module clicked in the 3D view: select it (its callback resyncs the editor and the control table)."""
+        modules = sorted(self.doc.data()["modules"], key=lambda m: m["id"])
+        index = next((k for k, m in enumerate(modules) if m["id"] == module_id), None)
+        if index is not None:
+            self.module_index.value = index + 1
 
     def open_file(self, path: Path) -> None:
         """Open a gait file, keeping its text so that a download keeps its comments."""
         self.doc.load_text(path.read_bytes(), source=path.name)
         self.after_edit()
         gait = self.doc.gait()
-        self.app.notify("Opened", f"{gait.name}: {gait.robot.modules}-module {gait.robot.shape}")
+        self.page.notify("Opened", f"{gait.name}: {gait.robot.modules}-module {gait.robot.shape}")
 
     def open(self, gait: Any) -> None:
         self.doc.replace(gait)
         self.after_edit()
-        self.app.notify("Opened", f"{gait.name}: {gait.robot.modules}-module {gait.robot.shape}")
+        self.page.notify("Opened", f"{gait.name}: {gait.robot.modules}-module {gait.robot.shape}")
 
     def _on_upload(self, event: Any) -> None:
         file = event.target.value
         try:
             self.doc.load_text(file.content, source=file.name[:100])  # bytes: the loader reports bad UTF-8 itself
         except GaitError as exc:
-            self.app.notify("Invalid gait file", "; ".join(exc.lines()[:5]), error=True)
+            self.page.notify("Invalid gait file", "; ".join(exc.lines()[:5]), error=True)
             return
         self.after_edit()
-        self.app.notify("Opened", file.name)
+        self.page.notify("Opened", file.name)
 
     def _on_history(self, event: Any) -> None:
         self.history(event.target.value)
@@ -161,7 +170,7 @@ class GaitEditor:
         """``Undo`` or ``Redo`` one step (the History buttons and Ctrl+Z / Ctrl+Shift+Z)."""
         moved = self.doc.undo() if kind == "Undo" else self.doc.redo()
         if not moved:
-            self.app.notify("History", f"nothing to {kind.lower()}")
+            self.page.notify("History", f"nothing to {kind.lower()}")
         self.after_edit()
 
     def _on_states(self, event: Any) -> None:
@@ -174,7 +183,7 @@ class GaitEditor:
 
     def _on_grid(self, automaton: str, index: int, changes: dict[str, float]) -> None:
         """A grid row changed: select that state in the cell editor too, and apply the change."""
-        with self.app.programmatic():
+        with self.page.programmatic():
             self.automaton.value = automaton
             self.state_index.max = max(2, index + 1, int(self.state_index.max))
             self.state_index.value = index + 1
@@ -184,16 +193,16 @@ class GaitEditor:
     def after_edit(self) -> None:
         self.sync()
         if self.doc.problems:
-            self.app.notify("Invalid", page_label(self.doc.problems[0]), error=True)
+            self.page.notify("Invalid", page_label(self.doc.problems[0]), error=True)
             return
-        self.app.resolved("Invalid", f"Edited: {self.doc.gait().name} is valid again")
-        self.app.loop.request("load", self.doc.gait())  # an edit re-previews at once
+        self.page.resolved("Invalid", f"Edited: {self.doc.gait().name} is valid again")
+        self.page.loop.request("load", self.doc.gait())  # an edit re-previews at once
 
     # -- showing the document -------------------------------------------------------------------------------------
 
     def sync(self) -> None:
         """Set every control from the document."""
-        with self.app.programmatic():
+        with self.page.programmatic():
             self._sync_controls()
 
     def _sync_controls(self) -> None:
@@ -242,7 +251,7 @@ class GaitEditor:
         if not self.doc.problems and not self.doc.gait().timed:  # events decide its timing: no table to expand
             self._table = ([], self.doc.gait().limits)
             self.draw_control_table(force=True)
-            with self.app.server.atomic():
+            with self.page.atomic():
                 self.expanded.series = ({"label": "t"}, {"label": "(event-driven: see the preview)"})
                 self.expanded.data = empty_plot(2)
         elif not self.doc.problems:
@@ -251,7 +260,7 @@ class GaitEditor:
             self._table = (rows, gait.limits)
             self.draw_control_table(force=True)
             times, rows = times[::2], [row[::2] for row in rows]
-            with self.app.server.atomic():  # as many series as arrays, whenever the page applies them
+            with self.page.atomic():  # as many series as arrays, whenever the page applies them
                 self.expanded.series = ({"label": "t"}, *({"label": f"m{k + 1}", "stroke": stroke(k)}
                                                           for k in range(len(rows))))  # fmt: skip
                 self.expanded.data = (np.asarray(times), *(np.asarray(r) for r in rows))

@@ -65,7 +65,7 @@ class AccessGuard:
 
     def names(self) -> set[str]:
         """The Host header values this server answers to (what an Origin must name)."""
-        hosts = set(LOOPBACK_NAMES)
+        hosts: set[str] = set(LOOPBACK_NAMES)
         if not is_loopback(self.host) and self.host not in ("0.0.0.0", "::", ""):
             hosts.add(self.host)
         return {f"{h}:{self.port}" for h in hosts}
@@ -123,7 +123,7 @@ class AccessGuard:
 def _with_page_script(response: Response) -> Response:
     """The page with the studio's script and style in it (web/page_script.py)."""
     gzipped = response.headers.get("Content-Encoding") == "gzip"
-    body = inject(response.body, gzipped=gzipped)
+    body = inject(bytes(response.body), gzipped=gzipped)
     headers = Headers(response.headers)
     del headers["Content-Length"]  # a Headers item set twice holds both values
     headers["Content-Length"] = str(len(body))
@@ -154,14 +154,15 @@ class _Namespace:
 
 def guarded_server(guard: AccessGuard, **options: Any) -> viser.ViserServer:
     """A ViserServer whose every request passes ``guard`` first."""
-    real = viser_infra.websockets
+    # viser imports websockets into its _infra module without re-exporting it; the shim swaps that one name
+    real: Any = getattr(viser_infra, "websockets")  # noqa: B009  (a name the module does not export)
     shim = _Namespace(real, asyncio=_Namespace(real.asyncio, server=_ServerModule(guard)))
     with _STARTING:
-        viser_infra.websockets = shim  # type: ignore[attr-defined]
+        setattr(viser_infra, "websockets", shim)  # noqa: B010
         try:
             server = viser.ViserServer(**options)
         finally:
-            viser_infra.websockets = real  # type: ignore[attr-defined]
+            setattr(viser_infra, "websockets", real)  # noqa: B010
     guard.port = server.get_port()
     wanted = options.get("port", 0)
     if wanted and guard.port != wanted:  # viser moves to the next free port; a user who asked for one means it

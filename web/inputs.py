@@ -49,11 +49,20 @@ class ValueInput:
         elif self.kind == "float" and math.isfinite(float(value)):
             self.handle = gui.add_number(label, initial_value=float(value), step=0.001)
         elif self.kind == "float_array" and info.get("length") in (2, 3) and all(map(math.isfinite, value)):
-            add = gui.add_vector2 if info["length"] == 2 else gui.add_vector3
-            self.handle = add(label, tuple(float(v) for v in value), step=0.001)
+            v = [float(x) for x in value]
+            if len(v) == 2:
+                self.handle = gui.add_vector2(label, (v[0], v[1]), step=0.001)
+            else:
+                self.handle = gui.add_vector3(label, (v[0], v[1], v[2]), step=0.001)
         else:
             self.kind = "text"
             self.handle = gui.add_text(label, initial_value=_as_text(value))
+
+    def _attribute(self) -> RemoteAttribute:
+        """The object as the attribute it is: Monitor makes inputs for attributes and services only."""
+        if not isinstance(self.obj, RemoteAttribute):
+            raise TypeError(f"{self.obj.name} is not an attribute")
+        return self.obj
 
     def write(self) -> Any:
         """Set the remote attribute to the page's value (start or stop a service) and wait for it; returns it."""
@@ -64,12 +73,12 @@ class ValueInput:
             else:
                 self.obj.stop(wait=True)
         else:
-            self.obj.set(value, wait=True)  # type: ignore[attr-defined]
+            self._attribute().set(value, wait=True)
         return value
 
     def refresh(self) -> Any:
         """Fetch the remote value (or whether a service runs), show it in the input and return it."""
-        value = self.obj.running if isinstance(self.obj, RemoteService) else self.obj.peek()  # type: ignore[attr-defined]
+        value = self.obj.running if isinstance(self.obj, RemoteService) else self._attribute().peek()
         self.show(value)
         return value
 
@@ -77,7 +86,7 @@ class ValueInput:
         """The value in the page, as the attribute's codec takes it (ValueError/TypeError if it cannot be)."""
         value = self.handle.value
         if self.kind == "text":
-            return parse_value(self.obj, value)  # type: ignore[arg-type]
+            return parse_value(self._attribute(), value)
         if self.kind == "float_array":
             value = tuple(float(v) for v in value)
         if isinstance(self.obj, RemoteAttribute):

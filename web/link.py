@@ -147,6 +147,19 @@ class RobotLink:
         names = [name for name, _, _ in self.roster.rows() if name.startswith("m") and name[1:].isdigit()]
         return sorted(names, key=lambda n: int(n[1:]))
 
+    def forget(self, names: Sequence[str]) -> None:
+        """Nodes closed on purpose (a rebuilt robot): no longer listed, not even as lost."""
+        self.roster.forget(list(names))
+
+    def await_modules(self, names: set[str], timeout: float) -> bool:
+        """Wait up to ``timeout`` for discovery to list every one of ``names``; whether it did."""
+        deadline = time.monotonic() + timeout
+        while not names <= set(self.node.discover()):
+            if time.monotonic() >= deadline:
+                return False
+            time.sleep(0.1)
+        return True
+
     def alive_modules(self) -> list[str]:
         return [n for n in self.roster.alive() if n.startswith("m") and n[1:].isdigit()]
 

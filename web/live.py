@@ -13,6 +13,8 @@ import logging
 import threading
 import time
 from collections import deque
+from collections.abc import Callable
+from typing import Any
 
 import mujoco
 import numpy as np
@@ -45,7 +47,7 @@ class LiveFeed:
         self._want_model = threading.Event()
         self._want_model.set()
         self._stop = threading.Event()
-        self._removers: list[object] = []
+        self._removers: list[Callable[[], object]] = []
         self._subs = [session.declare_subscriber(poses_key(name), self._on_poses),
                       session.declare_subscriber(status_key(name), self._on_status)]  # fmt: skip
         self._fetcher = threading.Thread(target=self._fetch_models, name="live-model", daemon=True)
@@ -115,7 +117,7 @@ class LiveFeed:
             self.latest = frame
         self._changed.set()
 
-    def keep(self, remover: object) -> None:
+    def keep(self, remover: Callable[[], object]) -> None:
         """Keep a subscription's remover, called on close."""
         self._removers.append(remover)
 
@@ -138,7 +140,7 @@ class LiveFeed:
         self._stop.set()
         for remove in self._removers:
             try:
-                remove()  # type: ignore[operator]
+                remove()
             except Exception:
                 log.debug("unsubscribe failed", exc_info=True)
         for sub in self._subs:
@@ -174,8 +176,9 @@ class KinematicTwin:
         self._seq += 1
         return PoseFrame(self._seq, time, data.xpos[1:].copy(), data.xquat[1:].copy(), simulated=False)
 
-    def follow(self, feed: LiveFeed, node: object) -> None:
-        """Subscribe to every module's ``joint.angle`` through ``node`` and pose ``feed`` at each publication."""
+    def follow(self, feed: LiveFeed, lookup: Callable[..., Any]) -> None:
+        """Subscribe to every module's ``joint.angle`` (``lookup(node, name, timeout=…)``: RobotLink.lookup,
+        Node.lookup) and pose ``feed`` at each publication."""
         lock = threading.Lock()
         start = time.monotonic()
 
@@ -187,7 +190,7 @@ class KinematicTwin:
 
         for module_id in self._qpos:
             try:
-                remote = node.lookup(module_name(module_id), "joint.angle", timeout=2.0)  # type: ignore[attr-defined]
+                remote = lookup(module_name(module_id), "joint.angle", timeout=2.0)
             except Exception as exc:  # a module not on the bus: its joint stays at 0
                 log.info("kinematic twin: no joint.angle of %s (%s)", module_name(module_id), exc)
                 continue

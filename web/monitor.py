@@ -66,8 +66,8 @@ class Roster:
                     self._gait_objects[name] = tuple(self.node.lookup(name, o, timeout=timeout)
                                                      for o in ("gait.service", "gait.state", "estop"))  # fmt: skip
                 service, state, estop = self._gait_objects[name]
-                running, index = bool(service.running), state.peek()  # type: ignore[union-attr]
-                latched = bool(estop.peek())  # type: ignore[union-attr]
+                running, index = bool(service.running), state.peek()
+                latched = bool(estop.peek())
             except Exception:  # not a module (a bridge, a tool) or gone: no gait column, look it up again next time
                 self._gait_objects.pop(name, None)
                 continue
@@ -109,11 +109,16 @@ class Roster:
         self._unlisten()
 
 
-class LivePlot:
-    """Bounded time series of remote attributes, filled by their publications."""
+Lookup = Callable[..., Any]
+"""``lookup(node, name, timeout=…)``: a client object (RobotLink.lookup, Node.lookup)."""
 
-    def __init__(self, node: Node) -> None:
-        self.node = node
+
+class LivePlot:
+    """Bounded time series of remote attributes, filled by their publications (looked up with ``lookup``, which
+    the page swaps for the new robot's)."""
+
+    def __init__(self, lookup: Lookup) -> None:
+        self.lookup = lookup
         self._lock = threading.Lock()
         self.series: dict[tuple[str, str], deque[tuple[float, float]]] = {}
         self._unsubscribe: dict[tuple[str, str], Callable[[], None]] = {}
@@ -126,7 +131,7 @@ class LivePlot:
         key = (module, attribute)
         if key in self._unsubscribe:
             return
-        remote = self.node.lookup(module, attribute, timeout=timeout)
+        remote = self.lookup(module, attribute, timeout=timeout)
         buffer: deque[tuple[float, float]] = deque(maxlen=PLOT_POINTS)
         with self._lock:
             self.series[key] = buffer
@@ -135,7 +140,7 @@ class LivePlot:
             buffer.append((time.monotonic() - self.t0, float(value)))
             self.received += 1
 
-        self._unsubscribe[key] = remote.on_change(arrived)  # type: ignore[union-attr]
+        self._unsubscribe[key] = remote.on_change(arrived)
 
     def forget(self, modules: list[str]) -> None:
         """Stop plotting every attribute of ``modules``."""

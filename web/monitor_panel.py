@@ -7,11 +7,15 @@ import logging
 import threading
 from typing import TYPE_CHECKING, Any
 
+from asm_module.names import module_name
+
 from .inputs import ValueInput
 from .monitor import PLOT_SECONDS, WINDOWS, LivePlot, SeriesPlot, describe, format_value
 
 if TYPE_CHECKING:
-    from .app import Dashboard
+    from gaits.model import Gait
+
+    from .page import Page
 
 log = logging.getLogger("asm_studio.monitor")
 LIVE_PLOTS = {"Live plot 1": "Live 1: module attributes (from the robot)",
@@ -19,49 +23,63 @@ LIVE_PLOTS = {"Live plot 1": "Live 1: module attributes (from the robot)",
 
 
 class MonitorPanel:
-    """The Monitor tab of ``app``; the live plots it feeds are drawn in the page's plots panel."""
+    """The Monitor tab of ``page``; the live plots it feeds are drawn in the page's plots panel."""
 
-    def __init__(self, app: Dashboard, plots_tab: Any) -> None:
-        self.app = app
-        gui = app.server.gui
-        self.plots = [LivePlot(app.link.node) for _ in LIVE_PLOTS]
+    def __init__(self, page: Page, plots_tab: Any) -> None:
+        self.page = page
+        gui = page.gui
+        self.plots = [LivePlot(page.robot.lookup) for _ in LIVE_PLOTS]
         self.roster_md = gui.add_markdown("")
         with gui.add_folder("Attribute browser"):
             self.browse_module = gui.add_dropdown("Node", ["-"])
             self.browse_object = gui.add_dropdown("Object", ["-"])
-            self.browse_module.on_update(app.safe(lambda _: None if app.syncing else self.list_objects()))
-            self.browse_object.on_update(app.safe(lambda _: None if app.syncing else self._choose()))
+            self.browse_module.on_update(page.safe(lambda _: None if page.syncing else self.list_objects()))
+            self.browse_object.on_update(page.safe(lambda _: None if page.syncing else self._choose()))
             self.browse_value = gui.add_markdown("")
             self.value_folder = gui.add_folder("Value")
             actions = gui.add_button_group("Browse", ["List", "Get", "Set", "Plot"])
-            actions.on_click(app.safe(self._on_browse))
+            actions.on_click(page.safe(self._on_browse))
         self.plot_into = gui.add_dropdown("Plot into", list(LIVE_PLOTS), hint="which live plot Plot adds to")
         self.window = gui.add_dropdown("Window (s)", [f"{w:g}" for w in WINDOWS], initial_value=f"{PLOT_SECONDS:g}")
-        self.window.on_update(app.safe(lambda e: [setattr(p, "window", float(e.target.value)) for p in self.plots]))
+        self.window.on_update(page.safe(lambda e: [setattr(p, "window", float(e.target.value)) for p in self.plots]))
         self.freeze = gui.add_checkbox("Pause the live plots", initial_value=False,
                                        hint="hold the plots still to read them; the samples keep arriving")  # fmt: skip
         clear = gui.add_button_group("Clear", list(LIVE_PLOTS))
-        clear.on_click(app.safe(lambda e: self.plots[list(LIVE_PLOTS).index(e.target.value)].unwatch_all()))
+        clear.on_click(page.safe(lambda e: self.plots[list(LIVE_PLOTS).index(e.target.value)].unwatch_all()))
         # several plots at once, one under the other
         self.lives = [SeriesPlot(gui, plots_tab, title=title, y_label="value", aspect=3.0)
                       for title in LIVE_PLOTS.values()]  # fmt: skip
         self._value_input: ValueInput | None = None
         self._browsing = threading.RLock()  # the user's choices (viser's pool) and the refresh's first listing
+        page.on("relinked", self.relink)
+        page.on("modules_removed", self.forget)
+        page.on("deployed", self.watch_angles)
+        page.on("pick", lambda module_id: self.select(f"m{module_id}"))
 
     @property
     def plot(self) -> LivePlot:
         """The first live plot (a deploy watches the modules' angles in it)."""
         return self.plots[0]
 
+    def watch_angles(self, gait: Gait) -> None:
+        """A gait was deployed: plot its first modules' joint.angle."""
+        for assignment in gait.modules[:4]:
+            self.plot.watch(module_name(assignment.id), "joint.angle")
+
+    def forget(self, modules: list[str]) -> None:
+        """Modules gone for good (the robot was rebuilt smaller): no longer plotted."""
+        for plot in self.plots:
+            plot.forget(modules)
+
     def relink(self) -> None:
         """The page now shows another robot: the plots follow its modules, the browser starts afresh."""
         for plot in self.plots:
             plot.unwatch_all()
-            plot.node = self.app.link.node
+            plot.lookup = self.page.robot.lookup
         if self._value_input is not None:
             self._value_input.remove()
             self._value_input = None
-        with self.app.programmatic():
+        with self.page.programmatic():
             self.browse_module.options = ["-"]
             self.browse_object.options = ["-"]
         self.browse_value.content = ""
@@ -85,7 +103,7 @@ class MonitorPanel:
             self.browse_value.content = f"`{value.obj.name}` set to **{format_value(written)}**"
         else:
             self.plots[list(LIVE_PLOTS).index(self.plot_into.value)].watch(self.browse_module.value, value.obj.name)
-            self.app.panel.expand()
+            self.page.emit("plotted")
 
     def list_objects(self) -> None:
         """List the chosen node's objects and choose the first."""
@@ -101,8 +119,8 @@ class MonitorPanel:
     def _list_objects(self) -> None:
         if self.browse_module.value == "-":
             return
-        objects = self.app.link.list_objects(self.browse_module.value, timeout=2.0)
-        with self.app.programmatic():
+        objects = self.page.robot.list_objects(self.browse_module.value, timeout=2.0)
+        with self.page.programmatic():
             self.browse_object.options = [o.name for o in objects] or ["-"]
         self.browse_value.content = "  \n".join(f"`{o.name}` {describe(o)}" for o in objects)
         if objects:
@@ -119,9 +137,9 @@ class MonitorPanel:
             self._value_input = None
         if self.browse_object.value == "-":
             return
-        obj = self.app.link.lookup(self.browse_module.value, self.browse_object.value, timeout=2.0)
+        obj = self.page.robot.lookup(self.browse_module.value, self.browse_object.value, timeout=2.0)
         with self.value_folder:
-            self._value_input = ValueInput(self.app.server.gui, obj)
+            self._value_input = ValueInput(self.page.gui, obj)
 
     def select(self, module: str) -> None:
         """A module picked elsewhere (the 3D view): browse it."""
@@ -130,11 +148,11 @@ class MonitorPanel:
 
     def refresh(self) -> None:
         """The roster, the browser's node list and the live plots, now (the page's 20 Hz refresh)."""
-        roster = self.app.link.roster
+        roster = self.page.robot.roster
         rows = roster.rows()
         names = [n for n, _, _ in rows]
         if names and list(self.browse_module.options) != names:
-            with self.app.programmatic():
+            with self.page.programmatic():
                 chosen = self.browse_module.value
                 self.browse_module.options = names
             if chosen == "-":  # the first node's objects without a click on List: looked up off the refresh thread

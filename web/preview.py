@@ -78,6 +78,11 @@ class PreviewLoop:
 
     # -- what GUI callbacks call ----------------------------------------------------------------------------------
 
+    @property
+    def gait(self) -> Gait:
+        """The gait the preview simulates now (the last valid edit)."""
+        return self.sim.gait
+
     def request(self, kind: str, value: Any = None) -> None:
         """Queue ``load`` (a Gait), ``play`` (bool), ``speed``, ``seek`` (frame index), ``step`` (±1), ``reset``,
         ``drive`` ((program gait or "stop", direction)), ``signal`` (a broadcast signal number)."""
@@ -370,7 +375,7 @@ class SceneView:
                 half = (float(size[0]), float(size[0]), float(size[1] + size[0]))
             else:
                 continue
-            groups.setdefault(tuple(round(h, 5) for h in half), []).append(g)  # type: ignore[arg-type]
+            groups.setdefault((round(half[0], 5), round(half[1], 5), round(half[2], 5)), []).append(g)
         color = (60, 130, 200) if key[0] == "live" else (217, 140, 38)
         for n, (half, geoms) in enumerate(groups.items()):
             ids = np.array(geoms)
@@ -404,11 +409,11 @@ class SceneView:
                 return None
             return frame, frame.positions, frame.quaternions
         frame = self.loop.shown()
-        data = self._data
-        if frame is None or data is None or len(frame.qpos) != data.qpos.shape[0]:
+        data, model = self._data, self._model
+        if frame is None or data is None or model is None or len(frame.qpos) != data.qpos.shape[0]:
             return None
         data.qpos[:] = frame.qpos
-        mujoco.mj_kinematics(self._model, data)
+        mujoco.mj_kinematics(model, data)
         return frame, data.xpos[1:], data.xquat[1:]
 
     def draw(self) -> bool:
@@ -422,12 +427,12 @@ class SceneView:
             self._label.text = ("LIVE — real robot: kinematic twin from its joint angles, base fixed" if twin
                                 else "LIVE — the robot" if key[0] == "live"
                                 else "PREVIEW — simulation of the edited gait")  # fmt: skip
-        poses = self._poses()
-        if poses is None or poses[0] is self._drawn:
+        poses, built = self._poses(), self._model
+        if poses is None or built is None or poses[0] is self._drawn:
             return False
         self._drawn, xpos, xquat = poses
         shift = np.zeros(3)
-        placed = [(handle, *geom_poses(self._model, xpos, xquat, ids)) for handle, ids in self._batches]
+        placed = [(handle, *geom_poses(built, xpos, xquat, ids)) for handle, ids in self._batches]
         if self.follow and placed:
             shift[:2] = np.concatenate([pos for _, pos, _ in placed])[:, :2].mean(axis=0)
         with self.server.atomic():
@@ -436,7 +441,7 @@ class SceneView:
                 handle.batched_wxyzs = wxyz.astype(np.float32)
             self._ground.position = (-(shift[0] % GRID_CELL), -(shift[1] % GRID_CELL), 0.0)
             if self._labels and self._draws % LABEL_EVERY == 0:
-                anchors = hinge_anchors(self._model, xpos, xquat, self._label_joints) - shift
+                anchors = hinge_anchors(built, xpos, xquat, self._label_joints) - shift
                 for label, anchor in zip(self._labels, anchors, strict=True):
                     label.position = (float(anchor[0]), float(anchor[1]), float(anchor[2]) + 0.04)
         # Send it now: after each send viser waits out a 1/60 s window, and a frame drawn inside that window is

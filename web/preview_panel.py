@@ -9,34 +9,35 @@ from typing import TYPE_CHECKING, Any
 from .monitor import empty_plot, seconds_axes
 
 if TYPE_CHECKING:
-    from .app import Dashboard
+    from .page import Page
 
 
 class PreviewPanel:
-    """The Preview tab of ``app``; its plot is drawn in the page's plots panel."""
+    """The Preview tab of ``page``; its plot is drawn in the page's plots panel."""
 
-    def __init__(self, app: Dashboard, plots_tab: Any) -> None:
-        self.app = app
-        gui = app.server.gui
-        loop, view = app.loop, app.view
+    def __init__(self, page: Page, plots_tab: Any) -> None:
+        self.page = page
+        gui = page.gui
+        loop, view = page.loop, page.view
         self.play = gui.add_button_group("Playback", ["Play", "Pause", "Reset"])
-        self.play.on_click(app.safe(self._on_play))
+        self.play.on_click(page.safe(self._on_play))
         self.speed = gui.add_slider("Speed", min=0.1, max=4.0, step=0.1, initial_value=1.0)
-        self.speed.on_update(app.safe(lambda e: loop.request("speed", e.target.value)))
+        self.speed.on_update(page.safe(lambda e: loop.request("speed", e.target.value)))
         self.timeline = gui.add_slider("Preview timeline (frame)", min=0, max=1, step=1, initial_value=0)
-        self.timeline.on_update(app.safe(self._on_seek))
+        self.timeline.on_update(page.safe(self._on_seek))
         steps = gui.add_button_group("Step", ["◀ back", "forward ▶"])
-        steps.on_click(app.safe(lambda e: loop.request("step", -1 if "back" in e.target.value else 1)))
+        steps.on_click(page.safe(lambda e: loop.request("step", -1 if "back" in e.target.value else 1)))
         rich = gui.add_checkbox("Shadows and reflections", initial_value=False,
                                 hint="nicer, but slow in a browser without a GPU")  # fmt: skip
-        rich.on_update(app.safe(lambda e: view.set_rich(bool(e.target.value))))
+        rich.on_update(page.safe(lambda e: view.set_rich(bool(e.target.value))))
         follow = gui.add_checkbox("Follow the robot", initial_value=True,
                                   hint="keep the robot in the middle; the ground moves under it")  # fmt: skip
-        follow.on_update(app.safe(lambda e: setattr(view, "follow", bool(e.target.value))))
+        follow.on_update(page.safe(lambda e: setattr(view, "follow", bool(e.target.value))))
         labels = gui.add_checkbox("Module labels", initial_value=True, hint="each module's name at its joint")
-        labels.on_update(app.safe(lambda e: view.set_labels(bool(e.target.value))))
+        labels.on_update(page.safe(lambda e: view.set_labels(bool(e.target.value))))
         self.metrics = gui.add_markdown("")
-        self.plot_module = gui.add_slider("Plot module", min=1, max=max(2, app.doc.gait().robot.modules), step=1,
+        page.on("pick", self.pick)
+        self.plot_module = gui.add_slider("Plot module", min=1, max=max(2, page.doc.gait().robot.modules), step=1,
                                           initial_value=1)  # fmt: skip
         with plots_tab:
             self.angles = gui.add_uplot(data=empty_plot(3),
@@ -45,26 +46,31 @@ class PreviewPanel:
                                         title="Preview: joint angle (deg)", aspect=3.0,
                                         **seconds_axes("degrees"))  # fmt: skip
 
+    def pick(self, module_id: int) -> None:
+        """A module clicked in the 3D view: plot its angles."""
+        if module_id <= self.plot_module.max:
+            self.plot_module.value = module_id
+
     def _on_play(self, event: Any) -> None:
         kind = event.target.value
-        self.app.loop.request("reset" if kind == "Reset" else "play", kind == "Play")
+        self.page.loop.request("reset" if kind == "Reset" else "play", kind == "Play")
 
     def _on_seek(self, event: Any) -> None:
-        if not self.app.syncing:  # a user's drag scrubs (and pauses); the refresh moving the slider does not
-            self.app.loop.request("seek", int(event.target.value))
+        if not self.page.syncing:  # a user's drag scrubs (and pauses); the refresh moving the slider does not
+            self.page.loop.request("seek", int(event.target.value))
 
     def refresh(self) -> None:
         """Metrics, timeline and plot from the preview loop, now (the page's 20 Hz refresh)."""
-        app = self.app
-        loop = app.loop
+        page = self.page
+        loop = page.loop
         m = loop.metrics()
         frames = len(loop.frames)
         warning = f"  \n⚠ {loop.error}" if loop.error else ""
         self.metrics.content = (f"Preview: t = {m.seconds:.2f} s · distance **{m.distance:.3f} m** "
                                 f"({m.body_lengths:.2f} BL) · speed **{m.speed:.3f} m/s** · heading {m.heading:.0f}° · "
                                 f"peak torque {m.peak_torque:.2f} N·m{warning}")  # fmt: skip
-        with app.programmatic():
-            modules = max(2, loop.sim.gait.robot.modules)
+        with page.programmatic():
+            modules = max(2, loop.gait.robot.modules)
             if self.plot_module.max != modules:
                 self.plot_module.max = modules
             self.timeline.max = max(1, frames - 1)

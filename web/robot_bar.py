@@ -18,7 +18,7 @@ from .confirm import InlineConfirm
 from .page_script import ESTOP_KEY
 
 if TYPE_CHECKING:
-    from .app import Dashboard
+    from .page import Page
 
 log = logging.getLogger("asm_studio.robots")
 LIST_EVERY = 2.0
@@ -38,23 +38,23 @@ def describe_robot(status: RobotStatus) -> str:
 class RobotBar:
     """See the module docstring; ``tick`` is called by the page's refresh (20 Hz)."""
 
-    def __init__(self, app: Dashboard) -> None:
-        self.app = app
-        gui = app.server.gui
+    def __init__(self, page: Page) -> None:
+        self.page = page
+        gui = page.gui
         self.estop = gui.add_button("E-STOP", color="red", hint=f"stop every module of this robot: gaits stopped, "
                                     f"joints holding (key: {ESTOP_KEY}, from anywhere on the page)")  # fmt: skip
-        self.estop.on_click(app.safe(lambda _: self.press_estop()))
+        self.estop.on_click(page.safe(lambda _: self.press_estop()))
         self.release = gui.add_button("Release e-stop", color="green", hint="let every module move again (asks first)")
-        self.release.on_click(app.safe(lambda _: self.ask_release()))
-        self.confirm = InlineConfirm(gui, app.safe)
-        self.status = gui.add_markdown("Ready.")
+        self.release.on_click(page.safe(lambda _: self.ask_release()))
+        self.confirm = InlineConfirm(gui, page.safe)
+        self.status = page.status = gui.add_markdown("Ready.")
         hint = "the robots on this Zenoh network; the page shows and commands this one"
-        self.robot = gui.add_dropdown("Robot", [app.link.robot], initial_value=app.link.robot, hint=hint)
-        self.robot.on_update(app.safe(self._chosen))
+        self.robot = gui.add_dropdown("Robot", [page.robot.robot], initial_value=page.robot.robot, hint=hint)
+        self.robot.on_update(page.safe(self._chosen))
         self.robots_md = gui.add_markdown("")
         hint = "the edited gait in the preview simulation, or the robot itself"
         self.source = gui.add_button_group("View", ["Preview", "Live"], hint=hint)
-        self.source.on_click(app.safe(lambda e: app.show(e.target.value.lower())))
+        self.source.on_click(page.safe(lambda e: page.emit("show", e.target.value.lower())))
         self.source_md = gui.add_markdown("Showing: **Preview** (the edited gait, simulated here)")
         self.robots: list[RobotStatus] = []
         self._stop = threading.Event()
@@ -65,35 +65,35 @@ class RobotBar:
 
     def press_estop(self) -> None:
         """Stop every module of the robot shown, and say per module what latched."""
-        report = self.app.link.estop()
-        self.app.notify("E-STOP", report.text(), error=True)
+        report = self.page.robot.estop()
+        self.page.notify("E-STOP", report.text(), error=True)
 
     def ask_release(self) -> None:
-        modules = self.app.link.modules()
+        modules = self.page.robot.modules()
         self.confirm.ask(f"Release the emergency stop of every module ({len(modules)})? Joints stay where they hold "
                          "and nothing starts until you start or deploy a gait.", "Yes, release",
                          lambda: self._release(modules))  # fmt: skip
 
     def _release(self, modules: list[str]) -> None:
-        released = self.app.link.release(modules)
-        self.app.notify("E-STOP released", f"released on {len(released)} of {len(modules)} modules")
+        released = self.page.robot.release(modules)
+        self.page.notify("E-STOP released", f"released on {len(released)} of {len(modules)} modules")
 
     # -- the robots of the network --------------------------------------------------------------------------------
 
     def _list_loop(self) -> None:
         while not self._stop.wait(0.0 if not self.robots else LIST_EVERY):
             try:
-                self.robots = self.app.studio.robots()
+                self.robots = self.page.robots()
             except Exception as exc:  # the session closing
                 log.debug("listing the robots failed: %s", exc)
                 self.robots = self.robots or []
                 self._stop.wait(LIST_EVERY)
                 continue
             names = [r.robot for r in self.robots]
-            shown = self.app.link.robot
+            shown = self.page.robot.robot
             if shown not in names:
                 names.append(shown)
-            with self.app.programmatic():
+            with self.page.programmatic():
                 if list(self.robot.options) != names:
                     self.robot.options = names
                 if self.robot.value != shown:
@@ -101,14 +101,14 @@ class RobotBar:
             self.robots_md.content = "  \n".join(describe_robot(r) for r in self.robots) or "no robot answers"
 
     def _chosen(self, event: Any) -> None:
-        if self.app.syncing or event.target.value == self.app.link.robot:
+        if self.page.syncing or event.target.value == self.page.robot.robot:
             return
-        self.app.attach(event.target.value)
+        self.page.emit("attach", event.target.value)
 
     # -- each refresh ---------------------------------------------------------------------------------------------
 
     def tick(self) -> None:
-        link = self.app.link
+        link = self.page.robot
         lost = link.lost()
         status = link.status
         latched = status.estop if status is not None and lost is None else None
@@ -120,8 +120,8 @@ class RobotBar:
             label = "E-STOP"
         if self.estop.label != label:
             self.estop.label = label
-        if self.app.view.source == "live":
-            kind = "simulated" if self.app.studio.simulated else "real: no poses, angles only"
+        if self.page.view.source == "live":
+            kind = "simulated" if self.page.simulated else "real: no poses, angles only"
             shown = f"Showing: **Live** (robot {link.robot}, {kind})"
         else:
             shown = "Showing: **Preview** (the edited gait, simulated here)"
@@ -133,7 +133,7 @@ class RobotBar:
     def _live_line(self, lost: str | None) -> str:
         if lost is not None:
             return f"  \n⚠ **ROBOT LOST**: {lost}. Deploy, start and drive refuse until it is back."
-        link = self.app.link
+        link = self.page.robot
         status = link.status
         if status is None:
             return f"  \nLive: no status from robot {link.robot} yet"

@@ -77,7 +77,7 @@ def _frames(spec: str) -> tuple[int, float]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    cli = argparse.ArgumentParser(prog="asm-busload", description=__doc__.splitlines()[0])
+    cli = argparse.ArgumentParser(prog="asm-busload", description=(__doc__ or "").splitlines()[0])
     cli.add_argument("frames", nargs="+", type=_frames, metavar="BYTESxRATE", help="data bytes x frames per second")
     cli.add_argument("--bitrate", type=bitrate, default=1_000_000, help="nominal bit rate (default 1 Mbit/s)")
     cli.add_argument("--fd", action="store_true", help="CAN FD frames with bit rate switch")

@@ -21,14 +21,17 @@ CLI: ``asm-dbc --nodes 1-8 --tool 254 -o asm.dbc``.
 from __future__ import annotations
 
 import argparse
+import functools
 from collections.abc import Iterable, Mapping
+from enum import IntEnum
 
 from cantools.database.can import Database, Message, Signal
 from cantools.database.conversion import BaseConversion
 
 from ..classes import well_known
 from ..cli import node_id, output_file, run
-from ..codec import Codec, parse_codec
+from ..codec import Codec
+from ..codec_parse import parse_codec
 from ..protocol import Kind, Method, Status
 from .ids import MAX_NODE_ID, MIN_NODE_ID, CanId, Dest, FrameType, Priority, SystemCode
 
@@ -55,7 +58,7 @@ _STRUCT = {"float32": (32, True, True), "float64": (64, True, True), "int8": (8,
 
 def _signal(name: str, start: int, length: int, *, signed: bool = False, is_float: bool = False,
             choices: Mapping[int, str] | None = None, **kw) -> Signal:  # fmt: skip
-    conversion = BaseConversion.factory(scale=1, offset=0, choices=dict(choices) if choices else None,
+    conversion = BaseConversion.factory(scale=1, offset=0, choices=dict(choices) if choices else None,  # pyright: ignore[reportArgumentType]  # cantools' Choices maps to str or NamedSignalValue
                                         is_float=is_float)  # fmt: skip
     return Signal(name, start, length, byte_order="little_endian", is_signed=signed, conversion=conversion, **kw)
 
@@ -66,8 +69,8 @@ def _bytes(prefix: str, first: int, count: int) -> list[Signal]:
     return [_signal(f"{prefix}_{k}", 8 * (first + k), 8) for k in range(count)]
 
 
-def _names(enum: type) -> dict[int, str]:
-    return {int(member): member.name for member in enum}  # type: ignore[attr-defined]
+def _names(enum: type[IntEnum]) -> dict[int, str]:
+    return {int(member): member.name for member in enum}
 
 
 def _header(third: str, *, multiplexed: bool) -> list[Signal]:
@@ -140,7 +143,7 @@ def build(nodes: Iterable[int], tool: int = 254, classes: Mapping[str, str] | No
         add(_frame_id(Priority.REPLY, Dest.NODE, tool, n), f"ASM_REP_N{n}_TO_N{tool}",
             [*_header("status", multiplexed=False), _signal("value_raw", 32, 32)], n,
             f"replies of {n} to {tool}: a reply does not name its class; the request with the same txn does "
-            f"(decode value_raw with that class's codec, e.g. asm_py.codec.parse_codec)")  # fmt: skip
+            f"(decode value_raw with that class's codec, e.g. asm_py.codec_parse.parse_codec)")  # fmt: skip
         if fragments:
             fragmented(Priority.BULK_PUBLICATION, Dest.BROADCAST, 0, n, f"PUB_N{n}")
             fragmented(Priority.BULK, Dest.NODE, n, tool, f"N{tool}_TO_N{n}")
@@ -168,8 +171,17 @@ def build(nodes: Iterable[int], tool: int = 254, classes: Mapping[str, str] | No
 
 def generate(nodes: Iterable[int], tool: int = 254, classes: Mapping[str, str] | None = None, *,
              fragments: bool = True, fd: bool = False) -> str:  # fmt: skip
-    """The DBC text (see :func:`build`)."""
+    """The DBC text (see :func:`build`). cantools takes seconds over the ~1800 frames of even one node (the 256
+    groups, the heartbeats and e-stops of every ID), so the text for the module profiles' classes is kept for the
+    next call with the same arguments."""
+    if classes is None:
+        return _generate_known(tuple(sorted(set(nodes))), tool, fragments, fd)
     return build(nodes, tool, classes, fragments=fragments, fd=fd).as_dbc_string()
+
+
+@functools.lru_cache(maxsize=8)
+def _generate_known(nodes: tuple[int, ...], tool: int, fragments: bool, fd: bool) -> str:
+    return build(nodes, tool, fragments=fragments, fd=fd).as_dbc_string()
 
 
 def _ids(spec: str) -> list[int]:
@@ -185,7 +197,7 @@ def _ids(spec: str) -> list[int]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    cli = argparse.ArgumentParser(prog="asm-dbc", description=__doc__.splitlines()[0])
+    cli = argparse.ArgumentParser(prog="asm-dbc", description=(__doc__ or "").splitlines()[0])
     cli.add_argument("--nodes", type=_ids, default=_ids("1-8"), help="module node IDs, e.g. 1-8 or 1,3,5")
     cli.add_argument("--tool", type=node_id, default=254, help="node ID of the tool, studio or bridge (default 254)")
     cli.add_argument("-o", "--output", type=output_file, help="write here instead of stdout")

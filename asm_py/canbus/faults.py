@@ -50,7 +50,7 @@ class FaultyBus(can.BusABC):
         self._held_tx: can.Message | None = None
         self._held_rx: can.Message | None = None
         self.channel_info = f"faulty {getattr(bus, 'channel_info', bus)}"
-        super().__init__(channel=getattr(bus, "channel_info", None), **kwargs)
+        super().__init__(channel=getattr(bus, "channel_info", ""), **kwargs)
 
     def _roll(self, rate: float) -> bool:
         with self._lock:

@@ -13,7 +13,7 @@ only the first frame of a fragmented message spends 4 bytes on its total length 
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 from .._contract import (
     CAN_COUNTER_MASK,
@@ -35,6 +35,9 @@ from .._contract import (
     Priority,
     SystemCode,
 )
+
+if TYPE_CHECKING:
+    from can.typechecking import CanFilter
 
 __all__ = ["DEST_MASK", "MAX_NODE_ID", "MAX_PRIORITY", "MIN_NODE_ID", "CanId", "Dest", "FrameType", "Priority",
            "SystemCode", "check_node_id", "dest_filter", "frame_priority", "kind_filter", "priority_filter",
@@ -85,25 +88,25 @@ DEST_MASK = CAN_DEST_KIND_MASK << CAN_DEST_KIND_SHIFT | CAN_DEST_MASK << CAN_DES
 """Mask of the destination fields: acceptance filters select frames by it."""
 
 
-def dest_filter(dest_kind: int, dest: int) -> dict[str, int | bool]:
+def dest_filter(dest_kind: int, dest: int) -> CanFilter:
     """A python-can ``can_filters`` entry accepting every frame to (dest_kind, dest)."""
     can_id = dest_kind << CAN_DEST_KIND_SHIFT | dest << CAN_DEST_SHIFT
     return {"can_id": can_id, "can_mask": DEST_MASK, "extended": True}
 
 
-def kind_filter(dest_kind: int) -> dict[str, int | bool]:
+def kind_filter(dest_kind: int) -> CanFilter:
     """A python-can ``can_filters`` entry accepting every frame of one destination kind (every system frame)."""
     return {"can_id": dest_kind << CAN_DEST_KIND_SHIFT, "can_mask": CAN_DEST_KIND_MASK << CAN_DEST_KIND_SHIFT,
             "extended": True}  # fmt: skip
 
 
-def priority_filter(priority: int, dest_kind: int, dest: int) -> dict[str, int | bool]:
+def priority_filter(priority: int, dest_kind: int, dest: int) -> CanFilter:
     """A python-can ``can_filters`` entry accepting frames of one priority to (dest_kind, dest)."""
     return {"can_id": priority << CAN_PRIORITY_SHIFT | dest_kind << CAN_DEST_KIND_SHIFT | dest << CAN_DEST_SHIFT,
             "can_mask": _PRIORITY_BITS | DEST_MASK, "extended": True}  # fmt: skip
 
 
-def source_filter(priority: int, dest_kind: int, dest: int, source: int) -> dict[str, int | bool]:
+def source_filter(priority: int, dest_kind: int, dest: int, source: int) -> CanFilter:
     """A python-can ``can_filters`` entry accepting frames of one priority to (dest_kind, dest) from one node (a
     neighbour's publications, for a module whose program waits on them)."""
     return {"can_id": priority << CAN_PRIORITY_SHIFT | dest_kind << CAN_DEST_KIND_SHIFT | dest << CAN_DEST_SHIFT

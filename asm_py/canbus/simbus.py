@@ -84,10 +84,7 @@ class SimBus(can.BusABC):
     def _apply_filters(self, filters: can.typechecking.CanFilters | None) -> None:
         accept = None
         if filters:
-            accept = tuple(
-                (f["can_id"], f["can_mask"], f.get("extended"))
-                for f in filters  # type: ignore[misc]
-            )
+            accept = tuple((f["can_id"], f["can_mask"], f.get("extended")) for f in filters)
         with SimBus._lock:
             self._accept = accept
             if self in SimBus._channels.get(self._channel, ()):

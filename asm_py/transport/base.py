@@ -3,7 +3,7 @@
 As python-can's ``BusABC`` does for buses, the base does the common work — attaching the node, shielding the
 transport's receive threads from a failing handler, fanning out peer (discovery) events, counting — and a concrete
 transport implements ``_open``, ``send``, ``send_group``, ``publish``, ``subscribe``, ``_join``, ``peers`` and
-``_close``. Every transport passes the same conformance suite (tests/test_transport_conformance.py).
+``_close``. Every transport passes the same conformance suite (tests/transport/test_transport_conformance.py).
 
 Addresses are node names (``[A-Za-z0-9_.-]``, at most 64 characters). The group ``"all"`` is every node: a
 message sent to it is the broadcast of the paper.

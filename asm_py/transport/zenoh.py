@@ -353,7 +353,7 @@ class ZenohTransport(Transport):
 
         with self._pub_lock:
             if key not in self._watched:
-                self._watched[key] = publisher.matching_status.matching
+                self._watched[key] = publisher.matching_status.matching  # pyright: ignore[reportAttributeAccessIssue]  # zenoh's stub says bool; it is a MatchingStatus
                 self._keep.append(publisher.declare_matching_listener(on_matching))
             return self._watched[key]
 

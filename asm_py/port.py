@@ -1,0 +1,172 @@
+"""The client port from a node to one remote node: requests out, replies paired with them by transaction ID.
+
+One port per remote node, shared by every client object and thread of the node, so any number of calls may be in
+flight at once (MAX_TXN + 1 per port). A call whose peer is gone raises TimeoutError when its deadline passes, or
+as soon as discovery reports that the peer left (``fail_all``). A failed reply is raised as its local exception by
+the one table in asm_py.status.
+"""
+
+from __future__ import annotations
+
+import itertools
+from typing import TYPE_CHECKING
+
+from ._contract import TIMEOUT_LONGEST
+from .clock import WALL_CLOCK, Monitor
+from .errors import AsmTimeout
+from .protocol import (
+    HEADER_SIZE,
+    MAX_TXN,
+    Kind,
+    Message,
+    ProtocolError,
+    check_size,
+    encode,
+    encode_timeout,
+    first_byte,
+)
+from .status import What, raise_for_status
+
+if TYPE_CHECKING:
+    from .node import Node
+
+MAX_TIMEOUT_CODE = TIMEOUT_LONGEST
+REPLY_MARGIN = 1.0
+"""Seconds a client waits for a reply beyond the time the server may block."""
+
+
+class _Call:
+    __slots__ = ("failure", "method", "object_id", "reply")
+
+    def __init__(self, method: int, object_id: int) -> None:
+        self.method = method
+        self.object_id = object_id
+        self.reply: Message | None = None
+        self.failure: str | None = None
+
+
+class Port:
+    """The client port from a node to one remote node."""
+
+    def __init__(self, node: Node, remote: str) -> None:
+        self.node = node
+        self.remote = remote
+        self._mon = Monitor(WALL_CLOCK)
+        self._pending: dict[int, _Call] = {}
+        self._next_txn = 0
+        self._direct_txns = itertools.count()
+        self.stale_replies = 0
+
+    def send(
+        self, method: int, class_id: int, object_id: int, data: bytes = b"", *, timeout: int | None = None
+    ) -> None:
+        """Send a request that wants no reply."""
+        message = Message(Kind.REQUEST, method, 0, class_id, object_id, timeout=timeout, data=data)
+        self.node.transport.send(self.remote, check_size(encode(message), What(method, self.remote)))
+
+    def call(
+        self,
+        method: int,
+        class_id: int,
+        object_id: int,
+        data: bytes = b"",
+        *,
+        timeout: float | None = None,
+        blocking: bool = False,
+        subject: str = "",
+    ) -> Message:
+        """Send a request and wait for its reply; raise the reply's error as its local exception type.
+
+        ``blocking``: the server may block up to ``timeout`` (None: without limit); the client waits that long plus
+        a margin. Otherwise the client waits ``timeout`` or the node's ``call_timeout``.
+        """
+        what = What(method, subject or self.remote)
+        if not blocking:
+            wait = timeout or self.node.call_timeout
+            if self.node.transport.direct_requests:
+                return self._direct(method, class_id, object_id, data, wait, what)
+            return self._round_trip(method, class_id, object_id, data, None, wait, what)
+        deadline = None if timeout is None else WALL_CLOCK.now() + timeout
+        while True:
+            remaining = None if deadline is None else max(0.0, deadline - WALL_CLOCK.now())
+            code = None if remaining is None else encode_timeout(remaining)
+            wait = None if remaining is None else remaining + REPLY_MARGIN
+            try:
+                return self._round_trip(method, class_id, object_id, data, code, wait, what)
+            except AsmTimeout:
+                # A timeout beyond what one timeout byte holds (0xFE): the server gave up early; ask for the rest.
+                if code != MAX_TIMEOUT_CODE or deadline is None or deadline <= WALL_CLOCK.now():
+                    raise
+
+    def _round_trip(
+        self,
+        method: int,
+        class_id: int,
+        object_id: int,
+        data: bytes,
+        code: int | None,
+        wait: float | None,
+        what: object,
+    ) -> Message:
+        mon = self._mon
+        raw = check_size(encode(Message(Kind.REQUEST_REPLY, method, 0, class_id, object_id, timeout=code, data=data)),
+                          what)  # fmt: skip
+        call = _Call(method, object_id)
+        with mon:
+            if not mon.wait_for(lambda: len(self._pending) <= MAX_TXN, wait):
+                raise AsmTimeout(f"{what}: all {MAX_TXN + 1} transaction ids of the port are in use")
+            txn = self._next_txn
+            while txn in self._pending:
+                txn = (txn + 1) & MAX_TXN
+            self._next_txn = (txn + 1) & MAX_TXN
+            self._pending[txn] = call
+        try:
+            self.node.transport.send(self.remote, raw[:1] + bytes((raw[1] | txn,)) + raw[2:])
+            with mon:
+                mon.wait_for(lambda: call.reply is not None or call.failure is not None, wait)
+        finally:
+            with mon:
+                if self._pending.get(txn) is call:
+                    del self._pending[txn]
+                mon.notify_all()
+        if call.reply is None:
+            reason = call.failure or f"no reply within {wait:.3g}s"  # done without a reply means a failure
+            raise AsmTimeout(f"{what} timed out: {reason}")
+        raise_for_status(call.reply, what)
+        return call.reply
+
+    def _direct(self, method: int, class_id: int, object_id: int, data: bytes, wait: float, what: object) -> Message:
+        """A round trip in the caller's thread, on transports that can (requests that cannot block).
+
+        The hot path of a remote get: the 4-byte header is built in place and the reply checked by its header bytes.
+        """
+        txn = next(self._direct_txns) & MAX_TXN  # atomic; these replies never pass through _pending
+        head = bytes((first_byte(Kind.REQUEST_REPLY, method), txn, class_id, object_id))
+        raw = self.node.transport.request(self.remote, check_size(head + data, what), wait)
+        if raw is None:
+            raise AsmTimeout(f"{what} timed out: no reply within {wait:.3g}s")
+        if len(raw) < HEADER_SIZE or raw[0] != first_byte(Kind.REPLY, method) or raw[1] != txn or raw[3] != object_id:
+            raise ProtocolError(f"{what}: answer is not the reply to transaction {txn}")
+        reply = Message(Kind.REPLY, method, txn, 0, raw[3], raw[2], None, raw[HEADER_SIZE:])
+        if reply.status:
+            raise_for_status(reply, what)
+        return reply
+
+    def deliver(self, reply: Message) -> None:
+        """A reply arrived for this port (from the node's receive path)."""
+        with self._mon:
+            call = self._pending.get(reply.txn)
+            if call is None or call.method != reply.method or call.object_id != reply.object_id:
+                self.stale_replies += 1  # its caller gave up already, or it answers another request
+                return
+            del self._pending[reply.txn]
+            call.reply = reply
+            self._mon.notify_all()
+
+    def fail_all(self, reason: str) -> None:
+        """Fail every call in flight (the peer left, or the node closed)."""
+        with self._mon:
+            for call in self._pending.values():
+                call.failure = reason
+            self._pending.clear()
+            self._mon.notify_all()

@@ -1,0 +1,118 @@
+"""Preview equals deployment for every kind of automaton: the same gait on modules that hear each other over a CAN
+bus (as in the robot process) commands, tick for tick, what the preview's modules command in-process — with every
+module in Python, and with the odd modules running the C runtime (firmware/) on the same bus."""
+
+from __future__ import annotations
+
+import time
+
+import pytest
+
+from asm_py import Node
+from asm_py.transport.can import CanTransport
+from gaits.model import LIBRARY, load
+from gaits.sim import Simulation
+from tests.transports import fresh_name
+
+from .preview import SIGNALLED
+
+pytestmark = pytest.mark.timeout(180)
+TICK = 1 / 50
+
+
+def _trace(gait, seconds: float, *, bus: bool, drive_at: float | None = None,
+           c_modules: bool = False) -> tuple[list[float], list[list[float]]]:  # fmt: skip
+    nodes: list[Node] = []
+    channel = fresh_name("asm-program")
+
+    def node_of(module_id: int) -> Node:
+        transport = CanTransport(module_id, interface="virtual", channel=channel, heartbeat_period=0.05,
+                                 watch_bus=False)  # fmt: skip
+        nodes.append(Node(f"m{module_id}", transport))
+        return nodes[-1]
+
+    try:
+        odd = [a.id for a in gait.modules if a.id % 2] if c_modules else []
+        options = {"interface": "virtual", "channel": channel} if bus else None  # no bus: the preview's hub
+        with Simulation(gait, trace=True, node_of=node_of if bus else None, c_modules=odd, bus_options=options) as sim:
+            sim.start()
+            while sim.data.time < seconds - 1e-9:
+                began = time.monotonic()
+                if drive_at is not None and abs(sim.data.time - drive_at) < TICK / 2:
+                    sim.drive("left")
+                sim.step_tick()
+                if bus:  # paced like the robot process, so what the bus carries arrives between ticks
+                    time.sleep(max(0.0, TICK - (time.monotonic() - began)))
+            return sim.trace.times, sim.trace.goals
+    finally:
+        for node in nodes:
+            node.close()
+
+
+def _assert_within_one_tick(preview, deployed) -> None:
+    times, goals = preview
+    times2, goals2 = deployed
+    assert times == pytest.approx(times2)
+    for k in range(1, len(times) - 1):
+        for column, value in enumerate(goals2[k]):
+            window = [goals[j][column] for j in (k - 1, k, k + 1)]
+            assert min(window) - 1e-3 <= value <= max(window) + 1e-3, (times[k], column + 1, value, window)
+
+
+MIXED = pytest.mark.parametrize("c_modules", [False, True], ids=["python", "half-c"])
+
+
+@MIXED
+@pytest.mark.parametrize("name", ["neighbour_caterpillar", "curl_into_loop", "contact_inchworm", "caterpillar_tour"])
+def test_preview_equals_deployment_for_neighbour_contact_one_shot_and_sequenced_gaits(name, c_modules) -> None:
+    gait = load(LIBRARY / f"{name}.toml")
+    seconds = 6.5 if name == "caterpillar_tour" else 3.0  # the tour switches to left after 5 cycles
+    preview = _trace(gait, seconds, bus=False)
+    deployed = _trace(gait, seconds, bus=True, c_modules=c_modules)
+    _assert_within_one_tick(preview, deployed)
+    if name == "neighbour_caterpillar":  # it really is a wave: the modules are in different places
+        last = preview[1][-1]
+        assert max(last) - min(last) > 20.0
+    if name == "caterpillar_tour":  # its own sequence switched it to left after 5 cycles: the yaw joints bend
+        assert preview[1][-1][1] == pytest.approx(20.0) and preview[1][int(4.5 * 50)][1] == pytest.approx(0.0)
+
+
+@pytest.mark.parametrize("name", ["neighbour_caterpillar", "contact_inchworm", "curl_into_loop"])
+def test_a_preview_with_c_modules_equals_the_all_python_preview(name) -> None:
+    """The studio's preview with --c-modules: the odd modules run the C runtime on the preview's in-process hub
+    (no bus), hearing and telling neighbours' states as the Python modules do."""
+    gait = load(LIBRARY / f"{name}.toml")
+    _assert_within_one_tick(_trace(gait, 3.0, bus=False), _trace(gait, 3.0, bus=False, c_modules=True))
+
+
+def test_a_preview_with_c_modules_hears_a_broadcast_signal() -> None:
+    from gaits.model import loads
+
+    gait = loads(SIGNALLED)
+    preview = _trace(gait, 3.0, bus=False, c_modules=True)
+    _assert_within_one_tick(_trace(gait, 3.0, bus=False), preview)
+    assert max(row[2] for row in preview[1]) > 35.0  # module 3, in C, heard module 1's signal (in C too) and moved
+
+
+@MIXED
+def test_preview_equals_deployment_across_a_switch(c_modules) -> None:
+    gait = load(LIBRARY / "steerable_caterpillar.toml")
+    preview = _trace(gait, 3.0, bus=False, drive_at=0.5)
+    deployed = _trace(gait, 3.0, bus=True, drive_at=0.5, c_modules=c_modules)
+    _assert_within_one_tick(preview, deployed)
+    yaw = [row[1] for row in preview[1]]
+    assert yaw[0] == pytest.approx(0.0) and yaw[-1] == pytest.approx(20.0)  # the yaw joints bent to turn
+
+
+@MIXED
+def test_preview_equals_deployment_with_a_broadcast_signal(c_modules) -> None:
+    """A group/broadcast event: module 1 emits signal 7 each cycle (a group SET on the bus); the others wait for it.
+    Over CAN they go at the same ticks as in the preview."""
+    from gaits.model import loads
+
+    gait = loads(SIGNALLED)
+    preview = _trace(gait, 3.0, bus=False)
+    deployed = _trace(gait, 3.0, bus=True, c_modules=c_modules)
+    _assert_within_one_tick(preview, deployed)
+    followers = [row[1] for row in preview[1]]
+    assert max(followers) > 35.0  # the signal arrived: the followers moved

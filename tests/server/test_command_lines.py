@@ -1,0 +1,172 @@
+"""Every command with bad arguments: a one-line error and a non-zero exit, never a traceback, a hang or a silent
+change. Usage errors (exit 2) are checked in this process through each command's ``main``; failures that only show
+when running (a busy port, a bus that cannot open) in real processes, with a deadline."""
+
+from __future__ import annotations
+
+import socket
+import subprocess
+import sys
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import pytest
+
+from asm_module import demo
+from asm_py.canbus import busload, dbc
+from gaits import cli as gaits_cli
+from server import bridge, module, robot, studio
+
+from ..helpers import ROOT
+
+GAIT = str(ROOT / "gaits" / "library" / "caterpillar.toml")
+COMMANDS: dict[str, Callable[[list[str]], int]] = {
+    "asm-studio": studio.main, "asm-robot": robot.main, "asm-bridge": bridge.main, "asm-module": module.main,
+    "asm-dbc": dbc.main, "asm-demo": demo.main, "asm-busload": busload.main, "gaits": gaits_cli.main,
+}  # fmt: skip
+USAGE_ERRORS = [  # (command, arguments, what the one-line error must mention)
+    ("asm-studio", ["--port", "99999"], "--port"),
+    ("asm-studio", ["--port", "-1"], "--port"),
+    ("asm-studio", ["--port", "http"], "--port"),
+    ("asm-studio", ["--gait", "/nonexistent/gait.toml"], "no such file"),
+    ("asm-studio", ["--gait", "/tmp"], "not a file"),
+    ("asm-studio", ["--can", "nope:xx"], "unknown CAN interface"),
+    ("asm-studio", ["--can", "can0"], "INTERFACE:CHANNEL"),
+    ("asm-studio", ["--zenoh-listen", "tcp/127.0.0.1:99999"], "port 0..65535"),
+    ("asm-studio", ["--zenoh-listen", "nonsense"], "Zenoh endpoint"),
+    ("asm-studio", ["--zenoh-listen", "tcp/0.0.0.0:0"], "TLS"),
+    ("asm-studio", ["--robot", "127.0.0.1:7447"], "--robot"),
+    ("asm-studio", ["--robot-name", "a/b"], "--robot-name"),
+    ("asm-studio", ["--bitrate", "0"], "bit rate"),
+    ("asm-studio", ["--view", "sideways"], "--view"),
+    ("asm-studio", ["--can", "virtual:x", "--robot", "tcp/127.0.0.1:1"], "not allowed with"),
+    ("asm-robot", ["--sim", "/nonexistent.toml"], "no such file"),
+    ("asm-robot", ["--can", "nope:xx"], "unknown CAN interface"),
+    ("asm-robot", ["--name", ""], "--name"),
+    ("asm-robot", ["--zenoh-connect", "tcp/host"], "HOST:PORT"),
+    ("asm-robot", ["--zenoh-config", "/nonexistent.json5"], "no such file"),
+    ("asm-robot", ["--fd"], "with --can"),
+    ("asm-robot", ["--can", "virtual:x", "--node-id", "255"], "node ID"),
+    ("asm-robot", ["--c-modules", "0,3"], "1..254"),
+    ("asm-robot", ["--c-modules", "odd,x"], "commas"),
+    ("asm-robot", ["--c-modules", ""], "commas"),
+    ("asm-robot", ["--can", "virtual:x", "--c-modules", "all"], "with --sim"),
+    ("asm-studio", ["--c-modules", "seven"], "commas"),
+    ("asm-studio", ["--robot", "tcp/127.0.0.1:7447", "--c-modules", "odd"], "not with --can or --robot"),
+    ("asm-bridge", [], "--can"),
+    ("asm-bridge", ["--can", "nope:xx"], "unknown CAN interface"),
+    ("asm-bridge", ["--can", "virtual:x", "--node-id", "0"], "node ID"),
+    ("asm-bridge", ["--can", "virtual:x", "--zenoh-listen", "tcp/127.0.0.1:65536"], "port 0..65535"),
+    ("asm-module", ["--can", "virtual:x"], "--node-id"),
+    ("asm-module", ["--can", "nope:xx", "--node-id", "3"], "unknown CAN interface"),
+    ("asm-module", ["--can", "virtual:x", "--node-id", "0"], "node ID"),
+    ("asm-module", ["--can", "virtual:x", "--node-id", "999"], "node ID"),
+    ("asm-module", ["--can", "virtual:x", "--node-id", "three"], "integer"),
+    ("asm-module", ["--can", "virtual:x", "--node-id", "3", "--rate", "0"], "rate"),
+    ("asm-module", ["--can", "virtual:x", "--node-id", "3", "--rate", "nan"], "finite"),
+    ("asm-module", ["--can", "virtual:x", "--node-id", "3", "--limits", "90", "-90"], "MIN must be below MAX"),
+    ("asm-module", ["--can", "virtual:x", "--node-id", "3", "--limits", "-500", "90"], "joint limit"),
+    ("asm-module", ["--can", "virtual:x", "--node-id", "3", "--name", "m 3"], "--name"),
+    ("asm-dbc", ["--nodes", "1-999"], "node ID"),
+    ("asm-dbc", ["--nodes", "8-1"], "low to high"),
+    ("asm-dbc", ["--nodes", "x"], "integer"),
+    ("asm-dbc", ["--tool", "300"], "node ID"),
+    ("asm-dbc", ["--tool", "3"], "also one of --nodes"),
+    ("asm-dbc", ["-o", "/nonexistent/dir/asm.dbc"], "does not exist"),
+    ("asm-dbc", ["-o", "/tmp"], "directory"),
+    ("asm-demo", ["--rate", "0"], "rate"),
+    ("asm-demo", ["--modules", "0"], "module count"),
+    ("asm-demo", ["--seconds", "-1"], "run time"),
+    ("asm-busload", ["8x0x"], "not a number"),
+    ("asm-busload", ["8x-5"], "frames per second"),
+    ("asm-busload", ["99x5"], "data bytes"),
+    ("asm-busload", ["9x5"], "0..8 data bytes"),
+    ("asm-busload", ["8xnan"], "finite"),
+    ("asm-busload", ["8x5", "--bitrate", "0"], "bit rate"),
+    ("asm-busload", ["8x5", "--fd", "--data-bitrate", "-1"], "bit rate"),
+    ("gaits", [], "command"),
+    ("gaits", ["expand", GAIT, "--samples", "0"], "samples"),
+    ("gaits", ["expand", GAIT, "--samples", "100000000"], "samples"),
+    ("gaits", ["simulate", GAIT, "--seconds", "-1"], "measured time"),
+    ("gaits", ["simulate", GAIT, "--seconds", "inf"], "finite"),
+    ("gaits", ["simulate", GAIT, "--direction", "2"], "--direction"),
+    ("gaits", ["simulate", GAIT, "--mjcf", "/nonexistent/dir/x.xml"], "does not exist"),
+]
+
+
+@pytest.mark.parametrize(
+    ("command", "argv", "mention"), USAGE_ERRORS, ids=[" ".join([c, *a])[:60] for c, a, _ in USAGE_ERRORS]
+)
+def test_a_bad_argument_is_a_usage_error(command: str, argv: list[str], mention: str, capsys) -> None:
+    with pytest.raises(SystemExit) as ended:
+        COMMANDS[command](argv)
+    assert ended.value.code == 2
+    err = capsys.readouterr().err
+    last = err.strip().splitlines()[-1]
+    assert "error:" in last and mention in last, err
+    assert "Traceback" not in err
+
+
+def test_gaits_reports_bad_files_without_a_traceback(tmp_path: Path, capsys) -> None:
+    bad = tmp_path / "bad.toml"
+    bad.write_bytes(b"name = \xff\n")
+    for argv in (["validate", str(bad), str(tmp_path), "/nonexistent.toml"], ["expand", str(bad)],
+                 ["simulate", str(tmp_path)]):  # fmt: skip
+        assert gaits_cli.main(argv) == 1
+        err = capsys.readouterr().err
+        assert "INVALID" in err and "Traceback" not in err
+    assert "not UTF-8" in err or "directory" in err.lower()
+
+
+def test_gaits_expand_says_an_event_driven_gait_has_no_table(capsys) -> None:
+    library = Path(gaits_cli.__file__).parent / "library"
+    for name in ("neighbour_caterpillar", "contact_inchworm", "curl_into_loop"):
+        assert gaits_cli.main(["expand", str(library / f"{name}.toml")]) == 1
+        err = capsys.readouterr().err
+        assert err.startswith("gaits expand: error:") and "gaits simulate" in err and "Traceback" not in err
+    assert gaits_cli.main(["expand", str(library / "steerable_caterpillar.toml")]) == 0
+
+
+@pytest.fixture
+def busy_port() -> Iterator[int]:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        sock.listen()
+        yield sock.getsockname()[1]
+
+
+RUNTIME_FAILURES = [  # failures found only when running: exit 1 with "<prog>: error:", within the deadline
+    ("server.studio", ["--port", "{busy}", "--no-zenoh"], "in use"),
+    ("server.robot", ["--zenoh-listen", "tcp/127.0.0.1:{busy}"], "Address already in use"),
+    ("server.bridge", ["--can", "virtual:cli", "--zenoh-listen", "tcp/127.0.0.1:{busy}"], "Address already in use"),
+    ("server.module", ["--can", "udp_multicast:not-an-address", "--node-id", "3"], "error:"),
+    ("server.studio", ["--can", "udp_multicast:not-an-address", "--port", "0"], "robot process did not start"),
+    ("server.studio", ["--gait", "{bad}", "--port", "0"], "not valid TOML"),
+]
+
+
+@pytest.mark.parametrize(("module_name", "argv", "mention"), RUNTIME_FAILURES,
+                         ids=[f"{m} {' '.join(a)}"[:60] for m, a, _ in RUNTIME_FAILURES])  # fmt: skip
+def test_a_failure_at_run_time_is_one_line_and_exit_1(module_name: str, argv: list[str], mention: str,
+                                                      busy_port: int, tmp_path: Path) -> None:  # fmt: skip
+    bad = tmp_path / "bad.toml"
+    bad.write_text("name = \n")
+    args = [a.format(busy=busy_port, bad=bad) for a in argv]
+    result = subprocess.run([sys.executable, "-m", module_name, *args], capture_output=True, text=True, timeout=90,
+                            cwd=ROOT)  # fmt: skip
+    assert result.returncode == 1, (result.stdout, result.stderr)
+    assert "Traceback" not in result.stderr, result.stderr
+    assert "error:" in result.stderr and mention in result.stderr, result.stderr
+    assert "READY" not in result.stdout
+
+
+def test_the_studio_passes_its_c_module_choice_to_its_robot(tmp_path) -> None:
+    from types import SimpleNamespace
+
+    from gaits.model import LIBRARY, load
+    from server.studio import Studio, StudioOptions
+
+    owner = SimpleNamespace(options=StudioOptions(c_modules="1,3"), _gait_file=tmp_path / "robot.toml",
+                            own_robot="robot", _child_endpoint="tcp/127.0.0.1:1")  # fmt: skip
+    args = Studio._robot_args(owner, load(LIBRARY / "caterpillar.toml"))  # type: ignore[arg-type]
+    assert args[args.index("--c-modules") + 1] == "1,3" and "--sim" in args

@@ -1,0 +1,147 @@
+"""What the browser tests share: Debian's Chromium (never one a tool downloads), the page opened the way a user
+opens it, and readers of what it shows (pixels of a drawn line, the robot in the 3D view, a number in a text).
+
+Every browser test is in the xdist group "browser": the suite runs one at a time, since one Chromium drawing WebGL
+in software takes a core of the two the suite has.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+
+import pytest
+
+CHROMIUM = "/usr/bin/chromium"
+MARKS = [
+    pytest.mark.timeout(240),
+    pytest.mark.xdist_group("browser"),
+    pytest.mark.skipif(not os.path.exists(CHROMIUM), reason="needs Debian's chromium (make test installs it)"),
+]
+"""Every browser test module sets ``pytestmark = MARKS``."""
+
+
+VIEW_DPR = 0.25
+"""The 3D view's canvas at half resolution (viser's ``fixedDpr``; the panels stay sharp): Chromium draws WebGL in
+software here, and a full-resolution canvas took most of a core of the two the suite has. viser's adaptive DPR
+would lower it on its own on a slow machine; fixing it keeps the screenshots the same from run to run."""
+
+
+def open_page(pw, url: str):
+    """Chromium on the studio's page, once the page is up (its E-STOP shows)."""
+    from playwright.sync_api import expect
+
+    browser = pw.chromium.launch(executable_path=CHROMIUM, args=["--no-sandbox"])
+    page = browser.new_page(viewport={"width": 1400, "height": 900})
+    page.goto(f"{url}/?fixedDpr={VIEW_DPR}")
+    expect(page.get_by_role("button", name=re.compile(r"^E-STOP"))).to_be_visible(timeout=30_000)
+    return browser, page
+
+
+FOCUS_3D = (650, 200)
+"""A point of the 3D view clear of the side panel, the toast and the plots panel over its lower left: a click there
+gives the 3D view the focus (a click on a plot's legend would hide a series)."""
+LINE_COLOR = (0x1F, 0x77, 0xB4)
+"""The first series' colour in the page's plots (web.monitor.PALETTE)."""
+
+
+def pixels(png: bytes, rgb: tuple[int, int, int], tolerance: int = 40) -> int:
+    """How many pixels of a screenshot are close to ``rgb`` (a drawn line, not just moving axis labels)."""
+    import io
+
+    import numpy as np
+    from PIL import Image
+
+    image = np.asarray(Image.open(io.BytesIO(png)).convert("RGB"), dtype=int)
+    return int((np.abs(image - np.array(rgb)).sum(axis=2) < tolerance).sum())
+
+
+def robot_point(png: bytes, right_edge: int = 950) -> tuple[int, int]:
+    """A pixel well inside the preview's robot (its modules are tan: red well above blue) left of the side panel,
+    clear of the plots panel over the lower left (its orange line is not the robot): of the pixels whose 9×9
+    neighbourhood is all robot — not an edge, a gap of the wave or a module's label — the one nearest the middle."""
+    import io
+
+    import numpy as np
+    from PIL import Image
+
+    image = np.asarray(Image.open(io.BytesIO(png)).convert("RGB"), dtype=int)[:, :right_edge]
+    r, g, b = image[..., 0], image[..., 1], image[..., 2]
+    robot = (r - b > 70) & (r > g) & (g > b) & (r > 90)
+    robot[:150] = False  # the page's notification toasts
+    height = robot.shape[0]
+    robot[height - 12 - 360 :, :600] = False  # the plots panel
+    inner = robot.copy()
+    for dy in range(-4, 5):
+        for dx in range(-4, 5):
+            inner &= np.roll(np.roll(robot, dy, axis=0), dx, axis=1)
+    ys, xs = np.nonzero(inner if inner.any() else robot)
+    if not len(xs):
+        raise AssertionError("no robot in the screenshot")
+    k = int(np.argmin((xs - xs.mean()) ** 2 + (ys - ys.mean()) ** 2))
+    return int(xs[k]), int(ys[k])
+
+
+class PoseWatch:
+    """The robot's pose feed as a viewer receives it: how far its first body moved across the frames kept."""
+
+    def __init__(self, client) -> None:
+        import threading
+
+        from asm_module.feed import decode_poses, poses_key
+
+        self._lock = threading.Lock()
+        self._points: list = []
+        self._decode = decode_poses
+        self._sub = client.transport.session.declare_subscriber(poses_key("robot"), self._on)
+
+    def _on(self, sample) -> None:
+        frame = self._decode(sample.payload.to_bytes())
+        with self._lock:
+            self._points.append(frame.positions[0].copy())
+            del self._points[:-120]
+
+    def spread(self) -> float:
+        import numpy as np
+
+        with self._lock:
+            points = np.array(self._points[-60:])
+        return float(np.ptp(points, axis=0).max()) if len(points) > 1 else 0.0
+
+    def count(self) -> int:
+        with self._lock:
+            return len(self._points)
+
+    def clear(self) -> None:
+        with self._lock:
+            self._points.clear()
+
+    def close(self) -> None:
+        self._sub.undeclare()
+
+
+def text_input(page, label: str):
+    """viser's text inputs carry a label whose ``for`` names no element (its number inputs are fine): the input in
+    the nearest enclosing row of the label instead."""
+    row = page.locator(f"xpath=//label[normalize-space()='{label}']/ancestor::*[.//input or .//textarea][1]")
+    return row.locator("input, textarea").first
+
+
+def type_and_set(page, name: str, label: str, text: str):
+    """In the attribute browser: choose object ``name``, type ``text`` into its input, press Set; the input."""
+    from playwright.sync_api import expect
+
+    page.get_by_label("Object").click()
+    page.get_by_role("option", name=name, exact=True).click()
+    field = page.get_by_label(label)
+    expect(field).to_be_visible(timeout=15_000)
+    field.fill(text)
+    field.press("Enter")
+    page.get_by_role("button", name="Set").click()
+    return field
+
+
+def number(text: str, pattern: str) -> float:
+    match = re.search(pattern, text)
+    assert match, f"{pattern!r} not in {text[:500]!r}"
+    return float(match.group(1))

@@ -1,0 +1,40 @@
+"""The studio layer's fixtures: ``asm-studio`` as its own process for the browser tests (its URL, its Zenoh endpoint
+for an outside checker, its output lines). The studio in this process (``studio``) is the root conftest's: the
+server layer's tests use it too."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator
+
+import pytest
+
+from ..processes import Process
+from ..transports import free_port
+
+StudioProcess = tuple[str, str, list[str]]
+
+
+@pytest.fixture
+def start_studio() -> Iterator[Callable[..., StudioProcess]]:
+    """Start ``asm-studio`` processes (extra arguments as given) on free ports; every one is stopped at the end."""
+    started: list[Process] = []
+
+    def start(*args: str) -> StudioProcess:
+        port, zenoh_port = free_port(), free_port()
+        endpoint = f"tcp/127.0.0.1:{zenoh_port}"
+        proc = Process("-m", "server.studio", "--port", str(port), "--zenoh-listen", endpoint, *args)
+        started.append(proc)
+        proc.wait_for_line("READY studio", timeout=60)
+        return f"http://127.0.0.1:{port}", endpoint, proc.output
+
+    try:
+        yield start
+    finally:
+        for proc in started:
+            proc.stop()
+
+
+@pytest.fixture
+def studio_process(start_studio) -> StudioProcess:
+    """``asm-studio`` with the default gait: (URL, Zenoh endpoint, output lines)."""
+    return start_studio()

@@ -1,0 +1,136 @@
+"""The E-STOP within reach from any state of the page, and nothing public by accident — by clicks and keys in
+Chromium against ``asm-studio`` processes, read back from the modules by an ordinary ASM client."""
+
+from __future__ import annotations
+
+import re
+import time
+
+import pytest
+
+from asm_py import Node
+from asm_py.transport.zenoh import ZenohTransport
+
+from ..helpers import ARTIFACTS, wait_until
+from ..processes import Process
+from ..transports import free_port
+from .browser import MARKS, open_page
+
+pytestmark = MARKS
+
+MODULES = [f"m{i}" for i in range(1, 9)]
+
+
+@pytest.fixture
+def studio_urls(studio_process) -> tuple[str, str]:
+    """(URL, Zenoh endpoint) of an ``asm-studio`` process."""
+    return studio_process[0], studio_process[1]
+
+
+def _latched(client: Node) -> list[bool]:
+    return [bool(client.lookup(m, "estop", timeout=5).peek()) for m in MODULES]
+
+
+def _running(client: Node) -> list[bool]:
+    return [client.lookup(m, "gait.service", timeout=5).running for m in MODULES]
+
+
+def _deploy_and_start(page) -> None:
+    from playwright.sync_api import expect
+
+    page.get_by_role("tab", name="Deploy").click()
+    page.get_by_role("button", name="Deploy", exact=True).click()
+    expect(page.get_by_text("Start it now?", exact=False)).to_be_visible(timeout=30_000)
+    page.get_by_role("button", name="Start", exact=True).click()
+
+
+def test_estop_by_click_and_by_key_while_a_confirmation_waits_and_a_field_has_focus(studio_urls) -> None:
+    from playwright.sync_api import expect, sync_playwright
+
+    url, endpoint = studio_urls
+    client = Node("checker", ZenohTransport(connect=[endpoint]))
+    try:
+        with sync_playwright() as pw:
+            browser, page = open_page(pw, url)
+            try:
+                _deploy_and_start(page)
+                assert wait_until(lambda: all(_running(client)), timeout=30)
+                # Deploy again: the staged gait waits for "Start" while the old one still moves the robot
+                page.get_by_role("button", name="Deploy", exact=True).click()
+                expect(page.get_by_text("Start it now?", exact=False)).to_be_visible(timeout=30_000)
+                page.screenshot(path=str(ARTIFACTS / "estop-while-asking.png"))
+                page.get_by_role("button", name=re.compile(r"^E-STOP")).click()
+                assert wait_until(lambda: all(_latched(client)), timeout=10), "the click stopped every module"
+                assert not any(_running(client))
+                expect(page.get_by_text("latched on 8 of 8 modules (read back)", exact=False).first).to_be_visible(
+                    timeout=10_000
+                )
+                # release (an inline question, answered), then the key with the focus in a text field
+                page.get_by_role("button", name="Release e-stop").click()
+                page.get_by_role("button", name="Yes, release").click()
+                assert wait_until(lambda: not any(_latched(client)), timeout=10)
+                page.get_by_role("tab", name="Gait").click()
+                name = page.locator("xpath=//label[normalize-space()='Name']/ancestor::*[.//input][1]").locator("input")
+                name.first.click()
+                page.keyboard.type("abc")  # typing never stops the robot …
+                time.sleep(0.5)
+                assert not any(_latched(client))
+                page.keyboard.press("Escape")  # … the Escape key does, focus in the field or not
+                assert wait_until(lambda: all(_latched(client)), timeout=10), "Escape stopped every module"
+                page.screenshot(path=str(ARTIFACTS / "estop-by-key.png"))
+            finally:
+                browser.close()
+    finally:
+        client.close()
+
+
+def test_the_page_offers_no_public_url_and_no_panel_that_hides_the_estop(studio_urls) -> None:
+    from playwright.sync_api import sync_playwright
+
+    url, _ = studio_urls
+    with sync_playwright() as pw:
+        browser, page = open_page(pw, url)
+        try:
+            time.sleep(1.0)
+            shown = page.evaluate(
+                """() => Array.from(document.querySelectorAll('button, a, [role=button]'))
+                     .filter(e => e.offsetParent !== null)
+                     .map(e => (e.getAttribute('aria-label') || '') + ' ' + (e.textContent || '') + ' ' +
+                               Array.from(e.querySelectorAll('svg')).map(s => s.getAttribute('class')).join(' '))"""
+            )
+            assert not [s for s in shown if re.search(r"share|tabler-icon-adjustments|collapse panel", s, re.I)], shown
+            assert any("E-STOP" in s for s in shown)
+            page.screenshot(path=str(ARTIFACTS / "no-share-no-settings.png"))
+        finally:
+            browser.close()
+
+
+def test_a_second_studio_on_the_robot_sees_the_lease_holder_and_cannot_deploy(studio_urls) -> None:
+    from playwright.sync_api import expect, sync_playwright
+
+    url, endpoint = studio_urls
+    port = free_port()
+    second = Process("-m", "server.studio", "--port", str(port), "--robot", endpoint)
+    try:
+        second.wait_for_line("READY studio", timeout=60)
+        with sync_playwright() as pw:
+            browser, page = open_page(pw, url)
+            other_browser, other = open_page(pw, f"http://127.0.0.1:{port}")
+            try:
+                page.get_by_role("tab", name="Deploy").click()
+                page.get_by_role("button", name="Deploy", exact=True).click()
+                expect(page.get_by_text("Start it now?", exact=False)).to_be_visible(timeout=30_000)
+                # the second studio watches the same robot live, sees who holds it, and its deploy is refused
+                expect(other.get_by_text("robot: simulated, 8 modules", exact=False)).to_be_visible(timeout=20_000)
+                other.get_by_role("tab", name="Deploy").click()
+                expect(other.get_by_text("Deploy lease: held by studio@", exact=False)).to_be_visible(timeout=20_000)
+                other.get_by_role("button", name="Deploy", exact=True).click()
+                expect(other.get_by_text("being deployed by 'studio@", exact=False).first).to_be_visible(timeout=20_000)
+                other.screenshot(path=str(ARTIFACTS / "second-studio-lease.png"))
+                page.get_by_role("button", name="Start", exact=True).click()  # the holder starts its gait
+                expect(page.get_by_text("confirmed running", exact=False).first).to_be_visible(timeout=30_000)
+            finally:
+                other_browser.close()
+                browser.close()
+    finally:
+        second.stop()

@@ -1,0 +1,120 @@
+"""Editing and driving programs in the page (issue 16), without a browser: the controls are set from here, which
+runs the same callbacks a user's edit does (test_drive_e2e.py drives the page in Chromium)."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import pytest
+
+from gaits.model import LIBRARY
+from tests.helpers import wait_until
+from web.program_editor import TIME, parse_sequence
+
+pytestmark = pytest.mark.timeout(120)
+
+
+def _click(value: str) -> SimpleNamespace:
+    return SimpleNamespace(target=SimpleNamespace(value=value), client=None)
+
+
+def _select(app, automaton: str, state: int) -> None:
+    app.editor.automaton.value = automaton
+    app.editor.state_index.value = state
+
+
+def test_what_ends_a_state_is_edited_at_the_field_and_undone_in_one_step(studio) -> None:
+    app = studio.app
+    editor = app.editor
+    editor.open_file(LIBRARY / "contact_inchworm.toml")
+    _select(app, "lead", 8)  # "land": until contact
+    events = editor.events
+    assert events.until.value == "contact" and events.value.disabled
+    events.until.value = "at_goal"
+    state = app.doc.data()["automata"]["lead"]["states"][7]
+    assert state["until"] == "at_goal" and state["tolerance"] == 2.0 and not events.value.disabled
+    events.value.value = 3.5
+    assert app.doc.data()["automata"]["lead"]["states"][7]["tolerance"] == 3.5
+    events.until.value = "torque"  # the tolerance goes with at_goal: replaced, not left for the loader to refuse
+    state = app.doc.data()["automata"]["lead"]["states"][7]
+    assert state["until"] == "torque" and "tolerance" not in state and not app.doc.problems
+    events.until.value = "neighbour"
+    events.state.value = "h9"  # the lead's neighbour -1 is module 0: no such module
+    assert app.doc.problems and "no module" in editor.state_problem.content + editor.problems.content
+    events.neighbour.value = 1
+    events.state.value = "h2"
+    assert not app.doc.problems, app.doc.problems
+    events.until.value = TIME
+    assert "until" not in app.doc.data()["automata"]["lead"]["states"][7] and not app.doc.problems
+    events.one_shot.value = True
+    assert app.doc.gait().automata["lead"].one_shot
+    editor.history("Undo")
+    assert not app.doc.gait().automata["lead"].one_shot and events.one_shot.value is False
+
+
+def test_gaits_of_the_program_and_its_sequence_are_edited_in_the_page(studio) -> None:
+    app = studio.app
+    program = app.editor.program
+    program.name.value = "left"
+    program.on_action(_click("Add (copy of forward)"))
+    assert "left" in app.doc.data()["gaits"] and program.editing.value == "left"
+    app.editor.module_index.value = 3
+    app.editor.phase.value = 0.5  # edits module 3 in the gait being edited: left
+    assert app.doc.data()["gaits"]["left"]["modules"][2]["phase"] == 0.5
+    assert app.doc.data()["modules"][2]["phase"] != 0.5
+    program.sequence.value = "forward 2, left 3, forward"
+    assert app.doc.gait().sequence == [("forward", 2), ("left", 3), ("forward", 0)]
+    program.sequence.value = "forward, left 2"  # forward never ends by itself: the problem shows at the field
+    assert "never ends by itself" in program.problem.content
+    program.sequence.value = "forward 2, left x"  # not a sequence: refused, nothing changed
+    assert "e.g. 'forward 5" in app.page.status.content
+    program.sequence.value = "forward 2, left 3, forward"
+    app.editor.modules.value = 10  # the robot grows: every gait of the program grows with it
+    assert len(app.doc.data()["gaits"]["left"]["modules"]) == 10 and not app.doc.problems
+    program.on_action(_click("Remove edited"))
+    assert "gaits" not in app.doc.data() and app.doc.gait().sequence == [("forward", 2), ("forward", 0)]
+
+
+def test_the_drive_buttons_steer_the_preview_and_refuse_a_gait_the_program_lacks(studio) -> None:
+    app = studio.app
+    app.page.safe(lambda _: app.drive.command("◀ Left"))(None)  # as a click runs it: the caterpillar has no left gait
+    assert "no 'left' gait" in app.page.status.content
+    app.editor.open_file(LIBRARY / "steerable_caterpillar.toml")
+    assert wait_until(lambda: app.loop.sim.gait.name == "steerable_caterpillar", timeout=30)
+    app.drive.command("◀ Left")
+    sim = app.loop.sim
+    assert wait_until(lambda: all(r.gait.mode.peek() == 1 for r in sim.modules.values()), timeout=30)
+    assert "Preview: **left**" in app.drive.state.content
+    app.drive.command("■ Stop")
+    assert wait_until(lambda: not any(r.gait.started for r in sim.modules.values()), timeout=30)
+    app.drive.command("▼ Reverse")  # driving a stopped preview starts it again
+    assert wait_until(lambda: all(r.gait.started for r in sim.modules.values()), timeout=30)
+    assert wait_until(lambda: all(r.gait.direction.peek() == -1 for r in sim.modules.values() if r.module_id % 2), 30)
+
+
+@pytest.mark.parametrize("text", ["forward 5, , left 3, forward", "forward 0x5", "for ward 5", "forward 123456",
+                                  "left 2; forward", "é 2", "forward 5, left"])  # fmt: skip
+def test_a_sequence_is_parsed_or_refused_with_a_reason(text) -> None:
+    if text in ("forward 5, , left 3, forward", "forward 5, left"):  # a step without cycles: until it ends
+        assert parse_sequence(text)[-1][1] is None
+        return
+    with pytest.raises(ValueError):
+        parse_sequence(text)
+
+
+def test_the_drive_tab_sends_a_broadcast_signal_to_the_preview(studio) -> None:
+    from gaits.model import loads
+    from tests.gaits.preview import SIGNALLED
+
+    app = studio.app
+    app.editor.open(loads(SIGNALLED.replace("emit = 7", "emit = 8")))
+    assert wait_until(lambda: app.loop.sim.gait.name == "signalled", timeout=30)
+    sim = app.loop.sim
+    assert wait_until(lambda: sim.data.time > 1.2, timeout=30)
+    assert all(sim.modules[k].gait.state.peek() == 0 for k in range(2, 7))  # module 1 emits 8: nobody waits on it
+    app.drive.signal.value = 7
+    app.page.safe(lambda _: app.drive.send_signal(int(app.drive.signal.value)))(None)
+    assert wait_until(lambda: all(sim.modules[k].gait.state.peek() != 0 for k in range(2, 7)), timeout=30)
+    assert "signal **7**" in app.drive.state.content
+    app.page.safe(lambda _: app.drive.send_signal(300))(None)
+    assert "1..255" in app.page.status.content

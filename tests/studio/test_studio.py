@@ -1,0 +1,164 @@
+"""The studio's parts without a browser: the edited document (validation, undo/redo) and the preview loop."""
+
+from __future__ import annotations
+
+import time
+
+import pytest
+
+from gaits.model import GaitError, dumps, load
+from web.document import GaitDocument
+from web.monitor import format_value
+from web.preview import PreviewLoop
+
+pytestmark = pytest.mark.timeout(60)
+CATERPILLAR = "gaits/library/caterpillar.toml"
+
+
+def test_an_invalid_edit_is_kept_with_its_problem_and_undo_restores():
+    doc = GaitDocument(load(CATERPILLAR))
+    doc.set_state("wave", 2, "angle", 120.0)  # beyond the ±90° limits
+    assert [p.path for p in doc.problems] == ["automata.wave.states[2].angle"]
+    assert doc.problem_at("automata.wave.states[2]")
+    with pytest.raises(GaitError):
+        doc.gait()
+    assert doc.undo() and not doc.problems
+    assert doc.gait().automata["wave"].states[2].angle == pytest.approx(46.194)
+    assert doc.redo() and doc.problems
+    assert not doc.redo()
+
+
+def test_edits_reach_the_gait_and_the_file():
+    doc = GaitDocument(load(CATERPILLAR))
+    doc.set_module(3, "phase", 0.5)
+    doc.set_module(3, "direction", -1)
+    doc.set_robot("friction", 0.6)
+    doc.add_state("wave", 0)
+    gait = doc.gait()
+    assert gait.assignment(3).phase == 0.5 and gait.assignment(3).direction == -1
+    assert gait.ground.friction == 0.6
+    assert len(gait.automata["wave"].states) == 17
+    assert "friction = 0.6" in doc.text()
+    with pytest.raises(GaitError):
+        doc.load_text("name = 'x'\n[robot]\nshape = 'blob'\n")
+    assert doc.gait() == gait  # a bad upload changes nothing
+    with pytest.raises(GaitError, match=r"line 2: .*not UTF-8"):
+        doc.load_text(b"name = 'x'\ndescription = '\xff'\n")  # uploaded bytes that are not UTF-8
+    assert doc.gait() == gait
+    doc.load_text(dumps(load("gaits/library/inchworm.toml")))
+    assert doc.gait().name == "inchworm" and doc.undo() and doc.gait().name == "caterpillar"
+
+
+def test_preview_loop_plays_steps_scrubs_and_reloads():
+    loop = PreviewLoop(load(CATERPILLAR))
+    try:
+        loop.request("speed", 4.0)
+        deadline = time.monotonic() + 20
+        while len(loop.frames) < 30 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert len(loop.frames) >= 30
+        loop.request("seek", 5)
+        time.sleep(0.2)
+        assert not loop.playing and loop.shown() is loop.frames[5]
+        loop.request("step", -1)
+        time.sleep(0.2)
+        assert loop.shown() is loop.frames[4]
+        # the metrics and the angle plot follow the timeline with the pose: they are those of frame 4
+        assert loop.metrics().seconds == loop.frames[4].time < loop.frames[-1].time
+        t, goal, _ = loop.series(0)
+        assert t[-1] == loop.frames[4].time and goal[-1] == loop.frames[4].goals[0]
+        loop.request("step", 1)  # step works while scrubbed
+        time.sleep(0.2)
+        assert loop.shown() is loop.frames[5] and loop.metrics().seconds == loop.frames[5].time
+        loop.request("load", load("gaits/library/rolling_loop.toml"))
+        loop.request("play", True)
+        deadline = time.monotonic() + 20
+        while (loop.generation < 1 or not loop.frames) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert loop.sim.gait.name == "rolling_loop" and len(loop.frames[-1].goals) == 12
+    finally:
+        loop.close()
+
+
+def test_values_are_formatted_for_the_page():
+    assert format_value(b"\x01\x02") == "01 02"
+    assert format_value((1.0, 2.5)) == "[1, 2.5]"
+
+
+def test_the_robot_grows_shrinks_and_changes_shape_from_the_document():
+    doc = GaitDocument(load(CATERPILLAR))
+    doc.set_robot("modules", 12)
+    gait = doc.gait()
+    assert gait.robot.modules == 12 and [m.id for m in gait.modules] == list(range(1, 13))
+    # the new modules continue the travelling wave: the same phase step as modules 7 → 8
+    step = (gait.assignment(8).phase - gait.assignment(7).phase) % 1.0
+    for k in range(9, 13):
+        assert (gait.assignment(k).phase - gait.assignment(k - 1).phase) % 1.0 == pytest.approx(step, abs=1e-5)
+    doc.set_module(3, "phase", 0.25)
+    doc.set_module(11, "direction", -1)
+    doc.set_robot("modules", 1)  # typing "12" over "1" passes through one module
+    assert [m.id for m in doc.gait().modules] == [1]
+    doc.set_robot("modules", 12)
+    assert doc.gait().assignment(3).phase == 0.25 and doc.gait().assignment(11).direction == -1
+    doc.set_robot("shape", "legged")
+    assert doc.gait().robot.legs == 4  # 12 modules: four legs of three
+    doc.set_robot("modules", 10)
+    assert [p.path for p in doc.problems] == ["robot.legs"]  # 10 modules do not split into 4 legs
+    doc.set_robot("legs", 2)
+    assert not doc.problems
+    doc.set_robot("shape", "loop")
+    assert "legs" not in doc.data()["robot"] and doc.gait().robot.shape == "loop"
+    with pytest.raises(ValueError):
+        doc.set_robot("modules", 0)
+    assert doc.undo() and doc.gait().robot.shape == "legged"
+
+
+def test_a_grid_row_is_one_undoable_edit():
+    doc = GaitDocument(load(CATERPILLAR))
+    doc.update_state("wave", 4, {"angle": 10.0, "duration": 0.07})
+    state = doc.gait().automata["wave"].states[4]
+    assert (state.angle, state.duration) == (10.0, 0.07)
+    assert not doc.problems
+    assert doc.undo() and doc.gait().automata["wave"].states[4].angle == pytest.approx(46.194)
+    with pytest.raises(ValueError):
+        doc.update_state("wave", 0, {"until": "contact"})
+
+
+def test_live_series_are_continuous_on_a_shared_time_axis():
+    from collections import deque
+
+    from web.monitor import LivePlot
+
+    plot = LivePlot(lookup=None)  # filled by hand: no subscriptions
+    now = time.monotonic() - plot.t0
+    plot.series[("m1", "joint.angle")] = deque([(now - 1.0, 0.0), (now - 0.5, 10.0), (now, 20.0)])
+    plot.series[("m2", "joint.angle")] = deque([(now - 0.75, 5.0), (now - 0.25, 7.0)])
+    labels, (t, a, b) = plot.data()
+    assert labels == ["m1 joint.angle", "m2 joint.angle"]
+    assert list(t) == sorted(t) and len(t) == 5
+    assert list(a) == pytest.approx([0.0, 5.0, 10.0, 15.0, 20.0])  # m1 between its own samples
+    assert list(b) == pytest.approx([5.0, 5.0, 6.0, 7.0, 7.0])  # held outside m2's samples, no NaN (uPlot)
+
+
+def test_undo_takes_back_a_typed_value_not_a_keystroke():
+    """Typing 45 sends "4" then "45": one undo step gives back the value before, never "4"."""
+    now = [0.0]
+    doc = GaitDocument(load(CATERPILLAR), clock=lambda: now[0])
+    before = doc.gait().automata["wave"].states[0].angle
+    doc.set_state("wave", 0, "angle", 4.0)
+    now[0] += 0.2
+    doc.set_state("wave", 0, "angle", 45.0)
+    assert doc.gait().automata["wave"].states[0].angle == 45.0
+    assert doc.undo() and doc.gait().automata["wave"].states[0].angle == before
+    assert not doc.undo()  # one step, not two
+    assert doc.redo() and doc.gait().automata["wave"].states[0].angle == 45.0
+    # a pause ends the step; so does an edit of another field
+    now[0] += 5.0
+    doc.set_state("wave", 0, "angle", 30.0)
+    now[0] += 0.1
+    doc.set_module(1, "phase", 0.5)
+    now[0] += 0.1
+    doc.set_state("wave", 0, "angle", 31.0)
+    assert doc.undo() and doc.gait().automata["wave"].states[0].angle == 30.0
+    assert doc.undo() and doc.gait().assignment(1).phase == 0.0
+    assert doc.undo() and doc.gait().automata["wave"].states[0].angle == 45.0

@@ -1,0 +1,169 @@
+"""The CAN ↔ Zenoh bridge: Zenoh clients drive modules that live on a CAN bus, in this process and in another one."""
+
+from __future__ import annotations
+
+import itertools
+import os
+import threading
+from collections.abc import Iterator
+
+import pytest
+
+from asm_py import Attribute, Event, Service
+from asm_py.node import Node
+from asm_py.transport.can import CanTransport
+from asm_py.transport.zenoh import ZenohTransport
+from server.bridge import CanZenohBridge
+from server.heap import MALLOC_TRIM, HeapTrimmer
+from server.zenoh_args import ZenohOptions
+
+from ..helpers import wait_until
+from ..processes import Process
+from ..transports import free_port, fresh_name
+
+
+class Gait(Service):
+    def run(self, speed: float = 1.0) -> None:
+        self.speed = speed
+        while self.sleep(0.01):
+            pass
+
+
+@pytest.fixture
+def can_world() -> Iterator[tuple[Node, Node, CanZenohBridge, dict]]:
+    """Two modules on a virtual CAN bus, a bridge, and a Zenoh client node connected to the bridge."""
+    channel = fresh_name("asm-bridge")
+    can_options = {"interface": "virtual", "channel": channel, "heartbeat_period": 0.05, "missed_heartbeats": 4}
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    modules = [Node(f"m{i}", CanTransport(i, **can_options)) for i in (1, 2)]
+    objects: dict = {}
+    for module in modules:
+        angle = Attribute("joint.angle", 0.0, codec="float32")
+        goal = Attribute("joint.goal", 0.0, codec="float32")
+        gait = Gait("gait")
+        contact = Event("sensor.contact", codec="bool")
+        for obj, cls in ((angle, None), (goal, None), (gait, "gait.service"), (contact, None)):
+            module.register(obj, class_name=cls)
+        angle.publish()
+        objects[module.name] = {"angle": angle, "goal": goal, "gait": gait, "contact": contact}
+    bridge = CanZenohBridge(can_options, network=ZenohOptions(listen=(endpoint,)))
+    client = Node("dashboard", ZenohTransport(connect=[endpoint]))
+    try:
+        assert wait_until(lambda: {"m1", "m2"} <= set(client.discover()), timeout=10)
+        yield client, modules[0], bridge, objects
+    finally:
+        client.close()
+        bridge.close()
+        for module in modules:
+            module.close()
+        for parts in objects.values():
+            parts["gait"].stop(timeout=5)
+
+
+def test_a_zenoh_client_drives_can_modules(can_world) -> None:
+    client, _, bridge, objects = can_world
+    goal = client.lookup("m1", "joint.goal", timeout=5)
+    goal.set(0.75, wait=True)
+    assert objects["m1"]["goal"].peek() == 0.75 and goal.get() == 0.75
+    with pytest.raises(TypeError):
+        goal.set("high")
+    names = [obj.name for obj in client.list_objects("m2", timeout=5)]
+    assert names == ["joint.angle", "joint.goal", "gait", "sensor.contact"]
+    gait = client.lookup("m2", "gait", timeout=5)
+    gait.start(2.5, wait=True)
+    assert objects["m2"]["gait"].running and objects["m2"]["gait"].speed == 2.5 and gait.running
+    gait.stop(timeout=5, wait=True)
+    assert not objects["m2"]["gait"].started
+    assert bridge.forwarded["to_can"] > 0 and bridge.forwarded["to_zenoh"] > 0
+
+
+def test_publications_events_and_groups_cross_the_bridge(can_world) -> None:
+    client, _, _, objects = can_world
+    copy = Attribute("angle.copy", codec="float32")
+    copy.subscribe(client.lookup("m1", "joint.angle", timeout=5))
+    value = itertools.count(1)
+    assert wait_until(lambda: (objects["m1"]["angle"].set(float(next(value))), copy.valid)[1], timeout=10)
+    objects["m1"]["angle"].set(42.0)
+    assert wait_until(lambda: copy.peek() == 42.0, timeout=5)
+    copy.unsubscribe()
+    contact = client.lookup("m2", "sensor.contact", timeout=5)
+    box: list[bool] = []
+    waiter = threading.Thread(target=lambda: box.append(contact.waiting(timeout=10)))
+    waiter.start()
+    assert wait_until(lambda: (objects["m2"]["contact"].set(True), box)[1], timeout=10)
+    waiter.join(10)
+    assert box == [True]
+    client.group().service("gait.service").start()
+    assert wait_until(lambda: all(o["gait"].running for o in objects.values()), timeout=10)
+
+
+def test_discovery_and_estop_cross_the_bridge(can_world) -> None:
+    client, m1, bridge, _ = can_world
+    stops: list[tuple[str, str]] = []
+    client.on_estop(lambda source, reason: stops.append((source, reason)))
+    module_stops: list[str] = []
+    m1.on_estop(lambda source, reason: module_stops.append(reason))
+    client.estop("from the page")
+    assert wait_until(lambda: module_stops == ["from the"], timeout=5)  # a reason is at most 8 bytes: one frame
+    m1.estop("from the bus")
+    assert wait_until(lambda: ("m1", "from the") in stops, timeout=5)
+    left = threading.Event()
+    client.on_discovery(lambda name, alive: left.set() if name == "m1" and not alive else None)
+    m1.close()
+    assert left.wait(5) and "m1" not in bridge.bridged
+
+
+def test_a_zenoh_process_drives_a_can_module_in_another_process() -> None:
+    """The module and the bridge share a virtual bus in one process; this process is a plain Zenoh client."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    module = Process("examples/can_module.py", "--can", f"virtual:asm-xproc-{os.getpid()}", "--node-id", "1",
+                     "--name", "m1", "--bridge", "--listen", endpoint)  # fmt: skip
+    client = None
+    try:
+        module.wait_for_line("READY m1")
+        client = Node("tester", ZenohTransport(connect=[endpoint]))
+        assert wait_until(lambda: "m1" in client.discover(), timeout=15)
+        goal = client.lookup("m1", "joint.goal", timeout=5)
+        goal.set(0.5, wait=True)
+        assert goal.peek() == 0.5
+        servo = client.lookup("m1", "servo.service", timeout=5)
+        assert servo.running
+        servo.stop(timeout=5, wait=True)
+        assert not servo.started
+        servo.start(wait=True)
+        angle = client.lookup("m1", "joint.angle", timeout=5)
+        copy = Attribute("copy", codec="float32")
+        copy.subscribe(angle)
+        assert wait_until(lambda: copy.valid and abs(copy.peek() - 0.5) < 0.01, timeout=10), copy.peek()
+        copy.unsubscribe()
+    finally:
+        if client is not None:
+            client.close()
+        assert module.stop() in (0, -15), "".join(module.output)
+
+
+def test_heap_trimmer_trims_once_after_each_burst_and_never_during_one() -> None:
+    now = [0.0]
+    count = [0]
+    trims: list[float] = []
+    trimmer = HeapTrimmer(lambda: count[0], trim=lambda: trims.append(now[0]), clock=lambda: now[0])
+
+    def second(requests: int) -> bool:
+        count[0] += requests
+        now[0] += 1.0
+        return trimmer.tick()
+
+    assert not any(second(50) for _ in range(5)), "steady light traffic is no burst"
+    assert not any(second(2000) for _ in range(5)), "never during a burst"
+    assert second(0) and trims == [11.0], "once, the first quiet second after it"
+    assert not any(second(0) for _ in range(5))
+    assert not any(second(5000) for _ in range(3)) and second(100) and trimmer.trims == 2
+    count[0] += 10
+    assert not trimmer.tick(), "nothing is measured before a whole window has passed"
+
+
+def test_heap_trimmer_returns_memory_on_this_c_library() -> None:
+    assert MALLOC_TRIM is not None, "glibc's malloc_trim is found"
+    MALLOC_TRIM()
+    trimmer = HeapTrimmer(lambda: 0, trim=None)
+    assert not trimmer.tick()

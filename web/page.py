@@ -1,0 +1,198 @@
+"""The one object a panel talks to: the page's controls and notices, the edited gait, the preview, and the robot.
+
+Panels (web/editor.py, preview_panel.py, deploy_panel.py, drive.py, monitor_panel.py, robot_bar.py) are built with a
+:class:`Page` and use nothing else of the dashboard: what one panel's action means to another (a deploy makes the
+view go Live and plots the modules' angles; a rebuilt robot drops modules from the plots) is a page *event* the
+dashboard wires (``on``/``emit``), so no panel imports another or the dashboard. The robot is reached through
+``page.robot`` (web/link.py), which the page swaps when the user picks another robot — a panel asks for it at each
+use and never keeps it.
+
+Every callback of a control is wrapped by ``safe`` (a failure becomes a notice, never a dead server) and either
+takes the document's lock or queues a request to the preview loop, because viser runs callbacks on a thread pool.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import functools
+import logging
+import threading
+import time
+from collections.abc import Callable, Iterator
+from typing import Any, Literal, Protocol
+
+import viser
+
+from asm_module.feed import RobotStatus
+from gaits.model import Gait
+
+from .document import GaitDocument
+from .link import RobotLink
+from .preview import PreviewLoop, SceneView
+
+log = logging.getLogger("asm_studio.web")
+TOAST_SECONDS = 6.0
+Event = Literal["deployed", "modules_removed", "plotted", "show", "attach", "relinked", "pick"]
+"""What panels tell each other through the page: ``deployed(gait)`` (started on the robot),
+``modules_removed(names)`` (gone with a rebuilt robot), ``plotted()`` (a live plot got a series), ``show(source)``
+("preview" or "live" asked for), ``attach(robot)`` (another robot asked for), ``relinked()`` (the page now commands
+another robot), ``pick(module_id)`` (clicked in the 3D view)."""
+
+
+class Backend(Protocol):
+    """What the page needs of the backend that builds it (server.studio.Studio is one): the page imports nothing
+    of server/, so the two never import each other."""
+
+    gait: Gait
+    """The gait opened at start."""
+    gait_text: str | None
+    """The text of its file (a download keeps its comments)."""
+    c_modules: str | None
+    """The simulated modules that run the C runtime ("odd", "even", "all", "1,3,5"), in the robot and the preview."""
+
+    @property
+    def simulated(self) -> bool:
+        """The robot shown is simulated (it publishes poses); else a real bus."""
+        ...
+
+    def connect(self, robot: str) -> RobotLink:
+        """A new link to robot ``robot``."""
+        ...
+
+    def robots(self) -> list[RobotStatus]:
+        """The robots on the network now."""
+        ...
+
+    def ensure_robot(self, gait: Gait) -> str | None:
+        """Make a simulated robot the one ``gait`` describes; a message when it was rebuilt."""
+        ...
+
+    def on_notice(self, callback: Callable[[str, str, bool], None]) -> None:
+        """Call ``callback(title, text, error)`` with what the backend has to say."""
+        ...
+
+
+class Page:
+    """See the module docstring."""
+
+    def __init__(
+        self,
+        server: viser.ViserServer,
+        backend: Backend,
+        link: RobotLink,
+        doc: GaitDocument,
+        loop: PreviewLoop,
+        view: SceneView,
+    ) -> None:
+        self.server = server
+        self.gui = server.gui
+        self._backend = backend
+        self.doc = doc
+        self.loop = loop
+        """The preview loop: panels only ``request`` of it and read what it recorded (it owns the simulation)."""
+        self.view = view
+        self._link = link
+        self._listeners: dict[str, list[Callable[..., None]]] = {}
+        self._programmatic = threading.local()
+        self._sync_lock = threading.RLock()
+        self._last_toast: tuple[tuple[str, str], float] | None = None
+        self.toasts = 0
+        """Toasts sent (a repeat within TOAST_SECONDS is not)."""
+        self.status: Any = None
+        """The status line (a markdown handle, the robot bar's); notices land here."""
+
+    # -- the robot ------------------------------------------------------------------------------------------------
+
+    @property
+    def robot(self) -> RobotLink:
+        """The link to the robot the page shows and commands now (swapped by ``relink``)."""
+        return self._link
+
+    def relink(self, link: RobotLink) -> RobotLink:
+        """Command ``link``'s robot from now on; returns the old link (the caller closes it)."""
+        old, self._link = self._link, link
+        return old
+
+    @property
+    def simulated(self) -> bool:
+        """The robot is simulated (it publishes poses); else a real bus."""
+        return self._backend.simulated
+
+    def robots(self) -> list[RobotStatus]:
+        """The robots on the network now (a round trip: not from a refresh)."""
+        return self._backend.robots()
+
+    def ensure_robot(self, gait: Gait) -> str | None:
+        """Make a simulated robot the one ``gait`` describes; a message when it was rebuilt."""
+        return self._backend.ensure_robot(gait)
+
+    # -- events between panels ------------------------------------------------------------------------------------
+
+    def on(self, event: Event, callback: Callable[..., None]) -> None:
+        self._listeners.setdefault(event, []).append(callback)
+
+    def emit(self, event: Event, *args: Any) -> None:
+        for callback in self._listeners.get(event, ()):
+            callback(*args)
+
+    # -- notices --------------------------------------------------------------------------------------------------
+
+    def safe(self, fn: Callable[[Any], Any]) -> Callable[[Any], None]:
+        """A callback whose failure is shown as a notification instead of escaping into viser's thread pool."""
+
+        @functools.wraps(fn)
+        def wrapped(event: Any) -> None:
+            try:
+                fn(event)
+            except Exception as exc:
+                log.info("action failed: %s", exc)
+                self.notify("Error", str(exc), error=True)
+
+        return wrapped
+
+    def notify(self, title: str, body: str, *, error: bool = False) -> None:
+        """Say it in the status line, and as a toast unless the same toast went out less than TOAST_SECONDS ago
+        (typing into a field with a problem used to pile up one toast per keystroke)."""
+        if self.status is not None:
+            self.status.content = f"**{title}**: {body}"
+        now = time.monotonic()
+        last = self._last_toast
+        if last is not None and last[0] == (title, body) and now - last[1] < TOAST_SECONDS:
+            return
+        self._last_toast = ((title, body), now)
+        self.toasts += 1
+        for client in self.server.get_clients().values():
+            client.add_notification(title, body, color="red" if error else "blue", auto_close_seconds=TOAST_SECONDS)
+
+    def resolved(self, title: str, now: str) -> None:
+        """The problem the status line reports under ``title`` is gone: say ``now`` instead (one status, current)."""
+        if self.status is not None and self.status.content.startswith(f"**{title}**"):
+            self.status.content = now
+            self._last_toast = None
+
+    # -- controls the server sets ---------------------------------------------------------------------------------
+
+    @contextlib.contextmanager
+    def programmatic(self) -> Iterator[None]:
+        """Controls set by the server (not the user) inside this block: their update callbacks do nothing.
+
+        viser calls a control's callbacks synchronously, in the thread that sets its value: the flag is that
+        thread's alone. (It was one flag for the process: a user's edit arriving on viser's thread pool while the
+        20 Hz refresh was setting the timeline was taken for the server's own and silently dropped.) The lock
+        keeps the editor's resync and the refresh from interleaving."""
+        with self._sync_lock:
+            outer = self.syncing
+            self._programmatic.active = True
+            try:
+                yield
+            finally:
+                self._programmatic.active = outer
+
+    @property
+    def syncing(self) -> bool:
+        """True in a thread that is setting controls itself (see :meth:`programmatic`)."""
+        return getattr(self._programmatic, "active", False)
+
+    def atomic(self) -> contextlib.AbstractContextManager[None]:
+        """Many control changes sent to the browser as one."""
+        return self.server.atomic()
