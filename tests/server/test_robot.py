@@ -117,10 +117,13 @@ def test_the_deployed_robot_crawls_in_physics_stops_on_estop_and_starts_again(ro
         assert still is not None
         report = deploy(client, CATERPILLAR, timeout=5.0)
         assert report.running == list(range(1, 9))
-        time.sleep(4.0)
-        moving = viewer.latest()
-        assert moving is not None and moving.time > still.time + 1.0  # simulated time went on (even slowly)
-        assert np.abs(moving.positions - still.positions).max() > 0.02  # the bodies moved: the robot crawls
+
+        def crawled() -> bool:  # simulated time went on (even slowly) and the bodies moved: the robot crawls
+            moving = viewer.latest()
+            return (moving is not None and moving.time > still.time + 1.0
+                    and np.abs(moving.positions - still.positions).max() > 0.02)  # fmt: skip
+
+        assert wait_until(crawled, timeout=20)
         client.estop("test")
         assert wait_until(lambda: viewer.status is not None and len(viewer.status.estop or []) == 8, 5)
         time.sleep(0.5)
@@ -199,7 +202,7 @@ def test_a_deployed_robot_runs_neighbour_events_over_its_bus_and_a_one_shot_curl
         assert report.running == list(range(1, 9))
         cycles = [client.lookup(f"m{i}", "gait.cycle", timeout=5) for i in (1, 8)]
         first = [c.get(timeout=5) for c in cycles]
-        time.sleep(6.0)
+        assert wait_until(lambda: cycles[0].get(timeout=5) - first[0] >= 4, timeout=20)
         lead, last = (c.get(timeout=5) - f for c, f in zip(cycles, first, strict=True))
         assert lead >= 4 and last >= lead - 1, (lead, last)
         report = deploy(client, load(LIBRARY / "curl_into_loop.toml"), timeout=5.0)
