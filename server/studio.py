@@ -19,10 +19,7 @@ from __future__ import annotations
 import argparse
 import logging
 import os
-import queue
 import socket
-import subprocess
-import sys
 import tempfile
 import threading
 from collections.abc import Callable
@@ -51,6 +48,7 @@ from asm_py.transport.zenoh import NameTaken
 from gaits.model import LIBRARY, Gait, dumps, loads
 from gaits.validate import read
 
+from .child import Child, ChildError
 from .realtime import prefer_latency
 from .zenoh_args import ZenohOptions, add_zenoh_arguments, zenoh_options
 
@@ -92,55 +90,22 @@ def free_loopback_port() -> int:
         return sock.getsockname()[1]
 
 
-class RobotChild:
-    """An ``asm-robot`` child process; it dies with this process."""
+class RobotChild(Child):
+    """An ``asm-robot`` child process; it dies with this process (``--parent-pid``)."""
 
     def __init__(self, args: list[str]) -> None:
         self.args = args
-        env = {**os.environ, "PYTHONUNBUFFERED": "1"}
-        self.popen = subprocess.Popen([sys.executable, "-m", "server.robot", "--parent-pid", str(os.getpid()), *args],
-                                      stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                                      env=env)  # fmt: skip
-        self.output: list[str] = []
-        self._lines: queue.Queue[str | None] = queue.Queue()
-        self._reader = threading.Thread(target=self._read, name="robot-output", daemon=True)
-        self._reader.start()
-        self._wait_ready()
-
-    def _read(self) -> None:
-        assert self.popen.stdout is not None
-        for line in self.popen.stdout:
-            self.output.append(line)
-            del self.output[:-200]
-            self._lines.put(line)
-            log.debug("robot: %s", line.rstrip())
-        self._lines.put(None)
-
-    def _wait_ready(self) -> None:
-        while True:
-            try:
-                line = self._lines.get(timeout=ROBOT_START_TIMEOUT)
-            except queue.Empty:
-                line = None
-            if line is None:
-                self.stop()
-                raise RuntimeError("the robot process did not start: " + "".join(self.output[-5:]).strip())
-            if line.startswith("READY robot"):
-                return
+        super().__init__("-m", "server.robot", "--parent-pid", str(os.getpid()), *args, label="the robot process",
+                         keep=200, grace=6.0)  # fmt: skip
+        try:
+            self.wait_for_line("READY robot", timeout=ROBOT_START_TIMEOUT)
+        except ChildError:
+            self.stop()
+            raise RuntimeError("the robot process did not start: " + "".join(self.output[-5:]).strip()) from None
 
     def exit_code(self) -> int | None:
         """The child's exit code once it has ended, else None."""
         return self.popen.poll()
-
-    def stop(self) -> None:
-        if self.popen.poll() is None:
-            self.popen.terminate()
-            try:
-                self.popen.wait(6)
-            except subprocess.TimeoutExpired:
-                self.popen.kill()
-                self.popen.wait(5)
-        self._reader.join(5)
 
 
 class Studio:

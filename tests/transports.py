@@ -4,13 +4,13 @@ from __future__ import annotations
 
 import itertools
 import os
-import socket
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 
 from asm_py.transport import MemoryNetwork, MemoryTransport, Transport
 from asm_py.transport.can import CanTransport
 from asm_py.transport.zenoh import ZenohTransport
+from server.child import free_port
 
 _names = itertools.count()
 
@@ -18,13 +18,6 @@ _names = itertools.count()
 def fresh_name(prefix: str) -> str:
     """A name no other test of this run has used (a python-can virtual channel, a network namespace)."""
     return f"{prefix}-{os.getpid()}-{next(_names)}"
-
-
-def free_port() -> int:
-    """A TCP port free on loopback right now (bind and release)."""
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return sock.getsockname()[1]
 
 
 @contextmanager

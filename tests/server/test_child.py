@@ -1,0 +1,35 @@
+"""server.child: a child that never says READY fails the wait at once when it exits, and in time when it hangs."""
+
+import time
+
+import pytest
+
+from server.child import Child, ChildError
+
+
+def test_the_ready_line_is_returned_and_the_child_stopped() -> None:
+    child = Child("-c", "print('noise'); print('READY thing 1', flush=True); import time; time.sleep(60)")
+    try:
+        assert child.wait_for_line("READY thing", timeout=20) == "READY thing 1"
+    finally:
+        assert child.stop() != 0  # terminated, not finished
+
+
+def test_a_child_that_exits_first_fails_the_wait_at_once_with_its_output() -> None:
+    child = Child("-c", "import sys; print('bad config'); sys.exit(3)", label="tool")
+    began = time.monotonic()
+    with pytest.raises(ChildError, match=r"(?s)tool: process exited \(3\).*bad config"):
+        child.wait_for_line("READY", timeout=30)
+    assert time.monotonic() - began < 10
+    with pytest.raises(ChildError):  # a second wait sees the end too
+        child.wait_for_line("READY", timeout=30)
+    child.stop()
+
+
+def test_a_child_that_hangs_fails_the_wait_when_its_time_is_up() -> None:
+    child = Child("-c", "import time; print('starting', flush=True); time.sleep(60)")
+    try:
+        with pytest.raises(ChildError, match="no line starting with 'READY'"):
+            child.wait_for_line("READY", timeout=0.5)
+    finally:
+        child.stop()
