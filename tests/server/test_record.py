@@ -265,6 +265,25 @@ def test_max_files_keeps_only_the_newest_files(robot: Robot, tmp_path: Path) -> 
     assert len(files) == 2 and files[0].name != "ring-000.mcap", files
 
 
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+def test_sigint_or_sigterm_finishes_the_file(robot: Robot, tmp_path: Path, sig: signal.Signals) -> None:
+    out = tmp_path / "stopped.mcap"
+    recorder = record(robot, out)
+    try:
+        time.sleep(1.5)
+        os.kill(recorder.popen.pid, sig)
+        line = finished(recorder, timeout=15)
+    finally:
+        recorder.kill()
+    with out.open("rb") as stream:
+        reader = make_reader(stream)
+        summary = reader.get_summary()
+        assert summary is not None and summary.statistics is not None, line
+        metadata = {m.name: m.metadata for m in reader.iter_metadata()}
+        assert int(metadata["asm.recording.end"]["messages"]) == summary.statistics.message_count > 10
+        assert f"{summary.statistics.message_count} messages" in line
+
+
 def test_a_recorder_killed_with_sigkill_leaves_a_file_readable_up_to_its_last_chunk(
     robot: Robot, tmp_path: Path
 ) -> None:
