@@ -56,6 +56,8 @@ class FoxgloveLive:
         ]
 
     def _on_poses(self, sample: zenoh.Sample) -> None:
+        if not (self._transforms.has_sinks() or self._scene.has_sinks()):
+            return  # nobody watches: a control process spends nothing on encoding
         try:
             frame = decode_poses(sample.payload.to_bytes())
         except ValueError:
@@ -70,7 +72,8 @@ class FoxgloveLive:
         self.frames += 1
 
     def _on_status(self, sample: zenoh.Sample) -> None:
-        self._status.log(sample.payload.to_bytes(), log_time=time.time_ns())
+        if self._status.has_sinks():
+            self._status.log(sample.payload.to_bytes(), log_time=time.time_ns())
 
     def _on_json(self, sample: zenoh.Sample) -> None:
         chunks = split(sample.key_expr)  # asm/<robot>/<node>/json/<object>
@@ -80,6 +83,8 @@ class FoxgloveLive:
             if channel is None:
                 channel = self._attributes[topic] = foxglove.Channel(topic, schema=fx.ATTRIBUTE_SCHEMA,
                                                                      context=self.context)  # fmt: skip
+        if not channel.has_sinks():  # advertised (a client sees the topic), not logged until one subscribes
+            return
         data = sample.payload.to_bytes()
         try:
             json.loads(data)  # a client decodes what it is sent: only JSON goes out

@@ -137,6 +137,12 @@ class McapFiles:
 
     def _open(self) -> None:
         path = self.path(self._index)
+        try:
+            self._start(path)
+        except OSError as exc:
+            raise OSError(exc.errno, f"cannot write {path}: {exc.strerror or exc}") from None
+
+    def _start(self, path: Path) -> None:
         self._stream = _Unbuffered(path)
         self.paths.append(path)
         writer = self._writer = Writer(cast(IO[bytes], self._stream), chunk_size=self.chunk_size)

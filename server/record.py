@@ -89,8 +89,18 @@ def _mjcf(session: zenoh.Session, robot: str) -> str | None:
 class Recorder:
     """Subscribes to ``robot``'s keys on ``session`` and writes what arrives to ``files`` on its own thread."""
 
-    def __init__(self, session: zenoh.Session, robot: str, files: McapFiles, mjcf: str | None) -> None:
+    def __init__(
+        self,
+        session: zenoh.Session,
+        robot: str,
+        files: McapFiles,
+        mjcf: str | None,
+        on_error: Callable[[], None] | None = None,
+    ) -> None:
         self.session = session
+        self.error: OSError | None = None
+        """Why the files could not be written (a full disk, a file removed): the recording stopped there."""
+        self.on_error = on_error
         self.robot = robot
         self.files = files
         self.bodies = fx.bodies(mjcf)
@@ -155,6 +165,11 @@ class Recorder:
                 handler(*args)
             except (ValueError, KeyError, IndexError, ProtocolError):
                 self.dropped += 1  # a payload that is not what its key says: not recorded, counted
+            except OSError as exc:  # the disk: nothing more can be written, so say so and end the recording
+                self.error = exc
+                if self.on_error is not None:
+                    self.on_error()
+                return
 
     def _put(self, topic: str, schema: SchemaDef, data: bytes, ns: int, publish_ns: int = 0, seq: int = 0) -> None:
         self.files.write(topic, schema, data, ns, publish_ns, seq)
@@ -203,8 +218,14 @@ class Recorder:
             except zenoh.ZError:
                 pass
         self._subs.clear()
-        self._queue.put(None)
+        try:
+            self._queue.put_nowait(None)
+        except queue.Full:  # the writer has stopped on an error
+            pass
         self._writer.join(10)
+        if self.error is not None:
+            raise OSError(self.error.errno, f"the recording stopped: cannot write {self.files.paths[-1]}: "
+                          f"{self.error.strerror or self.error}")  # fmt: skip
         self.files.close({**(end or {}), "messages": str(sum(self.counts.values())), "dropped": str(self.dropped)})
 
 
@@ -269,7 +290,7 @@ def _record(args: argparse.Namespace, network: ZenohOptions, done: threading.Eve
             info.attachments.append(Attachment(args.gait.name, "application/toml", args.gait.read_bytes()))
         files = McapFiles(args.output, info, max_bytes=args.max_bytes, max_files=args.max_files,
                           flush_seconds=args.flush_seconds)  # fmt: skip
-        recorder = Recorder(session, args.robot, files, mjcf)
+        recorder = Recorder(session, args.robot, files, mjcf, on_error=done.set)
         started = time.monotonic()
         print(f"RECORDING robot {args.robot} to {files.paths[0]}", flush=True)
         done.wait(args.max_seconds)

@@ -338,6 +338,36 @@ def test_an_output_the_system_refuses_is_one_line_and_exit_1(robot: Robot) -> No
     assert done.stderr.startswith("asm-record: error:"), done.stderr
 
 
+def test_a_full_disk_is_one_line_and_exit_1(robot: Robot) -> None:
+    done = run("-m", "server.record", "--robot", "robot", "--zenoh-connect", robot.endpoint, "--output", "/dev/full",
+               timeout=30)  # fmt: skip
+    assert done.returncode == 1, done.stderr
+    assert done.stderr.strip() == "asm-record: error: [Errno 28] cannot write /dev/full: No space left on device"
+
+
+def test_a_write_error_while_recording_ends_the_recording_with_it(tmp_path: Path) -> None:
+    """The disk fills up after the recording began: the writer thread stops, the command's wait ends at once, and
+    closing raises the error (asm-record prints it in one line and exits 1) instead of recording into the void."""
+    from server.mcap_files import McapFiles, RecordingInfo
+    from server.record import Recorder
+    from server.zenoh_args import ZenohOptions
+
+    class Filling(McapFiles):
+        def write(self, *args, **kwargs) -> None:  # type: ignore[override]
+            raise OSError(28, "No space left on device")
+
+    session = ZenohOptions(listen=(f"tcp/127.0.0.1:{free_port()}",)).open()
+    stopped = threading.Event()
+    try:
+        recorder = Recorder(session, "robot", Filling(tmp_path / "x.mcap", RecordingInfo({})), None, stopped.set)
+        session.put("asm/robot/m1/json/joint.angle", json.dumps({"node": "m1", "object": "joint.angle", "value": 1.0}))
+        assert stopped.wait(10)
+        with pytest.raises(OSError, match=r"the recording stopped: cannot write .*x\.mcap: No space left on device"):
+            recorder.close()
+    finally:
+        session.close()
+
+
 # -- Foxglove live ---------------------------------------------------------------------------------------------------
 
 
