@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import ctypes
+import ipaddress
 import logging
 import os
 import signal
@@ -37,6 +38,7 @@ from gaits.model import LIBRARY, load
 from gaits.sim import Simulation, select_modules
 
 from .bridge import CanZenohBridge, add_bus_arguments
+from .foxglove_live import FoxgloveLive
 from .realtime import prefer_latency
 from .robot_feed import RobotFeed
 from .zenoh_args import ZenohOptions, add_zenoh_arguments, zenoh_options
@@ -63,6 +65,9 @@ class RobotOptions:
     c_modules: tuple[int, ...] | str = ()
     """Simulated modules that run the C runtime (firmware/) instead of the Python one: IDs, or "odd", "even",
     "all"."""
+    foxglove: int | None = None
+    """Serve the robot to Foxglove over its WebSocket protocol on this port (0: a free one); None: no server."""
+    foxglove_host: str = "127.0.0.1"
 
 
 class RealTimeLoop:
@@ -146,6 +151,7 @@ class Robot:
         self.bridge: CanZenohBridge | None = None
         self.feed: RobotFeed | None = None
         self.loop: RealTimeLoop | None = None
+        self.foxglove: FoxgloveLive | None = None
         self._stop = threading.Event()
         self._status_timer: threading.Thread | None = None
         try:
@@ -178,6 +184,9 @@ class Robot:
 
             self.feed = RobotFeed(self.bridge.session, self.status, sim.mjcf if sim else None, refresh)
             self.feed.publish_status()
+            if options.foxglove is not None:
+                self.foxglove = FoxgloveLive(self.bridge.session, options.name, options.foxglove, self.mjcf,
+                                             options.foxglove_host)  # fmt: skip
             if self.sim is not None:
                 self.loop = RealTimeLoop(self.sim, self.feed, options.pose_rate)
             self._status_timer = threading.Thread(target=self._report, name="asm-robot-status", daemon=True)
@@ -224,6 +233,9 @@ class Robot:
         if self.loop is not None:
             self.loop.close()
             self.loop = None
+        if self.foxglove is not None:
+            self.foxglove.close()
+            self.foxglove = None
         self._stop.set()
         if self._status_timer is not None:
             self._status_timer.join(5)
@@ -280,14 +292,35 @@ def main(argv: list[str] | None = None) -> int:
         metavar="IDS",
         help="simulated modules that run the C runtime (firmware/): IDs as 1,3,5, or odd, even, all",
     )
+    cli.add_argument("--foxglove", type=int, metavar="PORT", help="serve the robot to Foxglove (WebSocket "
+                     "protocol) on this port; 0 picks a free one, printed on the ready line")  # fmt: skip
+    cli.add_argument(
+        "--foxglove-host",
+        default="127.0.0.1",
+        metavar="HOST",
+        help="where the Foxglove server "
+        "listens (default 127.0.0.1; beyond loopback only with --insecure: it has no authentication)",
+    )
     cli.add_argument("--parent-pid", type=int, help=argparse.SUPPRESS)
     args = cli.parse_args(argv)
     if args.fd and args.can is None:
         cli.error("--fd describes a real bus: use it with --can")
     if args.c_modules and args.can is not None:
         cli.error("--c-modules chooses simulated modules: use it with --sim")
+    if args.foxglove is not None and not 0 <= args.foxglove <= 65535:
+        cli.error("--foxglove takes a port, 0-65535 (0: a free one)")
+    if not _loopback(args.foxglove_host) and not args.insecure:
+        cli.error(f"--foxglove-host {args.foxglove_host} is beyond loopback: the Foxglove server has no "
+                  "authentication (add --insecure to serve it anyway)")  # fmt: skip
     network = zenoh_options(cli, args)
     return run(cli.prog, lambda: _serve(args, network))
+
+
+def _loopback(host: str) -> bool:
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return host == "localhost"
 
 
 def _serve(args: argparse.Namespace, network: ZenohOptions) -> int:
@@ -298,11 +331,13 @@ def _serve(args: argparse.Namespace, network: ZenohOptions) -> int:
     can_options = None if args.can is None else {**args.can, "fd": args.fd,
                                                  **({"bitrate": args.bitrate} if args.bitrate else {})}  # fmt: skip
     options = RobotOptions(sim=None if args.can else (args.sim or RobotOptions.sim), can=can_options, name=args.name,
-                           network=network, node_id=args.node_id, c_modules=args.c_modules)  # fmt: skip
+                           network=network, node_id=args.node_id, c_modules=args.c_modules,
+                           foxglove=args.foxglove, foxglove_host=args.foxglove_host)  # fmt: skip
     done = stop_requested()
     robot = Robot(options)  # a bad gait file, a busy port, a taken name: asm-robot: error: … (asm_py.cli.run)
     kind = "simulated" if robot.sim is not None else f"CAN {args.can}"
-    print(f"READY robot {args.name} ({kind}, {robot.status.modules} modules)", flush=True)
+    live = f"; foxglove ws://{args.foxglove_host}:{robot.foxglove.port}" if robot.foxglove is not None else ""
+    print(f"READY robot {args.name} ({kind}, {robot.status.modules} modules){live}", flush=True)
     done.wait()
     close_in_time(robot.close, "asm-robot")
     return 0

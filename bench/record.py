@@ -1,0 +1,177 @@
+"""Recording and Foxglove live: does the file hold what was published, does a Foxglove client keep the pose rate?
+
+    .venv/bin/python bench/record.py
+
+- ``mcap_values_equal_published``: ``asm-robot --sim`` with the 8-module caterpillar deployed and running, a
+  subscriber in this process on every JSON view and on the pose feed, and ``asm-record`` for 10 s in its own
+  process. Over each topic's span in the file (its first to its last value), the values and pose frames found in the
+  file over those the subscriber counted. Target == 1: the recorder loses nothing and invents nothing.
+- ``foxglove_updates_32_vs_60fps``: ``asm-robot --foxglove 0`` with a 32-module caterpillar deployed and running, a
+  Foxglove WebSocket client (the ``websockets`` package, subscribed per the Foxglove protocol) counting
+  ``/robot/transforms`` messages for 10 s, over 60 a second (the pose feed's rate). Target >= 0.9.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import struct
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from collections import defaultdict
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+import zenoh
+from mcap.reader import make_reader
+
+from asm_module.feed import decode_poses, poses_key
+from asm_py.node import Node
+from asm_py.transport.zenoh import ZenohTransport
+from bench._processes import ROOT, Child, free_port
+from gaits.deploy import deploy
+from gaits.model import LIBRARY, dumps, load
+from server import foxglove_msgs as fx
+from web.document import GaitDocument
+
+SECONDS = 10.0
+
+
+class Published:
+    """What a plain subscriber sees: every JSON view's payload per topic, and the pose frames' sequence numbers."""
+
+    def __init__(self, session: zenoh.Session) -> None:
+        self.views: dict[str, list[bytes]] = defaultdict(list)
+        self.frames: list[int] = []
+        self._lock = threading.Lock()
+        self._subs = [session.declare_subscriber("asm/robot/*/json/*", self._view),
+                      session.declare_subscriber(poses_key("robot"), self._pose)]  # fmt: skip
+
+    def _view(self, sample: zenoh.Sample) -> None:
+        chunks = str(sample.key_expr).split("/")
+        with self._lock:
+            self.views[fx.attribute_topic(chunks[2], chunks[4])].append(sample.payload.to_bytes())
+
+    def _pose(self, sample: zenoh.Sample) -> None:
+        seq = decode_poses(sample.payload.to_bytes()).seq
+        with self._lock:
+            self.frames.append(seq)
+
+    def close(self) -> None:
+        for sub in self._subs:
+            sub.undeclare()
+
+
+def start_robot(gait: Path, modules: int, *options: str) -> tuple[Child, Node, str]:
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    robot = Child("robot", "-m", "server.robot", "--sim", str(gait), "--zenoh-listen", endpoint, *options)
+    ready = robot.ready("READY robot", timeout=120)
+    client = Node("bench", ZenohTransport(connect=[endpoint]))
+    deadline = time.monotonic() + 60
+    while not {f"m{i}" for i in range(1, modules + 1)} <= set(client.discover()):
+        if time.monotonic() > deadline:
+            raise RuntimeError(f"only {len(client.discover())} of {modules} modules discovered")
+        time.sleep(0.2)
+    report = deploy(client, load(gait), timeout=10.0, deadline=30.0)
+    assert len(report.running) == modules, report
+    return robot, client, ready.strip()
+
+
+def values_in_file(folder: Path) -> tuple[int, int, int, int]:
+    """(values in the file, values published over the same spans, pose frames in the file, frames published)."""
+    robot, client, _ = start_robot(LIBRARY / "caterpillar.toml", 8)
+    endpoint = robot.popen.args[robot.popen.args.index("--zenoh-listen") + 1]  # type: ignore[union-attr]
+    published = Published(client.transport.session)  # type: ignore[attr-defined]
+    out = folder / "bench.mcap"
+    try:
+        time.sleep(1.0)
+        done = subprocess.run([sys.executable, "-m", "server.record", "--robot", "robot", "--zenoh-connect", endpoint,
+                               "--output", str(out), "--max-seconds", str(SECONDS)], cwd=ROOT, capture_output=True,
+                              text=True, timeout=SECONDS + 60)  # fmt: skip
+        print(done.stdout.strip().splitlines()[-1] if done.stdout.strip() else done.stderr.strip(), flush=True)
+        time.sleep(1.0)
+    finally:
+        published.close()
+        client.close()
+        robot.stop()
+    recorded: dict[str, list[bytes]] = defaultdict(list)
+    seqs: list[int] = []
+    with out.open("rb") as stream:
+        for _, channel, message in make_reader(stream).iter_messages(log_time_order=False):
+            if channel.topic == fx.TOPIC_TRANSFORMS:
+                seqs.append(message.sequence)
+            elif channel.schema_id and channel.topic.count("/") == 2 and not channel.topic.startswith("/robot/"):
+                recorded[channel.topic].append(message.data)
+    in_file = expected = 0
+    for topic, values in recorded.items():
+        first, last = (json.loads(values[k])["t"] for k in (0, -1))
+        seen = [v for v in published.views[topic] if first <= json.loads(v)["t"] <= last]
+        in_file += len(set(values) & set(seen))
+        expected += len(seen)
+        in_file -= len(set(values) - set(seen))  # a value nobody published counts against the file
+    frames = [s for s in published.frames if seqs and min(seqs) <= s <= max(seqs)]
+    return in_file, expected, len(set(seqs) & set(frames)), len(frames)
+
+
+async def _count_transforms(url: str, seconds: float) -> int:
+    import websockets
+
+    channels: dict[int, str] = {}
+    count = 0
+    async with websockets.connect(url, subprotocols=["foxglove.sdk.v1"]) as ws:  # type: ignore[list-item]
+        deadline = None
+        while deadline is None or time.monotonic() < deadline:
+            wait = 30.0 if deadline is None else max(0.01, deadline - time.monotonic())
+            try:
+                message = await asyncio.wait_for(ws.recv(), wait)
+            except TimeoutError:
+                break
+            if isinstance(message, str):
+                op = json.loads(message)
+                if op["op"] == "advertise":
+                    for channel in op["channels"]:
+                        if channel["topic"] == fx.TOPIC_TRANSFORMS:
+                            channels[channel["id"]] = channel["topic"]
+                            await ws.send(json.dumps({"op": "subscribe", "subscriptions": [
+                                {"id": channel["id"], "channelId": channel["id"]}]}))  # fmt: skip
+            elif message[0] == 1 and struct.unpack_from("<I", message, 1)[0] in channels:
+                if deadline is None:  # count from the first update on
+                    deadline = time.monotonic() + seconds
+                else:
+                    count += 1
+    return count
+
+
+def foxglove_rate(folder: Path, modules: int = 32) -> float:
+    doc = GaitDocument(load(LIBRARY / "caterpillar.toml"))
+    doc.set_robot("modules", modules)
+    gait = folder / f"caterpillar{modules}.toml"
+    gait.write_text(dumps(doc.gait()))
+    robot, client, ready = start_robot(gait, modules, "--foxglove", "0")
+    try:
+        time.sleep(2.0)
+        received = asyncio.run(_count_transforms(ready.rsplit(" ", 1)[-1], SECONDS))
+    finally:
+        client.close()
+        robot.stop()
+    print(f"foxglove: {received} pose updates in {SECONDS:g} s from a {modules}-module robot", flush=True)
+    return received / SECONDS
+
+
+def main() -> None:
+    with tempfile.TemporaryDirectory() as directory:
+        folder = Path(directory)
+        in_file, expected, frames_in_file, frames = values_in_file(folder)
+        print(f"mcap: {in_file} of {expected} attribute values, {frames_in_file} of {frames} pose frames")
+        ratio = (in_file + frames_in_file) / max(1, expected + frames)
+        print(f"ratio mcap_values_equal_published {ratio:.3f} (target == 1)", flush=True)
+        rate = foxglove_rate(folder)
+        print(f"ratio foxglove_updates_32_vs_60fps {rate / 60.0:.2f} (target >= 0.9)", flush=True)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,237 @@
+"""The files of one recording: MCAP writers that rotate by size, stay readable when the recorder is killed.
+
+Why its own module: asm-record decides *what* to record (server/record.py); this decides *how it lands on disk*,
+and the two guarantees that matter for a flight recorder live here:
+
+- **bounded**: with ``max_bytes`` a file is finished (summary, footer) before it would grow past that many bytes —
+  what it holds, the chunk in progress (taken as incompressible) and an estimate of its summary — and the next
+  numbered file starts (``run-000.mcap``, ``run-001.mcap``, …); with ``max_files`` the oldest files are deleted, so
+  a recorder left running keeps at most ``max_files × max_bytes`` on disk. Only a file whose fixed part alone (its
+  attachments and schemas) passes ``max_bytes`` can be larger, by its first message;
+- **readable after SIGKILL**: the file is written unbuffered in small chunks, and the chunk in progress is closed
+  at least every ``flush_seconds``; a recorder killed without a chance to write its summary leaves every chunk it
+  finished, which a reader without a summary (``read_tolerant``) reads up to the first incomplete record.
+
+Every file stands alone: its own schemas and channels, the metadata naming the robot, and the attachments (the
+gait file, the robot's MJCF model).
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import IO, Any, cast
+
+from mcap.exceptions import McapError
+from mcap.reader import NonSeekingReader
+from mcap.records import Channel, Message, Schema
+from mcap.writer import Writer
+
+LIBRARY = "asm-record"
+CHUNK_SIZE = 64 * 1024
+_SUMMARY_BASE = 600
+"""Statistics, summary offsets, data end, footer, magic and the metadata indexes, with room to spare (bytes)."""
+_CHUNK_INDEX = 100
+_PER_CHANNEL = 10
+"""A chunk index's and the statistics' entry per channel (ID and offset or count)."""
+_ATTACHMENT_INDEX = 70
+
+
+@dataclass(frozen=True)
+class SchemaDef:
+    """A schema as MCAP stores it: its name, encoding (``jsonschema``, ``protobuf``) and bytes, and the encoding of
+    its channels' messages."""
+
+    name: str
+    encoding: str
+    data: bytes
+    message_encoding: str
+
+    @classmethod
+    def json(cls, schema: dict[str, object]) -> SchemaDef:
+        return cls(str(schema["title"]), "jsonschema", json.dumps(schema).encode(), "json")
+
+
+@dataclass
+class Attachment:
+    name: str
+    media_type: str
+    data: bytes
+
+
+@dataclass
+class RecordingInfo:
+    """What every file of the recording carries besides its messages."""
+
+    metadata: dict[str, str]
+    attachments: list[Attachment] = field(default_factory=list)
+
+
+class _Unbuffered:
+    """A file every write of which reaches the kernel at once (what is written survives SIGKILL). Not a RawIOBase:
+    mcap's Writer would wrap one in a BufferedWriter."""
+
+    def __init__(self, path: Path) -> None:
+        self._file = open(path, "wb", buffering=0)  # noqa: SIM115  # closed by close()
+
+    def write(self, data: bytes | bytearray | memoryview) -> int:
+        view = memoryview(data)
+        while view:
+            view = view[self._file.write(view) or 0 :]
+        return len(data)
+
+    def tell(self) -> int:
+        return self._file.tell()
+
+    def flush(self) -> None:
+        pass
+
+    def close(self) -> None:
+        self._file.close()
+
+
+class McapFiles:
+    """Writes messages to ``output`` (numbered ``<stem>-NNN<suffix>`` when ``max_bytes`` rotates); one thread only."""
+
+    def __init__(
+        self,
+        output: Path,
+        info: RecordingInfo,
+        *,
+        max_bytes: int | None = None,
+        max_files: int = 0,
+        chunk_size: int = CHUNK_SIZE,
+        flush_seconds: float = 1.0,
+    ) -> None:
+        self.output = output
+        self.info = info
+        self.max_bytes = max_bytes
+        self.max_files = max_files
+        self.chunk_size = chunk_size if max_bytes is None else max(1024, min(chunk_size, max_bytes // 8))
+        """Chunks stay a small fraction of a rotated file: the room kept for the chunk in progress."""
+        self.flush_seconds = flush_seconds
+        self.paths: list[Path] = []
+        self.messages = 0
+        self._index = 0
+        self._stream: _Unbuffered | None = None
+        self._writer: Writer | None = None
+        self._schemas: dict[str, int] = {}
+        self._channels: dict[str, int] = {}
+        self._flushed = time.monotonic()
+        self._summary = 0
+        """Bytes the summary of the current file will take, estimated (schemas, channels, indexes)."""
+        self._written = 0
+        self._in_file = 0
+        self.on_new_file: Callable[[int], None] | None = None
+        """Called when a rotated file has started, before its first message: what every file must begin with (the
+        recorder's scene) is written there, at the log time (ns) of the message that started the file."""
+        self._open()
+
+    def path(self, index: int) -> Path:
+        if self.max_bytes is None:
+            return self.output
+        return self.output.with_name(f"{self.output.stem}-{index:03d}{self.output.suffix or '.mcap'}")
+
+    def _open(self) -> None:
+        path = self.path(self._index)
+        try:
+            self._start(path)
+        except OSError as exc:
+            raise OSError(exc.errno, f"cannot write {path}: {exc.strerror or exc}") from None
+
+    def _start(self, path: Path) -> None:
+        self._stream = _Unbuffered(path)
+        self.paths.append(path)
+        writer = self._writer = Writer(cast(IO[bytes], self._stream), chunk_size=self.chunk_size)
+        writer.start(profile="", library=LIBRARY)
+        self._schemas, self._channels = {}, {}
+        self._summary = _SUMMARY_BASE + sum(_ATTACHMENT_INDEX + len(a.name) for a in self.info.attachments)
+        writer.add_metadata("asm.recording", {**self.info.metadata, "file_index": str(self._index)})
+        now = time.time_ns()
+        for attachment in self.info.attachments:
+            writer.add_attachment(now, now, attachment.name, attachment.media_type, attachment.data)
+        writer.flush()
+        self._flushed = time.monotonic()
+        self._written = self._size()
+        self._in_file = 0
+        while self.max_files and len(self.paths) > self.max_files:
+            self.paths.pop(0).unlink(missing_ok=True)
+
+    def write(self, topic: str, schema: SchemaDef, data: bytes, log_ns: int, publish_ns: int = 0, seq: int = 0) -> None:
+        """One message on ``topic`` (its channel and schema are declared in the current file the first time)."""
+        if self._full(len(data)):
+            self._finish()
+            self._index += 1
+            self._open()
+            if self.on_new_file is not None:
+                self.on_new_file(log_ns)
+        writer = self._writer
+        if writer is None:
+            raise ValueError("the recording is closed")
+        channel = self._channels.get(topic)
+        if channel is None:
+            schema_id = self._schemas.get(schema.name)
+            if schema_id is None:
+                schema_id = self._schemas[schema.name] = writer.register_schema(schema.name, schema.encoding,
+                                                                                schema.data)  # fmt: skip
+                self._summary += 32 + len(schema.name) + len(schema.encoding) + len(schema.data)
+            channel = self._channels[topic] = writer.register_channel(topic, schema.message_encoding, schema_id)
+            self._summary += 40 + len(topic) + len(schema.message_encoding) + 2 * _PER_CHANNEL
+        writer.add_message(channel, log_ns, data, publish_ns or log_ns, seq & 0xFFFFFFFF)
+        self.messages += 1
+        self._in_file += 1
+        if time.monotonic() - self._flushed >= self.flush_seconds:
+            self.flush()
+        if self._size() > self._written:  # a chunk was written: the summary will index it
+            self._written = self._size()
+            self._summary += _CHUNK_INDEX + _PER_CHANNEL * len(self._channels)
+
+    @property
+    def index(self) -> int:
+        """The number of the file being written (0 for the first)."""
+        return self._index
+
+    def _full(self, more: int) -> bool:
+        """Would ``more`` bytes of message take the file past ``max_bytes`` (a file takes at least one message)?"""
+        if self.max_bytes is None or not self._in_file:
+            return False
+        return self._size() + self.chunk_size + self._summary + more + 32 >= self.max_bytes
+
+    def _size(self) -> int:
+        return self._stream.tell() if self._stream is not None else 0
+
+    def flush(self) -> None:
+        """Close the chunk in progress: what was written so far is on disk as whole records."""
+        if self._writer is not None:
+            self._writer.flush()
+            if self._size() > self._written:
+                self._written = self._size()
+                self._summary += _CHUNK_INDEX + _PER_CHANNEL * len(self._channels)
+        self._flushed = time.monotonic()
+
+    def _finish(self, end: dict[str, str] | None = None) -> None:
+        writer, stream = self._writer, self._stream
+        self._writer = self._stream = None
+        if writer is not None:
+            if end:
+                writer.add_metadata("asm.recording.end", end)
+            writer.finish()
+        if stream is not None:
+            stream.close()
+
+    def close(self, end: dict[str, str] | None = None) -> None:
+        """Finish the current file: summary and footer (``end``: metadata saying how the recording went)."""
+        self._finish(end)
+
+
+def read_tolerant(stream: IO[bytes]) -> Iterator[tuple[Schema | None, Channel, Message]]:
+    """The messages of an MCAP file read front to back without its summary, up to the first incomplete record:
+    all that a recorder killed mid-write had finished."""
+    reader: Any = NonSeekingReader(stream)
+    try:
+        yield from reader.iter_messages(log_time_order=False)  # in file order: sorting would read to the end first
+    except (McapError, EOFError, ValueError):
+        return
