@@ -42,11 +42,13 @@ format: $(STAMP)
 	$(PY) -m ruff format .
 	$(PY) -m ruff check --fix .
 
-# Two workers (pytest-xdist), one per core; the browser tests share one worker (their xdist group), since one
-# Chromium drawing WebGL in software takes a core. `make test-serial` runs the same tests in one process.
+# Four workers (pytest-xdist) on two cores: most tests wait on processes, sockets and simulated time, not the CPU
+# (the suite used 1.1 cores on two workers); the browser tests are two xdist groups, so at most two Chromiums draw
+# at once. TEST_WORKERS=2 for a busier machine; `make test-serial` runs the same tests in one process.
+TEST_WORKERS ?= 2
 PYTEST := PLAYWRIGHT_SKIP_BROWSER_DOWNLOAD=1 $(PY) -m pytest -m "not slow"
 test: lint $(CHROMIUM) $(ARM_GCC)
-	$(PYTEST) -n 2 --dist loadgroup $(PYTEST_ARGS)
+	$(PYTEST) -n $(TEST_WORKERS) --dist loadgroup $(PYTEST_ARGS)
 
 test-serial: lint $(CHROMIUM) $(ARM_GCC)
 	$(PYTEST) $(PYTEST_ARGS)

@@ -1,8 +1,9 @@
 """What the browser tests share: Debian's Chromium (never one a tool downloads), the page opened the way a user
 opens it, and readers of what it shows (pixels of a drawn line, the robot in the 3D view, a number in a text).
 
-Every browser test is in the xdist group "browser": the suite runs one at a time, since one Chromium drawing WebGL
-in software takes a core of the two the suite has.
+The browser tests are in two xdist groups, "browser-1" and "browser-2", by module: at most two Chromiums at once
+(each drawing WebGL in software takes most of a core), the rest of the suite on the other workers. A module's
+tests stay in one group, so the studios its fixtures start are started once.
 """
 
 from __future__ import annotations
@@ -13,12 +14,15 @@ import re
 import pytest
 
 CHROMIUM = "/usr/bin/chromium"
-MARKS = [
-    pytest.mark.timeout(240),
-    pytest.mark.xdist_group("browser"),
-    pytest.mark.skipif(not os.path.exists(CHROMIUM), reason="needs Debian's chromium (make test installs it)"),
-]
-"""Every browser test module sets ``pytestmark = MARKS``."""
+
+
+def marks(group: int) -> list[pytest.MarkDecorator]:
+    """What every browser test module sets as ``pytestmark``: its browser group (1 or 2), a generous timeout."""
+    return [
+        pytest.mark.timeout(240),
+        pytest.mark.xdist_group(f"browser-{group}"),
+        pytest.mark.skipif(not os.path.exists(CHROMIUM), reason="needs Debian's chromium (make test installs it)"),
+    ]
 
 
 VIEW_DPR = 0.25

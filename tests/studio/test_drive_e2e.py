@@ -12,9 +12,9 @@ from asm_py.transport.zenoh import ZenohTransport
 from gaits.model import loads
 
 from ..helpers import ARTIFACTS, wait_until
-from .browser import CHROMIUM, FOCUS_3D, MARKS, VIEW_DPR, number, open_page, text_input
+from .browser import CHROMIUM, FOCUS_3D, VIEW_DPR, marks, number, open_page, text_input
 
-pytestmark = MARKS
+pytestmark = marks(2)
 
 GAIT = "gaits/library/steerable_caterpillar.toml"
 

@@ -14,9 +14,9 @@ from asm_py.transport.zenoh import ZenohTransport
 from ..helpers import ARTIFACTS, wait_until
 from ..processes import Process
 from ..transports import free_port
-from .browser import MARKS, open_page
+from .browser import marks, open_page
 
-pytestmark = MARKS
+pytestmark = marks(2)
 
 MODULES = [f"m{i}" for i in range(1, 9)]
 

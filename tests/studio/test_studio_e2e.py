@@ -15,8 +15,8 @@ from ..helpers import ARTIFACTS
 from .browser import (
     FOCUS_3D,
     LINE_COLOR,
-    MARKS,
     PoseWatch,
+    marks,
     number,
     open_page,
     pixels,
@@ -25,7 +25,7 @@ from .browser import (
     type_and_set,
 )
 
-pytestmark = MARKS
+pytestmark = marks(1)
 
 
 def test_edit_preview_deploy_watch_and_estop(studio_process):
