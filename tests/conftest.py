@@ -37,6 +37,7 @@ def studio():
     from server.studio import Studio, StudioOptions
 
     studio = Studio(StudioOptions(port=0))
+    studio.app.draw_unwatched = True  # the tests read the 3D view and the control table with no browser
     try:
         yield studio
     finally:

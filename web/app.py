@@ -61,11 +61,14 @@ class Dashboard:
         self.page = Page(self.server, studio, link, self.doc, self.loop, self.view)
         self.view.on_pick = lambda module_id: self.page.emit("pick", module_id)
         self.twin: KinematicTwin | None = None
+        self.draw_unwatched = False
+        """Draw the 3D view, the control table and the preview's line with no browser connected (in-process tests
+        read them; a studio nobody watches otherwise spends nothing on them — they were half its idle CPU)."""
         self._stop = threading.Event()
         self._link_lock = threading.Lock()
         self._build()
         studio.on_notice(lambda title, text, error: self.page.notify(title, text, error=error))
-        self.server.on_client_connect(self._frame_camera)
+        self.server.on_client_connect(self._on_connect)
         self._threads = [threading.Thread(target=self._render, name="studio-render", daemon=True),
                          threading.Thread(target=self._refresh, name="studio-refresh", daemon=True),
                          threading.Thread(target=self._poll, name="studio-poll", daemon=True)]  # fmt: skip
@@ -76,6 +79,17 @@ class Dashboard:
     def link(self) -> RobotLink:
         """The robot the page shows and commands now."""
         return self.page.robot
+
+    def watched(self) -> bool:
+        """Whether anyone sees the page now (a browser connected), so drawing it is worth its CPU."""
+        return self.draw_unwatched or bool(self.server.get_clients())
+
+    def _on_connect(self, client: Any) -> None:
+        """A browser came: what was not drawn while nobody watched is drawn now, from the newest state."""
+        self._frame_camera(client)
+        self.view.redraw()
+        with contextlib.suppress(ValueError):
+            self.editor.draw_control_table(force=True)
 
     def _frame_camera(self, client: Any) -> None:
         """Look at the robot from close enough to see its modules move."""
@@ -168,7 +182,7 @@ class Dashboard:
         faster playback is drawn at most every MIN_DRAW_INTERVAL."""
         last = 0.0
         while not self._stop.is_set():
-            if not self.view.wait_changed(timeout=0.1):
+            if not self.view.wait_changed(timeout=0.1) or not self.watched():
                 continue
             pause = last + MIN_DRAW_INTERVAL - time.monotonic()
             if pause > 0 and self._stop.wait(pause):
@@ -200,13 +214,16 @@ class Dashboard:
 
     def _refresh_once(self) -> None:
         self.bar.tick()
-        self.preview.refresh()
+        watched = self.watched()
+        if watched:
+            self.preview.refresh()
         loop = self.loop
         with self.page.programmatic():
             self.drive.sync(loop.gait)
         shown = loop.shown()
-        with contextlib.suppress(ValueError):  # a gait with no single period has no cursor
-            self.editor.draw_control_table(cursor=None if shown is None else shown.time / loop.gait.period)
+        if watched:
+            with contextlib.suppress(ValueError):  # a gait with no single period has no cursor
+                self.editor.draw_control_table(cursor=None if shown is None else shown.time / loop.gait.period)
         self.monitor.refresh()
 
     def close(self) -> None:

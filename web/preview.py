@@ -304,6 +304,7 @@ class SceneView:
         self._batches: list[tuple[Any, np.ndarray]] = []
         self._built: tuple[str, int] | None = None
         self._drawn: object = None
+        self._redraw = threading.Event()
         self.rich = rich
         self.follow = True
         self.labels = True
@@ -334,8 +335,16 @@ class SceneView:
         self.source = source
         self._built = None
 
+    def redraw(self) -> None:
+        """Draw the newest frame again at the next draw (a browser connected after frames went undrawn)."""
+        self._drawn = None
+        self._redraw.set()
+
     def wait_changed(self, timeout: float) -> bool:
         """Wait until the shown source may have something new to draw."""
+        if self._redraw.is_set():
+            self._redraw.clear()
+            return True
         if self.source == "live":
             return self.live.wait_changed(timeout)
         return self.loop.wait_changed(timeout)
