@@ -1,0 +1,261 @@
+"""Tune a gait for a robot and its ground: CMA-ES over a few free parameters, each candidate simulated.
+
+A library gait is a starting point, not the best gait for this robot on this floor. :func:`tune` searches the free
+parameters (gaits/params.py: a state's angle or duration, a module's phase, the generator's amplitude, period,
+wavelength) with CMA-ES (the ``cma`` package, ask/tell), in a box normalised to [0, 1] per parameter. Every
+candidate is a whole gait file, checked by the loader (joint limits among the rest) and run by the modules' own
+automata in gaits.sim.Simulation on every terrain asked for, in worker processes (one per core by default): what
+is scored is exactly what a robot would run.
+
+Constraints are never traded against the objective: a candidate whose file is invalid, whose simulation diverges,
+whose peak torque exceeds the limit or that falls is scored far above any valid one (its violation added, so the
+search still sees which way is better), and only a candidate that met every constraint can become the best. If
+none did, there is no result.
+
+The same seed gives the same result: CMA-ES draws from its own seeded generator, every simulation is
+deterministic, and the results come back in the order they were asked for whatever the number of workers. Ctrl-C
+(or a callback raising KeyboardInterrupt) stops the search and keeps the best so far.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import signal
+import sys
+import warnings
+from collections.abc import Callable
+from concurrent.futures import Executor, ProcessPoolExecutor
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .mjcf import Physics
+from .model import Gait, GaitError, dumps, from_dict, load, to_dict
+from .params import Free, apply, check, current, parse_free
+from .terrain import FLAT, Terrain
+
+OBJECTIVES = {"speed": (1.0, "m/s"), "cost_of_transport": (-1.0, ""), "heading_rate": (1.0, "°/s")}
+"""Objective → (+1: maximised, -1: minimised; its unit)."""
+INVALID = 1e4
+"""The score of a candidate that could not be simulated (a bad file, a diverged simulation)."""
+VIOLATION = 1e3
+"""The score of a candidate that broke a constraint, plus by how much it did."""
+WORST_COST = 100.0
+"""Cost of transport counted for a robot that did not move (inf otherwise): keeps the scores finite for CMA-ES."""
+DEFAULT_MAX_TORQUE = round(0.95 * Physics.torque, 3)
+"""A gait that keeps its servos at their torque limit (1.5 N·m) cannot follow its own references."""
+
+
+@dataclass(frozen=True)
+class Setup:
+    """What every evaluation needs besides the candidate: sent once to every worker with each job."""
+
+    objective: str = "speed"
+    terrains: tuple[Terrain, ...] = (FLAT,)
+    seconds: float = 6.0
+    warmup: float = 1.0
+    max_torque: float = DEFAULT_MAX_TORQUE
+
+
+@dataclass
+class Outcome:
+    """One candidate's simulations: its score for CMA-ES (lower is better) and why it was refused, if it was."""
+
+    score: float
+    value: float = math.nan
+    """The objective in its own units (mean over the terrains), NaN when refused."""
+    problem: str = ""
+    """Empty when every constraint held."""
+    peak_torque: float = 0.0
+    fell: bool = False
+
+    @property
+    def feasible(self) -> bool:
+        return not self.problem
+
+
+def evaluate(document: dict[str, Any], setup: Setup) -> Outcome:
+    """Simulate one candidate on every terrain (in a worker process) and score it."""
+    from .sim import Simulation  # MuJoCo loads where it runs
+
+    try:
+        gait = from_dict(document, source="<candidate>")
+        runs = []
+        for terrain in setup.terrains:
+            with Simulation(gait, terrain=terrain) as sim:
+                runs.append(sim.run(setup.seconds, warmup=setup.warmup))
+    except GaitError as exc:
+        return Outcome(INVALID, problem=f"invalid: {exc.lines()[0] if exc.lines() else exc}")
+    except (ValueError, FloatingPointError, RuntimeError) as exc:  # a table the runtime refuses, a divergence
+        return Outcome(INVALID, problem=f"not simulated: {exc}")
+    peak = max(m.peak_torque for m in runs)
+    fell = any(m.fell for m in runs)
+    if setup.objective == "speed":
+        value = float(np.mean([m.speed for m in runs]))
+    elif setup.objective == "cost_of_transport":
+        value = float(np.mean([min(m.cost_of_transport, WORST_COST) for m in runs]))
+    else:
+        value = float(np.mean([abs(m.heading_rate) for m in runs]))
+    problems = []
+    if peak > setup.max_torque:
+        problems.append(f"peak torque {peak:.2f} > {setup.max_torque:g} N·m")
+    if fell:
+        problems.append("fell")
+    if problems:
+        excess = max(0.0, peak - setup.max_torque) + (1.0 if fell else 0.0)
+        return Outcome(VIOLATION + excess, value, ", ".join(problems), peak, fell)
+    return Outcome(-OBJECTIVES[setup.objective][0] * value, value, "", peak, fell)
+
+
+def _evaluate_job(job: tuple[dict[str, Any], Setup]) -> Outcome:
+    return evaluate(*job)
+
+
+def _ignore_sigint() -> None:
+    """Workers leave Ctrl-C to the parent, which stops the search and keeps the best so far."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+@dataclass
+class Result:
+    """The search's outcome: the best candidate that met every constraint (None if none did)."""
+
+    best: Gait | None
+    values: list[float]
+    """The best candidate's free parameter values (as rounded into its file)."""
+    value: float
+    """Its objective (NaN when there is no best)."""
+    start_value: float
+    """The starting gait's objective (NaN when it broke a constraint)."""
+    start_problem: str
+    evaluations: int = 0
+    rejected: int = 0
+    """Candidates refused for a constraint or an invalid file."""
+    generations: int = 0
+    interrupted: bool = False
+    history: list[float] = field(default_factory=list)
+    """The best objective after each generation."""
+
+
+Progress = Callable[[Result, str], None]
+"""Called after every generation with the result so far and a one-line summary; may raise KeyboardInterrupt."""
+
+
+def tune(gait: Gait, frees: list[Free], setup: Setup, *, budget: int = 60, seed: int = 1, workers: int | None = None,
+         popsize: int | None = None, progress: Progress | None = None,
+         executor: Executor | None = None) -> Result:  # fmt: skip
+    """Search ``frees`` to optimise ``setup.objective``; at most ``budget`` simulations, the start's included."""
+    check(gait, frees)
+    if setup.objective not in OBJECTIVES:
+        raise ValueError(f"objective must be one of {', '.join(OBJECTIVES)}, not {setup.objective!r}")
+    document = to_dict(gait)
+    low = np.array([f.low for f in frees])
+    span = np.array([f.high - f.low for f in frees])
+    start = [current(gait, f) for f in frees]
+    x0 = np.clip((np.array(start) - low) / span, 0.0, 1.0)
+    own = executor is None
+    pool = executor or ProcessPoolExecutor(max_workers=workers or os.cpu_count() or 1, initializer=_ignore_sigint)
+    result = Result(None, [], math.nan, math.nan, "")
+    sign = OBJECTIVES[setup.objective][0]
+    try:
+        first = next(iter(pool.map(_evaluate_job, [(document, setup)])))
+        result.evaluations = 1
+        result.start_value, result.start_problem = (first.value if first.feasible else math.nan), first.problem
+        if first.feasible:
+            result.best, result.values, result.value = gait, start, first.value
+        else:
+            result.rejected += 1
+        es = _strategy(x0, seed, popsize, budget)
+        while result.evaluations < budget and not es.stop():
+            xs = es.ask()
+            xs = xs[: budget - result.evaluations]
+            candidates = [[f.rounded(lo + x * s) for f, lo, s, x in zip(frees, low, span, xi, strict=True)]
+                          for xi in xs]  # fmt: skip
+            documents = [apply(document, frees, values) for values in candidates]
+            outcomes = list(pool.map(_evaluate_job, [(d, setup) for d in documents]))
+            result.evaluations += len(outcomes)
+            result.generations += 1
+            for values, doc, outcome in zip(candidates, documents, outcomes, strict=True):
+                if not outcome.feasible:
+                    result.rejected += 1
+                elif math.isnan(result.value) or sign * outcome.value > sign * result.value:
+                    result.best, result.values, result.value = from_dict(doc), values, outcome.value
+            if len(xs) == es.popsize:  # a budget's last, partial generation is not told: CMA-ES wants all of it
+                es.tell(xs, [o.score for o in outcomes])
+            result.history.append(result.value)
+            if progress is not None:
+                best = min((o for o in outcomes if o.feasible), key=lambda o: -sign * o.value, default=None)
+                progress(result, _line(result, setup, best, outcomes, float(es.sigma)))
+    except KeyboardInterrupt:
+        result.interrupted = True
+    finally:
+        if own:
+            pool.shutdown(wait=not result.interrupted, cancel_futures=True)
+    return result
+
+
+def _strategy(x0: np.ndarray, seed: int, popsize: int | None, budget: int) -> Any:
+    with warnings.catch_warnings():  # cma warns that matplotlib (its plots) is missing
+        warnings.simplefilter("ignore")
+        import cma
+    options: dict[str, Any] = {"seed": seed + 1, "bounds": [0.0, 1.0], "verbose": -9}  # cma's seed 0 means random
+    default = 4 + int(3 * math.log(len(x0)))
+    options["popsize"] = max(2, min(popsize or default, budget - 1))
+    return cma.CMAEvolutionStrategy(x0.tolist(), 0.3, options)
+
+
+def _line(result: Result, setup: Setup, best: Outcome | None, outcomes: list[Outcome], sigma: float) -> str:
+    unit = OBJECTIVES[setup.objective][1]
+    gen = f"{best.value:.4g}" if best is not None else "none valid"
+    refused = sum(not o.feasible for o in outcomes)
+    return (f"generation {result.generations}: {result.evaluations} simulations, best {setup.objective} "
+            f"{result.value:.4g} {unit} (this generation {gen}, {refused} refused), sigma {sigma:.3f}")  # fmt: skip
+
+
+def provenance(result: Result, frees: list[Free], setup: Setup, *, budget: int, seed: int, source: str) -> str:
+    """The comment lines at the top of a tuned file: how it was made, so it can be made again."""
+    unit = OBJECTIVES[setup.objective][1]
+    goal = "maximised" if OBJECTIVES[setup.objective][0] > 0 else "minimised"
+    start = f"{result.start_value:.4g} {unit}" if result.start_problem == "" else f"refused: {result.start_problem}"
+    lines = [
+        f"Tuned by `gaits tune` from {source}: objective {setup.objective} ({goal}), seed {seed}, budget {budget} "
+        f"({result.evaluations} simulated{', interrupted' if result.interrupted else ''})",
+        f"terrains {', '.join(t.spec for t in setup.terrains)}; {setup.seconds:g} s measured after {setup.warmup:g} s",
+        f"score {setup.objective} {result.value:.4g} {unit} (start {start})",
+        f"constraints: peak torque <= {setup.max_torque:g} N·m, no fall, joint limits (the loader's)",
+        *(f"free {f} = {v:g}" for f, v in zip(frees, result.values, strict=True)),
+    ]
+    return "".join(f"# {line}\n" for line in lines)
+
+
+def command(args: argparse.Namespace) -> int:
+    """``gaits tune``: parse, search, write the best gait (also after Ctrl-C); exit 1 when nothing met the
+    constraints, 130 after an interruption."""
+    try:
+        gait = load(args.file)
+    except (GaitError, OSError) as exc:
+        print(f"gaits tune: error: {args.file}: {exc.lines()[0] if isinstance(exc, GaitError) else exc}",
+              file=sys.stderr)  # fmt: skip
+        return 1
+    frees = [parse_free(text) for text in args.free]
+    setup = Setup(args.objective, tuple(args.terrain or [FLAT]), args.seconds, args.warmup,
+                  args.max_torque if args.max_torque is not None else DEFAULT_MAX_TORQUE)  # fmt: skip
+    out = Path(args.out) if args.out else Path(args.file).with_suffix(".tuned.toml")
+    print(f"tuning {gait.name}: {len(frees)} free, {args.objective}, budget {args.budget}, seed {args.seed}",
+          file=sys.stderr)  # fmt: skip
+    result = tune(gait, frees, setup, budget=args.budget, seed=args.seed, workers=args.workers,
+                  progress=lambda _, line: print(line, file=sys.stderr, flush=True))  # fmt: skip
+    if result.interrupted:
+        print("interrupted: keeping the best so far", file=sys.stderr)
+    if result.best is None:
+        print("gaits tune: error: no candidate met the constraints; nothing written", file=sys.stderr)
+        return 1
+    header = provenance(result, frees, setup, budget=args.budget, seed=args.seed, source=Path(args.file).name)
+    out.write_text(header + dumps(result.best), encoding="utf-8")
+    unit = OBJECTIVES[setup.objective][1]
+    print(f"{args.objective} {result.value:.4g} {unit} (start {result.start_value:.4g}); written to {out}")
+    return 130 if result.interrupted else 0
