@@ -43,7 +43,7 @@ OBJECTIVES = {"speed": (1.0, "m/s"), "cost_of_transport": (-1.0, ""), "heading_r
 INVALID = 1e4
 """The score of a candidate that could not be simulated (a bad file, a diverged simulation)."""
 VIOLATION = 1e3
-"""The score of a candidate that broke a constraint, plus by how much it did."""
+"""The score of a candidate that broke a constraint, plus by how much it did and its mean joint power."""
 WORST_COST = 100.0
 """Cost of transport counted for a robot that did not move (inf otherwise): keeps the scores finite for CMA-ES."""
 DEFAULT_MAX_TORQUE = round(0.95 * Physics.torque, 3)
@@ -106,8 +106,11 @@ def evaluate(document: dict[str, Any], setup: Setup) -> Outcome:
     if fell:
         problems.append("fell")
     if problems:
+        # The peak saturates at the servos' limit, so by itself it scores many refused candidates alike: their mean
+        # joint power (W) tells them apart, steering the search towards gentler gaits, which is where it comes back.
         excess = max(0.0, peak - setup.max_torque) + (1.0 if fell else 0.0)
-        return Outcome(VIOLATION + excess, value, ", ".join(problems), peak, fell)
+        power = float(np.mean([m.energy / m.seconds for m in runs]))
+        return Outcome(VIOLATION + excess + power, value, ", ".join(problems), peak, fell)
     return Outcome(-OBJECTIVES[setup.objective][0] * value, value, "", peak, fell)
 
 
@@ -139,6 +142,8 @@ class Result:
     interrupted: bool = False
     history: list[float] = field(default_factory=list)
     """The best objective after each generation."""
+    refused_value: float = math.nan
+    """The best objective among the candidates refused for a constraint (what keeping the constraints cost)."""
 
 
 Progress = Callable[[Result, str], None]
@@ -182,6 +187,8 @@ def tune(gait: Gait, frees: list[Free], setup: Setup, *, budget: int = 60, seed:
             for values, doc, outcome in zip(candidates, documents, outcomes, strict=True):
                 if not outcome.feasible:
                     result.rejected += 1
+                    if not math.isnan(outcome.value) and not sign * outcome.value <= sign * result.refused_value:
+                        result.refused_value = outcome.value
                 elif math.isnan(result.value) or sign * outcome.value > sign * result.value:
                     result.best, result.values, result.value = from_dict(doc), values, outcome.value
             if len(xs) == es.popsize:  # a budget's last, partial generation is not told: CMA-ES wants all of it
@@ -202,7 +209,10 @@ def _strategy(x0: np.ndarray, seed: int, popsize: int | None, budget: int) -> An
     with warnings.catch_warnings():  # cma warns that matplotlib (its plots) is missing
         warnings.simplefilter("ignore")
         import cma
-    options: dict[str, Any] = {"seed": seed + 1, "bounds": [0.0, 1.0], "verbose": -9}  # cma's seed 0 means random
+    # cma's seed 0 means a random one; the budget alone ends the search (a generation of refused candidates
+    # scores alike, and cma's flat-fitness and tolfun stops would end it there)
+    options: dict[str, Any] = {"seed": seed + 1, "bounds": [0.0, 1.0], "verbose": -9, "tolfun": 0.0,
+                               "tolfunhist": 0.0, "tolflatfitness": budget}  # fmt: skip
     default = 4 + int(3 * math.log(len(x0)))
     options["popsize"] = max(2, min(popsize or default, budget - 1))
     return cma.CMAEvolutionStrategy(x0.tolist(), 0.3, options)
