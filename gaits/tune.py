@@ -167,23 +167,25 @@ def tune(gait: Gait, frees: list[Free], setup: Setup, *, budget: int = 60, seed:
     result = Result(None, [], math.nan, math.nan, "")
     sign = OBJECTIVES[setup.objective][0]
     try:
-        first = next(iter(pool.map(_evaluate_job, [(document, setup)])))
-        result.evaluations = 1
-        result.start_value, result.start_problem = (first.value if first.feasible else math.nan), first.problem
-        if first.feasible:
-            result.best, result.values, result.value = gait, start, first.value
-        else:
-            result.rejected += 1
         es = _strategy(x0, seed, popsize, budget)
         while result.evaluations < budget and not es.stop():
+            first = result.evaluations == 0  # the start runs with the first generation: no core waits for it alone
             xs = es.ask()
-            xs = xs[: budget - result.evaluations]
+            xs = xs[: budget - result.evaluations - first]
             candidates = [[f.rounded(lo + x * s) for f, lo, s, x in zip(frees, low, span, xi, strict=True)]
                           for xi in xs]  # fmt: skip
             documents = [apply(document, frees, values) for values in candidates]
-            outcomes = list(pool.map(_evaluate_job, [(d, setup) for d in documents]))
+            outcomes = list(pool.map(_evaluate_job, [(d, setup) for d in [document] * first + documents]))
             result.evaluations += len(outcomes)
             result.generations += 1
+            if first:
+                own_start, outcomes = outcomes[0], outcomes[1:]
+                result.start_value = own_start.value if own_start.feasible else math.nan
+                result.start_problem = own_start.problem
+                if own_start.feasible:
+                    result.best, result.values, result.value = gait, start, own_start.value
+                else:
+                    result.rejected += 1
             for values, doc, outcome in zip(candidates, documents, outcomes, strict=True):
                 if not outcome.feasible:
                     result.rejected += 1
