@@ -18,9 +18,10 @@ from typing import TYPE_CHECKING
 from asm_py.cli import bounded, output_file, run
 
 from .model import GaitError, load
+from .params import argument as free_argument
 from .table import format_table
 from .terrain import FLAT, Terrain
-from .terrain import parse as parse_terrain
+from .terrain import argument as terrain_argument
 
 if TYPE_CHECKING:
     from .sim import Metrics
@@ -46,12 +47,12 @@ def main(argv: list[str] | None = None) -> int:
                           help="push the robot sideways (1 N, 0.1 s) at this simulated time")  # fmt: skip
     simulate.add_argument("--mjcf", type=output_file, metavar="OUT.xml",
                           help="also write the model (the first terrain's) as MJCF for MuJoCo's viewer")  # fmt: skip
-    simulate.add_argument("--terrain", type=_terrain, action="append", default=[], metavar="SPEC",
+    simulate.add_argument("--terrain", type=terrain_argument, action="append", default=[], metavar="SPEC",
                           help="flat (default), slope:DEG, step:HEIGHT, rough:seed=N,roughness=M, patches:friction=MU; "
                           "repeat for several (metrics for each)")  # fmt: skip
     tune = commands.add_parser("tune", help="tune free parameters of a gait with CMA-ES in simulation")
     tune.add_argument("file")
-    tune.add_argument("--free", action="append", required=True, metavar="NAME=LOW:HIGH",
+    tune.add_argument("--free", type=free_argument, action="append", required=True, metavar="NAME=LOW:HIGH",
                       help="a free parameter and its range, e.g. automata.wave.states[3].angle=20:70, "
                       "modules[2].phase=0:1, amplitude=20:80, wavelength=4:12, period=0.5:2 (repeat)")  # fmt: skip
     tune.add_argument("--objective", choices=("speed", "cost_of_transport", "heading_rate"), default="speed",
@@ -62,7 +63,7 @@ def main(argv: list[str] | None = None) -> int:
                       help="the search's seed: the same seed gives the same result (default 1)")  # fmt: skip
     tune.add_argument(
         "--terrain",
-        type=_terrain,
+        type=terrain_argument,
         action="append",
         default=[],
         metavar="SPEC",
@@ -97,14 +98,6 @@ def main(argv: list[str] | None = None) -> int:
         return 1
     print(format_table(gait, samples=args.samples))
     return 0
-
-
-def _terrain(spec: str) -> Terrain:
-    """argparse's view of gaits.terrain.parse: a bad spec is a usage error naming what is wrong."""
-    try:
-        return parse_terrain(spec)
-    except ValueError as exc:
-        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 def _report(path: str, exc: GaitError | OSError) -> None:
@@ -162,7 +155,10 @@ def _print_metrics(terrain: Terrain, metrics: Metrics) -> None:
         f"heading      {metrics.heading:.1f} degrees from +x, drift {metrics.turned:.1f} degrees "
         f"({metrics.heading_rate:.2f} degrees/s)"
     )
-    print(f"cost of transport {metrics.cost_of_transport:.2f} ({metrics.energy:.2f} J, {metrics.mass:.2f} kg)")
+    print(
+        f"cost         {metrics.cost_of_transport:.2f} cost of transport ({metrics.energy:.1f} J of joint work "
+        f"for {metrics.mass:.2f} kg)"
+    )
     print(f"peak torque  {metrics.peak_torque:.2f} N·m")
     print(f"fell         {'yes' if metrics.fell else 'no'}")
     print(f"stuck        {'yes' if metrics.stuck else 'no'}")

@@ -21,6 +21,7 @@ to 0.1 ms, phases to 1e-6) before the gait is built, so the file written is exac
 
 from __future__ import annotations
 
+import argparse
 import copy
 import math
 import re
@@ -85,6 +86,14 @@ def parse_free(text: str) -> Free:
         raise ValueError(f"free parameter {text!r}: a wavelength range may not include 0 (give -HIGH:-LOW to run "
                          "the wave the other way)")  # fmt: skip
     return free
+
+
+def argument(text: str) -> Free:
+    """argparse's view of :func:`parse_free`: a bad parameter is a usage error (exit 2)."""
+    try:
+        return parse_free(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 def check(gait: Gait, frees: list[Free]) -> None:

@@ -20,6 +20,7 @@ without having to be placed on an incline; the metrics are then measured along t
 
 from __future__ import annotations
 
+import argparse
 import math
 from dataclasses import dataclass, field
 
@@ -228,9 +229,12 @@ def _value(spec: str, name: str, text: str, bounds: tuple[float, float]) -> floa
     return value
 
 
-def parse_all(specs: list[str] | tuple[str, ...]) -> list[Terrain]:
-    """Every spec parsed (flat when there are none): the first bad one raises."""
-    return [parse(s) for s in specs] if specs else [FLAT]
+def argument(spec: str) -> Terrain:
+    """argparse's view of :func:`parse`: a bad spec is a usage error (exit 2) naming what is wrong."""
+    try:
+        return parse(spec)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 def _number(x: float) -> str:

@@ -8,9 +8,11 @@ automata in gaits.sim.Simulation on every terrain asked for, in worker processes
 is scored is exactly what a robot would run.
 
 Constraints are never traded against the objective: a candidate whose file is invalid, whose simulation diverges,
-whose peak torque exceeds the limit or that falls is scored far above any valid one (its violation added, so the
-search still sees which way is better), and only a candidate that met every constraint can become the best. If
-none did, there is no result.
+whose peak torque (warm-up included) exceeds the limit or that falls is scored far above any valid one (its
+violation and mean joint power added, so the search still sees which way is better), and only a candidate that met
+every constraint can become the best. At the end the best few valid ones run again, ``verify`` times longer, and
+the first that still meets every constraint is the result: a gait at the edge of its servos may meet a torque peak
+only every few seconds. If none does, there is no result.
 
 The same seed gives the same result: CMA-ES draws from its own seeded generator, every simulation is
 deterministic, and the results come back in the order they were asked for whatever the number of workers. Ctrl-C
@@ -20,6 +22,7 @@ deterministic, and the results come back in the order they were asked for whatev
 from __future__ import annotations
 
 import argparse
+import itertools
 import math
 import os
 import signal
@@ -27,7 +30,7 @@ import sys
 import warnings
 from collections.abc import Callable
 from concurrent.futures import Executor, ProcessPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -35,7 +38,7 @@ import numpy as np
 
 from .mjcf import Physics
 from .model import Gait, GaitError, dumps, from_dict, load, to_dict
-from .params import Free, apply, check, current, parse_free
+from .params import Free, apply, check, current
 from .terrain import FLAT, Terrain
 
 OBJECTIVES = {"speed": (1.0, "m/s"), "cost_of_transport": (-1.0, ""), "heading_rate": (1.0, "°/s")}
@@ -46,6 +49,8 @@ VIOLATION = 1e3
 """The score of a candidate that broke a constraint, plus by how much it did and its mean joint power."""
 WORST_COST = 100.0
 """Cost of transport counted for a robot that did not move (inf otherwise): keeps the scores finite for CMA-ES."""
+LEADERS = 8
+"""How many of the best valid candidates are kept for the final, longer check (the start, if valid, besides)."""
 DEFAULT_MAX_TORQUE = round(0.95 * Physics.torque, 3)
 """A gait that keeps its servos at their torque limit (1.5 N·m) cannot follow its own references."""
 
@@ -59,6 +64,9 @@ class Setup:
     seconds: float = 6.0
     warmup: float = 1.0
     max_torque: float = DEFAULT_MAX_TORQUE
+    verify: float = 2.0
+    """The best candidates are checked again over this many times ``seconds``: a rare torque peak (a gait near its
+    servos' limit can meet one only every few seconds) must not slip through a short search run."""
 
 
 @dataclass
@@ -85,14 +93,18 @@ def evaluate(document: dict[str, Any], setup: Setup) -> Outcome:
     try:
         gait = from_dict(document, source="<candidate>")
         runs = []
+        start_peak = 0.0
         for terrain in setup.terrains:
             with Simulation(gait, terrain=terrain) as sim:
-                runs.append(sim.run(setup.seconds, warmup=setup.warmup))
+                sim.start()
+                sim.advance(setup.warmup)  # the warm-up (the gait's ramp-in) counts for the constraints too
+                start_peak = max(start_peak, sim.peak_torque)
+                runs.append(sim.run(setup.seconds, warmup=0.0))
     except GaitError as exc:
         return Outcome(INVALID, problem=f"invalid: {exc.lines()[0] if exc.lines() else exc}")
     except (ValueError, FloatingPointError, RuntimeError) as exc:  # a table the runtime refuses, a divergence
         return Outcome(INVALID, problem=f"not simulated: {exc}")
-    peak = max(m.peak_torque for m in runs)
+    peak = max(start_peak, *(m.peak_torque for m in runs))
     fell = any(m.fell for m in runs)
     if setup.objective == "speed":
         value = float(np.mean([m.speed for m in runs]))
@@ -144,6 +156,10 @@ class Result:
     """The best objective after each generation."""
     refused_value: float = math.nan
     """The best objective among the candidates refused for a constraint (what keeping the constraints cost)."""
+    verified: bool = False
+    """The best held every constraint over the longer check run too (False after an interruption: not checked)."""
+    verify_refused: int = 0
+    """Leading candidates that broke a constraint in the longer check run and were passed over."""
 
 
 Progress = Callable[[Result, str], None]
@@ -162,18 +178,30 @@ def tune(gait: Gait, frees: list[Free], setup: Setup, *, budget: int = 60, seed:
     span = np.array([f.high - f.low for f in frees])
     start = [current(gait, f) for f in frees]
     x0 = np.clip((np.array(start) - low) / span, 0.0, 1.0)
+    if len(x0) == 1:  # cma searches 2 or more dimensions: one free parameter gets a dummy one, ignored
+        x0 = np.append(x0, 0.5)
     own = executor is None
     pool = executor or ProcessPoolExecutor(max_workers=workers or os.cpu_count() or 1, initializer=_ignore_sigint)
     result = Result(None, [], math.nan, math.nan, "")
     sign = OBJECTIVES[setup.objective][0]
+    order = itertools.count()
+    leaders: list[Leader] = []
+    fallback: Leader | None = None
+
+    def lead(value: float, values: list[float], doc: dict[str, Any]) -> None:
+        leaders.append((-sign * value, next(order), values, doc))
+        leaders.sort(key=lambda entry: entry[:2])
+        del leaders[LEADERS:]
+
     try:
         es = _strategy(x0, seed, popsize, budget)
         while result.evaluations < budget and not es.stop():
             first = result.evaluations == 0  # the start runs with the first generation: no core waits for it alone
             xs = es.ask()
             xs = xs[: budget - result.evaluations - first]
-            candidates = [[f.rounded(lo + x * s) for f, lo, s, x in zip(frees, low, span, xi, strict=True)]
-                          for xi in xs]  # fmt: skip
+            points = [xi[: len(frees)] for xi in xs]
+            candidates = [[f.rounded(lo + x * s) for f, lo, s, x in zip(frees, low, span, p, strict=True)]
+                          for p in points]  # fmt: skip
             documents = [apply(document, frees, values) for values in candidates]
             outcomes = list(pool.map(_evaluate_job, [(d, setup) for d in [document] * first + documents]))
             result.evaluations += len(outcomes)
@@ -184,6 +212,8 @@ def tune(gait: Gait, frees: list[Free], setup: Setup, *, budget: int = 60, seed:
                 result.start_problem = own_start.problem
                 if own_start.feasible:
                     result.best, result.values, result.value = gait, start, own_start.value
+                    lead(own_start.value, start, document)
+                    fallback = leaders[0]
                 else:
                     result.rejected += 1
             for values, doc, outcome in zip(candidates, documents, outcomes, strict=True):
@@ -191,20 +221,46 @@ def tune(gait: Gait, frees: list[Free], setup: Setup, *, budget: int = 60, seed:
                     result.rejected += 1
                     if not math.isnan(outcome.value) and not sign * outcome.value <= sign * result.refused_value:
                         result.refused_value = outcome.value
-                elif math.isnan(result.value) or sign * outcome.value > sign * result.value:
-                    result.best, result.values, result.value = from_dict(doc), values, outcome.value
+                else:
+                    lead(outcome.value, values, doc)
+                    if math.isnan(result.value) or sign * outcome.value > sign * result.value:
+                        result.best, result.values, result.value = from_dict(doc), values, outcome.value
             if len(xs) == es.popsize:  # a budget's last, partial generation is not told: CMA-ES wants all of it
                 es.tell(xs, [o.score for o in outcomes])
             result.history.append(result.value)
             if progress is not None:
                 best = min((o for o in outcomes if o.feasible), key=lambda o: -sign * o.value, default=None)
                 progress(result, _line(result, setup, best, outcomes, float(es.sigma)))
+        if fallback is not None and fallback not in leaders:
+            leaders.append(fallback)  # the start, checked last: a tuned gait is never worse off than its start
+        _verify(result, leaders, pool, setup, workers or os.cpu_count() or 1)
     except KeyboardInterrupt:
         result.interrupted = True
     finally:
         if own:
             pool.shutdown(wait=not result.interrupted, cancel_futures=True)
     return result
+
+
+Leader = tuple[float, int, list[float], dict[str, Any]]
+"""A valid candidate kept for the final check: (score, order found, values, document); sorted, the best first."""
+
+
+def _verify(result: Result, leaders: list[Leader], pool: Executor, setup: Setup, width: int) -> None:
+    """The best becomes the first leader that keeps every constraint over ``setup.verify`` × the search's run
+    (none: no best); its value stays the one the search measured, which its file reproduces. A batch as wide as the
+    pool at a time: usually the first batch settles it."""
+    longer = replace(setup, seconds=setup.seconds * setup.verify)
+    for k in range(0, len(leaders), width):
+        batch = leaders[k : k + width]
+        outcomes = pool.map(_evaluate_job, [(doc, longer) for *_, doc in batch])
+        for (score, _, values, doc), outcome in zip(batch, outcomes, strict=True):
+            if outcome.feasible:
+                result.best, result.values, result.verified = from_dict(doc), values, True
+                result.value = -OBJECTIVES[setup.objective][0] * score
+                return
+            result.verify_refused += 1
+    result.best, result.values, result.value = None, [], math.nan  # (an interruption above keeps the search's)
 
 
 def _strategy(x0: np.ndarray, seed: int, popsize: int | None, budget: int) -> Any:
@@ -233,12 +289,15 @@ def provenance(result: Result, frees: list[Free], setup: Setup, *, budget: int, 
     unit = OBJECTIVES[setup.objective][1]
     goal = "maximised" if OBJECTIVES[setup.objective][0] > 0 else "minimised"
     start = f"{result.start_value:.4g} {unit}" if result.start_problem == "" else f"refused: {result.start_problem}"
+    checked = (f"held again over {setup.seconds * setup.verify:g} s ({result.verify_refused} faster candidates did "
+               "not)" if result.verified else "not checked over a longer run (interrupted)")  # fmt: skip
     lines = [
         f"Tuned by `gaits tune` from {source}: objective {setup.objective} ({goal}), seed {seed}, budget {budget} "
         f"({result.evaluations} simulated{', interrupted' if result.interrupted else ''})",
         f"terrains {', '.join(t.spec for t in setup.terrains)}; {setup.seconds:g} s measured after {setup.warmup:g} s",
         f"score {setup.objective} {result.value:.4g} {unit} (start {start})",
-        f"constraints: peak torque <= {setup.max_torque:g} N·m, no fall, joint limits (the loader's)",
+        f"constraints: peak torque <= {setup.max_torque:g} N·m (warm-up included), no fall, joint limits "
+        f"(the loader's); {checked}",
         *(f"free {f} = {v:g}" for f, v in zip(frees, result.values, strict=True)),
     ]
     return "".join(f"# {line}\n" for line in lines)
@@ -253,7 +312,7 @@ def command(args: argparse.Namespace) -> int:
         print(f"gaits tune: error: {args.file}: {exc.lines()[0] if isinstance(exc, GaitError) else exc}",
               file=sys.stderr)  # fmt: skip
         return 1
-    frees = [parse_free(text) for text in args.free]
+    frees: list[Free] = args.free
     setup = Setup(args.objective, tuple(args.terrain or [FLAT]), args.seconds, args.warmup,
                   args.max_torque if args.max_torque is not None else DEFAULT_MAX_TORQUE)  # fmt: skip
     out = Path(args.out) if args.out else Path(args.file).with_suffix(".tuned.toml")
@@ -263,6 +322,9 @@ def command(args: argparse.Namespace) -> int:
                   progress=lambda _, line: print(line, file=sys.stderr, flush=True))  # fmt: skip
     if result.interrupted:
         print("interrupted: keeping the best so far", file=sys.stderr)
+    elif result.verify_refused:
+        print(f"{result.verify_refused} leading candidate(s) broke a constraint when run {setup.verify:g} times "
+              "longer and were passed over", file=sys.stderr)  # fmt: skip
     if result.best is None:
         print("gaits tune: error: no candidate met the constraints; nothing written", file=sys.stderr)
         return 1

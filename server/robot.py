@@ -35,6 +35,8 @@ from asm_py.node import Node
 from asm_py.transport.can import CanTransport
 from gaits.model import LIBRARY, load
 from gaits.sim import Simulation, select_modules
+from gaits.terrain import FLAT, Terrain
+from gaits.terrain import argument as terrain_argument
 
 from .bridge import CanZenohBridge, add_bus_arguments
 from .realtime import prefer_latency
@@ -63,6 +65,8 @@ class RobotOptions:
     c_modules: tuple[int, ...] | str = ()
     """Simulated modules that run the C runtime (firmware/) instead of the Python one: IDs, or "odd", "even",
     "all"."""
+    terrain: Terrain = FLAT
+    """The ground a simulated robot stands on (gaits.terrain): try a gait on the floor it will meet."""
 
 
 class RealTimeLoop:
@@ -160,7 +164,7 @@ class Robot:
                     return Node(module_name(module_id), transport)
 
                 self.sim = Simulation(gait, node_of=node_of, c_modules=select_modules(options.c_modules, gait),
-                                      bus_options=can_options)  # fmt: skip
+                                      bus_options=can_options, terrain=options.terrain)  # fmt: skip
             else:
                 can_options = dict(options.can)
             self.bridge = CanZenohBridge({**can_options, "heartbeat_period": options.heartbeat_period},
@@ -280,12 +284,17 @@ def main(argv: list[str] | None = None) -> int:
         metavar="IDS",
         help="simulated modules that run the C runtime (firmware/): IDs as 1,3,5, or odd, even, all",
     )
+    cli.add_argument("--terrain", type=terrain_argument, default=FLAT, metavar="SPEC",
+                     help="the simulated ground: flat (default), slope:DEG, step:HEIGHT, rough:seed=N,roughness=M, "
+                     "patches:friction=MU")  # fmt: skip
     cli.add_argument("--parent-pid", type=int, help=argparse.SUPPRESS)
     args = cli.parse_args(argv)
     if args.fd and args.can is None:
         cli.error("--fd describes a real bus: use it with --can")
     if args.c_modules and args.can is not None:
         cli.error("--c-modules chooses simulated modules: use it with --sim")
+    if args.terrain != FLAT and args.can is not None:
+        cli.error("--terrain is the simulated ground: use it with --sim")
     network = zenoh_options(cli, args)
     return run(cli.prog, lambda: _serve(args, network))
 
@@ -298,7 +307,8 @@ def _serve(args: argparse.Namespace, network: ZenohOptions) -> int:
     can_options = None if args.can is None else {**args.can, "fd": args.fd,
                                                  **({"bitrate": args.bitrate} if args.bitrate else {})}  # fmt: skip
     options = RobotOptions(sim=None if args.can else (args.sim or RobotOptions.sim), can=can_options, name=args.name,
-                           network=network, node_id=args.node_id, c_modules=args.c_modules)  # fmt: skip
+                           network=network, node_id=args.node_id, c_modules=args.c_modules,
+                           terrain=args.terrain)  # fmt: skip
     done = stop_requested()
     robot = Robot(options)  # a bad gait file, a busy port, a taken name: asm-robot: error: … (asm_py.cli.run)
     kind = "simulated" if robot.sim is not None else f"CAN {args.can}"
