@@ -51,7 +51,8 @@ def tuned_ratio(budget: int, seconds: float) -> None:
     best, best_peak = speed(result.best)
     values = ", ".join(f"{f.name} {v:g}" for f, v in zip(frees, result.values, strict=True))
     print(f"# tuned in {wall:.0f} s ({result.evaluations} simulations of {seconds:g} s): {values}; "
-          f"scored {result.value:.3f} m/s, the best refused {result.refused_value:.3f} m/s")  # fmt: skip
+          f"scored {result.value:.3f} m/s, the best refused {result.refused_value:.3f} m/s; "
+          f"{result.verify_refused} leader(s) failed the longer check")  # fmt: skip
     print(f"# 10 s runs: library {base:.3f} m/s (peak {base_peak:.2f} N·m), tuned {best:.3f} m/s "
           f"(peak {best_peak:.2f} N·m)")  # fmt: skip
     print(f"ratio tuned_caterpillar_speed_vs_library {best / base:.2f} (target >= 1.5)")
