@@ -9,8 +9,10 @@
    10 s after a 2 s warm-up (as bench/sim.py measures the library), and the ratio of their speeds is printed.
 2. ``tune_evals_per_s_vs_cores``: the same short search (same seed, so the same candidates) with 1 worker, then with
    2, three rounds interleaved; the best simulations per second with 2 over the best with 1, divided by 2 (1.0: the
-   second core doubles the rate). The pool's start, the serial first simulation (the starting gait) and the wait
-   for a generation's slowest candidate count, as they do in a real run.
+   second core doubles the rate). The final check's longer runs count as as many search runs as they last; the
+   pool's start and the wait for a generation's slowest candidate count, as they do in a real run. Each round also
+   says how busy the workers were and what share of the CPU they got: a miss caused by other processes on the
+   machine shows there, not in the tuner.
 """
 
 from __future__ import annotations
@@ -71,10 +73,14 @@ def scaling(budget: int, seconds: float, rounds: int) -> None:
             wall = time.perf_counter()
             result = tune(library, frees, setup, budget=budget, seed=2, workers=workers, popsize=8)
             wall = time.perf_counter() - wall
-            rate = result.evaluations / wall
+            evaluations = result.simulated / (setup.warmup + setup.seconds)  # the final check's longer runs too
+            rate = evaluations / wall
             rates[workers] = max(rates[workers], rate)
-            print(f"#   {workers} worker(s): {result.evaluations} simulations in {wall:.1f} s = {rate:.2f}/s, "
-                  f"best {result.value:.3f} m/s (load average {load_average:.2f} before)")  # fmt: skip
+            # busy: the workers' simulating time over workers × wall (the rest: pool start, generation barriers);
+            # cpu: the CPU time they got over that (the rest went to other processes on the machine)
+            print(f"#   {workers} worker(s): {evaluations:.0f} simulations' worth in {wall:.1f} s = {rate:.2f}/s, "
+                  f"workers busy {result.busy / (workers * wall):.0%}, with the CPU {result.cpu / result.busy:.0%} "
+                  f"of that (load average {load_average:.2f} before)")  # fmt: skip
     print(f"ratio tune_evals_per_s_vs_cores {rates[2] / rates[1] / 2:.2f} (target >= 0.8)")
 
 

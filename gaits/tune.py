@@ -27,6 +27,7 @@ import math
 import os
 import signal
 import sys
+import time
 import warnings
 from collections.abc import Callable
 from concurrent.futures import Executor, ProcessPoolExecutor
@@ -80,6 +81,10 @@ class Outcome:
     """Empty when every constraint held."""
     peak_torque: float = 0.0
     fell: bool = False
+    wall: float = 0.0
+    """Seconds the worker spent on it, and of those the CPU seconds it got: how busy the pool was, and how much of
+    the cores other processes took (bench/tune.py reports both)."""
+    cpu: float = 0.0
 
     @property
     def feasible(self) -> bool:
@@ -127,7 +132,10 @@ def evaluate(document: dict[str, Any], setup: Setup) -> Outcome:
 
 
 def _evaluate_job(job: tuple[dict[str, Any], Setup]) -> Outcome:
-    return evaluate(*job)
+    wall, cpu = time.perf_counter(), time.process_time()
+    outcome = evaluate(*job)
+    outcome.wall, outcome.cpu = time.perf_counter() - wall, time.process_time() - cpu
+    return outcome
 
 
 def _ignore_sigint() -> None:
@@ -160,6 +168,18 @@ class Result:
     """The best held every constraint over the longer check run too (False after an interruption: not checked)."""
     verify_refused: int = 0
     """Leading candidates that broke a constraint in the longer check run and were passed over."""
+    busy: float = 0.0
+    """Seconds the workers spent simulating, in all (Outcome.wall)."""
+    cpu: float = 0.0
+    """CPU seconds they got meanwhile (Outcome.cpu)."""
+
+    simulated: float = 0.0
+    """Simulated seconds in all, the final check's runs included."""
+
+    def account(self, outcomes: list[Outcome], setup: Setup) -> None:
+        self.simulated += len(outcomes) * len(setup.terrains) * (setup.warmup + setup.seconds)
+        self.busy += sum(o.wall for o in outcomes)
+        self.cpu += sum(o.cpu for o in outcomes)
 
 
 Progress = Callable[[Result, str], None]
@@ -205,6 +225,7 @@ def tune(gait: Gait, frees: list[Free], setup: Setup, *, budget: int = 60, seed:
             documents = [apply(document, frees, values) for values in candidates]
             outcomes = list(pool.map(_evaluate_job, [(d, setup) for d in [document] * first + documents]))
             result.evaluations += len(outcomes)
+            result.account(outcomes, setup)
             result.generations += 1
             if first:
                 own_start, outcomes = outcomes[0], outcomes[1:]
@@ -253,7 +274,8 @@ def _verify(result: Result, leaders: list[Leader], pool: Executor, setup: Setup,
     longer = replace(setup, seconds=setup.seconds * setup.verify)
     for k in range(0, len(leaders), width):
         batch = leaders[k : k + width]
-        outcomes = pool.map(_evaluate_job, [(doc, longer) for *_, doc in batch])
+        outcomes = list(pool.map(_evaluate_job, [(doc, longer) for *_, doc in batch]))
+        result.account(outcomes, longer)
         for (score, _, values, doc), outcome in zip(batch, outcomes, strict=True):
             if outcome.feasible:
                 result.best, result.values, result.verified = from_dict(doc), values, True
