@@ -77,6 +77,12 @@ def main(argv: list[str] | None = None) -> int:
                       help="simulated seconds before measuring (default 1)")  # fmt: skip
     tune.add_argument("--max-torque", type=bounded(float, above=0, high=100, what="the torque limit"), default=None,
                       help="peak joint torque allowed, N·m (default 95%% of the servos' 1.5 N·m)")  # fmt: skip
+    tune.add_argument(
+        "--gait",
+        default="forward",
+        metavar="NAME",
+        help="the program gait to simulate: forward (default) or one of the file's [gaits], e.g. left",
+    )
     tune.add_argument("--out", type=output_file, metavar="OUT.toml", help="the tuned gait (default: FILE.tuned.toml)")
     args = cli.parse_args(argv)
     if args.command == "simulate":

@@ -38,7 +38,7 @@ from typing import Any
 import numpy as np
 
 from .mjcf import Physics
-from .model import Gait, GaitError, dumps, from_dict, load, to_dict
+from .model import FORWARD, Gait, GaitError, dumps, from_dict, load, to_dict
 from .params import Free, apply, check, current
 from .terrain import FLAT, Terrain
 
@@ -65,6 +65,9 @@ class Setup:
     seconds: float = 6.0
     warmup: float = 1.0
     max_torque: float = DEFAULT_MAX_TORQUE
+    gait: str = FORWARD
+    """The program gait simulated: ``forward`` (the file's ``modules``) or one of its ``[gaits]`` (``left`` to tune a
+    turn); the robot starts in forward and switches at its first cycle boundary, within the warm-up."""
     verify: float = 2.0
     """The best candidates are checked again over this many times ``seconds``: a rare torque peak (a gait near its
     servos' limit can meet one only every few seconds) must not slip through a short search run."""
@@ -102,6 +105,8 @@ def evaluate(document: dict[str, Any], setup: Setup) -> Outcome:
         for terrain in setup.terrains:
             with Simulation(gait, terrain=terrain) as sim:
                 sim.start()
+                if setup.gait != FORWARD:
+                    sim.drive(setup.gait)
                 sim.advance(setup.warmup)  # the warm-up (the gait's ramp-in) counts for the constraints too
                 start_peak = max(start_peak, sim.peak_torque)
                 runs.append(sim.run(setup.seconds, warmup=0.0))
@@ -191,6 +196,8 @@ def tune(gait: Gait, frees: list[Free], setup: Setup, *, budget: int = 60, seed:
          executor: Executor | None = None) -> Result:  # fmt: skip
     """Search ``frees`` to optimise ``setup.objective``; at most ``budget`` simulations, the start's included."""
     check(gait, frees)
+    if setup.gait not in gait.program_gaits():
+        raise ValueError(f"the file has no gait {setup.gait!r} (it has {', '.join(gait.program_gaits())})")
     if setup.objective not in OBJECTIVES:
         raise ValueError(f"objective must be one of {', '.join(OBJECTIVES)}, not {setup.objective!r}")
     document = to_dict(gait)
@@ -316,7 +323,8 @@ def provenance(result: Result, frees: list[Free], setup: Setup, *, budget: int, 
     lines = [
         f"Tuned by `gaits tune` from {source}: objective {setup.objective} ({goal}), seed {seed}, budget {budget} "
         f"({result.evaluations} simulated{', interrupted' if result.interrupted else ''})",
-        f"terrains {', '.join(t.spec for t in setup.terrains)}; {setup.seconds:g} s measured after {setup.warmup:g} s",
+        f"gait {setup.gait}; terrains {', '.join(t.spec for t in setup.terrains)}; {setup.seconds:g} s measured after "
+        f"{setup.warmup:g} s",
         f"score {setup.objective} {result.value:.4g} {unit} (start {start})",
         f"constraints: peak torque <= {setup.max_torque:g} N·m (warm-up included), no fall, joint limits "
         f"(the loader's); {checked}",
@@ -336,7 +344,7 @@ def command(args: argparse.Namespace) -> int:
         return 1
     frees: list[Free] = args.free
     setup = Setup(args.objective, tuple(args.terrain or [FLAT]), args.seconds, args.warmup,
-                  args.max_torque if args.max_torque is not None else DEFAULT_MAX_TORQUE)  # fmt: skip
+                  args.max_torque if args.max_torque is not None else DEFAULT_MAX_TORQUE, args.gait)  # fmt: skip
     out = Path(args.out) if args.out else Path(args.file).with_suffix(".tuned.toml")
     print(f"tuning {gait.name}: {len(frees)} free, {args.objective}, budget {args.budget}, seed {args.seed}",
           file=sys.stderr)  # fmt: skip

@@ -171,3 +171,32 @@ def test_the_best_must_hold_its_constraints_over_a_longer_run_too():
     assert result.verified and result.verify_refused >= 1, "a faster leader broke the limit in the longer run"
     assert result.value == pytest.approx(max(abs(s.angle) for s in result.best.automata["wave"].states) / 100)
     assert result.value <= 0.6 < max(result.history)
+
+
+@pytest.mark.parametrize(
+    ("file", "setup", "frees"),
+    [
+        (CATERPILLAR, Setup("cost_of_transport", seconds=2.0, warmup=0.5), FREES),
+        (LIBRARY / "steerable_caterpillar.toml", Setup("heading_rate", seconds=2.0, warmup=1.5, gait="left"),
+         [parse_free("automata.left.amplitude=5:60"), parse_free("amplitude=20:70")]),
+    ],
+)  # fmt: skip
+def test_the_other_objectives_improve_too(file, setup, frees):
+    result = tune(load(file), frees, setup, budget=9, seed=1, workers=2, popsize=4)
+    assert result.best is not None and result.verified
+    better = result.value < result.start_value if setup.objective == "cost_of_transport" else (
+        result.value > result.start_value)  # fmt: skip
+    assert better, (result.value, result.start_value)
+    with Simulation(result.best) as sim:  # the turn is the program's left gait, driven as the Drive panel does
+        sim.start()
+        if setup.gait != "forward":
+            sim.drive(setup.gait)
+        sim.advance(setup.warmup)
+        metrics = sim.run(setup.seconds, warmup=0.0)
+    measured = metrics.cost_of_transport if setup.objective == "cost_of_transport" else abs(metrics.heading_rate)
+    assert measured == pytest.approx(result.value, rel=1e-12)
+
+
+def test_an_unknown_program_gait_is_refused():
+    with pytest.raises(ValueError, match="no gait 'left'"):
+        tune(load(CATERPILLAR), FREES, Setup(gait="left"), budget=2)
