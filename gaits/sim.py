@@ -247,7 +247,9 @@ class Simulation:
         """Heading turned since the last measurement began, degrees (see Metrics.turned)."""
         self._dofs = self.model.jnt_dofadr[self.model.actuator_trnid[:, 0]]
         """Each actuator's joint velocity index, for its power."""
-        self._yaw = 0.0
+        ends = ("b0", f"b{gait.robot.modules}") if gait.robot.shape == "chain" else ()
+        self._ends = [mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_BODY, name) for name in ends]
+        """A chain's first and last bodies: its heading is the line between them."""
         self._started = False
         hub = LocalNeighbours() if node_of is None else None  # without a bus, neighbours are heard in-process
         for assignment in gait.modules:
@@ -385,7 +387,7 @@ class Simulation:
         hinges), a legged body's front, projected on the ground."""
         robot, data = self.gait.robot, self.data
         if robot.shape == "chain":
-            tail, head = data.xpos[self.model.body("b0").id], data.xpos[self.model.body(f"b{robot.modules}").id]
+            tail, head = data.xpos[self._ends[0]], data.xpos[self._ends[1]]
             return math.atan2(head[1] - tail[1], head[0] - tail[0])
         xmat = data.xmat[self._root].reshape(3, 3)
         if robot.shape == "loop":
