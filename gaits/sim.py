@@ -52,8 +52,9 @@ class Metrics:
     real_time_factor: float = 0.0
     """Simulated seconds per wall-clock second of the whole run."""
     energy: float = 0.0
-    """Mechanical work of the joints, J: Σ|τ·ω| over the joints, integrated (sampled once per physics block,
-    as the peak torque is): what the servos spend, negative work counted too since a servo does not recover it."""
+    """Mechanical work of the joints, J: Σ|τ·ω| over the joints, integrated (sampled once per physics block, as
+    the peak torque is, the torque and velocity of the same instant): what the servos spend, negative work counted
+    too since a servo does not recover it."""
     mass: float = 0.0
     """The robot's mass, kg."""
     turned: float = 0.0
@@ -245,8 +246,6 @@ class Simulation:
         """Joint work since the last measurement began, J (see Metrics.energy)."""
         self.turned = 0.0
         """Heading turned since the last measurement began, degrees (see Metrics.turned)."""
-        self._dofs = self.model.jnt_dofadr[self.model.actuator_trnid[:, 0]]
-        """Each actuator's joint velocity index, for its power."""
         ends = ("b0", f"b{gait.robot.modules}") if gait.robot.shape == "chain" else ()
         self._ends = [mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_BODY, name) for name in ends]
         """A chain's first and last bodies: its heading is the line between them."""
@@ -340,7 +339,7 @@ class Simulation:
             force = self.data.actuator_force
             self.peak_torque = max(self.peak_torque, float(np.abs(force).max(initial=0.0)))
             dt = n * self.model.opt.timestep
-            self.energy += float(np.abs(force * self.data.qvel[self._dofs]).sum()) * dt
+            self.energy += float(np.abs(force * self.data.actuator_velocity).sum()) * dt
             yaw = self.yaw()
             self.turned += math.degrees(math.remainder(yaw - self._yaw, 2 * math.pi))
             self._yaw = yaw
