@@ -306,31 +306,44 @@ def _strategy(x0: np.ndarray, seed: int, popsize: int | None, budget: int) -> An
 
 
 def _line(result: Result, setup: Setup, best: Outcome | None, outcomes: list[Outcome], sigma: float) -> str:
-    unit = OBJECTIVES[setup.objective][1]
     gen = f"{best.value:.4g}" if best is not None else "none valid"
     refused = sum(not o.feasible for o in outcomes)
     return (f"generation {result.generations}: {result.evaluations} simulations, best {setup.objective} "
-            f"{result.value:.4g} {unit} (this generation {gen}, {refused} refused), sigma {sigma:.3f}")  # fmt: skip
+            f"{_amount(result.value, setup)} (this generation {gen}, {refused} refused), "
+            f"sigma {sigma:.3f}")  # fmt: skip
 
 
 def provenance(result: Result, frees: list[Free], setup: Setup, *, budget: int, seed: int, source: str) -> str:
     """The comment lines at the top of a tuned file: how it was made, so it can be made again."""
-    unit = OBJECTIVES[setup.objective][1]
     goal = "maximised" if OBJECTIVES[setup.objective][0] > 0 else "minimised"
-    start = f"{result.start_value:.4g} {unit}" if result.start_problem == "" else f"refused: {result.start_problem}"
-    checked = (f"held again over {setup.seconds * setup.verify:g} s ({result.verify_refused} faster candidates did "
+    start = _amount(result.start_value, setup) if result.start_problem == "" else f"refused: {result.start_problem}"
+    checked = (f"held again over {setup.seconds * setup.verify:g} s ({result.verify_refused} better candidates did "
                "not)" if result.verified else "not checked over a longer run (interrupted)")  # fmt: skip
     lines = [
         f"Tuned by `gaits tune` from {source}: objective {setup.objective} ({goal}), seed {seed}, budget {budget} "
         f"({result.evaluations} simulated{', interrupted' if result.interrupted else ''})",
         f"gait {setup.gait}; terrains {', '.join(t.spec for t in setup.terrains)}; {setup.seconds:g} s measured after "
         f"{setup.warmup:g} s",
-        f"score {setup.objective} {result.value:.4g} {unit} (start {start})",
+        f"score {setup.objective} {_amount(result.value, setup)} (start {start})",
         f"constraints: peak torque <= {setup.max_torque:g} N·m (warm-up included), no fall, joint limits "
         f"(the loader's); {checked}",
         *(f"free {f} = {v:g}" for f, v in zip(frees, result.values, strict=True)),
     ]
     return "".join(f"# {line}\n" for line in lines)
+
+
+def _amount(value: float, setup: Setup) -> str:
+    unit = OBJECTIVES[setup.objective][1]
+    return f"{value:.4g} {unit}" if unit else f"{value:.4g}"
+
+
+def _described(result: Result, setup: Setup) -> str:
+    """The tuned file's description: what it was tuned for first (the studio shows it), then the old one; within the
+    schema's 4096 characters however often a file is tuned again."""
+    assert result.best is not None
+    terrains = ", ".join(t.kind for t in setup.terrains)
+    text = f"Tuned for {setup.objective} ({_amount(result.value, setup)} on {terrains}) from: {result.best.description}"
+    return text.strip()[:4096]
 
 
 def command(args: argparse.Namespace) -> int:
@@ -345,7 +358,7 @@ def command(args: argparse.Namespace) -> int:
     frees: list[Free] = args.free
     setup = Setup(args.objective, tuple(args.terrain or [FLAT]), args.seconds, args.warmup,
                   args.max_torque if args.max_torque is not None else DEFAULT_MAX_TORQUE, args.gait)  # fmt: skip
-    out = Path(args.out) if args.out else Path(args.file).with_suffix(".tuned.toml")
+    out = Path(args.out) if args.out else Path(Path(args.file).stem + ".tuned.toml")  # here, not beside the library
     print(f"tuning {gait.name}: {len(frees)} free, {args.objective}, budget {args.budget}, seed {args.seed}",
           file=sys.stderr)  # fmt: skip
     result = tune(gait, frees, setup, budget=args.budget, seed=args.seed, workers=args.workers,
@@ -359,7 +372,6 @@ def command(args: argparse.Namespace) -> int:
         print("gaits tune: error: no candidate met the constraints; nothing written", file=sys.stderr)
         return 1
     header = provenance(result, frees, setup, budget=args.budget, seed=args.seed, source=Path(args.file).name)
-    out.write_text(header + dumps(result.best), encoding="utf-8")
-    unit = OBJECTIVES[setup.objective][1]
-    print(f"{args.objective} {result.value:.4g} {unit} (start {result.start_value:.4g}); written to {out}")
+    out.write_text(header + dumps(replace(result.best, description=_described(result, setup))), encoding="utf-8")
+    print(f"{args.objective} {_amount(result.value, setup)} (start {result.start_value:.4g}); written to {out}")
     return 130 if result.interrupted else 0

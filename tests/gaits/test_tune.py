@@ -100,7 +100,9 @@ def test_ctrl_c_writes_the_best_so_far(tmp_path):
     assert "keeping the best so far" in rest
     text = out.read_text(encoding="utf-8")
     assert "interrupted" in text.splitlines()[0] and "# free amplitude=20:85 = " in text
-    assert loads(text).name == "caterpillar"
+    tuned = loads(text)
+    assert tuned.name == "caterpillar" and tuned.description.startswith("Tuned for speed (")
+    assert tuned.description.endswith(load(CATERPILLAR).description)
 
 
 def test_free_parameters_apply_as_the_generator_would():
