@@ -53,10 +53,15 @@ def test_each_terrain_loads_and_runs(spec):
 
 
 def test_flat_terrain_is_the_model_it_always_was():
+    """One plane at z = 0, MuJoCo's own gravity, no assets: the library's figures (bench/sim.py) still hold."""
     gait = load(CATERPILLAR)
     text = build_mjcf(gait.robot, Physics(), terrain=FLAT)
-    assert text == build_mjcf(gait.robot, Physics())
-    assert text.count('<geom name="floor" type="plane"') == 1
+    model = mujoco.MjModel.from_xml_string(text)
+    grounds = [g for g in range(model.ngeom) if model.geom_bodyid[g] == 0]
+    assert len(grounds) == 1 and model.geom_type[grounds[0]] == mujoco.mjtGeom.mjGEOM_PLANE
+    assert tuple(model.geom_pos[grounds[0]]) == (0.0, 0.0, 0.0)
+    assert tuple(model.opt.gravity) == tuple(mujoco.MjModel.from_xml_string("<mujoco/>").opt.gravity)
+    assert "<asset>" not in text and model.nhfield == 0
 
 
 def test_uphill_goes_less_far_than_flat():
