@@ -177,7 +177,6 @@ class Result:
     """Seconds the workers spent simulating, in all (Outcome.wall)."""
     cpu: float = 0.0
     """CPU seconds they got meanwhile (Outcome.cpu)."""
-
     simulated: float = 0.0
     """Simulated seconds in all, the final check's runs included."""
 
