@@ -2,19 +2,29 @@
 
 gaits validate FILE...        exit 1 and list every problem (with its line) if a file is bad
 gaits expand FILE [--samples 16]
-gaits simulate FILE [--seconds 10] [--warmup 2] [--direction -1] [--push-at 6] [--mjcf OUT.xml]
-                               run it in MuJoCo (headless, on the modules' own runtime) and print the metrics
+gaits simulate FILE [--seconds 10] [--warmup 2] [--direction -1] [--push-at 6] [--mjcf OUT.xml] [--terrain SPEC]…
+                               run it in MuJoCo (headless, on the modules' own runtime) and print the metrics,
+                               once per terrain (gaits/terrain.py: flat, slope:5, step:0.03, rough:seed=3, …)
+gaits tune FILE --free NAME=LOW:HIGH… [--objective speed] [--budget 60] [--seed 1] [--terrain SPEC]… [--out FILE]
+                               search the free parameters with CMA-ES in simulation (gaits/tune.py)
 """
 
 from __future__ import annotations
 
 import argparse
 import sys
+from typing import TYPE_CHECKING
 
 from asm_py.cli import bounded, output_file, run
 
 from .model import GaitError, load
+from .params import argument as free_argument
 from .table import format_table
+from .terrain import FLAT, Terrain
+from .terrain import argument as terrain_argument
+
+if TYPE_CHECKING:
+    from .sim import Metrics
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -36,10 +46,51 @@ def main(argv: list[str] | None = None) -> int:
     simulate.add_argument("--push-at", type=bounded(float, 0, 3600, what="the push time"),
                           help="push the robot sideways (1 N, 0.1 s) at this simulated time")  # fmt: skip
     simulate.add_argument("--mjcf", type=output_file, metavar="OUT.xml",
-                          help="also write the model as MJCF (opens in MuJoCo's viewer)")  # fmt: skip
+                          help="also write the model (the first terrain's) as MJCF for MuJoCo's viewer")  # fmt: skip
+    simulate.add_argument("--terrain", type=terrain_argument, action="append", default=[], metavar="SPEC",
+                          help="flat (default), slope:DEG, step:HEIGHT, rough:seed=N,roughness=M, patches:friction=MU; "
+                          "repeat for several (metrics for each)")  # fmt: skip
+    tune = commands.add_parser("tune", help="tune free parameters of a gait with CMA-ES in simulation")
+    tune.add_argument("file")
+    tune.add_argument("--free", type=free_argument, action="append", required=True, metavar="NAME=LOW:HIGH",
+                      help="a free parameter and its range, e.g. automata.wave.states[3].angle=20:70, "
+                      "modules[2].phase=0:1, amplitude=20:80, wavelength=4:12, period=0.5:2 (repeat)")  # fmt: skip
+    tune.add_argument("--objective", choices=("speed", "cost_of_transport", "heading_rate"), default="speed",
+                      help="maximise speed (default), minimise cost of transport, maximise |heading rate|")  # fmt: skip
+    tune.add_argument("--budget", type=bounded(int, 1, 100_000, what="the budget"), default=60,
+                      help="simulations (candidates) in all, the start included (default 60)")  # fmt: skip
+    tune.add_argument("--seed", type=bounded(int, 0, 2**31 - 2, what="the seed"), default=1,
+                      help="the search's seed: the same seed gives the same result (default 1)")  # fmt: skip
+    tune.add_argument(
+        "--terrain",
+        type=terrain_argument,
+        action="append",
+        default=[],
+        metavar="SPEC",
+        help="evaluate on this terrain (repeat: the objective is the mean over them; default flat)",
+    )
+    tune.add_argument("--workers", type=bounded(int, 1, 256, what="workers"), default=None,
+                      help="worker processes (default: one per CPU core)")  # fmt: skip
+    tune.add_argument("--seconds", type=bounded(float, above=0, high=600, what="the measured time"), default=6.0,
+                      help="simulated seconds measured per candidate (default 6)")  # fmt: skip
+    tune.add_argument("--warmup", type=bounded(float, 0, 600, what="the warm-up"), default=1.0,
+                      help="simulated seconds before measuring (default 1)")  # fmt: skip
+    tune.add_argument("--max-torque", type=bounded(float, above=0, high=100, what="the torque limit"), default=None,
+                      help="peak joint torque allowed, N·m (default 95%% of the servos' 1.5 N·m)")  # fmt: skip
+    tune.add_argument(
+        "--gait",
+        default="forward",
+        metavar="NAME",
+        help="the program gait to simulate: forward (default) or one of the file's [gaits], e.g. left",
+    )
+    tune.add_argument("--out", type=output_file, metavar="OUT.toml", help="the tuned gait (default: FILE.tuned.toml)")
     args = cli.parse_args(argv)
     if args.command == "simulate":
         return run("gaits simulate", lambda: _simulate(args))
+    if args.command == "tune":
+        from .tune import command  # cma and MuJoCo load only for this command
+
+        return run("gaits tune", lambda: command(args))
     if args.command == "validate":
         return _validate(args.files)
     try:
@@ -77,6 +128,7 @@ def _validate(files: list[str]) -> int:
 
 
 def _simulate(args: argparse.Namespace) -> int:
+    """One run per terrain; each prints its metrics."""
     from pathlib import Path
 
     from .sim import Simulation  # MuJoCo loads only for this command
@@ -86,24 +138,37 @@ def _simulate(args: argparse.Namespace) -> int:
     except (GaitError, OSError) as exc:
         _report(args.file, exc)
         return 1
-    with Simulation(gait, direction=args.direction) as sim:
-        if args.mjcf:
-            Path(args.mjcf).write_text(sim.mjcf, encoding="utf-8")
-            print(f"model written to {args.mjcf}")
-        metrics = sim.run(args.seconds, warmup=args.warmup, push_at=args.push_at)
     robot = gait.robot
     timing = f"period {gait.period:g} s" if gait.timed else "timed by events"
     print(f"{gait.name}: {robot.modules}-module {robot.shape}, {timing}, direction {args.direction:+d}")
+    for k, terrain in enumerate(args.terrain or [FLAT]):
+        with Simulation(gait, direction=args.direction, terrain=terrain) as sim:
+            if args.mjcf and k == 0:
+                Path(args.mjcf).write_text(sim.mjcf, encoding="utf-8")
+                print(f"model written to {args.mjcf}")
+            metrics = sim.run(args.seconds, warmup=args.warmup, push_at=args.push_at)
+        _print_metrics(terrain, metrics)
+    return 0
+
+
+def _print_metrics(terrain: Terrain, metrics: Metrics) -> None:
+    print(f"terrain      {terrain.spec}")
     print(
         f"distance     {metrics.distance:.3f} m ({metrics.body_lengths:.2f} body lengths of {metrics.body_length:g} m)"
     )
     print(f"mean speed   {metrics.speed:.3f} m/s ({metrics.body_lengths / metrics.seconds * 10:.2f} BL per 10 s)")
-    print(f"heading      {metrics.heading:.1f} degrees from +x")
+    print(
+        f"heading      {metrics.heading:.1f} degrees from +x, drift {metrics.turned:.1f} degrees "
+        f"({metrics.heading_rate:.2f} degrees/s)"
+    )
+    print(
+        f"cost         {metrics.cost_of_transport:.2f} cost of transport ({metrics.energy:.1f} J of joint work "
+        f"for {metrics.mass:.2f} kg)"
+    )
     print(f"peak torque  {metrics.peak_torque:.2f} N·m")
     print(f"fell         {'yes' if metrics.fell else 'no'}")
     print(f"stuck        {'yes' if metrics.stuck else 'no'}")
     print(f"speed-up     {metrics.real_time_factor:.1f}x real time")
-    return 0
 
 
 if __name__ == "__main__":

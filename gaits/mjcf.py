@@ -20,6 +20,7 @@ import math
 from dataclasses import dataclass
 
 from .model import Robot
+from .terrain import FLAT, Ground, Terrain
 
 
 @dataclass(frozen=True)
@@ -67,8 +68,9 @@ def _quat_z(angle: float) -> str:
 
 
 class _Writer:
-    def __init__(self, robot: Robot, physics: Physics) -> None:
+    def __init__(self, robot: Robot, physics: Physics, ground: Ground) -> None:
         self.robot = robot
+        self.ground = ground
         self.p = physics
         self.s = robot.module_size
         self.lines: list[str] = []
@@ -107,8 +109,9 @@ class _Writer:
             if self.p.anisotropic is None:
                 return
             along, across = self.p.anisotropic
-            self.pairs.append(f'<pair geom1="{name}" geom2="floor" condim="3" '
-                              f'friction="{_v(along, across, 0.005, 0.0001, 0.0001)}"/>')  # fmt: skip
+            for floor in self.ground.names:  # an explicit pair per ground geom: it overrides the geoms' friction
+                self.pairs.append(f'<pair geom1="{name}" geom2="{floor}" condim="3" '
+                                  f'friction="{_v(along, across, 0.005, 0.0001, 0.0001)}"/>')  # fmt: skip
 
     def hinge(self, depth: int, module: int, axis: tuple[float, float, float], limits: tuple[float, float]) -> None:
         lo, hi = (math.radians(v) for v in limits)
@@ -200,10 +203,14 @@ class _Writer:
         self.emit(depth, "</body>")
 
 
-def build_mjcf(robot: Robot, physics: Physics | None = None, *, name: str = "robot") -> str:
-    """The MJCF text of ``robot``: modules, actuators, ground and (for loops) the closing weld."""
+def build_mjcf(robot: Robot, physics: Physics | None = None, *, name: str = "robot", terrain: Terrain = FLAT) -> str:
+    """The MJCF text of ``robot``: modules, actuators, the ground of ``terrain`` and (for loops) the closing weld."""
     p = physics or Physics()
-    w = _Writer(robot, p)
+    if p.anisotropic is not None and terrain.kind == "patches":
+        # anisotropic friction is an explicit pair per module and ground geom, whose friction overrides the tile's
+        raise ValueError("friction patches need isotropic ground friction; this gait's [ground] is anisotropic")
+    ground = terrain.ground(p.friction)
+    w = _Writer(robot, p, ground)
     if robot.shape == "legged":
         w.legged(2)
     elif robot.shape == "loop":
@@ -221,7 +228,7 @@ def build_mjcf(robot: Robot, physics: Physics | None = None, *, name: str = "rob
     # SIMULATION.md recommends jacobian="dense" and cone="elliptic" for 128 modules; on this build of MuJoCo both
     # measured slower for a moving 128-module capsule chain (1 730 steps/s vs 3 670 with the defaults), so the
     # defaults stay: bench/sim.py keeps the figures honest.
-    option = f'<option timestep="{_f(p.timestep)}" integrator="implicitfast"/>'
+    option = f'<option timestep="{_f(p.timestep)}" integrator="implicitfast" gravity="{_v(*ground.gravity)}"/>'
     parts = [
         f'<mujoco model="{name}">',
         '  <compiler angle="radian"/>',
@@ -238,10 +245,10 @@ def build_mjcf(robot: Robot, physics: Physics | None = None, *, name: str = "rob
         "  <visual>",
         '    <global offwidth="1280" offheight="720"/>',
         "  </visual>",
+        *(["  <asset>", *(f"    {a}" for a in ground.assets), "  </asset>"] if ground.assets else []),
         "  <worldbody>",
         '    <light pos="0 0 3" dir="0 0 -1" directional="true"/>',
-        f'    <geom name="floor" type="plane" size="0 0 0.05" condim="3" friction="{_v(p.friction, 0.005, 0.0001)}" '
-        'rgba="0.8 0.8 0.8 1"/>',
+        *(f"    {g}" for g in ground.geoms),
         *w.lines,
         "  </worldbody>",
     ]

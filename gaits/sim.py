@@ -32,6 +32,7 @@ from .deploy import module_tables
 from .mjcf import Physics, build_mjcf
 from .model import Gait
 from .programs import mode_index
+from .terrain import FLAT, Terrain
 
 
 @dataclass
@@ -50,6 +51,14 @@ class Metrics:
     """The robot ended on its side (chains, loops) or upside down (legged)."""
     real_time_factor: float = 0.0
     """Simulated seconds per wall-clock second of the whole run."""
+    energy: float = 0.0
+    """Mechanical work of the joints, J: Σ|τ·ω| over the joints, integrated (sampled once per physics block, as
+    the peak torque is, the torque and velocity of the same instant): what the servos spend, negative work counted
+    too since a servo does not recover it."""
+    mass: float = 0.0
+    """The robot's mass, kg."""
+    turned: float = 0.0
+    """How far the robot's heading turned, degrees counter-clockwise (unwrapped: two turns are 720)."""
 
     @property
     def distance(self) -> float:
@@ -74,6 +83,17 @@ class Metrics:
         """Less than half a body length of progress over the run."""
         return self.body_lengths < 0.5
 
+    @property
+    def cost_of_transport(self) -> float:
+        """Energy / (mass · g · distance): dimensionless, lower is better; inf when the robot did not move."""
+        distance = self.distance
+        return self.energy / (self.mass * 9.81 * distance) if distance > 0 and self.mass > 0 else math.inf
+
+    @property
+    def heading_rate(self) -> float:
+        """Mean turning rate, degrees per second counter-clockwise (the heading drift of a straight gait)."""
+        return self.turned / self.seconds if self.seconds > 0 else 0.0
+
     def along(self, heading_deg: float) -> float:
         """Progress along a direction, metres (negative: it went the other way)."""
         a = math.radians(heading_deg)
@@ -87,6 +107,7 @@ class Metrics:
     def summary(self) -> str:
         return (f"distance {self.distance:.3f} m = {self.body_lengths:.2f} BL in {self.seconds:g} s, "
                 f"speed {self.speed:.3f} m/s, heading {self.heading:.1f}°, peak torque {self.peak_torque:.2f} N·m, "
+                f"heading drift {self.turned:.1f}°, cost of transport {self.cost_of_transport:.2f}, "
                 f"fell {'yes' if self.fell else 'no'}, stuck {'yes' if self.stuck else 'no'}, "
                 f"real-time factor {self.real_time_factor:.1f}")  # fmt: skip
 
@@ -194,11 +215,13 @@ class Simulation:
         node_of: Callable[[int], Node] | None = None,
         c_modules: Collection[int] = (),
         bus_options: Mapping[str, Any] | None = None,
+        terrain: Terrain = FLAT,
     ) -> None:
         self.gait = gait
         self.lock = threading.RLock()
         self.physics = physics or Physics(friction=gait.ground.friction, anisotropic=gait.ground.anisotropic)
-        self.mjcf = build_mjcf(gait.robot, self.physics, name=gait.name)
+        self.terrain = terrain
+        self.mjcf = build_mjcf(gait.robot, self.physics, name=gait.name, terrain=terrain)
         self.model = mujoco.MjModel.from_xml_string(self.mjcf)
         self.data = mujoco.MjData(self.model)
         self.clock = SimClock()
@@ -209,7 +232,9 @@ class Simulation:
         self.direction = direction
         self.touching: set[int] = set()
         self.trace = Trace() if trace else None
-        self._floor = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_GEOM, "floor")
+        self._floor = np.array([mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_GEOM, name)
+                                for name in terrain.ground(self.physics.friction).names])  # fmt: skip
+        """The ground's geoms (a terrain may have several): what the contact sensors count as touching."""
         self._module_of_body = self._module_bodies()
         self._root = int(self.model.joint("root").bodyid[0])  # the body with the free joint (mjcf chose it)
         self.modules: dict[int, Module] = {}
@@ -217,6 +242,13 @@ class Simulation:
         self._nodes: list[Node] = []
         self._push: tuple[float, np.ndarray] | None = None
         self.peak_torque = 0.0
+        self.energy = 0.0
+        """Joint work since the last measurement began, J (see Metrics.energy)."""
+        self.turned = 0.0
+        """Heading turned since the last measurement began, degrees (see Metrics.turned)."""
+        ends = ("b0", f"b{gait.robot.modules}") if gait.robot.shape == "chain" else ()
+        self._ends = [mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_BODY, name) for name in ends]
+        """A chain's first and last bodies: its heading is the line between them."""
         self._started = False
         hub = LocalNeighbours() if node_of is None else None  # without a bus, neighbours are heard in-process
         for assignment in gait.modules:
@@ -234,6 +266,7 @@ class Simulation:
                                                         limits=gait.limits, ramp=ramp, inline=True,
                                                         module_id=assignment.id, neighbours=hub)  # fmt: skip
         mujoco.mj_forward(self.model, self.data)
+        self._yaw = self.yaw()
 
     def _module_bodies(self) -> np.ndarray:
         """Body id → the module it belongs to (0: none), for the contact sensors."""
@@ -303,7 +336,13 @@ class Simulation:
                 mujoco.mj_step(self.model, self.data, n)
             self._into_tick = (self._into_tick + n) % self.steps_per_tick
             steps -= n
-            self.peak_torque = max(self.peak_torque, float(np.abs(self.data.actuator_force).max(initial=0.0)))
+            force = self.data.actuator_force
+            self.peak_torque = max(self.peak_torque, float(np.abs(force).max(initial=0.0)))
+            dt = n * self.model.opt.timestep
+            self.energy += float(np.abs(force * self.data.actuator_velocity).sum()) * dt
+            yaw = self.yaw()
+            self.turned += math.degrees(math.remainder(yaw - self._yaw, 2 * math.pi))
+            self._yaw = yaw
             if self._push is not None and self.data.time >= self._push[0]:
                 self.data.xfrc_applied[self._root, :3] = 0.0
                 self._push = None
@@ -337,9 +376,22 @@ class Simulation:
             self.touching = set()
             return
         geoms = self.data.contact.geom[:ncon]
-        floor = (geoms == self._floor).any(axis=1)
-        other = np.where(geoms[:, 0] == self._floor, geoms[:, 1], geoms[:, 0])[floor]
+        on_floor = np.isin(geoms, self._floor)
+        floor = on_floor.any(axis=1)
+        other = np.where(on_floor[:, 0], geoms[:, 1], geoms[:, 0])[floor]
         self.touching = set(self._module_of_body[self.model.geom_bodyid[other]].tolist()) - {0}
+
+    def yaw(self) -> float:
+        """The robot's heading, radians: a chain's tail-to-head line, a loop's rolling direction (across its
+        hinges), a legged body's front, projected on the ground."""
+        robot, data = self.gait.robot, self.data
+        if robot.shape == "chain":
+            tail, head = data.xpos[self._ends[0]], data.xpos[self._ends[1]]
+            return math.atan2(head[1] - tail[1], head[0] - tail[0])
+        xmat = data.xmat[self._root].reshape(3, 3)
+        if robot.shape == "loop":
+            return math.atan2(xmat[1, 1], xmat[0, 1]) - math.pi / 2  # the hinge axis (body y), turned back 90°
+        return math.atan2(xmat[1, 0], xmat[0, 0])
 
     def center_of_mass(self) -> np.ndarray:
         return self.data.subtree_com[0].copy()
@@ -349,7 +401,8 @@ class Simulation:
         end = self.center_of_mass()
         robot = self.gait.robot
         return Metrics(seconds, (float(end[0] - start[0]), float(end[1] - start[1])),
-                       robot.modules * robot.module_size, self.peak_torque, self.fell(), real_time_factor)  # fmt: skip
+                       robot.modules * robot.module_size, self.peak_torque, self.fell(), real_time_factor,
+                       self.energy, float(self.model.body_mass.sum()), self.turned)  # fmt: skip
 
     def fell(self) -> bool:
         xmat = self.data.xmat[self._root].reshape(3, 3)
@@ -365,7 +418,7 @@ class Simulation:
             self.start()
         self.advance(warmup)
         start = self.center_of_mass()
-        self.peak_torque = 0.0
+        self.peak_torque = self.energy = self.turned = 0.0
         if push_at is not None and push_at > warmup:
             self.advance(push_at - warmup)
             self.push(push, push_seconds)

@@ -36,6 +36,8 @@ from asm_py.node import Node
 from asm_py.transport.can import CanTransport
 from gaits.model import LIBRARY, load
 from gaits.sim import Simulation, select_modules
+from gaits.terrain import FLAT, Terrain
+from gaits.terrain import argument as terrain_argument
 
 from .bridge import CanZenohBridge, add_bus_arguments
 from .foxglove_live import FoxgloveLive
@@ -68,6 +70,8 @@ class RobotOptions:
     foxglove: int | None = None
     """Serve the robot to Foxglove over its WebSocket protocol on this port (0: a free one); None: no server."""
     foxglove_host: str = "127.0.0.1"
+    terrain: Terrain = FLAT
+    """The ground a simulated robot stands on (gaits.terrain): try a gait on the floor it will meet."""
 
 
 class RealTimeLoop:
@@ -166,7 +170,7 @@ class Robot:
                     return Node(module_name(module_id), transport)
 
                 self.sim = Simulation(gait, node_of=node_of, c_modules=select_modules(options.c_modules, gait),
-                                      bus_options=can_options)  # fmt: skip
+                                      bus_options=can_options, terrain=options.terrain)  # fmt: skip
             else:
                 can_options = dict(options.can)
             self.bridge = CanZenohBridge({**can_options, "heartbeat_period": options.heartbeat_period},
@@ -301,6 +305,9 @@ def main(argv: list[str] | None = None) -> int:
         help="where the Foxglove server "
         "listens (default 127.0.0.1; beyond loopback only with --insecure: it has no authentication)",
     )
+    cli.add_argument("--terrain", type=terrain_argument, default=FLAT, metavar="SPEC",
+                     help="the simulated ground: flat (default), slope:DEG, step:HEIGHT, rough:seed=N,roughness=M, "
+                     "patches:friction=MU")  # fmt: skip
     cli.add_argument("--parent-pid", type=int, help=argparse.SUPPRESS)
     args = cli.parse_args(argv)
     if args.fd and args.can is None:
@@ -312,6 +319,8 @@ def main(argv: list[str] | None = None) -> int:
     if not _loopback(args.foxglove_host) and not args.insecure:
         cli.error(f"--foxglove-host {args.foxglove_host} is beyond loopback: the Foxglove server has no "
                   "authentication (add --insecure to serve it anyway)")  # fmt: skip
+    if args.terrain != FLAT and args.can is not None:
+        cli.error("--terrain is the simulated ground: use it with --sim")
     network = zenoh_options(cli, args)
     return run(cli.prog, lambda: _serve(args, network))
 
@@ -332,7 +341,8 @@ def _serve(args: argparse.Namespace, network: ZenohOptions) -> int:
                                                  **({"bitrate": args.bitrate} if args.bitrate else {})}  # fmt: skip
     options = RobotOptions(sim=None if args.can else (args.sim or RobotOptions.sim), can=can_options, name=args.name,
                            network=network, node_id=args.node_id, c_modules=args.c_modules,
-                           foxglove=args.foxglove, foxglove_host=args.foxglove_host)  # fmt: skip
+                           foxglove=args.foxglove, foxglove_host=args.foxglove_host,
+                           terrain=args.terrain)  # fmt: skip
     done = stop_requested()
     robot = Robot(options)  # a bad gait file, a busy port, a taken name: asm-robot: error: … (asm_py.cli.run)
     kind = "simulated" if robot.sim is not None else f"CAN {args.can}"

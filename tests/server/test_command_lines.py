@@ -46,6 +46,8 @@ USAGE_ERRORS = [  # (command, arguments, what the one-line error must mention)
     ("asm-robot", ["--zenoh-connect", "tcp/host"], "HOST:PORT"),
     ("asm-robot", ["--zenoh-config", "/nonexistent.json5"], "no such file"),
     ("asm-robot", ["--fd"], "with --can"),
+    ("asm-robot", ["--terrain", "rough:seed=x"], "seed must be an integer"),
+    ("asm-robot", ["--can", "virtual:x", "--terrain", "slope:5"], "with --sim"),
     ("asm-robot", ["--can", "virtual:x", "--node-id", "255"], "node ID"),
     ("asm-robot", ["--c-modules", "0,3"], "1..254"),
     ("asm-robot", ["--c-modules", "odd,x"], "commas"),
@@ -91,6 +93,11 @@ USAGE_ERRORS = [  # (command, arguments, what the one-line error must mention)
     ("gaits", ["simulate", GAIT, "--seconds", "inf"], "finite"),
     ("gaits", ["simulate", GAIT, "--direction", "2"], "--direction"),
     ("gaits", ["simulate", GAIT, "--mjcf", "/nonexistent/dir/x.xml"], "does not exist"),
+    ("gaits", ["simulate", GAIT, "--terrain", "slope:90"], "angle must be in [-45, 45]"),
+    ("gaits", ["tune", GAIT, "--free", "nonsense"], "NAME=LOW:HIGH"),
+    ("gaits", ["tune", GAIT, "--free", "amplitude=1:2", "--budget", "0"], "budget"),
+    ("gaits", ["tune", GAIT, "--free", "amplitude=1:2", "--objective", "fast"], "--objective"),
+    ("gaits", ["tune", GAIT], "--free"),
 ]
 
 

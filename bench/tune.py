@@ -1,0 +1,100 @@
+"""The gait tuner (issue 30): how much faster it makes the library caterpillar, and how well its workers use the cores.
+
+    .venv/bin/python bench/tune.py            # about 3 minutes on 2 idle cores
+    .venv/bin/python bench/tune.py --quick    # under a minute on 2 idle cores
+
+1. ``tuned_caterpillar_speed_vs_library``: gaits.tune.tune on the library caterpillar, three generator parameters
+   free (amplitude 20-85°, period 0.35-1.5 s, wavelength 3-14 modules), speed on flat ground, the default
+   constraints (peak torque <= 1.425 N·m, no fall, joint limits). Then the library gait and the tuned one each run
+   10 s after a 2 s warm-up (as bench/sim.py measures the library), and the ratio of their speeds is printed.
+2. ``tune_evals_per_s_vs_cores``: the same short search (same seed, so the same candidates) with 1 worker, then with
+   2, three rounds interleaved; the best simulations per second with 2 over the best with 1, divided by 2 (1.0: the
+   second core doubles the rate). The final check's longer runs count as as many search runs as they last; the
+   pool's start and the wait for a generation's slowest candidate count, as they do in a real run. Each round also
+   says how busy the workers were and what share of the CPU they got: a miss caused by other processes on the
+   machine shows there, not in the tuner.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+from gaits.model import LIBRARY, load
+from gaits.params import parse_free
+from gaits.sim import Simulation
+from gaits.tune import Setup, tune
+
+FREES = ["amplitude=20:85", "period=0.35:1.5", "wavelength=3:14"]
+
+
+def speed(gait) -> tuple[float, float]:
+    """Speed (m/s) and peak torque over 10 s after 2 s of warm-up."""
+    with Simulation(gait) as sim:
+        metrics = sim.run(10.0, warmup=2.0)
+    return metrics.speed, metrics.peak_torque
+
+
+def tuned_ratio(budget: int, seconds: float) -> None:
+    library = load(LIBRARY / "caterpillar.toml")
+    frees = [parse_free(text) for text in FREES]
+    setup = Setup("speed", seconds=seconds, warmup=1.0)
+    wall = time.perf_counter()
+    result = tune(library, frees, setup, budget=budget, seed=1, workers=2,
+                  progress=lambda _, line: print(f"#   {line}", flush=True))  # fmt: skip
+    wall = time.perf_counter() - wall
+    assert result.best is not None
+    base, base_peak = speed(library)
+    best, best_peak = speed(result.best)
+    values = ", ".join(f"{f.name} {v:g}" for f, v in zip(frees, result.values, strict=True))
+    print(f"# tuned in {wall:.0f} s ({result.evaluations} simulations of {seconds:g} s): {values}; "
+          f"scored {result.value:.3f} m/s, the best refused {result.refused_value:.3f} m/s; "
+          f"{result.verify_refused} leader(s) failed the longer check")  # fmt: skip
+    print(f"# 10 s runs: library {base:.3f} m/s (peak {base_peak:.2f} N·m), tuned {best:.3f} m/s "
+          f"(peak {best_peak:.2f} N·m)")  # fmt: skip
+    print(f"ratio tuned_caterpillar_speed_vs_library {best / base:.2f} (target >= 1.5)")
+
+
+def scaling(budget: int, seconds: float, rounds: int) -> None:
+    """Rounds of 1 worker then 2, interleaved, the best rate of each: the other loads of a shared machine come and
+    go, and the load average is printed with every round so a miss shows whether the second core was free."""
+    library = load(LIBRARY / "caterpillar.toml")
+    frees = [parse_free(text) for text in FREES]
+    setup = Setup("speed", seconds=seconds, warmup=1.0)
+    rates: dict[int, float] = {1: 0.0, 2: 0.0}
+    for _ in range(rounds):
+        for workers in (1, 2):
+            load_average = os.getloadavg()[0]
+            wall = time.perf_counter()
+            result = tune(library, frees, setup, budget=budget, seed=2, workers=workers, popsize=8)
+            wall = time.perf_counter() - wall
+            evaluations = result.simulated / (setup.warmup + setup.seconds)  # the final check's longer runs too
+            rate = evaluations / wall
+            rates[workers] = max(rates[workers], rate)
+            # busy: the workers' simulating time over workers × wall (the rest: pool start, generation barriers);
+            # cpu: the CPU time they got over that (the rest went to other processes on the machine)
+            print(f"#   {workers} worker(s): {evaluations:.0f} simulations' worth in {wall:.1f} s = {rate:.2f}/s, "
+                  f"workers busy {result.busy / (workers * wall):.0%}, with the CPU {result.cpu / result.busy:.0%} "
+                  f"of that (load average {load_average:.2f} before)")  # fmt: skip
+    print(f"ratio tune_evals_per_s_vs_cores {rates[2] / rates[1] / 2:.2f} (target >= 0.8)")
+
+
+def main() -> None:
+    cli = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
+    cli.add_argument("--quick", action="store_true", help="smaller budgets and shorter simulations (under 2 minutes)")
+    args = cli.parse_args()
+    if args.quick:
+        tuned_ratio(budget=150, seconds=3.0)
+        scaling(budget=33, seconds=2.0, rounds=3)
+    else:
+        tuned_ratio(budget=400, seconds=6.0)
+        scaling(budget=49, seconds=4.0, rounds=3)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,376 @@
+"""Tune a gait for a robot and its ground: CMA-ES over a few free parameters, each candidate simulated.
+
+A library gait is a starting point, not the best gait for this robot on this floor. :func:`tune` searches the free
+parameters (gaits/params.py: a state's angle or duration, a module's phase, the generator's amplitude, period,
+wavelength) with CMA-ES (the ``cma`` package, ask/tell), in a box normalised to [0, 1] per parameter. Every
+candidate is a whole gait file, checked by the loader (joint limits among the rest) and run by the modules' own
+automata in gaits.sim.Simulation on every terrain asked for, in worker processes (one per core by default): what
+is scored is exactly what a robot would run.
+
+Constraints are never traded against the objective: a candidate whose file is invalid, whose simulation diverges,
+whose peak torque (warm-up included) exceeds the limit or that falls is scored far above any valid one (its
+violation and mean joint power added, so the search still sees which way is better), and only a candidate that met
+every constraint can become the best. At the end the best few valid ones run again, ``verify`` times longer, and
+the first that still meets every constraint is the result: a gait at the edge of its servos may meet a torque peak
+only every few seconds. If none does, there is no result.
+
+The same seed gives the same result: CMA-ES draws from its own seeded generator, every simulation is
+deterministic, and the results come back in the order they were asked for whatever the number of workers. Ctrl-C
+(or a callback raising KeyboardInterrupt) stops the search and keeps the best so far.
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+import math
+import os
+import signal
+import sys
+import time
+import warnings
+from collections.abc import Callable
+from concurrent.futures import Executor, ProcessPoolExecutor
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .mjcf import Physics
+from .model import FORWARD, Gait, GaitError, dumps, from_dict, load, to_dict
+from .params import Free, apply, check, current
+from .terrain import FLAT, Terrain
+
+OBJECTIVES = {"speed": (1.0, "m/s"), "cost_of_transport": (-1.0, ""), "heading_rate": (1.0, "°/s")}
+"""Objective → (+1: maximised, -1: minimised; its unit)."""
+INVALID = 1e4
+"""The score of a candidate that could not be simulated (a bad file, a diverged simulation)."""
+VIOLATION = 1e3
+"""The score of a candidate that broke a constraint, plus by how much it did and its mean joint power."""
+WORST_COST = 100.0
+"""Cost of transport counted for a robot that did not move (inf otherwise): keeps the scores finite for CMA-ES."""
+LEADERS = 8
+"""How many of the best valid candidates are kept for the final, longer check (the start, if valid, besides)."""
+DEFAULT_MAX_TORQUE = round(0.95 * Physics.torque, 3)
+"""A gait that keeps its servos at their torque limit (1.5 N·m) cannot follow its own references."""
+
+
+@dataclass(frozen=True)
+class Setup:
+    """What every evaluation needs besides the candidate: sent once to every worker with each job."""
+
+    objective: str = "speed"
+    terrains: tuple[Terrain, ...] = (FLAT,)
+    seconds: float = 6.0
+    warmup: float = 1.0
+    max_torque: float = DEFAULT_MAX_TORQUE
+    gait: str = FORWARD
+    """The program gait simulated: ``forward`` (the file's ``modules``) or one of its ``[gaits]`` (``left`` to tune a
+    turn); the robot starts in forward and switches at its first cycle boundary, within the warm-up."""
+    verify: float = 2.0
+    """The best candidates are checked again over this many times ``seconds``: a rare torque peak (a gait near its
+    servos' limit can meet one only every few seconds) must not slip through a short search run."""
+
+
+@dataclass
+class Outcome:
+    """One candidate's simulations: its score for CMA-ES (lower is better) and why it was refused, if it was."""
+
+    score: float
+    value: float = math.nan
+    """The objective in its own units (mean over the terrains), NaN when refused."""
+    problem: str = ""
+    """Empty when every constraint held."""
+    peak_torque: float = 0.0
+    fell: bool = False
+    wall: float = 0.0
+    """Seconds the worker spent on it, and of those the CPU seconds it got: how busy the pool was, and how much of
+    the cores other processes took (bench/tune.py reports both)."""
+    cpu: float = 0.0
+
+    @property
+    def feasible(self) -> bool:
+        return not self.problem
+
+
+def evaluate(document: dict[str, Any], setup: Setup) -> Outcome:
+    """Simulate one candidate on every terrain (in a worker process) and score it."""
+    from .sim import Simulation  # MuJoCo loads where it runs
+
+    try:
+        gait = from_dict(document, source="<candidate>")
+        runs = []
+        start_peak = 0.0
+        for terrain in setup.terrains:
+            with Simulation(gait, terrain=terrain) as sim:
+                sim.start()
+                if setup.gait != FORWARD:
+                    sim.drive(setup.gait)
+                sim.advance(setup.warmup)  # the warm-up (the gait's ramp-in) counts for the constraints too
+                start_peak = max(start_peak, sim.peak_torque)
+                runs.append(sim.run(setup.seconds, warmup=0.0))
+    except GaitError as exc:
+        return Outcome(INVALID, problem=f"invalid: {exc.lines()[0] if exc.lines() else exc}")
+    except (ValueError, FloatingPointError, RuntimeError) as exc:  # a table the runtime refuses, a divergence
+        return Outcome(INVALID, problem=f"not simulated: {exc}")
+    peak = max(start_peak, *(m.peak_torque for m in runs))
+    fell = any(m.fell for m in runs)
+    if setup.objective == "speed":
+        value = float(np.mean([m.speed for m in runs]))
+    elif setup.objective == "cost_of_transport":
+        value = float(np.mean([min(m.cost_of_transport, WORST_COST) for m in runs]))
+    else:
+        value = float(np.mean([abs(m.heading_rate) for m in runs]))
+    problems = []
+    if peak > setup.max_torque:
+        problems.append(f"peak torque {peak:.2f} > {setup.max_torque:g} N·m")
+    if fell:
+        problems.append("fell")
+    if problems:
+        # The peak saturates at the servos' limit, so by itself it scores many refused candidates alike: their mean
+        # joint power (W) tells them apart, steering the search towards gentler gaits, which is where it comes back.
+        excess = max(0.0, peak - setup.max_torque) + (1.0 if fell else 0.0)
+        power = float(np.mean([m.energy / m.seconds for m in runs]))
+        return Outcome(VIOLATION + excess + power, value, ", ".join(problems), peak, fell)
+    return Outcome(-OBJECTIVES[setup.objective][0] * value, value, "", peak, fell)
+
+
+def _evaluate_job(job: tuple[dict[str, Any], Setup]) -> Outcome:
+    wall, cpu = time.perf_counter(), time.process_time()
+    outcome = evaluate(*job)
+    outcome.wall, outcome.cpu = time.perf_counter() - wall, time.process_time() - cpu
+    return outcome
+
+
+def _ignore_sigint() -> None:
+    """Workers leave Ctrl-C to the parent, which stops the search and keeps the best so far."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+@dataclass
+class Result:
+    """The search's outcome: the best candidate that met every constraint (None if none did)."""
+
+    best: Gait | None
+    values: list[float]
+    """The best candidate's free parameter values (as rounded into its file)."""
+    value: float
+    """Its objective (NaN when there is no best)."""
+    start_value: float
+    """The starting gait's objective (NaN when it broke a constraint)."""
+    start_problem: str
+    evaluations: int = 0
+    rejected: int = 0
+    """Candidates refused for a constraint or an invalid file."""
+    generations: int = 0
+    interrupted: bool = False
+    history: list[float] = field(default_factory=list)
+    """The best objective after each generation."""
+    refused_value: float = math.nan
+    """The best objective among the candidates refused for a constraint (what keeping the constraints cost)."""
+    verified: bool = False
+    """The best held every constraint over the longer check run too (False after an interruption: not checked)."""
+    verify_refused: int = 0
+    """Leading candidates that broke a constraint in the longer check run and were passed over."""
+    busy: float = 0.0
+    """Seconds the workers spent simulating, in all (Outcome.wall)."""
+    cpu: float = 0.0
+    """CPU seconds they got meanwhile (Outcome.cpu)."""
+    simulated: float = 0.0
+    """Simulated seconds in all, the final check's runs included."""
+
+    def account(self, outcomes: list[Outcome], setup: Setup) -> None:
+        self.simulated += len(outcomes) * len(setup.terrains) * (setup.warmup + setup.seconds)
+        self.busy += sum(o.wall for o in outcomes)
+        self.cpu += sum(o.cpu for o in outcomes)
+
+
+Progress = Callable[[Result, str], None]
+"""Called after every generation with the result so far and a one-line summary; may raise KeyboardInterrupt."""
+
+
+def tune(gait: Gait, frees: list[Free], setup: Setup, *, budget: int = 60, seed: int = 1, workers: int | None = None,
+         popsize: int | None = None, progress: Progress | None = None,
+         executor: Executor | None = None) -> Result:  # fmt: skip
+    """Search ``frees`` to optimise ``setup.objective``; at most ``budget`` simulations, the start's included."""
+    check(gait, frees)
+    if setup.gait not in gait.program_gaits():
+        raise ValueError(f"the file has no gait {setup.gait!r} (it has {', '.join(gait.program_gaits())})")
+    if setup.objective not in OBJECTIVES:
+        raise ValueError(f"objective must be one of {', '.join(OBJECTIVES)}, not {setup.objective!r}")
+    document = to_dict(gait)
+    low = np.array([f.low for f in frees])
+    span = np.array([f.high - f.low for f in frees])
+    start = [current(gait, f) for f in frees]
+    x0 = np.clip((np.array(start) - low) / span, 0.0, 1.0)
+    if len(x0) == 1:  # cma searches 2 or more dimensions: one free parameter gets a dummy one, ignored
+        x0 = np.append(x0, 0.5)
+    own = executor is None
+    pool = executor or ProcessPoolExecutor(max_workers=workers or os.cpu_count() or 1, initializer=_ignore_sigint)
+    result = Result(None, [], math.nan, math.nan, "")
+    sign = OBJECTIVES[setup.objective][0]
+    order = itertools.count()
+    leaders: list[Leader] = []
+    fallback: Leader | None = None
+
+    def lead(value: float, values: list[float], doc: dict[str, Any]) -> None:
+        leaders.append((-sign * value, next(order), values, doc))
+        leaders.sort(key=lambda entry: entry[:2])
+        del leaders[LEADERS:]
+
+    try:
+        es = _strategy(x0, seed, popsize, budget)
+        while result.evaluations < budget and not es.stop():
+            first = result.evaluations == 0  # the start runs with the first generation: no core waits for it alone
+            xs = es.ask()
+            xs = xs[: budget - result.evaluations - first]
+            points = [xi[: len(frees)] for xi in xs]
+            candidates = [[f.rounded(lo + x * s) for f, lo, s, x in zip(frees, low, span, p, strict=True)]
+                          for p in points]  # fmt: skip
+            documents = [apply(document, frees, values) for values in candidates]
+            outcomes = list(pool.map(_evaluate_job, [(d, setup) for d in [document] * first + documents]))
+            result.evaluations += len(outcomes)
+            result.account(outcomes, setup)
+            result.generations += 1
+            if first:
+                own_start, outcomes = outcomes[0], outcomes[1:]
+                result.start_value = own_start.value if own_start.feasible else math.nan
+                result.start_problem = own_start.problem
+                if own_start.feasible:
+                    result.best, result.values, result.value = gait, start, own_start.value
+                    lead(own_start.value, start, document)
+                    fallback = leaders[0]
+                else:
+                    result.rejected += 1
+            for values, doc, outcome in zip(candidates, documents, outcomes, strict=True):
+                if not outcome.feasible:
+                    result.rejected += 1
+                    if not math.isnan(outcome.value) and not sign * outcome.value <= sign * result.refused_value:
+                        result.refused_value = outcome.value
+                else:
+                    lead(outcome.value, values, doc)
+                    if math.isnan(result.value) or sign * outcome.value > sign * result.value:
+                        result.best, result.values, result.value = from_dict(doc), values, outcome.value
+            if len(xs) == es.popsize:  # a budget's last, partial generation is not told: CMA-ES wants all of it
+                es.tell(xs, [o.score for o in outcomes])
+            result.history.append(result.value)
+            if progress is not None:
+                best = min((o for o in outcomes if o.feasible), key=lambda o: -sign * o.value, default=None)
+                progress(result, _line(result, setup, best, outcomes, float(es.sigma)))
+        if fallback is not None and fallback not in leaders:
+            leaders.append(fallback)  # the start, checked last: a tuned gait is never worse off than its start
+        _verify(result, leaders, pool, setup, workers or os.cpu_count() or 1)
+    except KeyboardInterrupt:
+        result.interrupted = True
+    finally:
+        if own:
+            pool.shutdown(wait=not result.interrupted, cancel_futures=True)
+    return result
+
+
+Leader = tuple[float, int, list[float], dict[str, Any]]
+"""A valid candidate kept for the final check: (score, order found, values, document); sorted, the best first."""
+
+
+def _verify(result: Result, leaders: list[Leader], pool: Executor, setup: Setup, width: int) -> None:
+    """The best becomes the first leader that keeps every constraint over ``setup.verify`` × the search's run
+    (none: no best); its value stays the one the search measured, which its file reproduces. A batch as wide as the
+    pool at a time: usually the first batch settles it."""
+    longer = replace(setup, seconds=setup.seconds * setup.verify)
+    for k in range(0, len(leaders), width):
+        batch = leaders[k : k + width]
+        outcomes = list(pool.map(_evaluate_job, [(doc, longer) for *_, doc in batch]))
+        result.account(outcomes, longer)
+        for (score, _, values, doc), outcome in zip(batch, outcomes, strict=True):
+            if outcome.feasible:
+                result.best, result.values, result.verified = from_dict(doc), values, True
+                result.value = -OBJECTIVES[setup.objective][0] * score
+                return
+            result.verify_refused += 1
+    result.best, result.values, result.value = None, [], math.nan  # (an interruption above keeps the search's)
+
+
+def _strategy(x0: np.ndarray, seed: int, popsize: int | None, budget: int) -> Any:
+    with warnings.catch_warnings():  # cma warns that matplotlib (its plots) is missing
+        warnings.simplefilter("ignore")
+        import cma
+    # cma's seed 0 means a random one; the budget alone ends the search (a generation of refused candidates
+    # scores alike, and cma's flat-fitness and tolfun stops would end it there)
+    options: dict[str, Any] = {"seed": seed + 1, "bounds": [0.0, 1.0], "verbose": -9, "tolfun": 0.0,
+                               "tolfunhist": 0.0, "tolflatfitness": budget}  # fmt: skip
+    default = 4 + int(3 * math.log(len(x0)))
+    options["popsize"] = max(2, min(popsize or default, budget - 1))
+    return cma.CMAEvolutionStrategy(x0.tolist(), 0.3, options)
+
+
+def _line(result: Result, setup: Setup, best: Outcome | None, outcomes: list[Outcome], sigma: float) -> str:
+    gen = f"{best.value:.4g}" if best is not None else "none valid"
+    refused = sum(not o.feasible for o in outcomes)
+    return (f"generation {result.generations}: {result.evaluations} simulations, best {setup.objective} "
+            f"{_amount(result.value, setup)} (this generation {gen}, {refused} refused), "
+            f"sigma {sigma:.3f}")  # fmt: skip
+
+
+def provenance(result: Result, frees: list[Free], setup: Setup, *, budget: int, seed: int, source: str) -> str:
+    """The comment lines at the top of a tuned file: how it was made, so it can be made again."""
+    goal = "maximised" if OBJECTIVES[setup.objective][0] > 0 else "minimised"
+    start = _amount(result.start_value, setup) if result.start_problem == "" else f"refused: {result.start_problem}"
+    checked = (f"held again over {setup.seconds * setup.verify:g} s ({result.verify_refused} better candidates did "
+               "not)" if result.verified else "not checked over a longer run (interrupted)")  # fmt: skip
+    lines = [
+        f"Tuned by `gaits tune` from {source}: objective {setup.objective} ({goal}), seed {seed}, budget {budget} "
+        f"({result.evaluations} simulated{', interrupted' if result.interrupted else ''})",
+        f"gait {setup.gait}; terrains {', '.join(t.spec for t in setup.terrains)}; {setup.seconds:g} s measured after "
+        f"{setup.warmup:g} s",
+        f"score {setup.objective} {_amount(result.value, setup)} (start {start})",
+        f"constraints: peak torque <= {setup.max_torque:g} N·m (warm-up included), no fall, joint limits "
+        f"(the loader's); {checked}",
+        *(f"free {f} = {v:g}" for f, v in zip(frees, result.values, strict=True)),
+    ]
+    return "".join(f"# {line}\n" for line in lines)
+
+
+def _amount(value: float, setup: Setup) -> str:
+    unit = OBJECTIVES[setup.objective][1]
+    return f"{value:.4g} {unit}" if unit else f"{value:.4g}"
+
+
+def _described(result: Result, setup: Setup) -> str:
+    """The tuned file's description: what it was tuned for first (the studio shows it), then the old one; within the
+    schema's 4096 characters however often a file is tuned again."""
+    assert result.best is not None
+    terrains = ", ".join(t.kind for t in setup.terrains)
+    text = f"Tuned for {setup.objective} ({_amount(result.value, setup)} on {terrains}) from: {result.best.description}"
+    return text.strip()[:4096]
+
+
+def command(args: argparse.Namespace) -> int:
+    """``gaits tune``: parse, search, write the best gait (also after Ctrl-C); exit 1 when nothing met the
+    constraints, 130 after an interruption."""
+    try:
+        gait = load(args.file)
+    except (GaitError, OSError) as exc:
+        print(f"gaits tune: error: {args.file}: {exc.lines()[0] if isinstance(exc, GaitError) else exc}",
+              file=sys.stderr)  # fmt: skip
+        return 1
+    frees: list[Free] = args.free
+    setup = Setup(args.objective, tuple(args.terrain or [FLAT]), args.seconds, args.warmup,
+                  args.max_torque if args.max_torque is not None else DEFAULT_MAX_TORQUE, args.gait)  # fmt: skip
+    out = Path(args.out) if args.out else Path(Path(args.file).stem + ".tuned.toml")  # here, not beside the library
+    print(f"tuning {gait.name}: {len(frees)} free, {args.objective}, budget {args.budget}, seed {args.seed}",
+          file=sys.stderr)  # fmt: skip
+    result = tune(gait, frees, setup, budget=args.budget, seed=args.seed, workers=args.workers,
+                  progress=lambda _, line: print(line, file=sys.stderr, flush=True))  # fmt: skip
+    if result.interrupted:
+        print("interrupted: keeping the best so far", file=sys.stderr)
+    elif result.verify_refused:
+        print(f"{result.verify_refused} leading candidate(s) broke a constraint when run {setup.verify:g} times "
+              "longer and were passed over", file=sys.stderr)  # fmt: skip
+    if result.best is None:
+        print("gaits tune: error: no candidate met the constraints; nothing written", file=sys.stderr)
+        return 1
+    header = provenance(result, frees, setup, budget=args.budget, seed=args.seed, source=Path(args.file).name)
+    out.write_text(header + dumps(replace(result.best, description=_described(result, setup))), encoding="utf-8")
+    print(f"{args.objective} {_amount(result.value, setup)} (start {result.start_value:.4g}); written to {out}")
+    return 130 if result.interrupted else 0

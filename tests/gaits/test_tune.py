@@ -1,0 +1,204 @@
+"""The tuner: it beats the gait it starts from, the same seed gives the same gait, a candidate that breaks a
+constraint is never the best, and an interrupted search keeps (and writes) the best so far. Tiny budgets: a few
+candidates of 2 simulated seconds each."""
+
+from __future__ import annotations
+
+import math
+import os
+import signal
+import subprocess
+import sys
+from concurrent.futures import Executor
+from pathlib import Path
+
+import pytest
+
+from gaits.generate import WaveSpec, generate
+from gaits.model import LIBRARY, load, loads, to_dict
+from gaits.params import apply, current, parse_free
+from gaits.sim import Simulation
+from gaits.tune import VIOLATION, Outcome, Setup, tune
+
+pytestmark = pytest.mark.timeout(300)
+CATERPILLAR = LIBRARY / "caterpillar.toml"
+SETUP = Setup("speed", seconds=2.0, warmup=0.5)
+FREES = [parse_free("amplitude=20:85"), parse_free("period=0.6:1.6")]
+
+
+def _speed(gait, setup: Setup = SETUP):
+    with Simulation(gait) as sim:
+        return sim.run(setup.seconds, warmup=setup.warmup)
+
+
+@pytest.fixture(scope="module")
+def tuned():
+    return tune(load(CATERPILLAR), FREES, SETUP, budget=9, seed=1, workers=2, popsize=4)
+
+
+def test_it_improves_on_the_start_and_reports_what_it_simulated(tuned):
+    assert tuned.best is not None and not tuned.interrupted and tuned.verified
+    assert tuned.evaluations == 9 and tuned.generations == 2
+    assert tuned.value > tuned.start_value, (tuned.value, tuned.start_value)
+    again = _speed(tuned.best)  # the gait returned is the one that was scored
+    assert again.speed == pytest.approx(tuned.value, rel=1e-12)
+    assert [current(tuned.best, f) for f in FREES] == pytest.approx(tuned.values, abs=1e-3)
+    assert tuned.history == sorted(tuned.history)  # the best never gets worse
+
+
+def test_the_same_seed_gives_the_same_gait(tuned):
+    again = tune(load(CATERPILLAR), FREES, SETUP, budget=9, seed=1, workers=1, popsize=4)
+    assert again.values == tuned.values and again.value == tuned.value  # one worker or two: the same
+    assert to_dict(again.best) == to_dict(tuned.best)
+    other = tune(load(CATERPILLAR), FREES, SETUP, budget=5, seed=2, workers=2, popsize=4)
+    assert other.history[0] != tuned.history[0] or other.values != tuned.values
+
+
+def test_a_constraint_breaking_candidate_is_never_the_best():
+    # Faster means more torque: above about 55° of amplitude (or a shorter period) the caterpillar needs more than
+    # 1.2 N·m; a state angle beyond ±90° breaks the joint limits, which the loader refuses.
+    setup = Setup("speed", seconds=2.0, warmup=0.5, max_torque=1.2)
+    frees = [*FREES, parse_free("automata.wave.states[3].angle=0:150")]
+    result = tune(load(CATERPILLAR), frees, setup, budget=9, seed=3, workers=2, popsize=4)
+    assert result.best is not None and result.rejected >= 1
+    assert result.refused_value > result.value, "a faster candidate broke a constraint and was not taken"
+    assert result.verified
+    metrics = _speed(result.best, setup)
+    assert metrics.peak_torque <= 1.2 and not metrics.fell
+    assert metrics.speed == pytest.approx(result.value, rel=1e-12)
+    with Simulation(result.best) as sim:  # the whole run the final check made, warm-up included
+        longer = sim.run(setup.seconds * setup.verify + setup.warmup, warmup=0.0)
+    assert longer.peak_torque <= 1.2 and not longer.fell
+    assert max(abs(s.angle) for s in result.best.automata["wave"].states) <= 90.0
+
+
+def test_an_interrupted_search_keeps_the_best_so_far():
+    def interrupt(result, line):
+        assert line.startswith("generation 1:")
+        raise KeyboardInterrupt
+
+    result = tune(load(CATERPILLAR), FREES, SETUP, budget=40, seed=1, workers=2, popsize=4, progress=interrupt)
+    assert result.interrupted and result.evaluations == 5 and result.best is not None
+    assert result.value >= result.start_value
+
+
+def test_ctrl_c_writes_the_best_so_far(tmp_path):
+    out = tmp_path / "tuned.toml"
+    command = [sys.executable, "-m", "gaits.cli", "tune", str(CATERPILLAR), "--free", "amplitude=20:85",
+               "--budget", "200", "--seconds", "1", "--warmup", "0.5", "--workers", "2", "--out", str(out)]  # fmt: skip
+    process = subprocess.Popen(command, stderr=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
+                               cwd=Path(__file__).resolve().parents[2])  # fmt: skip
+    assert process.stderr is not None
+    lines = []
+    for line in process.stderr:
+        lines.append(line)
+        if line.startswith("generation 1:"):
+            os.kill(process.pid, signal.SIGINT)
+            break
+    _, rest = process.communicate(timeout=120)
+    assert process.returncode == 130, "".join(lines) + rest
+    assert "keeping the best so far" in rest
+    text = out.read_text(encoding="utf-8")
+    assert "interrupted" in text.splitlines()[0] and "# free amplitude=20:85 = " in text
+    tuned = loads(text)
+    assert tuned.name == "caterpillar" and tuned.description.startswith("Tuned for speed (")
+    assert tuned.description.endswith(load(CATERPILLAR).description)
+
+
+def test_free_parameters_apply_as_the_generator_would():
+    made = generate(WaveSpec(modules=8, amplitude=40.0, wavelength=6.0, period=1.0))
+    document = to_dict(made)
+    frees = [parse_free("amplitude=10:80"), parse_free("wavelength=2:12"), parse_free("period=0.5:2")]
+    changed = apply(document, frees, [60.0, 9.0, 2.0])
+    expected = to_dict(generate(WaveSpec(modules=8, amplitude=60.0, wavelength=9.0, period=2.0)))
+    for key in ("automata", "modules"):
+        assert _close(changed[key], expected[key]), key
+    assert not _close(document["automata"], expected["automata"])
+    assert [current(made, f) for f in frees] == pytest.approx([40.0, 6.0, 1.0], rel=1e-4)  # phases: 1e-6
+
+
+def _close(a, b) -> bool:
+    """Documents equal but for float rounding (the generator rounds angles to 0.001° as the tuner does)."""
+    if isinstance(a, dict):
+        return a.keys() == b.keys() and all(_close(a[k], b[k]) for k in a)
+    if isinstance(a, list):
+        return len(a) == len(b) and all(_close(x, y) for x, y in zip(a, b, strict=True))
+    if isinstance(a, float):
+        return math.isclose(a, b, abs_tol=2e-3)
+    return a == b
+
+
+@pytest.mark.parametrize(
+    ("text", "says"),
+    [
+        ("amplitude", "NAME=LOW:HIGH"),
+        ("amplitude=80:20", "LOW < HIGH"),
+        ("speed=1:2", "not one of"),
+        ("period=0:2", "above 0 s"),
+        ("wavelength=-3:3", "may not include 0"),
+    ],
+)
+def test_a_bad_free_parameter_is_a_clear_error(text, says):
+    with pytest.raises(ValueError, match="free parameter") as caught:
+        parse_free(text)
+    assert says in str(caught.value)
+
+
+def test_a_free_parameter_the_gait_lacks_is_refused():
+    with pytest.raises(ValueError, match="no automaton 'legs'"):
+        tune(load(CATERPILLAR), [parse_free("automata.legs.states[0].angle=0:1")], SETUP, budget=2)
+    with pytest.raises(ValueError, match="has 16 states"):
+        tune(load(CATERPILLAR), [parse_free("automata.wave.states[16].angle=0:1")], SETUP, budget=2)
+
+
+class _StandIn(Executor):
+    """Scores without MuJoCo: speed = the largest angle / 100, and above 60° the torque limit breaks, but only in
+    runs longer than 2 s (the rare peak a short search run misses)."""
+
+    def __init__(self) -> None:
+        self.runs: list[float] = []
+
+    def map(self, fn, *iterables, timeout=None, chunksize=1):
+        for document, setup in iterables[0]:
+            self.runs.append(setup.seconds)
+            amplitude = max(abs(s["angle"]) for s in document["automata"]["wave"]["states"])
+            broken = amplitude > 60 and setup.seconds > 2.0
+            yield Outcome(VIOLATION if broken else -amplitude / 100, amplitude / 100, "peak torque" if broken else "")
+
+
+def test_the_best_must_hold_its_constraints_over_a_longer_run_too():
+    stand_in = _StandIn()
+    result = tune(load(CATERPILLAR), [parse_free("amplitude=20:85")], SETUP, budget=30, seed=1, executor=stand_in)
+    assert 2.0 * SETUP.verify in stand_in.runs, "the leaders ran again, longer"
+    assert result.verified and result.verify_refused >= 1, "a faster leader broke the limit in the longer run"
+    assert result.value == pytest.approx(max(abs(s.angle) for s in result.best.automata["wave"].states) / 100)
+    assert result.value <= 0.6 < max(result.history)
+
+
+@pytest.mark.parametrize(
+    ("file", "setup", "frees"),
+    [
+        (CATERPILLAR, Setup("cost_of_transport", seconds=2.0, warmup=0.5), FREES),
+        (LIBRARY / "steerable_caterpillar.toml", Setup("heading_rate", seconds=2.0, warmup=1.5, gait="left"),
+         [parse_free("automata.left.amplitude=5:60"), parse_free("amplitude=20:70")]),
+    ],
+)  # fmt: skip
+def test_the_other_objectives_improve_too(file, setup, frees):
+    result = tune(load(file), frees, setup, budget=9, seed=1, workers=2, popsize=4)
+    assert result.best is not None and result.verified
+    better = result.value < result.start_value if setup.objective == "cost_of_transport" else (
+        result.value > result.start_value)  # fmt: skip
+    assert better, (result.value, result.start_value)
+    with Simulation(result.best) as sim:  # the turn is the program's left gait, driven as the Drive panel does
+        sim.start()
+        if setup.gait != "forward":
+            sim.drive(setup.gait)
+        sim.advance(setup.warmup)
+        metrics = sim.run(setup.seconds, warmup=0.0)
+    measured = metrics.cost_of_transport if setup.objective == "cost_of_transport" else abs(metrics.heading_rate)
+    assert measured == pytest.approx(result.value, rel=1e-12)
+
+
+def test_an_unknown_program_gait_is_refused():
+    with pytest.raises(ValueError, match="no gait 'left'"):
+        tune(load(CATERPILLAR), FREES, Setup(gait="left"), budget=2)
