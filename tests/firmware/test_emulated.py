@@ -207,3 +207,93 @@ def test_a_deployed_gait_runs_on_the_board_and_stops_at_the_estop() -> None:
         runtime.close()
         python_node.close()
         board.close()
+
+
+@needs_arm_gcc
+@pytest.mark.parametrize("seed", range(2))
+def test_random_programs_run_on_the_board_as_in_the_host_build(seed: int) -> None:
+    """The Module interface in-process (load, start) on a board image and on the host build of the same sources
+    (asm_module.c_module), ticked by one simulated clock, each on an identical simulated joint: the same joint goal
+    at every tick. What differs is only what the board adds: its encoder's 4,096 counts a turn, so a state that ends
+    at a contact or at goal may end a tick apart — the goals must stay within the neighbouring ticks' range."""
+    import random
+
+    from asm_module.c_module import CModule
+    from asm_module.emulated import EmulatedModule
+    from asm_module.wire import encode_program
+    from asm_py.clock import SimClock
+    from asm_py.event import Event
+
+    from .programs import random_program
+    from .test_c_program import ContactJoint
+
+    rng = random.Random(2800 + seed)
+    programs = []
+    while len(programs) < 4:
+        program = random_program(rng)
+        if not program.neighbours() and not program.simple and len(encode_program(program)) <= 581:
+            programs.append(program)
+    for program in programs:
+        clock = SimClock()
+        tick = Event("gait.tick", codec="float64", clock=clock)
+        host = CModule("c5", 5, driver=ContactJoint(clock=clock, tau=0.1), clock=clock, tick=tick,
+                       interface="virtual", channel=fresh_name("host"))  # fmt: skip
+        board = EmulatedModule("m5", 5, driver=ContactJoint(clock=clock, tau=0.1), clock=clock, tick=tick,
+                               interface="virtual", channel=fresh_name("board"))  # fmt: skip
+        phase, direction = round(rng.random() * 0.99, 3), rng.choice([1, -1])
+        host_goals, board_goals = [], []
+        try:
+            for module in (host, board):
+                module.load_gait(encode_program(program), phase, direction)
+                module.start_gait()
+            for k in range(1, 151):
+                clock.advance_to(k / 50)
+                tick.set(k / 50)
+                host_goals.append(host.goal_now())
+                board_goals.append(board.goal_now())
+            assert board.fault is None and board.tick_cycles().worst < BUDGET
+        finally:
+            host.close()
+            board.close()
+        exact = sum(h == b for h, b in zip(host_goals, board_goals, strict=True))
+        for k in range(1, len(host_goals) - 1):
+            window = host_goals[k - 1 : k + 2]
+            assert min(window) - 1e-3 <= board_goals[k] <= max(window) + 1e-3, (program, k, board_goals[k], window)
+        assert exact > len(host_goals) // 2, (program, exact)
+
+
+@needs_arm_gcc
+def test_the_emulator_stops_an_image_that_would_fail_on_the_board(tmp_path) -> None:
+    """Two faults the example port had before it ran here, put back one at a time: an image that uses the FPU
+    without enabling it faults at boot; one that writes SysTick's reload to the wrong register never ticks."""
+    import subprocess
+    from pathlib import Path
+
+    from asm_module.elf import read_image
+    from asm_module.emulator import Cortex, FirmwareFault, Joint
+    from asm_module.firmware_build import C_FLAGS, CORTEX_M4_FLAGS, FIRMWARE, runtime_sources
+
+    port = (FIRMWARE / "port" / "stm32f4_bxcan.c").read_text()
+    enable_fpu = "    SCB_CPACR |= 0xFu << 20;"
+    reload = "#define SYST_RVR REG(0xE000E014u)"
+    assert enable_fpu in port and reload in port
+
+    def image(source: str) -> Path:
+        c_file, elf = tmp_path / "port.c", tmp_path / "port.elf"
+        c_file.write_text(source)
+        subprocess.run(["arm-none-eabi-gcc", *C_FLAGS, f"-I{FIRMWARE / 'port'}", "-Os", *CORTEX_M4_FLAGS,
+                        *map(str, runtime_sources()), str(c_file), "-nostartfiles", "--specs=nano.specs",
+                        "--specs=nosys.specs", "-Wl,--gc-sections", f"-T{FIRMWARE / 'port' / 'stm32f4.ld'}", "-lm",
+                        "-o", str(elf)], check=True, capture_output=True)  # fmt: skip
+        return elf
+
+    joint = Joint(lambda _: None, lambda: None, lambda: (0.0, False))
+    with pytest.raises(FirmwareFault, match="CPACR"):
+        Cortex(read_image(image(port.replace(enable_fpu, ""))), BxCan(lambda *_: None), joint)
+    core = Cortex(read_image(image(port.replace(reload, "#define SYST_RVR REG(0xE000E018u)"))), BxCan(lambda *_: None),
+                  joint)  # fmt: skip
+    core.run(200)
+    assert core.systicks == 0 and core.ticks.ticks == 1, "no SysTick: the first control tick is the only one"
+    healthy = Cortex(read_image(image(port)), BxCan(lambda *_: None), joint)
+    healthy.run(200)
+    assert healthy.systicks == 200 and healthy.ticks.ticks == 11, "ticks at 0, 20, ..., 200 ms"
