@@ -30,7 +30,7 @@ from dataclasses import dataclass
 
 from unicorn import UC_ARCH_ARM, UC_HOOK_BLOCK, UC_HOOK_CODE, UC_MODE_MCLASS, UC_MODE_THUMB
 from unicorn import arm_const as arm
-from unicorn.unicorn import Uc, UcError
+from unicorn.unicorn import Uc, UcContext, UcError
 
 from .bxcan import RF0R, BxCan
 from .elf import Image
@@ -47,6 +47,7 @@ ENCODER_COUNTS = 4096
 _FRAME_REGS = [arm.UC_ARM_REG_R0, arm.UC_ARM_REG_R1, arm.UC_ARM_REG_R2, arm.UC_ARM_REG_R3, arm.UC_ARM_REG_R12,
                arm.UC_ARM_REG_LR, arm.UC_ARM_REG_PC, arm.UC_ARM_REG_XPSR]  # fmt: skip
 _FP_REGS = [getattr(arm, f"UC_ARM_REG_S{k}") for k in range(16)]
+_ENTRY_REGS = [*_FRAME_REGS, arm.UC_ARM_REG_CONTROL, arm.UC_ARM_REG_SP]
 
 
 class FirmwareFault(RuntimeError):
@@ -108,6 +109,7 @@ class Cortex:
         self._calling = False
         self._reason = ""
         self._pending = False  # a SysTick interrupt waits to be taken
+        self._fp_context: UcContext | None = None  # the FP registers at exception entry (lazy stacking)
         self._sizes: dict[tuple[int, int], int] = {}
         self.ticks = TickStats()
         self._tick_start: int | None = None
@@ -210,11 +212,13 @@ class Cortex:
     # -- exceptions --------------------------------------------------------------------------------------------
 
     def _enter(self, vector: int) -> None:
-        """Take an exception: push the frame as the core does and branch to ``vector``."""
+        """Take an exception: push the frame as the core does and branch to ``vector``. With the FPU in use
+        (CONTROL.FPCA) the frame is the extended one, its FP part reserved and — lazy stacking, the M4's default —
+        filled only if the handler uses the FPU (then from the registers as they were at entry)."""
         uc = self.uc
         self._activity += 1
         self.systicks += 1
-        values = list(uc.reg_read_batch([*_FRAME_REGS, arm.UC_ARM_REG_CONTROL, arm.UC_ARM_REG_SP]))
+        values = list(uc.reg_read_batch(_ENTRY_REGS))
         sp, control = values.pop(), values.pop()
         values[7] = (values[7] & ~0x1FF) | 1 << 24  # the stacked xPSR: thread mode, Thumb
         extended = bool(control & 4)
@@ -222,10 +226,8 @@ class Cortex:
         frame = (sp - size) & ~7
         if frame != sp - size:
             values[7] |= 1 << 9  # the frame was realigned: one padding word above it
-        data = struct.pack("<8I", *values)
-        if extended:
-            data += struct.pack("<17II", *uc.reg_read_batch([*_FP_REGS, arm.UC_ARM_REG_FPSCR]), 0)
-        uc.mem_write(frame, data)
+        uc.mem_write(frame, struct.pack("<8I", *values))
+        self._fp_context = uc.context_save() if extended else None
         uc.reg_write_batch([(arm.UC_ARM_REG_SP, frame), (arm.UC_ARM_REG_LR, EXC_RETURN_FP if extended else
                             EXC_RETURN_BASIC), (arm.UC_ARM_REG_CONTROL, control & ~4),
                             (arm.UC_ARM_REG_PC, vector & ~1)])  # fmt: skip
@@ -236,11 +238,14 @@ class Cortex:
         extended = self.pc == EXC_RETURN_FP & ~1
         sp, control = uc.reg_read_batch([arm.UC_ARM_REG_SP, arm.UC_ARM_REG_CONTROL])
         size = 0x68 if extended else 0x20
-        words = struct.unpack(f"<{size // 4}I", uc.mem_read(sp, size))
-        writes = [(r, v & ~1 if r == arm.UC_ARM_REG_PC else v) for r, v in zip(_FRAME_REGS, words, strict=False)]
-        if extended:
-            writes += [*zip(_FP_REGS, words[8:24], strict=True), (arm.UC_ARM_REG_FPSCR, words[24])]
-        writes += [(arm.UC_ARM_REG_CONTROL, control | 4 if extended else control),
+        words = struct.unpack("<8I", uc.mem_read(sp, 32))
+        writes = [(r, v & ~1 if r == arm.UC_ARM_REG_PC else v) for r, v in zip(_FRAME_REGS, words, strict=True)]
+        if extended and control & 4 and self._fp_context is not None:  # the handler used the FPU: lazy state back
+            context = self._fp_context
+            fp = [(r, context.reg_read(r)) for r in (*_FP_REGS, arm.UC_ARM_REG_FPSCR)]
+            uc.mem_write(sp + 32, struct.pack("<17II", *(v for _, v in fp), 0))
+            writes += fp
+        writes += [(arm.UC_ARM_REG_CONTROL, control | 4 if extended else control & ~4),
                    (arm.UC_ARM_REG_SP, sp + size + (4 if words[7] & 1 << 9 else 0))]  # fmt: skip
         uc.reg_write_batch(writes)
         self._depth -= 1

@@ -63,6 +63,9 @@ class RobotOptions:
     c_modules: tuple[int, ...] | str = ()
     """Simulated modules that run the C runtime (firmware/) instead of the Python one: IDs, or "odd", "even",
     "all"."""
+    emulated_modules: tuple[int, ...] | str = ()
+    """Simulated modules that run the board image (firmware/port/stm32f4_bxcan.c) in the emulator
+    (asm_module.emulated): IDs, or "odd", "even", "all"."""
 
 
 class RealTimeLoop:
@@ -160,6 +163,7 @@ class Robot:
                     return Node(module_name(module_id), transport)
 
                 self.sim = Simulation(gait, node_of=node_of, c_modules=select_modules(options.c_modules, gait),
+                                      emulated_modules=select_modules(options.emulated_modules, gait),
                                       bus_options=can_options)  # fmt: skip
             else:
                 can_options = dict(options.can)
@@ -280,12 +284,22 @@ def main(argv: list[str] | None = None) -> int:
         metavar="IDS",
         help="simulated modules that run the C runtime (firmware/): IDs as 1,3,5, or odd, even, all",
     )
+    cli.add_argument(
+        "--emulated-modules",
+        type=module_selection,
+        default=(),
+        metavar="IDS",
+        help="simulated modules that run the STM32F4 board image in an instruction-level emulator: IDs or odd, even, "
+        "all (needs arm-none-eabi-gcc)",
+    )
     cli.add_argument("--parent-pid", type=int, help=argparse.SUPPRESS)
     args = cli.parse_args(argv)
     if args.fd and args.can is None:
         cli.error("--fd describes a real bus: use it with --can")
     if args.c_modules and args.can is not None:
         cli.error("--c-modules chooses simulated modules: use it with --sim")
+    if args.emulated_modules and args.can is not None:
+        cli.error("--emulated-modules chooses simulated modules: use it with --sim")
     network = zenoh_options(cli, args)
     return run(cli.prog, lambda: _serve(args, network))
 
@@ -298,7 +312,8 @@ def _serve(args: argparse.Namespace, network: ZenohOptions) -> int:
     can_options = None if args.can is None else {**args.can, "fd": args.fd,
                                                  **({"bitrate": args.bitrate} if args.bitrate else {})}  # fmt: skip
     options = RobotOptions(sim=None if args.can else (args.sim or RobotOptions.sim), can=can_options, name=args.name,
-                           network=network, node_id=args.node_id, c_modules=args.c_modules)  # fmt: skip
+                           network=network, node_id=args.node_id, c_modules=args.c_modules,
+                           emulated_modules=args.emulated_modules)  # fmt: skip
     done = stop_requested()
     robot = Robot(options)  # a bad gait file, a busy port, a taken name: asm-robot: error: … (asm_py.cli.run)
     kind = "simulated" if robot.sim is not None else f"CAN {args.can}"

@@ -297,3 +297,48 @@ def test_the_emulator_stops_an_image_that_would_fail_on_the_board(tmp_path) -> N
     healthy = Cortex(read_image(image(port)), BxCan(lambda *_: None), joint)
     healthy.run(200)
     assert healthy.systicks == 200 and healthy.ticks.ticks == 11, "ticks at 0, 20, ..., 200 ms"
+
+
+@needs_arm_gcc
+def test_a_simulated_robot_with_emulated_boards_moves_as_the_all_python_preview() -> None:
+    """The caterpillar with modules 1, 3, 5, 7 as emulated boards (gaits.sim, as ``asm-robot --emulated-modules
+    odd``), the rest Python modules on the same bus: every module's goal at every tick within one tick of the
+    all-Python preview's."""
+    from gaits.model import LIBRARY, load
+    from gaits.sim import Simulation
+
+    gait = load(LIBRARY / "caterpillar.toml")
+    with Simulation(gait, trace=True) as preview:
+        preview.start()
+        preview.advance(3.0)
+        times, goals = preview.trace.times, preview.trace.goals
+    channel = fresh_name("emulated-robot")
+    nodes: list[Node] = []
+
+    def node_of(module_id: int) -> Node:
+        transport = CanTransport(module_id, interface="virtual", channel=channel, heartbeat_period=0.05,
+                                 watch_bus=False)  # fmt: skip
+        nodes.append(Node(f"m{module_id}", transport))
+        return nodes[-1]
+
+    odd = [a.id for a in gait.modules if a.id % 2]
+    try:
+        with Simulation(gait, trace=True, node_of=node_of, emulated_modules=odd,
+                        bus_options={"interface": "virtual", "channel": channel}) as sim:  # fmt: skip
+            assert {type(sim.modules[i]).__name__ for i in odd} == {"EmulatedModule"}
+            sim.start()
+            sim.advance(3.0)
+            times2, goals2 = sim.trace.times, sim.trace.goals
+            assert all(sim.modules[i].fault is None for i in odd)  # type: ignore[attr-defined]
+            worst = max(sim.modules[i].tick_cycles().worst for i in odd)  # type: ignore[attr-defined]
+    finally:
+        for node in nodes:
+            node.close()
+    assert times2 == pytest.approx(times) and worst < BUDGET
+    moving = 0
+    for k in range(1, len(times) - 1):
+        for column in [i - 1 for i in odd]:
+            window = [goals[j][column] for j in (k - 1, k, k + 1)]
+            assert min(window) - 1e-3 <= goals2[k][column] <= max(window) + 1e-3, (times[k], column + 1, window)
+            moving += goals2[k][column] != goals2[k - 1][column]
+    assert moving > len(times), "the boards' goals move"
