@@ -24,7 +24,9 @@ BUDGET = 300.0
 
 def _timed(command: list[str]) -> tuple[float, str, int]:
     began = time.monotonic()
-    done = subprocess.run(command, cwd=ROOT, capture_output=True, text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    done = subprocess.run(
+        command, cwd=ROOT, capture_output=True, text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"}
+    )
     return time.monotonic() - began, done.stdout + done.stderr, done.returncode
 
 
