@@ -198,6 +198,12 @@ class EmulatedModule:
         with self._lock:
             return TickStats(self.core.ticks.ticks, self.core.ticks.total, self.core.ticks.worst)
 
+    def worst_period_cycles(self) -> int:
+        """The most instructions executed in one 20 ms control period so far: the tick, the frames received and
+        sent, the interrupts — what the core did while not idle."""
+        with self._lock:
+            return self.core.worst_period
+
     def stack_used(self) -> int:
         """The stack's high-water mark in bytes (the paint the emulator laid at boot, overwritten)."""
         with self._lock:

@@ -43,6 +43,8 @@ EXC_RETURN_BASIC, EXC_RETURN_FP = 0xFFFFFFF9, 0xFFFFFFE9
 CALL_RETURN = 0x1FFFFF00
 """Where a function the host calls returns to (an exit address: never reached by the image itself)."""
 SYSTICK_VECTOR = 15
+CONTROL_PERIOD = 20
+"""SysTicks (milliseconds) in one control period: the port's CONTROL_MS."""
 ENCODER_COUNTS = 4096
 _FRAME_REGS = [arm.UC_ARM_REG_R0, arm.UC_ARM_REG_R1, arm.UC_ARM_REG_R2, arm.UC_ARM_REG_R3, arm.UC_ARM_REG_R12,
                arm.UC_ARM_REG_LR, arm.UC_ARM_REG_PC, arm.UC_ARM_REG_XPSR]  # fmt: skip
@@ -97,6 +99,9 @@ class Cortex:
             uc.mmio_map(page, 0x1000, self._read, page, self._write, page)
         self.cycles = 0  # instructions executed since reset (the emulated clock)
         self.systicks = 0  # SysTick interrupts taken
+        self.idle_cycles = 0  # of those, skipped while the main loop idled
+        self.worst_period = 0  # the most cycles executed in one control period (20 SysTicks)
+        self._period_start = 0
         self.csr = self.rvr = 0
         self._systick_next = 0
         self._countflag = False
@@ -142,6 +147,7 @@ class Cortex:
             elif reason == "idle":
                 if not (self.csr & 3 == 3 and self.rvr) or self.systicks >= until_systicks:
                     return
+                self.idle_cycles += max(0, self._systick_next - self.cycles)
                 self.cycles = max(self.cycles, self._systick_next)
                 self._count_down()
                 self._pending = False
@@ -218,6 +224,10 @@ class Cortex:
         uc = self.uc
         self._activity += 1
         self.systicks += 1
+        if self.systicks % CONTROL_PERIOD == 0:
+            busy = self.cycles - self.idle_cycles
+            self.worst_period = max(self.worst_period, busy - self._period_start)
+            self._period_start = busy
         values = list(uc.reg_read_batch(_ENTRY_REGS))
         sp, control = values.pop(), values.pop()
         values[7] = (values[7] & ~0x1FF) | 1 << 24  # the stacked xPSR: thread mode, Thumb
