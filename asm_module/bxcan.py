@@ -4,10 +4,10 @@ list, one 32-bit or two 16-bit filters per bank).
 
 The emulator (asm_module/emulator.py) maps these registers into the image's address space; frames the firmware
 queues in a mailbox go out at once through ``transmit`` (a real controller takes about 130 us per frame at 1 Mbit/s;
-nothing here waits on arbitration), and frames from the bus wait on ``wire`` until the FIFO has room, passing the
-acceptance filters as they enter it — so the filters the port configured decide what reaches the firmware, as on
-the board. Not modelled: FIFO 1 (frames its filters send there are counted and dropped), overruns (a frame waits on
-the wire instead), error counters, time stamps, bit timing (BTR is kept, not interpreted), CAN2.
+nothing here waits on arbitration), and frames from the bus that pass the acceptance filters wait on ``wire`` until
+the FIFO has room (asked again as they enter it) — so the filters the port configured decide what reaches the
+firmware, as on the board. Not modelled: FIFO 1 (frames its filters send there are counted and dropped), overruns
+(a frame waits on the wire instead), error counters, time stamps, bit timing (BTR is kept, not interpreted), CAN2.
 """
 
 from __future__ import annotations
@@ -58,10 +58,16 @@ class BxCan:
     # -- the bus side -----------------------------------------------------------------------------------------
 
     def deliver(self, can_id: int, extended: bool, data: bytes) -> None:
-        """A frame seen on the bus (any thread). A CAN FD frame is not one the controller can receive."""
-        if len(data) <= 8:
-            with self.lock:
+        """A frame seen on the bus (any thread), kept if the acceptance filters pass it (or are being set up: they
+        are asked again as it enters the FIFO), so a frame for other nodes never wakes the emulated core — as the
+        controller's filters keep it from the CPU. A CAN FD frame is not one the controller can receive."""
+        if len(data) > 8:
+            return
+        with self.lock:
+            if self.fmr & 1 or self.match(can_id, extended) is not None:
                 self.wire.append((can_id, extended, data))
+            else:
+                self.filtered += 1
 
     def pending(self) -> bool:
         """Frames wait on the wire or in the FIFO."""
