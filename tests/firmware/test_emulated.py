@@ -342,3 +342,17 @@ def test_a_simulated_robot_with_emulated_boards_moves_as_the_all_python_preview(
             assert min(window) - 1e-3 <= goals2[k][column] <= max(window) + 1e-3, (times[k], column + 1, window)
             moving += goals2[k][column] != goals2[k - 1][column]
     assert moving > len(times), "the boards' goals move"
+
+
+def test_emulated_modules_are_simulated_modules_on_a_bus() -> None:
+    """A preview has no bus for a board to sit on, and a real bus has no simulated modules to emulate: both refused
+    before anything starts."""
+    from gaits.model import LIBRARY, load
+    from gaits.sim import Simulation
+    from server.robot import main
+
+    with pytest.raises(ValueError, match="need a bus"):
+        Simulation(load(LIBRARY / "caterpillar.toml"), emulated_modules=[1])
+    with pytest.raises(SystemExit) as exit_:
+        main(["--can", "virtual:nowhere", "--emulated-modules", "odd"])
+    assert exit_.value.code == 2
