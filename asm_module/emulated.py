@@ -98,7 +98,7 @@ class EmulatedModule:
         joint = Joint(self.driver.command, self.driver.relax, self._read_joint)
         with self._lock:
             self.core = Cortex(image, self.can, joint, board_config(node_id, name, hardware_range))
-        self._probe = struct.unpack("<10I", self.core.uc.mem_read(image.symbol("asm_probe"), 40))
+        self._probe = struct.unpack("<12I", self.core.uc.mem_read(image.symbol("asm_probe"), 48))
         if self._probe[0] != 1:
             raise RuntimeError(f"the board image's asm_probe is version {self._probe[0]}, not 1")
         self._stop = threading.Event()
@@ -240,9 +240,15 @@ class EmulatedModule:
         return self.angle
 
     def gait_started(self) -> float:
-        """When the gait last started (its ramp began), in seconds of this module's clock: not kept by the probe,
-        so unknown (NaN) on an emulated board."""
-        return float("nan")
+        """When the gait last started (its 1 s ramp began), in seconds of this module's clock (a wall clock's:
+        time.monotonic())."""
+        with self._lock:
+            return self._t0 + self.core.read_word(self._probe[10]) / 1000
+
+    def done(self) -> int:
+        """gait.done's last firing (1 finished, 2 a state timed out with stop), 0 if it never fired."""
+        with self._lock:
+            return self._byte(self._probe[11])
 
     def close(self) -> None:
         """Leave the bus in order (asm_node_leave in the image) and stop; the bus is shut down if this module

@@ -180,7 +180,8 @@ static void joint_init(void)
 }
 
 /* Where a debugger (or the emulator) finds what it reads and calls: the module, its e-stop, goal and angle, the gait
- * service's state, the millisecond count, and asm_node_local to make the module's own requests. */
+ * service's state, when the gait last started and gait.done, the millisecond count, and asm_node_local to make the
+ * module's own requests. */
 struct asm_probe {
     uint32_t version;
     struct asm_node *node;
@@ -191,10 +192,12 @@ struct asm_probe {
     float *goal, *angle;
     uint8_t *running;
     volatile uint32_t *milliseconds;
+    uint32_t *ramp_start_ms;
+    uint8_t *done;
 };
 __attribute__((section(".probe"), used)) const struct asm_probe asm_probe = {
     1u, &module.node, asm_node_local, asm_node_leave, &module.node.now_ms, &module.node.estop, &module.goal_v,
-    &module.angle_v, &module.gait.service.running, &milliseconds};
+    &module.angle_v, &module.gait.service.running, &milliseconds, &module.gait.ramp_start_ms, &module.gait.done_v};
 
 int main(void)
 {

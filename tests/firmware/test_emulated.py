@@ -100,7 +100,7 @@ def test_bxcan_fifo_and_mailboxes_work_as_the_port_uses_them() -> None:
 
 
 @pytest.fixture
-def board() -> Iterator[tuple[object, Node]]:
+def board() -> Iterator[tuple[object, Node, str]]:
     from asm_module.emulated import EmulatedModule
 
     channel = fresh_name("emulated")
@@ -108,7 +108,7 @@ def board() -> Iterator[tuple[object, Node]]:
     tool = Node("tool", CanTransport(100, interface="virtual", channel=channel, heartbeat_period=0.1))
     try:
         assert wait_until(lambda: "m5" in tool.discover(), timeout=20), "the board's heartbeat names it"
-        yield module, tool
+        yield module, tool, channel
     finally:
         tool.close()
         module.close()
@@ -122,7 +122,7 @@ def test_the_board_image_boots_and_answers_lookups_as_the_python_module(board) -
 
     from .test_c_module import _python_module_entries
 
-    module, tool = board
+    module, tool, _ = board
     assert isinstance(module, Module) and module.module_id == 5
     port = tool.port("m5")
     for entry in _python_module_entries():
@@ -144,7 +144,7 @@ def test_the_board_image_boots_and_answers_lookups_as_the_python_module(board) -
 
 @needs_arm_gcc
 def test_an_estop_latches_the_board_until_released(board) -> None:
-    module, tool = board
+    module, tool, _ = board
     goal = tool.lookup("m5", "joint.goal", timeout=5)
     goal.set(40.0, wait=True)
     tool.estop("test")
@@ -194,6 +194,7 @@ def test_a_deployed_gait_runs_on_the_board_and_stops_at_the_estop() -> None:
         unsubscribe()
         assert len(goals) > 10 and len(set(states)) > 1, "the board's gait moves its joint through its states"
         assert board.fault is None and board.tick_cycles().worst < BUDGET
+        assert abs(board.gait_started() - runtime._ramp_start) < 0.1, "one activation started both"
         tool.estop("test")
         assert wait_until(lambda: board.latched and runtime.latched, timeout=5)
         assert not tool.lookup("m1", "gait.service", timeout=5).running
@@ -252,6 +253,7 @@ def test_random_programs_run_on_the_board_as_in_the_host_build(seed: int) -> Non
                 host_goals.append(host.goal_now())
                 board_goals.append(board.goal_now())
             assert board.fault is None and board.tick_cycles().worst < BUDGET
+            assert board.done() == host.done(), "gait.done fired alike"
         finally:
             host.close()
             board.close()
@@ -356,3 +358,13 @@ def test_emulated_modules_are_simulated_modules_on_a_bus() -> None:
     with pytest.raises(SystemExit) as exit_:
         main(["--can", "virtual:nowhere", "--emulated-modules", "odd"])
     assert exit_.value.code == 2
+
+
+@needs_arm_gcc
+def test_the_board_reproduces_the_module_object_vectors(board) -> None:
+    """tests/vectors/module_objects.json on the bus, byte for byte, as the host build does (test_c_module)."""
+    from asm_module.golden import reproduce_module_object_vectors
+
+    module, _, channel = board
+    done = reproduce_module_object_vectors(module, channel)
+    assert all(done.values()) and len(done) == 11, done
