@@ -87,7 +87,8 @@ class EmulatedModule:
         self.node_id = node_id
         self.driver = driver if driver is not None else FakeDriver()
         self.clock = clock
-        image = board_image()  # before the bus is opened: a build that fails leaves nothing open
+        image = board_image()  # before the bus is opened: a build or a name that fails leaves nothing open
+        config = board_config(node_id, name, hardware_range)
         self._own_bus = bus is None
         self.bus = bus if bus is not None else can.Bus(**bus_options)
         self.send_errors = 0
@@ -97,7 +98,7 @@ class EmulatedModule:
         self.can = BxCan(self._transmit)
         joint = Joint(self.driver.command, self.driver.relax, self._read_joint)
         with self._lock:
-            self.core = Cortex(image, self.can, joint, board_config(node_id, name, hardware_range))
+            self.core = Cortex(image, self.can, joint, config)
         self._probe = struct.unpack("<12I", self.core.uc.mem_read(image.symbol("asm_probe"), 48))
         if self._probe[0] != 1:
             raise RuntimeError(f"the board image's asm_probe is version {self._probe[0]}, not 1")

@@ -52,6 +52,29 @@ _FP_REGS = [getattr(arm, f"UC_ARM_REG_S{k}") for k in range(16)]
 _ENTRY_REGS = [*_FRAME_REGS, arm.UC_ARM_REG_CONTROL, arm.UC_ARM_REG_SP]
 
 
+def _local_16bit(halfword: int, address: int, start: int, end: int) -> bool:
+    """A 16-bit Thumb instruction at ``address`` that stays inside [start, end): not the first half of a 32-bit
+    one, not BLX/BX to a register other than LR, and a branch only to inside."""
+    if halfword >> 11 in (0b11101, 0b11110, 0b11111):
+        return False  # a 32-bit instruction (every FP one is): not proven local
+    if halfword & 0xFF00 == 0x4700:  # BX/BLX Rm
+        return halfword == 0x4770  # BX LR: the return
+    if halfword & 0xFF87 == 0x4687:  # MOV PC, Rm: a jump anywhere
+        return False
+    if halfword & 0xF500 == 0xB100:  # CBZ/CBNZ, forward
+        target = address + 4 + ((halfword >> 9 & 1) << 6 | (halfword >> 3 & 0x1F) << 1)
+        return start <= target < end
+    if halfword & 0xF800 == 0xE000:  # B, 11-bit offset
+        offset = (halfword & 0x7FF) << 1
+        target = address + 4 + (offset - 0x1000 if offset & 0x800 else offset)
+        return start <= target < end
+    if halfword & 0xF000 == 0xD000 and halfword & 0x0F00 not in (0x0E00, 0x0F00):  # B<cond>, 8-bit offset
+        offset = (halfword & 0xFF) << 1
+        target = address + 4 + (offset - 0x200 if offset & 0x100 else offset)
+        return start <= target < end
+    return True
+
+
 class FirmwareFault(RuntimeError):
     """The emulated core stopped on something a board would fault on (or hang in Default_Handler for)."""
 
@@ -129,7 +152,8 @@ class Cortex:
         stack, reset = struct.unpack_from("<II", self.flash, 0)
         uc.reg_write(arm.UC_ARM_REG_SP, stack)
         uc.reg_write(arm.UC_ARM_REG_CONTROL, 0)
-        uc.reg_write(arm.UC_ARM_REG_PC, reset & ~1)
+        self._resume_at = reset & ~1  # where the next run continues (the PC, kept here between runs)
+        self._fp_free_vectors: dict[int, bool] = {}
         self.vectors = struct.unpack_from("<16I", self.flash, 0)
         self.run(0)
 
@@ -162,11 +186,12 @@ class Cortex:
     def _resume(self) -> str:
         self._reason = ""
         try:
-            self.uc.emu_start(self.pc | 1, 0)
+            self.uc.emu_start(self._resume_at | 1, 0)
         except UcError as exc:  # a branch to EXC_RETURN is one: Unicorn's core raises its exception return
             if self.pc not in (EXC_RETURN_BASIC & ~1, EXC_RETURN_FP & ~1):
                 raise FirmwareFault(f"{exc} at {self.pc:#010x}") from None
-        if self.pc in (EXC_RETURN_BASIC & ~1, EXC_RETURN_FP & ~1):
+        self._resume_at = pc = self.pc
+        if pc in (EXC_RETURN_BASIC & ~1, EXC_RETURN_FP & ~1):
             return "return"
         if self.cpacr & 0xF << 20 != 0xF << 20 and int(self.uc.reg_read(arm.UC_ARM_REG_CONTROL)) & 4:
             raise FirmwareFault("an FPU instruction ran before CPACR enabled the FPU (a UsageFault on the board)")
@@ -230,6 +255,7 @@ class Cortex:
             self._period_start = busy
         values = list(uc.reg_read_batch(_ENTRY_REGS))
         sp, control = values.pop(), values.pop()
+        values[6] = self._resume_at  # the return address: the instruction not yet executed
         values[7] = (values[7] & ~0x1FF) | 1 << 24  # the stacked xPSR: thread mode, Thumb
         extended = bool(control & 4)
         size = 0x68 if extended else 0x20
@@ -237,19 +263,35 @@ class Cortex:
         if frame != sp - size:
             values[7] |= 1 << 9  # the frame was realigned: one padding word above it
         uc.mem_write(frame, struct.pack("<8I", *values))
-        self._fp_context = uc.context_save() if extended else None
+        self._fp_context = uc.context_save() if extended and not self._fp_free(vector) else None
         uc.reg_write_batch([(arm.UC_ARM_REG_SP, frame), (arm.UC_ARM_REG_LR, EXC_RETURN_FP if extended else
-                            EXC_RETURN_BASIC), (arm.UC_ARM_REG_CONTROL, control & ~4),
-                            (arm.UC_ARM_REG_PC, vector & ~1)])  # fmt: skip
+                            EXC_RETURN_BASIC), (arm.UC_ARM_REG_CONTROL, control & ~4)])  # fmt: skip
+        self._resume_at = vector & ~1
         self._depth += 1
+
+    def _fp_free(self, vector: int) -> bool:
+        """The handler at ``vector`` cannot touch the FPU: its code (its symbol's extent) is 16-bit instructions
+        only — no FP instruction is — that call nothing and branch nowhere outside it, so lazy stacking will never
+        have to save the FP registers for it. Decided once per handler from the image."""
+        known = self._fp_free_vectors.get(vector)
+        if known is None:
+            start = vector & ~1
+            size = next((size for address, size in self.image.symbols.values() if address & ~1 == start and size), 0)
+            code = self.flash[start - FLASH : start - FLASH + size]
+            halfwords = struct.unpack(f"<{len(code) // 2}H", code[: len(code) // 2 * 2])
+            known = bool(halfwords) and all(_local_16bit(h, start + 2 * k, start, start + size)
+                                            for k, h in enumerate(halfwords))  # fmt: skip
+            self._fp_free_vectors[vector] = known
+        return known
 
     def _exception_return(self) -> None:
         uc = self.uc
-        extended = self.pc == EXC_RETURN_FP & ~1
+        extended = self._resume_at == EXC_RETURN_FP & ~1
         sp, control = uc.reg_read_batch([arm.UC_ARM_REG_SP, arm.UC_ARM_REG_CONTROL])
         size = 0x68 if extended else 0x20
         words = struct.unpack("<8I", uc.mem_read(sp, 32))
-        writes = [(r, v & ~1 if r == arm.UC_ARM_REG_PC else v) for r, v in zip(_FRAME_REGS, words, strict=True)]
+        self._resume_at = words[6] & ~1
+        writes = [(r, v) for r, v in zip(_FRAME_REGS, words, strict=True) if r != arm.UC_ARM_REG_PC]
         if extended and control & 4 and self._fp_context is not None:  # the handler used the FPU: lazy state back
             context = self._fp_context
             fp = [(r, context.reg_read(r)) for r in (*_FP_REGS, arm.UC_ARM_REG_FPSCR)]

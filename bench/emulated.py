@@ -12,7 +12,9 @@ the emulator (asm_module/emulated.py) as modules of the simulated robot.
   wall time, so this machine's load does not enter. Target 0.95-1.05.
 
 Also printed: the worst instructions executed in one control period (tick, frames, interrupts), the stack's
-high-water mark, and how many seconds of emulated board one second of this machine runs.
+high-water mark, how many seconds of emulated board one second of this machine runs, and — for context, as it
+depends on this machine's load — the live distance of a real-time ``asm-robot --sim --emulated-modules 1,3`` in 10 s
+of wall time over the all-Python robot's (bench/robot.py's live distance).
 """
 
 from __future__ import annotations
@@ -89,6 +91,12 @@ def main() -> None:
           f"{figures['stack']:.0f} bytes")  # fmt: skip
     print(f"# emulation: {figures['speed']:.2f} board-seconds per second of this machine (all four boards)")
     print(f"ratio emulated_tick_cycles_vs_budget {figures['worst_tick'] / BUDGET:.4f} (target <= 1)")
+    from bench.robot import live_distance
+
+    path = LIBRARY / "caterpillar.toml"
+    live_python, live_mixed = live_distance(path), live_distance(path, "--emulated-modules", "1,3")
+    print(f"# live, 10 s of wall time: {live_python:.3f} m all Python, {live_mixed:.3f} m with modules 1 and 3 "
+          f"emulated: {live_mixed / live_python if live_python > 0 else 0.0:.2f}")  # fmt: skip
     ratio = mixed / python if python > 0 else 0.0
     print(f"ratio emulated_module_distance_vs_python {ratio:.3f} (target >= 0.95)")
     print(f"ratio emulated_module_distance_vs_python {ratio:.3f} (target <= 1.05)")

@@ -299,6 +299,26 @@ def test_the_emulator_stops_an_image_that_would_fail_on_the_board(tmp_path) -> N
     healthy = Cortex(read_image(image(port)), BxCan(lambda *_: None), joint)
     healthy.run(200)
     assert healthy.systicks == 200 and healthy.ticks.ticks == 11, "ticks at 0, 20, ..., 200 ms"
+    assert healthy._fp_free_vectors == {healthy.vectors[15]: True}, "SysTick_Handler never touches the FPU"
+    healthy._fp_free_vectors = {healthy.vectors[15]: False}  # as for a handler that might: the FP state kept aside
+    healthy.run(400)
+    assert healthy.systicks == 400 and healthy.ticks.ticks == 21
+
+
+def test_a_handler_is_fp_free_only_if_every_instruction_is_16_bit_and_stays_inside() -> None:
+    from asm_module.emulator import _local_16bit
+
+    def free(*halfwords: int) -> bool:
+        return all(_local_16bit(h, 0x100 + 2 * k, 0x100, 0x100 + 2 * len(halfwords)) for k, h in enumerate(halfwords))
+
+    assert free(0x4A02, 0x6813, 0x3301, 0x6013, 0x4770), "SysTick_Handler: ldr, ldr, adds, str, bx lr"
+    assert not free(0xEE07, 0x0A90), "vmov s15, r0: a 32-bit (FP) instruction"
+    assert not free(0xF7FF, 0xFFFE), "bl: a call"
+    assert not free(0x4798, 0x4770), "blx r3: a call through a register"
+    assert not free(0x4687), "mov pc, r0"
+    assert free(0xD000, 0x4770, 0x4770) and not free(0xD07F, 0x4770), "b<cond> inside, outside"
+    assert free(0xE7FE) and not free(0xE000), "b . ; b past the end"
+    assert free(0xB100, 0x4770, 0x4770) and not free(0xB1F8, 0x4770), "cbz inside, outside"
 
 
 @needs_arm_gcc
