@@ -24,6 +24,7 @@ Why each piece is as it is:
 
 from __future__ import annotations
 
+import ctypes
 import struct
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -73,6 +74,31 @@ def _local_16bit(halfword: int, address: int, start: int, end: int) -> bool:
         target = address + 4 + (offset - 0x200 if offset & 0x100 else offset)
         return start <= target < end
     return True
+
+
+class _Batch:
+    """32-bit registers read or written together (uc_reg_read_batch), their buffers made once: the binding's
+    reg_read_batch looks up each register's type on every call, most of what an interrupt cost here."""
+
+    def __init__(self, uc: Uc, registers: list[int]) -> None:
+        self.uc, n = uc, len(registers)
+        self.ids = (ctypes.c_int * n)(*registers)
+        self.values = (ctypes.c_uint32 * n)()
+        base = ctypes.addressof(self.values)
+        self.pointers = (ctypes.c_void_p * n)(*(base + 4 * k for k in range(n)))
+        self.count = ctypes.c_int(n)
+
+    def read(self) -> list[int]:
+        status = self.uc._do_reg_read_batch(self.ids, self.pointers, self.count)
+        if status:
+            raise UcError(status)
+        return list(self.values)
+
+    def write(self, values: list[int]) -> None:
+        self.values[:] = [v & 0xFFFFFFFF for v in values]
+        status = self.uc._do_reg_write_batch(self.ids, self.pointers, self.count)
+        if status:
+            raise UcError(status)
 
 
 class FirmwareFault(RuntimeError):
@@ -153,6 +179,11 @@ class Cortex:
         uc.reg_write(arm.UC_ARM_REG_SP, stack)
         uc.reg_write(arm.UC_ARM_REG_CONTROL, 0)
         self._resume_at = reset & ~1  # where the next run continues (the PC, kept here between runs)
+        self._entry_read = _Batch(uc, _ENTRY_REGS)
+        self._entry_write = _Batch(uc, [arm.UC_ARM_REG_SP, arm.UC_ARM_REG_LR, arm.UC_ARM_REG_CONTROL])
+        self._return_read = _Batch(uc, [arm.UC_ARM_REG_SP, arm.UC_ARM_REG_CONTROL])
+        self._return_write = _Batch(uc, [*_FRAME_REGS[:6], arm.UC_ARM_REG_XPSR, arm.UC_ARM_REG_CONTROL,
+                                         arm.UC_ARM_REG_SP])  # fmt: skip
         self._fp_free_vectors: dict[int, bool] = {}
         self.vectors = struct.unpack_from("<16I", self.flash, 0)
         self.run(0)
@@ -253,7 +284,7 @@ class Cortex:
             busy = self.cycles - self.idle_cycles
             self.worst_period = max(self.worst_period, busy - self._period_start)
             self._period_start = busy
-        values = list(uc.reg_read_batch(_ENTRY_REGS))
+        values = self._entry_read.read()
         sp, control = values.pop(), values.pop()
         values[6] = self._resume_at  # the return address: the instruction not yet executed
         values[7] = (values[7] & ~0x1FF) | 1 << 24  # the stacked xPSR: thread mode, Thumb
@@ -264,8 +295,7 @@ class Cortex:
             values[7] |= 1 << 9  # the frame was realigned: one padding word above it
         uc.mem_write(frame, struct.pack("<8I", *values))
         self._fp_context = uc.context_save() if extended and not self._fp_free(vector) else None
-        uc.reg_write_batch([(arm.UC_ARM_REG_SP, frame), (arm.UC_ARM_REG_LR, EXC_RETURN_FP if extended else
-                            EXC_RETURN_BASIC), (arm.UC_ARM_REG_CONTROL, control & ~4)])  # fmt: skip
+        self._entry_write.write([frame, EXC_RETURN_FP if extended else EXC_RETURN_BASIC, control & ~4])
         self._resume_at = vector & ~1
         self._depth += 1
 
@@ -287,19 +317,17 @@ class Cortex:
     def _exception_return(self) -> None:
         uc = self.uc
         extended = self._resume_at == EXC_RETURN_FP & ~1
-        sp, control = uc.reg_read_batch([arm.UC_ARM_REG_SP, arm.UC_ARM_REG_CONTROL])
+        sp, control = self._return_read.read()
         size = 0x68 if extended else 0x20
         words = struct.unpack("<8I", uc.mem_read(sp, 32))
         self._resume_at = words[6] & ~1
-        writes = [(r, v) for r, v in zip(_FRAME_REGS, words, strict=True) if r != arm.UC_ARM_REG_PC]
         if extended and control & 4 and self._fp_context is not None:  # the handler used the FPU: lazy state back
             context = self._fp_context
             fp = [(r, context.reg_read(r)) for r in (*_FP_REGS, arm.UC_ARM_REG_FPSCR)]
             uc.mem_write(sp + 32, struct.pack("<17II", *(v for _, v in fp), 0))
-            writes += fp
-        writes += [(arm.UC_ARM_REG_CONTROL, control | 4 if extended else control & ~4),
-                   (arm.UC_ARM_REG_SP, sp + size + (4 if words[7] & 1 << 9 else 0))]  # fmt: skip
-        uc.reg_write_batch(writes)
+            uc.reg_write_batch(fp)
+        self._return_write.write([*words[:6], words[7], control | 4 if extended else control & ~4,
+                                  sp + size + (4 if words[7] & 1 << 9 else 0)])  # fmt: skip
         self._depth -= 1
 
     # -- the host's calls --------------------------------------------------------------------------------------
