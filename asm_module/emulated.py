@@ -265,7 +265,7 @@ class EmulatedModule:
             if self.fault is None:
                 try:
                     self.core.call(self._probe[3], self._probe[1])
-                except FirmwareFault as exc:
+                except (FirmwareFault, RuntimeError) as exc:  # faulted while leaving, or too busy to be called
                     log.error("%s: leaving the bus: %s", self.name, exc)
         if self._own_bus:
             self.bus.shutdown()

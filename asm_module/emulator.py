@@ -44,6 +44,8 @@ EXC_RETURN_BASIC, EXC_RETURN_FP = 0xFFFFFFF9, 0xFFFFFFE9
 CALL_RETURN = 0x1FFFFF00
 """Where a function the host calls returns to (an exit address: never reached by the image itself)."""
 SYSTICK_VECTOR = 15
+AHEAD = 50
+"""Milliseconds a busy image may run ahead of the outside clock in one call of Cortex.run."""
 CONTROL_PERIOD = 20
 """SysTicks (milliseconds) in one control period: the port's CONTROL_MS."""
 ENCODER_COUNTS = 4096
@@ -148,6 +150,7 @@ class Cortex:
             uc.mmio_map(page, 0x1000, self._read, page, self._write, page)
         self.cycles = 0  # instructions executed since reset (the emulated clock)
         self.systicks = 0  # SysTick interrupts taken
+        self.idle = False  # the last run ended in the main loop's idle poll: the host may call into the image
         self.idle_cycles = 0  # of those, skipped while the main loop idled
         self.worst_period = 0  # the most cycles executed in one control period (20 SysTicks)
         self._period_start = 0
@@ -192,15 +195,21 @@ class Cortex:
 
     def run(self, until_systicks: int) -> None:
         """Run the image until it idles having taken ``until_systicks`` SysTick interrupts (its milliseconds): the
-        clock jumps over idle stretches up to there, and no further — a busy image runs on past it."""
+        clock jumps over idle stretches up to there, and no further. A busy image runs on past it, by AHEAD
+        milliseconds at most in one call (then ``idle`` is False: the host must not call into it yet)."""
+        self.idle = False
         while True:
             reason = self._resume()
             if reason == "systick":
+                if self.systicks >= until_systicks + AHEAD:
+                    self._pending = True  # taken at the next run
+                    return
                 self._enter(self.vectors[SYSTICK_VECTOR])
             elif reason == "return":
                 self._exception_return()
             elif reason == "idle":
                 if not (self.csr & 3 == 3 and self.rvr) or self.systicks >= until_systicks:
+                    self.idle = True
                     return
                 self.idle_cycles += max(0, self._systick_next - self.cycles)
                 self.cycles = max(self.cycles, self._systick_next)
@@ -336,6 +345,8 @@ class Cortex:
         """Call ``function`` in the image (at an idle point: the main loop, outside the runtime) with up to four
         arguments (bytes are copied onto the image's stack and passed by address); its r0. The registers are put
         back afterwards, as if the main loop had not been interrupted."""
+        if not self.idle:
+            raise RuntimeError("the image is busy (not at its idle point): it cannot be called into now")
         uc = self.uc
         saved = uc.context_save()
         sp = int(uc.reg_read(arm.UC_ARM_REG_SP))
