@@ -15,8 +15,9 @@ Why each piece is as it is:
 - **Interrupts**: Unicorn has no NVIC. A SysTick exception is entered as the core would: the basic or (when the
   FPU is in use, CONTROL.FPCA) extended frame pushed on the main stack, 8-byte aligned, LR = EXC_RETURN, PC = the
   vector; the handler's branch to EXC_RETURN stops Unicorn (its core raises an exception return it cannot
-  finish) and the emulator pops the frame. The core stays in
-  thread mode while the handler runs (Unicorn's own exception return needs the NVIC it lacks).
+  finish) and the emulator pops the frame. The core stays in thread mode while the handler runs (Unicorn's own
+  exception return needs the NVIC it lacks). The extended frame's FP part is stacked lazily, as the M4 does by
+  default: the FP registers are kept aside only for a handler not proven FP-free from its code.
 - **Faults**: any access outside the mapped memory and peripherals, or reaching Default_Handler, raises
   :class:`FirmwareFault` naming the address — the emulated board has stopped. FPU instructions before the image
   sets CPACR would fault on the board (Unicorn runs them anyway); the emulator checks CONTROL.FPCA at every stop.
