@@ -23,7 +23,6 @@ import numpy as np
 
 from asm_module import JointDriver, JointReading, LocalNeighbours, ModuleRuntime
 from asm_module.c_module import CModule
-from asm_module.emulated import EmulatedModule
 from asm_module.module import Module
 from asm_module.names import module_name
 from asm_py import Event, Node
@@ -229,6 +228,8 @@ class Simulation:
         for assignment in gait.modules:
             driver = MujocoJoint(self, assignment.id)
             if assignment.id in emulated_modules:
+                from asm_module.emulated import EmulatedModule  # Unicorn is loaded only when a board is emulated
+
                 self.modules[assignment.id] = EmulatedModule(module_name(assignment.id), assignment.id, driver=driver,
                                                              clock=self.clock, tick=self.tick,
                                                              hardware_range=gait.limits,
