@@ -103,3 +103,29 @@ def build_test_program(out: Path, program: str) -> Path:
     subprocess.run(["gcc", *C_FLAGS, "-O1", "-g", "-fsanitize=address,undefined", "-fno-sanitize-recover=all",
                     *map(str, sources), "-lm", "-o", str(out)], check=True, capture_output=True, text=True)  # fmt: skip
     return out
+
+
+BOARD_IMAGE = FIRMWARE / "build" / "stm32f4.elf"
+
+
+def build_board_image() -> Path:
+    """firmware/build/stm32f4.elf, the example port's image (build_cortex_m4), linked now if missing or older than
+    a source, header or the linker script: what asm_module.emulated runs."""
+    ensure_contract()
+    port = FIRMWARE / "port"
+    inputs = [*runtime_sources(), port / "stm32f4_bxcan.c", port / "stm32f4.ld",
+              *(FIRMWARE / "include" / "asm").glob("*.h")]  # fmt: skip
+    if BOARD_IMAGE.exists() and BOARD_IMAGE.stat().st_mtime >= max(p.stat().st_mtime for p in inputs):
+        return BOARD_IMAGE
+    BOARD_IMAGE.parent.mkdir(exist_ok=True)
+    fd, temporary = tempfile.mkstemp(dir=BOARD_IMAGE.parent, suffix=".elf")  # renamed after: builds never clash
+    os.close(fd)
+    try:
+        build_cortex_m4(Path(temporary))
+        os.replace(temporary, BOARD_IMAGE)
+    except subprocess.CalledProcessError as exc:
+        raise RuntimeError(f"building the board image failed:\n{exc.stderr}") from None
+    finally:
+        if os.path.exists(temporary):
+            os.unlink(temporary)
+    return BOARD_IMAGE

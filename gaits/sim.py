@@ -198,6 +198,9 @@ class Simulation:
     gives each module runtime its ASM node (a robot process puts them on a bus); without it they have none.
     ``c_modules`` (IDs) run the C runtime instead (asm_module.c_module), on the python-can bus ``bus_options`` opens —
     or, without one, on the in-process hub the Python modules of a preview share — ticked by the same tick event.
+    ``emulated_modules`` (IDs) run the board image in the emulator (asm_module.emulated), its joint the same MuJoCo
+    actuator, on that bus (they need one: a board has no in-process hub), run up to the simulation's time at every
+    tick; an ID in both is emulated.
     ``modules`` holds both kinds, driven through one interface (asm_module.module.Module).
     ``lock`` guards the model and data: the stepping thread holds it per control period, and a module's joint
     driver takes it, so a request arriving on a bus thread never touches MjData in the middle of a step.
@@ -214,9 +217,12 @@ class Simulation:
         trace: bool = False,
         node_of: Callable[[int], Node] | None = None,
         c_modules: Collection[int] = (),
+        emulated_modules: Collection[int] = (),
         bus_options: Mapping[str, Any] | None = None,
         terrain: Terrain = FLAT,
     ) -> None:
+        if emulated_modules and bus_options is None:
+            raise ValueError("emulated modules need a bus (a robot process's), not a preview's hub")
         self.gait = gait
         self.lock = threading.RLock()
         self.physics = physics or Physics(friction=gait.ground.friction, anisotropic=gait.ground.anisotropic)
@@ -253,6 +259,14 @@ class Simulation:
         hub = LocalNeighbours() if node_of is None else None  # without a bus, neighbours are heard in-process
         for assignment in gait.modules:
             driver = MujocoJoint(self, assignment.id)
+            if assignment.id in emulated_modules:
+                from asm_module.emulated import EmulatedModule  # Unicorn is loaded only when a board is emulated
+
+                self.modules[assignment.id] = EmulatedModule(module_name(assignment.id), assignment.id, driver=driver,
+                                                             clock=self.clock, tick=self.tick,
+                                                             hardware_range=gait.limits,
+                                                             **dict(bus_options or {}))  # fmt: skip
+                continue
             if assignment.id in c_modules:
                 self.modules[assignment.id] = CModule(module_name(assignment.id), assignment.id, driver=driver,
                                                       clock=self.clock, tick=self.tick, hardware_range=gait.limits,

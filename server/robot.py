@@ -72,6 +72,9 @@ class RobotOptions:
     foxglove_host: str = "127.0.0.1"
     terrain: Terrain = FLAT
     """The ground a simulated robot stands on (gaits.terrain): try a gait on the floor it will meet."""
+    emulated_modules: tuple[int, ...] | str = ()
+    """Simulated modules that run the board image (firmware/port/stm32f4_bxcan.c) in the emulator
+    (asm_module.emulated): IDs, or "odd", "even", "all"."""
 
 
 class RealTimeLoop:
@@ -170,6 +173,7 @@ class Robot:
                     return Node(module_name(module_id), transport)
 
                 self.sim = Simulation(gait, node_of=node_of, c_modules=select_modules(options.c_modules, gait),
+                                      emulated_modules=select_modules(options.emulated_modules, gait),
                                       bus_options=can_options, terrain=options.terrain)  # fmt: skip
             else:
                 can_options = dict(options.can)
@@ -308,6 +312,14 @@ def main(argv: list[str] | None = None) -> int:
     cli.add_argument("--terrain", type=terrain_argument, default=FLAT, metavar="SPEC",
                      help="the simulated ground: flat (default), slope:DEG, step:HEIGHT, rough:seed=N,roughness=M, "
                      "patches:friction=MU")  # fmt: skip
+    cli.add_argument(
+        "--emulated-modules",
+        type=module_selection,
+        default=(),
+        metavar="IDS",
+        help="simulated modules that run the STM32F4 board image in an instruction-level emulator: IDs or odd, even, "
+        "all (needs arm-none-eabi-gcc)",
+    )
     cli.add_argument("--parent-pid", type=int, help=argparse.SUPPRESS)
     args = cli.parse_args(argv)
     if args.fd and args.can is None:
@@ -321,6 +333,8 @@ def main(argv: list[str] | None = None) -> int:
                   "authentication (add --insecure to serve it anyway)")  # fmt: skip
     if args.terrain != FLAT and args.can is not None:
         cli.error("--terrain is the simulated ground: use it with --sim")
+    if args.emulated_modules and args.can is not None:
+        cli.error("--emulated-modules chooses simulated modules: use it with --sim")
     network = zenoh_options(cli, args)
     return run(cli.prog, lambda: _serve(args, network))
 
@@ -342,7 +356,7 @@ def _serve(args: argparse.Namespace, network: ZenohOptions) -> int:
     options = RobotOptions(sim=None if args.can else (args.sim or RobotOptions.sim), can=can_options, name=args.name,
                            network=network, node_id=args.node_id, c_modules=args.c_modules,
                            foxglove=args.foxglove, foxglove_host=args.foxglove_host,
-                           terrain=args.terrain)  # fmt: skip
+                           terrain=args.terrain, emulated_modules=args.emulated_modules)  # fmt: skip
     done = stop_requested()
     robot = Robot(options)  # a bad gait file, a busy port, a taken name: asm-robot: error: … (asm_py.cli.run)
     kind = "simulated" if robot.sim is not None else f"CAN {args.can}"

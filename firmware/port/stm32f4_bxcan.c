@@ -1,7 +1,8 @@
 /* An example port: one module on an STM32F4 (Cortex-M4) with its bxCAN peripheral, compiled by bench/firmware.py
- * to measure flash and RAM (never run here). What a board adds to the portable runtime is exactly this file: a
- * millisecond clock, frames in and out of the CAN controller, and the joint (stubbed: a real module drives its
- * servo's PWM and reads its encoder here).
+ * to measure flash and RAM, and run unchanged, instruction by instruction, by asm_module/emulated.py (Unicorn, with
+ * models of the peripherals below). What a board adds to the portable runtime is exactly this file: a millisecond
+ * clock, frames in and out of the CAN controller, and the joint: a servo's PWM on TIM3 channel 1 (PA6), a quadrature
+ * encoder on TIM2 (PA0/PA1 in encoder mode) and a foot switch on PA2.
  *
  * Registers are those of RM0090 (STM32F405/407) for CAN1; no vendor headers are needed. The bus is set up for
  * 1 Mbit/s from a 42 MHz APB1 clock, extended identifiers, one acceptance filter per rule of
@@ -33,15 +34,38 @@
 #define CAN_FR1(f) REG(CAN1 + 0x240u + 8u * (f))
 #define CAN_FR2(f) REG(CAN1 + 0x244u + 8u * (f))
 #define SYST_CSR REG(0xE000E010u)
-#define SYST_RVR REG(0xE000E018u)
-#define SYST_CVR REG(0xE000E018u + 4u)
+#define SYST_RVR REG(0xE000E014u)
+#define SYST_CVR REG(0xE000E018u)
+#define SCB_CPACR REG(0xE000ED88u)
+#define RCC_AHB1ENR REG(0x40023830u)
+#define RCC_APB1ENR REG(0x40023840u)
+#define TIM2 0x40000000u /* the encoder: 32 bits, counting both edges of both channels */
+#define TIM3 0x40000400u /* the servo's PWM */
+#define TIM_CR1(t) REG((t) + 0x00u)
+#define TIM_SMCR(t) REG((t) + 0x08u)
+#define TIM_CCMR1(t) REG((t) + 0x18u)
+#define TIM_CCER(t) REG((t) + 0x20u)
+#define TIM_CNT(t) REG((t) + 0x24u)
+#define TIM_PSC(t) REG((t) + 0x28u)
+#define TIM_ARR(t) REG((t) + 0x2Cu)
+#define TIM_CCR1(t) REG((t) + 0x34u)
+#define GPIOA_IDR REG(0x40020010u)
 
-#define NODE_ID 7u
-#define CONTROL_MS 20u /* the gait tick: 50 Hz */
+#define CONTROL_MS 20u       /* the gait tick: 50 Hz */
+#define ENCODER_COUNTS 4096  /* per turn (1,024 lines, both edges of both channels) */
+#define PWM_CENTRE_US 1500.0f /* the servo's pulse at 0 degrees; 1,000 us more at +90 */
+
+/* What differs between modules of one robot, written with the image when a module is flashed (the emulator writes
+ * it as a flasher would): volatile, so the compiler reads it rather than folding the defaults in. */
+struct board_config {
+    uint8_t node_id;
+    char name[15];
+    float hardware_min, hardware_max;
+};
+__attribute__((section(".rodata.board_config"), used)) static const volatile struct board_config board_config = {7, "m7", -90.0f, 90.0f};
 
 static struct asm_module module;
 static volatile uint32_t milliseconds;
-static float servo_command;
 
 void SysTick_Handler(void) { milliseconds++; }
 
@@ -63,7 +87,7 @@ static void can_init(void)
     CAN_FM1R = 0;                                        /* mask mode */
     CAN_FS1R = 0x3FFFu;                                  /* 32-bit */
     CAN_FFA1R = 0;                                       /* FIFO 0 */
-    filter(0, (uint32_t)ASM_DEST_NODE << 24 | NODE_ID << 16, 0x03FF0000u); /* to this node */
+    filter(0, (uint32_t)ASM_DEST_NODE << 24 | (uint32_t)board_config.node_id << 16, 0x03FF0000u); /* to this node */
     filter(1, ASM_PRIORITY_REQUEST << 26 | (uint32_t)ASM_DEST_BROADCAST << 24, 0x1F000000u); /* broadcast requests */
     filter(2, ASM_PRIORITY_BULK << 26 | (uint32_t)ASM_DEST_BROADCAST << 24, 0x1F000000u); /* ... fragmented (not publications) */
     filter(3, (uint32_t)ASM_DEST_SYSTEM << 24 | (uint32_t)ASM_SYSTEM_ESTOP << 16, 0x03FF0000u); /* the e-stop */
@@ -123,15 +147,57 @@ static void can_receive(void)
     }
 }
 
-static void joint_command(void *ctx, float degrees) { (void)ctx; servo_command = degrees; }
-static void joint_relax(void *ctx) { (void)ctx; }
+/* The servo: a pulse of 1,500 us at 0 degrees, 1,000 us more or less at +-90 (TIM3 counts microseconds); relaxed,
+ * no pulse at all. */
+static void joint_command(void *ctx, float degrees)
+{
+    (void)ctx;
+    TIM_CCR1(TIM3) = (uint32_t)(PWM_CENTRE_US + degrees * (1000.0f / 90.0f) + 0.5f);
+    TIM_CCER(TIM3) |= 1u;
+}
+static void joint_relax(void *ctx) { (void)ctx; TIM_CCER(TIM3) &= ~1u; }
+/* The encoder counts from 0 at power-up, the joint's zero; no torque sensing on this board. */
 static void joint_read(void *ctx, float *angle, float *torque, uint8_t *contact)
 {
     (void)ctx;
-    *angle = servo_command;
+    *angle = (float)(int32_t)TIM_CNT(TIM2) * (360.0f / ENCODER_COUNTS);
     *torque = 0.0f;
-    *contact = 0;
+    *contact = (uint8_t)((GPIOA_IDR >> 2) & 1u);
 }
+
+static void joint_init(void)
+{
+    RCC_AHB1ENR |= 1u;                      /* GPIOA (pin modes and alternate functions: left to a real board) */
+    RCC_APB1ENR |= 1u | 2u | (1u << 25);   /* TIM2, TIM3, CAN1 */
+    TIM_SMCR(TIM2) = 3u;                    /* encoder mode 3 */
+    TIM_CCMR1(TIM2) = 1u | (1u << 8);       /* TI1, TI2 */
+    TIM_CNT(TIM2) = 0;
+    TIM_CR1(TIM2) = 1u;
+    TIM_PSC(TIM3) = 84u - 1u;               /* 84 MHz timer clock: 1 us */
+    TIM_ARR(TIM3) = 20000u - 1u;            /* 50 Hz */
+    TIM_CCMR1(TIM3) = (6u << 4) | (1u << 3); /* PWM mode 1, preload */
+    TIM_CR1(TIM3) = 1u;
+}
+
+/* Where a debugger (or the emulator) finds what it reads and calls: the module, its e-stop, goal and angle, the gait
+ * service's state, when the gait last started and gait.done, the millisecond count, and asm_node_local to make the
+ * module's own requests. */
+struct asm_probe {
+    uint32_t version;
+    struct asm_node *node;
+    int (*local)(struct asm_node *node, const uint8_t *message, size_t length);
+    void (*leave)(struct asm_node *node);
+    uint32_t *now_ms;
+    uint8_t *estop;
+    float *goal, *angle;
+    uint8_t *running;
+    volatile uint32_t *milliseconds;
+    uint32_t *ramp_start_ms;
+    uint8_t *done;
+};
+__attribute__((section(".probe"), used)) const struct asm_probe asm_probe = {
+    1u, &module.node, asm_node_local, asm_node_leave, &module.node.now_ms, &module.node.estop, &module.goal_v,
+    &module.angle_v, &module.gait.service.running, &milliseconds, &module.gait.ramp_start_ms, &module.gait.done_v};
 
 int main(void)
 {
@@ -140,8 +206,10 @@ int main(void)
     SYST_RVR = 168000u - 1u; /* 1 ms at 168 MHz */
     SYST_CVR = 0;
     SYST_CSR = 7u;
+    joint_init();
     can_init();
-    asm_module_init(&module, "m7", NODE_ID, &port, &joint, -90.0f, 90.0f, milliseconds);
+    asm_module_init(&module, (const char *)board_config.name, board_config.node_id, &port, &joint,
+                    board_config.hardware_min, board_config.hardware_max, milliseconds);
     uint32_t next_tick = milliseconds;
     for (;;) {
         can_receive();
@@ -164,6 +232,7 @@ __attribute__((section(".vectors"), used)) static void (*const vectors[16])(void
 
 void Reset_Handler(void)
 {
+    SCB_CPACR |= 0xFu << 20; /* the FPU (CP10, CP11): the runtime computes in single precision */
     uint32_t *from = &_sidata, *to = &_sdata;
     while (to < &_edata)
         *to++ = *from++;

@@ -1,0 +1,277 @@
+"""Modules that run the board image itself: the STM32F4 port's ELF (firmware/port/stm32f4_bxcan.c with the runtime,
+built by Debian's arm-none-eabi-gcc), instruction by instruction in Unicorn (asm_module/emulator.py), its bxCAN
+controller bridged to a python-can bus.
+
+A :class:`~asm_module.c_module.CModule` runs the same C sources compiled for this machine; an
+:class:`EmulatedModule` runs what would be flashed — its startup code, clock set-up, CAN driver and acceptance
+filters, its PWM and encoder — so what only the board build does wrong (a register address, an unenabled FPU, a
+filter that drops a needed frame, a stack that runs into the data) shows up here, with the cycles each control
+tick costs and the stack it needs.
+
+The in-process calls of the :class:`~asm_module.module.Module` interface are the module application's own requests
+(asm_node_local), called inside the image through the debug map the port exports (``asm_probe``) at an idle point
+of its main loop, as a debugger would call them.
+"""
+
+from __future__ import annotations
+
+import logging
+import struct
+import threading
+import time
+from typing import Any, Literal
+
+import can
+
+from asm_py.clock import Clock
+from asm_py.codec import FLOAT32, INT8, UINT8
+from asm_py.event import Event
+from asm_py.protocol import Kind, Method, Status, first_byte
+
+from ._profile import CLASSES
+from .bxcan import BxCan
+from .drivers import FakeDriver, JointDriver
+from .elf import Image, read_image
+from .emulator import Cortex, FirmwareFault, Joint, TickStats
+from .firmware_build import build_board_image
+from .gait_service import SWITCH
+
+log = logging.getLogger("asm_module.emulated")
+CLOCK_HZ = 168_000_000
+"""The STM32F405/407's core clock, which the port's SysTick reload assumes (1 ms = 168,000 cycles)."""
+CONTROL_MS = 20
+_image_lock = threading.Lock()
+_image: Image | None = None
+
+
+def board_image() -> Image:
+    """The board image, built (when missing or stale) and parsed once per process."""
+    global _image
+    with _image_lock:
+        if _image is None:
+            _image = read_image(build_board_image())
+        return _image
+
+
+def board_config(node_id: int, name: str, hardware_range: tuple[float, float]) -> bytes:
+    """The port's ``board_config`` (node ID, name, the joint's hardware range) as it is flashed."""
+    encoded = name.encode("utf-8")
+    if len(encoded) > 14:
+        raise ValueError(f"{name!r}: a board's name has at most 14 bytes")
+    return struct.pack("<B15sff", node_id, encoded, *hardware_range)
+
+
+class EmulatedModule:
+    """One board image in the emulator on a python-can bus (given, or opened from ``bus_options``).
+
+    On its own its clock follows the wall clock. Given a ``clock`` and a ``tick`` event (a simulation's), its
+    milliseconds are that clock's since it was made and it is run up to the clock's time at every firing, in the
+    firing thread: its own 20 ms control tick, counted from its boot, falls in the simulation's ticks. A bus thread
+    carries frames both ways either way."""
+
+    language: Literal["python", "c"] = "c"
+
+    def __init__(
+        self,
+        name: str,
+        node_id: int,
+        *,
+        bus: can.BusABC | None = None,
+        driver: JointDriver | None = None,
+        hardware_range: tuple[float, float] = (-90.0, 90.0),
+        clock: Clock | None = None,
+        tick: Event | None = None,
+        **bus_options: Any,
+    ) -> None:
+        self.name = name
+        self.node_id = node_id
+        self.driver = driver if driver is not None else FakeDriver()
+        self.clock = clock
+        image = board_image()  # before the bus is opened: a build or a name that fails leaves nothing open
+        config = board_config(node_id, name, hardware_range)
+        self._own_bus = bus is None
+        self.bus = bus if bus is not None else can.Bus(**bus_options)
+        self.send_errors = 0
+        self.fault: FirmwareFault | None = None
+        self._lock = threading.RLock()  # the core is single-threaded: one runner at a time
+        self._t0 = clock.now() if clock is not None else time.monotonic()
+        self.can = BxCan(self._transmit)
+        joint = Joint(self.driver.command, self.driver.relax, self._read_joint)
+        with self._lock:
+            self.core = Cortex(image, self.can, joint, config)
+        self._probe = struct.unpack("<12I", self.core.uc.mem_read(image.symbol("asm_probe"), 48))
+        if self._probe[0] != 1:
+            raise RuntimeError(f"the board image's asm_probe is version {self._probe[0]}, not 1")
+        self._stop = threading.Event()
+        self._unlisten = tick.on_change(lambda _: self.advance()) if tick is not None else None
+        self._thread = threading.Thread(target=self._run, name=f"asm-emulated:{name}", daemon=True)
+        self._thread.start()
+
+    # -- the bridge ----------------------------------------------------------------------------------------------
+
+    def _now_ms(self) -> int:
+        seconds = (self.clock.now() if self.clock is not None else time.monotonic()) - self._t0
+        return max(0, int(seconds * 1000))
+
+    def advance(self) -> None:
+        """Run the image up to now (its clock's): frames received so far reach it, its ticks due run."""
+        with self._lock:
+            if self.fault is not None or self._stop.is_set():
+                return
+            try:
+                self.core.run(self._now_ms())
+            except FirmwareFault as exc:
+                self.fault = exc
+                log.error("%s: the emulated board stopped: %s", self.name, exc)
+
+    def _transmit(self, can_id: int, extended: bool, data: bytes) -> None:
+        try:
+            self.bus.send(can.Message(arbitration_id=can_id, data=data, is_extended_id=extended), timeout=0.1)
+        except can.CanError:
+            self.send_errors += 1
+
+    def _read_joint(self) -> tuple[float, bool]:
+        reading = self.driver.read()
+        return reading.angle, reading.contact
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            frame = self.bus.recv(timeout=0.001)
+            while frame is not None:
+                if not frame.is_error_frame and not frame.is_remote_frame:
+                    self.can.deliver(frame.arbitration_id, frame.is_extended_id, bytes(frame.data))
+                frame = self.bus.recv(timeout=0)
+            if self.clock is None or self.can.pending():
+                self.advance()
+
+    # -- what a debugger reads and calls -------------------------------------------------------------------------
+
+    def _byte(self, at: int) -> int:
+        return self.core.uc.mem_read(at, 1)[0]
+
+    def _float(self, at: int) -> float:
+        return struct.unpack("<f", self.core.uc.mem_read(at, 4))[0]
+
+    def local(self, method: int, name: str, data: bytes = b"") -> None:
+        """A request of the module's own: ``method`` on well-known object ``name`` through the image's
+        asm_node_local, with every check a remote request gets; ValueError naming the refusal."""
+        message = bytes((first_byte(Kind.REQUEST, method), 0, CLASSES[name], 0)) + data
+        _, node, local, _, now_ms, *_ = self._probe
+        with self._lock:
+            if self.fault is not None:
+                raise RuntimeError(f"{self.name}: the emulated board stopped: {self.fault}")
+            self.core.uc.mem_write(now_ms, struct.pack("<I", self.core.read_word(self._probe[9])))
+            status = self.core.call(local, node, message, len(message))
+        if status != Status.OK:
+            raise ValueError(f"{self.name}: {Method(method).name} of {name} refused: {Status(status).name}")
+
+    @property
+    def latched(self) -> bool:
+        """The firmware's e-stop is latched."""
+        with self._lock:
+            return bool(self._byte(self._probe[5]))
+
+    @property
+    def goal(self) -> float:
+        """What the firmware commands the joint to (degrees): joint.goal's value in its memory."""
+        with self._lock:
+            return self._float(self._probe[6])
+
+    @property
+    def angle(self) -> float:
+        """joint.angle as the firmware last read it from its encoder (degrees)."""
+        with self._lock:
+            return self._float(self._probe[7])
+
+    def gait_running(self) -> bool:
+        """gait.service runs."""
+        with self._lock:
+            return bool(self._byte(self._probe[8]))
+
+    def milliseconds(self) -> int:
+        """The board's millisecond count (its SysTick interrupts)."""
+        with self._lock:
+            return self.core.read_word(self._probe[9])
+
+    def tick_cycles(self) -> TickStats:
+        """Instructions per control tick (asm_module_tick) so far: count, sum, worst — cycles at one per
+        instruction, a lower bound of the board's (loads, branches and divisions take more)."""
+        with self._lock:
+            return TickStats(self.core.ticks.ticks, self.core.ticks.total, self.core.ticks.worst)
+
+    def worst_period_cycles(self) -> int:
+        """The most instructions executed in one 20 ms control period so far: the tick, the frames received and
+        sent, the interrupts — what the core did while not idle."""
+        with self._lock:
+            return self.core.worst_period
+
+    def stack_used(self) -> int:
+        """The stack's high-water mark in bytes (the paint the emulator laid at boot, overwritten)."""
+        with self._lock:
+            return self.core.stack_used()
+
+    # -- the in-process interface every module has (asm_module.module.Module) -----------------------------------
+
+    @property
+    def module_id(self) -> int:
+        return self.node_id
+
+    def load_gait(self, table: bytes, phase: float, direction: int) -> None:
+        self.local(Method.SET, "gait.table", table)
+        self.local(Method.SET, "gait.phase", FLOAT32.encode(phase))
+        self.local(Method.SET, "gait.direction", INT8.encode(direction))
+
+    def start_gait(self) -> None:
+        if not self.gait_running():
+            self.local(Method.START, "gait.service")
+
+    def switch_mode(self, mode: int, direction: int, after: float) -> None:
+        self.local(Method.SET, "gait.switch", SWITCH.encode({"mode": mode, "direction": direction, "after": after}))
+
+    def hear_signal(self, number: int) -> None:
+        self.local(Method.SET, "gait.signal", UINT8.encode(number))
+
+    def stop_gait(self) -> None:
+        self.local(Method.STOP, "gait.service")
+
+    def goal_now(self) -> float:
+        return self.goal
+
+    def angle_now(self) -> float:
+        return self.angle
+
+    def gait_started(self) -> float:
+        """When the gait last started (its 1 s ramp began), in seconds of this module's clock (a wall clock's:
+        time.monotonic())."""
+        with self._lock:
+            return self._t0 + self.core.read_word(self._probe[10]) / 1000
+
+    def done(self) -> int:
+        """gait.done's last firing (1 finished, 2 a state timed out with stop), 0 if it never fired."""
+        with self._lock:
+            return self._byte(self._probe[11])
+
+    def close(self) -> None:
+        """Leave the bus in order (asm_node_leave in the image) and stop; the bus is shut down if this module
+        opened it."""
+        if self._stop.is_set():
+            return
+        if self._unlisten is not None:
+            self._unlisten()
+        self._stop.set()
+        if self._thread.is_alive():
+            self._thread.join(5)
+        with self._lock:
+            if self.fault is None:
+                try:
+                    self.core.call(self._probe[3], self._probe[1])
+                except (FirmwareFault, RuntimeError) as exc:  # faulted while leaving, or too busy to be called
+                    log.error("%s: leaving the bus: %s", self.name, exc)
+        if self._own_bus:
+            self.bus.shutdown()
+
+    def __enter__(self) -> EmulatedModule:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

@@ -1,0 +1,461 @@
+"""The board image in an instruction-level emulator: a Cortex-M4 (Unicorn, Thumb, M-class) running the STM32F4
+port's ELF unchanged, with models of what the port touches — bxCAN (asm_module/bxcan.py), SysTick and its
+interrupt, the FPU's enable bit, the servo's PWM timer, the encoder's timer and the foot switch's pin.
+
+Why each piece is as it is:
+
+- **Time** is the instruction count (one instruction taken as one cycle: a Cortex-M4 retires most in one, loads,
+  branches and divisions take more, so real cycles are somewhat higher). SysTick fires every RVR + 1 of them, as
+  the image configured it (168,000: 1 ms at 168 MHz). Instructions are counted per translated block, from the
+  block's bytes (Thumb-2: a halfword starting 0b11101, 0b11110 or 0b11111 begins a 32-bit instruction).
+- **Idle**: the port polls CAN_RF0R in its main loop. Two empty polls with nothing else touched between them and
+  no interrupt taken mean the loop can do nothing until an interrupt or a frame: the emulator stops there and
+  jumps the clock to the next SysTick when the outside clock allows, so an idle module costs a few blocks per
+  millisecond, and the host may call into the image at that point (the main loop, outside the runtime).
+- **Interrupts**: Unicorn has no NVIC. A SysTick exception is entered as the core would: the basic or (when the
+  FPU is in use, CONTROL.FPCA) extended frame pushed on the main stack, 8-byte aligned, LR = EXC_RETURN, PC = the
+  vector; the handler's branch to EXC_RETURN stops Unicorn (its core raises an exception return it cannot
+  finish) and the emulator pops the frame. The core stays in thread mode while the handler runs (Unicorn's own
+  exception return needs the NVIC it lacks). The extended frame's FP part is stacked lazily, as the M4 does by
+  default: the FP registers are kept aside only for a handler not proven FP-free from its code.
+- **Faults**: any access outside the mapped memory and peripherals, or reaching Default_Handler, raises
+  :class:`FirmwareFault` naming the address — the emulated board has stopped. FPU instructions before the image
+  sets CPACR would fault on the board (Unicorn runs them anyway); the emulator checks CONTROL.FPCA at every stop.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import struct
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from unicorn import UC_ARCH_ARM, UC_HOOK_BLOCK, UC_HOOK_CODE, UC_MODE_MCLASS, UC_MODE_THUMB
+from unicorn import arm_const as arm
+from unicorn.unicorn import Uc, UcContext, UcError
+
+from .bxcan import RF0R, BxCan
+from .elf import Image
+
+FLASH, FLASH_SIZE = 0x08000000, 1 << 20
+RAM, RAM_SIZE = 0x20000000, 128 << 10
+PAINT = 0xC5C5C5C5
+"""What the stack is filled with at boot; the high-water mark is where it was overwritten."""
+EXC_RETURN_BASIC, EXC_RETURN_FP = 0xFFFFFFF9, 0xFFFFFFE9
+CALL_RETURN = 0x1FFFFF00
+"""Where a function the host calls returns to (an exit address: never reached by the image itself)."""
+SYSTICK_VECTOR = 15
+AHEAD = 50
+"""Milliseconds a busy image may run ahead of the outside clock in one call of Cortex.run."""
+CONTROL_PERIOD = 20
+"""SysTicks (milliseconds) in one control period: the port's CONTROL_MS."""
+ENCODER_COUNTS = 4096
+_FRAME_REGS = [arm.UC_ARM_REG_R0, arm.UC_ARM_REG_R1, arm.UC_ARM_REG_R2, arm.UC_ARM_REG_R3, arm.UC_ARM_REG_R12,
+               arm.UC_ARM_REG_LR, arm.UC_ARM_REG_PC, arm.UC_ARM_REG_XPSR]  # fmt: skip
+_FP_REGS = [getattr(arm, f"UC_ARM_REG_S{k}") for k in range(16)]
+_ENTRY_REGS = [*_FRAME_REGS, arm.UC_ARM_REG_CONTROL, arm.UC_ARM_REG_SP]
+
+
+def _local_16bit(halfword: int, address: int, start: int, end: int) -> bool:
+    """A 16-bit Thumb instruction at ``address`` that stays inside [start, end): not the first half of a 32-bit
+    one, not BLX/BX to a register other than LR, and a branch only to inside."""
+    if halfword >> 11 in (0b11101, 0b11110, 0b11111):
+        return False  # a 32-bit instruction (every FP one is): not proven local
+    if halfword & 0xFF00 == 0x4700:  # BX/BLX Rm
+        return halfword == 0x4770  # BX LR: the return
+    if halfword & 0xFF87 == 0x4687:  # MOV PC, Rm: a jump anywhere
+        return False
+    if halfword & 0xF500 == 0xB100:  # CBZ/CBNZ, forward
+        target = address + 4 + ((halfword >> 9 & 1) << 6 | (halfword >> 3 & 0x1F) << 1)
+        return start <= target < end
+    if halfword & 0xF800 == 0xE000:  # B, 11-bit offset
+        offset = (halfword & 0x7FF) << 1
+        target = address + 4 + (offset - 0x1000 if offset & 0x800 else offset)
+        return start <= target < end
+    if halfword & 0xF000 == 0xD000 and halfword & 0x0F00 not in (0x0E00, 0x0F00):  # B<cond>, 8-bit offset
+        offset = (halfword & 0xFF) << 1
+        target = address + 4 + (offset - 0x200 if offset & 0x100 else offset)
+        return start <= target < end
+    return True
+
+
+class _Batch:
+    """32-bit registers read or written together (uc_reg_read_batch), their buffers made once: the binding's
+    reg_read_batch looks up each register's type on every call, most of what an interrupt cost here."""
+
+    def __init__(self, uc: Uc, registers: list[int]) -> None:
+        self.uc, n = uc, len(registers)
+        self.ids = (ctypes.c_int * n)(*registers)
+        self.values = (ctypes.c_uint32 * n)()
+        base = ctypes.addressof(self.values)
+        self.pointers = (ctypes.c_void_p * n)(*(base + 4 * k for k in range(n)))
+        self.count = ctypes.c_int(n)
+
+    def read(self) -> list[int]:
+        status = self.uc._do_reg_read_batch(self.ids, self.pointers, self.count)
+        if status:
+            raise UcError(status)
+        return list(self.values)
+
+    def write(self, values: list[int]) -> None:
+        self.values[:] = [v & 0xFFFFFFFF for v in values]
+        status = self.uc._do_reg_write_batch(self.ids, self.pointers, self.count)
+        if status:
+            raise UcError(status)
+
+
+class FirmwareFault(RuntimeError):
+    """The emulated core stopped on something a board would fault on (or hang in Default_Handler for)."""
+
+
+@dataclass
+class Joint:
+    """The joint's side of the pins: ``command(degrees)`` when the servo's pulse changes, ``relax()`` when the
+    pulse stops, ``read()`` the (angle in degrees, contact) the encoder and the switch show now."""
+
+    command: Callable[[float], None]
+    relax: Callable[[], None]
+    read: Callable[[], tuple[float, bool]]
+
+
+@dataclass
+class TickStats:
+    """Instructions per call of asm_module_tick (the control tick): how many ticks, their sum and the worst."""
+
+    ticks: int = 0
+    total: int = 0
+    worst: int = 0
+
+
+class Cortex:
+    """One board: the image loaded and booted to its main loop's first idle point. ``board_config``, if given, is
+    written over the image's symbol of that name (as a flasher writes a module's own settings)."""
+
+    def __init__(self, image: Image, can: BxCan, joint: Joint, board_config: bytes | None = None) -> None:
+        self.image, self.can, self.joint = image, can, joint
+        self.uc = uc = Uc(UC_ARCH_ARM, UC_MODE_THUMB | UC_MODE_MCLASS)
+        uc.mem_map(FLASH, FLASH_SIZE)
+        uc.mem_map(RAM, RAM_SIZE)
+        for segment in image.segments:
+            if segment.data:
+                uc.mem_write(segment.address, segment.data)
+        if board_config is not None:
+            address, size = image.symbols["board_config"]
+            uc.mem_write(address, board_config[:size].ljust(size, b"\0"))
+        self.flash = bytes(uc.mem_read(FLASH, max(s.address + len(s.data) for s in image.segments) - FLASH))
+        self.stack_bottom = (image.symbol("_ebss") + 7) & ~7
+        self.stack_top = image.symbol("_stack_top")
+        uc.mem_write(self.stack_bottom, struct.pack("<I", PAINT) * ((self.stack_top - self.stack_bottom) // 4))
+        self.registers: dict[int, int] = {}  # every peripheral register written and not modelled further
+        for page in (0x40000000, 0x40006000, 0x40020000, 0x40023000, 0xE000E000):
+            uc.mmio_map(page, 0x1000, self._read, page, self._write, page)
+        self.cycles = 0  # instructions executed since reset (the emulated clock)
+        self.systicks = 0  # SysTick interrupts taken
+        self.idle = False  # the last run ended in the main loop's idle poll: the host may call into the image
+        self.idle_cycles = 0  # of those, skipped while the main loop idled
+        self.worst_period = 0  # the most cycles executed in one control period (20 SysTicks)
+        self._period_start = 0
+        self.csr = self.rvr = 0
+        self._systick_next = 0
+        self._countflag = False
+        self.cpacr = 0
+        self.pwm: dict[int, int] = {}  # TIM3's registers by offset
+        self.encoder: dict[int, int] = {}  # TIM2's
+        self._reading = (0.0, False)
+        self._activity = self._activity_at_empty = 0
+        self._depth = 0  # exceptions being handled
+        self._calling = False
+        self._reason = ""
+        self._pending = False  # a SysTick interrupt waits to be taken
+        self._fp_context: UcContext | None = None  # the FP registers at exception entry (lazy stacking)
+        self._sizes: dict[tuple[int, int], int] = {}
+        self.ticks = TickStats()
+        self._tick_start: int | None = None
+        self._returns: set[int] = set()
+        uc.hook_add(UC_HOOK_BLOCK, self._block, begin=FLASH, end=FLASH + FLASH_SIZE - 1)
+        tick = image.symbol("asm_module_tick")
+        uc.hook_add(UC_HOOK_CODE, self._tick_entered, begin=tick, end=tick)
+        fault = image.symbol("Default_Handler")
+        uc.hook_add(UC_HOOK_CODE, self._faulted, begin=fault, end=fault)
+        uc.ctl_exits_enabled(True)
+        uc.ctl_set_exits([EXC_RETURN_BASIC & ~1, EXC_RETURN_FP & ~1, CALL_RETURN])
+        stack, reset = struct.unpack_from("<II", self.flash, 0)
+        uc.reg_write(arm.UC_ARM_REG_SP, stack)
+        uc.reg_write(arm.UC_ARM_REG_CONTROL, 0)
+        self._resume_at = reset & ~1  # where the next run continues (the PC, kept here between runs)
+        self._entry_read = _Batch(uc, _ENTRY_REGS)
+        self._entry_write = _Batch(uc, [arm.UC_ARM_REG_SP, arm.UC_ARM_REG_LR, arm.UC_ARM_REG_CONTROL])
+        self._return_read = _Batch(uc, [arm.UC_ARM_REG_SP, arm.UC_ARM_REG_CONTROL])
+        self._return_write = _Batch(uc, [*_FRAME_REGS[:6], arm.UC_ARM_REG_XPSR, arm.UC_ARM_REG_CONTROL,
+                                         arm.UC_ARM_REG_SP])  # fmt: skip
+        self._fp_free_vectors: dict[int, bool] = {}
+        self.vectors = struct.unpack_from("<16I", self.flash, 0)
+        self.run(0)
+
+    # -- running -----------------------------------------------------------------------------------------------
+
+    def run(self, until_systicks: int) -> None:
+        """Run the image until it idles having taken ``until_systicks`` SysTick interrupts (its milliseconds): the
+        clock jumps over idle stretches up to there, and no further. A busy image runs on past it, by AHEAD
+        milliseconds at most in one call (then ``idle`` is False: the host must not call into it yet)."""
+        self.idle = False
+        while True:
+            reason = self._resume()
+            if reason == "systick":
+                if self.systicks >= until_systicks + AHEAD:
+                    self._pending = True  # taken at the next run
+                    return
+                self._enter(self.vectors[SYSTICK_VECTOR])
+            elif reason == "return":
+                self._exception_return()
+            elif reason == "idle":
+                if not (self.csr & 3 == 3 and self.rvr) or self.systicks >= until_systicks:
+                    self.idle = True
+                    return
+                self.idle_cycles += max(0, self._systick_next - self.cycles)
+                self.cycles = max(self.cycles, self._systick_next)
+                self._count_down()
+                self._pending = False
+                self._enter(self.vectors[SYSTICK_VECTOR])
+            else:
+                raise FirmwareFault(f"the image stopped at {self.pc:#010x} ({reason})")
+
+    @property
+    def pc(self) -> int:
+        return int(self.uc.reg_read(arm.UC_ARM_REG_PC))
+
+    def _resume(self) -> str:
+        self._reason = ""
+        try:
+            self.uc.emu_start(self._resume_at | 1, 0)
+        except UcError as exc:  # a branch to EXC_RETURN is one: Unicorn's core raises its exception return
+            if self.pc not in (EXC_RETURN_BASIC & ~1, EXC_RETURN_FP & ~1):
+                raise FirmwareFault(f"{exc} at {self.pc:#010x}") from None
+        self._resume_at = pc = self.pc
+        if pc in (EXC_RETURN_BASIC & ~1, EXC_RETURN_FP & ~1):
+            return "return"
+        if self.cpacr & 0xF << 20 != 0xF << 20 and int(self.uc.reg_read(arm.UC_ARM_REG_CONTROL)) & 4:
+            raise FirmwareFault("an FPU instruction ran before CPACR enabled the FPU (a UsageFault on the board)")
+        return self._reason or "stopped"
+
+    def _block(self, uc: Uc, address: int, size: int, _: object) -> None:
+        count = self._sizes.get((address, size))
+        if count is None:
+            count, at = 0, address - FLASH
+            while at < address - FLASH + size:
+                at += 4 if self.flash[at + 1] >> 3 in (0b11101, 0b11110, 0b11111) else 2
+                count += 1
+            self._sizes[(address, size)] = count
+        self.cycles += count
+        self._count_down()
+        if (self._pending and not self._depth and not self._calling and not self._reason
+                and not int(uc.reg_read(arm.UC_ARM_REG_XPSR)) & 0x0600FC00):  # fmt: skip  # never inside an IT block
+            self._pending = False
+            self._reason = "systick"
+            uc.emu_stop()
+
+    def _count_down(self) -> None:
+        """SysTick reached zero (once or more) by now: COUNTFLAG, and the interrupt pending if TICKINT."""
+        if self.cycles >= self._systick_next and self.csr & 1 and self.rvr:
+            periods = (self.cycles - self._systick_next) // (self.rvr + 1) + 1
+            self._systick_next += periods * (self.rvr + 1)
+            self._countflag = True
+            self._pending = self._pending or bool(self.csr & 2)
+
+    def _faulted(self, uc: Uc, address: int, size: int, _: object) -> None:
+        self._reason = "Default_Handler: an exception the image does not handle"
+        uc.emu_stop()
+
+    def _tick_entered(self, uc: Uc, address: int, size: int, _: object) -> None:
+        self._tick_start = self.cycles
+        back = int(uc.reg_read(arm.UC_ARM_REG_LR)) & ~1
+        if back not in self._returns:
+            self._returns.add(back)
+            uc.hook_add(UC_HOOK_CODE, self._tick_returned, begin=back, end=back)
+
+    def _tick_returned(self, uc: Uc, address: int, size: int, _: object) -> None:
+        if self._tick_start is not None:
+            spent = self.cycles - self._tick_start
+            self.ticks.ticks += 1
+            self.ticks.total += spent
+            self.ticks.worst = max(self.ticks.worst, spent)
+            self._tick_start = None
+
+    # -- exceptions --------------------------------------------------------------------------------------------
+
+    def _enter(self, vector: int) -> None:
+        """Take an exception: push the frame as the core does and branch to ``vector``. With the FPU in use
+        (CONTROL.FPCA) the frame is the extended one, its FP part reserved and — lazy stacking, the M4's default —
+        filled only if the handler uses the FPU (then from the registers as they were at entry)."""
+        uc = self.uc
+        self._activity += 1
+        self.systicks += 1
+        if self.systicks % CONTROL_PERIOD == 0:
+            busy = self.cycles - self.idle_cycles
+            self.worst_period = max(self.worst_period, busy - self._period_start)
+            self._period_start = busy
+        values = self._entry_read.read()
+        sp, control = values.pop(), values.pop()
+        values[6] = self._resume_at  # the return address: the instruction not yet executed
+        values[7] = (values[7] & ~0x1FF) | 1 << 24  # the stacked xPSR: thread mode, Thumb
+        extended = bool(control & 4)
+        size = 0x68 if extended else 0x20
+        frame = (sp - size) & ~7
+        if frame != sp - size:
+            values[7] |= 1 << 9  # the frame was realigned: one padding word above it
+        uc.mem_write(frame, struct.pack("<8I", *values))
+        self._fp_context = uc.context_save() if extended and not self._fp_free(vector) else None
+        self._entry_write.write([frame, EXC_RETURN_FP if extended else EXC_RETURN_BASIC, control & ~4])
+        self._resume_at = vector & ~1
+        self._depth += 1
+
+    def _fp_free(self, vector: int) -> bool:
+        """The handler at ``vector`` cannot touch the FPU: its code (its symbol's extent) is 16-bit instructions
+        only — no FP instruction is — that call nothing and branch nowhere outside it, so lazy stacking will never
+        have to save the FP registers for it. Decided once per handler from the image."""
+        known = self._fp_free_vectors.get(vector)
+        if known is None:
+            start = vector & ~1
+            size = next((size for address, size in self.image.symbols.values() if address & ~1 == start and size), 0)
+            code = self.flash[start - FLASH : start - FLASH + size]
+            halfwords = struct.unpack(f"<{len(code) // 2}H", code[: len(code) // 2 * 2])
+            known = bool(halfwords) and all(_local_16bit(h, start + 2 * k, start, start + size)
+                                            for k, h in enumerate(halfwords))  # fmt: skip
+            self._fp_free_vectors[vector] = known
+        return known
+
+    def _exception_return(self) -> None:
+        uc = self.uc
+        extended = self._resume_at == EXC_RETURN_FP & ~1
+        sp, control = self._return_read.read()
+        size = 0x68 if extended else 0x20
+        words = struct.unpack("<8I", uc.mem_read(sp, 32))
+        self._resume_at = words[6] & ~1
+        if extended and control & 4 and self._fp_context is not None:  # the handler used the FPU: lazy state back
+            context = self._fp_context
+            fp = [(r, context.reg_read(r)) for r in (*_FP_REGS, arm.UC_ARM_REG_FPSCR)]
+            uc.mem_write(sp + 32, struct.pack("<17II", *(v for _, v in fp), 0))
+            uc.reg_write_batch(fp)
+        self._return_write.write([*words[:6], words[7], control | 4 if extended else control & ~4,
+                                  sp + size + (4 if words[7] & 1 << 9 else 0)])  # fmt: skip
+        self._depth -= 1
+
+    # -- the host's calls --------------------------------------------------------------------------------------
+
+    def call(self, function: int, *args: int | bytes) -> int:
+        """Call ``function`` in the image (at an idle point: the main loop, outside the runtime) with up to four
+        arguments (bytes are copied onto the image's stack and passed by address); its r0. The registers are put
+        back afterwards, as if the main loop had not been interrupted."""
+        if not self.idle:
+            raise RuntimeError("the image is busy (not at its idle point): it cannot be called into now")
+        uc = self.uc
+        saved = uc.context_save()
+        sp = int(uc.reg_read(arm.UC_ARM_REG_SP))
+        values = []
+        for arg in args:
+            if isinstance(arg, bytes):
+                sp = (sp - len(arg)) & ~7
+                uc.mem_write(sp, arg)
+                values.append(sp)
+            else:
+                values.append(arg)
+        uc.reg_write(arm.UC_ARM_REG_SP, sp & ~7)
+        for r, v in zip([arm.UC_ARM_REG_R0, arm.UC_ARM_REG_R1, arm.UC_ARM_REG_R2, arm.UC_ARM_REG_R3], values,
+                        strict=False):  # fmt: skip
+            uc.reg_write(r, v)
+        uc.reg_write(arm.UC_ARM_REG_LR, CALL_RETURN | 1)
+        self._calling, self._reason = True, ""
+        try:
+            uc.emu_start(function | 1, 0)
+            if self.pc != CALL_RETURN or self._reason:
+                raise FirmwareFault(f"a call to {function:#010x} stopped at {self.pc:#010x} ({self._reason})")
+            return int(uc.reg_read(arm.UC_ARM_REG_R0))
+        except UcError as exc:
+            raise FirmwareFault(f"{exc} at {self.pc:#010x} in a call to {function:#010x}") from None
+        finally:
+            self._calling = False
+            uc.context_restore(saved)
+
+    def read_word(self, address: int) -> int:
+        return struct.unpack("<I", self.uc.mem_read(address, 4))[0]
+
+    def stack_used(self) -> int:
+        """The stack's high-water mark in bytes: how far below its top the boot-time paint was overwritten."""
+        paint = struct.pack("<I", PAINT)
+        memory = bytes(self.uc.mem_read(self.stack_bottom, self.stack_top - self.stack_bottom))
+        for at in range(0, len(memory), 4):
+            if memory[at : at + 4] != paint:
+                return len(memory) - at
+        return 0
+
+    # -- the peripherals ---------------------------------------------------------------------------------------
+
+    def _read(self, uc: Uc, offset: int, size: int, page: int) -> int:
+        address = page + offset
+        word = self._register(address & ~3)
+        return (word >> 8 * (address & 3)) & ((1 << 8 * size) - 1)
+
+    def _register(self, address: int) -> int:
+        if 0x40006400 <= address < 0x40006800:
+            value = self.can.read(address - 0x40006400)
+            if address - 0x40006400 == RF0R and not value & 3 and not self.can.wire:
+                if self._activity == self._activity_at_empty and not self._calling and not self._reason:
+                    self._reason = "idle"
+                    self.uc.emu_stop()
+                self._activity_at_empty = self._activity
+                return value
+        else:
+            if address == 0x40000024 and self.encoder.get(0x08, 0) & 7 == 3 and self.encoder.get(0, 0) & 1:
+                self._reading = self.joint.read()
+                return round(self._reading[0] * ENCODER_COUNTS / 360) & 0xFFFFFFFF
+            if address == 0x40020010:  # GPIOA_IDR: the foot switch on PA2
+                return int(self._reading[1]) << 2
+            value = self._systick(address)
+        self._activity += 1
+        return value
+
+    def _systick(self, address: int) -> int:
+        if address == 0xE000E010:
+            flag, self._countflag = self._countflag, False
+            return self.csr | int(flag) << 16
+        if address == 0xE000E014:
+            return self.rvr
+        if address == 0xE000E018:
+            return max(0, self._systick_next - self.cycles - 1) if self.csr & 1 else 0
+        if address == 0xE000ED88:
+            return self.cpacr
+        return self.registers.get(address, 0)
+
+    def _write(self, uc: Uc, offset: int, size: int, value: int, page: int) -> None:
+        address = page + offset
+        self._activity += 1
+        if 0x40006400 <= address < 0x40006800:
+            self.can.write(address - 0x40006400, value)
+        elif address == 0xE000E010:
+            if value & 1 and not self.csr & 1:
+                self._systick_next = self.cycles + self.rvr + 1
+            self.csr = value & 7
+        elif address == 0xE000E014:
+            self.rvr = value & 0xFFFFFF
+        elif address == 0xE000E018:
+            self._systick_next = self.cycles + self.rvr + 1  # any write clears the counter: it reloads
+        elif address == 0xE000ED88:
+            self.cpacr = value
+        elif 0x40000000 <= address < 0x40000400:
+            self.encoder[address & 0x3FF] = value
+        elif 0x40000400 <= address < 0x40000800:
+            self._pwm(address & 0x3FF, value)
+        else:
+            self.registers[address] = value
+
+    def _pwm(self, offset: int, value: int) -> None:
+        """TIM3: a new compare value or output enable commands the servo (the preload's wait for the next 20 ms
+        period is not modelled); the output disabled relaxes it."""
+        before = self.pwm.get(0x20, 0) & 1
+        self.pwm[offset] = value
+        running = self.pwm.get(0, 0) & 1 and self.pwm.get(0x18, 0) >> 4 & 7 in (6, 7)
+        enabled = self.pwm.get(0x20, 0) & 1
+        if running and enabled and offset in (0x34, 0x20):
+            self.joint.command((self.pwm.get(0x34, 0) - 1500) * 90 / 1000)
+        elif before and not enabled:
+            self.joint.relax()
