@@ -22,7 +22,7 @@ $(CHROMIUM):
 	if [ "$$(id -u)" = 0 ]; then apt-get update && apt-get install -y chromium; \
 	else sudo apt-get update && sudo apt-get install -y chromium; fi
 
-# The C runtime's Cortex-M4 build (tests/test_firmware.py, bench/firmware.py): Debian's bare-metal toolchain.
+# The C runtime's Cortex-M4 build (tests/firmware/test_firmware.py, bench/firmware.py): Debian's bare-metal toolchain.
 ARM_GCC := /usr/bin/arm-none-eabi-gcc
 $(ARM_GCC):
 	if [ "$$(id -u)" = 0 ]; then apt-get update && apt-get install -y gcc-arm-none-eabi libnewlib-arm-none-eabi; \

@@ -7,7 +7,7 @@ Prints:
   answered by a bare echo thread on the same virtual bus, in the same run (ratio, higher is better);
 - the worst-case bus load of 100 modules publishing a float32 angle at 50 Hz on 1 Mbit/s, with their heartbeats.
 
-Run: .venv/bin/python bench/can.py
+Run: .venv/bin/python bench/can_bus.py
 """
 
 from __future__ import annotations

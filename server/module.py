@@ -1,6 +1,6 @@
 """``asm-module --can INTERFACE:CHANNEL --node-id N``: one module on a CAN bus, as a Linux-based module runs it.
 
-The module itself — its objects, its gait, its e-stop — is asm_py.module (the program a module runs, whether its
+The module itself — its objects, its gait, its e-stop — is asm_module (the program a module runs, whether its
 joint is simulated or real); this is only its command line.
 """
 

@@ -43,7 +43,7 @@ static void heartbeat(struct asm_node *n)
     n->next_heartbeat_ms = n->now_ms + n->heartbeat_ms;
 }
 
-/* A reply to ``source`` (header as in asm_py.node._reply): ``data`` may already sit in n->out + 4. */
+/* A reply to ``source`` (header as in asm_py.server.reply): ``data`` may already sit in n->out + 4. */
 static void reply(struct asm_node *n, uint8_t source, uint8_t method, uint8_t txn, uint8_t status, uint8_t object,
                   const void *data, size_t length)
 {

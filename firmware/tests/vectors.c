@@ -1,6 +1,6 @@
-/* Golden-vector runner: reads one case per line on stdin (tests/test_firmware.py writes them from tests/vectors/
- * and from the Python implementation), checks the C implementation gives the same bytes, prints "ok N" or the
- * failing lines, and exits 1 on any failure.
+/* Golden-vector runner: reads one case per line on stdin (tests/firmware/test_firmware.py writes them from
+ * tests/vectors/ and from the Python implementation), checks the C implementation gives the same bytes, prints "ok N"
+ * or the failing lines, and exits 1 on any failure.
  *
  *   MSG <hex> <kind> <method> <txn> <class> <status> <object> <timeout|-1>     decode, then encode back
  *   CAN <fd> <priority> <dest_kind> <dest> <source> <message hex> <id>:<data> ...  fragment, then reassemble
