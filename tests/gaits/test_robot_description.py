@@ -151,9 +151,20 @@ def test_a_description_round_trips_and_keeps_the_files_comments() -> None:
     assert tomllib.loads(plain) == to_dict(gait)
 
 
-def test_a_library_file_has_no_description_and_dumps_none() -> None:
+def test_only_the_heavy_caterpillar_of_the_library_describes_its_module() -> None:
     for path in sorted(LIBRARY.glob("*.toml")):
-        assert "module" not in to_dict(load(path))["robot"], path.name
+        if path.stem != "caterpillar_heavy":
+            assert load(path).robot.module == ModuleType() and "module" not in to_dict(load(path))["robot"], path.name
+    heavy = load(LIBRARY / "caterpillar_heavy.toml")
+    assert heavy.robot.module == ModuleType(mass=0.35, stall_torque=1.2, no_load_speed=330.0, deadband=1.0)
+    assert heavy.automata == loads(CATERPILLAR).automata  # the same wave: only the module differs
+
+
+def test_the_heavy_caterpillar_still_crawls_within_its_servo(default: Metrics) -> None:
+    with Simulation(load(LIBRARY / "caterpillar_heavy.toml")) as sim:
+        heavy = sim.run(6.0, warmup=1.0)
+    assert heavy.body_lengths > 2.0 and heavy.distance < default.distance
+    assert heavy.peak_torque <= 1.2 + 1e-9 and not heavy.fell
 
 
 def test_a_length_sets_the_module_size_and_sizes_the_model() -> None:
