@@ -228,3 +228,15 @@ def test_values_that_are_not_numbers_are_refused_naming_the_field(table: str, pa
 def test_a_module_that_is_not_a_table_is_refused() -> None:
     with pytest.raises(GaitError, match=r"robot\.module: must be a table"):
         loads(CATERPILLAR.replace("module_size = 0.05\n", "module_size = 0.05\nmodule = 3\n", 1))
+
+
+def test_the_editor_resizes_a_described_module_with_its_length() -> None:
+    from web.document import GaitDocument
+
+    text = CATERPILLAR.replace("module_size = 0.05\n", "", 1).replace(
+        "[limits]", "[robot.module]\nlength = 0.05\n\n[limits]"
+    )
+    doc = GaitDocument(loads(text), text=text)
+    doc.set_robot("module_size", 0.07)
+    gait = loads(doc.text())  # still valid: the length followed the size
+    assert gait.robot.module_size == 0.07 and gait.robot.module.length == 0.07 and gait.robot.size[2] == 0.07
