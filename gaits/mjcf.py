@@ -17,7 +17,8 @@ The text is plain MJCF: ``gaits simulate FILE --mjcf OUT.xml`` writes it, and Mu
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+from typing import Any
 
 from .model import Robot
 from .terrain import FLAT, Ground, Terrain
@@ -25,7 +26,8 @@ from .terrain import FLAT, Ground, Terrain
 
 @dataclass(frozen=True)
 class Physics:
-    """The physical parameters of a simulated robot; defaults are SIMULATION.md's measured module model."""
+    """The physical parameters of a simulated robot; defaults are SIMULATION.md's measured module model, which is
+    also ``ModuleType()``'s (:meth:`of` takes a gait file's own module description)."""
 
     module_mass: float = 0.2
     """kg per module."""
@@ -34,7 +36,12 @@ class Physics:
     kv: float = 0.1
     """Damping gain, N·m·s/rad."""
     torque: float = 1.5
-    """Torque limit of each joint, N·m."""
+    """Torque limit of each joint, N·m: the servo's stall torque."""
+    no_load_speed: float | None = None
+    """Degrees per second where the servo's torque in its direction of motion reaches 0 (the torque-speed line);
+    None: no speed limit. MuJoCo's force range is constant, so gaits.servo narrows it every physics step."""
+    deadband: float = 0.0
+    """Degrees of error the servo does not correct (gaits.servo zeroes its force range inside the band)."""
     joint_range: float = 90.0
     """Mechanical range of each hinge, ± degrees."""
     armature: float = 0.005
@@ -48,6 +55,19 @@ class Physics:
     capsules: bool | None = None
     """Collide with capsules along each module instead of boxes: half the contacts, about twice the speed, and
     what anisotropic friction needs. None: capsules for anisotropic ground and for chains of 32 modules or more."""
+
+    @classmethod
+    def of(cls, robot: Robot, **options: Any) -> Physics:
+        """The physics of ``robot``'s own module description (``[robot.module]``), with ``options`` overriding."""
+        m = robot.module
+        physics = cls(module_mass=m.mass, kp=m.kp, kv=m.damping, torque=m.stall_torque, joint_range=m.range,
+                      no_load_speed=m.no_load_speed, deadband=m.deadband)  # fmt: skip
+        return replace(physics, **options)
+
+    @property
+    def ideal_servo(self) -> bool:
+        """MuJoCo's position actuator alone models the servo: no torque-speed line, no deadband."""
+        return self.no_load_speed is None and self.deadband == 0.0
 
 
 def _f(x: float) -> str:
@@ -72,7 +92,7 @@ class _Writer:
         self.robot = robot
         self.ground = ground
         self.p = physics
-        self.s = robot.module_size
+        self.s, self.width, self.height = robot.size
         self.lines: list[str] = []
         self.pairs: list[str] = []
         self.excludes: list[tuple[str, str]] = []
@@ -92,20 +112,20 @@ class _Writer:
 
     def segment(self, depth: int, name: str, length: float, mass: float, sign: float) -> None:
         """The geometry of one body: a box of ``length`` along ±x (``sign``) from the body frame."""
-        h = self.s / 2
+        w, h = self.width / 2, self.height / 2
         cx = sign * length / 2
         if not self.capsules:
-            self.emit(depth, f'<geom name="{name}" type="box" size="{_v(length / 2, h, h)}" pos="{_f(cx)} 0 0" '
+            self.emit(depth, f'<geom name="{name}" type="box" size="{_v(length / 2, w, h)}" pos="{_f(cx)} 0 0" '
                              f'mass="{_f(mass)}" class="module"/>')  # fmt: skip
         else:
-            radius = h * 0.9
+            radius = min(w, h) * 0.9
             half = max(length / 2 - radius, 1e-3)
             self.emit(
                 depth,
                 f'<geom name="{name}" type="capsule" size="{_f(radius)}" '
                 f'fromto="{_v(cx - half, 0, 0, cx + half, 0, 0)}" mass="{_f(mass)}" class="module"/>',
             )
-            self.emit(depth, f'<geom type="box" size="{_v(length / 2, h, h)}" pos="{_f(cx)} 0 0" class="visual"/>')
+            self.emit(depth, f'<geom type="box" size="{_v(length / 2, w, h)}" pos="{_f(cx)} 0 0" class="visual"/>')
             if self.p.anisotropic is None:
                 return
             along, across = self.p.anisotropic
@@ -137,7 +157,7 @@ class _Writer:
         limits = (full[0] + math.degrees(bend), full[1] + math.degrees(bend)) if bend else full
         # a chain is centred on the origin; a loop stands on its bottom edge (the two welded end halves)
         x = 0.0 if bend else -n * s / 2 + sum(lengths[:root])
-        self.emit(depth, f'<body name="b{root}" pos="{_v(x, 0, s / 2)}">')
+        self.emit(depth, f'<body name="b{root}" pos="{_v(x, 0, self.height / 2)}">')
         self.emit(depth + 1, '<freejoint name="root"/>')
         self.segment(depth + 1, f"b{root}", lengths[root], masses[root], 1.0)
         # forward branch: b(k) is a child of b(k-1), framed at hinge k, extending +x
@@ -205,7 +225,7 @@ class _Writer:
 
 def build_mjcf(robot: Robot, physics: Physics | None = None, *, name: str = "robot", terrain: Terrain = FLAT) -> str:
     """The MJCF text of ``robot``: modules, actuators, the ground of ``terrain`` and (for loops) the closing weld."""
-    p = physics or Physics()
+    p = physics or Physics.of(robot)
     if p.anisotropic is not None and terrain.kind == "patches":
         # anisotropic friction is an explicit pair per module and ground geom, whose friction overrides the tile's
         raise ValueError("friction patches need isotropic ground friction; this gait's [ground] is anisotropic")

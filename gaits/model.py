@@ -6,6 +6,9 @@
     modules = 8
     axes = "pitch"           # pitch | yaw | alternating (pitch, yaw, pitch, …)
     module_size = 0.05       # metres
+    [robot.module]           # optional: the module's description (gaits/README.md); every field defaults to today's
+    mass = 0.2               # kg
+    stall_torque = 1.5       # N·m
     [limits]                 # joint limits, degrees; every module enforces them whatever it is sent
     min = -90.0
     max = 90.0
@@ -29,7 +32,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
@@ -103,6 +106,40 @@ class Assignment:
 
 
 @dataclass
+class ModuleType:
+    """The robot's module, described once: its body and its servo. Every default is the module the simulator has
+    always modelled (SIMULATION.md: 5 cm, 0.2 kg, kp 10, kv 0.1, ±1.5 N·m, ±90°), so a file without a
+    ``[robot.module]`` table simulates exactly as before; a field given in the file overrides only itself.
+    The gait is then judged against the servo it will meet, not an ideal one."""
+
+    length: float | None = None
+    """Metres along the chain; None: ``robot.module_size`` (which a given length sets)."""
+    width: float | None = None
+    """Metres across the chain (the hinge axis of a pitch module); None: the length, a cube."""
+    height: float | None = None
+    """Metres, bottom to top; None: the length."""
+    mass: float = 0.2
+    """kg per module."""
+    stall_torque: float = 1.5
+    """N·m: the most the servo exerts, at standstill (the actuator's force limit)."""
+    no_load_speed: float | None = None
+    """Degrees per second at which the torque the servo can give in its direction of motion has fallen (linearly)
+    to zero, as on a DC motor's torque-speed line; None: no such limit (the ideal servo of the past)."""
+    kp: float = 10.0
+    """Position gain, N·m per radian of error (MuJoCo's unit, as SIMULATION.md gives it)."""
+    damping: float = 0.1
+    """Velocity gain, N·m·s per radian."""
+    deadband: float = 0.0
+    """Degrees: while |goal − angle| is below it the servo exerts no torque (no correction), as a hobby servo's
+    deadband or a gearbox's backlash lets the joint sit off its goal."""
+    range: float = 90.0
+    """The hinge's mechanical range, ± degrees: the actuator cannot be commanded beyond it."""
+
+
+_MODULE_FIELDS: tuple[str, ...] = tuple(f.name for f in fields(ModuleType))
+
+
+@dataclass
 class Robot:
     shape: str = "chain"
     modules: int = 8
@@ -110,6 +147,15 @@ class Robot:
     module_size: float = 0.05
     legs: int = 0
     """Legged robots: number of legs around the body (the modules are split evenly among them)."""
+    module: ModuleType = field(default_factory=ModuleType)
+    """What each module is: its size, mass and servo (the ``[robot.module]`` table)."""
+
+    @property
+    def size(self) -> tuple[float, float, float]:
+        """A module's (length, width, height), metres: the description's, else a cube of ``module_size``."""
+        m = self.module
+        length = self.module_size if m.length is None else m.length
+        return length, length if m.width is None else m.width, length if m.height is None else m.height
 
     def axis(self, index: int) -> str:
         """The axis of module ``index`` (0-based): pitch or yaw."""
@@ -212,7 +258,15 @@ def from_dict(data: Any, *, source: str = "<gait>", text: str | None = None) -> 
     for parts in _non_finite(data, []):
         bad(format_path(parts), "must be a finite number, not nan or inf")
     raise_if(problems, source)
-    robot = Robot(**data["robot"])
+    robot_data = dict(data["robot"])
+    module_data = robot_data.pop("module", {})
+    robot = Robot(**robot_data, module=ModuleType(**module_data))
+    if "length" in module_data:
+        if "module_size" not in robot_data:
+            robot.module_size = module_data["length"]  # everything that measures the body reads module_size
+        elif robot.module_size != module_data["length"]:
+            bad("robot.module.length", f"{module_data['length']} m differs from robot.module_size "
+                                       f"{robot.module_size} m: give one of them")  # fmt: skip
     if robot.shape == "legged" and (robot.legs < 2 or robot.modules % robot.legs):
         bad("robot.legs", f"a legged robot needs 2 or more legs sharing its {robot.modules} modules evenly")
     if robot.shape == "loop" and robot.modules < 4:
@@ -221,6 +275,8 @@ def from_dict(data: Any, *, source: str = "<gait>", text: str | None = None) -> 
     low, high = limits.get("min", -90.0), limits.get("max", 90.0)
     if not low < high:
         bad("limits", f"min must be below max, not {low}..{high}")
+    elif "range" in module_data and not -robot.module.range <= low < high <= robot.module.range:
+        bad("limits", f"{low}..{high}° exceeds the module's joint range ±{robot.module.range}° (robot.module.range)")
     ground_data = data.get("ground", {})
     anisotropic = ground_data.get("anisotropic")
     ground = Ground(
@@ -362,6 +418,10 @@ def to_dict(gait: Gait) -> dict[str, Any]:
              "module_size": gait.robot.module_size}  # fmt: skip
     if gait.robot.shape == "legged":
         robot["legs"] = gait.robot.legs
+    module = {key: value for key in _MODULE_FIELDS if (value := getattr(gait.robot.module, key)) is not None
+              and value != getattr(ModuleType, key, None)}  # fmt: skip
+    if module:
+        robot["module"] = module
     out: dict[str, Any] = {"name": gait.name}
     if gait.description:
         out["description"] = gait.description

@@ -32,6 +32,7 @@ from .deploy import module_tables
 from .mjcf import Physics, build_mjcf
 from .model import Gait
 from .programs import mode_index
+from .servo import Servo
 from .terrain import FLAT, Terrain
 
 
@@ -225,11 +226,14 @@ class Simulation:
             raise ValueError("emulated modules need a bus (a robot process's), not a preview's hub")
         self.gait = gait
         self.lock = threading.RLock()
-        self.physics = physics or Physics(friction=gait.ground.friction, anisotropic=gait.ground.anisotropic)
+        self.physics = physics or Physics.of(gait.robot, friction=gait.ground.friction,
+                                             anisotropic=gait.ground.anisotropic)  # fmt: skip
         self.terrain = terrain
         self.mjcf = build_mjcf(gait.robot, self.physics, name=gait.name, terrain=terrain)
         self.model = mujoco.MjModel.from_xml_string(self.mjcf)
         self.data = mujoco.MjData(self.model)
+        self._servo = None if self.physics.ideal_servo else Servo(self.model, self.physics)
+        """The torque-speed line and deadband (gaits/servo.py); None for an ideal servo: MuJoCo's actuator alone."""
         self.clock = SimClock()
         self.tick = Event("gait.tick", codec="float64", clock=self.clock)
         self.steps_per_tick = max(1, round(1.0 / (control_rate * self.model.opt.timestep)))
@@ -347,7 +351,10 @@ class Simulation:
                 self._control_tick()
             n = min(steps, self.steps_per_tick - self._into_tick)
             with self.lock:
-                mujoco.mj_step(self.model, self.data, n)
+                if self._servo is None:
+                    mujoco.mj_step(self.model, self.data, n)
+                else:
+                    self._servo.step(self.model, self.data, n)
             self._into_tick = (self._into_tick + n) % self.steps_per_tick
             steps -= n
             force = self.data.actuator_force

@@ -99,7 +99,9 @@ def _range(schema: dict[str, Any]) -> str:
         if "maximum" in schema
         else (f"{schema['exclusiveMaximum']:g})" if "exclusiveMaximum" in schema else "∞)")
     )
-    return f"{low}, {high}"  # fmt: skip
+    unit = str(schema.get("description", "")).split(";")[0]
+    # a short description is the number's unit ("kg", "N·m"): a mass of -1 is then refused in words a person reads
+    return f"{low}, {high}" + (f" {unit}" if unit and len(unit) <= 24 and ":" not in unit else "")  # fmt: skip
 
 
 def _problems(error: ValidationError) -> Iterator[tuple[list[str | int], str]]:

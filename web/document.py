@@ -196,7 +196,9 @@ class GaitDocument:
             self._apply(lambda d: _resize(d, value, self._spare), field=("robot", field))
         elif field == "shape":
             self._apply(lambda d: _reshape(d, value), field=("robot", field))
-        elif field in ("module_size", "axes", "legs"):
+        elif field == "module_size":
+            self._apply(lambda d: _resize_module(d, value), field=("robot", field))
+        elif field in ("axes", "legs"):
             self._apply(lambda d: d["robot"].__setitem__(field, value), field=("robot", field))
         else:
             raise ValueError(f"the robot has no editable field {field!r}")
@@ -296,6 +298,14 @@ class GaitDocument:
             self._valid = None
             self.problems = list(exc.problems)
         self.version += 1
+
+
+def _resize_module(data: dict[str, Any], size: Any) -> None:
+    """A new module size; a described module's length (``[robot.module]``) is the same number, so it follows."""
+    data["robot"]["module_size"] = size
+    module = data["robot"].get("module")
+    if isinstance(module, dict) and "length" in module:
+        module["length"] = size
 
 
 def _resize(data: dict[str, Any], count: int, spare: dict[Any, dict[str, Any]]) -> None:
