@@ -30,8 +30,9 @@ CONTRACT = FIRMWARE.parent / "contract"
 
 
 def ensure_contract() -> None:
-    """Regenerate the headers (and every other copy) of the wire contract when contract/*.toml changed: the C build
-    always compiles what the contract says (contract/generate.py)."""
+    """Regenerate the C headers of the wire contract when contract/*.toml changed: the C build always compiles what
+    the contract says (contract/generate.py --headers). The Python copy and the doc are `make contract`'s: a build
+    never rewrites them behind the developer's back, and the suite fails while they are stale."""
     generator = CONTRACT / "generate.py"
     if not generator.exists():  # an installed package without the repository: the headers are what they are
         return
@@ -39,7 +40,7 @@ def ensure_contract() -> None:
     newest = max(p.stat().st_mtime for p in (generator, *CONTRACT.glob("*.toml")))
     if all(h.exists() and h.stat().st_mtime >= newest for h in headers):
         return
-    subprocess.run([sys.executable, str(generator)], check=True, capture_output=True, text=True)
+    subprocess.run([sys.executable, str(generator), "--headers"], check=True, capture_output=True, text=True)
 
 
 def runtime_sources() -> list[Path]:

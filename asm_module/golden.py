@@ -106,7 +106,7 @@ def _raw_request(bus: can.BusABC, message: bytes, *, dest_kind: int = 0, dest: i
         bus.send(can.Message(arbitration_id=cid.pack(), data=data, is_extended_id=True))
     if not reply:
         return None
-    reassembler = Reassembler(4096, 4, 1.0)
+    reassembler = Reassembler(max_partials=4)
     for frame in _frames_to(bus, source):
         cid = CanId.unpack(frame.arbitration_id)
         done = reassembler.feed((cid.source, cid.dest_kind, cid.dest), cid.frame, cid.counter, bytes(frame.data),

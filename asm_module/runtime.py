@@ -55,7 +55,7 @@ from .program import Program, program_of
 from .staging import Staging
 from .wire import checksum, decode_program, encode_table
 
-log = logging.getLogger("asm_py.module")
+log = logging.getLogger("asm_module.runtime")
 HOLD = [PhaseState(0.0, 1.0, "step")]
 """The table of a module that has not been given a gait: hold 0°."""
 

@@ -32,6 +32,8 @@ from __future__ import annotations
 import re
 from typing import NamedTuple
 
+from ._contract import ZENOH_KEYS
+
 ROOT = "asm"
 DEFAULT_ROBOT = "robot"
 """The robot a session belongs to unless told otherwise."""
@@ -84,56 +86,61 @@ def segment(name: str, *, tool: bool) -> str:
 class RobotKeys:
     """The keys of one robot's namespace (see the module docstring)."""
 
-    __slots__ = ("prefix", "robot")
+    __slots__ = ("_patterns", "prefix", "robot")
 
     def __init__(self, robot: str = DEFAULT_ROBOT) -> None:
-        self.robot = check_name(robot, "robot name")
+        self._set(check_name(robot, "robot name"))
+
+    def _set(self, robot: str) -> None:
+        self.robot = robot
         self.prefix = f"{ROOT}/{robot}"
+        self._patterns = {name: pattern.replace("{robot}", robot) for name, pattern in ZENOH_KEYS.items()}
+        """The contract's key patterns (contract/asm.toml ``zenoh_key``) with this robot filled in."""
 
     # -- nodes ----------------------------------------------------------------------------------------------------
 
     def requests(self, node: str, source: str = "*") -> str:
         """``asm/<robot>/<node>/req/<source>`` (``*``: the queryable of every source)."""
-        return f"{self.prefix}/{node}/req/{source}"
+        return self._patterns["requests"].format(node=node, source=source)
 
     def messages(self, node: str, source: str = "*") -> str:
-        return f"{self.prefix}/{node}/msg/{source}"
+        return self._patterns["messages"].format(node=node, source=source)
 
     def publication(self, node: str, object_name: str = "*") -> str:
-        return f"{self.prefix}/{node}/pub/{object_name}"
+        return self._patterns["publication"].format(node=node, object=object_name)
 
     def json_view(self, node: str, object_name: str = "*") -> str:
-        return f"{self.prefix}/{node}/json/{object_name}"
+        return self._patterns["json_view"].format(node=node, object=object_name)
 
     def group(self, group: str, source: str = "*") -> str:
         """``asm/<robot>/@group/<group>/msg/<source>`` (``*`` for group: every group of the robot)."""
-        return f"{self.prefix}/@group/{group}/msg/{source}"
+        return self._patterns["group"].format(group=group, source=source)
 
     def alive(self, node: str = "*", session: str = "*") -> str:
         """The liveliness token of ``node`` held by ``session`` (``*``: any)."""
-        return f"{self.prefix}/@alive/{node}/{session}"
+        return self._patterns["alive"].format(node=node, session=session)
 
     def estop(self, source: str = "*") -> str:
-        return f"{self.prefix}/@estop/{source}"
+        return self._patterns["estop"].format(source=source)
 
     # -- the robot process ----------------------------------------------------------------------------------------
 
     def robot_key(self, what: str) -> str:
         """``asm/<robot>/@robot/<what>``: ``status``, ``poses``, ``mjcf``."""
-        return f"{self.prefix}/@robot/{what}"
+        return self._patterns["robot_key"].format(what=what)
 
     def robot_alive(self, session: str = "*") -> str:
-        return f"{self.prefix}/@robot/alive/{session}"
+        return self._patterns["robot_alive"].format(session=session)
 
 
 def lab_estop(source: str = "*") -> str:
     """``asm/@lab/estop/<source>``: the e-stop of every robot on the network."""
-    return f"{ROOT}/{LAB}/estop/{source}"
+    return ZENOH_KEYS["lab_estop"].format(source=source)
 
 
 ALL_ROBOTS = RobotKeys.__new__(RobotKeys)
 """Wildcard keys over every robot (``asm/*/...``), for tools that list robots."""
-ALL_ROBOTS.robot, ALL_ROBOTS.prefix = "*", f"{ROOT}/*"
+ALL_ROBOTS._set("*")
 
 
 def split(key: object) -> list[str]:

@@ -1,10 +1,10 @@
 """The one table between exceptions and reply statuses, read both ways.
 
 The server turns the exception a request raised into a status (the first row whose ``caught`` type matches: order
-matters, UnicodeDecodeError is a ValueError); the client raises a reply's status as that row's ``raised`` type, so
-code that catches TimeoutError, ValueError or LookupError works on remote objects as on local ones
-(asm_py.errors). A status with no ``raised`` type (UNSUPPORTED, BAD_MESSAGE, BUSY, INTERNAL) comes back as
-RemoteError carrying the code.
+matters, UnicodeDecodeError is a ValueError); the client raises a reply's status as the exception the wire contract
+names for it (contract/asm.toml ``raises``, bound to classes here), so code that catches TimeoutError, ValueError
+or LookupError works on remote objects as on local ones (asm_py.errors). A status the contract maps to RemoteError
+(UNSUPPORTED, BAD_MESSAGE, BUSY, INTERNAL) comes back as RemoteError carrying the code.
 """
 
 from __future__ import annotations
@@ -12,6 +12,7 @@ from __future__ import annotations
 import logging
 from typing import NamedTuple
 
+from ._contract import STATUS_RAISES
 from .errors import AsmTimeout, EstopLatched, Locked, MessageTooLarge, ReadOnlyError, RemoteError, ServiceError
 from .protocol import MAX_ERROR_TEXT, Message, Method, Status
 
@@ -30,27 +31,40 @@ class Row(NamedTuple):
     status: Status
     caught: type[BaseException]
     """What the server answers with ``status``."""
-    raised: type[Exception] | None
-    """What the client raises for ``status`` (None: RemoteError with the code)."""
 
 
 TABLE: tuple[Row, ...] = (
-    Row(Status.TIMEOUT, TimeoutError, AsmTimeout),
-    Row(Status.SERVICE_ERROR, ServiceError, ServiceError),
-    Row(Status.BUSY, Busy, None),
-    Row(Status.UNSUPPORTED, RemoteError, None),
-    Row(Status.BAD_MESSAGE, BadMessage, None),
-    Row(Status.BAD_MESSAGE, UnicodeDecodeError, None),
-    Row(Status.BAD_MESSAGE, RecursionError, None),
-    Row(Status.READ_ONLY, ReadOnlyError, ReadOnlyError),
-    Row(Status.ESTOP, EstopLatched, EstopLatched),
-    Row(Status.LOCKED, Locked, Locked),
-    Row(Status.TOO_LARGE, MessageTooLarge, MessageTooLarge),
-    Row(Status.TYPE_ERROR, TypeError, TypeError),
-    Row(Status.VALUE_ERROR, ValueError, ValueError),
-    Row(Status.NOT_FOUND, LookupError, LookupError),
+    Row(Status.TIMEOUT, TimeoutError),
+    Row(Status.SERVICE_ERROR, ServiceError),
+    Row(Status.BUSY, Busy),
+    Row(Status.UNSUPPORTED, RemoteError),
+    Row(Status.BAD_MESSAGE, BadMessage),
+    Row(Status.BAD_MESSAGE, UnicodeDecodeError),
+    Row(Status.BAD_MESSAGE, RecursionError),
+    Row(Status.READ_ONLY, ReadOnlyError),
+    Row(Status.ESTOP, EstopLatched),
+    Row(Status.LOCKED, Locked),
+    Row(Status.TOO_LARGE, MessageTooLarge),
+    Row(Status.TYPE_ERROR, TypeError),
+    Row(Status.VALUE_ERROR, ValueError),
+    Row(Status.NOT_FOUND, LookupError),
 )
-_RAISED: dict[int, type[Exception]] = {row.status: row.raised for row in TABLE if row.raised is not None}
+_CLIENT_EXCEPTIONS: dict[str, type[Exception]] = {
+    cls.__name__: cls
+    for cls in (AsmTimeout, ServiceError, TypeError, ValueError, LookupError, ReadOnlyError, EstopLatched, Locked,
+                MessageTooLarge, RemoteError)
+}  # fmt: skip
+"""The exceptions the contract's ``raises`` column may name; a name not here fails at import, not at a reply."""
+
+
+def _client_exceptions() -> dict[int, type[Exception]]:
+    unknown = sorted({name for name in STATUS_RAISES.values() if name not in _CLIENT_EXCEPTIONS})
+    if unknown:
+        raise ImportError(f"contract/asm.toml: a status raises {unknown[0]!r}, which asm_py/status.py does not know")
+    return {status: _CLIENT_EXCEPTIONS[name] for status, name in STATUS_RAISES.items() if name != "RemoteError"}
+
+
+_RAISED = _client_exceptions()
 
 
 def status_of(exc: BaseException) -> tuple[int, bytes]:

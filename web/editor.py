@@ -67,7 +67,7 @@ class GaitEditor:
             # 0.999999); the document takes what was typed and the loader's problem shows at the field instead
             self.duration = gui.add_number("Duration (s)", initial_value=0.1, step=0.005)
             self.interp = gui.add_dropdown("Interpolation", ["linear", "step"])
-            selected = lambda: (self.automaton.value, int(self.state_index.value) - 1)  # noqa: E731
+            selected = lambda: (self.automaton.value, int(self.state_index.value) - 1)  # noqa: E731  (a one-line reader)
             self.events = EventControls(gui, self.doc, edited=self.after_edit, safe=safe, syncing=lambda: page.syncing,
                                         selected=selected)  # fmt: skip
             self.state_problem = gui.add_markdown("")

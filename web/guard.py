@@ -158,11 +158,11 @@ def guarded_server(guard: AccessGuard, **options: Any) -> viser.ViserServer:
     real: Any = getattr(viser_infra, "websockets")  # noqa: B009  (a name the module does not export)
     shim = _Namespace(real, asyncio=_Namespace(real.asyncio, server=_ServerModule(guard)))
     with _STARTING:
-        setattr(viser_infra, "websockets", shim)  # noqa: B010
+        setattr(viser_infra, "websockets", shim)  # noqa: B010  (the same unexported name)
         try:
             server = viser.ViserServer(**options)
         finally:
-            setattr(viser_infra, "websockets", real)  # noqa: B010
+            setattr(viser_infra, "websockets", real)  # noqa: B010  (put back)
     guard.port = server.get_port()
     wanted = options.get("port", 0)
     if wanted and guard.port != wanted:  # viser moves to the next free port; a user who asked for one means it

@@ -23,6 +23,8 @@ import binascii
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 
+from .._contract import MAX_MESSAGE as PROTOCOL_MAX_MESSAGE
+from .._contract import REASSEMBLY_TIMEOUT
 from .ids import FrameType
 
 PREAMBLE = 4
@@ -101,10 +103,10 @@ class _Partial:
 class Reassembler:
     """Rebuilds fragmented messages; see the module docstring for the bounds."""
 
-    max_message: int = 4096
-    """protocol.MAX_MESSAGE: a first frame announcing more is dropped at once."""
+    max_message: int = PROTOCOL_MAX_MESSAGE
+    """A first frame announcing more is dropped at once."""
     max_partials: int = 64
-    timeout: float = 1.0
+    timeout: float = REASSEMBLY_TIMEOUT
     dropped: dict[str, int] = field(default_factory=dict)
     _partials: dict[tuple[int, int, int], _Partial] = field(default_factory=dict)
 

@@ -83,3 +83,64 @@ def test_a_document_marker_without_a_table_is_an_error() -> None:
     generate = _generator()
     with pytest.raises(KeyError, match="nonsense"):
         generate.document("<!-- contract:nonsense -->\nx\n<!-- /contract -->", {})
+
+
+@pytest.mark.parametrize(
+    ("table", "entry", "words"),
+    [
+        ("method", {"id": 16, "name": "TOO_FAR"}, "outside 0..15"),
+        ("method", {"id": 3, "name": "TWICE"}, "used twice"),
+        ("status", {"id": 300, "name": "HUGE"}, "outside 0..255"),
+        ("kind", {"id": 4, "name": "FIFTH"}, "outside 0..3"),
+        ("codec_tag", {"tag": 0x01, "name": "AGAIN"}, "used twice"),
+    ],
+)
+def test_a_contract_the_wire_cannot_carry_is_refused_before_anything_is_written(table, entry, words) -> None:
+    generate = _generator()
+    core, profile = generate.load()
+    edited = copy.deepcopy(core)
+    edited[table].append({**edited[table][0], **entry})
+    with pytest.raises(ValueError, match=words):
+        generate.check(edited, profile)
+
+
+def test_the_reserved_method_row_follows_the_methods() -> None:
+    generate = _generator()
+    core, profile = generate.load()
+    assert generate._reserved(core) == [["12-15", "reserved", "", "", "a node answers UNSUPPORTED"]]
+    edited = copy.deepcopy(core)
+    edited["method"].append({**core["method"][0], "id": 12, "name": "ECHO"})
+    assert generate._reserved(edited)[0][0] == "13-15"
+    edited["method"] += [{**core["method"][0], "id": k, "name": f"M{k}"} for k in (13, 14, 15)]
+    assert generate._reserved(edited) == []
+
+
+def test_the_client_exceptions_and_the_zenoh_keys_are_the_contracts() -> None:
+    """asm_py binds the contract's ``raises`` names and key patterns; it restates neither."""
+    from asm_py import keys
+    from asm_py._contract import STATUS_RAISES, ZENOH_KEYS
+    from asm_py.protocol import Message, Status
+    from asm_py.status import raise_for_status
+
+    for status, name in STATUS_RAISES.items():
+        reply = Message(kind=2, method=0, txn=0, status=int(status), object_id=0, data=b"x")
+        with pytest.raises(Exception) as caught:
+            raise_for_status(reply, "call")
+        assert type(caught.value).__name__ == name, status
+    robot = keys.RobotKeys("r1")
+    assert robot.requests("m1", "~t") == ZENOH_KEYS["requests"].format(robot="r1", node="m1", source="~t")
+    assert robot.alive("m1", "s") == ZENOH_KEYS["alive"].format(robot="r1", node="m1", session="s")
+    assert keys.lab_estop("x") == ZENOH_KEYS["lab_estop"].format(source="x")
+    assert Status.OK not in STATUS_RAISES
+
+
+def test_a_firmware_build_regenerates_only_the_c_headers(tmp_path, monkeypatch, capsys) -> None:
+    """The C build runs the generator for its headers; the Python and the doc stay `make contract`'s (so a
+    forgotten `make contract` is caught by the stale test, not silently fixed by a build)."""
+    generate = _generator()
+    header, python = tmp_path / "contract.h", tmp_path / "_contract.py"
+    monkeypatch.setattr(generate, "outputs", lambda: {header: "/* new */\n", python: "NEW = 1\n"})
+    monkeypatch.setattr(generate, "ROOT", tmp_path)
+    assert generate.main(["--headers"]) == 0
+    assert header.read_text() == "/* new */\n" and not python.exists()
+    assert "--headers" in (ROOT / "asm_module" / "firmware_build.py").read_text()  # what the build runs
