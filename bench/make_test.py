@@ -43,6 +43,9 @@ def main() -> None:
     total_s, output, code = _timed(make)
     summary = next((line for line in reversed(output.splitlines()) if re.search(r"\d+ (passed|failed)", line)), "")
     print(f"make lint: {lint_s:.1f} s; make test: {total_s:.1f} s, exit {code}: {summary.strip('= ')}")
+    for line in output.splitlines():
+        if line.startswith("FAILED "):
+            print(line)
     if args.slowest:
         block = output.split("slowest 15 durations", 1)[-1].splitlines()[1:17]
         print("\n".join(block))

@@ -202,7 +202,7 @@ def test_a_deployed_robot_runs_neighbour_events_over_its_bus_and_a_one_shot_curl
         assert report.running == list(range(1, 9))
         cycles = [client.lookup(f"m{i}", "gait.cycle", timeout=5) for i in (1, 8)]
         first = [c.get(timeout=5) for c in cycles]
-        assert wait_until(lambda: cycles[0].get(timeout=5) - first[0] >= 4, timeout=20)
+        assert wait_until(lambda: cycles[0].get(timeout=5) - first[0] >= 6, timeout=30)  # the span the check had
         lead, last = (c.get(timeout=5) - f for c, f in zip(cycles, first, strict=True))
         assert lead >= 4 and last >= lead - 1, (lead, last)
         report = deploy(client, load(LIBRARY / "curl_into_loop.toml"), timeout=5.0)

@@ -38,7 +38,8 @@ def open_page(pw, url: str):
     browser = pw.chromium.launch(executable_path=CHROMIUM, args=["--no-sandbox"])
     page = browser.new_page(viewport={"width": 1400, "height": 900})
     page.goto(f"{url}/?fixedDpr={VIEW_DPR}")
-    expect(page.get_by_role("button", name=re.compile(r"^E-STOP"))).to_be_visible(timeout=30_000)
+    # generous: the suite's other worker may hold a core while Chromium builds the page in software WebGL
+    expect(page.get_by_role("button", name=re.compile(r"^E-STOP"))).to_be_visible(timeout=60_000)
     return browser, page
 
 
