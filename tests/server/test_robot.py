@@ -204,7 +204,9 @@ def test_a_deployed_robot_runs_neighbour_events_over_its_bus_and_a_one_shot_curl
         first = [c.get(timeout=5) for c in cycles]
         assert wait_until(lambda: cycles[0].get(timeout=5) - first[0] >= 6, timeout=30)  # the span the check had
         lead, last = (c.get(timeout=5) - f for c, f in zip(cycles, first, strict=True))
-        assert lead >= 4 and last >= lead - 1, (lead, last)
+        # the last module keeps the leader's pace: two strokes behind at most over six (a module waiting out its
+        # 2 s timeout instead would do two of the leader's six); on a loaded machine the chain's CAN hand-offs lag
+        assert lead >= 6 and last >= lead - 2, (lead, last)
         report = deploy(client, load(LIBRARY / "curl_into_loop.toml"), timeout=5.0)
         done = client.lookup("m4", "gait.done", timeout=5)
 

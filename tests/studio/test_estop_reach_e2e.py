@@ -61,7 +61,9 @@ def test_estop_by_click_and_by_key_while_a_confirmation_waits_and_a_field_has_fo
                 page.screenshot(path=str(ARTIFACTS / "estop-while-asking.png"))
                 page.get_by_role("button", name=re.compile(r"^E-STOP")).click()
                 assert wait_until(lambda: all(_latched(client)), timeout=10), "the click stopped every module"
-                assert not any(_running(client))
+                # a latched module holds its joint at once; its gait service ends on its own thread just after (the
+                # e-stop path waits for nothing: issue 26), so "not running" may trail "latched" under load
+                assert wait_until(lambda: not any(_running(client)), timeout=5)
                 expect(page.get_by_text("latched on 8 of 8 modules (read back)", exact=False).first).to_be_visible(
                     timeout=10_000
                 )
