@@ -288,7 +288,13 @@ def test_make_a_12_module_wave_preview_rename_download_and_deploy_it_in_a_minute
             metrics = page.get_by_text("distance", exact=False).first
             page.mouse.click(*FOCUS_3D)  # the 3D view has the focus, not a field
             page.keyboard.press("Space")
-            time.sleep(0.5)
+
+            def still() -> bool:  # the pause reached the preview loop and the page shows where it stopped
+                before = number(metrics.inner_text(), r"t = ([\d.]+) s")
+                time.sleep(0.5)
+                return number(metrics.inner_text(), r"t = ([\d.]+) s") == before
+
+            assert wait_until(still, timeout=15)
             paused = number(metrics.inner_text(), r"t = ([\d.]+) s")
             time.sleep(1.0)
             assert number(metrics.inner_text(), r"t = ([\d.]+) s") == paused
