@@ -18,20 +18,19 @@ import threading
 import time
 from collections import deque
 from collections.abc import Callable
-from typing import Any, Literal
+from typing import Any
 
 import can
 
 from asm_py.canbus.ids import CanId, Dest, FrameType, Priority, SystemCode, dest_filter, priority_filter, source_filter
 from asm_py.clock import Clock
-from asm_py.codec import FLOAT32, INT8, UINT8
 from asm_py.event import Event
 from asm_py.protocol import Kind, Method, Status, first_byte
 
 from ._profile import CLASSES
 from .drivers import FakeDriver, JointDriver
 from .firmware_build import build_library
-from .gait_service import SWITCH
+from .firmware_calls import FirmwareCalls
 from .neighbours import LocalNeighbours
 
 log = logging.getLogger("asm_module.c_module")
@@ -84,7 +83,7 @@ def library() -> ctypes.CDLL:
         return _library
 
 
-class CModule:
+class CModule(FirmwareCalls):
     """One C module on a python-can bus (given, or opened from ``bus_options`` like python-can's ``can.Bus``).
 
     On its own it ticks every 1/``control_rate`` s of the wall clock. Given a ``clock`` and a ``tick`` event (a
@@ -270,37 +269,7 @@ class CModule:
         """What the firmware commands the joint to (degrees)."""
         return float(self._lib.asm_host_goal(self._memory))
 
-    # -- the in-process interface every module has (asm_module.module.Module) -----------------------------------
-
-    language: Literal["python", "c"] = "c"
-
-    @property
-    def module_id(self) -> int:
-        return self.node_id
-
-    def load_gait(self, table: bytes, phase: float, direction: int) -> None:
-        self.local(Method.SET, "gait.table", table)
-        self.local(Method.SET, "gait.phase", FLOAT32.encode(phase))
-        self.local(Method.SET, "gait.direction", INT8.encode(direction))
-
-    def start_gait(self) -> None:
-        if not self.gait_running():
-            self.local(Method.START, "gait.service")
-
-    def switch_mode(self, mode: int, direction: int, after: float) -> None:
-        self.local(Method.SET, "gait.switch", SWITCH.encode({"mode": mode, "direction": direction, "after": after}))
-
-    def hear_signal(self, number: int) -> None:
-        self.local(Method.SET, "gait.signal", UINT8.encode(number))
-
-    def stop_gait(self) -> None:
-        self.local(Method.STOP, "gait.service")
-
-    def goal_now(self) -> float:
-        return self.goal
-
-    def angle_now(self) -> float:
-        return self.angle
+    # -- the in-process interface every module has (asm_module.module.Module; the requests in FirmwareCalls) -----
 
     def gait_started(self) -> float:
         """When the gait last started (its 1 s ramp began), in seconds of this module's clock (a wall clock's:

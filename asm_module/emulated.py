@@ -19,12 +19,11 @@ import logging
 import struct
 import threading
 import time
-from typing import Any, Literal
+from typing import Any
 
 import can
 
 from asm_py.clock import Clock
-from asm_py.codec import FLOAT32, INT8, UINT8
 from asm_py.event import Event
 from asm_py.protocol import Kind, Method, Status, first_byte
 
@@ -34,7 +33,7 @@ from .drivers import FakeDriver, JointDriver
 from .elf import Image, read_image
 from .emulator import Cortex, FirmwareFault, Joint, TickStats
 from .firmware_build import build_board_image
-from .gait_service import SWITCH
+from .firmware_calls import FirmwareCalls
 
 log = logging.getLogger("asm_module.emulated")
 CLOCK_HZ = 168_000_000
@@ -61,15 +60,13 @@ def board_config(node_id: int, name: str, hardware_range: tuple[float, float]) -
     return struct.pack("<B15sff", node_id, encoded, *hardware_range)
 
 
-class EmulatedModule:
+class EmulatedModule(FirmwareCalls):
     """One board image in the emulator on a python-can bus (given, or opened from ``bus_options``).
 
     On its own its clock follows the wall clock. Given a ``clock`` and a ``tick`` event (a simulation's), its
     milliseconds are that clock's since it was made and it is run up to the clock's time at every firing, in the
     firing thread: its own 20 ms control tick, counted from its boot, falls in the simulation's ticks. A bus thread
     carries frames both ways either way."""
-
-    language: Literal["python", "c"] = "c"
 
     def __init__(
         self,
@@ -210,35 +207,7 @@ class EmulatedModule:
         with self._lock:
             return self.core.stack_used()
 
-    # -- the in-process interface every module has (asm_module.module.Module) -----------------------------------
-
-    @property
-    def module_id(self) -> int:
-        return self.node_id
-
-    def load_gait(self, table: bytes, phase: float, direction: int) -> None:
-        self.local(Method.SET, "gait.table", table)
-        self.local(Method.SET, "gait.phase", FLOAT32.encode(phase))
-        self.local(Method.SET, "gait.direction", INT8.encode(direction))
-
-    def start_gait(self) -> None:
-        if not self.gait_running():
-            self.local(Method.START, "gait.service")
-
-    def switch_mode(self, mode: int, direction: int, after: float) -> None:
-        self.local(Method.SET, "gait.switch", SWITCH.encode({"mode": mode, "direction": direction, "after": after}))
-
-    def hear_signal(self, number: int) -> None:
-        self.local(Method.SET, "gait.signal", UINT8.encode(number))
-
-    def stop_gait(self) -> None:
-        self.local(Method.STOP, "gait.service")
-
-    def goal_now(self) -> float:
-        return self.goal
-
-    def angle_now(self) -> float:
-        return self.angle
+    # -- the in-process interface every module has (asm_module.module.Module; the requests in FirmwareCalls) -----
 
     def gait_started(self) -> float:
         """When the gait last started (its 1 s ramp began), in seconds of this module's clock (a wall clock's:
