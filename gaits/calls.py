@@ -36,18 +36,24 @@ other objects answers NOT_FOUND, after which the object is looked up again."""
 
 
 class RoundTrips:
-    """Smoothed round-trip time and variation (RFC 6298); the timeout they imply."""
+    """Smoothed round-trip time and variation (RFC 6298); the timeout they imply, doubled after each timeout until
+    a reply is measured again (RFC 6298 §5.5: a busy robot gets longer waits, not the same short one again)."""
 
     def __init__(self, limit: float) -> None:
         self.limit = limit
         self.srtt: float | None = None
         self.rttvar = 0.0
+        self.backoff = 1.0
 
     def timeout(self, size: int = 0) -> float:
         base = FIRST_TIMEOUT if self.srtt is None else self.srtt + 4 * self.rttvar
-        return min(self.limit, max(MIN_TIMEOUT, base) + size / BYTES_PER_SECOND)
+        return min(self.limit, max(MIN_TIMEOUT, base) * self.backoff + size / BYTES_PER_SECOND)
+
+    def timed_out(self) -> None:
+        self.backoff = min(self.backoff * 2, self.limit / MIN_TIMEOUT)
 
     def measured(self, seconds: float) -> None:
+        self.backoff = 1.0
         if self.srtt is None:
             self.srtt, self.rttvar = seconds, seconds / 2
         else:
@@ -76,7 +82,7 @@ class ModuleCalls:
             try:
                 result = operation(wait)
             except AsmTimeout as exc:
-                self.trips.rttvar = min(self.trips.limit, self.trips.rttvar * 2 or wait)  # back off, as TCP does
+                self.trips.timed_out()  # back off, as TCP does
                 if attempt + 1 == self.attempts:
                     raise DeployError(f"module {module} ({self.names[module]}), {step}: {exc}") from exc
                 continue
