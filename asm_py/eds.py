@@ -16,11 +16,13 @@ Firings that arrive while the service is *suspended* follow ``while_suspended``:
 
 Firings before ``start`` or after ``stop`` are never handled.
 
-``inline=True`` runs ``handle`` in the thread that fires the event when the service is running and nothing is
-queued, instead of handing the firing to the service thread. The semantics above are unchanged (one firing, one
-``handle``, in order, never two at once; firings while suspended follow the policy and are handled by the service
-thread on resume); what changes is the cost: a simulator ticking 128 module automata on a SimClock pays a function
-call per module instead of a thread handoff. ``handle`` must then be short and must not block.
+``inline=True`` runs ``handle`` in the thread that fires the event, and the service has no thread of its own. The
+semantics above are unchanged (one firing, one ``handle``, in order, never two at once; firings while suspended
+follow the policy and are handled on resume, in the thread that resumes it); what changes is the cost: a simulator
+ticking 128 module automata pays a function call per module instead of a thread handoff, and a process hosting many
+modules no thread per service (issue 31: threads of a 128-module robot no more than of a 32-module one).
+``handle`` must then be short and must not block. ``request_stop`` still never waits: with a firing being handled
+in another thread, that thread ends the service when its ``handle`` returns.
 """
 
 from __future__ import annotations
@@ -98,6 +100,64 @@ class EventDrivenService(Service):
                 self.handle(value)
                 self.handled += 1
 
+    def _is_software(self) -> bool:
+        return not self.inline  # inline: firings are handled in the firing thread, no thread of its own
+
+    def stop(self, timeout: float | None = None, *, wait: bool = True) -> None:
+        if not self.inline:
+            super().stop(timeout, wait=wait)
+            return
+        self._ask_to_stop()
+        with self._handling:  # a firing being handled in another thread ends first (this thread's own: re-entrant)
+            if self._started:
+                self._finish()
+
+    def request_stop(self) -> None:
+        if not self.inline:
+            super().request_stop()
+            return
+        asked, _ = self._ask_to_stop()
+        if asked and self._handling.acquire(blocking=False):  # else the handler in flight ends it (_end_if_asked)
+            try:
+                self._end_if_asked()
+            finally:
+                self._handling.release()
+
+    def _end_if_asked(self) -> None:
+        """With ``_handling`` held: finish an inline service whose stop was asked while a firing was handled."""
+        if self._stop_requested and self._started:
+            self._finish()
+
+    def resume(self, *, wait: bool = True) -> None:
+        super().resume(wait=wait)
+        if self.inline:
+            self._drain()  # firings kept while suspended ("coalesce", "queue"), in this thread
+
+    def _drain(self) -> None:
+        """Handle the queued firings in this thread (an inline service has no thread of its own)."""
+        mon = self._mon
+        with self._handling:
+            while True:
+                with mon:
+                    if self._stop_requested or not self._running or not self._pending:
+                        break
+                    value = self._pending.popleft()
+                if not self._handle_one(value):
+                    break
+            self._end_if_asked()
+
+    def _handle_one(self, value: Any) -> bool:
+        """``handle`` one firing (``_handling`` held); a failure stops the service (False), as in its thread."""
+        try:
+            self.handle(value)
+            self.handled += 1
+        except Exception as exc:
+            self._last_error = exc
+            log.exception("service %r failed and stopped", self.name)
+            self.stop(wait=False)
+            return False
+        return True
+
     def start(self, *params: Any, wait: bool = True) -> None:
         """As Service.start; an inline firing from another thread waits until the start is complete: the service
         listens to its event from ``_starting`` on, before ``on_start`` (a phase automaton's initialisation) has
@@ -124,18 +184,12 @@ class EventDrivenService(Service):
         """Handle a firing in this thread; False if the service was suspended meanwhile (then it is queued)."""
         with self._handling:
             if self._stop_requested:
+                self._end_if_asked()
                 return True
             if not self._running or self._pending:
                 return False
-            try:
-                self.handle(value)
-                self.handled += 1
-            except Exception as exc:
-                self._last_error = exc
-                log.exception("service %r failed and stopped", self.name)
-            else:
-                return True
-        self.stop(wait=False)
+            if self._handle_one(value):
+                self._end_if_asked()
         return True
 
     def _on_firing(self, value: Any) -> None:
@@ -165,3 +219,6 @@ class EventDrivenService(Service):
                 pending.popleft()
                 self.overruns += 1
             mon.notify_all()
+            running = self._running
+        if self.inline and running:
+            self._drain()

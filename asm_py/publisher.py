@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING, Any
 from .attribute import Attribute, PublishPolicy
 from .codec import to_json
 from .protocol import MAX_TXN, Kind, Method, first_byte
-from .service import Service
+from .timers import TimerHandle, timers_of
 
 if TYPE_CHECKING:
     from .node import Entry, Node
@@ -46,11 +46,14 @@ def distance(a: Any, b: Any) -> float:
     return 0.0 if a == b else math.inf
 
 
-class Publisher(Service):
-    """Publishes one registered attribute through its node; see the module docstring."""
+class Publisher:
+    """Publishes one registered attribute through its node; see the module docstring.
+
+    A rate is met by a deadline on the clock's shared :class:`~asm_py.timers.Timers`, not a thread per publisher:
+    a process of 128 modules publishes on one timer thread."""
 
     def __init__(self, node: Node, entry: Entry, policy: PublishPolicy) -> None:
-        super().__init__(f"publisher:{node.name}:{entry.name}", clock=node.clock)
+        self.clock = node.clock
         self.node = node
         self.entry = entry
         self.policy = policy
@@ -73,14 +76,21 @@ class Publisher(Service):
         self._unlisten = None
         if policy.rate is None or policy.deadband is not None:
             self._unlisten = attribute.on_change(self._on_change)
+        self._timer: TimerHandle | None = None
         if policy.rate is not None:
-            self.start()
+            self._period = 1.0 / policy.rate
+            self._origin = self.clock.now()
+            self._tick = 1
+            self._timer = timers_of(self.clock).call_at(self._origin + self._period, self._refresh)
 
     def close(self) -> None:
+        """Publish nothing more (a refresh running on the timers' thread finishes first)."""
         if self._unlisten is not None:
             self._unlisten()
             self._unlisten = None
-        self.stop(timeout=5)
+        if self._timer is not None:
+            self._timer.cancel()
+            self._timer = None
 
     def _on_change(self, value: Any) -> None:
         deadband = self.policy.deadband
@@ -90,22 +100,17 @@ class Publisher(Service):
             return  # too soon: the next change after the gap, or the refresh, publishes the value then
         self.publish(value)
 
-    def run(self, *params: Any) -> None:
-        rate = self.policy.rate
-        assert rate is not None  # the node runs this service only for a policy with a rate
-        period = 1.0 / rate
-        origin = self.clock.now()
-        tick = 1
-        due = origin + period
-        while self.sleep_until(due):
-            if self.policy.deadband is None:  # fixed rate, on the grid origin + k·period
-                self.publish(self._attribute.peek())
-                tick += 1
-                due = origin + tick * period
-            else:  # refresh when nothing was published for a period (a change may have been published meanwhile)
-                if self.clock.reached(self._last_time + period):
-                    self.publish(self._attribute.peek())
-                due = self._last_time + period
+    def _refresh(self, due: float) -> float:
+        """The rate's deadline (on the timers' thread); returns the next one."""
+        period = self._period
+        if self.policy.deadband is None:  # fixed rate, on the grid origin + k·period
+            self.publish(self._attribute.peek())
+            self._tick += 1
+            return self._origin + self._tick * period
+        # refresh when nothing was published for a period (a change may have been published meanwhile)
+        if self.clock.reached(self._last_time + period):
+            self.publish(self._attribute.peek())
+        return self._last_time + period
 
     def publish(self, value: Any) -> None:
         """Send ``value`` (canonical: the attribute's own) now as a publication, binary and JSON on the parallel key.

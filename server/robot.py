@@ -168,8 +168,9 @@ class Robot:
                 can_options: dict[str, Any] = {"interface": "asm_sim", "channel": channel}
 
                 def node_of(module_id: int) -> Node:
+                    # no reader thread per module: the channel's dispatch thread hands each its frames (issue 31)
                     transport = CanTransport(module_id, heartbeat_period=options.heartbeat_period, watch_bus=False,
-                                             **can_options)  # fmt: skip
+                                             receive_thread=False, **can_options)  # fmt: skip
                     return Node(module_name(module_id), transport)
 
                 self.sim = Simulation(gait, node_of=node_of, c_modules=select_modules(options.c_modules, gait),

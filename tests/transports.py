@@ -58,5 +58,13 @@ def sim_can_transports(**options) -> Iterator[Callable[[], Transport]]:
         yield make
 
 
+@contextmanager
+def pushed_can_transports(**options) -> Iterator[Callable[[], Transport]]:
+    """``asm_sim`` with no reader thread per transport: the channel's dispatch thread pushes every frame (how the
+    simulated robot hosts its modules)."""
+    with can_transports("asm_sim", receive_thread=False, **options) as make:
+        yield make
+
+
 FACTORIES = {"memory": memory_transports, "zenoh": zenoh_transports, "can": can_transports,
-             "can-sim": sim_can_transports}  # fmt: skip
+             "can-sim": sim_can_transports, "can-pushed": pushed_can_transports}  # fmt: skip

@@ -17,18 +17,28 @@ before it.
 
 Frames are delivered in the order they were sent (one lock per channel), never to the sending bus itself unless
 ``receive_own_messages``.
+
+A process hosting many nodes on one channel (a simulated robot's 128 modules) need not read each bus with a thread
+of its own: ``bus.push_to(callback)`` has the channel's one dispatch thread (``asm-can-dispatch``) call
+``callback(frame)`` for each frame the bus accepts, in the order sent, urgent frames first — python-can's
+``Notifier`` with one thread for every bus of the channel instead of one per bus. Callbacks must not block: every
+pushed bus of the channel waits behind them.
 """
 
 from __future__ import annotations
 
+import logging
 import queue
 import threading
 import time
+from collections.abc import Callable
 from typing import Any, ClassVar
 
 import can
 
 from .._contract import CAN_PRIORITY_MASK, CAN_PRIORITY_SHIFT
+
+log = logging.getLogger("asm_py.canbus.simbus")
 
 URGENT_MASK = CAN_PRIORITY_MASK << CAN_PRIORITY_SHIFT
 """Extended identifiers with these bits clear (priority 0) go to the urgent FIFO."""
@@ -52,12 +62,55 @@ class _Receivers:
         return list(dict.fromkeys(found)) if len(found) > 1 else found
 
 
+FrameCallback = Callable[[can.Message], None]
+
+
+class _Dispatcher:
+    """The thread that hands a channel's frames to its pushed buses (see the module docstring); it runs while the
+    channel has pushed buses and ends with the last."""
+
+    def __init__(self, channel: str) -> None:
+        self._urgent: queue.SimpleQueue[tuple[SimBus, can.Message] | None] = queue.SimpleQueue()
+        self._normal: queue.SimpleQueue[tuple[SimBus, can.Message] | None] = queue.SimpleQueue()
+        self._ready = threading.Semaphore(0)
+        self._thread = threading.Thread(target=self._run, name=f"asm-can-dispatch:{channel}", daemon=True)
+        self._thread.start()
+
+    def put(self, bus: SimBus, message: can.Message, urgent: bool) -> None:
+        (self._urgent if urgent else self._normal).put((bus, message))
+        self._ready.release()
+
+    def close(self) -> None:
+        """End the thread after the frames queued so far (called under the channel lock: never joins)."""
+        self._normal.put(None)
+        self._ready.release()
+
+    def _run(self) -> None:
+        while True:
+            self._ready.acquire()
+            try:
+                item = self._urgent.get_nowait()
+            except queue.Empty:
+                item = self._normal.get_nowait()
+            if item is None:
+                return
+            bus, message = item
+            callback = bus._push
+            if callback is None or not bus._open:
+                continue
+            try:
+                callback(message)
+            except Exception:
+                log.exception("a pushed frame's handler failed: %s", message)
+
+
 class SimBus(can.BusABC):
     """One controller on an in-process channel; see the module docstring."""
 
     _channels: ClassVar[dict[str, list[SimBus]]] = {}
     _receivers: ClassVar[dict[str, _Receivers]] = {}
     _lock: ClassVar[threading.Lock] = threading.Lock()
+    _dispatchers: ClassVar[dict[str, _Dispatcher]] = {}
 
     def __init__(self, channel: Any = "asm_sim", receive_own_messages: bool = False, **kwargs: Any) -> None:
         self.channel_info = f"asm_sim channel {channel}"
@@ -68,6 +121,7 @@ class SimBus(can.BusABC):
         self._normal: queue.SimpleQueue[can.Message] = queue.SimpleQueue()
         self._ready = threading.Semaphore(0)
         self._open = True
+        self._push: FrameCallback | None = None
         super().__init__(channel=channel, **kwargs)
         with SimBus._lock:
             SimBus._channels.setdefault(self._channel, []).append(self)
@@ -80,6 +134,23 @@ class SimBus(can.BusABC):
             SimBus._receivers[self._channel] = _Receivers(buses)
         else:
             SimBus._receivers.pop(self._channel, None)
+
+    def push_to(self, callback: FrameCallback | None) -> None:
+        """Deliver the frames this bus accepts to ``callback`` on the channel's dispatch thread instead of ``recv``
+        (None: back to ``recv``); see the module docstring."""
+        with SimBus._lock:
+            self._push = callback
+            self._update_dispatcher()
+
+    def _update_dispatcher(self) -> None:
+        """Start the channel's dispatcher with its first pushed bus, end it with its last (under the lock)."""
+        pushed = any(bus._push is not None for bus in SimBus._channels.get(self._channel, ()))
+        dispatcher = SimBus._dispatchers.get(self._channel)
+        if pushed and dispatcher is None:
+            SimBus._dispatchers[self._channel] = _Dispatcher(self._channel)
+        elif not pushed and dispatcher is not None:
+            del SimBus._dispatchers[self._channel]
+            dispatcher.close()
 
     def _apply_filters(self, filters: can.typechecking.CanFilters | None) -> None:
         accept = None
@@ -113,10 +184,14 @@ class SimBus(can.BusABC):
         urgent = msg.is_extended_id and not msg.arbitration_id & URGENT_MASK
         with SimBus._lock:  # one order of frames on the channel, as on a wire
             receivers = SimBus._receivers.get(self._channel)
+            dispatcher = SimBus._dispatchers.get(self._channel)
             for bus in receivers.of(msg.arbitration_id, msg.is_extended_id) if receivers else ():
                 if bus is not self or self._own:
-                    (bus._urgent if urgent else bus._normal).put(msg)
-                    bus._ready.release()
+                    if bus._push is not None and dispatcher is not None:
+                        dispatcher.put(bus, msg, urgent)
+                    else:
+                        (bus._urgent if urgent else bus._normal).put(msg)
+                        bus._ready.release()
 
     def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
         acquired = self._ready.acquire() if timeout is None else self._ready.acquire(timeout=max(0.0, timeout))
@@ -135,5 +210,7 @@ class SimBus(can.BusABC):
             if not buses:
                 SimBus._channels.pop(self._channel, None)
             self._reindex()
+            self._push = None
+            self._update_dispatcher()
         self._open = False
         super().shutdown()

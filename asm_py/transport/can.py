@@ -8,10 +8,12 @@ addressed as ``can.<id>`` (e.g. replies to a client that has not sent its first 
 
 One thread reads the bus (``asm-can:<name>``): acceptance filters pass frames to this node, its groups, broadcasts
 and system frames; fragments are reassembled with bounded memory; requests go to the node, publications to
-subscribers (matched by source node and object ID), e-stops to the e-stop handlers at once. A second thread
-(``asm-can-timer:<name>``) sends heartbeats, reports nodes lost after ``missed_heartbeats`` silent periods (and
-found again when they return), and expires stale partial messages. Sends are serialised per transport, so the
-fragments of one message are contiguous on the bus.
+subscribers (matched by source node and object ID), e-stops to the e-stop handlers at once. With
+``receive_thread=False`` on a bus that delivers frames itself (``asm_sim``'s ``push_to``), there is no such thread:
+the channel's one dispatch thread calls this transport, so a process hosting 128 modules does not run 128 readers.
+A deadline on the wall clock's shared timers (asm_py.timers) sends heartbeats, reports nodes lost after
+``missed_heartbeats`` silent periods (and found again when they return), and expires stale partial messages. Sends
+are serialised per transport, so the fragments of one message are contiguous on the bus.
 
 ``record="session.blf"`` (or .asc, .log for candump, .csv, …) writes every frame sent and received with python-can's
 ``Logger``; replay it with ``python -m can.player``.
@@ -42,8 +44,10 @@ from ..canbus.ids import (
     kind_filter,
     priority_filter,
 )
+from ..clock import WALL_CLOCK
 from ..errors import MessageTooLarge
 from ..protocol import MAX_MESSAGE, Kind, kind_of
+from ..timers import TimerHandle, timers_of
 from .base import BROADCAST, PublicationHandler, Transport
 
 log = logging.getLogger("asm_py.transport.can")
@@ -89,6 +93,7 @@ class CanTransport(Transport):
         record: str | Path | None = None,
         send_timeout: float = 0.1,
         watch_bus: bool = True,
+        receive_thread: bool = True,
         **bus_options: Any,
     ) -> None:
         super().__init__()
@@ -99,6 +104,8 @@ class CanTransport(Transport):
         subscribes nor discovers; on a bus of 128 modules each would otherwise handle every module's traffic).
         A subscription turns publications back on."""
         self._hear_publications = watch_bus
+        self.receive_thread = receive_thread
+        """False: frames are pushed by the bus (``asm_sim``) when it can, not read by a thread of this transport."""
         self.fd = fd
         self.frame_size = 64 if fd else 8
         self.heartbeat_period = heartbeat_period
@@ -123,6 +130,9 @@ class CanTransport(Transport):
         self._group_ids: set[int] = set()
         self._stop = threading.Event()
         self._threads: list[threading.Thread] = []
+        self._timer: TimerHandle | None = None
+        self._next_beat = 0.0
+        self._pushed = False
         self.frames_sent = 0
         self.frames_received = 0
         self.send_errors = 0
@@ -144,10 +154,16 @@ class CanTransport(Transport):
         self._apply_filters()
         self._names[self.node_id] = name
         self._ids[name] = self.node_id
-        for target, label in ((self._read_loop, "asm-can"), (self._timer_loop, "asm-can-timer")):
-            thread = threading.Thread(target=target, name=f"{label}:{name}", daemon=True)
+        push_to = getattr(self._bus, "push_to", None)
+        if not self.receive_thread and push_to is not None:
+            push_to(self._on_pushed)
+            self._pushed = True
+        else:
+            thread = threading.Thread(target=self._read_loop, name=f"asm-can:{name}", daemon=True)
             thread.start()
             self._threads.append(thread)
+        self._next_beat = time.monotonic() + self.heartbeat_period
+        self._timer = timers_of(WALL_CLOCK).call_at(time.monotonic() + self.heartbeat_period / 4, self._on_timer)
         self._send_heartbeat()
 
     def _join(self, group: str) -> None:
@@ -181,6 +197,14 @@ class CanTransport(Transport):
         except Exception:
             log.debug("leave notice not sent", exc_info=True)
         self._stop.set()
+        if self._timer is not None:
+            self._timer.cancel()
+            self._timer = None
+        if self._pushed:
+            push_to = getattr(self._bus, "push_to", None)
+            if push_to is not None:
+                push_to(None)
+            self._pushed = False
         for thread in self._threads:
             if thread is not threading.current_thread():
                 thread.join(5)
@@ -327,6 +351,11 @@ class CanTransport(Transport):
             except Exception:
                 log.exception("a CAN frame could not be handled: %s", frame)
 
+    def _on_pushed(self, frame: can.Message) -> None:
+        """A frame from the channel's dispatch thread (``receive_thread=False``)."""
+        if not self._stop.is_set():
+            self.on_frame(frame)
+
     def on_frame(self, frame: can.Message) -> None:
         """Handle one received frame (the read loop calls this; a replay or a test may too)."""
         if not frame.is_extended_id or frame.is_error_frame or frame.is_remote_frame:
@@ -416,19 +445,22 @@ class CanTransport(Transport):
             self._alive.discard(source_id)
             self._peer_changed(self.name_of(source_id), False)
 
-    def _timer_loop(self) -> None:
-        next_beat = time.monotonic() + self.heartbeat_period
-        tick = self.heartbeat_period / 4  # beats and losses within a quarter period, without waking needlessly
-        while not self._stop.wait(tick):
-            now = time.monotonic()
-            if now >= next_beat:
-                next_beat += self.heartbeat_period * max(1, int((now - next_beat) / self.heartbeat_period) + 1)
-                try:
-                    self._send_heartbeat()
-                except Exception:
-                    log.exception("heartbeat failed")
-            limit = self.heartbeat_period * self.missed_heartbeats
-            for source_id in [i for i in list(self._alive) if now - self._last_heard.get(i, 0.0) > limit]:
-                self._lost(source_id)
-            with self._rx_lock:
-                self.reassembler.expire(now)
+    def _on_timer(self, due: float) -> float | None:
+        """Every quarter heartbeat period (beats and losses within a quarter period, without waking needlessly), on
+        the wall clock's shared timer thread: heartbeat, lost nodes, stale partial messages."""
+        if self._stop.is_set():
+            return None
+        now = time.monotonic()
+        if now >= self._next_beat:
+            period = self.heartbeat_period
+            self._next_beat += period * max(1, int((now - self._next_beat) / period) + 1)
+            try:
+                self._send_heartbeat()
+            except Exception:
+                log.exception("heartbeat failed")
+        limit = self.heartbeat_period * self.missed_heartbeats
+        for source_id in [i for i in list(self._alive) if now - self._last_heard.get(i, 0.0) > limit]:
+            self._lost(source_id)
+        with self._rx_lock:
+            self.reassembler.expire(now)
+        return max(due + self.heartbeat_period / 4, now)

@@ -5,6 +5,8 @@ buses that do not receive it: bench/robot.py) agrees with testing every filter o
 from __future__ import annotations
 
 import random
+import threading
+import time
 
 import can
 import pytest
@@ -59,3 +61,69 @@ def test_every_frame_reaches_exactly_the_buses_whose_filters_pass_it() -> None:
     finally:
         for bus in buses:
             bus.shutdown()
+
+
+def _dispatchers() -> list[str]:
+    return [t.name for t in threading.enumerate() if t.name.startswith("asm-can-dispatch:")]
+
+
+def test_pushed_buses_get_their_frames_in_order_from_one_thread_and_the_thread_ends_with_the_last() -> None:
+    """Issue 31: a process hosting many nodes reads none of their buses with a thread of its own."""
+    channel = fresh_name("simbus-push")
+    sender = SimBus(channel=channel)
+    got: dict[int, list[int]] = {0: [], 1: [], 2: []}
+    threads: set[int] = set()
+    buses = [SimBus(channel=channel) for _ in range(3)]
+    before = len(_dispatchers())
+    try:
+        for k, bus in enumerate(buses):
+            bus.set_filters([{"can_id": k << 8, "can_mask": 0xF00, "extended": True}])
+            bus.push_to(lambda frame, k=k: (got[k].append(frame.arbitration_id), threads.add(threading.get_ident())))
+        assert len(_dispatchers()) == before + 1
+        frames = [(k % 3) << 8 | 0x1000000 | k for k in range(300)]  # priority bits set: normal frames
+        for arbitration_id in frames:
+            sender.send(can.Message(arbitration_id=arbitration_id, is_extended_id=True, data=b"x"))
+        deadline = time.monotonic() + 10
+        while sum(map(len, got.values())) < 300 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        for k in range(3):
+            assert got[k] == [f for f in frames if (f >> 8) & 0xF == k]  # exactly its frames, in the order sent
+        assert len(threads) == 1 and threading.get_ident() not in threads
+        assert buses[0].recv(timeout=0) is None  # a pushed bus's recv gets nothing: its frames went to the callback
+    finally:
+        for bus in buses:
+            bus.shutdown()
+        sender.shutdown()
+    deadline = time.monotonic() + 5
+    while len(_dispatchers()) > before and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert len(_dispatchers()) == before
+
+
+def test_an_urgent_frame_overtakes_the_frames_queued_for_the_dispatch_thread() -> None:
+    channel = fresh_name("simbus-urgent")
+    sender = SimBus(channel=channel)
+    receiver = SimBus(channel=channel)
+    order: list[int] = []
+    gate, inside = threading.Event(), threading.Event()
+
+    def handle(frame: can.Message) -> None:
+        inside.set()
+        gate.wait(5)  # the first frame holds the thread while the others queue up
+        order.append(frame.arbitration_id)
+
+    receiver.push_to(handle)
+    try:
+        for k in range(1, 6):
+            sender.send(can.Message(arbitration_id=0x1C000000 | k, is_extended_id=True, data=b""))
+            assert k > 1 or inside.wait(5)
+        sender.send(can.Message(arbitration_id=0x00000042, is_extended_id=True, data=b"stop"))  # priority 0
+        gate.set()
+        deadline = time.monotonic() + 10
+        while len(order) < 6 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert order[0] == 0x1C000001  # already being handled when the stop came
+        assert order[1] == 0x42 and order[2:] == [0x1C000000 | k for k in range(2, 6)]
+    finally:
+        receiver.shutdown()
+        sender.shutdown()
