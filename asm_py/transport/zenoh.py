@@ -113,6 +113,8 @@ class ZenohTransport(Transport):
         self._keep: list[Any] = []  # declared entities, kept alive until close
         self._publishers: dict[str, zenoh.Publisher] = {}
         self._queriers: dict[tuple[str, float], zenoh.Querier] = {}
+        self.max_queriers = 1024
+        """Queriers kept (one per destination and deadline: 8 deadlines of 128 modules fit)."""
         self._routes: dict[str, _Route] = {}
         self._pub_keys: dict[str, tuple[str, str]] = {}  # object -> its publication and JSON view keys
         self._watched: dict[str, bool] = {}  # JSON key -> a subscriber matches it (kept by matching listeners)
@@ -294,7 +296,8 @@ class ZenohTransport(Transport):
 
         Goes through a Querier declared once per destination and deadline (Zenoh resolves its key once).
         """
-        for reply in self._querier(dest, wait).get(payload=data, attachment=self._attachment):
+        querier = self._querier(dest, wait)  # held until the reply is in: a querier dropped sooner loses it
+        for reply in querier.get(payload=data, attachment=self._attachment):
             if reply.ok is not None:
                 return reply.ok.payload.to_bytes()
         return None
@@ -307,9 +310,11 @@ class ZenohTransport(Transport):
             with self._pub_lock:
                 querier = self._queriers.get((dest, wait))
                 if querier is None:
-                    if len(self._queriers) > 256:  # bounded: forget the oldest
-                        for old in list(self._queriers)[:64]:
-                            self._queriers.pop(old).undeclare()
+                    if len(self._queriers) >= self.max_queriers:  # bounded: forget the oldest quarter
+                        for old in list(self._queriers)[: max(1, self.max_queriers // 4)]:
+                            # dropped, not undeclared here: another thread may be in its get() (undeclaring under
+                            # it raised "Already borrowed"); Zenoh undeclares it when the last reference goes
+                            del self._queriers[old]
                     key = route.keys.requests(route.segment, self.segment)
                     congestion = zenoh.CongestionControl.BLOCK
                     querier = self.session.declare_querier(

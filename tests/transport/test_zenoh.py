@@ -214,3 +214,38 @@ def test_a_local_client_cannot_make_a_node_map_its_shared_memory(exposed) -> Non
     assert result.stdout.strip() == "SENT", result.stderr
     assert _zenoh_shared_maps() <= before
     assert node.transport.handler_errors == 0 and angle.get() == 0.5
+
+
+def test_requests_from_many_threads_to_more_destinations_than_queriers_kept() -> None:
+    """Reproduces a defect (bench of a 128-module robot): a querier forgotten to bound the cache was undeclared
+    while another thread was in its get(): "RuntimeError: Already borrowed" killed that thread."""
+    from ..transports import FACTORIES
+
+    with FACTORIES["zenoh"]() as make:
+        servers = [Node(f"s{k}", make()) for k in range(6)]
+        client = Node("client", make())
+        failures: list[BaseException] = []
+        try:
+            client.transport.max_queriers = 2  # type: ignore[attr-defined]
+            for server in servers:
+                server.register(Attribute("x", 1.0, codec="float32"))
+            assert wait_until(lambda: {s.name for s in servers} <= set(client.discover()), timeout=10)
+            handles = [client.lookup(s.name, "x", timeout=5) for s in servers]
+
+            def hammer(k: int) -> None:
+                try:
+                    for i in range(150):
+                        assert handles[(i + k) % len(handles)].get(timeout=2.0 + (i % 4) * 0.5) == 1.0
+                except BaseException as exc:
+                    failures.append(exc)
+
+            workers = [threading.Thread(target=hammer, args=(k,)) for k in range(4)]
+            for worker in workers:
+                worker.start()
+            for worker in workers:
+                worker.join(60)
+            assert not failures, failures[:3]
+        finally:
+            client.close()
+            for server in servers:
+                server.close()
