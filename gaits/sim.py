@@ -333,6 +333,21 @@ class Simulation:
         self._push = (self.data.time + seconds, np.asarray(force, dtype=float))
         self.data.xfrc_applied[self._root, :3] = self._push[1]
 
+    @property
+    def pushing(self) -> bool:
+        """A push (``push``) is being applied."""
+        return self._push is not None
+
+    def skip_periods(self, periods: int) -> None:
+        """Let ``periods`` control periods pass with the physics standing still (a robot at rest: server.rest):
+        time (the modules' clock too) moves on along the tick grid without ticks; the next ``step_tick`` ticks the
+        modules at the new time. Only at a period's start."""
+        if self._into_tick != 0:
+            raise RuntimeError("periods are skipped only at a period's start")
+        if periods > 0:
+            self.data.time += periods * self.steps_per_tick * self.model.opt.timestep
+            self.clock.advance_to(self.data.time)  # what modules read as now (a tick would have said so)
+
     def steps_to_tick(self) -> int:
         """Physics steps from now to the next control tick (a whole period when at a period's start)."""
         return self.steps_per_tick - self._into_tick

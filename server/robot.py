@@ -42,6 +42,7 @@ from gaits.terrain import argument as terrain_argument
 from .bridge import CanZenohBridge, add_bus_arguments
 from .foxglove_live import FoxgloveLive
 from .realtime import prefer_latency
+from .rest import CHECK, REST_TICK, Rest
 from .robot_feed import RobotFeed
 from .zenoh_args import ZenohOptions, add_zenoh_arguments, zenoh_options
 
@@ -86,6 +87,9 @@ class RealTimeLoop:
         self.status = feed.status
         self.pose_rate = pose_rate
         self.frames = 0
+        self.rest = Rest(sim)
+        self.resting = False
+        """The robot stands still and the physics steps only every REST_TICK (server.rest)."""
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="asm-robot-physics", daemon=True)
         self._thread.start()
@@ -97,6 +101,7 @@ class RealTimeLoop:
         window_wall, window_sim = wall0, sim0
         next_pose = wall0
         posed = -1.0  # the simulated time of the last pose frame sent
+        rest_tick = wall0  # when a resting robot steps its next period
         while not self._stop.is_set():
             now = time.monotonic()
             target = sim0 + (now - wall0)
@@ -104,15 +109,34 @@ class RealTimeLoop:
                 wall0, sim0 = now, sim.data.time
                 target = sim.data.time
                 self._behind(True)
-            try:  # to the wall clock by physics steps, not whole ticks: each 60 Hz pose frame is a new pose
-                steps = int((target - sim.data.time) / timestep + 1e-6)
-                if steps > 0:
-                    sim.step_physics(steps)
+            moved = True
+            try:
+                if self.resting and (self.rest.disturbed() or not self.rest.still()):
+                    self.resting = False  # woken: stepped from here on as usual
+                elif not self.resting and self.rest.still():
+                    if sim.steps_to_tick() != sim.steps_per_tick:
+                        sim.step_tick()  # to the period's end (a little ahead of the wall clock): rest on the grid
+                    self.resting = True
+                    rest_tick = now + REST_TICK
+                    self.rest.begin()
+                if self.resting:  # time kept within a period of the wall clock; one period stepped every REST_TICK
+                    periods = int((target - sim.data.time) / (sim.steps_per_tick * timestep) + 1e-6)
+                    moved = periods > 0 and now >= rest_tick
+                    if moved:
+                        rest_tick = now + REST_TICK
+                        sim.skip_periods(periods - 1)
+                        sim.step_tick()
+                    else:
+                        sim.skip_periods(periods)
+                else:  # to the wall clock by physics steps, not whole ticks: each 60 Hz pose frame is a new pose
+                    steps = int((target - sim.data.time) / timestep + 1e-6)
+                    if steps > 0:
+                        sim.step_physics(steps)
             except Exception as exc:  # a diverged model, a stalled module: say so, and stop stepping
                 log.error("the simulation stopped: %s", exc)
                 self.status.behind = True
                 return
-            if now >= next_pose and sim.data.time > posed:  # a frame per new pose: catching up never repeats one
+            if now >= next_pose and sim.data.time > posed and moved:  # a frame per new pose: never a repeated one
                 next_pose = max(next_pose + 1.0 / self.pose_rate, now)
                 posed = sim.data.time
                 self._send_poses()
@@ -124,6 +148,9 @@ class RealTimeLoop:
                 self.status.estop = sim.latched()
                 self.feed.publish_status()
                 window_wall, window_sim = now, sim.data.time
+            if self.resting:
+                self._stop.wait(CHECK)
+                continue
             next_tick = sim.data.time + sim.steps_to_tick() * timestep  # a module tick is due then
             pose_due = next_pose if sim.data.time > posed else max(next_pose, wall0 + (sim.data.time + timestep - sim0))
             due = min(pose_due, wall0 + (next_tick - sim0))

@@ -85,11 +85,16 @@ def test_a_pose_frame_round_trips_and_matches_its_golden_vector() -> None:
 @pytest.mark.parametrize("robot_process", [(), ("--c-modules", "odd")], ids=["python", "half-C"], indirect=True)
 def test_every_pose_frame_of_the_feed_is_a_new_pose(robot_process) -> None:
     """The robot steps its physics to the wall clock by physics steps (2 ms), not by whole module ticks (20 ms):
-    its 60 Hz feed carries a new pose in every frame, times strictly increasing, about 1/60 s apart."""
+    while it moves, its 60 Hz feed carries a new pose in every frame, times strictly increasing, about 1/60 s
+    apart (at rest it stands still, and so does its feed: server.rest)."""
     _, endpoint = robot_process
     client = Node("tool", ZenohTransport(connect=[endpoint]))
     viewer = Viewer(client.transport.session)  # type: ignore[attr-defined]
     try:
+        assert wait_until(lambda: {f"m{i}" for i in range(1, 9)} <= set(client.discover()), 20)
+        deploy(client, CATERPILLAR, timeout=5.0)
+        with viewer._lock:
+            viewer.frames.clear()
         assert wait_until(lambda: len(viewer.frames) > 120, 20)
         with viewer._lock:
             frames = list(viewer.frames[-120:])
