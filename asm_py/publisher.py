@@ -103,13 +103,17 @@ class Publisher:
     def _refresh(self, due: float) -> float:
         """The rate's deadline (on the timers' thread); returns the next one."""
         period = self._period
+        value = self._attribute.peek()  # None: never set (an event before its first firing), nothing to publish
         if self.policy.deadband is None:  # fixed rate, on the grid origin + k·period
-            self.publish(self._attribute.peek())
+            if value is not None:
+                self.publish(value)
             self._tick += 1
             return self._origin + self._tick * period
         # refresh when nothing was published for a period (a change may have been published meanwhile)
-        if self.clock.reached(self._last_time + period):
-            self.publish(self._attribute.peek())
+        if self._last_time == -math.inf or self.clock.reached(self._last_time + period):  # (a SimClock has no -inf)
+            if value is None:
+                return self.clock.now() + period
+            self.publish(value)
         return self._last_time + period
 
     def publish(self, value: Any) -> None:

@@ -23,7 +23,6 @@ CLI: ``asm-bridge --can virtual:bus0 --robot-name a --zenoh-connect tcp/127.0.0.
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import math
 import queue
@@ -37,7 +36,6 @@ import zenoh
 from asm_py.canbus.fragments import frame_count
 from asm_py.canbus.ids import Dest
 from asm_py.cli import bitrate, can_channel, name, node_id, run, stop_requested
-from asm_py.codec import to_json
 from asm_py.keys import DEFAULT_ROBOT, RobotKeys, concrete, lab_estop, last, split
 from asm_py.node import Node
 from asm_py.protocol import (
@@ -55,10 +53,11 @@ from asm_py.protocol import (
     version_of,
     with_txn,
 )
-from asm_py.remote import RemoteAttribute, RemoteObject, make_client
+from asm_py.remote import RemoteObject, make_client
 from asm_py.transport.can import CanTransport, group_id, message_priority
 
 from .bridge_clients import DEFAULT_FRAME_RATE, ClientTable, Pacer, Refusal
+from .bridge_outlets import Outlet
 from .heap import HeapTrimmer
 from .realtime import prefer_latency
 from .zenoh_args import ZenohOptions, add_zenoh_arguments, zenoh_options
@@ -101,6 +100,8 @@ class _Mirror:
         self.node_id = node_id
         self.entities: list[Any] = []
         self.objects: dict[int, RemoteObject] = {}
+        self.outlets: dict[int, Outlet] = {}
+        """Each published object's declared publishers (made at its first publication)."""
         self.table_read = False
         self.next_attempt = 0.0
         self.backoff = TABLE_BACKOFF[0]
@@ -249,6 +250,9 @@ class CanZenohBridge:
         if mirror is not None:
             for entity in reversed(mirror.entities):
                 entity.undeclare()
+            for outlet in mirror.outlets.values():
+                outlet.close()
+            mirror.outlets.clear()
             log.info("CAN node %s left", name)
 
     def _retry_taken(self) -> None:
@@ -388,19 +392,18 @@ class CanZenohBridge:
         mirror = self._mirrors.get(self.can.name_of(source_id))
         if mirror is None:
             return
-        obj = mirror.objects.get(data[3])
-        if obj is None:
-            return
-        self.session.put(self.keys.publication(mirror.name, obj.name), data)
-        if not isinstance(obj, RemoteAttribute):  # only attributes and events publish; a JSON view needs a codec
-            return
-        try:
-            value = obj.codec.decode(data[4:])
-        except ValueError:
-            return
-        view = {"node": mirror.name, "object": obj.name, "class": obj.info.class_name, "seq": txn_of(data),
-                "t": time.time(), "value": to_json(value)}  # fmt: skip
-        self.session.put(self.keys.json_view(mirror.name, obj.name), json.dumps(view))
+        outlet = mirror.outlets.get(data[3])
+        if outlet is None:
+            obj = mirror.objects.get(data[3])
+            if obj is None:
+                return
+            with self._lock:
+                if self._mirrors.get(mirror.name) is not mirror:
+                    return  # unmirrored meanwhile: nothing may be declared for it any more
+                outlet = mirror.outlets[data[3]] = Outlet(self.session, self.keys.publication(mirror.name, obj.name),
+                                                          self.keys.json_view(mirror.name, obj.name), mirror.name,
+                                                          obj)  # fmt: skip
+        outlet.forward(data)
         self.forwarded["publications"] += 1
 
     def _estop_from_can(self, source: str, reason: str) -> None:

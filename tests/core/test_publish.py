@@ -80,6 +80,25 @@ def test_fixed_rate_on_the_simulation_clock(pair) -> None:
     assert received == [6.0] + [7.0] * 9
 
 
+@pytest.mark.parametrize("deadband", [None, 0.5])
+def test_an_event_never_fired_publishes_nothing_at_its_rate_and_its_timer_lives_on(pair, deadband, caplog) -> None:
+    """Reproduces a defect: gait.tick's once-a-second refresh before the first tick encoded None (struct.error),
+    which ended the refresh for good."""
+    from asm_py import Event
+
+    clock, server, client = pair
+    tick = Event("gait.tick", codec="float64")
+    _, received = subscribed_copy(server, client, tick)
+    tick.publish(rate=10, deadband=deadband)
+    publisher = server.entry("gait.tick").publisher
+    clock.advance(0.35)
+    assert publisher.published == 0 and "failed" not in caplog.text
+    tick.set(1.5)
+    clock.advance(0.5)
+    assert publisher.published >= 4 if deadband is None else publisher.published >= 1
+    assert wait_until(lambda: received and received[-1] == 1.5)
+
+
 def test_deadband_with_minimum_rate(pair) -> None:
     clock, server, client = pair
     angle = Attribute("joint.angle", 0.0, codec="float32")
