@@ -338,13 +338,15 @@ class Simulation:
         """A push (``push``) is being applied."""
         return self._push is not None
 
-    def skip_periods(self, periods: int) -> None:
+    def skip_periods(self, periods: int, *, tick: bool = False) -> None:
         """Let ``periods`` control periods pass with the physics standing still (a robot at rest: server.rest):
-        time (the modules' clock too) moves on along the tick grid without ticks; the next ``step_tick`` ticks the
-        modules at the new time. Only at a period's start."""
+        time (the modules' clock too) moves on along the tick grid; with ``tick`` the modules tick once, at the
+        first period's start (they read the joints as they stand). Only at a period's start."""
         if self._into_tick != 0:
             raise RuntimeError("periods are skipped only at a period's start")
         if periods > 0:
+            if tick:
+                self._control_tick()
             self.data.time += periods * self.steps_per_tick * self.model.opt.timestep
             self.clock.advance_to(self.data.time)  # what modules read as now (a tick would have said so)
 

@@ -1,10 +1,10 @@
 """A robot at rest costs nothing: when no gait runs and nothing moves, the simulated robot stops stepping physics.
 
 A 128-module robot lying still spent a third of a core stepping MuJoCo and ticking every module 50 times a second
-to compute what it already knew (issue 31: under 0.1 of a core at rest). At rest the robot process steps one
-control period every ``REST_TICK`` seconds of wall time — the modules tick, the joints are read, a pose frame goes
-out — and lets the time between pass along the tick grid without physics, so the clock, the publications and the
-real-time factor carry on as before. It wakes within ``CHECK`` seconds of anything that can move the robot: a gait
+to compute what it already knew (issue 31: under 0.1 of a core at rest). At rest the robot process steps no
+physics: its time passes along the tick grid, and every ``REST_TICK`` seconds of wall time the modules tick (they
+read the joints as they stand) and a pose frame goes out, so the clock, the publications and the real-time factor
+carry on as before. It wakes within ``CHECK`` seconds of anything that can move the robot: a gait
 started, a joint commanded, powered or relaxed, an e-stop's hold, a push.
 
 Only a robot whose modules are all Python module runtimes rests: a C or emulated module keeps its own time.

@@ -119,15 +119,12 @@ class RealTimeLoop:
                     self.resting = True
                     rest_tick = now + REST_TICK
                     self.rest.begin()
-                if self.resting:  # time kept within a period of the wall clock; one period stepped every REST_TICK
+                if self.resting:  # time kept within a period of the wall clock; the modules tick every REST_TICK
                     periods = int((target - sim.data.time) / (sim.steps_per_tick * timestep) + 1e-6)
                     moved = periods > 0 and now >= rest_tick
                     if moved:
                         rest_tick = now + REST_TICK
-                        sim.skip_periods(periods - 1)
-                        sim.step_tick()
-                    else:
-                        sim.skip_periods(periods)
+                    sim.skip_periods(periods, tick=moved)
                 else:  # to the wall clock by physics steps, not whole ticks: each 60 Hz pose frame is a new pose
                     steps = int((target - sim.data.time) / timestep + 1e-6)
                     if steps > 0:
