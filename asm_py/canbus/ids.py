@@ -67,8 +67,9 @@ class CanId(NamedTuple):
 
     def pack(self) -> int:
         """The 29-bit identifier; ValueError when a field is out of range."""
-        fields = zip(self, _FIELDS, strict=True)
-        if not all(0 <= value <= mask for value, (_, mask) in fields):
+        if not (0 <= self.priority <= CAN_PRIORITY_MASK and 0 <= self.dest_kind <= CAN_DEST_KIND_MASK
+                and 0 <= self.dest <= CAN_DEST_MASK and 0 <= self.source <= CAN_SOURCE_MASK
+                and 0 <= self.frame <= CAN_FRAME_MASK and 0 <= self.counter <= CAN_COUNTER_MASK):  # fmt: skip
             raise ValueError(f"CAN identifier field out of range: {self}")
         return (self.priority << CAN_PRIORITY_SHIFT | self.dest_kind << CAN_DEST_KIND_SHIFT
                 | self.dest << CAN_DEST_SHIFT | self.source << CAN_SOURCE_SHIFT | self.frame << CAN_FRAME_SHIFT
@@ -76,7 +77,10 @@ class CanId(NamedTuple):
 
     @classmethod
     def unpack(cls, arbitration_id: int) -> CanId:
-        return cls(*((arbitration_id >> shift) & mask for shift, mask in _FIELDS))
+        a = arbitration_id  # every received frame comes through here: the fields spelled out, no generator
+        return cls((a >> CAN_PRIORITY_SHIFT) & CAN_PRIORITY_MASK, (a >> CAN_DEST_KIND_SHIFT) & CAN_DEST_KIND_MASK,
+                   (a >> CAN_DEST_SHIFT) & CAN_DEST_MASK, (a >> CAN_SOURCE_SHIFT) & CAN_SOURCE_MASK,
+                   (a >> CAN_FRAME_SHIFT) & CAN_FRAME_MASK, (a >> CAN_COUNTER_SHIFT) & CAN_COUNTER_MASK)  # fmt: skip
 
 
 _FIELDS = ((CAN_PRIORITY_SHIFT, CAN_PRIORITY_MASK), (CAN_DEST_KIND_SHIFT, CAN_DEST_KIND_MASK),
