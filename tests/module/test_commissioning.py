@@ -134,7 +134,7 @@ def test_24_modules_are_found_numbered_and_keep_their_ids_across_a_reset(tmp_pat
         try:
             some = sorted(by_serial.values())[::8]
             for node_id in some:
-                wait_until(lambda n=node_id: f"m{n}" in node.transport.peers(), timeout=10)
+                assert wait_until(lambda n=node_id: f"m{n}" in node.transport.peers(), timeout=10)
                 limits = node.lookup(f"m{node_id}", "joint.limits", timeout=2)
                 assert isinstance(limits, RemoteAttribute) and tuple(limits.peek()) == (-90.0, 90.0)
         finally:
