@@ -184,8 +184,11 @@ def conflicts(roster: Iterable[Found]) -> dict[int, list[bytes]]:
 class Commissioner:
     """The tool's side on ``bus`` (its filters are set to pass the answers only; the caller owns the bus).
 
-    ``window``: how long a round waits for a first answer before it concludes nobody is there; ``retries``: how
-    often a command that got no answer is sent again."""
+    ``window``: how long a command waits for its first answer at least (a round that gets none concludes nobody is
+    there); ``retries``: how often a command that got no answer is sent again. The wait follows the round trips
+    measured (4 × their smoothed time, when that is longer than the window) and doubles at each repetition of a
+    command (up to 2 s), as TCP's retransmission timer does (RFC 6298): a bus of slow modules (emulated boards on a
+    busy machine) is waited for, a fast one is not."""
 
     def __init__(self, bus: can.BusABC, *, tool_id: int = TOOL_ID, window: float = 0.05, retries: int = 3) -> None:
         self.bus = bus
@@ -193,6 +196,8 @@ class Commissioner:
         self.window = window
         self.retries = retries
         self.commands_sent = 0
+        self.rtt: float | None = None
+        """The smoothed round trip of a command and its first answer, seconds (None until one is measured)."""
         bus.set_filters([REPLY_FILTER])
 
     # -- one command and its answer ------------------------------------------------------------------------------
@@ -205,24 +210,28 @@ class Commissioner:
         self.bus.send(command_frame(op, *args, tool_id=self.tool_id), timeout=0.1)
         self.commands_sent += 1
 
-    def _wait(self, kind: int, *, value: int | None = None, position: int = 0) -> Answer | None:
-        """The first answer of ``kind`` (with ``value`` if given) at ``position`` within the window; any other is a
-        late answer to an earlier command."""
-        deadline = time.monotonic() + self.window
+    def _wait(self, kind: int, attempt: int, *, value: int | None = None, position: int = 0) -> Answer | None:
+        """The first answer of ``kind`` (with ``value`` if given) at ``position`` within the wait of repetition
+        ``attempt`` (0: the first sending) after now; any other answer is a late one to an earlier command."""
+        began = time.monotonic()
+        wait = max(self.window, 4 * self.rtt) if self.rtt is not None else self.window
+        deadline = began + min(max(2.0, self.window), wait * 2**attempt)
         while (left := deadline - time.monotonic()) > 0:
             frame = self.bus.recv(timeout=left)
             reply = None if frame is None else parse_reply(frame)
             if (reply is not None and reply.kind == kind and reply.position == position
                     and (value is None or reply.value == value)):  # fmt: skip
+                sample = time.monotonic() - began
+                self.rtt = sample if self.rtt is None else 0.875 * self.rtt + 0.125 * sample
                 return reply
         return None
 
     def ask(self, op: int, *args: int, kind: int, value: int | None = None, position: int = 0) -> Answer | None:
         """Send a command (again, up to ``retries`` times) until its answer comes; None if none did."""
-        for _ in range(1 + self.retries):
+        for attempt in range(1 + self.retries):
             self._drain()
             self.send(op, *args)
-            reply = self._wait(kind, value=value, position=position)
+            reply = self._wait(kind, attempt, value=value, position=position)
             if reply is not None:
                 return reply
         return None
@@ -268,13 +277,13 @@ class Commissioner:
         """Make the module with ``serial`` the found one (every other leaves the scan): its node ID, or None if no
         module answered."""
         check_serial(serial)
-        for _ in range(1 + self.retries):
+        for attempt in range(1 + self.retries):
             self._drain()
             self.send(CommissionOp.UNMUTE)
             self.send(CommissionOp.SCAN, CommissionScope.EVERY, 0)
             for position, byte in enumerate(serial):  # answers on the way are not waited for
                 self.send(CommissionOp.NARROW, position, byte)
-            reply = self._wait(CommissionReply.FOUND)
+            reply = self._wait(CommissionReply.FOUND, attempt)
             if reply is not None:
                 return reply.value
         return None
