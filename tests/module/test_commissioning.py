@@ -5,6 +5,9 @@ from __future__ import annotations
 
 import json
 import random
+import signal
+import subprocess
+import sys
 from pathlib import Path
 
 import can
@@ -225,3 +228,27 @@ def test_the_command_line(tmp_path, channel, capsys) -> None:
             commission_main([*bus, "set", "12ab", "3"])  # not a serial: a usage error
     finally:
         fleet.close()
+
+
+def test_asm_module_with_an_id_file_boots_unconfigured_and_keeps_its_serial(tmp_path) -> None:
+    """``asm-module --id-file``: the file is made with a random serial and no ID, the module says so when ready,
+    and a second start reads the same serial (and the ID the file holds)."""
+    path = tmp_path / "m.json"
+    command = [sys.executable, "-m", "server.module", "--can", "virtual:id-file", "--id-file", str(path)]
+
+    def ready_line() -> str:
+        process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        try:
+            assert process.stdout is not None
+            line = process.stdout.readline()
+        finally:
+            process.send_signal(signal.SIGTERM)
+            _, err = process.communicate(timeout=30)
+        assert process.returncode == 0, err[-2000:]
+        return line.strip()
+
+    first = ready_line()
+    serial = json.loads(path.read_text())["serial"]
+    assert first == f"READY serial {serial} node ID none"
+    IdFile(path).save(12)
+    assert ready_line() == f"READY serial {serial} node ID 12"
