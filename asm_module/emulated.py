@@ -34,6 +34,7 @@ from .elf import Image, read_image
 from .emulator import Cortex, FirmwareFault, Joint, TickStats
 from .firmware_build import build_board_image
 from .firmware_calls import FirmwareCalls
+from .flash import Settings
 
 log = logging.getLogger("asm_module.emulated")
 CLOCK_HZ = 168_000_000
@@ -66,7 +67,11 @@ class EmulatedModule(FirmwareCalls):
     On its own its clock follows the wall clock. Given a ``clock`` and a ``tick`` event (a simulation's), its
     milliseconds are that clock's since it was made and it is run up to the clock's time at every firing, in the
     firing thread: its own 20 ms control tick, counted from its boot, falls in the simulation's ticks. A bus thread
-    carries frames both ways either way."""
+    carries frames both ways either way.
+
+    ``serial`` is the board's unique ID (12 bytes; zeros if not given) and ``settings`` its settings flash sector
+    (asm_module/flash.py), where a commissioned node ID is kept: a new EmulatedModule on the same settings is the
+    board power-cycled. ``node_id`` 0 flashes no ID: the board boots unconfigured unless its settings hold one."""
 
     def __init__(
         self,
@@ -78,11 +83,15 @@ class EmulatedModule(FirmwareCalls):
         hardware_range: tuple[float, float] = (-90.0, 90.0),
         clock: Clock | None = None,
         tick: Event | None = None,
+        serial: bytes | None = None,
+        settings: Settings | None = None,
         **bus_options: Any,
     ) -> None:
         self.name = name
         self.node_id = node_id
         self.driver = driver if driver is not None else FakeDriver()
+        self.serial = serial if serial is not None else bytes(12)
+        self.settings = settings if settings is not None else Settings()
         self.clock = clock
         image = board_image()  # before the bus is opened: a build or a name that fails leaves nothing open
         config = board_config(node_id, name, hardware_range)
@@ -95,10 +104,10 @@ class EmulatedModule(FirmwareCalls):
         self.can = BxCan(self._transmit)
         joint = Joint(self.driver.command, self.driver.relax, self._read_joint)
         with self._lock:
-            self.core = Cortex(image, self.can, joint, config)
-        self._probe = struct.unpack("<12I", self.core.uc.mem_read(image.symbol("asm_probe"), 48))
-        if self._probe[0] != 1:
-            raise RuntimeError(f"the board image's asm_probe is version {self._probe[0]}, not 1")
+            self.core = Cortex(image, self.can, joint, config, settings=self.settings, serial=self.serial)
+        self._probe = struct.unpack("<14I", self.core.uc.mem_read(image.symbol("asm_probe"), 56))
+        if self._probe[0] != 2:
+            raise RuntimeError(f"the board image's asm_probe is version {self._probe[0]}, not 2")
         self._stop = threading.Event()
         self._unlisten = tick.on_change(lambda _: self.advance()) if tick is not None else None
         self._thread = threading.Thread(target=self._run, name=f"asm-emulated:{name}", daemon=True)
@@ -161,6 +170,17 @@ class EmulatedModule(FirmwareCalls):
             status = self.core.call(local, node, message, len(message))
         if status != Status.OK:
             raise ValueError(f"{self.name}: {Method(method).name} of {name} refused: {Status(status).name}")
+
+    @property
+    def configured(self) -> bool:
+        """The board runs its node (it has a node ID); else it answers only commissioning."""
+        with self._lock:
+            return bool(self._byte(self._probe[12]))
+
+    def commissioned_id(self) -> int:
+        """The node ID the board runs under (0: none), as its commissioning state holds it."""
+        with self._lock:
+            return self._byte(self._probe[13] + 12)
 
     @property
     def latched(self) -> bool:
@@ -231,7 +251,7 @@ class EmulatedModule(FirmwareCalls):
         if self._thread.is_alive():
             self._thread.join(5)
         with self._lock:
-            if self.fault is None:
+            if self.fault is None and self._byte(self._probe[12]):  # a board without a node ID has none to leave
                 try:
                     self.core.call(self._probe[3], self._probe[1])
                 except (FirmwareFault, RuntimeError) as exc:  # faulted while leaving, or too busy to be called

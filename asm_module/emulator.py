@@ -30,15 +30,18 @@ import struct
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from unicorn import UC_ARCH_ARM, UC_HOOK_BLOCK, UC_HOOK_CODE, UC_MODE_MCLASS, UC_MODE_THUMB
+from unicorn import UC_ARCH_ARM, UC_HOOK_BLOCK, UC_HOOK_CODE, UC_MODE_MCLASS, UC_MODE_THUMB, UC_PROT_READ
 from unicorn import arm_const as arm
 from unicorn.unicorn import Uc, UcContext, UcError
 
 from .bxcan import RF0R, BxCan
 from .elf import Image
+from .flash import INTERFACE, SECTOR_ADDRESS, SECTOR_SIZE, FlashInterface, Settings
 
 FLASH, FLASH_SIZE = 0x08000000, 1 << 20
 RAM, RAM_SIZE = 0x20000000, 128 << 10
+UID = 0x1FFF7A10
+"""The 96-bit unique ID (RM0090 §39.1): the board's serial."""
 PAINT = 0xC5C5C5C5
 """What the stack is filled with at boot; the high-water mark is where it was overwritten."""
 EXC_RETURN_BASIC, EXC_RETURN_FP = 0xFFFFFFF9, 0xFFFFFFE9
@@ -129,12 +132,19 @@ class TickStats:
 
 class Cortex:
     """One board: the image loaded and booted to its main loop's first idle point. ``board_config``, if given, is
-    written over the image's symbol of that name (as a flasher writes a module's own settings)."""
+    written over the image's symbol of that name (as a flasher writes a module's own settings); ``settings`` is its
+    settings sector (asm_module/flash.py: erased if not given), ``serial`` its unique ID."""
 
-    def __init__(self, image: Image, can: BxCan, joint: Joint, board_config: bytes | None = None) -> None:
+    def __init__(self, image: Image, can: BxCan, joint: Joint, board_config: bytes | None = None, *,
+                 settings: Settings | None = None, serial: bytes = bytes(12)) -> None:  # fmt: skip
         self.image, self.can, self.joint = image, can, joint
         self.uc = uc = Uc(UC_ARCH_ARM, UC_MODE_THUMB | UC_MODE_MCLASS)
-        uc.mem_map(FLASH, FLASH_SIZE)
+        uc.mem_map(FLASH, SECTOR_ADDRESS - FLASH)
+        self.flash_interface = flash = FlashInterface(settings if settings is not None else Settings())
+        uc.mmio_map(SECTOR_ADDRESS, SECTOR_SIZE, lambda _, at, size, __: flash.read(at, size), None,
+                    lambda _, at, size, value, __: flash.write(at, size, value), None)  # fmt: skip
+        uc.mem_map(UID & ~0xFFF, 0x1000, UC_PROT_READ)
+        uc.mem_write(UID, serial)
         uc.mem_map(RAM, RAM_SIZE)
         for segment in image.segments:
             if segment.data:
@@ -410,6 +420,8 @@ class Cortex:
                 return round(self._reading[0] * ENCODER_COUNTS / 360) & 0xFFFFFFFF
             if address == 0x40020010:  # GPIOA_IDR: the foot switch on PA2
                 return int(self._reading[1]) << 2
+            if INTERFACE <= address < INTERFACE + 0x20:
+                return self.flash_interface.read_register(address - INTERFACE)
             value = self._systick(address)
         self._activity += 1
         return value
@@ -445,6 +457,8 @@ class Cortex:
             self.encoder[address & 0x3FF] = value
         elif 0x40000400 <= address < 0x40000800:
             self._pwm(address & 0x3FF, value)
+        elif INTERFACE <= address < INTERFACE + 0x20:
+            self.flash_interface.write_register(address - INTERFACE, value)
         else:
             self.registers[address] = value
 

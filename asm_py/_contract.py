@@ -222,6 +222,8 @@ class SystemCode(IntEnum):
     ESTOP = 0
     HEARTBEAT = 1
     LEAVE = 2
+    COMMISSION = 3
+    COMMISSIONED = 4
 
 
 class Priority(IntEnum):
@@ -241,6 +243,51 @@ class Priority(IntEnum):
     """heartbeats and leave notices"""
     BULK_PUBLICATION = 7
     """every frame of a publication of several frames: a module filters them out unless it subscribes"""
+
+
+SERIAL_BYTES = 12
+"""Bytes of the serial a module is commissioned by."""
+UNCONFIGURED = 0
+"""The node ID of a module without one."""
+
+
+class CommissionOp(IntEnum):
+    """byte 0 of a COMMISSION system frame"""
+
+    SCAN = 1
+    """the modules of the scope that are not muted enter the scan at position 0 and answer BYTE; every other module leaves it"""
+    NARROW = 2
+    """a module in the scan at that position whose serial has that byte there moves on and answers BYTE with its next byte (FOUND after the last); one that answered this very NARROW already answers again; every other leaves the scan"""
+    ASSIGN = 3
+    """the found module stores the node ID in its non-volatile memory, runs under it, answers ASSIGNED"""
+    MUTE = 4
+    """the found module answers MUTED and joins no scan until UNMUTE"""
+    UNMUTE = 5
+    """every module joins scans again and leaves the one it is in; no answer"""
+
+
+class CommissionScope(IntEnum):
+    """byte 1 of a SCAN: which modules enter the scan"""
+
+    UNCONFIGURED = 0
+    """modules without a node ID"""
+    EVERY = 1
+    """every module"""
+    NODE_ID = 2
+    """the modules with the node ID of the command's third byte (two of them: a conflict)"""
+
+
+class CommissionReply(IntEnum):
+    """the counter bits of a COMMISSIONED frame"""
+
+    BYTE = 0
+    """the serial's byte at the module's scan position"""
+    FOUND = 1
+    """all the serial's bytes matched: the module's node ID (0: unconfigured)"""
+    ASSIGNED = 2
+    """the node ID now stored"""
+    MUTED = 3
+    """the muted module's node ID"""
 
 
 ZENOH_KEYS: dict[str, str] = {

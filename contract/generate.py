@@ -47,6 +47,16 @@ def check(core: dict[str, Any], profile: dict[str, Any]) -> None:
               "status": _field_max(core, "status"), "codec_tag": 0xFF, "class": 0xFF}  # fmt: skip
     tables = [(name, core[name], "id" if name != "codec_tag" else "tag") for name in limits if name in core]
     tables += [("profile class", profile["class"], "id"), ("event", profile["event"], "id")]
+    can = core["can"]
+    kinds = _mask(can["identifier"]["counter"])[1] >> 4  # a commissioning answer's kind: counter bits 5-4
+    for table, key, top in (
+        ("system_code", "system code", 0xFF),
+        ("commission_op", "commission op", 0xFF),
+        ("commission_scope", "commission scope", 0xFF),
+        ("commission_reply", "commission reply", kinds),
+    ):
+        tables.append((key, can[table], "id"))
+        limits[key] = top
     for table, rows, key in tables:
         top = limits.get(table, 0xFF if table == "profile class" else 0xFFFF)
         seen_ids: set[int] = set()
@@ -136,6 +146,12 @@ def python_core(core: dict[str, Any]) -> str:
     out += _enum("FrameType", can["frame_type"], "identifier bits 7-6: a whole message, or which fragment")
     out += _enum("SystemCode", can["system_code"], "the destination byte of a system frame: what the frame is")
     out += _enum("Priority", can["priority"], "identifier bits 28-26: 0 wins arbitration")
+    com = can["commissioning"]
+    out += [f"SERIAL_BYTES = {com['serial_bytes']}", '"""Bytes of the serial a module is commissioned by."""',
+            f"UNCONFIGURED = {com['unconfigured']}", '"""The node ID of a module without one."""', "", ""]  # fmt: skip
+    out += _enum("CommissionOp", can["commission_op"], "byte 0 of a COMMISSION system frame")
+    out += _enum("CommissionScope", can["commission_scope"], "byte 1 of a SCAN: which modules enter the scan")
+    out += _enum("CommissionReply", can["commission_reply"], "the counter bits of a COMMISSIONED frame")
     keys = [f'    "{k["name"]}": "{k["pattern"]}",' for k in core["zenoh_key"]]
     out += ["ZENOH_KEYS: dict[str, str] = {", *keys, "}",
             '"""The key patterns of docs/protocol.md §6 (asm_py.keys builds them)."""']  # fmt: skip
@@ -208,6 +224,11 @@ def c_core(core: dict[str, Any]) -> str:
     out += _c_enum("asm_frame_type", "ASM_", can["frame_type"])
     out += _c_enum("asm_system", "ASM_SYSTEM_", can["system_code"])
     out += [f"#define ASM_PRIORITY_{r['name']} {r['id']}u" for r in can["priority"]]
+    com = can["commissioning"]
+    out += [f"#define ASM_SERIAL_BYTES {com['serial_bytes']}u", f"#define ASM_UNCONFIGURED {com['unconfigured']}u"]
+    out += _c_enum("asm_commission_op", "ASM_COM_", can["commission_op"])
+    out += _c_enum("asm_commission_scope", "ASM_SCOPE_", can["commission_scope"])
+    out += _c_enum("asm_commission_reply", "ASM_COMMISSIONED_", can["commission_reply"])
     return "\n".join([*out, "", "#endif", ""])
 
 
@@ -267,6 +288,13 @@ def doc_tables(core: dict[str, Any], profile: dict[str, Any]) -> dict[str, str]:
         "system_codes": table(["code (bits 23-16)", "frame", "data", "priority"],
                               [[f"0x{r['id']:02X}", r["name"].lower(), r["data"], r["priority"]]
                                for r in core["can"]["system_code"]]),
+        "commission_ops": table(["opcode (byte 0)", "command", "then", "what it does"],
+                                [[f"0x{r['id']:02X}", r["name"], r["args"], r["doc"]]
+                                 for r in core["can"]["commission_op"]]),
+        "commission_scopes": table(["scope (byte 1 of SCAN)", "name", "modules"],
+                                   [[str(r["id"]), r["name"], r["doc"]] for r in core["can"]["commission_scope"]]),
+        "commission_replies": table(["counter bits 5-4", "answer", "source bits (15-8) carry"],
+                                    [[str(r["id"]), r["name"], r["doc"]] for r in core["can"]["commission_reply"]]),
         "zenoh_keys": table(["key", "declared by", "carries"],
                             [[f"`{k['pattern'].replace('{', '<').replace('}', '>')}`",
                               k["declared_by"].replace("{", "<").replace("}", ">"),

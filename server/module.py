@@ -1,5 +1,9 @@
 """``asm-module --can INTERFACE:CHANNEL --node-id N``: one module on a CAN bus, as a Linux-based module runs it.
 
+``--id-file PATH`` instead of ``--node-id``: the module's serial and node ID live in that file (made with a random
+serial and no ID if missing); without an ID it boots unconfigured and waits to be numbered by ``asm-commission``
+(asm_module/commissioning.py), and keeps the ID it is given across restarts.
+
 The module itself — its objects, its gait, its e-stop — is asm_module (the program a module runs, whether its
 joint is simulated or real); this is only its command line.
 """
@@ -8,8 +12,11 @@ from __future__ import annotations
 
 import argparse
 
+import can
+
 from asm_module import FakeDriver, ModuleRuntime
-from asm_py.cli import bitrate, bounded, can_channel, name, node_id, rate, run, stop_requested
+from asm_module.commissioning import CommissionedModule, IdFile
+from asm_py.cli import bitrate, bounded, can_channel, name, node_id, output_file, rate, run, stop_requested
 from asm_py.node import Node
 from asm_py.transport.can import CanTransport
 from server.realtime import prefer_latency
@@ -20,7 +27,10 @@ def main(argv: list[str] | None = None) -> int:
     cli = argparse.ArgumentParser(prog="asm-module", description=main.__doc__.splitlines()[0] if main.__doc__ else "")
     cli.add_argument("--can", type=can_channel, required=True, metavar="INTERFACE:CHANNEL")
     cli.add_argument("--bitrate", type=bitrate)
-    cli.add_argument("--node-id", type=node_id, required=True, help="CAN node ID 1..254; also names the node m<ID>")
+    identity = cli.add_mutually_exclusive_group(required=True)
+    identity.add_argument("--node-id", type=node_id, help="CAN node ID 1..254; also names the node m<ID>")
+    identity.add_argument("--id-file", type=output_file, metavar="PATH",
+                          help="the module's serial and commissioned node ID (asm-commission numbers it)")  # fmt: skip
     cli.add_argument("--name", type=name, help="node name (default m<node-id>, what gaits.deploy expects)")
     cli.add_argument("--driver", choices=["fake"], default="fake", help="joint driver (fake: a servo model)")
     cli.add_argument(
@@ -41,6 +51,8 @@ def main(argv: list[str] | None = None) -> int:
 def _serve(args: argparse.Namespace) -> int:
     prefer_latency()
     options = {**args.can, **({"bitrate": args.bitrate} if args.bitrate else {})}
+    if args.id_file is not None:
+        return _serve_commissioned(args, options)
     name = args.name or f"m{args.node_id}"
     node = Node(name, CanTransport(args.node_id, **options))
     runtime = ModuleRuntime(FakeDriver(), node=node, limits=tuple(args.limits), control_rate=args.rate)
@@ -49,6 +61,19 @@ def _serve(args: argparse.Namespace) -> int:
     done.wait()
     runtime.close()
     node.close()
+    return 0
+
+
+def _serve_commissioned(args: argparse.Namespace, options: dict) -> int:
+    def runtime(node: Node, module_id: int) -> ModuleRuntime:
+        return ModuleRuntime(FakeDriver(), node=node, limits=tuple(args.limits), control_rate=args.rate,
+                             module_id=module_id)  # fmt: skip
+
+    module = CommissionedModule(IdFile(args.id_file), lambda: can.Bus(**options), runtime=runtime)
+    done = stop_requested()
+    print(f"READY serial {module.serial.hex()} node ID {module.node_id or 'none'}", flush=True)
+    done.wait()
+    module.close()
     return 0
 
 

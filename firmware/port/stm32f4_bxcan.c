@@ -9,6 +9,7 @@
  * docs/protocol.md section 7 ("a module passes only what it must act on"). */
 #include <stdint.h>
 
+#include "asm/commission.h"
 #include "asm/module.h"
 
 #define REG(address) (*(volatile uint32_t *)(address))
@@ -50,6 +51,10 @@
 #define TIM_ARR(t) REG((t) + 0x2Cu)
 #define TIM_CCR1(t) REG((t) + 0x34u)
 #define GPIOA_IDR REG(0x40020010u)
+#define FLASH_KEYR REG(0x40023C04u)
+#define FLASH_SR REG(0x40023C0Cu)
+#define FLASH_CR REG(0x40023C10u)
+#define UID ((const volatile uint8_t *)0x1FFF7A10u) /* the 96-bit unique ID: the module's serial */
 
 #define CONTROL_MS 20u       /* the gait tick: 50 Hz */
 #define ENCODER_COUNTS 4096  /* per turn (1,024 lines, both edges of both channels) */
@@ -66,15 +71,107 @@ __attribute__((section(".rodata.board_config"), used)) static const volatile str
 
 static struct asm_module module;
 static volatile uint32_t milliseconds;
+static struct asm_commission commission;
+static uint8_t configured; /* the module runs its node (else it answers only commissioning) */
+static char node_name[8];  /* "m<ID>" of a commissioned module */
+
+/* The settings: flash sector 11 (128 KiB at 0x080E0000, kept out of the image by the linker script), a log of 8-byte
+ * records appended by programming erased words; the last one holds. A full sector is erased and the log starts
+ * again: a sector endures 10,000 erases, so a module can be renumbered 160 million times. */
+#define SETTINGS ((const volatile uint32_t *)0x080E0000u)
+#define SETTINGS_SECTOR 11u
+#define SETTINGS_WORDS (0x20000u / 4u)
+#define RECORD_MAGIC 0x41534D31u /* "ASM1" */
+#define ID_RECORD(id) (0xA55A0000u | (uint32_t)(uint8_t)~(id) << 8 | (id))
+
+/* The stored node ID: 1 and ``*node_id`` if a record holds one (0: erased by the tool), 0 if none was ever stored. */
+static int settings_node_id(uint8_t *node_id)
+{
+    int found = 0;
+    for (uint32_t k = 0; k < SETTINGS_WORDS && (SETTINGS[k] & SETTINGS[k + 1]) != 0xFFFFFFFFu; k += 2) {
+        uint32_t word = SETTINGS[k + 1];
+        if (SETTINGS[k] == RECORD_MAGIC && word == ID_RECORD(word & 0xFFu)) { /* not a record cut by a reset */
+            *node_id = (uint8_t)word;
+            found = 1;
+        }
+    }
+    return found;
+}
+
+static void flash_wait(void)
+{
+    while (FLASH_SR & (1u << 16)) /* BSY */
+        ;
+}
+
+/* RM0090 3.6: unlock, erase a sector or program words (PSIZE x32), lock again. 0, or the error flags of FLASH_SR. */
+static uint32_t flash_program(uint32_t address, uint32_t value)
+{
+    flash_wait();
+    FLASH_CR = (2u << 8) | 1u; /* PSIZE x32, PG */
+    *(volatile uint32_t *)address = value;
+    flash_wait();
+    FLASH_CR = 0;
+    return FLASH_SR & 0xF2u;
+}
+
+static uint32_t flash_erase(uint32_t sector)
+{
+    flash_wait();
+    FLASH_CR = (2u << 8) | (sector << 3) | 2u; /* PSIZE x32, SNB, SER */
+    FLASH_CR |= 1u << 16;                      /* STRT */
+    flash_wait();
+    FLASH_CR = 0;
+    return FLASH_SR & 0xF2u;
+}
+
+static int store_node_id(void *ctx, uint8_t node_id)
+{
+    (void)ctx;
+    uint32_t k = 0, errors = 0;
+    while (k < SETTINGS_WORDS && (SETTINGS[k] & SETTINGS[k + 1]) != 0xFFFFFFFFu) /* the first erased slot */
+        k += 2;
+    FLASH_KEYR = 0x45670123u;
+    FLASH_KEYR = 0xCDEF89ABu;
+    FLASH_SR = 0xF3u; /* clear EOP and the error flags of an earlier operation */
+    if (k >= SETTINGS_WORDS) { /* the log is full: start it again */
+        k = 0;
+        errors = flash_erase(SETTINGS_SECTOR);
+    }
+    if (!errors) /* the ID first, the magic last: a reset between the two leaves no half record */
+        errors = flash_program((uint32_t)&SETTINGS[k + 1], ID_RECORD(node_id));
+    if (!errors)
+        errors = flash_program((uint32_t)&SETTINGS[k], RECORD_MAGIC);
+    FLASH_CR = 1u << 31; /* LOCK */
+    return errors || SETTINGS[k + 1] != ID_RECORD(node_id);
+}
 
 void SysTick_Handler(void) { milliseconds++; }
 
 /* One mask filter (32-bit, FIFO 0): extended identifier ``id`` under ``mask`` (bits 28-0). */
 static void filter(uint32_t bank, uint32_t id, uint32_t mask)
 {
+    CAN_FA1R &= ~(1u << bank);
     CAN_FR1(bank) = (id << 3) | 4u; /* IDE */
     CAN_FR2(bank) = (mask << 3) | 4u;
     CAN_FA1R |= 1u << bank;
+}
+
+/* The acceptance filters of the node ID the module runs under (none: commissioning only). */
+static void can_filters(void)
+{
+    CAN_FMR |= 1u;      /* filter init */
+    CAN_FM1R = 0;       /* mask mode */
+    CAN_FS1R = 0x3FFFu; /* 32-bit */
+    CAN_FFA1R = 0;      /* FIFO 0 */
+    filter(0, (uint32_t)ASM_DEST_NODE << 24 | (uint32_t)commission.node_id << 16, 0x03FF0000u); /* to this node */
+    filter(1, ASM_PRIORITY_REQUEST << 26 | (uint32_t)ASM_DEST_BROADCAST << 24, 0x1F000000u); /* broadcast requests */
+    filter(2, ASM_PRIORITY_BULK << 26 | (uint32_t)ASM_DEST_BROADCAST << 24, 0x1F000000u); /* ... fragmented (not publications) */
+    filter(3, (uint32_t)ASM_DEST_SYSTEM << 24 | (uint32_t)ASM_SYSTEM_ESTOP << 16, 0x03FF0000u); /* the e-stop */
+    filter(13, (uint32_t)ASM_DEST_SYSTEM << 24 | (uint32_t)ASM_SYSTEM_COMMISSION << 16, 0x03FF0000u); /* commissioning */
+    if (!configured)
+        CAN_FA1R &= ~0xFu; /* without a node ID: commissioning only (an e-stop has nothing to stop) */
+    CAN_FMR &= ~1u;
 }
 
 static void can_init(void)
@@ -83,15 +180,7 @@ static void can_init(void)
     while (!(CAN_MSR & 1u))
         ;
     CAN_BTR = (1u << 24) | (4u << 20) | (12u << 16) | 2u; /* SJW 2, TS2 5, TS1 13, prescaler 3: 42 MHz / 3 / 14 */
-    CAN_FMR |= 1u;                                       /* filter init */
-    CAN_FM1R = 0;                                        /* mask mode */
-    CAN_FS1R = 0x3FFFu;                                  /* 32-bit */
-    CAN_FFA1R = 0;                                       /* FIFO 0 */
-    filter(0, (uint32_t)ASM_DEST_NODE << 24 | (uint32_t)board_config.node_id << 16, 0x03FF0000u); /* to this node */
-    filter(1, ASM_PRIORITY_REQUEST << 26 | (uint32_t)ASM_DEST_BROADCAST << 24, 0x1F000000u); /* broadcast requests */
-    filter(2, ASM_PRIORITY_BULK << 26 | (uint32_t)ASM_DEST_BROADCAST << 24, 0x1F000000u); /* ... fragmented (not publications) */
-    filter(3, (uint32_t)ASM_DEST_SYSTEM << 24 | (uint32_t)ASM_SYSTEM_ESTOP << 16, 0x03FF0000u); /* the e-stop */
-    CAN_FMR &= ~1u;
+    can_filters();
     CAN_MCR = 0; /* normal mode */
     while (CAN_MSR & 1u)
         ;
@@ -133,6 +222,22 @@ static int can_send(void *ctx, uint32_t id, const uint8_t *data, uint8_t dlc)
     return 0;
 }
 
+static void boot_node(void);
+
+/* A commissioning command: answered (an ASSIGN once the ID is in flash), and a new ID run under at once. */
+static void commissioning(const uint8_t *data, uint8_t dlc)
+{
+    uint8_t before = commission.node_id;
+    uint32_t answer;
+    if (asm_commission_command(&commission, data, dlc, store_node_id, 0, &answer))
+        can_send(0, answer, 0, 0);
+    if (commission.node_id != before) {
+        if (configured)
+            asm_node_leave(&module.node);
+        boot_node();
+    }
+}
+
 static void can_receive(void)
 {
     while (CAN_RF0R & 3u) {
@@ -143,7 +248,10 @@ static void can_receive(void)
             data[4 + k] = (uint8_t)(high >> (8 * k));
         }
         CAN_RF0R = 1u << 5; /* release the FIFO output */
-        asm_node_frame(&module.node, id, data, dlc > 8 ? 8 : dlc, milliseconds);
+        if (asm_commission_is_command(id))
+            commissioning(data, dlc > 8 ? 8 : dlc);
+        else if (configured)
+            asm_node_frame(&module.node, id, data, dlc > 8 ? 8 : dlc, milliseconds);
     }
 }
 
@@ -183,7 +291,7 @@ static void joint_init(void)
  * service's state, when the gait last started and gait.done, the millisecond count, and asm_node_local to make the
  * module's own requests. */
 struct asm_probe {
-    uint32_t version;
+    uint32_t version; /* 2: with the commissioning state */
     struct asm_node *node;
     int (*local)(struct asm_node *node, const uint8_t *message, size_t length);
     void (*leave)(struct asm_node *node);
@@ -194,25 +302,56 @@ struct asm_probe {
     volatile uint32_t *milliseconds;
     uint32_t *ramp_start_ms;
     uint8_t *done;
+    uint8_t *configured;
+    struct asm_commission *commission;
 };
 __attribute__((section(".probe"), used)) const struct asm_probe asm_probe = {
-    1u, &module.node, asm_node_local, asm_node_leave, &module.node.now_ms, &module.node.estop, &module.goal_v,
-    &module.angle_v, &module.gait.service.running, &milliseconds, &module.gait.ramp_start_ms, &module.gait.done_v};
+    2u, &module.node, asm_node_local, asm_node_leave, &module.node.now_ms, &module.node.estop, &module.goal_v,
+    &module.angle_v, &module.gait.service.running, &milliseconds, &module.gait.ramp_start_ms, &module.gait.done_v,
+    &configured, &commission};
 
-int main(void)
+/* Run the module under commission.node_id (none: answer only commissioning). The name is the flashed one under the
+ * flashed ID, m<ID> under a commissioned one. */
+static void boot_node(void)
 {
     static const struct asm_port port = {can_send, 0, 0};
     static const struct asm_joint_port joint = {joint_command, joint_relax, joint_read, 0};
+    uint8_t id = commission.node_id;
+    configured = id != ASM_UNCONFIGURED;
+    const char *name = (const char *)board_config.name;
+    if (configured && id != board_config.node_id) {
+        uint8_t k = 0;
+        node_name[k++] = 'm';
+        if (id >= 100)
+            node_name[k++] = (char)('0' + id / 100);
+        if (id >= 10)
+            node_name[k++] = (char)('0' + id / 10 % 10);
+        node_name[k++] = (char)('0' + id % 10);
+        node_name[k] = 0;
+        name = node_name;
+    }
+    if (configured)
+        asm_module_init(&module, name, id, &port, &joint, board_config.hardware_min, board_config.hardware_max,
+                        milliseconds);
+    can_filters();
+}
+
+int main(void)
+{
     SYST_RVR = 168000u - 1u; /* 1 ms at 168 MHz */
     SYST_CVR = 0;
     SYST_CSR = 7u;
     joint_init();
+    uint8_t node_id = board_config.node_id; /* flashed with the image, or else ... */
+    settings_node_id(&node_id);             /* ... as commissioned, which wins */
+    asm_commission_init(&commission, (const uint8_t *)UID, node_id);
     can_init();
-    asm_module_init(&module, (const char *)board_config.name, board_config.node_id, &port, &joint,
-                    board_config.hardware_min, board_config.hardware_max, milliseconds);
+    boot_node();
     uint32_t next_tick = milliseconds;
     for (;;) {
         can_receive();
+        if (!configured)
+            continue;
         watch_neighbours();
         if ((int32_t)(milliseconds - next_tick) >= 0) {
             next_tick += CONTROL_MS;

@@ -15,7 +15,7 @@ import pytest
 from asm_module import demo
 from asm_py.canbus import busload, dbc
 from gaits import cli as gaits_cli
-from server import bridge, module, robot, studio
+from server import bridge, commission, module, robot, studio
 
 from ..helpers import ROOT
 
@@ -23,6 +23,7 @@ GAIT = str(ROOT / "gaits" / "library" / "caterpillar.toml")
 COMMANDS: dict[str, Callable[[list[str]], int]] = {
     "asm-studio": studio.main, "asm-robot": robot.main, "asm-bridge": bridge.main, "asm-module": module.main,
     "asm-dbc": dbc.main, "asm-demo": demo.main, "asm-busload": busload.main, "gaits": gaits_cli.main,
+    "asm-commission": commission.main,
 }  # fmt: skip
 USAGE_ERRORS = [  # (command, arguments, what the one-line error must mention)
     ("asm-studio", ["--port", "99999"], "--port"),
@@ -69,6 +70,15 @@ USAGE_ERRORS = [  # (command, arguments, what the one-line error must mention)
     ("asm-module", ["--can", "virtual:x", "--node-id", "3", "--limits", "90", "-90"], "MIN must be below MAX"),
     ("asm-module", ["--can", "virtual:x", "--node-id", "3", "--limits", "-500", "90"], "joint limit"),
     ("asm-module", ["--can", "virtual:x", "--node-id", "3", "--name", "m 3"], "--name"),
+    ("asm-module", ["--can", "virtual:x", "--node-id", "3", "--id-file", "/tmp/m3.json"], "not allowed with"),
+    ("asm-module", ["--can", "virtual:x", "--id-file", "/nonexistent/dir/m.json"], "does not exist"),
+    ("asm-commission", ["--can", "virtual:x"], "command"),
+    ("asm-commission", ["list"], "--can"),
+    ("asm-commission", ["--can", "virtual:x", "set", "12ab", "3"], "hex digits"),
+    ("asm-commission", ["--can", "virtual:x", "set", "00" * 12, "0"], "node ID"),
+    ("asm-commission", ["--can", "virtual:x", "number", "--first", "255"], "node ID"),
+    ("asm-commission", ["--can", "virtual:x", "number", "--order", "/nonexistent/chain.txt"], "no such file"),
+    ("asm-commission", ["--can", "virtual:x", "--window", "0"], "seconds"),
     ("asm-dbc", ["--nodes", "1-999"], "node ID"),
     ("asm-dbc", ["--nodes", "8-1"], "low to high"),
     ("asm-dbc", ["--nodes", "x"], "integer"),

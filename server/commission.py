@@ -1,0 +1,104 @@
+"""``asm-commission --can INTERFACE:CHANNEL list|number|set|erase``: find the modules of a bus by their serials and
+give them node IDs (docs/protocol.md §7, "Commissioning").
+
+    asm-commission --can socketcan:can0 list                  # every module: serial, node ID; conflicts (exit 1)
+    asm-commission --can socketcan:can0 number --first 1      # every module without an ID gets the next free one
+    asm-commission --can socketcan:can0 number --order chain.txt   # ... in the order of the serials in the file
+    asm-commission --can socketcan:can0 set 0123456789abcdef01234567 5
+    asm-commission --can socketcan:can0 erase 0123456789abcdef01234567
+
+The IDs are stored in each module (flash on a board, its ID file on a Linux module) and kept across resets.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import can
+
+from asm_py.canbus.commission import (
+    SERIAL_BYTES,
+    UNCONFIGURED,
+    Commissioner,
+    CommissionScope,
+    conflicts,
+    describe_conflicts,
+)
+from asm_py.cli import bitrate, bounded, can_channel, input_file, node_id, positive_seconds, run
+
+
+def serial(text: str) -> bytes:
+    """A module's serial: 24 hex digits."""
+    try:
+        value = bytes.fromhex(text)
+    except ValueError:
+        value = b""
+    if len(value) != SERIAL_BYTES:
+        raise argparse.ArgumentTypeError(f"a serial is {2 * SERIAL_BYTES} hex digits, not {text!r}")
+    return value
+
+
+def read_order(path: Path) -> list[bytes]:
+    """Serials, one a line (``#`` starts a comment): the order modules are numbered in."""
+    lines = (line.split("#", 1)[0].strip() for line in path.read_text().splitlines())
+    return [serial(line) for line in lines if line]
+
+
+def main(argv: list[str] | None = None) -> int:
+    cli = argparse.ArgumentParser(prog="asm-commission", description=(__doc__ or "").splitlines()[0],
+                                  formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
+    cli.add_argument("--can", type=can_channel, required=True, metavar="INTERFACE:CHANNEL")
+    cli.add_argument("--bitrate", type=bitrate)
+    cli.add_argument("--fd", action="store_true", help="a CAN FD bus")
+    cli.add_argument("--node-id", type=node_id, default=254, help="the tool's own CAN node ID (default 254)")
+    cli.add_argument("--window", type=positive_seconds, default=0.05,
+                     help="seconds a scan waits for a first answer (default 0.05)")  # fmt: skip
+    commands = cli.add_subparsers(dest="command", required=True)
+    commands.add_parser("list", help="every module on the bus: serial and node ID (exit 1 on a shared ID)")
+    number = commands.add_parser("number", help="give every module without a node ID the next free one")
+    number.add_argument("--first", type=node_id, default=1, help="the first node ID to give (default 1)")
+    number.add_argument("--order", type=input_file, help="a file of serials, one a line: the numbering order")
+    one = commands.add_parser("set", help="give one module a node ID")
+    one.add_argument("serial", type=serial)
+    one.add_argument("id", type=bounded(int, 1, 254, what="a CAN node ID"))
+    erase = commands.add_parser("erase", help="make one module unconfigured again")
+    erase.add_argument("serial", type=serial)
+    args = cli.parse_args(argv)
+    order = read_order(args.order) if getattr(args, "order", None) else None
+    return run(cli.prog, lambda: _command(args, order))
+
+
+def _command(args: argparse.Namespace, order: list[bytes] | None) -> int:
+    options = {**args.can, **({"bitrate": args.bitrate} if args.bitrate else {}), **({"fd": True} if args.fd else {})}
+    bus = can.Bus(**options)
+    try:
+        tool = Commissioner(bus, tool_id=args.node_id, window=args.window)
+        if args.command == "list":
+            roster = tool.discover(CommissionScope.EVERY)
+            for module in sorted(roster, key=lambda m: (m.node_id == UNCONFIGURED, m.node_id, m.serial)):
+                print(f"{module.serial_hex}  {module.node_id or '-'}")
+            print(f"{len(roster)} modules, {sum(m.node_id == UNCONFIGURED for m in roster)} without a node ID")
+            clash = conflicts(roster)
+            if clash:
+                print(f"{'asm-commission'}: conflict: {describe_conflicts(clash)}", file=sys.stderr)
+                return 1
+        elif args.command == "number":
+            for module in tool.number(first=args.first, order=order):
+                print(f"{module.serial_hex}  {module.node_id}")
+        elif args.command == "set":
+            tool.assign(args.serial, args.id)
+            print(f"{args.serial.hex()}  {args.id}")
+        else:
+            tool.assign(args.serial, UNCONFIGURED)
+            print(f"{args.serial.hex()}  -")
+    except LookupError as exc:
+        raise RuntimeError(str(exc).strip("'\"")) from None
+    finally:
+        bus.shutdown()
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
