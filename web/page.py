@@ -32,11 +32,12 @@ from .preview import PreviewLoop, SceneView
 
 log = logging.getLogger("asm_studio.web")
 TOAST_SECONDS = 6.0
-Event = Literal["deployed", "modules_removed", "plotted", "show", "attach", "relinked", "pick"]
+Event = Literal["deployed", "modules_removed", "plotted", "show", "attach", "relinked", "pick", "adopt"]
 """What panels tell each other through the page: ``deployed(gait)`` (started on the robot),
 ``modules_removed(names)`` (gone with a rebuilt robot), ``plotted()`` (a live plot got a series), ``show(source)``
 ("preview" or "live" asked for), ``attach(robot)`` (another robot asked for), ``relinked()`` (the page now commands
-another robot), ``pick(module_id)`` (clicked in the 3D view)."""
+another robot), ``pick(module_id)`` (clicked in the 3D view), ``adopt(gait, text)`` (a tuned gait becomes the edited
+one, ``text`` its file with its provenance)."""
 
 
 class Backend(Protocol):

@@ -23,6 +23,7 @@ import viser
 from asm_py.cli import module_selection
 from gaits.model import Gait
 from gaits.sim import Metrics, Simulation, select_modules
+from gaits.terrain import FLAT, Terrain
 
 FRAME_RATE = 60.0
 """Recorded frames per simulated second: the timeline's resolution, and what the view draws at speed 1."""
@@ -51,6 +52,8 @@ class PreviewLoop:
     def __init__(self, gait: Gait, *, c_modules: str | None = None) -> None:
         self.c_modules = c_modules
         """Modules the preview runs in C, as the robot does (``--c-modules``: "odd", "even", "all" or "1,3,5")."""
+        self.terrain: Terrain = FLAT
+        """The ground the preview runs on (the Preview tab's picker: ``request("terrain", …)``)."""
         self._requests: queue.Queue[tuple[str, Any]] = queue.Queue()
         self._lock = threading.Lock()
         self.frames: deque[Frame] = deque(maxlen=int(HISTORY_SECONDS * FRAME_RATE))
@@ -72,7 +75,7 @@ class PreviewLoop:
 
     def _new_sim(self, gait: Gait) -> Simulation:
         c_modules = select_modules(module_selection(self.c_modules), gait) if self.c_modules else ()
-        sim = Simulation(gait, c_modules=c_modules)
+        sim = Simulation(gait, c_modules=c_modules, terrain=self.terrain)
         sim.start()
         return sim
 
@@ -84,7 +87,8 @@ class PreviewLoop:
         return self.sim.gait
 
     def request(self, kind: str, value: Any = None) -> None:
-        """Queue ``load`` (a Gait), ``play`` (bool), ``speed``, ``seek`` (frame index), ``step`` (±1), ``reset``,
+        """Queue ``load`` (a Gait), ``terrain`` (a Terrain: the same gait again on it), ``play`` (bool), ``speed``,
+        ``seek`` (frame index), ``step`` (±1), ``reset``,
         ``drive`` ((program gait or "stop", direction)), ``signal`` (a broadcast signal number)."""
         self._requests.put((kind, value))
 
@@ -184,11 +188,15 @@ class PreviewLoop:
                 self._changed.set()
 
     def _handle(self, kind: str, value: Any) -> None:
-        if kind == "load" or kind == "reset":
+        if kind in ("load", "reset", "terrain"):
             gait = value if kind == "load" else self.sim.gait
+            before = self.terrain
+            if kind == "terrain":
+                self.terrain = value
             try:
                 new = self._new_sim(gait)
             except Exception as exc:
+                self.terrain = before
                 self.error = f"cannot simulate this gait: {exc}"
                 return
             with self._lock:

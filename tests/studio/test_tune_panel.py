@@ -1,0 +1,119 @@
+"""The Tune tab and the ground picker, in this process without a browser (the browser path is test_tune_e2e.py's):
+a search started from the page runs in worker processes, shows its progress, its best can be previewed and adopted
+(one undo step), and stopping it or closing the studio leaves no worker behind."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from types import SimpleNamespace
+
+import pytest
+
+from gaits.model import to_dict
+from tests.helpers import wait_until
+
+pytestmark = pytest.mark.timeout(180)
+
+
+def _click(value: str) -> SimpleNamespace:
+    return SimpleNamespace(target=SimpleNamespace(value=value), client=None)
+
+
+def _gone(pids: list[int]) -> bool:
+    """None of these processes runs (a zombie is not running: its parent has yet to reap it)."""
+
+    def alive(pid: int) -> bool:
+        try:
+            status = Path(f"/proc/{pid}/status").read_text()
+        except OSError:
+            return False
+        return "State:\tZ" not in status
+
+    return not any(alive(pid) for pid in pids)
+
+
+def test_a_search_from_the_page_improves_previews_adopts_and_undoes(studio):
+    app = studio.app
+    panel = app.tuner
+    original = to_dict(app.doc.gait())
+    panel.free["amplitude"].value = True
+    panel.free["period"].value = True
+    panel.budget.value = 12
+    panel.seconds.value = 1.5
+    run = panel.start(workers=2, popsize=4)
+    assert wait_until(lambda: run.snapshot().evaluations > 0, timeout=90)  # progress shows while it runs
+    pids = run.worker_pids()
+    assert len(pids) == 2
+    assert wait_until(lambda: not run.running, timeout=120)
+    snap = run.snapshot()
+    assert snap.state == "done" and snap.evaluations == 12
+    assert snap.best is not None and snap.value >= snap.start_value  # never worse than where it started
+    assert [n for n, _ in snap.history] == sorted(n for n, _ in snap.history)
+    assert wait_until(lambda: _gone(pids), timeout=10)  # a finished search leaves no worker
+    panel.refresh()
+    assert "done" in panel.status.content and panel.progress.value == 100.0
+    assert len(panel.curve.data[0]) == len(snap.history) + 1
+    # the best plays in the preview, then becomes the edited gait, and Undo gives the library gait back
+    generation = app.loop.generation
+    panel._on_best(_click("Preview best"))
+    assert wait_until(lambda: app.loop.generation > generation, timeout=20)
+    assert to_dict(app.loop.gait) == to_dict(snap.best)
+    panel._on_best(_click("Adopt"))
+    assert to_dict(app.doc.gait()) == to_dict(snap.best)
+    assert "Tuned by" in app.doc.text()  # its provenance is in the file a download gives
+    app.editor.history("Undo")
+    assert to_dict(app.doc.gait()) == original
+
+
+def test_stopping_keeps_the_best_so_far_and_ends_the_workers(studio):
+    panel = studio.app.tuner
+    panel.free["period"].value = True
+    panel.budget.value = 400
+    panel.seconds.value = 2.0
+    run = panel.start(workers=2, popsize=4)
+    assert wait_until(lambda: run.snapshot().generations >= 1 and len(run.worker_pids()) == 2, timeout=90)
+    pids = run.worker_pids()
+    panel._on_control(_click("Stop"))
+    assert wait_until(lambda: not run.running, timeout=30)
+    snap = run.snapshot()
+    assert snap.state == "stopped" and snap.evaluations < 400
+    assert snap.best is not None  # the start at least (the library caterpillar is valid)
+    assert wait_until(lambda: _gone(pids), timeout=10)
+    assert "Tuned by" in run.provenance_text()
+
+
+def test_closing_the_studio_ends_a_running_search(studio):
+    panel = studio.app.tuner
+    panel.free["amplitude"].value = True
+    panel.budget.value = 400
+    run = panel.start(workers=2, popsize=4)
+    assert wait_until(lambda: len(run.worker_pids()) == 2, timeout=90)
+    pids = run.worker_pids()
+    panel.close()
+    assert not run.running
+    assert wait_until(lambda: _gone(pids), timeout=10)
+
+
+def test_a_bad_free_parameter_is_refused_before_anything_starts(studio):
+    panel = studio.app.tuner
+    with pytest.raises(ValueError, match="at least one free parameter"):
+        panel.start()
+    panel.other.value = "automata.nope.states[0].angle=-10:10"
+    with pytest.raises(ValueError, match="no automaton 'nope'"):
+        panel.start()
+    assert panel.run is None
+
+
+def test_the_ground_picker_runs_the_preview_on_that_ground(studio):
+    app = studio.app
+    generation = app.loop.generation
+    app.preview.ground.value = "slope:5"
+    assert wait_until(lambda: app.loop.generation > generation, timeout=20)
+    assert app.loop.terrain.spec.startswith("slope:angle=5")
+    assert app.loop.sim.model.opt.gravity[0] < -0.5  # tilted: uphill along +x
+    app.preview.refresh()
+    assert "on slope:angle=5" in app.preview.metrics.content
+    generation = app.loop.generation
+    app.preview.ground.value = "rough:seed=1,roughness=0.02"
+    assert wait_until(lambda: app.loop.generation > generation, timeout=20)
+    assert app.loop.sim.model.nhfield == 1
