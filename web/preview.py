@@ -25,6 +25,8 @@ from gaits.model import Gait
 from gaits.sim import Metrics, Simulation, select_modules
 from gaits.terrain import FLAT, Terrain
 
+from .ground import GroundView
+
 FRAME_RATE = 60.0
 """Recorded frames per simulated second: the timeline's resolution, and what the view draws at speed 1."""
 HISTORY_SECONDS = 300.0
@@ -322,6 +324,8 @@ class SceneView:
         self._draws = 0
         self.on_pick: Callable[[int], None] | None = None
         """Called with a module ID when the user clicks that module in the 3D view (on viser's thread pool)."""
+        self._terrain = GroundView(server)
+        """A rough ground, a step, patches: drawn from the preview's model (the flat floor is the grid)."""
         self._ground = server.scene.add_grid("/ground", width=4.0, height=4.0, cell_size=GRID_CELL, plane="xy")
         self._label = server.scene.add_label("/source", "PREVIEW", position=(0.0, 0.0, 0.25))
         self.set_rich(rich)
@@ -403,6 +407,7 @@ class SceneView:
             )  # fmt: skip
             self._batches.append((handle, ids))
             handle.on_click(lambda event, ids=ids, model=model: self._picked(model, ids, event.instance_index))
+        self._terrain.build(model if key[0] == "preview" else None)
         self._built = key
         self._drawn = None
 
@@ -457,6 +462,7 @@ class SceneView:
                 handle.batched_positions = (pos - shift).astype(np.float32)
                 handle.batched_wxyzs = wxyz.astype(np.float32)
             self._ground.position = (-(shift[0] % GRID_CELL), -(shift[1] % GRID_CELL), 0.0)
+            self._terrain.move(shift)
             if self._labels and self._draws % LABEL_EVERY == 0:
                 anchors = hinge_anchors(built, xpos, xquat, self._label_joints) - shift
                 for label, anchor in zip(self._labels, anchors, strict=True):

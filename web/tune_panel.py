@@ -75,7 +75,8 @@ class TunePanel:
         self.curve = gui.add_uplot(data=empty_plot(2),
                                    series=({"label": "simulations"}, {"label": "best so far", "stroke": "#1f77b4"}),
                                    title="Best so far", aspect=2.0, scales={"x": {"time": False}},
-                                   axes=({"label": "simulations"}, {"label": "objective"}))  # fmt: skip
+                                   axes=({"label": "simulations"}, {"label": "objective"}),
+                                   visible=False)  # fmt: skip
         self.best = gui.add_button_group("Best candidate", ["Preview best", "Adopt"])
         self.best.on_click(page.safe(self._on_best))
         self.best_line = gui.add_markdown("")
@@ -180,6 +181,7 @@ class TunePanel:
                 xs = np.array([0.0] + [float(n) for n, _ in points])
                 ys = np.array([points[0][1]] + [v for _, v in points])
                 self.curve.data = (xs, ys)
+                self.curve.visible = True  # shown from the first generation: an empty plot would draw a flat line
             if s.best is not None:
                 self.best_line.content = f"Best: {_values(run, s)}"
 

@@ -127,6 +127,10 @@ class TuneRun:
                 s.state = "stopped" if result.interrupted or self._stop.is_set() else "done"
                 s.best, s.values, s.value = result.best, list(result.values), result.value
                 s.evaluations = result.evaluations
+                if result.best is not None and result.verified:  # the longer check may have passed a leader over
+                    s.history.append((result.evaluations, result.value))
+                    s.line = (f"the best held every constraint over {self.setup.seconds * self.setup.verify:g} s "
+                              f"({result.verify_refused} better candidate(s) did not)")  # fmt: skip
                 if result.best is None:
                     s.line = "no candidate met the constraints"
                 s.version += 1

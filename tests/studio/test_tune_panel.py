@@ -117,3 +117,37 @@ def test_the_ground_picker_runs_the_preview_on_that_ground(studio):
     app.preview.ground.value = "rough:seed=1,roughness=0.02"
     assert wait_until(lambda: app.loop.generation > generation, timeout=20)
     assert app.loop.sim.model.nhfield == 1
+    assert wait_until(lambda: len(app.view._terrain.handles) == 1, timeout=20)  # the height field is drawn
+
+
+@pytest.mark.parametrize("spec", ["flat", "slope:5", "rough:seed=3,roughness=0.03", "step:0.04", "patches"])
+def test_the_view_draws_the_ground_the_model_has(spec):
+    from gaits.mjcf import build_mjcf
+    from gaits.model import LIBRARY, load
+    from gaits.terrain import parse
+    from web.ground import ground_meshes
+
+    terrain = parse(spec)
+    model = mujoco_model(build_mjcf(load(LIBRARY / "caterpillar.toml").robot, name="t", terrain=terrain))
+    meshes = ground_meshes(model)
+    if terrain.kind in ("flat", "slope"):
+        assert meshes == []  # the grid is the floor
+    elif terrain.kind == "rough":
+        ((vertices, faces, _),) = meshes
+        heights = terrain.elevations()
+        assert len(vertices) == heights.size and len(faces) == 2 * (heights.shape[0] - 1) ** 2
+        # the same bumps as the model's: highest at z = 0, as deep as the roughness
+        assert vertices[:, 2].max() == pytest.approx(0.0, abs=1e-3)
+        assert vertices[:, 2].max() - vertices[:, 2].min() == pytest.approx(0.03, abs=1e-3)
+    elif terrain.kind == "step":
+        ((vertices, _, _),) = meshes
+        assert len(vertices) == 4 * 8 and vertices[:, 2].max() == pytest.approx(0.04)
+    else:
+        slippery = int(terrain.tiles().sum())
+        assert sorted(len(v) // 8 for v, _, _ in meshes) == sorted([slippery, terrain.tiles().size - slippery])
+
+
+def mujoco_model(mjcf: str):
+    import mujoco
+
+    return mujoco.MjModel.from_xml_string(mjcf)
