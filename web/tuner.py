@@ -21,9 +21,9 @@ import time
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 
-from gaits.model import Gait, dumps
+from gaits.model import Gait
 from gaits.params import Free
-from gaits.tune import Result, Setup, _ignore_sigint, provenance, tune
+from gaits.tune import Result, Setup, ignore_sigint, tune, tuned_text
 
 
 @dataclass
@@ -62,7 +62,7 @@ class TuneRun:
         self._snapshot = Snapshot(budget=budget)
         self.workers = max(1, workers or os.cpu_count() or 1)
         self._pool = ProcessPoolExecutor(max_workers=self.workers, mp_context=multiprocessing.get_context("spawn"),
-                                         initializer=_ignore_sigint)  # fmt: skip
+                                         initializer=ignore_sigint)  # fmt: skip
         self._result: Result | None = None
         self._thread = threading.Thread(target=self._run, args=(popsize,), name="studio-tune", daemon=True)
         self._thread.start()
@@ -92,9 +92,8 @@ class TuneRun:
         if result is None or result.best is not s.best:  # stopped before tune() returned: say what is known
             result = Result(s.best, s.values, s.value, s.start_value, "", evaluations=s.evaluations,
                             interrupted=True)  # fmt: skip
-        header = provenance(result, self.frees, self.setup, budget=self.budget, seed=self.seed,
-                            source=f"the studio's {self.gait.name}")  # fmt: skip
-        return header + dumps(s.best)
+        return tuned_text(result, self.frees, self.setup, budget=self.budget, seed=self.seed,
+                          source=f"the studio's {self.gait.name}")  # fmt: skip
 
     def stop(self, timeout: float = 10.0) -> None:
         """End the search now, keeping the best so far: the workers are killed, the thread joined."""
