@@ -25,22 +25,29 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from gaits.model import LIBRARY, load
+from gaits.model import LIBRARY, Gait, load
 from gaits.params import parse_free
 from gaits.sim import Simulation
-from gaits.tune import Setup, tune
+from gaits.terrain import FLAT, Terrain, parse
+from gaits.tune import Setup, tune, tuned_text
 
 FREES = ["amplitude=20:85", "period=0.35:1.5", "wavelength=3:14"]
+TUNED = Path(__file__).resolve().parent.parent / "gaits" / "tuned"
+"""Where the tuned gaits are written (with their provenance): tests/gaits/test_tuned.py checks them."""
+ROUGH_TUNE = ("rough:seed=1", "rough:seed=2", "slope:5")
+"""The robust objective's grounds: the mean speed over two rough fields and a 5° slope uphill."""
+ROUGH_TEST = ("rough:seed=11", "rough:seed=12", "rough:seed=13", "slope:5")
+"""What the robust gait is judged on: rough fields it never saw (other seeds), and the slope."""
 
 
-def speed(gait) -> tuple[float, float]:
+def speed(gait: Gait, terrain: Terrain = FLAT) -> tuple[float, float]:
     """Speed (m/s) and peak torque over 10 s after 2 s of warm-up."""
-    with Simulation(gait) as sim:
+    with Simulation(gait, terrain=terrain) as sim:
         metrics = sim.run(10.0, warmup=2.0)
     return metrics.speed, metrics.peak_torque
 
 
-def tuned_ratio(budget: int, seconds: float) -> None:
+def tuned_ratio(budget: int, seconds: float) -> Path:
     library = load(LIBRARY / "caterpillar.toml")
     frees = [parse_free(text) for text in FREES]
     setup = Setup("speed", seconds=seconds, warmup=1.0)
@@ -58,6 +65,50 @@ def tuned_ratio(budget: int, seconds: float) -> None:
     print(f"# 10 s runs: library {base:.3f} m/s (peak {base_peak:.2f} N·m), tuned {best:.3f} m/s "
           f"(peak {best_peak:.2f} N·m)")  # fmt: skip
     print(f"ratio tuned_caterpillar_speed_vs_library {best / base:.2f} (target >= 1.5)")
+    path = TUNED / "caterpillar_flat.toml"
+    path.write_text(tuned_text(result, frees, setup, budget=budget, seed=1, source="caterpillar.toml"), "utf-8")
+    return path
+
+
+def rough_ratio(budget: int, seconds: float) -> None:
+    """Tuned for the mean speed over ROUGH_TUNE, then it and the library gait run 10 s (after 2 s) on each ground of
+    ROUGH_TEST: the ratio of their mean speeds. A tuned gait that falls or is stuck on an unseen field counts its
+    speed there as it is."""
+    library = load(LIBRARY / "caterpillar.toml")
+    frees = [parse_free(text) for text in FREES]
+    setup = Setup("speed", tuple(parse(t) for t in ROUGH_TUNE), seconds=seconds, warmup=1.0)
+    wall = time.perf_counter()
+    result = tune(library, frees, setup, budget=budget, seed=1, workers=2,
+                  progress=lambda _, line: print(f"#   {line}", flush=True))  # fmt: skip
+    wall = time.perf_counter() - wall
+    assert result.best is not None
+    values = ", ".join(f"{f.name} {v:g}" for f, v in zip(frees, result.values, strict=True))
+    print(f"# tuned for {', '.join(ROUGH_TUNE)} in {wall:.0f} s ({result.evaluations} candidates): {values}; "
+          f"scored {result.value:.3f} m/s")  # fmt: skip
+    base, best = [], []
+    for spec in ROUGH_TEST:
+        (b, _), (t, peak) = speed(library, parse(spec)), speed(result.best, parse(spec))
+        base.append(b)
+        best.append(t)
+        print(f"#   {spec}: library {b:.3f} m/s, tuned {t:.3f} m/s (peak {peak:.2f} N·m)")
+    ratio = sum(best) / sum(base)
+    print(f"ratio tuned_rough_speed_vs_library_rough {ratio:.2f} (target >= 1.3)", flush=True)
+    path = TUNED / "caterpillar_rough.toml"
+    path.write_text(tuned_text(result, frees, setup, budget=budget, seed=1, source="caterpillar.toml"), "utf-8")
+
+
+def live_ratio(path: Path) -> None:
+    """The tuned gait deployed on ``asm-robot --sim`` (its own process): metres in 10 s of wall time after 2 s, over
+    its preview's in 10 s of simulated time (bench/robot.py's measure)."""
+    from bench.robot import live_vs_preview
+
+    load_average = os.getloadavg()[0]
+    live, preview = live_vs_preview(path)
+    print(f"# {path.name}: live {live:.3f} m in 10 s of wall time, preview {preview:.3f} m in 10 s simulated (load "
+          f"average {load_average:.2f} before: a robot process behind the wall clock covers less)")  # fmt: skip
+    ratio = live / preview if preview > 0 else 0.0
+    print(f"ratio tuned_live_distance_vs_preview {ratio:.2f} (target >= 0.9)")
+    print(f"ratio tuned_live_distance_vs_preview {ratio:.2f} (target <= 1.1)", flush=True)
 
 
 def scaling(budget: int, seconds: float, rounds: int) -> None:
@@ -88,11 +139,16 @@ def main() -> None:
     cli = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
     cli.add_argument("--quick", action="store_true", help="smaller budgets and shorter simulations (under 2 minutes)")
     args = cli.parse_args()
+    TUNED.mkdir(exist_ok=True)
     if args.quick:
-        tuned_ratio(budget=150, seconds=3.0)
+        flat = tuned_ratio(budget=150, seconds=3.0)
+        rough_ratio(budget=60, seconds=3.0)
+        live_ratio(flat)
         scaling(budget=33, seconds=2.0, rounds=3)
     else:
-        tuned_ratio(budget=400, seconds=6.0)
+        flat = tuned_ratio(budget=400, seconds=6.0)
+        rough_ratio(budget=150, seconds=4.0)
+        live_ratio(flat)
         scaling(budget=49, seconds=4.0, rounds=3)
 
 
