@@ -1,7 +1,7 @@
 """The gait tuner (issue 30): how much faster it makes the library caterpillar, and how well its workers use the cores.
 
-    .venv/bin/python bench/tune.py            # about 3 minutes on 2 idle cores
-    .venv/bin/python bench/tune.py --quick    # under a minute on 2 idle cores
+    .venv/bin/python bench/tune.py            # about 8 minutes on 2 idle cores
+    .venv/bin/python bench/tune.py --quick    # about 4 minutes on 2 idle cores
 
 1. ``tuned_caterpillar_speed_vs_library``: gaits.tune.tune on the library caterpillar, three generator parameters
    free (amplitude 20-85°, period 0.35-1.5 s, wavelength 3-14 modules), speed on flat ground, the default
@@ -12,15 +12,28 @@
    second core doubles the rate). The final check's longer runs count as as many search runs as they last; the
    pool's start and the wait for a generation's slowest candidate count, as they do in a real run. Each round also
    says how busy the workers were and what share of the CPU they got: a miss caused by other processes on the
-   machine shows there, not in the tuner.
+   machine shows there, not in the tuner. ``tune_evals_per_s_vs_cores_dask``: the same against a local Dask cluster
+   of 1, then 2 worker processes (``gaits tune --scheduler``), the clusters started before the clock.
+3. ``tuned_rough_speed_vs_library_rough``: tuned as in 1 but for the mean speed over two rough fields (seeds 1, 2)
+   and a 5° slope (the robust objective); then the library gait and the tuned one run 10 s after 2 s on three rough
+   fields the search never saw (seeds 11-13) and the slope, and the ratio of their mean speeds is printed.
+4. ``tuned_live_distance_vs_preview``: the gait tuned in 1, deployed on ``asm-robot --sim`` in its own process:
+   metres in 10 s of wall time after 2 s over its preview's in 10 s simulated (bench/robot.py's measure).
+
+The tuned gaits are written to gaits/tuned/ with their provenance (tests/gaits/test_tuned.py checks that they run
+backwards with direction -1 and shrug off the 1 N push as the library gaits do).
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
+import logging
 import os
 import sys
 import time
+from collections.abc import Iterator
+from concurrent.futures import Executor
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
@@ -111,28 +124,53 @@ def live_ratio(path: Path) -> None:
     print(f"ratio tuned_live_distance_vs_preview {ratio:.2f} (target <= 1.1)", flush=True)
 
 
-def scaling(budget: int, seconds: float, rounds: int) -> None:
+def scaling(budget: int, seconds: float, rounds: int, *, dask: bool = False) -> None:
     """Rounds of 1 worker then 2, interleaved, the best rate of each: the other loads of a shared machine come and
-    go, and the load average is printed with every round so a miss shows whether the second core was free."""
+    go, and the load average is printed with every round so a miss shows whether the second core was free.
+
+    With ``dask`` the workers are a local Dask cluster's (gaits/distributed.py: a scheduler in this process, worker
+    processes of one thread each on 127.0.0.1), started before the clock and kept for every round, as an existing
+    cluster would be; the local pool's start counts, as it does in a run of ``gaits tune``."""
     library = load(LIBRARY / "caterpillar.toml")
     frees = [parse_free(text) for text in FREES]
     setup = Setup("speed", seconds=seconds, warmup=1.0)
     rates: dict[int, float] = {1: 0.0, 2: 0.0}
-    for _ in range(rounds):
-        for workers in (1, 2):
-            load_average = os.getloadavg()[0]
-            wall = time.perf_counter()
-            result = tune(library, frees, setup, budget=budget, seed=2, workers=workers, popsize=8)
-            wall = time.perf_counter() - wall
-            evaluations = result.simulated / (setup.warmup + setup.seconds)  # the final check's longer runs too
-            rate = evaluations / wall
-            rates[workers] = max(rates[workers], rate)
-            # busy: the workers' simulating time over workers × wall (the rest: pool start, generation barriers);
-            # cpu: the CPU time they got over that (the rest went to other processes on the machine)
-            print(f"#   {workers} worker(s): {evaluations:.0f} simulations' worth in {wall:.1f} s = {rate:.2f}/s, "
-                  f"workers busy {result.busy / (workers * wall):.0%}, with the CPU {result.cpu / result.busy:.0%} "
-                  f"of that (load average {load_average:.2f} before)")  # fmt: skip
-    print(f"ratio tune_evals_per_s_vs_cores {rates[2] / rates[1] / 2:.2f} (target >= 0.8)")
+    with contextlib.ExitStack() as stack:
+        executors = {n: stack.enter_context(_dask_cluster(n)) for n in (1, 2)} if dask else {}
+        for _ in range(rounds):
+            for workers in (1, 2):
+                load_average = os.getloadavg()[0]
+                wall = time.perf_counter()
+                result = tune(library, frees, setup, budget=budget, seed=2, workers=workers, popsize=8,
+                              executor=executors.get(workers))  # fmt: skip
+                wall = time.perf_counter() - wall
+                evaluations = result.simulated / (setup.warmup + setup.seconds)  # the final check's longer runs too
+                rate = evaluations / wall
+                rates[workers] = max(rates[workers], rate)
+                # busy: the workers' simulating time over workers × wall (the rest: pool start, generation barriers);
+                # cpu: the CPU time they got over that (the rest went to other processes on the machine)
+                print(f"#   {workers} {'Dask ' if dask else ''}worker(s): {evaluations:.0f} simulations' worth in "
+                      f"{wall:.1f} s = {rate:.2f}/s, workers busy {result.busy / (workers * wall):.0%}, with the CPU "
+                      f"{result.cpu / result.busy:.0%} of that (load average {load_average:.2f} before)")  # fmt: skip
+    name = "tune_evals_per_s_vs_cores_dask" if dask else "tune_evals_per_s_vs_cores"
+    print(f"ratio {name} {rates[2] / rates[1] / 2:.2f} (target >= 0.8)", flush=True)
+
+
+@contextlib.contextmanager
+def _dask_cluster(workers: int) -> Iterator[Executor]:
+    from distributed import LocalCluster
+
+    from gaits.distributed import dask_executor
+
+    cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
+                           scheduler_port=0, dashboard_address="127.0.0.1:0", worker_dashboard_address="127.0.0.1:0",
+                           silence_logs=logging.ERROR)  # fmt: skip
+    try:
+        with dask_executor(cluster.scheduler_address) as (executor, width):
+            assert width == workers
+            yield executor
+    finally:
+        cluster.close()
 
 
 def main() -> None:
@@ -145,11 +183,13 @@ def main() -> None:
         rough_ratio(budget=60, seconds=3.0)
         live_ratio(flat)
         scaling(budget=33, seconds=2.0, rounds=3)
+        scaling(budget=33, seconds=2.0, rounds=3, dask=True)
     else:
         flat = tuned_ratio(budget=400, seconds=6.0)
-        rough_ratio(budget=150, seconds=4.0)
+        rough_ratio(budget=90, seconds=4.0)
         live_ratio(flat)
         scaling(budget=49, seconds=4.0, rounds=3)
+        scaling(budget=49, seconds=4.0, rounds=3, dask=True)
 
 
 if __name__ == "__main__":
