@@ -18,7 +18,7 @@ _CORNERS = np.array([[sx, sy, sz] for sz in (-1, 1) for sy in (-1, 1) for sx in 
 _BOX = np.array([[0, 2, 1], [1, 2, 3], [4, 5, 6], [5, 7, 6], [0, 1, 4], [1, 5, 4],
                  [2, 6, 3], [3, 6, 7], [0, 4, 2], [2, 4, 6], [1, 3, 5], [3, 7, 5]])  # fmt: skip
 MAX_SLAB = 5.0
-"""Half-length drawn of a ground box at most (m): a step's slabs are 50 m long in the model, beyond any view."""
+"""A ground box is drawn within ±MAX_SLAB m of the start (a step's slabs are 100 m long in the model)."""
 
 Mesh = tuple[np.ndarray, np.ndarray, tuple[int, int, int]]
 """Vertices, faces, colour."""
@@ -37,14 +37,28 @@ def ground_meshes(model: mujoco.MjModel) -> list[Mesh]:
         if model.geom_type[g] == mujoco.mjtGeom.mjGEOM_HFIELD:
             meshes.append((*_hfield(model, int(model.geom_dataid[g]), pos), rgb))
         elif model.geom_type[g] == mujoco.mjtGeom.mjGEOM_BOX:
-            half = np.minimum(np.array(model.geom_size[g], dtype=float), MAX_SLAB)
-            centre = pos.copy()
-            centre[:2] = np.clip(centre[:2], -MAX_SLAB, MAX_SLAB)
-            boxes.setdefault(rgb, []).append(centre + _CORNERS * half)
+            size = np.array(model.geom_size[g], dtype=float)
+            low, high = pos - size, pos + size
+            low[:2], high[:2] = np.maximum(low[:2], -MAX_SLAB), np.minimum(high[:2], MAX_SLAB)  # its part in view
+            boxes.setdefault(rgb, []).append((low + high) / 2 + _CORNERS * (high - low) / 2)
     for rgb, corners in boxes.items():
         faces = np.concatenate([_BOX + 8 * k for k in range(len(corners))])
         meshes.append((np.concatenate(corners), faces, rgb))
     return meshes
+
+
+def covers_start(model: mujoco.MjModel) -> bool:
+    """A height field or a box of the ground lies under the start (the origin)."""
+    for g in range(model.ngeom):
+        if int(model.geom_bodyid[g]) != 0:
+            continue
+        if model.geom_type[g] == mujoco.mjtGeom.mjGEOM_HFIELD:
+            return True
+        if model.geom_type[g] == mujoco.mjtGeom.mjGEOM_BOX:
+            pos, size = model.geom_pos[g], model.geom_size[g]
+            if abs(float(pos[0])) < float(size[0]) and abs(float(pos[1])) < float(size[1]):
+                return True
+    return False
 
 
 def _hfield(model: mujoco.MjModel, index: int, pos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -66,11 +80,15 @@ class GroundView:
     def __init__(self, server: viser.ViserServer) -> None:
         self.server = server
         self.handles: list[Any] = []
+        self.covers_start = False
+        """A mesh lies under the robot's start (a rough field, tiles): the view hides its grid, which would cut
+        through the bumps and flicker against the tiles' tops."""
 
     def build(self, model: mujoco.MjModel | None) -> None:
         for handle in self.handles:
             handle.remove()
         meshes = ground_meshes(model) if model is not None else []
+        self.covers_start = model is not None and covers_start(model)
         scene = self.server.scene
         self.handles = [scene.add_mesh_simple(f"/terrain/part{k}", vertices.astype(np.float32), faces.astype(np.uint32),
                                               color=rgb, flat_shading=True, side="double")

@@ -408,6 +408,7 @@ class SceneView:
             self._batches.append((handle, ids))
             handle.on_click(lambda event, ids=ids, model=model: self._picked(model, ids, event.instance_index))
         self._terrain.build(model if key[0] == "preview" else None)
+        self._ground.visible = not self._terrain.covers_start
         self._built = key
         self._drawn = None
 

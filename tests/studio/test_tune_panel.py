@@ -7,6 +7,7 @@ from __future__ import annotations
 from pathlib import Path
 from types import SimpleNamespace
 
+import numpy as np
 import pytest
 
 from gaits.model import to_dict
@@ -118,6 +119,9 @@ def test_the_ground_picker_runs_the_preview_on_that_ground(studio):
     assert wait_until(lambda: app.loop.generation > generation, timeout=20)
     assert app.loop.sim.model.nhfield == 1
     assert wait_until(lambda: len(app.view._terrain.handles) == 1, timeout=20)  # the height field is drawn
+    assert not app.view._ground.visible  # instead of the grid
+    app.preview.ground.value = "step:0.03"
+    assert wait_until(lambda: len(app.view._terrain.handles) == 1 and app.view._ground.visible, timeout=20)
 
 
 @pytest.mark.parametrize("spec", ["flat", "slope:5", "rough:seed=3,roughness=0.03", "step:0.04", "patches"])
@@ -142,6 +146,9 @@ def test_the_view_draws_the_ground_the_model_has(spec):
     elif terrain.kind == "step":
         ((vertices, _, _),) = meshes
         assert len(vertices) == 4 * 8 and vertices[:, 2].max() == pytest.approx(0.04)
+        # the pit is 2 × 0.3 m wide: its inner edges are drawn where the model has them
+        assert sorted(set(np.round(np.abs(vertices[:, 0]), 3))) == [0.3, 5.0]
+        assert sorted(set(np.round(np.abs(vertices[:, 1]), 3))) == [0.3, 5.0]
     else:
         slippery = int(terrain.tiles().sum())
         assert sorted(len(v) // 8 for v, _, _ in meshes) == sorted([slippery, terrain.tiles().size - slippery])
