@@ -167,6 +167,8 @@ class Result:
     interrupted: bool = False
     history: list[float] = field(default_factory=list)
     """The best objective after each generation."""
+    samples: list[tuple[list[float], float]] = field(default_factory=list)
+    """Every candidate searched: its free values and its objective (NaN when refused), in the order asked."""
     refused_value: float = math.nan
     """The best objective among the candidates refused for a constraint (what keeping the constraints cost)."""
     verified: bool = False
@@ -244,6 +246,7 @@ def tune(gait: Gait, frees: list[Free], setup: Setup, *, budget: int = 60, seed:
                 else:
                     result.rejected += 1
             for values, doc, outcome in zip(candidates, documents, outcomes, strict=True):
+                result.samples.append((values, outcome.value if outcome.feasible else math.nan))
                 if not outcome.feasible:
                     result.rejected += 1
                     if not math.isnan(outcome.value) and not sign * outcome.value <= sign * result.refused_value:

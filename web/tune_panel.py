@@ -77,6 +77,9 @@ class TunePanel:
                                    title="Best so far", aspect=2.0, scales={"x": {"time": False}},
                                    axes=({"label": "simulations"}, {"label": "objective"}),
                                    visible=False)  # fmt: skip
+        self.by_parameter = gui.add_folder("Objective against each free parameter", expand_by_default=False)
+        self.scatters: dict[str, Any] = {}
+        """One plot per free parameter of the run: every valid candidate's objective against its value."""
         self.best = gui.add_button_group("Best candidate", ["Preview best", "Adopt"])
         self.best.on_click(page.safe(self._on_best))
         self.best_line = gui.add_markdown("")
@@ -118,6 +121,7 @@ class TunePanel:
                                workers=workers, popsize=popsize)  # fmt: skip
             self._shown = (-1, -1)
             run = self.run
+            self._plot_parameters(frees)
         grounds = ", ".join(t.spec for t in setup.terrains)
         self.page.notify("Tuning", f"{len(frees)} free, {setup.objective} on {grounds}, budget {run.budget}, "
                          f"{run.workers} worker(s)")  # fmt: skip
@@ -149,6 +153,20 @@ class TunePanel:
                              "previews the edited gait again")  # fmt: skip
         else:
             self.page.emit("adopt", snapshot.best, run.provenance_text())
+
+    def _plot_parameters(self, frees: list[Free]) -> None:
+        for handle in self.scatters.values():
+            handle.remove()
+        self.scatters = {}
+        with self.by_parameter:
+            for free in frees:
+                self.scatters[free.name] = self.page.gui.add_uplot(
+                    data=empty_plot(2), title=f"objective against {free.name}", aspect=2.0, visible=False,
+                    series=({"label": free.name}, {"label": "objective", "stroke": "rgba(0,0,0,0)",
+                                                   "points": {"show": True, "size": 5, "stroke": "#1f77b4",
+                                                              "fill": "#1f77b4"}}),
+                    scales={"x": {"time": False}}, axes=({"label": free.name}, {"label": "objective"}),
+                )  # fmt: skip
 
     def close(self) -> None:
         """The studio closes: the search and its workers end."""
@@ -184,6 +202,18 @@ class TunePanel:
                 self.curve.visible = True  # shown from the first generation: an empty plot would draw a flat line
             if s.best is not None:
                 self.best_line.content = f"Best: {_values(run, s)}"
+            self._scatter(run, s)
+
+    def _scatter(self, run: TuneRun, s: Snapshot) -> None:
+        """Each free parameter's plot: the valid candidates' objective against its value (sorted: uPlot's x)."""
+        valid = [(values, value) for values, value in s.samples if not math.isnan(value)]
+        for k, free in enumerate(run.frees):
+            handle = self.scatters.get(free.name)
+            if handle is None or len(valid) < 2:
+                continue
+            points = sorted((values[k], value) for values, value in valid)
+            handle.data = (np.array([x for x, _ in points]), np.array([y for _, y in points]))
+            handle.visible = True
 
 
 def _values(run: TuneRun, snapshot: Snapshot) -> str:

@@ -45,6 +45,8 @@ class Snapshot:
     """running, done, stopped or failed."""
     version: int = 0
     """Incremented with every change: the page redraws only what changed."""
+    samples: list[tuple[list[float], float]] = field(default_factory=list)
+    """Every candidate's free values and objective (NaN: refused)."""
 
 
 class TuneRun:
@@ -71,7 +73,7 @@ class TuneRun:
         with self._lock:
             s = self._snapshot
             return Snapshot(s.evaluations, s.budget, s.generations, list(s.history), s.best, list(s.values), s.value,
-                            s.start_value, s.line, s.running, s.state, s.version)  # fmt: skip
+                            s.start_value, s.line, s.running, s.state, s.version, list(s.samples))  # fmt: skip
 
     @property
     def running(self) -> bool:
@@ -145,6 +147,7 @@ class TuneRun:
             if result.best is not None:
                 s.best, s.values, s.value = result.best, list(result.values), result.value
             s.history.append((result.evaluations, result.value))
+            s.samples = list(result.samples)
             s.version += 1
         if self._stop.is_set():
             raise KeyboardInterrupt  # tune() keeps its best so far and returns

@@ -54,6 +54,12 @@ def test_a_search_from_the_page_improves_previews_adopts_and_undoes(studio):
     panel.refresh()
     assert "done" in panel.status.content and panel.progress.value == 100.0
     assert len(panel.curve.data[0]) == len(snap.history) + 1
+    # the objective against each free parameter: every valid candidate, at the value it had
+    valid = [(values, value) for values, value in snap.samples if value == value]
+    assert len(snap.samples) == 11 and len(valid) >= 2  # the search's candidates (the start is not one)
+    assert set(panel.scatters) == {"amplitude", "period"} and panel.scatters["period"].visible
+    xs, ys = panel.scatters["period"].data
+    assert sorted(zip(xs.tolist(), ys.tolist(), strict=True)) == sorted((v[1], y) for v, y in valid)
     # the best plays in the preview, then becomes the edited gait, and Undo gives the library gait back
     generation = app.loop.generation
     panel._on_best(_click("Preview best"))
