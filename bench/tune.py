@@ -164,7 +164,7 @@ def _dask_cluster(workers: int) -> Iterator[Executor]:
 
     cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
                            scheduler_port=0, dashboard_address="127.0.0.1:0", worker_dashboard_address="127.0.0.1:0",
-                           silence_logs=logging.ERROR)  # fmt: skip
+                           silence_logs=logging.WARNING)  # fmt: skip
     try:
         with dask_executor(cluster.scheduler_address) as (executor, width):
             assert width == workers
