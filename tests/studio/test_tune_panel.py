@@ -122,12 +122,12 @@ def test_the_ground_picker_runs_the_preview_on_that_ground(studio):
     assert "on slope:angle=5" in app.preview.metrics.content
     generation = app.loop.generation
     app.preview.ground.value = "rough:seed=1,roughness=0.02"
-    assert wait_until(lambda: app.loop.generation > generation, timeout=20)
+    assert wait_until(lambda: app.loop.generation > generation, timeout=30)
     assert app.loop.sim.model.nhfield == 1
-    assert wait_until(lambda: len(app.view._terrain.handles) == 1, timeout=20)  # the height field is drawn
-    assert not app.view._ground.visible  # instead of the grid
+    # the height field is drawn instead of the grid (the draw thread builds one, then hides the other)
+    assert wait_until(lambda: len(app.view._terrain.handles) == 1 and not app.view._ground.visible, timeout=30)
     app.preview.ground.value = "step:0.03"
-    assert wait_until(lambda: len(app.view._terrain.handles) == 1 and app.view._ground.visible, timeout=20)
+    assert wait_until(lambda: len(app.view._terrain.handles) == 1 and app.view._ground.visible, timeout=30)
 
 
 @pytest.mark.parametrize("spec", ["flat", "slope:5", "rough:seed=3,roughness=0.03", "step:0.04", "patches"])
