@@ -25,6 +25,7 @@ import viser
 
 from asm_module.feed import RobotStatus
 from gaits.model import Gait
+from gaits.terrain import FLAT, Terrain
 
 from .document import GaitDocument
 from .link import RobotLink
@@ -64,8 +65,8 @@ class Backend(Protocol):
         """The robots on the network now."""
         ...
 
-    def ensure_robot(self, gait: Gait) -> str | None:
-        """Make a simulated robot the one ``gait`` describes; a message when it was rebuilt."""
+    def ensure_robot(self, gait: Gait, terrain: Terrain = FLAT) -> str | None:
+        """Make a simulated robot the one ``gait`` describes, on ``terrain``; a message when it was rebuilt."""
         ...
 
     def on_notice(self, callback: Callable[[str, str, bool], None]) -> None:
@@ -124,8 +125,9 @@ class Page:
         return self._backend.robots()
 
     def ensure_robot(self, gait: Gait) -> str | None:
-        """Make a simulated robot the one ``gait`` describes; a message when it was rebuilt."""
-        return self._backend.ensure_robot(gait)
+        """Make a simulated robot the one ``gait`` describes, on the preview's ground (the Preview tab's picker);
+        a message when it was rebuilt."""
+        return self._backend.ensure_robot(gait, self.loop.terrain)
 
     # -- events between panels ------------------------------------------------------------------------------------
 

@@ -164,3 +164,18 @@ def mujoco_model(mjcf: str):
     import mujoco
 
     return mujoco.MjModel.from_xml_string(mjcf)
+
+
+def test_the_simulated_robot_is_rebuilt_on_the_previews_ground_at_a_deploy(studio):
+    """The Preview tab's ground is the simulated robot's too: staging a deploy rebuilds the robot child on it."""
+    app = studio.app
+    gait = app.doc.gait()
+    assert studio.ensure_robot(gait) is None  # the same gait on the same (flat) ground: nothing to rebuild
+    app.preview.ground.value = "slope:5"
+    assert wait_until(lambda: app.loop.terrain.kind == "slope", timeout=30)
+    said = app.page.ensure_robot(gait)
+    assert said is not None and "rebuilt on slope:angle=5" in said
+    assert studio.robot_terrain == app.loop.terrain
+    args = studio.child.args  # the robot process started (READY) with the preview's ground
+    assert args[args.index("--terrain") + 1] == app.loop.terrain.spec
+    assert app.page.ensure_robot(gait) is None  # and it stays there
