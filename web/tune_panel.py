@@ -68,7 +68,7 @@ class TunePanel:
         self.budget = gui.add_number("Budget (simulations)", initial_value=60, min=4, max=100_000, step=1)
         self.seconds = gui.add_number("Seconds per candidate", initial_value=3.0, min=0.5, max=60.0, step=0.5)
         self.seed = gui.add_number("Seed", initial_value=1, min=0, max=2**31 - 1, step=1)
-        self.control = gui.add_button_group("Tuning", ["Start", "Stop"])
+        self.control = gui.add_button_group("Tuning", ["Start tuning", "Stop tuning"])
         self.control.on_click(page.safe(self._on_control))
         self.progress = gui.add_progress_bar(0.0)
         self.status = gui.add_markdown("Not tuning.")
@@ -103,7 +103,7 @@ class TunePanel:
         return Setup(str(self.objective.value), tuple(terrains), seconds=float(self.seconds.value), warmup=1.0)
 
     def _on_control(self, event: Any) -> None:
-        if event.target.value == "Start":
+        if event.target.value == "Start tuning":
             self.start()
         else:
             self.stop()

@@ -37,7 +37,7 @@ def test_a_user_tunes_the_gait_previews_the_best_adopts_it_and_undoes(studio_pro
             field.press("Enter")
         curve = page.locator(".uplot", has=page.locator(".u-title", has_text="Best so far"))
         expect(curve).to_have_count(0)  # no curve before a search
-        page.get_by_role("button", name="Start", exact=True).locator("visible=true").click()
+        page.get_by_role("button", name="Start tuning").click()  # not the Deploy tab's Start
         # the search shows while it runs, then ends within its budget
         expect(page.get_by_text(re.compile(r"running: [1-9]\d* of 16 simulations"))).to_be_visible(timeout=90_000)
         page.screenshot(path=str(ARTIFACTS / "tune_running.png"))

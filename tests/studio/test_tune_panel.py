@@ -80,7 +80,7 @@ def test_stopping_keeps_the_best_so_far_and_ends_the_workers(studio):
     run = panel.start(workers=2, popsize=4)
     assert wait_until(lambda: run.snapshot().generations >= 1 and len(run.worker_pids()) == 2, timeout=90)
     pids = run.worker_pids()
-    panel._on_control(_click("Stop"))
+    panel._on_control(_click("Stop tuning"))
     assert wait_until(lambda: not run.running, timeout=30)
     snap = run.snapshot()
     assert snap.state == "stopped" and snap.evaluations < 400
