@@ -5,7 +5,8 @@ gaits expand FILE [--samples 16]
 gaits simulate FILE [--seconds 10] [--warmup 2] [--direction -1] [--push-at 6] [--mjcf OUT.xml] [--terrain SPEC]…
                                run it in MuJoCo (headless, on the modules' own runtime) and print the metrics,
                                once per terrain (gaits/terrain.py: flat, slope:5, step:0.03, rough:seed=3, …)
-gaits tune FILE --free NAME=LOW:HIGH… [--objective speed] [--budget 60] [--seed 1] [--terrain SPEC]… [--out FILE]
+gaits tune FILE --free NAME=LOW:HIGH… [--objective speed] [--budget 60] [--seed 1] [--terrain SPEC]…
+           [--scheduler tcp://HOST:PORT] [--out FILE]
                                search the free parameters with CMA-ES in simulation (gaits/tune.py)
 """
 
@@ -83,6 +84,9 @@ def main(argv: list[str] | None = None) -> int:
         metavar="NAME",
         help="the program gait to simulate: forward (default) or one of the file's [gaits], e.g. left",
     )
+    tune.add_argument("--scheduler", metavar="ADDRESS", default=None,
+                      help="run the simulations on the Dask distributed scheduler at ADDRESS (tcp://HOST:PORT) "
+                      "instead of local worker processes (gaits/distributed.py)")  # fmt: skip
     tune.add_argument("--out", type=output_file, metavar="OUT.toml", help="the tuned gait (default: FILE.tuned.toml)")
     args = cli.parse_args(argv)
     if args.command == "simulate":

@@ -4,8 +4,8 @@ A library gait is a starting point, not the best gait for this robot on this flo
 parameters (gaits/params.py: a state's angle or duration, a module's phase, the generator's amplitude, period,
 wavelength) with CMA-ES (the ``cma`` package, ask/tell), in a box normalised to [0, 1] per parameter. Every
 candidate is a whole gait file, checked by the loader (joint limits among the rest) and run by the modules' own
-automata in gaits.sim.Simulation on every terrain asked for, in worker processes (one per core by default): what
-is scored is exactly what a robot would run.
+automata in gaits.sim.Simulation on every terrain asked for, in worker processes (one per core by default) or on a
+Dask cluster (gaits/distributed.py, ``--scheduler``): what is scored is exactly what a robot would run.
 
 Constraints are never traded against the objective: a candidate whose file is invalid, whose simulation diverges,
 whose peak torque (warm-up included) exceeds the limit or that falls is scored far above any valid one (its
@@ -143,7 +143,7 @@ def _evaluate_job(job: tuple[dict[str, Any], Setup]) -> Outcome:
     return outcome
 
 
-def _ignore_sigint() -> None:
+def ignore_sigint() -> None:
     """Workers leave Ctrl-C to the parent, which stops the search and keeps the best so far."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
 
@@ -167,6 +167,8 @@ class Result:
     interrupted: bool = False
     history: list[float] = field(default_factory=list)
     """The best objective after each generation."""
+    samples: list[tuple[list[float], float]] = field(default_factory=list)
+    """Every candidate searched: its free values and its objective (NaN when refused), in the order asked."""
     refused_value: float = math.nan
     """The best objective among the candidates refused for a constraint (what keeping the constraints cost)."""
     verified: bool = False
@@ -207,7 +209,7 @@ def tune(gait: Gait, frees: list[Free], setup: Setup, *, budget: int = 60, seed:
     if len(x0) == 1:  # cma searches 2 or more dimensions: one free parameter gets a dummy one, ignored
         x0 = np.append(x0, 0.5)
     own = executor is None
-    pool = executor or ProcessPoolExecutor(max_workers=workers or os.cpu_count() or 1, initializer=_ignore_sigint)
+    pool = executor or ProcessPoolExecutor(max_workers=workers or os.cpu_count() or 1, initializer=ignore_sigint)
     result = Result(None, [], math.nan, math.nan, "")
     sign = OBJECTIVES[setup.objective][0]
     order = itertools.count()
@@ -244,6 +246,7 @@ def tune(gait: Gait, frees: list[Free], setup: Setup, *, budget: int = 60, seed:
                 else:
                     result.rejected += 1
             for values, doc, outcome in zip(candidates, documents, outcomes, strict=True):
+                result.samples.append((values, outcome.value if outcome.feasible else math.nan))
                 if not outcome.feasible:
                     result.rejected += 1
                     if not math.isnan(outcome.value) and not sign * outcome.value <= sign * result.refused_value:
@@ -331,6 +334,13 @@ def provenance(result: Result, frees: list[Free], setup: Setup, *, budget: int, 
     return "".join(f"# {line}\n" for line in lines)
 
 
+def tuned_text(result: Result, frees: list[Free], setup: Setup, *, budget: int, seed: int, source: str) -> str:
+    """The tuned gait file: its provenance in comments, then the best gait, described by what it was tuned for."""
+    assert result.best is not None
+    header = provenance(result, frees, setup, budget=budget, seed=seed, source=source)
+    return header + dumps(replace(result.best, description=_described(result, setup)))
+
+
 def _amount(value: float, setup: Setup) -> str:
     unit = OBJECTIVES[setup.objective][1]
     return f"{value:.4g} {unit}" if unit else f"{value:.4g}"
@@ -360,8 +370,22 @@ def command(args: argparse.Namespace) -> int:
     out = Path(args.out) if args.out else Path(Path(args.file).stem + ".tuned.toml")  # here, not beside the library
     print(f"tuning {gait.name}: {len(frees)} free, {args.objective}, budget {args.budget}, seed {args.seed}",
           file=sys.stderr)  # fmt: skip
-    result = tune(gait, frees, setup, budget=args.budget, seed=args.seed, workers=args.workers,
-                  progress=lambda _, line: print(line, file=sys.stderr, flush=True))  # fmt: skip
+    progress: Progress = lambda _, line: print(line, file=sys.stderr, flush=True)  # noqa: E731
+    if args.scheduler:
+        from .distributed import dask_executor
+
+        try:
+            with dask_executor(args.scheduler) as (executor, width):
+                print(f"evaluating on the Dask scheduler at {args.scheduler}: {width} worker thread(s)",
+                      file=sys.stderr)  # fmt: skip
+                result = tune(gait, frees, setup, budget=args.budget, seed=args.seed, workers=width,
+                              progress=progress, executor=executor)  # fmt: skip
+        except (OSError, RuntimeError) as exc:
+            print(f"gaits tune: error: the Dask scheduler at {args.scheduler}: {exc}", file=sys.stderr)
+            return 1
+    else:
+        result = tune(gait, frees, setup, budget=args.budget, seed=args.seed, workers=args.workers,
+                      progress=progress)  # fmt: skip
     if result.interrupted:
         print("interrupted: keeping the best so far", file=sys.stderr)
     elif result.verify_refused:
@@ -370,7 +394,7 @@ def command(args: argparse.Namespace) -> int:
     if result.best is None:
         print("gaits tune: error: no candidate met the constraints; nothing written", file=sys.stderr)
         return 1
-    header = provenance(result, frees, setup, budget=args.budget, seed=args.seed, source=Path(args.file).name)
-    out.write_text(header + dumps(replace(result.best, description=_described(result, setup))), encoding="utf-8")
+    out.write_text(tuned_text(result, frees, setup, budget=args.budget, seed=args.seed, source=Path(args.file).name),
+                   encoding="utf-8")  # fmt: skip
     print(f"{args.objective} {_amount(result.value, setup)} (start {result.start_value:.4g}); written to {out}")
     return 130 if result.interrupted else 0

@@ -46,6 +46,7 @@ from asm_py.cli import (
 from asm_py.keys import ALL_ROBOTS, DEFAULT_ROBOT, robot_of
 from asm_py.transport.zenoh import NameTaken
 from gaits.model import LIBRARY, Gait, dumps, loads
+from gaits.terrain import FLAT, Terrain
 from gaits.validate import read
 
 from .child import Child, ChildError
@@ -121,6 +122,8 @@ class Studio:
         self.own_robot: str | None = None
         """The name of the robot this studio started (and restarts should it die); None when attached."""
         self.robot_gait: Gait | None = None
+        self.robot_terrain: Terrain = FLAT
+        """The ground the simulated robot stands on (the preview's, taken at a deploy)."""
         """The gait whose robot the simulated child runs (None when the robot is not ours to rebuild)."""
         self.session: zenoh.Session | None = None
         self.app: Any = None
@@ -174,6 +177,8 @@ class Studio:
             args += ["--sim", str(self._gait_file)]
             if options.c_modules:
                 args += ["--c-modules", options.c_modules]
+            if self.robot_terrain != FLAT:
+                args += ["--terrain", self.robot_terrain.spec]
             self.robot_gait = gait
         network = options.network
         if network.mode == "peer":  # a private loopback endpoint for this studio, beside any the user gave
@@ -273,9 +278,10 @@ class Studio:
             self._notice("Robot restarted", "the simulated robot is back, its modules holding 0°: deploy a gait "
                          "to run one")  # fmt: skip
 
-    def ensure_robot(self, gait: Gait) -> str | None:
-        """Make the simulated robot the one ``gait`` describes (a new child when it differs); a message saying what
-        changed, or None. On a robot that is not ours to rebuild, ValueError when the module counts differ."""
+    def ensure_robot(self, gait: Gait, terrain: Terrain = FLAT) -> str | None:
+        """Make the simulated robot the one ``gait`` describes, on ``terrain`` (the preview's ground: a new child
+        when either differs); a message saying what changed, or None. On a robot that is not ours to rebuild,
+        ValueError when the module counts differ."""
         running = self.robot_gait
         if running is None or self.app is None or self.app.link.robot != self.own_robot:
             status = self.app.link.status if self.app is not None else None
@@ -283,14 +289,18 @@ class Studio:
             if modules and modules != gait.robot.modules:
                 raise ValueError(f"the robot has {modules} modules; this gait needs {gait.robot.modules}")
             return None
-        if (gait.robot, gait.ground, gait.limits) == (running.robot, running.ground, running.limits):
+        same = (gait.robot, gait.ground, gait.limits) == (running.robot, running.ground, running.limits)
+        if same and terrain == self.robot_terrain:
             return None
-        before = running.robot.modules
+        before, ground = running.robot.modules, self.robot_terrain
         with self._child_lock:
             assert self.child is not None
             self.child.stop()
+            self.robot_terrain = terrain
             self.child = RobotChild(self._robot_args(gait))
-        return f"simulated robot rebuilt: {before} → {gait.robot.modules} modules"
+        if same:
+            return f"simulated robot rebuilt on {terrain.spec} (was {ground.spec})"
+        return f"simulated robot rebuilt: {before} → {gait.robot.modules} modules on {terrain.spec}"
 
     @property
     def simulated(self) -> bool:

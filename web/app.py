@@ -2,7 +2,8 @@
 
 Layout: the side panel (docked right) starts with the robot bar — E-STOP, its release, the status line, the robots
 of the network and what the 3D view shows (web/robot_bar.py) — then tabs: Gait (web/editor.py), Preview
-(web/preview_panel.py), Deploy (web/deploy_panel.py), Drive (web/drive.py), Monitor (web/monitor_panel.py). A
+(web/preview_panel.py), Deploy (web/deploy_panel.py), Drive (web/drive.py), Monitor (web/monitor_panel.py), Tune
+(web/tune_panel.py: the search for a better gait, in worker processes). A
 second panel over the 3D view's lower left shows the plots and the gait control table. No dialog ever covers the
 E-STOP: confirmations are rows of the panel (web/confirm.py), and Escape presses E-STOP from anywhere
 (web/page_script.py).
@@ -35,6 +36,7 @@ from .page import Backend, Page
 from .preview import PreviewLoop, SceneView
 from .preview_panel import PreviewPanel
 from .robot_bar import RobotBar
+from .tune_panel import TunePanel
 
 __all__ = ["Backend", "Dashboard"]
 
@@ -120,11 +122,14 @@ class Dashboard:
             self.drive = DrivePanel(page)
         with tabs.add_tab("Monitor"):
             self.monitor = MonitorPanel(page, plots_tab)
+        with tabs.add_tab("Tune"):
+            self.tuner = TunePanel(page)
         page.on("attach", self.attach)
         page.on("show", self.show)
         page.on("deployed", lambda gait: self.show("live"))
         page.on("plotted", self.panel.expand)
         page.on("pick", lambda module_id: setattr(page.status, "content", f"Selected module {module_id}"))
+        page.on("adopt", self.adopt)
         self._build_keys()
         self.editor.sync()
 
@@ -146,6 +151,12 @@ class Dashboard:
         for label, key, modifier, action in keys:
             add(label, key, action, modifier)
         self.drive.bind_keys(add)  # the arrow keys drive
+
+    def adopt(self, gait: Any, text: str) -> None:
+        """A tuned gait becomes the edited one: one undo step, its file's comments (its provenance) kept."""
+        self.doc.replace(gait, text=text)
+        self.editor.after_edit()
+        self.page.notify("Adopted", f"the tuned {gait.name} is the edited gait (Undo gives the previous one back)")
 
     # -- which robot, which view ----------------------------------------------------------------------------------
 
@@ -217,6 +228,7 @@ class Dashboard:
         watched = self.watched()
         if watched:
             self.preview.refresh()
+            self.tuner.refresh()
         loop = self.loop
         with self.page.programmatic():
             self.drive.sync(loop.gait)
@@ -233,6 +245,7 @@ class Dashboard:
         self.bar.close()
         self.deployer.close()
         self.monitor.close()
+        self.tuner.close()
         self.link.close()
         self.loop.close()
         self.server.stop()

@@ -3,8 +3,9 @@ broadcast when the user says Start — all or nothing (gaits/deploy.py) — and 
 
 The deploy lease is held from staging until Start (or Cancel, or the question expiring), so no other deployer can
 stage or start meanwhile; the tab says who holds the robot's lease when it is not this page. On a simulated robot
-the robot first becomes the edited gait's robot; on a real bus the user confirms first, told which modules on the
-bus are not in the gait. Questions are rows of the tab, never a dialog over the E-STOP (web/confirm.py)."""
+the robot first becomes the edited gait's robot; on a real bus the user confirms first, told how the robot differs
+from the gait's (gaits/compatible.py: modules missing or not in the gait, joint limits that would clamp it, a joint
+of another module type). Questions are rows of the tab, never a dialog over the E-STOP (web/confirm.py)."""
 
 from __future__ import annotations
 
@@ -14,6 +15,7 @@ import time
 from typing import TYPE_CHECKING, Any
 
 from asm_module.names import module_name
+from gaits.compatible import mismatches, read_limits
 from gaits.deploy import DeployReport
 from gaits.model import Gait
 
@@ -64,12 +66,14 @@ class DeployPanel:
         gait = self.page.doc.gait()  # GaitError (shown) if the edited gait is invalid
         self.page.robot.require("deploy")
         if not self.page.simulated:
-            wanted = {module_name(a.id) for a in gait.modules}
-            others = [n for n in self.page.robot.alive_modules() if n not in wanted]
+            robot = self.page.robot
+            alive = robot.alive_modules()
+            wanted = {module_name(a.id) for a in gait.modules} & set(alive)
+            problems = mismatches(gait, alive, read_limits(robot.lookup, sorted(wanted)))
             question = f"Deploy {gait.name} to the {gait.robot.modules} modules of the REAL robot?"
-            if others:
-                question += (f" ⚠ {', '.join(others)} on the bus are not in this gait: they keep running what they "
-                             "run.")  # fmt: skip
+            if problems:  # said before anything is sent: the robot is not the one previewed
+                question += " ⚠ Not the robot this gait was made for: " + "; ".join(problems) + "."
+                self.log("robot check: " + "; ".join(problems))
             self.confirm.ask(question, "Yes, deploy", lambda: self._deploy(gait))
             return
         self._deploy(gait)

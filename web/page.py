@@ -25,6 +25,7 @@ import viser
 
 from asm_module.feed import RobotStatus
 from gaits.model import Gait
+from gaits.terrain import FLAT, Terrain
 
 from .document import GaitDocument
 from .link import RobotLink
@@ -32,11 +33,12 @@ from .preview import PreviewLoop, SceneView
 
 log = logging.getLogger("asm_studio.web")
 TOAST_SECONDS = 6.0
-Event = Literal["deployed", "modules_removed", "plotted", "show", "attach", "relinked", "pick"]
+Event = Literal["deployed", "modules_removed", "plotted", "show", "attach", "relinked", "pick", "adopt"]
 """What panels tell each other through the page: ``deployed(gait)`` (started on the robot),
 ``modules_removed(names)`` (gone with a rebuilt robot), ``plotted()`` (a live plot got a series), ``show(source)``
 ("preview" or "live" asked for), ``attach(robot)`` (another robot asked for), ``relinked()`` (the page now commands
-another robot), ``pick(module_id)`` (clicked in the 3D view)."""
+another robot), ``pick(module_id)`` (clicked in the 3D view), ``adopt(gait, text)`` (a tuned gait becomes the edited
+one, ``text`` its file with its provenance)."""
 
 
 class Backend(Protocol):
@@ -63,8 +65,8 @@ class Backend(Protocol):
         """The robots on the network now."""
         ...
 
-    def ensure_robot(self, gait: Gait) -> str | None:
-        """Make a simulated robot the one ``gait`` describes; a message when it was rebuilt."""
+    def ensure_robot(self, gait: Gait, terrain: Terrain = FLAT) -> str | None:
+        """Make a simulated robot the one ``gait`` describes, on ``terrain``; a message when it was rebuilt."""
         ...
 
     def on_notice(self, callback: Callable[[str, str, bool], None]) -> None:
@@ -123,8 +125,9 @@ class Page:
         return self._backend.robots()
 
     def ensure_robot(self, gait: Gait) -> str | None:
-        """Make a simulated robot the one ``gait`` describes; a message when it was rebuilt."""
-        return self._backend.ensure_robot(gait)
+        """Make a simulated robot the one ``gait`` describes, on the preview's ground (the Preview tab's picker);
+        a message when it was rebuilt."""
+        return self._backend.ensure_robot(gait, self.loop.terrain)
 
     # -- events between panels ------------------------------------------------------------------------------------
 

@@ -23,6 +23,9 @@ import viser
 from asm_py.cli import module_selection
 from gaits.model import Gait
 from gaits.sim import Metrics, Simulation, select_modules
+from gaits.terrain import FLAT, Terrain
+
+from .ground import GroundView
 
 FRAME_RATE = 60.0
 """Recorded frames per simulated second: the timeline's resolution, and what the view draws at speed 1."""
@@ -51,6 +54,8 @@ class PreviewLoop:
     def __init__(self, gait: Gait, *, c_modules: str | None = None) -> None:
         self.c_modules = c_modules
         """Modules the preview runs in C, as the robot does (``--c-modules``: "odd", "even", "all" or "1,3,5")."""
+        self.terrain: Terrain = FLAT
+        """The ground the preview runs on (the Preview tab's picker: ``request("terrain", …)``)."""
         self._requests: queue.Queue[tuple[str, Any]] = queue.Queue()
         self._lock = threading.Lock()
         self.frames: deque[Frame] = deque(maxlen=int(HISTORY_SECONDS * FRAME_RATE))
@@ -72,7 +77,7 @@ class PreviewLoop:
 
     def _new_sim(self, gait: Gait) -> Simulation:
         c_modules = select_modules(module_selection(self.c_modules), gait) if self.c_modules else ()
-        sim = Simulation(gait, c_modules=c_modules)
+        sim = Simulation(gait, c_modules=c_modules, terrain=self.terrain)
         sim.start()
         return sim
 
@@ -84,7 +89,8 @@ class PreviewLoop:
         return self.sim.gait
 
     def request(self, kind: str, value: Any = None) -> None:
-        """Queue ``load`` (a Gait), ``play`` (bool), ``speed``, ``seek`` (frame index), ``step`` (±1), ``reset``,
+        """Queue ``load`` (a Gait), ``terrain`` (a Terrain: the same gait again on it), ``play`` (bool), ``speed``,
+        ``seek`` (frame index), ``step`` (±1), ``reset``,
         ``drive`` ((program gait or "stop", direction)), ``signal`` (a broadcast signal number)."""
         self._requests.put((kind, value))
 
@@ -184,11 +190,15 @@ class PreviewLoop:
                 self._changed.set()
 
     def _handle(self, kind: str, value: Any) -> None:
-        if kind == "load" or kind == "reset":
+        if kind in ("load", "reset", "terrain"):
             gait = value if kind == "load" else self.sim.gait
+            before = self.terrain
+            if kind == "terrain":
+                self.terrain = value
             try:
                 new = self._new_sim(gait)
             except Exception as exc:
+                self.terrain = before
                 self.error = f"cannot simulate this gait: {exc}"
                 return
             with self._lock:
@@ -314,6 +324,8 @@ class SceneView:
         self._draws = 0
         self.on_pick: Callable[[int], None] | None = None
         """Called with a module ID when the user clicks that module in the 3D view (on viser's thread pool)."""
+        self._terrain = GroundView(server)
+        """A rough ground, a step, patches: drawn from the preview's model (the flat floor is the grid)."""
         self._ground = server.scene.add_grid("/ground", width=4.0, height=4.0, cell_size=GRID_CELL, plane="xy")
         self._label = server.scene.add_label("/source", "PREVIEW", position=(0.0, 0.0, 0.25))
         self.set_rich(rich)
@@ -395,6 +407,8 @@ class SceneView:
             )  # fmt: skip
             self._batches.append((handle, ids))
             handle.on_click(lambda event, ids=ids, model=model: self._picked(model, ids, event.instance_index))
+        self._terrain.build(model if key[0] == "preview" else None)
+        self._ground.visible = not self._terrain.covers_start
         self._built = key
         self._drawn = None
 
@@ -449,6 +463,7 @@ class SceneView:
                 handle.batched_positions = (pos - shift).astype(np.float32)
                 handle.batched_wxyzs = wxyz.astype(np.float32)
             self._ground.position = (-(shift[0] % GRID_CELL), -(shift[1] % GRID_CELL), 0.0)
+            self._terrain.move(shift)
             if self._labels and self._draws % LABEL_EVERY == 0:
                 anchors = hinge_anchors(built, xpos, xquat, self._label_joints) - shift
                 for label, anchor in zip(self._labels, anchors, strict=True):

@@ -1,12 +1,17 @@
-"""The Preview tab: play, pause, speed, a timeline that scrubs, steps, the look of the 3D view, the run's metrics and
-which module's commanded-vs-measured angle is plotted. Its callbacks only queue requests to the preview loop (the
-loop owns the simulation)."""
+"""The Preview tab: play, pause, speed, a timeline that scrubs, steps, the ground the preview runs on
+(gaits/terrain.py), the look of the 3D view, the run's metrics and which module's commanded-vs-measured angle is
+plotted. Its callbacks only queue requests to the preview loop (the loop owns the simulation)."""
 
 from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any
 
+from gaits.terrain import parse
+
 from .monitor import empty_plot, seconds_axes
+
+GROUNDS = ("flat", "slope:5", "slope:-5", "step:0.03", "rough:seed=1,roughness=0.02", "patches:friction=0.3")
+"""The grounds the picker offers (terrain specs, as ``gaits simulate --terrain`` takes them)."""
 
 if TYPE_CHECKING:
     from .page import Page
@@ -25,6 +30,10 @@ class PreviewPanel:
         self.speed.on_update(page.safe(lambda e: loop.request("speed", e.target.value)))
         self.timeline = gui.add_slider("Preview timeline (frame)", min=0, max=1, step=1, initial_value=0)
         self.timeline.on_update(page.safe(self._on_seek))
+        self.ground = gui.add_dropdown("Ground", GROUNDS, initial_value="flat",
+                                       hint="what the preview runs on: a slope (degrees uphill), a step (m), rough "
+                                       "ground, friction patches")  # fmt: skip
+        self.ground.on_update(page.safe(lambda e: loop.request("terrain", parse(str(e.target.value)))))
         steps = gui.add_button_group("Step", ["◀ back", "forward ▶"])
         steps.on_click(page.safe(lambda e: loop.request("step", -1 if "back" in e.target.value else 1)))
         rich = gui.add_checkbox("Shadows and reflections", initial_value=False,
@@ -66,7 +75,8 @@ class PreviewPanel:
         m = loop.metrics()
         frames = len(loop.frames)
         warning = f"  \n⚠ {loop.error}" if loop.error else ""
-        self.metrics.content = (f"Preview: t = {m.seconds:.2f} s · distance **{m.distance:.3f} m** "
+        ground = "" if loop.terrain.kind == "flat" else f" on {loop.terrain.spec}"
+        self.metrics.content = (f"Preview{ground}: t = {m.seconds:.2f} s · distance **{m.distance:.3f} m** "
                                 f"({m.body_lengths:.2f} BL) · speed **{m.speed:.3f} m/s** · heading {m.heading:.0f}° · "
                                 f"peak torque {m.peak_torque:.2f} N·m{warning}")  # fmt: skip
         with page.programmatic():

@@ -44,6 +44,8 @@ def test_it_improves_on_the_start_and_reports_what_it_simulated(tuned):
     assert again.speed == pytest.approx(tuned.value, rel=1e-12)
     assert [current(tuned.best, f) for f in FREES] == pytest.approx(tuned.values, abs=1e-3)
     assert tuned.history == sorted(tuned.history)  # the best never gets worse
+    assert len(tuned.samples) == tuned.evaluations - 1  # every candidate but the start, with its objective
+    assert (tuned.values, tuned.value) in tuned.samples  # the best is one of them (not the start: it beat it)
 
 
 def test_the_same_seed_gives_the_same_gait(tuned):

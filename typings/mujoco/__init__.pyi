@@ -18,6 +18,7 @@ class mjtObj(IntEnum):
 
 class mjtGeom(IntEnum):
     mjGEOM_PLANE = 0
+    mjGEOM_HFIELD = 1
     mjGEOM_SPHERE = 2
     mjGEOM_CAPSULE = 3
     mjGEOM_CYLINDER = 5

@@ -1,0 +1,82 @@
+"""Are a connected robot's modules the ones a gait describes? Checked before a deploy, so a mismatch is said first.
+
+A gait is previewed and tuned for its ``[robot]``: so many modules, each of its ``[robot.module]`` type, whose hinge
+turns ±``range`` degrees. The modules report no type of their own (the contract has no module-info object); what
+they do report is whether they answer, and their ``joint.limits`` — settable only within their hardware's range,
+and every goal sent is clamped to them. From those, :func:`mismatches` finds:
+
+* modules the gait assigns that do not answer, and modules that answer but the gait does not name (the robot has
+  another count of modules than the one simulated);
+* a module whose limits cut off angles the gait commands (it would be clamped, and not run as previewed);
+* a module whose limits reach beyond the gait's module's hinge range: its joint turns further than the module the
+  gait was made for, so it is another type of module.
+
+:func:`read_limits` asks each module for its limits; the Deploy tab (web/deploy_panel.py) shows the lines before
+it asks to deploy to a real robot.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping
+from typing import Any
+
+from asm_module.names import module_name
+
+from .model import FORWARD, Gait
+
+
+def commanded(gait: Gait) -> dict[int, tuple[float, float]]:
+    """Per module ID, the lowest and highest angle any of its automata commands, in any gait of the program."""
+    spans: dict[int, tuple[float, float]] = {}
+    for name in gait.program_gaits():
+        listed = gait.modules if name == FORWARD else gait.gaits[name]
+        for a in listed:
+            angles = [s.angle for s in gait.automata[a.automaton].states]
+            if not angles:
+                continue
+            low, high = spans.get(a.id, (min(angles), max(angles)))
+            spans[a.id] = (min(low, *angles), max(high, *angles))
+    return spans
+
+
+def mismatches(gait: Gait, present: Iterable[str], limits: Mapping[str, tuple[float, float]]) -> list[str]:
+    """What differs between the gait's robot and the modules that answered (``present``, with the ``limits`` each
+    reported); empty when nothing does."""
+    present = set(present)
+    wanted = {module_name(a.id): a.id for a in gait.modules}
+    lines = []
+    missing = sorted((n for n in wanted if n not in present), key=wanted.__getitem__)
+    if missing:
+        lines.append(f"{', '.join(missing)} of the gait's {len(wanted)} modules did not answer")
+    extra = sorted((n for n in present if n.startswith("m") and n[1:].isdigit() and n not in wanted),
+                   key=lambda n: int(n[1:]))  # fmt: skip
+    if extra:
+        lines.append(f"{', '.join(extra)} answered but the gait has {len(wanted)} modules: the robot is not the "
+                     f"{gait.robot.modules}-module {gait.robot.shape} it was made for")  # fmt: skip
+    spans = commanded(gait)
+    hinge = gait.robot.module.range
+    for name, module_id in sorted(wanted.items(), key=lambda item: item[1]):
+        if name not in limits:
+            continue
+        low, high = limits[name]
+        want_low, want_high = spans.get(module_id, (0.0, 0.0))
+        if low > want_low + 1e-3 or high < want_high - 1e-3:
+            lines.append(f"{name} allows {low:g}..{high:g}°, the gait commands {want_low:g}..{want_high:g}°: it "
+                         "would be clamped and not move as previewed")  # fmt: skip
+        if low < -hinge - 1e-3 or high > hinge + 1e-3:
+            lines.append(f"{name} turns {low:g}..{high:g}°, beyond the ±{hinge:g}° hinge of the gait's module "
+                         "(robot.module.range): another type of module than the one simulated")  # fmt: skip
+    return lines
+
+
+def read_limits(lookup: Any, names: Iterable[str], timeout: float = 2.0) -> dict[str, tuple[float, float]]:
+    """Each module's ``joint.limits`` by ``lookup(name, "joint.limits", timeout)`` (a Node's lookup); a module that
+    does not answer is left out (:func:`mismatches` reports it as missing)."""
+    found = {}
+    for name in names:
+        try:
+            low, high = lookup(name, "joint.limits", timeout=timeout).get(timeout=timeout)
+        except Exception:  # no reply, no such object: not this module's to judge here
+            continue
+        found[name] = (float(low), float(high))
+    return found

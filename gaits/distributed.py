@@ -1,0 +1,37 @@
+"""The tuner's evaluations on an existing Dask distributed cluster: ``gaits tune --scheduler tcp://HOST:PORT``.
+
+Where one machine's cores are not enough, the candidates of each generation go to a Dask scheduler, which spreads
+them over its workers (each must be able to import this project: the same checkout and environment). The search
+itself stays here: CMA-ES asks, the cluster simulates, the results come back in the order asked, so a run on a
+cluster gives the same gait as a run on local worker processes with the same seed. The client is
+``distributed.Client(ADDRESS).get_executor()``: a concurrent.futures Executor, which is all gaits.tune.tune needs.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from collections.abc import Iterator
+from concurrent.futures import Executor
+from typing import cast
+
+CONNECT_SECONDS = 10.0
+"""How long to wait for the scheduler to answer before giving up."""
+
+
+@contextlib.contextmanager
+def dask_executor(address: str) -> Iterator[tuple[Executor, int]]:
+    """An Executor on the Dask scheduler at ``address`` and how many candidates its workers run at once (their
+    threads in all); the client is closed at the end. OSError when the scheduler does not answer, RuntimeError
+    when it has no workers."""
+    try:
+        from distributed import Client
+    except ImportError as exc:  # pragma: no cover - a dependency of the package
+        raise RuntimeError("--scheduler needs the dask[distributed] package") from exc
+    client = Client(address, timeout=CONNECT_SECONDS, set_as_default=False)  # read now: tests shorten it
+    try:
+        width = sum(cast(dict[str, int], client.nthreads()).values())  # a dict from a synchronous client
+        if width == 0:
+            raise RuntimeError(f"the Dask scheduler at {address} has no workers")
+        yield client.get_executor(pure=False), width
+    finally:
+        client.close()

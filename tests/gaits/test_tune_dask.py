@@ -1,0 +1,58 @@
+"""``gaits tune --scheduler``: the simulations run on a Dask distributed cluster — here a local one, its scheduler in
+this process and two worker processes, all on 127.0.0.1 — and give the same gait as local worker processes do."""
+
+from __future__ import annotations
+
+import logging
+
+import pytest
+
+from gaits import distributed as gaits_distributed
+from gaits.cli import main
+from gaits.model import LIBRARY, load, loads, to_dict
+from gaits.params import parse_free
+from gaits.tune import Setup, tune
+from tests.transports import free_port
+
+pytestmark = pytest.mark.timeout(300)
+CATERPILLAR = LIBRARY / "caterpillar.toml"
+ARGS = ["--free", "amplitude=20:85", "--free", "period=0.6:1.6", "--budget", "9", "--seconds", "2", "--warmup",
+        "0.5", "--seed", "3"]  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def cluster():
+    from distributed import LocalCluster
+
+    cluster = LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1", scheduler_port=0,
+                           dashboard_address="127.0.0.1:0", worker_dashboard_address="127.0.0.1:0",
+                           silence_logs=logging.ERROR)  # fmt: skip
+    try:
+        yield cluster
+    finally:
+        cluster.close()
+
+
+def test_a_search_on_a_dask_cluster_gives_the_local_result(cluster, tmp_path, capsys):
+    out = tmp_path / "tuned.toml"
+    assert main(["tune", str(CATERPILLAR), *ARGS, "--scheduler", cluster.scheduler_address, "--out", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert f"evaluating on the Dask scheduler at {cluster.scheduler_address}: 2 worker thread(s)" in err
+    # the cluster's workers ran the candidates: 9 of the search and the final check's
+    counts = {name: sum(prefix.state_counts.values()) for name, prefix in cluster.scheduler.task_prefixes.items()}
+    assert counts.get("evaluate_job", 0) >= 9, counts
+    tuned = loads(out.read_text(encoding="utf-8"))
+    local = tune(load(CATERPILLAR), [parse_free("amplitude=20:85"), parse_free("period=0.6:1.6")],
+                 Setup("speed", seconds=2.0, warmup=0.5), budget=9, seed=3, workers=2)  # fmt: skip
+    assert local.best is not None
+    assert to_dict(tuned)["automata"] == to_dict(local.best)["automata"]  # the same gait, wherever it was simulated
+    assert to_dict(tuned)["modules"] == to_dict(local.best)["modules"]
+
+
+def test_a_scheduler_that_does_not_answer_is_a_clear_error(tmp_path, capsys, monkeypatch):
+    monkeypatch.setattr(gaits_distributed, "CONNECT_SECONDS", 1.0)
+    address = f"tcp://127.0.0.1:{free_port()}"  # nothing listens there
+    out = tmp_path / "tuned.toml"
+    assert main(["tune", str(CATERPILLAR), *ARGS, "--scheduler", address, "--out", str(out)]) == 1
+    assert f"gaits tune: error: the Dask scheduler at {address}" in capsys.readouterr().err
+    assert not out.exists()
