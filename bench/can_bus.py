@@ -115,7 +115,7 @@ def main() -> None:
     print(f"ratio can_frames_per_set {set_frames / 2:.2f} (target == 1)")
     print(f"ratio can_payload_efficiency_classic {classic:.3f} (target >= 0.875)")
     print(f"ratio can_payload_efficiency_fd {fd:.3f} (target >= 0.969)")
-    print(f"ratio can_remote_gets_vs_raw_python_can {asm_rate / raw_rate:.2f} (target >= 0.5)")
+    print(f"ratio can_remote_gets_vs_raw_python_can {asm_rate / raw_rate:.2f} (target >= 0.6: issue 31; it was 0.5)")
     print(f"ratio can_busload_100_modules_50hz_1mbit {load:.3f} (target <= 1.0)")
 
 

@@ -185,7 +185,7 @@ def main() -> None:
     print(f"published updates: ASM {asm_rate:,.0f}/s ({asm_count} of {BURST} received), "
           f"raw zenoh put/subscribe {raw_rate:,.0f}/s ({raw_count} of {BURST})")  # fmt: skip
     print(f"# remote sets without a reply: {set_rate:,.0f}/s applied (the get after them read {last:g}, the last)")
-    print(f"ratio remote_get_rtt_vs_raw_zenoh {asm_rtt / raw_rtt:.2f} (target <= 1.3)")
+    print(f"ratio remote_get_rtt_vs_raw_zenoh {asm_rtt / raw_rtt:.2f} (target <= 1.15: issue 31; it was 1.3)")
     print(f"ratio publish_rate_vs_raw_zenoh {asm_rate / raw_rate:.2f} (target >= 0.7)")
 
 
