@@ -42,9 +42,9 @@ format: $(STAMP)
 	$(PY) -m ruff format .
 	$(PY) -m ruff check --fix .
 
-# Four workers (pytest-xdist) on two cores: most tests wait on processes, sockets and simulated time, not the CPU
-# (the suite used 1.1 cores on two workers); the browser tests are two xdist groups, so at most two Chromiums draw
-# at once. TEST_WORKERS=2 for a busier machine; `make test-serial` runs the same tests in one process.
+# Two workers (pytest-xdist) on two cores: four overloaded them (docs/benchmarks.md, "The suite's time"); the
+# browser tests are two xdist groups, so at most two Chromiums draw at once. TEST_WORKERS=N to choose;
+# `make test-serial` runs the same tests in one process.
 TEST_WORKERS ?= 2
 PYTEST := PLAYWRIGHT_SKIP_BROWSER_DOWNLOAD=1 $(PY) -m pytest -m "not slow"
 test: lint $(CHROMIUM) $(ARM_GCC)
