@@ -181,9 +181,10 @@ def test_the_studio_passes_its_c_module_choice_to_its_robot(tmp_path) -> None:
     from types import SimpleNamespace
 
     from gaits.model import LIBRARY, load
+    from gaits.terrain import FLAT
     from server.studio import Studio, StudioOptions
 
     owner = SimpleNamespace(options=StudioOptions(c_modules="1,3"), _gait_file=tmp_path / "robot.toml",
-                            own_robot="robot", _child_endpoint="tcp/127.0.0.1:1")  # fmt: skip
+                            own_robot="robot", _child_endpoint="tcp/127.0.0.1:1", robot_terrain=FLAT)  # fmt: skip
     args = Studio._robot_args(owner, load(LIBRARY / "caterpillar.toml"))  # type: ignore[arg-type]
     assert args[args.index("--c-modules") + 1] == "1,3" and "--sim" in args

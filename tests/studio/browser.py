@@ -97,6 +97,7 @@ class PoseWatch:
 
         self._lock = threading.Lock()
         self._points: list = []
+        self._times: list[float] = []
         self._decode = decode_poses
         self._sub = client.transport.session.declare_subscriber(poses_key("robot"), self._on)
 
@@ -104,7 +105,8 @@ class PoseWatch:
         frame = self._decode(sample.payload.to_bytes())
         with self._lock:
             self._points.append(frame.positions[0].copy())
-            del self._points[:-120]
+            self._times.append(frame.time)
+            del self._points[:-120], self._times[:-120]
 
     def spread(self) -> float:
         import numpy as np
@@ -117,9 +119,17 @@ class PoseWatch:
         with self._lock:
             return len(self._points)
 
+    def seconds(self) -> float:
+        """Simulated time the frames of ``spread`` span (a robot at rest sends a frame every 0.5 s, not 60 a
+        second: server/rest.py)."""
+        with self._lock:
+            times = self._times[-60:]
+        return times[-1] - times[0] if len(times) > 1 else 0.0
+
     def clear(self) -> None:
         with self._lock:
             self._points.clear()
+            self._times.clear()
 
     def close(self) -> None:
         self._sub.undeclare()

@@ -110,7 +110,7 @@ def test_edit_preview_deploy_watch_and_estop(studio_process):
             expect(page.get_by_text("gait stopped", exact=False).first).to_be_visible(timeout=15_000)
             page.screenshot(path=str(ARTIFACTS / "studio-estop.png"))
             feed.clear()  # the live robot holds: it settles within seconds, then its bodies stand still for 1 s
-            assert wait_until(lambda: feed.count() >= 60 and feed.spread() < 0.005, timeout=15), feed.spread()
+            assert wait_until(lambda: feed.seconds() >= 1.0 and feed.spread() < 0.005, timeout=15), feed.spread()
             expect(page.get_by_text("E-STOP latched", exact=False).first).to_be_visible(timeout=15_000)
             expect(page.get_by_role("button", name="E-STOP — LATCHED on 8 modules")).to_be_visible(timeout=15_000)
             feed.close()
