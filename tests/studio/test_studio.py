@@ -162,3 +162,24 @@ def test_undo_takes_back_a_typed_value_not_a_keystroke():
     assert doc.undo() and doc.gait().automata["wave"].states[0].angle == 30.0
     assert doc.undo() and doc.gait().assignment(1).phase == 0.0
     assert doc.undo() and doc.gait().automata["wave"].states[0].angle == 45.0
+
+
+def test_a_refused_value_is_never_an_undo_step_of_its_own():
+    """A duration of -0.1 is refused (the document invalid, the problem at its field); typing a valid one later
+    replaces it in its undo step: Undo gives back the value before the refused one."""
+    now = [0.0]
+    doc = GaitDocument(load(CATERPILLAR), clock=lambda: now[0])
+    before = doc.gait().automata["wave"].states[0].duration
+    doc.set_state("wave", 0, "duration", -0.1)
+    assert doc.problems and doc.data()["automata"]["wave"]["states"][0]["duration"] == -0.1  # kept, not clamped
+    now[0] += 30.0  # long after: not the typing window that joins keystrokes
+    doc.set_state("wave", 0, "duration", 0.07)
+    assert not doc.problems
+    assert doc.undo() and doc.gait().automata["wave"].states[0].duration == before
+    assert not doc.undo()
+    # valid values typed far apart stay steps of their own
+    now[0] += 30.0
+    doc.set_state("wave", 0, "duration", 0.05)
+    now[0] += 30.0
+    doc.set_state("wave", 0, "duration", 0.06)
+    assert doc.undo() and doc.gait().automata["wave"].states[0].duration == 0.05
