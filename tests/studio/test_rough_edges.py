@@ -61,3 +61,35 @@ def test_number_fields_refuse_on_commit_never_clamp_and_keep_refusals_out_of_und
         page.screenshot(path=str(ARTIFACTS / "rough-phase-on-commit.png"))
         browser.close()
     assert not any("Traceback" in line for line in log), "".join(log[-40:])
+
+
+def test_status_lines_follow_the_modules_after_an_estop(studio_process):
+    """Deploy, drive forward (confirmed), E-STOP: Drive no longer says "confirmed by 8 of 8", and a deploy while
+    every module is latched is refused naming all of them, not module 1 alone."""
+    from playwright.sync_api import expect, sync_playwright
+
+    url, _, log = studio_process
+    with sync_playwright() as pw:
+        browser, page = open_page(pw, url)
+        page.get_by_role("tab", name="Deploy").click()
+        page.get_by_role("button", name="Deploy", exact=True).click()
+        page.get_by_role("button", name="Start", exact=True).click()
+        expect(page.get_by_text("8 modules confirmed running", exact=False).first).to_be_visible(timeout=60_000)
+        page.get_by_role("tab", name="Drive").click()
+        page.get_by_role("button", name="▲ Forward").click()
+        confirmed = page.get_by_text(re.compile(r"Robot: forward, confirmed by 8 of 8"))
+        expect(confirmed).to_be_visible(timeout=30_000)
+        page.get_by_role("button", name=re.compile(r"^E-STOP")).click()
+        expect(page.get_by_role("button", name="E-STOP — LATCHED on 8 modules")).to_be_visible(timeout=15_000)
+        expect(confirmed).to_have_count(0, timeout=15_000)
+        expect(page.get_by_text("Robot: stopped, E-STOP latched on 8 modules", exact=False)).to_be_visible()
+        page.screenshot(path=str(ARTIFACTS / "rough-drive-after-estop.png"))
+        page.get_by_role("tab", name="Deploy").click()
+        page.get_by_role("button", name="Deploy", exact=True).click()
+        every = ", ".join(f"module {k} \\(m{k}\\)" for k in range(1, 9))
+        expect(page.get_by_text(re.compile(f"emergency stop is latched on {every};")).first).to_be_visible(
+            timeout=30_000
+        )
+        page.screenshot(path=str(ARTIFACTS / "rough-deploy-refusal.png"))
+        browser.close()
+    assert not any("Traceback" in line for line in log), "".join(log[-40:])
