@@ -196,6 +196,7 @@ class GaitEditor:
             self.page.notify("Invalid", page_label(self.doc.problems[0]), error=True)
             return
         self.page.resolved("Invalid", f"Edited: {self.doc.gait().name} is valid again")
+        self.page.resolved("Error", f"Edited: {self.doc.gait().name} is valid again")  # a refused edit's line
         self.page.loop.request("load", self.doc.gait())  # an edit re-previews at once
 
     # -- showing the document -------------------------------------------------------------------------------------
@@ -217,6 +218,8 @@ class GaitEditor:
         states = data["automata"][self.automaton.value]["states"]
         self.state_index.max = max(2, len(states))
         index = min(int(self.state_index.value), len(states)) - 1
+        if int(self.state_index.value) != index + 1:  # another gait, fewer states: the slider shows one of them
+            self.state_index.value = index + 1
         state = states[index]
         self.angle.value = float(state.get("angle", 0.0))
         self.duration.value = float(state.get("duration") or 0.0)
@@ -228,6 +231,8 @@ class GaitEditor:
         modules = assignments(data, editing)
         self.module_index.max = max(2, len(modules))
         m_index = min(int(self.module_index.value), len(modules)) - 1
+        if int(self.module_index.value) != m_index + 1:
+            self.module_index.value = m_index + 1
         module = modules[m_index]
         self.phase.value = float(module.get("phase", 0.0))
         self.direction.value = str(module.get("direction", 1))

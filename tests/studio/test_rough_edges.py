@@ -93,3 +93,47 @@ def test_status_lines_follow_the_modules_after_an_estop(studio_process):
         page.screenshot(path=str(ARTIFACTS / "rough-deploy-refusal.png"))
         browser.close()
     assert not any("Traceback" in line for line in log), "".join(log[-40:])
+
+
+def test_the_state_slider_follows_the_gait_and_an_error_line_goes_when_the_gait_is_valid(studio_process):
+    """State 8 of the caterpillar selected, then curl_into_loop (4 states) opened: the slider shows a state of the
+    new gait, not "State 8" on a 4-state slider. A refused robot size's error line goes with the next valid edit."""
+    from playwright.sync_api import expect, sync_playwright
+
+    url, _, log = studio_process
+    with sync_playwright() as pw:
+        browser, page = open_page(pw, url)
+        page.get_by_role("tab", name="Gait").click()
+        row = page.locator("xpath=//label[normalize-space()='State']/ancestor::*[.//input[@inputmode]][1]")
+        state = row.locator("input.mantine-NumberInput-input")  # the number box beside the slider
+        state.click()
+        state.press("Control+a")
+        state.press_sequentially("8")
+        state.press("Tab")
+        expect(_number(page, "Duration (s)")).to_have_value(re.compile(r"^0\.06"), timeout=15_000)
+        expect(state).to_have_value("8", timeout=15_000)
+        page.get_by_label("Library").click()
+        page.get_by_role("option", name="curl_into_loop", exact=True).click()
+        page.get_by_role("button", name="Open from library").click()
+        expect(page.get_by_text("✓ valid (curl_into_loop)", exact=False)).to_be_visible(timeout=15_000)
+        expect(state).to_have_value("4", timeout=15_000)  # its last state, the nearest to the one selected
+        expect(_number(page, "Angle (deg)")).to_have_value("45", timeout=15_000)
+        page.screenshot(path=str(ARTIFACTS / "rough-state-slider.png"))
+        modules = _number(page, "Modules")
+        modules.click()
+        modules.press("Control+a")
+        modules.press_sequentially("300")
+        modules.press("Tab")
+        error = page.locator("p").filter(has_text=re.compile(r"Error: a robot has 1 to \d+ modules, not 300"))
+        page.screenshot(path=str(ARTIFACTS / "rough-refused-size.png"))
+        expect(error.first).to_be_visible(timeout=15_000)
+        angle = _number(page, "Angle (deg)")
+        angle.click()
+        angle.press("Control+a")
+        angle.press_sequentially("40")
+        angle.press("Tab")
+        expect(page.get_by_text("is valid again", exact=False).first).to_be_visible(timeout=15_000)
+        expect(error).to_have_count(0, timeout=15_000)
+        expect(modules).to_have_value("8", timeout=15_000)  # the size the document has
+        browser.close()
+    assert not any("Traceback" in line for line in log), "".join(log[-40:])
