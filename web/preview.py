@@ -2,7 +2,8 @@
 
 As in mjviser, the loop that owns MjData is the only code that touches it: GUI callbacks only queue requests
 (:meth:`PreviewLoop.request`), and the loop records frames (time, qpos, goals, angles) into a bounded history that the
-view and the timeline read. Scrubbing and stepping back show recorded frames; play continues from the live end.
+view and the timeline read. Scrubbing and stepping back show recorded frames; Play from a scrubbed point replays
+the recorded frames from there at the chosen speed, and the simulation goes on once they are played.
 """
 
 from __future__ import annotations
@@ -142,7 +143,10 @@ class PreviewLoop:
                 self._handle(kind, value)
                 self._changed.set()
             now = time.monotonic()
-            if self.playing and self.error is None:
+            if self.playing and self.cursor is not None:  # played from a scrubbed point: the recorded frames first
+                owed = min(owed + (now - last) * self.speed, 0.25)
+                owed = self._replay(owed)
+            elif self.playing and self.error is None:
                 owed = min(owed + (now - last) * self.speed, 0.25)  # never try to catch up more than 0.25 s
                 dt = self.sim.model.opt.timestep
                 try:
@@ -165,6 +169,21 @@ class PreviewLoop:
             pass
         loads = [k for k, (kind, _) in enumerate(requests) if kind == "load"]
         return [r for k, r in enumerate(requests) if r[0] != "load" or k == loads[-1]]
+
+    def _replay(self, owed: float) -> float:
+        """Move the cursor through the recorded frames by ``owed`` seconds of simulated time; at the newest frame
+        the simulation takes over (the cursor goes). Returns the time still owed."""
+        with self._lock:
+            if self.cursor is None:
+                return owed
+            end = len(self.frames) - 1
+            while owed >= 1 / FRAME_RATE and self.cursor < end:
+                self.cursor += 1
+                owed -= 1 / FRAME_RATE
+            if self.cursor >= end:
+                self.cursor = None
+            self._changed.set()
+        return owed
 
     def _steps_to_next_frame(self) -> int:
         due = self._next_frame - self.sim.data.time
@@ -212,10 +231,8 @@ class PreviewLoop:
         elif kind == "signal":  # the Drive panel's broadcast signal, as every module on a bus would hear it
             with self._lock:
                 self.sim.signal(int(value))
-        elif kind == "play":
+        elif kind == "play":  # from where the timeline is: a scrubbed point replays what was recorded from there
             self.playing = bool(value)
-            if self.playing:
-                self.cursor = None
         elif kind == "speed":
             self.speed = max(0.05, min(float(value), 8.0))
         elif kind == "seek":

@@ -74,7 +74,8 @@ class PreviewPanel:
             if self.plot_module.max != modules:
                 self.plot_module.max = modules
             self.timeline.max = max(1, frames - 1)
-            if loop.cursor is None:
-                self.timeline.value = max(0, frames - 1)
+            shown = max(0, frames - 1) if loop.cursor is None else min(loop.cursor, max(0, frames - 1))
+            if self.timeline.value != shown:  # stepping and replaying move the frame box as the live end does
+                self.timeline.value = shown
         t, goal, angle = loop.series(int(self.plot_module.value) - 1)
         self.angles.data = (t, goal, angle)

@@ -8,6 +8,7 @@ import re
 import time
 from pathlib import Path
 
+from ..helpers import wait_until
 from .browser import marks, open_page
 
 pytestmark = marks(2)
@@ -135,5 +136,48 @@ def test_the_state_slider_follows_the_gait_and_an_error_line_goes_when_the_gait_
         expect(page.get_by_text("is valid again", exact=False).first).to_be_visible(timeout=15_000)
         expect(error).to_have_count(0, timeout=15_000)
         expect(modules).to_have_value("8", timeout=15_000)  # the size the document has
+        browser.close()
+    assert not any("Traceback" in line for line in log), "".join(log[-40:])
+
+
+def _slider_box(page, label: str):
+    """The number box beside a viser slider (the slider's own label names the slider)."""
+    row = page.locator(f"xpath=//label[normalize-space()='{label}']/ancestor::*[.//input[@inputmode]][1]")
+    return row.locator("input.mantine-NumberInput-input")
+
+
+def test_the_preview_plays_on_from_a_scrubbed_point_and_stepping_moves_the_frame_box(studio_process):
+    from playwright.sync_api import expect, sync_playwright
+
+    from .browser import number
+
+    url, _, log = studio_process
+
+    def seconds(page) -> float:
+        return number(page.get_by_text("Preview: t = ", exact=False).first.inner_text(), r"t = ([\d.]+) s")
+
+    with sync_playwright() as pw:
+        browser, page = open_page(pw, url)
+        page.get_by_role("tab", name="Preview").click()
+        frame = _slider_box(page, "Preview timeline (frame)")
+        expect(frame).to_be_visible(timeout=15_000)
+        assert wait_until(lambda: seconds(page) > 6.0, 60, 0.2)
+        page.get_by_role("button", name="Pause", exact=True).click()
+        time.sleep(0.5)
+        paused = int(frame.input_value())
+        page.get_by_role("button", name="◀ back").click()
+        page.get_by_role("button", name="◀ back").click()
+        expect(frame).to_have_value(str(paused - 2), timeout=10_000)  # the frame box follows the steps
+        frame.click()
+        frame.press("Control+a")
+        frame.press_sequentially("60")  # back to t = 1 s
+        frame.press("Enter")
+        assert wait_until(lambda: abs(seconds(page) - 1.0) < 0.1, 15, 0.2), seconds(page)
+        page.get_by_role("button", name="Play", exact=True).click()
+        time.sleep(1.0)
+        played = seconds(page)
+        assert 1.2 < played < paused / 60 - 1.0, (played, paused)  # on from 1 s, not a jump to the newest frame
+        assert 60 < int(frame.input_value()) < paused
+        page.screenshot(path=str(ARTIFACTS / "rough-replay-from-scrubbed.png"))
         browser.close()
     assert not any("Traceback" in line for line in log), "".join(log[-40:])

@@ -7,6 +7,7 @@ import time
 import pytest
 
 from gaits.model import GaitError, dumps, load
+from tests.helpers import wait_until
 from web.document import GaitDocument
 from web.monitor import format_value
 from web.preview import PreviewLoop
@@ -183,3 +184,24 @@ def test_a_refused_value_is_never_an_undo_step_of_its_own():
     now[0] += 30.0
     doc.set_state("wave", 0, "duration", 0.06)
     assert doc.undo() and doc.gait().automata["wave"].states[0].duration == 0.05
+
+
+def test_play_from_a_scrubbed_point_replays_from_there_then_simulates_on():
+    """Pause, go back to frame 10, Play: the frames from 10 on are shown in turn (not a jump to the newest), and
+    once they are played the simulation goes on from the newest frame."""
+    loop = PreviewLoop(load(CATERPILLAR))
+    try:
+        loop.request("speed", 4.0)
+        assert wait_until(lambda: len(loop.frames) >= 120, timeout=30)
+        loop.request("seek", 10)
+        assert wait_until(lambda: loop.cursor == 10, timeout=5)
+        newest = loop.frames[-1].time
+        loop.request("speed", 1.0)
+        loop.request("play", True)
+        assert wait_until(lambda: loop.cursor is not None and loop.cursor > 15, timeout=5)
+        shown = loop.shown()
+        assert shown is not None and shown.time < newest  # replaying what was recorded, not at the newest frame
+        assert wait_until(lambda: loop.cursor is None, timeout=30)  # played through: the simulation goes on
+        assert wait_until(lambda: loop.frames[-1].time > newest + 0.5, timeout=30)
+    finally:
+        loop.close()
