@@ -44,6 +44,8 @@ class Frame:
     metrics: Metrics | None = None
     """Distance, speed, heading and peak torque since the gait (re)started, as they were at this frame: the metrics
     follow the timeline as the pose does."""
+    running: int = -1
+    """How many modules' gaits ran at this frame (0: a one-shot program ended, or the gaits were stopped)."""
 
 
 class PreviewLoop:
@@ -60,6 +62,8 @@ class PreviewLoop:
         self.playing = True
         self.speed = 1.0
         self.error: str | None = None
+        self.ended_at: float | None = None
+        """Simulated time at which no module's gait ran any more (a one-shot program's end), None while one runs."""
         self.generation = 0
         """Incremented whenever a new gait is loaded (the view rebuilds its meshes)."""
         self.sim = self._new_sim(gait)
@@ -199,7 +203,12 @@ class PreviewLoop:
                 goals = tuple(sim.goal(a.id) for a in sim.gait.modules)
                 angles = tuple(sim.angle(a.id) for a in sim.gait.modules)
                 metrics = sim.measure(self._start_com, sim.data.time)
-                self.frames.append(Frame(sim.data.time, sim.data.qpos.copy(), goals, angles, metrics))
+                running = sim.running()
+                if running == 0 and self.ended_at is None:
+                    self.ended_at = sim.data.time
+                elif running:
+                    self.ended_at = None
+                self.frames.append(Frame(sim.data.time, sim.data.qpos.copy(), goals, angles, metrics, running))
                 self._changed.set()
 
     def _handle(self, kind: str, value: Any) -> None:
@@ -215,6 +224,7 @@ class PreviewLoop:
                 self.frames.clear()
                 self._next_frame = 0.0
                 self.cursor = None
+                self.ended_at = None
                 self._start_com = new.center_of_mass()
                 self.error = None
                 self.generation += 1

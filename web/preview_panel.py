@@ -66,6 +66,9 @@ class PreviewPanel:
         m = loop.metrics()
         frames = len(loop.frames)
         warning = f"  \n⚠ {loop.error}" if loop.error else ""
+        frame = loop.shown()
+        if frame is not None and frame.running == 0 and loop.ended_at is not None:
+            warning = f" · ■ **ended** at t = {loop.ended_at:.2f} s (no module's gait runs){warning}"
         self.metrics.content = (f"Preview: t = {m.seconds:.2f} s · distance **{m.distance:.3f} m** "
                                 f"({m.body_lengths:.2f} BL) · speed **{m.speed:.3f} m/s** · heading {m.heading:.0f}° · "
                                 f"peak torque {m.peak_torque:.2f} N·m{warning}")  # fmt: skip

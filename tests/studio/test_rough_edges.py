@@ -181,3 +181,29 @@ def test_the_preview_plays_on_from_a_scrubbed_point_and_stepping_moves_the_frame
         page.screenshot(path=str(ARTIFACTS / "rough-replay-from-scrubbed.png"))
         browser.close()
     assert not any("Traceback" in line for line in log), "".join(log[-40:])
+
+
+def test_a_one_shot_gait_says_it_ended(start_studio):
+    """curl_into_loop's one-shot program ends after 5.5 s: the preview says so instead of counting on silently."""
+    from playwright.sync_api import expect, sync_playwright
+
+    url, _, log = start_studio("--gait", "gaits/library/curl_into_loop.toml")
+    with sync_playwright() as pw:
+        browser, page = open_page(pw, url)
+        page.get_by_role("tab", name="Preview").click()
+        page.get_by_role("button", name="Reset", exact=True).click()
+        ended = page.get_by_text(re.compile(r"ended at t = 5\.\d\d s"))
+        expect(page.get_by_text(re.compile(r"Preview: t = [0-4]\.\d\d s"))).to_be_visible(timeout=15_000)
+        expect(ended).to_have_count(0)  # restarted: running again
+        expect(ended).to_be_visible(timeout=60_000)
+        page.screenshot(path=str(ARTIFACTS / "rough-one-shot-ended.png"))
+        page.get_by_role("tab", name="Gait").click()
+        page.get_by_label("Library").click()
+        page.get_by_role("option", name="caterpillar", exact=True).click()
+        page.get_by_role("button", name="Open from library").click()  # a periodic gait: it never ends
+        page.get_by_role("tab", name="Preview").click()
+        expect(page.get_by_text("Preview: t = ", exact=False).first).to_be_visible(timeout=15_000)
+        time.sleep(7.0)
+        expect(ended).to_have_count(0)
+        browser.close()
+    assert not any("Traceback" in line for line in log), "".join(log[-40:])
