@@ -168,9 +168,12 @@ class GaitEditor:
 
     def history(self, kind: str) -> None:
         """``Undo`` or ``Redo`` one step (the History buttons and Ctrl+Z / Ctrl+Shift+Z)."""
+        elsewhere = self.page.undoing_elsewhere()
         moved = self.doc.undo() if kind == "Undo" else self.doc.redo()
         if not moved:
             self.page.notify("History", f"nothing to {kind.lower()}")
+        elif elsewhere:
+            self.page.notify("History", f"{kind} took back an edit made in another tab")
         self.after_edit()
 
     def _on_states(self, event: Any) -> None:
@@ -191,6 +194,7 @@ class GaitEditor:
         self.after_edit()
 
     def after_edit(self) -> None:
+        self.page.edited(f"{self.doc.data().get('name', 'the gait')} edited")
         self.sync()
         if self.doc.problems:
             self.page.notify("Invalid", page_label(self.doc.problems[0]), error=True)

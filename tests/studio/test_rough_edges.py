@@ -207,3 +207,36 @@ def test_a_one_shot_gait_says_it_ended(start_studio):
         expect(ended).to_have_count(0)
         browser.close()
     assert not any("Traceback" in line for line in log), "".join(log[-40:])
+
+
+def test_two_tabs_editing_one_gait_are_told(studio_process):
+    """An edit in tab 2 appears in tab 1 (one document) and tab 1 is told it was edited elsewhere; Undo in tab 1
+    says it takes back tab 2's edit."""
+    from playwright.sync_api import expect, sync_playwright
+
+    from .browser import VIEW_DPR
+
+    url, _, log = studio_process
+    with sync_playwright() as pw:
+        browser, first = open_page(pw, url)
+        second = browser.new_page(viewport={"width": 1400, "height": 900})
+        second.goto(f"{url}/?fixedDpr={VIEW_DPR}")
+        for page in (first, second):
+            page.get_by_role("tab", name="Gait").click()
+            expect(_number(page, "Angle (deg)")).to_be_visible(timeout=60_000)
+        angle = _number(second, "Angle (deg)")
+        angle.click()
+        angle.press("Control+a")
+        angle.press_sequentially("33")
+        angle.press("Tab")
+        expect(_number(first, "Angle (deg)")).to_have_value("33", timeout=15_000)
+        expect(first.get_by_text("edited in another tab", exact=False).first).to_be_visible(timeout=15_000)
+        expect(second.get_by_text("edited in another tab", exact=False)).to_have_count(0)
+        first.screenshot(path=str(ARTIFACTS / "rough-edited-elsewhere.png"))
+        first.get_by_role("button", name="Undo").click()
+        expect(first.get_by_text("Undo took back an edit made in another tab", exact=False).first).to_be_visible(
+            timeout=15_000
+        )
+        expect(_number(second, "Angle (deg)")).to_have_value("19.1", timeout=15_000)
+        browser.close()
+    assert not any("Traceback" in line for line in log), "".join(log[-40:])
