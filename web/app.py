@@ -34,6 +34,7 @@ from .monitor_panel import MonitorPanel
 from .page import Backend, Page
 from .preview import PreviewLoop, SceneView
 from .preview_panel import PreviewPanel
+from .record_panel import RecordPanel
 from .robot_bar import RobotBar
 
 __all__ = ["Backend", "Dashboard"]
@@ -119,6 +120,7 @@ class Dashboard:
         with tabs.add_tab("Drive"):
             self.drive = DrivePanel(page)
         with tabs.add_tab("Monitor"):
+            self.recording = RecordPanel(page)
             self.monitor = MonitorPanel(page, plots_tab)
         page.on("attach", self.attach)
         page.on("show", self.show)

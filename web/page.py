@@ -71,6 +71,14 @@ class Backend(Protocol):
         """Call ``callback(title, text, error)`` with what the backend has to say."""
         ...
 
+    def start_recording(self, robot: str, gait_name: str, gait_text: str, said: Callable[[str, bool], None]) -> None:
+        """Record ``robot`` to MCAP with the gait embedded; ``said(line, error)`` once it records (or cannot)."""
+        ...
+
+    def stop_recording(self, said: Callable[[str, bool], None]) -> None:
+        """Finish the recording; ``said(line, error)`` says what was written."""
+        ...
+
 
 class Page:
     """See the module docstring."""
@@ -128,6 +136,11 @@ class Page:
     def ensure_robot(self, gait: Gait) -> str | None:
         """Make a simulated robot the one ``gait`` describes; a message when it was rebuilt."""
         return self._backend.ensure_robot(gait)
+
+    @property
+    def recorder(self) -> Backend:
+        """The backend, for the Record button (start_recording, stop_recording)."""
+        return self._backend
 
     # -- events between panels ------------------------------------------------------------------------------------
 

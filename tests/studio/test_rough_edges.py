@@ -6,14 +6,11 @@ from __future__ import annotations
 
 import re
 import time
-from pathlib import Path
 
-from ..helpers import wait_until
+from ..helpers import ARTIFACTS, wait_until
 from .browser import marks, open_page
 
 pytestmark = marks(2)
-
-ARTIFACTS = Path(__file__).resolve().parents[2] / "test-artifacts"
 
 
 def _number(page, label: str):
@@ -24,7 +21,6 @@ def test_number_fields_refuse_on_commit_never_clamp_and_keep_refusals_out_of_und
     from playwright.sync_api import expect, sync_playwright
 
     url, _, log = studio_process
-    ARTIFACTS.mkdir(exist_ok=True)
     with sync_playwright() as pw:
         browser, page = open_page(pw, url)
         page.get_by_role("tab", name="Gait").click()
