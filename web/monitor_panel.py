@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING, Any
 from asm_module.names import module_name
 
 from .inputs import ValueInput
-from .monitor import PLOT_SECONDS, WINDOWS, LivePlot, SeriesPlot, describe, format_value
+from .monitor import PLOT_SECONDS, WINDOWS, LivePlot, SeriesPlot, describe, format_value, plot_csv
 
 if TYPE_CHECKING:
     from gaits.model import Gait
@@ -44,6 +44,8 @@ class MonitorPanel:
         self.window.on_update(page.safe(lambda e: [setattr(p, "window", float(e.target.value)) for p in self.plots]))
         self.freeze = gui.add_checkbox("Pause the live plots", initial_value=False,
                                        hint="hold the plots still to read them; the samples keep arriving")  # fmt: skip
+        export = gui.add_button_group("Export CSV", list(LIVE_PLOTS), hint="download what the plot shows")
+        export.on_click(page.safe(self._export))
         clear = gui.add_button_group("Clear", list(LIVE_PLOTS))
         clear.on_click(page.safe(lambda e: self.plots[list(LIVE_PLOTS).index(e.target.value)].unwatch_all()))
         # several plots at once, one under the other
@@ -60,6 +62,15 @@ class MonitorPanel:
     def plot(self) -> LivePlot:
         """The first live plot (a deploy watches the modules' angles in it)."""
         return self.plots[0]
+
+    def _export(self, event: Any) -> None:
+        """Download what a live plot shows now (its window) as CSV, to the tab that asked."""
+        index = list(LIVE_PLOTS).index(event.target.value)
+        labels, data = self.plots[index].data()
+        if not labels:
+            raise ValueError(f"{event.target.value} plots nothing yet: Plot an attribute into it first")
+        event.client.send_file_download(f"live-plot-{index + 1}.csv", plot_csv(labels, data).encode(),
+                                        save_immediately=True)  # fmt: skip
 
     def watch_angles(self, gait: Gait) -> None:
         """A gait was deployed: plot its first modules' joint.angle."""

@@ -1,8 +1,10 @@
 """The studio's Record button (issue 29), by clicks in Chromium: record the live robot, stop, and the MCAP file holds
-its poses for Foxglove's 3D panel, its attribute values, the metadata naming the robot and the gait embedded."""
+its poses for Foxglove's 3D panel, its attribute values, the metadata naming the robot and the gait embedded; a live
+plot exported as CSV."""
 
 from __future__ import annotations
 
+import csv
 import re
 from pathlib import Path
 
@@ -33,7 +35,18 @@ def test_record_the_robot_from_the_page_and_read_the_file_back(start_studio, tmp
         expect(done).to_be_visible(timeout=30_000)
         page.screenshot(path=str(ARTIFACTS / "record-from-page.png"))
         line = done.inner_text()
+        # the first live plot shows the deployed modules' joint.angle: its CSV is what it shows
+        with page.expect_download() as download:
+            page.get_by_role("button", name="Live plot 1").first.click()
+        rows = list(csv.reader(Path(download.value.path()).read_text().splitlines()))
+        filename = download.value.suggested_filename
         browser.close()
+    assert filename == "live-plot-1.csv"
+    assert rows[0][:2] == ["t (s)", "m1 joint.angle"], rows[0]
+    times = [float(r[0]) for r in rows[1:]]
+    assert len(times) > 30 and times == sorted(times)
+    angles = [float(r[1]) for r in rows[1:]]
+    assert max(angles) - min(angles) > 20 and all(-90 <= a <= 90 for a in angles)  # the wave, within the limits
     path = Path(re.search(r"to (\S+\.mcap)", line).group(1))  # type: ignore[union-attr]
     assert path.parent == tmp_path and path.exists()
     with path.open("rb") as stream:

@@ -205,3 +205,29 @@ def test_play_from_a_scrubbed_point_replays_from_there_then_simulates_on():
         assert wait_until(lambda: loop.frames[-1].time > newest + 0.5, timeout=30)
     finally:
         loop.close()
+
+
+def test_a_plot_exported_as_csv_reads_back_as_what_it_shows():
+    import csv
+    from collections import deque
+
+    import numpy as np
+
+    from web.monitor import LivePlot, plot_csv
+
+    plot = LivePlot(lookup=None)  # filled by hand: no subscriptions
+    now = time.monotonic() - plot.t0
+    rng = np.random.default_rng(7)
+    plot.series[("m1", "joint.angle")] = deque(
+        (now - 2.0 + k * 0.1, float(v)) for k, v in enumerate(rng.normal(size=20))
+    )
+    plot.series[("m2", "joint.goal")] = deque(
+        (now - 1.95 + k * 0.1, float(v)) for k, v in enumerate(rng.normal(size=20))
+    )
+    labels, data = plot.data()
+    rows = list(csv.reader(plot_csv(labels, data).splitlines()))
+    assert rows[0] == ["t (s)", *labels]
+    table = np.array([[float(x) for x in row] for row in rows[1:]])
+    assert np.allclose(table[:, 0], data[0], atol=1e-6)
+    for k, column in enumerate(data[1:], start=1):
+        assert np.array_equal(table[:, k], column)  # the values exactly (repr round-trips a float)
