@@ -25,6 +25,8 @@ from asm_py.cli import module_selection
 from gaits.model import Gait
 from gaits.sim import Metrics, Simulation, select_modules
 
+from .trail import Trail
+
 FRAME_RATE = 60.0
 """Recorded frames per simulated second: the timeline's resolution, and what the view draws at speed 1."""
 HISTORY_SECONDS = 300.0
@@ -343,6 +345,7 @@ class SceneView:
         """Called with a module ID when the user clicks that module in the 3D view (on viser's thread pool)."""
         self._ground = server.scene.add_grid("/ground", width=4.0, height=4.0, cell_size=GRID_CELL, plane="xy")
         self._label = server.scene.add_label("/source", "PREVIEW", position=(0.0, 0.0, 0.25))
+        self.trail = Trail(server.scene)
         self.set_rich(rich)
 
     def set_rich(self, rich: bool) -> None:
@@ -424,6 +427,7 @@ class SceneView:
             handle.on_click(lambda event, ids=ids, model=model: self._picked(model, ids, event.instance_index))
         self._built = key
         self._drawn = None
+        self.trail.reset()
 
     def _picked(self, model: mujoco.MjModel, ids: np.ndarray, instance: int | None) -> None:
         """A click on a piece of the robot: the module whose hinge starts that piece (``b<k>`` holds the half
@@ -469,13 +473,15 @@ class SceneView:
         self._drawn, xpos, xquat = poses
         shift = np.zeros(3)
         placed = [(handle, *geom_poses(built, xpos, xquat, ids)) for handle, ids in self._batches]
-        if self.follow and placed:
-            shift[:2] = np.concatenate([pos for _, pos, _ in placed])[:, :2].mean(axis=0)
+        middle = np.concatenate([pos for _, pos, _ in placed]).mean(axis=0) if placed else np.zeros(3)
+        if self.follow:
+            shift[:2] = middle[:2]
         with self.server.atomic():
             for handle, pos, wxyz in placed:
                 handle.batched_positions = (pos - shift).astype(np.float32)
                 handle.batched_wxyzs = wxyz.astype(np.float32)
             self._ground.position = (-(shift[0] % GRID_CELL), -(shift[1] % GRID_CELL), 0.0)
+            self.trail.add(middle, shift, float(getattr(self._drawn, "time", 0.0)))  # a preview frame's time
             if self._labels and self._draws % LABEL_EVERY == 0:
                 anchors = hinge_anchors(built, xpos, xquat, self._label_joints) - shift
                 for label, anchor in zip(self._labels, anchors, strict=True):

@@ -236,3 +236,43 @@ def test_two_tabs_editing_one_gait_are_told(studio_process):
         expect(_number(second, "Angle (deg)")).to_have_value("19.1", timeout=15_000)
         browser.close()
     assert not any("Traceback" in line for line in log), "".join(log[-40:])
+
+
+def test_the_robot_leaves_a_trail_and_shows_its_heading(studio_process):
+    """The preview's robot draws where it went (green) and the way it goes (magenta); the live robot too once it
+    is shown (Live after a deploy)."""
+    from playwright.sync_api import sync_playwright
+
+    url, _, log = studio_process
+    with sync_playwright() as pw:
+        browser, page = open_page(pw, url)
+        page.get_by_role("tab", name="Preview").click()
+        page.get_by_role("button", name="Reset", exact=True).click()
+        view = {"x": 0, "y": 0, "width": 1000, "height": 540}  # the 3D view above the plots panel
+        assert wait_until(lambda: _hue(page.screenshot(clip=view), "green") > 20, 60, 0.5)
+        assert wait_until(lambda: _hue(page.screenshot(clip=view), "magenta") > 10, 30, 0.5)
+        page.screenshot(path=str(ARTIFACTS / "rough-trail-preview.png"))
+        page.get_by_role("tab", name="Deploy").click()
+        page.get_by_role("button", name="Deploy", exact=True).click()
+        page.get_by_role("button", name="Start", exact=True).click()
+        assert wait_until(lambda: _hue(page.screenshot(clip=view), "blue") > 200, 60, 0.5)  # Live
+        assert wait_until(lambda: _hue(page.screenshot(clip=view), "green") > 20, 60, 0.5)
+        assert wait_until(lambda: _hue(page.screenshot(clip=view), "magenta") > 10, 30, 0.5)
+        page.screenshot(path=str(ARTIFACTS / "rough-trail-live.png"))
+        browser.close()
+    assert not any("Traceback" in line for line in log), "".join(log[-40:])
+
+
+def _hue(png: bytes, name: str) -> int:
+    """Pixels of a screenshot clearly of one hue (the view tone-maps colours: the trail's (40, 170, 60) shows as
+    (7..130, 190..220, 7..130), the arrow's (210, 30, 200) as (234, 107, 222), the live robot's blue as blue)."""
+    import io
+
+    import numpy as np
+    from PIL import Image
+
+    image = np.asarray(Image.open(io.BytesIO(png)).convert("RGB"), dtype=int)
+    r, g, b = image[..., 0], image[..., 1], image[..., 2]
+    mask = {"green": (g - r > 60) & (g - b > 40), "magenta": (r - g > 100) & (b - g > 100),
+            "blue": (b - r > 80) & (b > g)}[name]  # fmt: skip
+    return int(mask.sum())

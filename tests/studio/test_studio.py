@@ -231,3 +231,26 @@ def test_a_plot_exported_as_csv_reads_back_as_what_it_shows():
     assert np.allclose(table[:, 0], data[0], atol=1e-6)
     for k, column in enumerate(data[1:], start=1):
         assert np.array_equal(table[:, k], column)  # the values exactly (repr round-trips a float)
+
+
+def test_the_trail_keeps_where_the_robot_went_and_points_the_way_it_goes():
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from web.trail import SAMPLE_EVERY, Trail
+
+    drawn: dict[str, np.ndarray] = {}
+    scene = SimpleNamespace(add_line_segments=lambda name, points, *_a, **_k: drawn.__setitem__(name, points))
+    trail = Trail(scene)
+    angle = np.radians(30.0)
+    for k in range(SAMPLE_EVERY * 20):  # travelling at 30° from x
+        trail.add(np.array([np.cos(angle), np.sin(angle), 0.0]) * k * 0.01, np.zeros(3), seconds=k / 60)
+    assert len(trail.points) == 20
+    heading = trail.heading()
+    assert heading is not None and np.degrees(np.arctan2(heading[1], heading[0])) == pytest.approx(30.0, abs=1e-6)
+    assert drawn["/trail"].shape == (19, 2, 3) and drawn["/heading"].shape == (3, 2, 3)
+    tip = drawn["/heading"][0, 1, :2] - drawn["/heading"][0, 0, :2]
+    assert np.degrees(np.arctan2(tip[1], tip[0])) == pytest.approx(30.0, abs=1e-3)  # the arrow points the way
+    trail.add(np.zeros(3), np.zeros(3), seconds=0.5)  # scrubbed back: a new trail from there
+    assert len(trail.points) == 1
