@@ -5,6 +5,7 @@ plot exported as CSV."""
 from __future__ import annotations
 
 import csv
+import json
 import re
 from pathlib import Path
 
@@ -40,7 +41,26 @@ def test_record_the_robot_from_the_page_and_read_the_file_back(start_studio, tmp
             page.get_by_role("button", name="Live plot 1").first.click()
         rows = list(csv.reader(Path(download.value.path()).read_text().splitlines()))
         filename = download.value.suggested_filename
+        # the layout: saved, the plot cleared, loaded again: the same attributes plotted
+        with page.expect_download() as saved:
+            page.get_by_role("button", name="Save layout (.json)").click()
+        layout_file = tmp_path / "layout.json"
+        saved.value.save_as(str(layout_file))
+        layout = json.loads(layout_file.read_text())
+        page.get_by_role("button", name="Live plot 1").nth(1).click()  # Clear
+        live1 = page.locator(".uplot", has_text="Live 1")
+        expect(live1).not_to_contain_text("joint.angle", timeout=15_000)
+        with page.expect_file_chooser() as chooser:
+            page.get_by_role("button", name="Load layout (.json)").click()
+        chooser.value.set_files(str(layout_file))
+        for key in layout["plots"]["Live plot 1"]:
+            expect(live1).to_contain_text(key.replace("/", " "), timeout=15_000)
+        page.reload()  # the layout is the studio's: a reload shows it again
+        page.get_by_role("tab", name="Plots").click()
+        expect(page.locator(".uplot", has_text="Live 1")).to_contain_text("m1 joint.angle", timeout=60_000)
+        page.screenshot(path=str(ARTIFACTS / "layout-loaded.png"))
         browser.close()
+    assert layout["plots"]["Live plot 1"][:1] == ["m1/joint.angle"], layout  # the deploy plotted the angles
     assert filename == "live-plot-1.csv"
     assert rows[0][:2] == ["t (s)", "m1 joint.angle"], rows[0]
     times = [float(r[0]) for r in rows[1:]]
