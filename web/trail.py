@@ -74,5 +74,5 @@ class Trail:
         side = np.array([-heading[1], heading[0]]) * ARROW_LENGTH * 0.2
         ends = [(path[-1, :2], tip), (tip, tip - back + side), (tip, tip - back - side)]
         arrow = np.array([[[*a, HEIGHT * 2], [*b, HEIGHT * 2]] for a, b in ends], dtype=np.float32)
-        self._arrow = self.scene.add_line_segments("/heading", arrow, ARROW_COLOR, thickness=5.0,
+        self._arrow = self.scene.add_line_segments("/travel_arrow", arrow, ARROW_COLOR, thickness=5.0,
                                                    thickness_units="screen")  # fmt: skip

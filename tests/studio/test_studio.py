@@ -249,8 +249,8 @@ def test_the_trail_keeps_where_the_robot_went_and_points_the_way_it_goes():
     assert len(trail.points) == 20
     heading = trail.heading()
     assert heading is not None and np.degrees(np.arctan2(heading[1], heading[0])) == pytest.approx(30.0, abs=1e-6)
-    assert drawn["/trail"].shape == (19, 2, 3) and drawn["/heading"].shape == (3, 2, 3)
-    tip = drawn["/heading"][0, 1, :2] - drawn["/heading"][0, 0, :2]
+    assert drawn["/trail"].shape == (19, 2, 3) and drawn["/travel_arrow"].shape == (3, 2, 3)
+    tip = drawn["/travel_arrow"][0, 1, :2] - drawn["/travel_arrow"][0, 0, :2]
     assert np.degrees(np.arctan2(tip[1], tip[0])) == pytest.approx(30.0, abs=1e-3)  # the arrow points the way
     trail.add(np.zeros(3), np.zeros(3), seconds=0.5)  # scrubbed back: a new trail from there
     assert len(trail.points) == 1
