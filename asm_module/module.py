@@ -48,6 +48,10 @@ class Module(Protocol):
         """Stop ``gait.service``: the joint holds its last goal."""
         ...
 
+    def gait_running(self) -> bool:
+        """``gait.service`` runs (a one-shot program that ended, or a stopped gait, does not)."""
+        ...
+
     def goal_now(self) -> float:
         """What it commands its joint to now (degrees)."""
         ...

@@ -371,6 +371,9 @@ class ModuleRuntime:
     def stop_gait(self) -> None:
         self.gait.stop(timeout=5.0)
 
+    def gait_running(self) -> bool:
+        return self.gait.started
+
     def goal_now(self) -> float:
         return float(self.goal.peek())
 

@@ -9,12 +9,19 @@
 - ``foxglove_updates_32_vs_60fps``: ``asm-robot --foxglove 0`` with a 32-module caterpillar deployed and running, a
   Foxglove WebSocket client (the ``websockets`` package, subscribed per the Foxglove protocol) counting
   ``/robot/transforms`` messages for 10 s, over 60 a second (the pose feed's rate). Target >= 0.9.
+- ``record_overhead_rtf_128``: ``asm-robot --sim`` with the 128-module caterpillar deployed and running; its
+  published real-time factor (the median of one reading a second) for 10 s while ``asm-record`` records everything
+  (every attribute view, poses, status, events, the gait embedded) in its own process, over the same for 10 s
+  without it, just before. Target >= 0.95. A miss prints what the recorder cost: its CPU seconds per wall second
+  and whether the robot fell behind the wall clock.
 """
 
 from __future__ import annotations
 
 import asyncio
 import json
+import os
+import statistics
 import struct
 import subprocess
 import sys
@@ -29,7 +36,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 import zenoh
 from mcap.reader import make_reader
 
-from asm_module.feed import decode_poses, poses_key
+from asm_module.feed import RobotStatus, decode_poses, poses_key, status_key
 from asm_py.node import Node
 from asm_py.transport.zenoh import ZenohTransport
 from bench._processes import ROOT, Child, free_port
@@ -162,6 +169,74 @@ def foxglove_rate(folder: Path, modules: int = 32) -> float:
     return received / SECONDS
 
 
+class Factors:
+    """The robot's published real-time factor, one reading a second, and whether it fell behind."""
+
+    def __init__(self, session: zenoh.Session) -> None:
+        self.status: RobotStatus | None = None
+        self._sub = session.declare_subscriber(status_key("robot"), self._on)
+
+    def _on(self, sample: zenoh.Sample) -> None:
+        self.status = RobotStatus.from_json(sample.payload.to_bytes())
+
+    def over(self, seconds: float) -> tuple[list[float], bool]:
+        factors, behind = [], False
+        for _ in range(int(seconds)):
+            time.sleep(1.0)
+            status = self.status
+            factors.append(status.real_time_factor or 0.0 if status is not None else 0.0)
+            behind |= bool(status is not None and status.behind)
+        return factors, behind
+
+    def close(self) -> None:
+        self._sub.undeclare()
+
+
+def _cpu_seconds(pid: int) -> float:
+    """User + system CPU seconds of a process so far (Linux /proc)."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def record_overhead(folder: Path, modules: int = 128) -> float:
+    """The 128-module robot's real-time factor while asm-record records everything, over without (see above)."""
+    doc = GaitDocument(load(LIBRARY / "caterpillar.toml"))
+    doc.set_robot("modules", modules)
+    gait = folder / f"caterpillar{modules}.toml"
+    gait.write_text(dumps(doc.gait()))
+    robot, client, _ = start_robot(gait, modules)
+    endpoint = robot.popen.args[robot.popen.args.index("--zenoh-listen") + 1]  # type: ignore[union-attr]
+    factors = Factors(client.transport.session)  # type: ignore[attr-defined]
+    try:
+        time.sleep(4.0)
+        without, behind_without = factors.over(SECONDS)
+        recorder = subprocess.Popen([sys.executable, "-m", "server.record", "--robot", "robot", "--zenoh-connect",
+                                     endpoint, "--output", str(folder / "overhead.mcap"), "--gait", str(gait),
+                                     "--max-seconds", str(SECONDS + 8)], cwd=ROOT, stdout=subprocess.PIPE,
+                                    stderr=subprocess.STDOUT, text=True)  # fmt: skip
+        try:
+            time.sleep(3.0)  # its subscriptions made and its tables read
+            cpu, began = _cpu_seconds(recorder.pid), time.monotonic()
+            with_recording, behind_with = factors.over(SECONDS)
+            cpu = (_cpu_seconds(recorder.pid) - cpu) / (time.monotonic() - began)
+        finally:
+            out, _ = recorder.communicate(timeout=SECONDS + 60)
+        print(out.strip().splitlines()[-1] if out.strip() else "asm-record said nothing", flush=True)
+    finally:
+        factors.close()
+        client.close()
+        robot.stop()
+    print(f"{modules} modules, real-time factor each second without recording: "
+          f"{', '.join(f'{f:.3f}' for f in without)} (behind: {'yes' if behind_without else 'no'}); "
+          f"recording: {', '.join(f'{f:.3f}' for f in with_recording)} (behind: {'yes' if behind_with else 'no'}); "
+          f"the recorder used {cpu:.2f} CPU seconds a second on {os.cpu_count()} cores; load average "
+          f"{os.getloadavg()[0]:.1f}", flush=True)  # fmt: skip
+    if behind_without:
+        print("the robot fell behind the wall clock without recording too: the machine cannot run it in real time, "
+              "so the ratio measures the machine's other load as much as the recorder", flush=True)  # fmt: skip
+    return statistics.median(with_recording) / max(1e-9, statistics.median(without))
+
+
 def main() -> None:
     with tempfile.TemporaryDirectory() as directory:
         folder = Path(directory)
@@ -171,6 +246,9 @@ def main() -> None:
         print(f"ratio mcap_values_equal_published {ratio:.3f} (target == 1)", flush=True)
         rate = foxglove_rate(folder)
         print(f"ratio foxglove_updates_32_vs_60fps {rate / 60.0:.2f} (target >= 0.9)", flush=True)
+        overhead = record_overhead(folder)
+        miss = "" if overhead >= 0.95 else " MISS: see the line above for what the recorder cost"
+        print(f"ratio record_overhead_rtf_128 {overhead:.3f} (target >= 0.95){miss}", flush=True)
 
 
 if __name__ == "__main__":

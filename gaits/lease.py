@@ -63,13 +63,22 @@ class Lease:
                 self.calls.set(module, "gait.lease", self._record(LEASE_SECONDS), "lease")
             except DeployError as exc:
                 if isinstance(exc.__cause__, EstopLatched):
-                    raise DeployError(f"lease: the emergency stop is latched on module {module} "
-                                      f"({self.calls.names[module]}); release it first") from None  # fmt: skip
+                    self._refuse_latched(module)
                 raise
             self.held.append(module)
         self._renewed_at = time.monotonic()
         self._renewer = threading.Thread(target=self._renew_loop, name="asm-lease", daemon=True)
         self._renewer.start()
+
+    def _refuse_latched(self, first: int) -> None:
+        """DeployError naming every latched module (read now), not only ``first``, the one that refused the lease:
+        a user releasing one module at a time would be refused eleven times on a robot of twelve."""
+        try:
+            latched = [first, *self.calls.latched([m for m in self.modules if m != first], "lease")]
+        except DeployError:  # a module that does not answer: name the one known
+            latched = [first]
+        listed = ", ".join(f"module {m} ({self.calls.names[m]})" for m in sorted(latched))
+        raise DeployError(f"lease: the emergency stop is latched on {listed}; release it first") from None
 
     def renew(self) -> None:
         """Renew the lease on every module now; DeployError if another deployer holds a module's lease, or if the

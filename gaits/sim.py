@@ -323,6 +323,10 @@ class Simulation:
         for module in self.modules.values():
             module.hear_signal(number)
 
+    def running(self) -> int:
+        """How many modules' gaits run now (none, once a one-shot program has ended on every module)."""
+        return sum(1 for module in self.modules.values() if module.gait_running())
+
     def stop_gaits(self) -> None:
         """Stop every module's gait: the joints hold their last goals (the Drive panel's stop)."""
         for module in self.modules.values():

@@ -51,6 +51,7 @@ from gaits.validate import read
 
 from .child import Child, ChildError
 from .realtime import prefer_latency
+from .studio_record import StudioRecording
 from .zenoh_args import ZenohOptions, add_zenoh_arguments, zenoh_options
 
 log = logging.getLogger("asm_studio")
@@ -82,6 +83,8 @@ class StudioOptions:
     """The page's access token; None: none on loopback, a new random one when served beyond it."""
     c_modules: str | None = None
     """Simulated modules that run the C runtime (``asm-robot --c-modules``): "odd", "even", "all" or "1,3,5"."""
+    recordings: Path = Path("recordings")
+    """Where the page's Record button writes its MCAP files."""
 
 
 def free_loopback_port() -> int:
@@ -135,9 +138,11 @@ class Studio:
         self._child_lock = threading.Lock()
         self._watcher: threading.Thread | None = None
         self._link: Any = None
+        self.recording: StudioRecording | None = None
         try:
             self.network = self._start_robot(self.gait) if options.robot is None else self._join(options.robot)
             self.session = self.network.open()
+            self.recording = StudioRecording(self.session, options.recordings)
             robot = options.robot_name or self.own_robot or self._find_robot()
             from web.app import Dashboard  # viser loads only for the studio
             from web.guard import is_loopback, new_token
@@ -307,6 +312,15 @@ class Studio:
         status = self.app.link.status if self.app is not None else self.status
         return status is not None and status.mode == "simulated"
 
+    def start_recording(self, robot: str, gait_name: str, gait_text: str, said: Callable[[str, bool], None]) -> None:
+        if self.recording is None:
+            raise RuntimeError("the studio is closing: nothing can be recorded")
+        self.recording.request_start(robot, gait_name, gait_text, said)
+
+    def stop_recording(self, said: Callable[[str, bool], None]) -> None:
+        if self.recording is not None:
+            self.recording.request_stop(said)
+
     @property
     def port(self) -> int:
         return self.app.port if self.app is not None else self.options.port
@@ -321,6 +335,9 @@ class Studio:
         if self._link is not None:
             self._link.close()
             self._link = None
+        if self.recording is not None:  # a recording still running is finished, before its session goes
+            self.recording.close()
+            self.recording = None
         if self.session is not None:
             self.session.close()
             self.session = None
@@ -351,6 +368,8 @@ def main(argv: list[str] | None = None) -> int:
                      "is on loopback only unless --zenoh-listen says otherwise")  # fmt: skip
     cli.add_argument("--host", default="127.0.0.1", help="address to serve on (default 127.0.0.1, this machine only)")
     cli.add_argument("--port", type=port, default=8080, help="HTTP port (default 8080; 0 picks a free one)")
+    cli.add_argument("--recordings", type=Path, default=StudioOptions.recordings, metavar="DIR",
+                     help="where the page's Record button writes MCAP files (default: recordings)")  # fmt: skip
     cli.add_argument("--view", choices=["preview", "live"], default="preview",
                      help="what the 3D view shows at start (default: the preview of the edited gait)")  # fmt: skip
     cli.add_argument("--c-modules", type=module_selection, metavar="IDS", help="simulated modules that run the C "
@@ -375,7 +394,8 @@ def _serve(args: argparse.Namespace, network: ZenohOptions) -> int:
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
     options = StudioOptions(gait=args.gait, can=args.can, robot=args.robot, robot_name=args.robot_name,
                             name=args.name, bitrate=args.bitrate, network=network, host=args.host, port=args.port,
-                            view=args.view, c_modules=_selection_text(args.c_modules))  # fmt: skip
+                            view=args.view, c_modules=_selection_text(args.c_modules),
+                            recordings=args.recordings)  # fmt: skip
     done = stop_requested()
     studio = Studio(options)  # a bad gait file, a busy port, no robot: asm-studio: error: … (asm_py.cli.run)
     link = studio.app.link

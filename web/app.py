@@ -35,6 +35,7 @@ from .monitor_panel import MonitorPanel
 from .page import Backend, Page
 from .preview import PreviewLoop, SceneView
 from .preview_panel import PreviewPanel
+from .record_panel import RecordPanel
 from .robot_bar import RobotBar
 from .tune_panel import TunePanel
 
@@ -121,6 +122,7 @@ class Dashboard:
         with tabs.add_tab("Drive"):
             self.drive = DrivePanel(page)
         with tabs.add_tab("Monitor"):
+            self.recording = RecordPanel(page)
             self.monitor = MonitorPanel(page, plots_tab)
         with tabs.add_tab("Tune"):
             self.tuner = TunePanel(page)

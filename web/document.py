@@ -274,11 +274,16 @@ class GaitDocument:
     def _apply(self, edit: Any, *, field: Any = None, opened: bool = False, text: str | None = None) -> None:
         """Apply one edit as an undo step. Edits of the same ``field`` less than TYPING seconds apart are one step:
         the page sends a number as it is typed ("4", then "45"), and Undo should give back the value before "45",
-        not "4". Anything else in between (another field, undo, redo) ends the step."""
+        not "4". An edit of the field whose value was refused (the document invalid) joins that step however late,
+        so the refused value is never an undo step of its own. Anything else in between (another field, undo, redo)
+        ends the step."""
         with self._lock:
             now = self._clock()
+            # a refused value (the document invalid after it) is replaced by its field's next value: Undo never
+            # gives back a value the page refused
             typing = (field is not None and self._last_edit is not None and self._last_edit[0] == field
-                      and now - self._last_edit[1] < TYPING and self._undo and not self._redo)  # fmt: skip
+                      and (now - self._last_edit[1] < TYPING or bool(self.problems))
+                      and self._undo and not self._redo)  # fmt: skip
             before: Snapshot = (copy.deepcopy(self._data), self._source)
             edit(self._data)
             if opened:  # a gait opened in place of this one: its own file's text (or none)

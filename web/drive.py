@@ -59,10 +59,16 @@ class DrivePanel:
             add(f"Drive: {label[2:].lower()}", key, lambda label=label: self.command(label))
 
     def sync(self, gait: Gait) -> None:
-        """The edited gait changed: offer its program's gaits."""
+        """The edited gait changed: offer its program's gaits. A robot line that the modules' state contradicts (a
+        latched e-stop after "confirmed by 12 of 12") says what the modules are doing now."""
         names = gait.program_gaits()
         if list(self.gaits.options) != names:
             self.gaits.options = names
+        status = self.page.robot.status
+        latched = status.estop if status is not None else None
+        if latched and self.state.content.startswith("Robot:") and "E-STOP" not in self.state.content:
+            self.state.content = (f"Robot: **stopped**, E-STOP latched on {len(latched)} modules — release it and "
+                                  "start a gait before driving")  # fmt: skip
 
     def command(self, label: str) -> None:
         gait, direction = COMMANDS[label]

@@ -168,9 +168,12 @@ class GaitEditor:
 
     def history(self, kind: str) -> None:
         """``Undo`` or ``Redo`` one step (the History buttons and Ctrl+Z / Ctrl+Shift+Z)."""
+        elsewhere = self.page.undoing_elsewhere()
         moved = self.doc.undo() if kind == "Undo" else self.doc.redo()
         if not moved:
             self.page.notify("History", f"nothing to {kind.lower()}")
+        elif elsewhere:
+            self.page.notify("History", f"{kind} took back an edit made in another tab")
         self.after_edit()
 
     def _on_states(self, event: Any) -> None:
@@ -191,11 +194,13 @@ class GaitEditor:
         self.after_edit()
 
     def after_edit(self) -> None:
+        self.page.edited(f"{self.doc.data().get('name', 'the gait')} edited")
         self.sync()
         if self.doc.problems:
             self.page.notify("Invalid", page_label(self.doc.problems[0]), error=True)
             return
         self.page.resolved("Invalid", f"Edited: {self.doc.gait().name} is valid again")
+        self.page.resolved("Error", f"Edited: {self.doc.gait().name} is valid again")  # a refused edit's line
         self.page.loop.request("load", self.doc.gait())  # an edit re-previews at once
 
     # -- showing the document -------------------------------------------------------------------------------------
@@ -217,6 +222,8 @@ class GaitEditor:
         states = data["automata"][self.automaton.value]["states"]
         self.state_index.max = max(2, len(states))
         index = min(int(self.state_index.value), len(states)) - 1
+        if int(self.state_index.value) != index + 1:  # another gait, fewer states: the slider shows one of them
+            self.state_index.value = index + 1
         state = states[index]
         self.angle.value = float(state.get("angle", 0.0))
         self.duration.value = float(state.get("duration") or 0.0)
@@ -228,6 +235,8 @@ class GaitEditor:
         modules = assignments(data, editing)
         self.module_index.max = max(2, len(modules))
         m_index = min(int(self.module_index.value), len(modules)) - 1
+        if int(self.module_index.value) != m_index + 1:
+            self.module_index.value = m_index + 1
         module = modules[m_index]
         self.phase.value = float(module.get("phase", 0.0))
         self.direction.value = str(module.get("direction", 1))

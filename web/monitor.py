@@ -184,6 +184,20 @@ class LivePlot:
         self.unwatch_all()
 
 
+def plot_csv(labels: list[str], data: tuple[np.ndarray, ...]) -> str:
+    """What a plot shows (``LivePlot.data``'s labels and arrays) as CSV: seconds, then one column per series."""
+    import csv
+    import io
+
+    out = io.StringIO()
+    writer = csv.writer(out, lineterminator="\n")
+    writer.writerow(["t (s)", *labels])
+    times, *columns = data
+    for k, t in enumerate(times):
+        writer.writerow([f"{t:.6f}", *(repr(float(c[k])) for c in columns)])
+    return out.getvalue()
+
+
 class SeriesPlot:
     """A plot against seconds whose set of series can change (a live plot gains a series per watched attribute).
 

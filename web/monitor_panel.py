@@ -3,6 +3,7 @@ joins — every read and write through the page's robot link (web/link.py), neve
 
 from __future__ import annotations
 
+import json
 import logging
 import threading
 from typing import TYPE_CHECKING, Any
@@ -10,7 +11,7 @@ from typing import TYPE_CHECKING, Any
 from asm_module.names import module_name
 
 from .inputs import ValueInput
-from .monitor import PLOT_SECONDS, WINDOWS, LivePlot, SeriesPlot, describe, format_value
+from .monitor import PLOT_SECONDS, WINDOWS, LivePlot, SeriesPlot, describe, empty_plot, format_value, plot_csv
 
 if TYPE_CHECKING:
     from gaits.model import Gait
@@ -44,6 +45,12 @@ class MonitorPanel:
         self.window.on_update(page.safe(lambda e: [setattr(p, "window", float(e.target.value)) for p in self.plots]))
         self.freeze = gui.add_checkbox("Pause the live plots", initial_value=False,
                                        hint="hold the plots still to read them; the samples keep arriving")  # fmt: skip
+        export = gui.add_button_group("Export CSV", list(LIVE_PLOTS), hint="download what the plot shows")
+        export.on_click(page.safe(self._export))
+        gui.add_button("Save layout (.json)").on_click(page.safe(lambda e: e.client.send_file_download(
+            "asm-layout.json", json.dumps(self.layout(), indent=2).encode(), save_immediately=True)))  # fmt: skip
+        load = gui.add_upload_button("Load layout (.json)", mime_type=".json")
+        load.on_upload(page.safe(lambda e: self.apply_layout(json.loads(e.target.value.content))))
         clear = gui.add_button_group("Clear", list(LIVE_PLOTS))
         clear.on_click(page.safe(lambda e: self.plots[list(LIVE_PLOTS).index(e.target.value)].unwatch_all()))
         # several plots at once, one under the other
@@ -60,6 +67,41 @@ class MonitorPanel:
     def plot(self) -> LivePlot:
         """The first live plot (a deploy watches the modules' angles in it)."""
         return self.plots[0]
+
+    def layout(self) -> dict[str, Any]:
+        """Which attributes each live plot shows, and the window: what Save layout writes."""
+        return {"version": 1, "window": self.plots[0].window,
+                "plots": {name: [f"{m}/{a}" for m, a in sorted(plot.series)]
+                          for name, plot in zip(LIVE_PLOTS, self.plots, strict=True)}}  # fmt: skip
+
+    def apply_layout(self, layout: Any) -> None:
+        """Plot what a saved layout names (ValueError, nothing changed, for a file that is not one)."""
+        plots = layout.get("plots") if isinstance(layout, dict) else None
+        window = layout.get("window", PLOT_SECONDS) if isinstance(layout, dict) else None
+        if not isinstance(plots, dict) or set(plots) - set(LIVE_PLOTS) or window not in WINDOWS:
+            raise ValueError(f"not a layout: plots named {sorted(LIVE_PLOTS)} and a window of {list(WINDOWS)} s")
+        wanted = {name: [str(k).split("/", 1) for k in keys] for name, keys in plots.items()}
+        if any(len(key) != 2 for keys in wanted.values() for key in keys):
+            raise ValueError("not a layout: each plotted attribute is node/attribute")
+        for name, keys in wanted.items():
+            plot = self.plots[list(LIVE_PLOTS).index(name)]
+            plot.unwatch_all()
+            for module, attribute in keys:
+                plot.watch(module, attribute)
+        for plot in self.plots:
+            plot.window = float(window)
+        with self.page.programmatic():
+            self.window.value = f"{float(window):g}"
+        self.page.notify("Layout", f"loaded: {sum(len(k) for k in wanted.values())} plotted attributes")
+
+    def _export(self, event: Any) -> None:
+        """Download what a live plot shows now (its window) as CSV, to the tab that asked."""
+        index = list(LIVE_PLOTS).index(event.target.value)
+        labels, data = self.plots[index].data()
+        if not labels:
+            raise ValueError(f"{event.target.value} plots nothing yet: Plot an attribute into it first")
+        event.client.send_file_download(f"live-plot-{index + 1}.csv", plot_csv(labels, data).encode(),
+                                        save_immediately=True)  # fmt: skip
 
     def watch_angles(self, gait: Gait) -> None:
         """A gait was deployed: plot its first modules' joint.angle."""
@@ -166,8 +208,12 @@ class MonitorPanel:
         )  # fmt: skip
         for plot, live in zip(self.plots, self.lives, strict=True):
             labels, data = plot.data()
-            if labels and not self.freeze.value:
+            if self.freeze.value:
+                continue
+            if labels:
                 live.show(labels, data)
+            elif live.labels != ["-"]:  # cleared: its lines go too (they stayed on the plot after Clear)
+                live.show(["-"], empty_plot(2))
 
     def close(self) -> None:
         for plot in self.plots:

@@ -73,6 +73,14 @@ class Backend(Protocol):
         """Call ``callback(title, text, error)`` with what the backend has to say."""
         ...
 
+    def start_recording(self, robot: str, gait_name: str, gait_text: str, said: Callable[[str, bool], None]) -> None:
+        """Record ``robot`` to MCAP with the gait embedded; ``said(line, error)`` once it records (or cannot)."""
+        ...
+
+    def stop_recording(self, said: Callable[[str, bool], None]) -> None:
+        """Finish the recording; ``said(line, error)`` says what was written."""
+        ...
+
 
 class Page:
     """See the module docstring."""
@@ -98,6 +106,9 @@ class Page:
         self._programmatic = threading.local()
         self._sync_lock = threading.RLock()
         self._last_toast: tuple[tuple[str, str], float] | None = None
+        self._acting = threading.local()
+        self.last_editor: int | None = None
+        """The client (browser tab) whose edit of the gait came last."""
         self.toasts = 0
         """Toasts sent (a repeat within TOAST_SECONDS is not)."""
         self.status: Any = None
@@ -129,6 +140,11 @@ class Page:
         a message when it was rebuilt."""
         return self._backend.ensure_robot(gait, self.loop.terrain)
 
+    @property
+    def recorder(self) -> Backend:
+        """The backend, for the Record button (start_recording, stop_recording)."""
+        return self._backend
+
     # -- events between panels ------------------------------------------------------------------------------------
 
     def on(self, event: Event, callback: Callable[..., None]) -> None:
@@ -145,11 +161,14 @@ class Page:
 
         @functools.wraps(fn)
         def wrapped(event: Any) -> None:
+            self._acting.client = getattr(event, "client", None)
             try:
                 fn(event)
             except Exception as exc:
                 log.info("action failed: %s", exc)
                 self.notify("Error", str(exc), error=True)
+            finally:
+                self._acting.client = None
 
         return wrapped
 
@@ -166,6 +185,26 @@ class Page:
         self.toasts += 1
         for client in self.server.get_clients().values():
             client.add_notification(title, body, color="red" if error else "blue", auto_close_seconds=TOAST_SECONDS)
+
+    def edited(self, what: str) -> None:
+        """The gait was edited (``what``) by the tab acting now: when another tab edited it last, the other tabs
+        are told that one tab edits it now (they show the same document: a rename in one appears in all). Edits
+        the server makes (no tab acting) say nothing."""
+        client = getattr(self._acting, "client", None)
+        if client is None:
+            return
+        previous, self.last_editor = self.last_editor, client.client_id
+        if previous == client.client_id:
+            return
+        for other in self.server.get_clients().values():
+            if other.client_id != client.client_id:
+                other.add_notification("Edited elsewhere", f"{what} in another tab; this tab shows it, and its "
+                                       "Undo would take it back", color="yellow", auto_close_seconds=30.0)  # fmt: skip
+
+    def undoing_elsewhere(self) -> bool:
+        """The tab acting now is about to undo or redo an edit another tab made."""
+        client = getattr(self._acting, "client", None)
+        return client is not None and self.last_editor is not None and self.last_editor != client.client_id
 
     def resolved(self, title: str, now: str) -> None:
         """The problem the status line reports under ``title`` is gone: say ``now`` instead (one status, current)."""

@@ -10,6 +10,10 @@ puts this script and style into the page's ``<head>``:
   scene tree; so is the dock's *Collapse panel area*, which folded the side panel, E-STOP included, into a strip
   (and left Escape nothing to press). (The *Share* button, which offers a public URL of the page, is turned off by
   the theme.)
+- **A number field is committed, not sent at every keystroke**: viser sends each keystroke's number, so typing
+  ``-0.1`` sent ``-0`` (which the field then showed as ``0``, and the next keys made ``0.1``: a refusal became a
+  clamp) and typing ``1.5`` was validated at ``1.``. The field's input events are held back from the page's
+  handlers until Enter, Tab, a step arrow or leaving the field, then the field's text is sent once.
 """
 
 from __future__ import annotations
@@ -49,6 +53,37 @@ SCRIPT = """<script>
     }
   }
   new MutationObserver(hideSettings).observe(document.documentElement, {childList: true, subtree: true});
+  // number fields: what is typed stays in the field until it is committed (Enter, Tab, a step arrow, leaving it)
+  var passing = false;
+  var pending = new WeakSet();
+  function isNumber(el) {
+    return !!el && el.tagName === "INPUT" && el.classList.contains("mantine-NumberInput-input");
+  }
+  function commit(el) {
+    if (!pending.has(el)) return;
+    pending.delete(el);
+    var text = el.value;
+    var setter = Object.getOwnPropertyDescriptor(HTMLInputElement.prototype, "value").set;
+    passing = true;
+    try {  // as if the field were cleared, then the text pasted: the field's formatter takes it whole
+      setter.call(el, "");
+      el.dispatchEvent(new Event("input", {bubbles: true}));
+      setter.call(el, text);
+      el.setSelectionRange(text.length, text.length);
+      el.dispatchEvent(new Event("input", {bubbles: true}));
+    } finally { passing = false; }
+  }
+  window.addEventListener("input", function (event) {
+    if (passing || !isNumber(event.target)) return;
+    event.stopImmediatePropagation();
+    pending.add(event.target);
+  }, true);
+  window.addEventListener("keydown", function (event) {
+    if (isNumber(event.target) && /^(Enter|Tab|ArrowUp|ArrowDown)$/.test(event.key)) commit(event.target);
+  }, true);
+  window.addEventListener("focusout", function (event) {
+    if (isNumber(event.target)) commit(event.target);
+  }, true);
 })();
 </script>""".replace("ESTOP_KEY", ESTOP_KEY)
 

@@ -2,7 +2,8 @@
 
 As in mjviser, the loop that owns MjData is the only code that touches it: GUI callbacks only queue requests
 (:meth:`PreviewLoop.request`), and the loop records frames (time, qpos, goals, angles) into a bounded history that the
-view and the timeline read. Scrubbing and stepping back show recorded frames; play continues from the live end.
+view and the timeline read. Scrubbing and stepping back show recorded frames; Play from a scrubbed point replays
+the recorded frames from there at the chosen speed, and the simulation goes on once they are played.
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ from gaits.sim import Metrics, Simulation, select_modules
 from gaits.terrain import FLAT, Terrain
 
 from .ground import GroundView
+from .trail import Trail
 
 FRAME_RATE = 60.0
 """Recorded frames per simulated second: the timeline's resolution, and what the view draws at speed 1."""
@@ -46,6 +48,8 @@ class Frame:
     metrics: Metrics | None = None
     """Distance, speed, heading and peak torque since the gait (re)started, as they were at this frame: the metrics
     follow the timeline as the pose does."""
+    running: int = -1
+    """How many modules' gaits ran at this frame (0: a one-shot program ended, or the gaits were stopped)."""
 
 
 class PreviewLoop:
@@ -64,6 +68,8 @@ class PreviewLoop:
         self.playing = True
         self.speed = 1.0
         self.error: str | None = None
+        self.ended_at: float | None = None
+        """Simulated time at which no module's gait ran any more (a one-shot program's end), None while one runs."""
         self.generation = 0
         """Incremented whenever a new gait is loaded (the view rebuilds its meshes)."""
         self.sim = self._new_sim(gait)
@@ -148,7 +154,10 @@ class PreviewLoop:
                 self._handle(kind, value)
                 self._changed.set()
             now = time.monotonic()
-            if self.playing and self.error is None:
+            if self.playing and self.cursor is not None:  # played from a scrubbed point: the recorded frames first
+                owed = min(owed + (now - last) * self.speed, 0.25)
+                owed = self._replay(owed)
+            elif self.playing and self.error is None:
                 owed = min(owed + (now - last) * self.speed, 0.25)  # never try to catch up more than 0.25 s
                 dt = self.sim.model.opt.timestep
                 try:
@@ -172,6 +181,21 @@ class PreviewLoop:
         loads = [k for k, (kind, _) in enumerate(requests) if kind == "load"]
         return [r for k, r in enumerate(requests) if r[0] != "load" or k == loads[-1]]
 
+    def _replay(self, owed: float) -> float:
+        """Move the cursor through the recorded frames by ``owed`` seconds of simulated time; at the newest frame
+        the simulation takes over (the cursor goes). Returns the time still owed."""
+        with self._lock:
+            if self.cursor is None:
+                return owed
+            end = len(self.frames) - 1
+            while owed >= 1 / FRAME_RATE and self.cursor < end:
+                self.cursor += 1
+                owed -= 1 / FRAME_RATE
+            if self.cursor >= end:
+                self.cursor = None
+            self._changed.set()
+        return owed
+
     def _steps_to_next_frame(self) -> int:
         due = self._next_frame - self.sim.data.time
         return max(1, math.ceil(due / self.sim.model.opt.timestep - 1e-6))
@@ -186,7 +210,12 @@ class PreviewLoop:
                 goals = tuple(sim.goal(a.id) for a in sim.gait.modules)
                 angles = tuple(sim.angle(a.id) for a in sim.gait.modules)
                 metrics = sim.measure(self._start_com, sim.data.time)
-                self.frames.append(Frame(sim.data.time, sim.data.qpos.copy(), goals, angles, metrics))
+                running = sim.running()
+                if running == 0 and self.ended_at is None:
+                    self.ended_at = sim.data.time
+                elif running:
+                    self.ended_at = None
+                self.frames.append(Frame(sim.data.time, sim.data.qpos.copy(), goals, angles, metrics, running))
                 self._changed.set()
 
     def _handle(self, kind: str, value: Any) -> None:
@@ -206,6 +235,7 @@ class PreviewLoop:
                 self.frames.clear()
                 self._next_frame = 0.0
                 self.cursor = None
+                self.ended_at = None
                 self._start_com = new.center_of_mass()
                 self.error = None
                 self.generation += 1
@@ -222,10 +252,8 @@ class PreviewLoop:
         elif kind == "signal":  # the Drive panel's broadcast signal, as every module on a bus would hear it
             with self._lock:
                 self.sim.signal(int(value))
-        elif kind == "play":
+        elif kind == "play":  # from where the timeline is: a scrubbed point replays what was recorded from there
             self.playing = bool(value)
-            if self.playing:
-                self.cursor = None
         elif kind == "speed":
             self.speed = max(0.05, min(float(value), 8.0))
         elif kind == "seek":
@@ -328,6 +356,7 @@ class SceneView:
         """A rough ground, a step, patches: drawn from the preview's model (the flat floor is the grid)."""
         self._ground = server.scene.add_grid("/ground", width=4.0, height=4.0, cell_size=GRID_CELL, plane="xy")
         self._label = server.scene.add_label("/source", "PREVIEW", position=(0.0, 0.0, 0.25))
+        self.trail = Trail(server.scene)
         self.set_rich(rich)
 
     def set_rich(self, rich: bool) -> None:
@@ -411,6 +440,7 @@ class SceneView:
         self._ground.visible = not self._terrain.covers_start
         self._built = key
         self._drawn = None
+        self.trail.reset()
 
     def _picked(self, model: mujoco.MjModel, ids: np.ndarray, instance: int | None) -> None:
         """A click on a piece of the robot: the module whose hinge starts that piece (``b<k>`` holds the half
@@ -456,14 +486,16 @@ class SceneView:
         self._drawn, xpos, xquat = poses
         shift = np.zeros(3)
         placed = [(handle, *geom_poses(built, xpos, xquat, ids)) for handle, ids in self._batches]
-        if self.follow and placed:
-            shift[:2] = np.concatenate([pos for _, pos, _ in placed])[:, :2].mean(axis=0)
+        middle = np.concatenate([pos for _, pos, _ in placed]).mean(axis=0) if placed else np.zeros(3)
+        if self.follow:
+            shift[:2] = middle[:2]
         with self.server.atomic():
             for handle, pos, wxyz in placed:
                 handle.batched_positions = (pos - shift).astype(np.float32)
                 handle.batched_wxyzs = wxyz.astype(np.float32)
             self._ground.position = (-(shift[0] % GRID_CELL), -(shift[1] % GRID_CELL), 0.0)
             self._terrain.move(shift)
+            self.trail.add(middle, shift, float(getattr(self._drawn, "time", 0.0)))  # a preview frame's time
             if self._labels and self._draws % LABEL_EVERY == 0:
                 anchors = hinge_anchors(built, xpos, xquat, self._label_joints) - shift
                 for label, anchor in zip(self._labels, anchors, strict=True):

@@ -76,6 +76,9 @@ class PreviewPanel:
         frames = len(loop.frames)
         warning = f"  \n⚠ {loop.error}" if loop.error else ""
         ground = "" if loop.terrain.kind == "flat" else f" on {loop.terrain.spec}"
+        frame = loop.shown()
+        if frame is not None and frame.running == 0 and loop.ended_at is not None:
+            warning = f" · ■ **ended** at t = {loop.ended_at:.2f} s (no module's gait runs){warning}"
         self.metrics.content = (f"Preview{ground}: t = {m.seconds:.2f} s · distance **{m.distance:.3f} m** "
                                 f"({m.body_lengths:.2f} BL) · speed **{m.speed:.3f} m/s** · heading {m.heading:.0f}° · "
                                 f"peak torque {m.peak_torque:.2f} N·m{warning}")  # fmt: skip
@@ -84,7 +87,8 @@ class PreviewPanel:
             if self.plot_module.max != modules:
                 self.plot_module.max = modules
             self.timeline.max = max(1, frames - 1)
-            if loop.cursor is None:
-                self.timeline.value = max(0, frames - 1)
+            shown = max(0, frames - 1) if loop.cursor is None else min(loop.cursor, max(0, frames - 1))
+            if self.timeline.value != shown:  # stepping and replaying move the frame box as the live end does
+                self.timeline.value = shown
         t, goal, angle = loop.series(int(self.plot_module.value) - 1)
         self.angles.data = (t, goal, angle)

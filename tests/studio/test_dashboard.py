@@ -328,3 +328,18 @@ def test_a_second_deploy_while_start_waits_replaces_the_first_instead_of_blaming
     app.deployer.confirm._on_click(SimpleNamespace(target=SimpleNamespace(value="Start")))
     node = app.link.node
     assert wait_until(lambda: all(node.lookup(f"m{i}", "gait.service", timeout=2).running for i in range(1, 9)), 20)
+
+
+def test_a_layout_round_trips_and_a_file_that_is_not_one_changes_nothing(studio):
+    monitor = studio.app.monitor
+    assert wait_until(lambda: "m1" in monitor.browse_module.options, timeout=10)
+    monitor.apply_layout({"version": 1, "window": 60.0, "plots": {"Live plot 2": ["m2/joint.angle", "m1/joint.goal"]}})
+    saved = monitor.layout()
+    assert saved["window"] == 60.0 and monitor.window.value == "60"
+    assert saved["plots"]["Live plot 2"] == ["m1/joint.goal", "m2/joint.angle"]
+    for wrong in ({"plots": {"Live plot 9": []}}, {"plots": {}, "window": 7.0}, {"plots": {"Live plot 1": ["m1"]}}, []):
+        with pytest.raises(ValueError, match="not a layout"):
+            monitor.apply_layout(wrong)
+        assert monitor.layout() == saved  # nothing changed
+    monitor.apply_layout({"plots": {"Live plot 2": []}, "window": 10.0})
+    assert monitor.layout()["plots"]["Live plot 2"] == []

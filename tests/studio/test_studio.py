@@ -7,6 +7,7 @@ import time
 import pytest
 
 from gaits.model import GaitError, dumps, load
+from tests.helpers import wait_until
 from web.document import GaitDocument
 from web.monitor import format_value
 from web.preview import PreviewLoop
@@ -162,3 +163,94 @@ def test_undo_takes_back_a_typed_value_not_a_keystroke():
     assert doc.undo() and doc.gait().automata["wave"].states[0].angle == 30.0
     assert doc.undo() and doc.gait().assignment(1).phase == 0.0
     assert doc.undo() and doc.gait().automata["wave"].states[0].angle == 45.0
+
+
+def test_a_refused_value_is_never_an_undo_step_of_its_own():
+    """A duration of -0.1 is refused (the document invalid, the problem at its field); typing a valid one later
+    replaces it in its undo step: Undo gives back the value before the refused one."""
+    now = [0.0]
+    doc = GaitDocument(load(CATERPILLAR), clock=lambda: now[0])
+    before = doc.gait().automata["wave"].states[0].duration
+    doc.set_state("wave", 0, "duration", -0.1)
+    assert doc.problems and doc.data()["automata"]["wave"]["states"][0]["duration"] == -0.1  # kept, not clamped
+    now[0] += 30.0  # long after: not the typing window that joins keystrokes
+    doc.set_state("wave", 0, "duration", 0.07)
+    assert not doc.problems
+    assert doc.undo() and doc.gait().automata["wave"].states[0].duration == before
+    assert not doc.undo()
+    # valid values typed far apart stay steps of their own
+    now[0] += 30.0
+    doc.set_state("wave", 0, "duration", 0.05)
+    now[0] += 30.0
+    doc.set_state("wave", 0, "duration", 0.06)
+    assert doc.undo() and doc.gait().automata["wave"].states[0].duration == 0.05
+
+
+def test_play_from_a_scrubbed_point_replays_from_there_then_simulates_on():
+    """Pause, go back to frame 10, Play: the frames from 10 on are shown in turn (not a jump to the newest), and
+    once they are played the simulation goes on from the newest frame."""
+    loop = PreviewLoop(load(CATERPILLAR))
+    try:
+        loop.request("speed", 4.0)
+        assert wait_until(lambda: len(loop.frames) >= 120, timeout=30)
+        loop.request("seek", 10)
+        assert wait_until(lambda: loop.cursor == 10, timeout=5)
+        newest = loop.frames[-1].time
+        loop.request("speed", 1.0)
+        loop.request("play", True)
+        assert wait_until(lambda: loop.cursor is not None and loop.cursor > 15, timeout=5)
+        shown = loop.shown()
+        assert shown is not None and shown.time < newest  # replaying what was recorded, not at the newest frame
+        assert wait_until(lambda: loop.cursor is None, timeout=30)  # played through: the simulation goes on
+        assert wait_until(lambda: loop.frames[-1].time > newest + 0.5, timeout=30)
+    finally:
+        loop.close()
+
+
+def test_a_plot_exported_as_csv_reads_back_as_what_it_shows():
+    import csv
+    from collections import deque
+
+    import numpy as np
+
+    from web.monitor import LivePlot, plot_csv
+
+    plot = LivePlot(lookup=None)  # filled by hand: no subscriptions
+    now = time.monotonic() - plot.t0
+    rng = np.random.default_rng(7)
+    plot.series[("m1", "joint.angle")] = deque(
+        (now - 2.0 + k * 0.1, float(v)) for k, v in enumerate(rng.normal(size=20))
+    )
+    plot.series[("m2", "joint.goal")] = deque(
+        (now - 1.95 + k * 0.1, float(v)) for k, v in enumerate(rng.normal(size=20))
+    )
+    labels, data = plot.data()
+    rows = list(csv.reader(plot_csv(labels, data).splitlines()))
+    assert rows[0] == ["t (s)", *labels]
+    table = np.array([[float(x) for x in row] for row in rows[1:]])
+    assert np.allclose(table[:, 0], data[0], atol=1e-6)
+    for k, column in enumerate(data[1:], start=1):
+        assert np.array_equal(table[:, k], column)  # the values exactly (repr round-trips a float)
+
+
+def test_the_trail_keeps_where_the_robot_went_and_points_the_way_it_goes():
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from web.trail import SAMPLE_EVERY, Trail
+
+    drawn: dict[str, np.ndarray] = {}
+    scene = SimpleNamespace(add_line_segments=lambda name, points, *_a, **_k: drawn.__setitem__(name, points))
+    trail = Trail(scene)
+    angle = np.radians(30.0)
+    for k in range(SAMPLE_EVERY * 20):  # travelling at 30° from x
+        trail.add(np.array([np.cos(angle), np.sin(angle), 0.0]) * k * 0.01, np.zeros(3), seconds=k / 60)
+    assert len(trail.points) == 20
+    heading = trail.heading()
+    assert heading is not None and np.degrees(np.arctan2(heading[1], heading[0])) == pytest.approx(30.0, abs=1e-6)
+    assert drawn["/trail"].shape == (19, 2, 3) and drawn["/travel_arrow"].shape == (3, 2, 3)
+    tip = drawn["/travel_arrow"][0, 1, :2] - drawn["/travel_arrow"][0, 0, :2]
+    assert np.degrees(np.arctan2(tip[1], tip[0])) == pytest.approx(30.0, abs=1e-3)  # the arrow points the way
+    trail.add(np.zeros(3), np.zeros(3), seconds=0.5)  # scrubbed back: a new trail from there
+    assert len(trail.points) == 1

@@ -224,12 +224,15 @@ def test_upload_grid_history_robot_size_and_attribute_browser(studio_process, tm
             page.screenshot(path=str(ARTIFACTS / "studio-refused.png"))
             page.get_by_role("button", name="Undo").click()
             expect(page.get_by_text("✓ valid (caterpillar)")).to_be_visible(timeout=15_000)
-            # typing "45" key by key, then Undo: the value before "45" (S3's -33), never "4"
+            # typing "45" key by key, then Tab and Undo: the value before "45" (S3's -33), never "4" (the field is
+            # sent once, when committed: nothing of "4" reaches the document)
             angle = page.get_by_label("Angle (deg)")
             expect(angle).to_have_value(re.compile(r"^-33(\.0+)?$"), timeout=15_000)
             angle.click()
             angle.press("Control+A")
             angle.press_sequentially("45", delay=150)
+            expect(page.locator("td", has_text="45.0°")).to_have_count(0)  # not committed yet
+            angle.press("Tab")
             expect(page.locator("td", has_text="45.0°").first).to_be_visible(timeout=15_000)
             page.get_by_role("button", name="Undo").click()
             expect(angle).to_have_value(re.compile(r"^-33(\.0+)?$"), timeout=15_000)
