@@ -167,8 +167,9 @@ def test_the_preview_plays_on_from_a_scrubbed_point_and_stepping_moves_the_frame
         frame.click()
         frame.press("Control+a")
         frame.press_sequentially("60")  # back to t = 1 s
+        expect(frame).to_have_value("60", timeout=10_000)  # typed (a loaded machine lags), then committed
         frame.press("Enter")
-        assert wait_until(lambda: abs(seconds(page) - 1.0) < 0.1, 15, 0.2), seconds(page)
+        assert wait_until(lambda: abs(seconds(page) - 1.0) < 0.1, 30, 0.2), seconds(page)
         page.get_by_role("button", name="Play", exact=True).click()
         time.sleep(1.0)
         played = seconds(page)
