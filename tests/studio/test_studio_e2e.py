@@ -279,7 +279,10 @@ def test_make_a_12_module_wave_preview_rename_download_and_deploy_it_in_a_minute
             # deploy and start on 12 simulated modules
             page.get_by_role("tab", name="Deploy").click()
             page.get_by_role("button", name="Deploy", exact=True).click()
-            page.get_by_role("button", name="Start", exact=True).click()
+            # the studio first starts its robot again with 12 modules, then stages: slow on a loaded machine
+            start = page.get_by_role("button", name="Start", exact=True)
+            expect(start).to_be_visible(timeout=90_000)
+            start.click()
             expect(page.get_by_text("12 modules confirmed running", exact=False).first).to_be_visible(timeout=60_000)
             elapsed = time.monotonic() - started
             print(f"made, previewed, renamed, downloaded and deployed a 12-module wave in {elapsed:.0f} s")
