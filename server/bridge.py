@@ -28,7 +28,7 @@ import math
 import queue
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from typing import Any
 
 import zenoh
@@ -57,7 +57,7 @@ from asm_py.remote import RemoteObject, make_client
 from asm_py.transport.can import CanTransport, group_id, message_priority
 
 from .bridge_clients import DEFAULT_FRAME_RATE, ClientTable, Pacer, Refusal
-from .bridge_outlets import Outlet
+from .bridge_outlets import Outlet, direct
 from .heap import HeapTrimmer
 from .realtime import prefer_latency
 from .zenoh_args import ZenohOptions, add_zenoh_arguments, zenoh_options
@@ -70,12 +70,6 @@ TABLE_BACKOFF = (0.05, 2.0)
 """First and longest pause between attempts to read a table (doubling)."""
 TAKEN_RETRY = 5.0
 """Seconds before the bridge looks again at a name that another process answered for."""
-
-
-def _direct(callback: Callable[[Any], None]) -> zenoh.handlers.Callback[Any]:
-    """``callback`` run on the Zenoh thread that received the item, not a Python thread of its own: only for
-    callbacks that never block."""
-    return zenoh.handlers.Callback(callback, indirect=False)
 
 
 class _GatewayTransport(CanTransport):
@@ -231,10 +225,10 @@ class CanZenohBridge:
         # direct callbacks (indirect=False: on Zenoh's own threads): both only queue a frame under a short lock, and
         # zenoh-python's default runs each callback on a Python thread of its own — two per module (issue 31)
         mirror.entities = [
-            session.declare_queryable(keys.requests(name), _direct(lambda q, m=mirror: self._query_from_zenoh(m, q))),
+            session.declare_queryable(keys.requests(name), direct(lambda q, m=mirror: self._query_from_zenoh(m, q))),
             session.declare_subscriber(
                 keys.messages(name),
-                _direct(lambda s, m=mirror: self._put_from_zenoh(m, s)),
+                direct(lambda s, m=mirror: self._put_from_zenoh(m, s)),
                 allowed_origin=zenoh.Locality.REMOTE,
             ),
             session.liveliness().declare_token(keys.alive(name, self._zid)),

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import time
+from collections.abc import Callable
 from typing import Any
 
 import zenoh
@@ -18,6 +19,12 @@ import zenoh
 from asm_py.codec import to_json
 from asm_py.protocol import txn_of
 from asm_py.remote import RemoteAttribute, RemoteObject
+
+
+def direct(callback: Callable[[Any], None]) -> zenoh.handlers.Callback[Any]:
+    """``callback`` run on the Zenoh thread that received the item, not a Python thread of its own (zenoh-python's
+    default: one per callback, two per bridged module): only for callbacks that never block."""
+    return zenoh.handlers.Callback(callback, indirect=False)
 
 
 class Outlet:
@@ -35,10 +42,7 @@ class Outlet:
         if isinstance(obj, RemoteAttribute):  # only attributes and events publish values: a view needs a codec
             self._view = session.declare_publisher(view_key, congestion_control=drop, express=False)
             self.watched = bool(self._view.matching_status.matching)  # pyright: ignore[reportAttributeAccessIssue]  # zenoh's stub says bool; it is a MatchingStatus
-            # on Zenoh's own thread (indirect=False): zenoh-python's default is a Python thread per listener
-            self._listener = self._view.declare_matching_listener(
-                zenoh.handlers.Callback(self._matching, indirect=False)
-            )
+            self._listener = self._view.declare_matching_listener(direct(self._matching))
         names = {"node": node, "object": obj.name, "class": obj.info.class_name}
         self._prefix = json.dumps(names, separators=(",", ":"))[:-1] + ","
 

@@ -160,3 +160,14 @@ def number(text: str, pattern: str) -> float:
     match = re.search(pattern, text)
     assert match, f"{pattern!r} not in {text[:500]!r}"
     return float(match.group(1))
+
+
+def deploy_and_start(page, modules: int) -> None:
+    """Deploy the edited gait from the Deploy tab, press Start in the question that follows, and wait until every
+    module is confirmed running — as a user does it."""
+    from playwright.sync_api import expect
+
+    page.get_by_role("tab", name="Deploy").click()
+    page.get_by_role("button", name="Deploy", exact=True).click()
+    page.get_by_role("button", name="Start", exact=True).click()
+    expect(page.get_by_text(f"{modules} modules confirmed running", exact=False).first).to_be_visible(timeout=60_000)

@@ -12,7 +12,7 @@ from pathlib import Path
 from mcap.reader import make_reader
 
 from ..helpers import ARTIFACTS
-from .browser import marks, open_page
+from .browser import deploy_and_start, marks, open_page
 
 pytestmark = marks(1)
 
@@ -23,10 +23,7 @@ def test_record_the_robot_from_the_page_and_read_the_file_back(start_studio, tmp
     url, _, log = start_studio("--recordings", str(tmp_path))
     with sync_playwright() as pw:
         browser, page = open_page(pw, url)
-        page.get_by_role("tab", name="Deploy").click()
-        page.get_by_role("button", name="Deploy", exact=True).click()
-        page.get_by_role("button", name="Start", exact=True).click()
-        expect(page.get_by_text("8 modules confirmed running", exact=False).first).to_be_visible(timeout=60_000)
+        deploy_and_start(page, 8)
         page.get_by_role("tab", name="Monitor").click()
         page.get_by_role("button", name="● Record").click()
         expect(page.get_by_text("Recording: recording robot robot to", exact=False).first).to_be_visible(timeout=20_000)

@@ -8,7 +8,7 @@ import re
 import time
 
 from ..helpers import ARTIFACTS, wait_until
-from .browser import marks, open_page
+from .browser import deploy_and_start, marks, open_page
 
 pytestmark = marks(2)
 
@@ -68,10 +68,7 @@ def test_status_lines_follow_the_modules_after_an_estop(studio_process):
     url, _, log = studio_process
     with sync_playwright() as pw:
         browser, page = open_page(pw, url)
-        page.get_by_role("tab", name="Deploy").click()
-        page.get_by_role("button", name="Deploy", exact=True).click()
-        page.get_by_role("button", name="Start", exact=True).click()
-        expect(page.get_by_text("8 modules confirmed running", exact=False).first).to_be_visible(timeout=60_000)
+        deploy_and_start(page, 8)
         page.get_by_role("tab", name="Drive").click()
         page.get_by_role("button", name="▲ Forward").click()
         confirmed = page.get_by_text(re.compile(r"Robot: forward, confirmed by 8 of 8"))
