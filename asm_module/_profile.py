@@ -39,6 +39,8 @@ PROFILE: dict[str, ClassSpec] = {
     "gait.done": ClassSpec(0x2e, "event", "uint8", True, True, "1: a one-shot mode finished; 2: a state timed out with outcome stop"),
     "gait.signal": ClassSpec(0x2f, "attribute", "uint8", False, False, "the last broadcast signal heard, 1..255"),
     "sensor.contact": ClassSpec(0x30, "attribute", "bool", True, True, "the module touches the ground"),
+    "module.info": ClassSpec(0x40, "attribute", "record{version:uint32,build:uint32,language:uint8,max_states:uint16,max_modes:uint8,max_message:uint32,tick_cycles:uint32,stack_bytes:uint32}", True, False, "firmware version 0xMMmmpp, build (CRC-32 of the sources), language (0 Python, 1 C), limits, worst control tick in target cycles and stack high-water bytes (0: not measured)"),
+    "joint.calibration": ClassSpec(0x41, "attribute", "record{zero:float32,direction:int8,min:float32,max:float32}", False, False, "angle = direction·(raw − zero); soft limits (min, max) bound joint.limits; stored in the module's flash"),
 }
 """Every class of the module profile, by name."""
 CLASSES: dict[str, int] = {name: spec.id for name, spec in PROFILE.items()}

@@ -21,6 +21,8 @@ Why each piece is as it is:
 - **Faults**: any access outside the mapped memory and peripherals, or reaching Default_Handler, raises
   :class:`FirmwareFault` naming the address — the emulated board has stopped. FPU instructions before the image
   sets CPACR would fault on the board (Unicorn runs them anyway); the emulator checks CONTROL.FPCA at every stop.
+- **The cycle counter** (DWT_CYCCNT, which the port reads around its control tick for module.info) is the same
+  instruction count, running once DEMCR.TRCENA and DWT_CTRL.CYCCNTENA are set; a write sets it.
 """
 
 from __future__ import annotations
@@ -43,6 +45,7 @@ RAM, RAM_SIZE = 0x20000000, 128 << 10
 UID = 0x1FFF7A10
 """The 96-bit unique ID (RM0090 §39.1): the board's serial."""
 PAINT = 0xC5C5C5C5
+DEMCR, DWT_CTRL, DWT_CYCCNT = 0xE000EDFC, 0xE0001000, 0xE0001004
 """What the stack is filled with at boot; the high-water mark is where it was overwritten."""
 EXC_RETURN_BASIC, EXC_RETURN_FP = 0xFFFFFFF9, 0xFFFFFFE9
 CALL_RETURN = 0x1FFFFF00
@@ -157,7 +160,7 @@ class Cortex:
         self.stack_top = image.symbol("_stack_top")
         uc.mem_write(self.stack_bottom, struct.pack("<I", PAINT) * ((self.stack_top - self.stack_bottom) // 4))
         self.registers: dict[int, int] = {}  # every peripheral register written and not modelled further
-        for page in (0x40000000, 0x40006000, 0x40020000, 0x40023000, 0xE000E000):
+        for page in (0x40000000, 0x40006000, 0x40020000, 0x40023000, 0xE0001000, 0xE000E000):
             uc.mmio_map(page, 0x1000, self._read, page, self._write, page)
         self.cycles = 0  # instructions executed since reset (the emulated clock)
         self.systicks = 0  # SysTick interrupts taken
@@ -169,6 +172,7 @@ class Cortex:
         self._systick_next = 0
         self._countflag = False
         self.cpacr = 0
+        self._cyccnt_base = 0  # CYCCNT = cycles - this (it counts while DEMCR.TRCENA and DWT_CTRL.CYCCNTENA are set)
         self.pwm: dict[int, int] = {}  # TIM3's registers by offset
         self.encoder: dict[int, int] = {}  # TIM2's
         self._reading = (0.0, False)
@@ -436,7 +440,13 @@ class Cortex:
             return max(0, self._systick_next - self.cycles - 1) if self.csr & 1 else 0
         if address == 0xE000ED88:
             return self.cpacr
+        if address == DWT_CYCCNT:
+            return self._cyccnt()
         return self.registers.get(address, 0)
+
+    def _cyccnt(self) -> int:
+        on = self.registers.get(DEMCR, 0) >> 24 & 1 and self.registers.get(DWT_CTRL, 0) & 1
+        return (self.cycles - self._cyccnt_base) & 0xFFFFFFFF if on else 0
 
     def _write(self, uc: Uc, offset: int, size: int, value: int, page: int) -> None:
         address = page + offset
@@ -453,6 +463,8 @@ class Cortex:
             self._systick_next = self.cycles + self.rvr + 1  # any write clears the counter: it reloads
         elif address == 0xE000ED88:
             self.cpacr = value
+        elif address == DWT_CYCCNT:
+            self._cyccnt_base = self.cycles - value  # counting on from the value written
         elif 0x40000000 <= address < 0x40000400:
             self.encoder[address & 0x3FF] = value
         elif 0x40000400 <= address < 0x40000800:

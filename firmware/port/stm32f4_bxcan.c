@@ -11,6 +11,7 @@
 
 #include "asm/commission.h"
 #include "asm/module.h"
+#include "asm/wire.h"
 
 #define REG(address) (*(volatile uint32_t *)(address))
 #define CAN1 0x40006400u
@@ -38,6 +39,9 @@
 #define SYST_RVR REG(0xE000E014u)
 #define SYST_CVR REG(0xE000E018u)
 #define SCB_CPACR REG(0xE000ED88u)
+#define DEMCR REG(0xE000EDFCu)      /* TRCENA (bit 24) powers the DWT */
+#define DWT_CTRL REG(0xE0001000u)   /* CYCCNTENA (bit 0) */
+#define DWT_CYCCNT REG(0xE0001004u) /* the core's cycle counter: what module.info's tick_cycles counts */
 #define RCC_AHB1ENR REG(0x40023830u)
 #define RCC_APB1ENR REG(0x40023840u)
 #define TIM2 0x40000000u /* the encoder: 32 bits, counting both edges of both channels */
@@ -83,6 +87,12 @@ static char node_name[8];  /* "m<ID>" of a commissioned module */
 #define SETTINGS_WORDS (0x20000u / 4u)
 #define RECORD_MAGIC 0x41534D31u /* "ASM1" */
 #define ID_RECORD(id) (0xA55A0000u | (uint32_t)(uint8_t)~(id) << 8 | (id))
+/* A calibration record takes three slots: CALIBRATION_MAGIC, zero, min, max, CALIBRATION_TAG | direction, and the
+ * CRC-32 of the four words between; programmed from the second word on, the magic last, so a reset in the middle
+ * leaves words no reader takes for a record (a slot's first word is never all ones: zero is not NaN). */
+#define CALIBRATION_MAGIC 0x41534D43u /* "ASMC" */
+#define CALIBRATION_TAG 0xCA1B0000u
+#define CALIBRATION_WORDS 6u
 
 /* The stored node ID: 1 and ``*node_id`` if a record holds one (0: erased by the tool), 0 if none was ever stored. */
 static int settings_node_id(uint8_t *node_id)
@@ -94,6 +104,27 @@ static int settings_node_id(uint8_t *node_id)
             *node_id = (uint8_t)word;
             found = 1;
         }
+    }
+    return found;
+}
+
+/* The stored calibration: 1 and ``*c`` if a whole record holds one, 0 if none was ever stored. */
+static int settings_calibration(struct asm_calibration *c)
+{
+    int found = 0;
+    for (uint32_t k = 0; k + CALIBRATION_WORDS <= SETTINGS_WORDS && (SETTINGS[k] & SETTINGS[k + 1]) != 0xFFFFFFFFu;
+         k += 2) {
+        uint32_t w[4] = {SETTINGS[k + 1], SETTINGS[k + 2], SETTINGS[k + 3], SETTINGS[k + 4]};
+        if (SETTINGS[k] != CALIBRATION_MAGIC || (w[3] & 0xFFFFFF00u) != CALIBRATION_TAG ||
+            SETTINGS[k + 5] != asm_crc32((const uint8_t *)w, sizeof w))
+            continue;
+        float v[3];
+        for (int j = 0; j < 3; j++) {
+            union { uint32_t u; float f; } bits = {w[j]};
+            v[j] = bits.f;
+        }
+        *c = (struct asm_calibration){v[0], (int8_t)(uint8_t)w[3], v[1], v[2]};
+        found = 1;
     }
     return found;
 }
@@ -125,25 +156,80 @@ static uint32_t flash_erase(uint32_t sector)
     return FLASH_SR & 0xF2u;
 }
 
-static int store_node_id(void *ctx, uint8_t node_id)
+/* The words of a record: an ID record (2) or a calibration record (CALIBRATION_WORDS). */
+static uint32_t id_record(uint32_t *w, uint8_t node_id)
 {
-    (void)ctx;
-    uint32_t k = 0, errors = 0;
+    w[0] = RECORD_MAGIC;
+    w[1] = ID_RECORD(node_id);
+    return 2;
+}
+
+static uint32_t calibration_record(uint32_t *w, const struct asm_calibration *c)
+{
+    const float v[3] = {c->zero, c->min, c->max};
+    w[0] = CALIBRATION_MAGIC;
+    for (int j = 0; j < 3; j++) {
+        union { float f; uint32_t u; } bits = {v[j]};
+        w[1 + j] = bits.u;
+    }
+    w[4] = CALIBRATION_TAG | (uint8_t)c->direction;
+    w[5] = asm_crc32((const uint8_t *)(w + 1), 16);
+    return CALIBRATION_WORDS;
+}
+
+/* Program ``w`` (n words) at word ``k``: the first word (the magic) last. 0, or the error flags. */
+static uint32_t program_record(uint32_t k, const uint32_t *w, uint32_t n)
+{
+    uint32_t errors = 0;
+    for (uint32_t j = 1; j < n && !errors; j++)
+        errors = flash_program((uint32_t)&SETTINGS[k + j], w[j]);
+    if (!errors)
+        errors = flash_program((uint32_t)&SETTINGS[k], w[0]);
+    for (uint32_t j = 0; j < n && !errors; j++)
+        errors = SETTINGS[k + j] != w[j];
+    return errors;
+}
+
+/* Append a record to the log. A log without room for it starts again: the sector erased, the other settings it held
+ * (the ID or the calibration that this record does not replace) written first, then the record; a reset in between
+ * loses what was not yet rewritten. */
+static int settings_append(const uint32_t *w, uint32_t n)
+{
+    uint8_t node_id = ASM_UNCONFIGURED;
+    struct asm_calibration calibration;
+    int has_id = settings_node_id(&node_id), has_calibration = settings_calibration(&calibration);
+    uint32_t k = 0, errors = 0, kept[CALIBRATION_WORDS];
     while (k < SETTINGS_WORDS && (SETTINGS[k] & SETTINGS[k + 1]) != 0xFFFFFFFFu) /* the first erased slot */
         k += 2;
     FLASH_KEYR = 0x45670123u;
     FLASH_KEYR = 0xCDEF89ABu;
     FLASH_SR = 0xF3u; /* clear EOP and the error flags of an earlier operation */
-    if (k >= SETTINGS_WORDS) { /* the log is full: start it again */
-        k = 0;
+    if (k + n > SETTINGS_WORDS) { /* the log is full: start it again */
         errors = flash_erase(SETTINGS_SECTOR);
+        k = 0;
+        if (!errors && has_id && w[0] != RECORD_MAGIC)
+            errors = program_record(k, kept, id_record(kept, node_id)), k += 2;
+        if (!errors && has_calibration && w[0] != CALIBRATION_MAGIC)
+            errors = program_record(k, kept, calibration_record(kept, &calibration)), k += CALIBRATION_WORDS;
     }
-    if (!errors) /* the ID first, the magic last: a reset between the two leaves no half record */
-        errors = flash_program((uint32_t)&SETTINGS[k + 1], ID_RECORD(node_id));
     if (!errors)
-        errors = flash_program((uint32_t)&SETTINGS[k], RECORD_MAGIC);
+        errors = program_record(k, w, n);
     FLASH_CR = 1u << 31; /* LOCK */
-    return errors || SETTINGS[k + 1] != ID_RECORD(node_id);
+    return errors != 0;
+}
+
+static int store_node_id(void *ctx, uint8_t node_id)
+{
+    (void)ctx;
+    uint32_t w[2];
+    return settings_append(w, id_record(w, node_id));
+}
+
+static int store_calibration(void *ctx, const struct asm_calibration *c)
+{
+    (void)ctx;
+    uint32_t w[CALIBRATION_WORDS];
+    return settings_append(w, calibration_record(w, c));
 }
 
 void SysTick_Handler(void) { milliseconds++; }
@@ -330,14 +416,60 @@ static void boot_node(void)
         node_name[k] = 0;
         name = node_name;
     }
-    if (configured)
+    if (configured) {
+        struct asm_calibration calibration;
         asm_module_init(&module, name, id, &port, &joint, board_config.hardware_min, board_config.hardware_max,
                         milliseconds);
+        if (settings_calibration(&calibration))
+            asm_module_calibrate(&module, &calibration); /* refused (no change) if the board's range has moved */
+        asm_module_set_store(&module, store_calibration, 0);
+    }
     can_filters();
+}
+
+/* The stack's high-water mark: the stack is painted at boot and the lowest word ever overwritten found by a scan
+ * that moves only down (a few words a tick at most). */
+#define PAINT 0xC5C5C5C5u
+extern uint32_t _stack_top, _ebss;
+static uint32_t *lowest_used;
+
+__attribute__((noinline)) static void stack_paint(void)
+{
+    uint32_t *sp;
+    __asm__ volatile("mov %0, sp" : "=r"(sp));
+    uint32_t *bottom = (uint32_t *)(((uintptr_t)&_ebss + 7u) & ~(uintptr_t)7u);
+    for (uint32_t *at = bottom; at < sp - 16; at++) /* below this frame and a margin for the loop's own */
+        *at = PAINT;
+    lowest_used = sp - 16;
+}
+
+static uint32_t stack_used(void)
+{
+    uint32_t *bottom = (uint32_t *)(((uintptr_t)&_ebss + 7u) & ~(uintptr_t)7u);
+    while (lowest_used > bottom && lowest_used[-1] != PAINT)
+        lowest_used--;
+    return (uint32_t)((uintptr_t)&_stack_top - (uintptr_t)lowest_used);
+}
+
+/* One control tick, timed by the cycle counter (SysTick's 1 ms = 168,000 cycles is far too coarse for a tick of a
+ * few thousand); the worst and the stack's mark go into module.info. */
+static void control_tick(void)
+{
+    static uint32_t worst;
+    uint32_t start = DWT_CYCCNT;
+    asm_module_tick(&module, milliseconds);
+    uint32_t spent = DWT_CYCCNT - start;
+    if (spent > worst)
+        worst = spent;
+    asm_module_measured(&module, worst, stack_used());
 }
 
 int main(void)
 {
+    stack_paint();
+    DEMCR |= 1u << 24; /* the cycle counter */
+    DWT_CYCCNT = 0;
+    DWT_CTRL |= 1u;
     SYST_RVR = 168000u - 1u; /* 1 ms at 168 MHz */
     SYST_CVR = 0;
     SYST_CSR = 7u;
@@ -355,13 +487,13 @@ int main(void)
         watch_neighbours();
         if ((int32_t)(milliseconds - next_tick) >= 0) {
             next_tick += CONTROL_MS;
-            asm_module_tick(&module, milliseconds);
+            control_tick();
         }
     }
 }
 
 /* The vector table and reset: the stack top, then reset, and SysTick at index 15. */
-extern uint32_t _stack_top, _sidata, _sdata, _edata, _sbss, _ebss;
+extern uint32_t _sidata, _sdata, _edata, _sbss;
 void Reset_Handler(void);
 void Default_Handler(void) { for (;;) ; }
 __attribute__((section(".vectors"), used)) static void (*const vectors[16])(void) = {

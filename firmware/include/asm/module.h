@@ -16,14 +16,32 @@ struct asm_joint_port {
     void *ctx;
 };
 
+/* joint.calibration (docs/protocol.md section 9): the angle the module reports is direction * (raw - zero), the raw
+ * angle it commands zero + direction * goal; (min, max) are its soft limits, within which joint.limits may be set. */
+struct asm_calibration {
+    float zero;
+    int8_t direction;
+    float min, max;
+};
+#define ASM_CALIBRATION_BYTES 13u /* on the wire: record{zero:float32,direction:int8,min:float32,max:float32} */
+#define ASM_INFO_BYTES 24u        /* module.info's record */
+
+/* Where a port keeps the calibration across resets (a board: its settings flash); nonzero: not stored. */
+typedef int (*asm_calibration_store)(void *ctx, const struct asm_calibration *calibration);
+
 struct asm_module {
     struct asm_node node;
     struct asm_joint_port joint;
-    float hardware[2]; /* the range joint.limits may be set within */
+    float hardware[2]; /* the joint's raw range: the calibration's limits lie within it */
     struct asm_object goal, angle, torque, limits, servo, contact, estop;
     float goal_v, angle_v, torque_v, limits_v[2];
     uint8_t contact_v, estop_v;
     struct asm_gait gait;
+    struct asm_object info, calibration;
+    struct asm_calibration cal;
+    uint8_t info_v[ASM_INFO_BYTES], calibration_v[ASM_CALIBRATION_BYTES];
+    asm_calibration_store store;
+    void *store_ctx;
 };
 
 /* The module a node belongs to (the node is its first member): what an object's set or control function needs. */
@@ -32,6 +50,16 @@ static inline struct asm_module *asm_module_of(struct asm_node *node) { return (
 /* Register the objects, start the servo and send the first heartbeat. ``hardware`` is also the initial limits. */
 void asm_module_init(struct asm_module *m, const char *name, uint8_t node_id, const struct asm_port *port,
                      const struct asm_joint_port *joint, float hardware_min, float hardware_max, uint32_t now_ms);
+/* Check ``c`` against the hardware's range (finite, direction +-1, min < max, both limits' raw angles within it):
+ * 0, or ASM_S_VALUE_ERROR. */
+int asm_calibration_check(const struct asm_module *m, const struct asm_calibration *c);
+/* Run under calibration ``c`` (checked; not stored: what a port read back from its flash at boot), its limits the
+ * joint's: ASM_S_OK or ASM_S_VALUE_ERROR. */
+int asm_module_calibrate(struct asm_module *m, const struct asm_calibration *c);
+/* Store every calibration set over the bus through ``store`` before it is answered OK. */
+void asm_module_set_store(struct asm_module *m, asm_calibration_store store, void *ctx);
+/* What a port measured itself for module.info: the worst control tick in cycles and the stack's high-water mark. */
+void asm_module_measured(struct asm_module *m, uint32_t tick_cycles, uint32_t stack_bytes);
 /* Command the joint to ``degrees``, clamped to joint.limits (the gait's output, a hold). */
 void asm_module_set_goal(struct asm_module *m, float degrees);
 /* One control tick: read the joint into joint.angle, joint.torque and sensor.contact (published by their policies),
