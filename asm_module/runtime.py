@@ -5,7 +5,10 @@ What a module has is what it exposes (well-known classes, so groups and tools ad
     joint.goal      float32  the commanded angle, degrees — clamped to joint.limits whatever is sent
     joint.angle     float32  the measured angle, published
     joint.torque    float32  the measured torque, N·m, published
-    joint.limits    float32[2]  (min, max) degrees; settable only within the hardware's range
+    joint.limits    float32[2]  (min, max) degrees; settable only within the calibration's soft limits
+    joint.calibration  zero, direction, soft limits (asm_module/calibration.py): applied to every command and
+                    reading, kept by ``calibration_store`` (a file) when given
+    module.info     version, build, limits (read-only)
     servo.service   the servo loop: running = joint powered and following joint.goal; stopped = limp
     gait.table      bytes    this module's automaton (asm_module.wire); settable only while the gait is stopped
     gait.checksum   uint32   CRC-32 of gait.table, for a deploying tool to verify the transfer
@@ -42,12 +45,15 @@ from asm_py.attribute import Attribute, CheckedAttribute
 from asm_py.automaton import PhaseState
 from asm_py.clock import WALL_CLOCK, Clock
 from asm_py.codec import BOOL, BYTES, FLOAT32, FLOAT64, UINT32, float_array
+from asm_py.codec_parse import parse_codec
 from asm_py.eds import EventDrivenService
 from asm_py.errors import EstopLatched
 from asm_py.event import Event, TimerTrigger
 from asm_py.node import Node
 from asm_py.protocol import WRITES, Method
 
+from ._profile import PROFILE
+from .calibration import CalibratedJoint, Calibration, CalibrationFile, check_calibration, python_info
 from .drivers import JointDriver
 from .gait_service import ModuleGait
 from .neighbours import BusNeighbours, LocalNeighbours, Neighbours
@@ -76,10 +82,10 @@ class _Servo(EventDrivenService):
         super().start(wait=wait)
 
     def on_start(self, *params: Any) -> None:
-        self._runtime.driver.command(self._runtime.goal.peek())
+        self._runtime.joint.command(self._runtime.goal.peek())
 
     def on_stop(self) -> None:
-        self._runtime.driver.relax()
+        self._runtime.joint.relax()
 
 
 class ModuleRuntime:
@@ -101,18 +107,35 @@ class ModuleRuntime:
         publish_limit: float = 25.0,
         module_id: int = 1,
         neighbours: Neighbours | None = None,
+        calibration_store: CalibrationFile | None = None,
     ) -> None:
         self.driver = driver
+        """The joint's raw driver (the runtime drives it through :attr:`joint`, the calibration applied)."""
+        self.hardware_range = hardware_range
+        self._store = calibration_store
+        stored = calibration_store.load(hardware_range) if calibration_store is not None else None
+        initial = stored or Calibration(0.0, 1, *hardware_range)
+        self.joint = CalibratedJoint(driver, initial)
+        if stored is not None:  # the stored soft limits bound the limits given (a deploy's narrower ones stay)
+            limits = (max(limits[0], stored.min), min(limits[1], stored.max))
+            if not limits[0] < limits[1]:
+                limits = (stored.min, stored.max)
         self.module_id = module_id
         """This module's ID (its CAN node ID): neighbour events name modules relative to it."""
         self.node = node
         self.clock = clock or (node.clock if node is not None else WALL_CLOCK)
-        self.hardware_range = hardware_range
         self.ramp = ramp
         self.latched = False
         """The e-stop is latched (set first: a racing tick's goal is never commanded after it)."""
         self._held_at: float | None = None
         """The angle the e-stop holds (joint.goal reads it from the next tick on)."""
+        self.calibration = CheckedAttribute("joint.calibration", initial.as_record(),
+                                            codec=parse_codec(PROFILE["joint.calibration"].codec),
+                                            check=self._calibrate, reset=self._uncalibrate,
+                                            clock=self.clock)  # fmt: skip
+        self._recalibrating = False
+        self.info = Attribute("module.info", python_info(), codec=parse_codec(PROFILE["module.info"].codec),
+                              clock=self.clock)  # fmt: skip
         self.limits = CheckedAttribute("joint.limits", self._check_limits(limits), codec=float_array(2),
                                        check=self._check_limits, clock=self.clock)  # fmt: skip
         self.goal = CheckedAttribute("joint.goal", 0.0, codec=FLOAT32, check=self._clamp_goal, reset=self._reset_goal,
@@ -162,8 +185,9 @@ class ModuleRuntime:
         staging = self.staging
         starts = (Method.START, Method.RESUME)
         gait = self.gait
-        moving = {self.goal: WRITES, self.limits: WRITES, self.servo: WRITES, self.table: WRITES, gait: starts,
-                  staging.staged: WRITES, staging.activate: WRITES, gait.switch: WRITES}  # fmt: skip
+        moving = {self.goal: WRITES, self.limits: WRITES, self.calibration: WRITES, self.servo: WRITES,
+                  self.table: WRITES, gait: starts, staging.staged: WRITES, staging.activate: WRITES,
+                  gait.switch: WRITES}  # fmt: skip
 
         def register(*objects: Any) -> None:
             for obj in objects:
@@ -177,6 +201,7 @@ class ModuleRuntime:
         node.register(self.gait.direction, name="gait.direction")
         node.register(self.gait.state, name="gait.state", read_only=True)
         register(gait.switch, gait.cycle, gait.mode, gait.done, gait.signal)  # after version 1's objects: IDs stay
+        register(self.info, self.calibration)  # and after those: the C runtime registers them in this order too
         # changes beyond the deadband, at most ``publish_limit`` a second (a moving joint changes at every control
         # tick: 32 modules at 50 Hz would be 1 600 frames a second), and a refresh ``refresh_rate`` times a second
         # when nothing moves: a resting robot keeps the bus quiet
@@ -189,8 +214,8 @@ class ModuleRuntime:
 
     def _read_only(self) -> tuple[Attribute, ...]:
         gait = self.gait
-        return (self.angle, self.torque, self.contact, self.checksum, self.staging.staged_checksum, self.tick,
-                gait.cycle, gait.mode, gait.done)  # fmt: skip
+        return (self.info, self.angle, self.torque, self.contact, self.checksum, self.staging.staged_checksum,
+                self.tick, gait.cycle, gait.mode, gait.done)  # fmt: skip
 
     def _refuse_in_estop(self, name: str, methods: frozenset[int] | tuple[int, ...]) -> Callable[[int], None]:
         def guard(method: int) -> None:
@@ -203,10 +228,32 @@ class ModuleRuntime:
 
     def _check_limits(self, value: Any) -> tuple[float, float]:
         lo, hi = (float(v) for v in value)
-        hw_lo, hw_hi = self.hardware_range
-        if not (hw_lo <= lo < hi <= hw_hi):
-            raise ValueError(f"joint limits must satisfy {hw_lo} <= min < max <= {hw_hi}, not ({lo}, {hi})")
+        soft = self.joint.calibration
+        if not (soft.min <= lo < hi <= soft.max):
+            raise ValueError(f"joint limits must satisfy {soft.min} <= min < max <= {soft.max} (the calibration's "
+                             f"soft limits), not ({lo}, {hi})")  # fmt: skip
         return (lo, hi)
+
+    def _calibrate(self, value: Any) -> dict[str, Any]:
+        """joint.calibration set (or reset: none): checked, stored before it is taken (a value is answered OK only
+        once it would survive a restart), applied. The joint stays where it is commanded: the goal becomes the same
+        raw angle in the new calibration, clamped to its limits as a narrower joint.limits would clamp it."""
+        calibration = check_calibration(value, self.hardware_range)
+        if self._store is not None:
+            self._store.save(calibration)
+        raw = self.joint.calibration.raw(float(self.goal.peek()))
+        self.joint.calibrate(calibration)
+        self._recalibrating = True  # the old goal is not re-clamped and commanded in the new calibration
+        try:
+            self.limits.set((calibration.min, calibration.max))  # checked against the new soft limits
+        finally:
+            self._recalibrating = False
+        self.goal.set(calibration.angle(raw))  # clamped, and commanded
+        return calibration.as_record()
+
+    def _uncalibrate(self) -> dict[str, Any]:
+        """A RESET: no calibration (zero 0, direction +1, the hardware's range), stored as such."""
+        return self._calibrate(Calibration(0.0, 1, *self.hardware_range))
 
     def _clamp_goal(self, value: float) -> float:
         if not math.isfinite(value):
@@ -301,17 +348,19 @@ class ModuleRuntime:
         self.goal.set(self._ramp_from + s * (reference - self._ramp_from))
 
     def _reclamp(self, limits: Any) -> None:
+        if self._recalibrating:
+            return
         self.goal.set(self.goal.peek())
 
     def _command(self, goal: float) -> None:
         if self.servo.running and not self.latched:
-            self.driver.command(goal)
+            self.joint.command(goal)
 
     def sense(self) -> None:
         held = self._held_at
         if self.latched and held is not None and self.goal.peek() != held:  # the e-stop's goal, set by the tick
             self.goal.set(held)
-        reading = self.driver.read()
+        reading = self.joint.read()
         self.angle.set(reading.angle)
         self.torque.set(reading.torque)
         if reading.contact != self.contact.peek():
@@ -329,7 +378,7 @@ class ModuleRuntime:
         next tick)."""
         self.latched = True
         if self.servo.running:
-            self._held_at = self.driver.hold()
+            self._held_at = self.joint.hold()
         self.gait.request_stop()
         self.staging.discard()  # no deployment begun before the stop may start after it
         if self._held_at is not None:
@@ -340,7 +389,7 @@ class ModuleRuntime:
         if self.latched:
             self.latched = False
             held, self._held_at = self._held_at, None
-            self.driver.release()
+            self.joint.release()
             if held is not None:
                 self.goal.set(held)
 
