@@ -1,6 +1,7 @@
 """A Python module whose node ID is commissioned over the bus (docs/protocol.md §7, "Commissioning").
 
-Its serial and node ID live in a small JSON file (what flash is to a board): a module without one boots unconfigured
+Its serial and node ID live in a small JSON file (what flash is to a board; its joint.calibration in another next to
+it, :func:`calibration_path`): a module without one boots unconfigured
 and answers only the commissioning commands; once a tool assigns it an ID it stores it, starts its node ``m<ID>``
 with its module runtime, and comes back under that ID after every restart. A later ASSIGN moves it to another ID
 (its node restarts under it), an ASSIGN of 0 makes it unconfigured again.
@@ -34,6 +35,7 @@ from asm_py.canbus.commission import (
 from asm_py.node import Node
 from asm_py.transport.can import CanTransport
 
+from .calibration import CalibrationFile
 from .drivers import FakeDriver
 from .names import module_name
 from .runtime import ModuleRuntime
@@ -63,6 +65,12 @@ class IdFile:
         temporary.write_text(json.dumps({"serial": self.serial.hex(), "node_id": node_id}) + "\n")
         os.replace(temporary, self.path)
         self.node_id = node_id
+
+
+def calibration_path(id_file: str | Path) -> Path:
+    """Where the module of ID file ``id_file`` keeps its calibration: ``<name>.calibration.json`` next to it."""
+    path = Path(id_file)
+    return path.with_name(path.stem + ".calibration.json")
 
 
 RuntimeFactory = Callable[[Node, int], ModuleRuntime]
@@ -203,15 +211,21 @@ class Fleet:
     def open_bus(self) -> can.BusABC:
         return can.Bus(interface="asm_sim", channel=self.channel)
 
-    def runtime(self, node: Node, node_id: int) -> ModuleRuntime:
-        return ModuleRuntime(FakeDriver(), node=node, tick=self.tick, inline=True, module_id=node_id)
+    def runtime(self, node: Node, node_id: int, store: CalibrationFile | None = None) -> ModuleRuntime:
+        return ModuleRuntime(FakeDriver(), node=node, tick=self.tick, inline=True, module_id=node_id,
+                             calibration_store=store)  # fmt: skip
 
     def boot(self) -> None:
-        """Start every module from its ID file (made, with a random serial, if missing)."""
+        """Start every module from its ID file (made, with a random serial, if missing) and calibration file."""
         try:
             for k in range(self.count):
                 identity = IdFile(self.directory / f"module{k}.json")
-                self.modules.append(CommissionedModule(identity, self.open_bus, runtime=self.runtime,
+                store = CalibrationFile(calibration_path(identity.path))
+
+                def runtime(node: Node, node_id: int, store: CalibrationFile = store) -> ModuleRuntime:
+                    return self.runtime(node, node_id, store)
+
+                self.modules.append(CommissionedModule(identity, self.open_bus, runtime=runtime,
                                                        **self.transport))  # fmt: skip
         except BaseException:
             self.shutdown()

@@ -4,6 +4,9 @@
 serial and no ID if missing); without an ID it boots unconfigured and waits to be numbered by ``asm-commission``
 (asm_module/commissioning.py), and keeps the ID it is given across restarts.
 
+``--calibration-file PATH`` keeps its joint.calibration (zero, direction, soft limits) across restarts; with
+``--id-file`` it defaults to the file next to it (``<id-file>.calibration.json``, asm_module/commissioning.py).
+
 The module itself — its objects, its gait, its e-stop — is asm_module (the program a module runs, whether its
 joint is simulated or real); this is only its command line.
 """
@@ -15,7 +18,8 @@ import argparse
 import can
 
 from asm_module import FakeDriver, ModuleRuntime
-from asm_module.commissioning import CommissionedModule, IdFile
+from asm_module.calibration import CalibrationFile
+from asm_module.commissioning import CommissionedModule, IdFile, calibration_path
 from asm_py.cli import bitrate, bounded, can_channel, name, node_id, output_file, rate, run, stop_requested
 from asm_py.node import Node
 from asm_py.transport.can import CanTransport
@@ -41,6 +45,8 @@ def main(argv: list[str] | None = None) -> int:
         metavar=("MIN", "MAX"),
         help="joint limits, degrees (default -90 90)",
     )
+    cli.add_argument("--calibration-file", type=output_file, metavar="PATH",
+                     help="where the joint's calibration is kept (default with --id-file: next to it)")  # fmt: skip
     cli.add_argument("--rate", type=rate, default=50.0, help="control ticks per second (default 50)")
     args = cli.parse_args(argv)
     if not args.limits[0] < args.limits[1]:
@@ -55,7 +61,9 @@ def _serve(args: argparse.Namespace) -> int:
         return _serve_commissioned(args, options)
     name = args.name or f"m{args.node_id}"
     node = Node(name, CanTransport(args.node_id, **options))
-    runtime = ModuleRuntime(FakeDriver(), node=node, limits=tuple(args.limits), control_rate=args.rate)
+    store = CalibrationFile(args.calibration_file) if args.calibration_file is not None else None
+    runtime = ModuleRuntime(FakeDriver(), node=node, limits=tuple(args.limits), control_rate=args.rate,
+                            calibration_store=store)  # fmt: skip
     done = stop_requested()
     print(f"READY {name}", flush=True)
     done.wait()
@@ -65,9 +73,11 @@ def _serve(args: argparse.Namespace) -> int:
 
 
 def _serve_commissioned(args: argparse.Namespace, options: dict) -> int:
+    store = CalibrationFile(args.calibration_file or calibration_path(args.id_file))
+
     def runtime(node: Node, module_id: int) -> ModuleRuntime:
         return ModuleRuntime(FakeDriver(), node=node, limits=tuple(args.limits), control_rate=args.rate,
-                             module_id=module_id)  # fmt: skip
+                             module_id=module_id, calibration_store=store)  # fmt: skip
 
     module = CommissionedModule(IdFile(args.id_file), lambda: can.Bus(**options), runtime=runtime)
     done = stop_requested()
