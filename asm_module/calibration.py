@@ -17,6 +17,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import struct
 import zlib
 from dataclasses import asdict, dataclass
 from functools import cache
@@ -152,3 +153,15 @@ def python_info() -> dict[str, Any]:
 def version_text(version: int) -> str:
     """0xMMmmpp as ``M.m.p``."""
     return f"{version >> 16 & 0xFF}.{version >> 8 & 0xFF}.{version & 0xFF}"
+
+
+CALIBRATION_MAGIC, CALIBRATION_TAG = 0x41534D43, 0xCA1B0000
+"""A board's calibration record in its settings log (firmware/port/stm32f4_bxcan.c; docs/protocol.md §9)."""
+
+
+def flash_record(calibration: Calibration) -> bytes:
+    """The 24 bytes a board appends to its settings sector for ``calibration``: the magic "ASMC", zero, min, max
+    (float32), CALIBRATION_TAG | direction, and the CRC-32 of the four words between, all little-endian words."""
+    body = struct.pack("<fffI", calibration.zero, calibration.min, calibration.max,
+                       CALIBRATION_TAG | calibration.direction & 0xFF)  # fmt: skip
+    return struct.pack("<I", CALIBRATION_MAGIC) + body + struct.pack("<I", zlib.crc32(body))

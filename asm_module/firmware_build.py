@@ -44,19 +44,19 @@ def ensure_contract() -> None:
     subprocess.run([sys.executable, str(generator), "--headers"], check=True, capture_output=True, text=True)
 
 
-def build_id() -> int:
-    """The build ID module.info reports (``-DASM_FW_BUILD``): the CRC-32 of the firmware's sources and headers by
-    path and content, so two images report the same build exactly when they were built from the same sources."""
+def build_id(port: str = "stm32f4_bxcan.c") -> int:
+    """The build ID module.info reports (``-DASM_FW_BUILD``): the CRC-32 of the sources of a build with ``port``
+    (the runtime, that port, the headers) by path and content, so two images report the same build exactly when
+    they were built from the same sources (and a build is redone exactly when they change)."""
     crc = 0
-    for path in sorted([*(FIRMWARE / "src").glob("*.c"), *(FIRMWARE / "port").glob("*.[ch]"),
-                        *(FIRMWARE / "include" / "asm").glob("*.h")]):  # fmt: skip
+    for path in sorted([*runtime_sources(), FIRMWARE / "port" / port, *(FIRMWARE / "include" / "asm").glob("*.h")]):
         crc = zlib.crc32(path.relative_to(FIRMWARE).as_posix().encode() + b"\0" + path.read_bytes(), crc)
     return crc
 
 
-def stamp() -> str:
-    """The compiler flag that stamps :func:`build_id` into a build."""
-    return f"-DASM_FW_BUILD={build_id():#x}u"
+def stamp(port: str) -> str:
+    """The compiler flag that stamps :func:`build_id` of ``port``'s build into it."""
+    return f"-DASM_FW_BUILD={build_id(port):#x}u"
 
 
 def runtime_sources() -> list[Path]:
@@ -78,7 +78,7 @@ def build_library() -> Path:
     fd, temporary = tempfile.mkstemp(dir=LIBRARY.parent, suffix=".so")  # then renamed: parallel builds never clash
     os.close(fd)
     try:
-        subprocess.run([os.environ.get("CC", "gcc"), *C_FLAGS, *HOST_FLAGS, stamp(), "-O2", "-fPIC", "-shared",
+        subprocess.run([os.environ.get("CC", "gcc"), *C_FLAGS, *HOST_FLAGS, stamp("host.c"), "-O2", "-fPIC", "-shared",
                         *map(str, _sources()), "-lm", "-o", temporary], check=True, capture_output=True,
                        text=True)  # fmt: skip
         os.replace(temporary, LIBRARY)
@@ -103,10 +103,10 @@ def build_cortex_m4(elf: Path) -> tuple[int, int, int]:
     """Link the example STM32F4 port (firmware/port/) with the runtime, -Os; its (text, data, bss) in bytes."""
     ensure_contract()
     sources = [*runtime_sources(), FIRMWARE / "port" / "stm32f4_bxcan.c"]
-    subprocess.run(["arm-none-eabi-gcc", *C_FLAGS, "-Os", *CORTEX_M4_FLAGS, stamp(), *map(str, sources),
-                    "-nostartfiles", "--specs=nano.specs", "--specs=nosys.specs", "-Wl,--gc-sections",
-                    f"-T{FIRMWARE / 'port' / 'stm32f4.ld'}", "-lm", "-o", str(elf)], check=True, capture_output=True,
-                   text=True)  # fmt: skip
+    subprocess.run(["arm-none-eabi-gcc", *C_FLAGS, "-Os", *CORTEX_M4_FLAGS, stamp("stm32f4_bxcan.c"),
+                    *map(str, sources), "-nostartfiles", "--specs=nano.specs", "--specs=nosys.specs",
+                    "-Wl,--gc-sections", f"-T{FIRMWARE / 'port' / 'stm32f4.ld'}", "-lm", "-o", str(elf)],
+                   check=True, capture_output=True, text=True)  # fmt: skip
     report = subprocess.run(["arm-none-eabi-size", str(elf)], capture_output=True, text=True, check=True)
     text, data, bss = (int(v) for v in report.stdout.splitlines()[1].split()[:3])
     return text, data, bss

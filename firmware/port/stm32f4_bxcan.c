@@ -195,9 +195,6 @@ static uint32_t program_record(uint32_t k, const uint32_t *w, uint32_t n)
  * loses what was not yet rewritten. */
 static int settings_append(const uint32_t *w, uint32_t n)
 {
-    uint8_t node_id = ASM_UNCONFIGURED;
-    struct asm_calibration calibration;
-    int has_id = settings_node_id(&node_id), has_calibration = settings_calibration(&calibration);
     uint32_t k = 0, errors = 0, kept[CALIBRATION_WORDS];
     while (k < SETTINGS_WORDS && (SETTINGS[k] & SETTINGS[k + 1]) != 0xFFFFFFFFu) /* the first erased slot */
         k += 2;
@@ -205,6 +202,9 @@ static int settings_append(const uint32_t *w, uint32_t n)
     FLASH_KEYR = 0xCDEF89ABu;
     FLASH_SR = 0xF3u; /* clear EOP and the error flags of an earlier operation */
     if (k + n > SETTINGS_WORDS) { /* the log is full: start it again */
+        uint8_t node_id = ASM_UNCONFIGURED;
+        struct asm_calibration calibration;
+        int has_id = settings_node_id(&node_id), has_calibration = settings_calibration(&calibration);
         errors = flash_erase(SETTINGS_SECTOR);
         k = 0;
         if (!errors && has_id && w[0] != RECORD_MAGIC)
