@@ -1,18 +1,21 @@
 """Are a connected robot's modules the ones a gait describes? Checked before a deploy, so a mismatch is said first.
 
 A gait is previewed and tuned for its ``[robot]``: so many modules, each of its ``[robot.module]`` type, whose hinge
-turns ±``range`` degrees. The modules report no type of their own (the contract has no module-info object); what
-they do report is whether they answer, and their ``joint.limits`` — settable only within their hardware's range,
-and every goal sent is clamped to them. From those, :func:`mismatches` finds:
+turns ±``range`` degrees. A module reports whether it answers, its ``joint.limits`` — settable only within its
+calibration's soft limits (``joint.calibration``, themselves within its hardware's range), and every goal sent is
+clamped to them — and its ``module.info``: firmware version, language and how many states it holds. From those,
+:func:`mismatches` finds:
 
 * modules the gait assigns that do not answer, and modules that answer but the gait does not name (the robot has
   another count of modules than the one simulated);
 * a module whose limits cut off angles the gait commands (it would be clamped, and not run as previewed);
 * a module whose limits reach beyond the gait's module's hinge range: its joint turns further than the module the
-  gait was made for, so it is another type of module.
+  gait was made for, so it is another type of module;
+* a module that holds fewer states than the gait gives it (its module.info's ``max_states``: a C module keeps 64).
 
-:func:`read_limits` asks each module for its limits; the Deploy tab (web/deploy_panel.py) shows the lines before
-it asks to deploy to a real robot.
+:func:`read_limits` and :func:`read_objects` ask each module; the Deploy tab (web/deploy_panel.py) shows the lines
+before it asks to deploy to a real robot, and :func:`module_lines` (each module's firmware and calibration) in its
+log.
 """
 
 from __future__ import annotations
@@ -39,9 +42,19 @@ def commanded(gait: Gait) -> dict[int, tuple[float, float]]:
     return spans
 
 
-def mismatches(gait: Gait, present: Iterable[str], limits: Mapping[str, tuple[float, float]]) -> list[str]:
-    """What differs between the gait's robot and the modules that answered (``present``, with the ``limits`` each
-    reported); empty when nothing does."""
+def states_needed(gait: Gait) -> dict[int, int]:
+    """Per module ID, the states its program holds: those of its automaton in every gait of the program."""
+    needed: dict[int, int] = {}
+    for name in gait.program_gaits():
+        for a in gait.modules if name == FORWARD else gait.gaits[name]:
+            needed[a.id] = needed.get(a.id, 0) + len(gait.automata[a.automaton].states)
+    return needed
+
+
+def mismatches(gait: Gait, present: Iterable[str], limits: Mapping[str, tuple[float, float]],
+               infos: Mapping[str, Mapping[str, Any]] | None = None) -> list[str]:  # fmt: skip
+    """What differs between the gait's robot and the modules that answered (``present``, with the ``limits`` and
+    the ``module.info`` each reported); empty when nothing does."""
     present = set(present)
     wanted = {module_name(a.id): a.id for a in gait.modules}
     lines = []
@@ -66,6 +79,42 @@ def mismatches(gait: Gait, present: Iterable[str], limits: Mapping[str, tuple[fl
         if low < -hinge - 1e-3 or high > hinge + 1e-3:
             lines.append(f"{name} turns {low:g}..{high:g}°, beyond the ±{hinge:g}° hinge of the gait's module "
                          "(robot.module.range): another type of module than the one simulated")  # fmt: skip
+    needed = states_needed(gait)
+    for name, module_id in sorted(wanted.items(), key=lambda item: item[1]):
+        info = (infos or {}).get(name)
+        if info is not None and needed.get(module_id, 0) > int(info["max_states"]):
+            lines.append(f"{name} holds {info['max_states']} states, the gait gives it {needed[module_id]}: it "
+                         "would refuse the table")  # fmt: skip
+    return lines
+
+
+def read_objects(lookup: Any, names: Iterable[str], object_name: str, timeout: float = 2.0) -> dict[str, Any]:
+    """Each module's ``object_name`` (``module.info``, ``joint.calibration``) by ``lookup``; a module that does not
+    answer or has no such object (one older than the object) is left out."""
+    found = {}
+    for name in names:
+        try:
+            found[name] = lookup(name, object_name, timeout=timeout).get(timeout=timeout)
+        except Exception:  # no reply, no such object: nothing to say about it
+            continue
+    return found
+
+
+def module_lines(infos: Mapping[str, Mapping[str, Any]], calibrations: Mapping[str, Mapping[str, Any]]) -> list[str]:
+    """One line per module: its firmware (language, version, build) and calibration, for a deploy's log."""
+    lines = []
+    for name in sorted(set(infos) | set(calibrations), key=lambda n: (len(n), n)):
+        parts = [name + ":"]
+        info = infos.get(name)
+        if info is not None:
+            v = int(info["version"])
+            language = {0: "Python", 1: "C"}.get(int(info["language"]), f"language {info['language']}")
+            parts.append(f"{language} {v >> 16 & 0xFF}.{v >> 8 & 0xFF}.{v & 0xFF} build {int(info['build']):08x}")
+        c = calibrations.get(name)
+        if c is not None:
+            parts.append(f"zero {c['zero']:g}°, direction {int(c['direction']):+d}, soft limits "
+                         f"{c['min']:g}..{c['max']:g}°")  # fmt: skip
+        lines.append(" ".join(parts))
     return lines
 
 

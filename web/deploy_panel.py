@@ -15,7 +15,7 @@ import time
 from typing import TYPE_CHECKING, Any
 
 from asm_module.names import module_name
-from gaits.compatible import mismatches, read_limits
+from gaits.compatible import mismatches, module_lines, read_limits, read_objects
 from gaits.deploy import DeployReport
 from gaits.model import Gait
 
@@ -69,7 +69,10 @@ class DeployPanel:
             robot = self.page.robot
             alive = robot.alive_modules()
             wanted = {module_name(a.id) for a in gait.modules} & set(alive)
-            problems = mismatches(gait, alive, read_limits(robot.lookup, sorted(wanted)))
+            infos = read_objects(robot.lookup, sorted(wanted), "module.info")
+            for line in module_lines(infos, read_objects(robot.lookup, sorted(wanted), "joint.calibration")):
+                self.log(line)  # what each module runs and how it is calibrated, before anything is sent
+            problems = mismatches(gait, alive, read_limits(robot.lookup, sorted(wanted)), infos)
             question = f"Deploy {gait.name} to the {gait.robot.modules} modules of the REAL robot?"
             if problems:  # said before anything is sent: the robot is not the one previewed
                 question += " ⚠ Not the robot this gait was made for: " + "; ".join(problems) + "."

@@ -9,7 +9,7 @@ import pytest
 from asm_module import FakeDriver, ModuleRuntime
 from asm_py import Node
 from asm_py.transport.memory import MemoryNetwork, MemoryTransport
-from gaits.compatible import commanded, mismatches, read_limits
+from gaits.compatible import commanded, mismatches, module_lines, read_limits, read_objects, states_needed
 from gaits.model import LIBRARY, load
 
 pytestmark = pytest.mark.timeout(60)
@@ -31,6 +31,7 @@ def robot():
         names = [f"m{k}" for k in range(1, count + 1)]
         return names, read_limits(client.lookup, names, timeout=1.0)
 
+    start.client = client  # type: ignore[attr-defined]
     yield start
     for runtime, node in started:
         runtime.close()
@@ -75,3 +76,26 @@ def test_a_module_that_does_not_answer_is_left_to_the_missing_line():
         assert read_limits(client.lookup, ["m1"], timeout=0.2) == {}
     finally:
         client.close()
+
+
+def test_module_info_and_calibration_are_read_shown_and_checked(robot):
+    """Each module's firmware and calibration go into the deploy's log; a module that holds fewer states than the
+    gait gives it is reported (a C module keeps 64); a calibration's soft limits are the limits checked."""
+    names, limits = robot(8, odd={2: ((-40.0, 40.0), (-90.0, 90.0))})
+    client = robot.client
+    calibration = client.lookup("m2", "joint.calibration", timeout=1.0)
+    calibration.set({"zero": 10.0, "direction": -1, "min": -60.0, "max": 70.0}, wait=True)
+    limits = read_limits(client.lookup, names, timeout=1.0)
+    assert limits["m2"] == (-60.0, 70.0), "the soft limits, as the module clamps to them"
+    infos = read_objects(client.lookup, names, "module.info", timeout=1.0)
+    assert set(infos) == set(names) and infos["m1"]["language"] == 0
+    assert mismatches(CATERPILLAR, names, limits, infos) == [], "-60..70 holds the gait's ±50°"
+    lines = module_lines(infos, read_objects(client.lookup, names, "joint.calibration", timeout=1.0))
+    assert len(lines) == 8 and lines[1].startswith("m2: Python 0.1.0 build ")
+    assert lines[1].endswith("zero 10°, direction -1, soft limits -60..70°")
+    needed = states_needed(CATERPILLAR)
+    small = {name: dict(info, max_states=needed[1] - 1) if name == "m1" else info for name, info in infos.items()}
+    assert mismatches(CATERPILLAR, names, limits, small) == [
+        f"m1 holds {needed[1] - 1} states, the gait gives it {needed[1]}: it would refuse the table"
+    ]
+    assert read_objects(client.lookup, ["m99"], "module.info", timeout=0.2) == {}
