@@ -3,7 +3,8 @@
 Layout: the side panel (docked right) starts with the robot bar — E-STOP, its release, the status line, the robots
 of the network and what the 3D view shows (web/robot_bar.py) — then tabs: Gait (web/editor.py), Preview
 (web/preview_panel.py), Deploy (web/deploy_panel.py), Drive (web/drive.py), Monitor (web/monitor_panel.py), Tune
-(web/tune_panel.py: the search for a better gait, in worker processes). A
+(web/tune_panel.py: the search for a better gait, in worker processes), Modules (web/modules_panel.py: each
+module's firmware and calibration). A
 second panel over the 3D view's lower left shows the plots and the gait control table. No dialog ever covers the
 E-STOP: confirmations are rows of the panel (web/confirm.py), and Escape presses E-STOP from anywhere
 (web/page_script.py).
@@ -31,6 +32,7 @@ from .editor import GaitEditor
 from .guard import AccessGuard, guarded_server
 from .link import RobotLink
 from .live import KinematicTwin
+from .modules_panel import ModulesPanel
 from .monitor_panel import MonitorPanel
 from .page import Backend, Page
 from .preview import PreviewLoop, SceneView
@@ -126,6 +128,8 @@ class Dashboard:
             self.monitor = MonitorPanel(page, plots_tab)
         with tabs.add_tab("Tune"):
             self.tuner = TunePanel(page)
+        with tabs.add_tab("Modules"):
+            self.modules = ModulesPanel(page)
         page.on("attach", self.attach)
         page.on("show", self.show)
         page.on("deployed", lambda gait: self.show("live"))
@@ -248,6 +252,7 @@ class Dashboard:
         self.deployer.close()
         self.monitor.close()
         self.tuner.close()
+        self.modules.close()
         self.link.close()
         self.loop.close()
         self.server.stop()

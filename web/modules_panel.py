@@ -1,0 +1,169 @@
+"""The Modules tab: the robot's modules as a builder sees them — each one's firmware (``module.info``: language,
+version, build, states held) and calibration (``joint.calibration``: zero, direction, soft limits) in a roster, and
+per module the calibration edited and applied, or "Set current pose as zero" (docs/protocol.md §9).
+
+A calibration is the module's own: it checks it (a value out of range or not finite is refused, never clamped, and
+the refusal is shown here), stores it (a board's flash, a Python module's file) and applies it to every reading and
+command; setting it never moves the joint. "Set current pose as zero" keeps the soft limits where they are on the
+joint (their raw angles, to 0.01°), so only the numbering of angles moves.
+
+The callbacks only queue work: one thread (``studio-modules``) talks to the modules, so a slow or silent module
+never holds viser's thread pool; it writes the roster and the line under the buttons when it is done.
+"""
+
+from __future__ import annotations
+
+import math
+import queue
+import threading
+from typing import TYPE_CHECKING, Any
+
+from gaits.compatible import read_objects
+
+if TYPE_CHECKING:
+    from .page import Page
+
+NONE = "-"
+TIMEOUT = 2.0
+"""Seconds a module has to answer each read or set."""
+LIMIT_MARGIN = 0.01
+"""Degrees "Set current pose as zero" moves the soft limits inward (see _zero_here)."""
+
+
+def _version(info: dict[str, Any]) -> str:
+    v = int(info["version"])
+    language = {0: "Python", 1: "C"}.get(int(info["language"]), f"language {info['language']}")
+    return f"{language} {v >> 16 & 0xFF}.{v >> 8 & 0xFF}.{v & 0xFF}"
+
+
+def roster_markdown(names: list[str], infos: dict[str, Any], calibrations: dict[str, Any],
+                    angles: dict[str, float]) -> str:  # fmt: skip
+    """The roster as a markdown table, one row per module (narrow enough for the side panel); "—" for what a module
+    did not say."""
+    rows = ["| module | firmware | calibration | angle |", "|---" * 4 + "|"]
+    for name in names:
+        info, c, angle = infos.get(name), calibrations.get(name), angles.get(name)
+        firmware = f"{_version(info)} `{int(info['build']):08x}` {info['max_states']} states" if info else "—"
+        calibration = f"{c['zero']:g}° {int(c['direction']):+d} {c['min']:g}..{c['max']:g}°" if c else "—"
+        shown = f"{angle:.1f}°" if angle is not None else "—"
+        rows.append(f"| {name} | {firmware} | {calibration} | {shown} |")
+    return "\n".join(rows) + "\n\nCalibration: zero, direction, soft limits."
+
+
+class ModulesPanel:
+    """The Modules tab of ``page``; see the module docstring. ``close`` stops its thread."""
+
+    def __init__(self, page: Page) -> None:
+        self.page = page
+        gui = page.gui
+        gui.add_markdown("Each module's firmware and calibration, read from the module itself. A calibration is "
+                         "stored in the module and applied by it: angle = direction · (raw − zero).")  # fmt: skip
+        self.read_button = gui.add_button("Read modules")
+        self.roster_md = gui.add_markdown("Not read yet: **Read modules** asks every module that answers.")
+        self.module = gui.add_dropdown("Calibrate module", [NONE])
+        self.zero = gui.add_number("Zero (raw °)", 0.0, step=0.1)
+        self.direction = gui.add_dropdown("Joint direction", ["+1", "-1"])
+        self.low = gui.add_number("Soft min (°)", -90.0, step=0.1)
+        self.high = gui.add_number("Soft max (°)", 90.0, step=0.1)
+        self.apply_button = gui.add_button("Apply calibration")
+        self.zero_button = gui.add_button("Set current pose as zero")
+        self.line = gui.add_markdown("")
+        self._lock = threading.Lock()
+        self._calibrations: dict[str, dict[str, Any]] = {}
+        """The calibrations last read, by module (the worker writes, the module picker reads)."""
+        self._jobs: queue.Queue[tuple[str, Any] | None] = queue.Queue()
+        self.read_button.on_click(page.safe(lambda _: self._jobs.put(("read", None))))
+        self.apply_button.on_click(page.safe(lambda _: self._queue_apply()))
+        self.zero_button.on_click(page.safe(lambda _: self._queue_module("zero")))
+        self.module.on_update(page.safe(lambda _: self._show_selected()))
+        self._thread = threading.Thread(target=self._run, name="studio-modules", daemon=True)
+        self._thread.start()
+
+    # -- the callbacks: they only queue work or take the lock -------------------------------------------------------
+
+    def _selected(self) -> str:
+        name = str(self.module.value)
+        if name == NONE:
+            raise ValueError("pick a module first (Read modules lists them)")
+        return name
+
+    def _queue_module(self, job: str) -> None:
+        self._jobs.put((job, self._selected()))
+
+    def _queue_apply(self) -> None:
+        values = {"zero": float(self.zero.value), "direction": 1 if self.direction.value == "+1" else -1,
+                  "min": float(self.low.value), "max": float(self.high.value)}  # fmt: skip
+        if not all(math.isfinite(values[k]) for k in ("zero", "min", "max")):
+            raise ValueError(f"a calibration's numbers are finite, not {values}")
+        self._jobs.put(("apply", (self._selected(), values)))
+
+    def _show_selected(self) -> None:
+        """The picked module's calibration into the fields (as last read)."""
+        with self._lock:
+            c = self._calibrations.get(str(self.module.value))
+        if c is None or self.page.syncing:
+            return
+        with self.page.programmatic():
+            self.zero.value = float(c["zero"])
+            self.direction.value = "+1" if int(c["direction"]) > 0 else "-1"
+            self.low.value = float(c["min"])
+            self.high.value = float(c["max"])
+
+    # -- the worker ---------------------------------------------------------------------------------------------------
+
+    def _run(self) -> None:
+        while (job := self._jobs.get()) is not None:
+            kind, argument = job
+            try:
+                if kind == "read":
+                    self._read()
+                elif kind == "apply":
+                    self._apply(*argument)
+                elif kind == "zero":
+                    self._zero_here(argument)
+            except Exception as exc:  # a refusal, a silent module: said under the buttons, the worker goes on
+                self.line.content = f"⚠ {exc}"
+
+    def _read(self) -> None:
+        robot = self.page.robot
+        names = sorted(robot.alive_modules(), key=lambda n: int(n[1:]))
+        self.line.content = f"Reading {len(names)} modules …"
+        infos = read_objects(robot.lookup, names, "module.info", TIMEOUT)
+        calibrations = read_objects(robot.lookup, names, "joint.calibration", TIMEOUT)
+        angles = {name: float(value) for name, value in read_objects(robot.lookup, names, "joint.angle",
+                                                                      TIMEOUT).items()}  # fmt: skip
+        with self._lock:
+            self._calibrations = calibrations
+        self.roster_md.content = roster_markdown(names, infos, calibrations, angles) if names else "No module answers."
+        with self.page.programmatic():
+            chosen = self.module.value
+            self.module.options = names or [NONE]
+            self.module.value = chosen if chosen in names else (names[0] if names else NONE)
+        self._show_selected()
+        self.line.content = f"Read {len(names)} modules: {len(infos)} said their firmware, {len(calibrations)} " \
+                            "their calibration."  # fmt: skip
+
+    def _apply(self, name: str, values: dict[str, Any]) -> None:
+        self.page.robot.lookup(name, "joint.calibration", timeout=TIMEOUT).set(values, wait=True, timeout=TIMEOUT)
+        self._read()
+        self.line.content = (f"{name} calibrated: zero {values['zero']:g}°, direction {values['direction']:+d}, "
+                             f"soft limits {values['min']:g}..{values['max']:g}° (stored in the module)")  # fmt: skip
+
+    def _zero_here(self, name: str) -> None:
+        """The joint's raw angle now becomes its zero; the soft limits stay where they are on the joint."""
+        robot = self.page.robot
+        c = dict(robot.lookup(name, "joint.calibration", timeout=TIMEOUT).get(timeout=TIMEOUT))
+        angle = float(robot.lookup(name, "joint.angle", timeout=TIMEOUT).get(timeout=TIMEOUT))
+        raw = round(c["zero"] + c["direction"] * angle, 2)
+        shift = c["direction"] * (raw - c["zero"])  # the angle the new zero reads 0 at
+        # the limits moved by as much, to 0.01° and 0.01° inward: float32 rounding must not put a limit's raw angle
+        # a hair past the hardware's range (the module refuses it, never clamps)
+        values = {"zero": raw, "direction": c["direction"], "min": round(c["min"] - shift + LIMIT_MARGIN, 2),
+                  "max": round(c["max"] - shift - LIMIT_MARGIN, 2)}  # fmt: skip
+        robot.lookup(name, "joint.calibration", timeout=TIMEOUT).set(values, wait=True, timeout=TIMEOUT)
+        self._read()
+        self.line.content = f"{name}: its pose now is its zero (raw {raw:.2f}°; it was at {angle:.2f}°)"
+
+    def close(self) -> None:
+        self._jobs.put(None)
+        self._thread.join(timeout=10)
