@@ -21,7 +21,9 @@ from asm_module.calibration import VERSION, Calibration, flash_record
 from asm_module.firmware_build import build_id
 from asm_module.flash import Settings
 from asm_py.codec_parse import parse_codec
+from asm_py.errors import MessageTooLarge, ReadOnlyError, RemoteError
 from asm_py.node import Node
+from asm_py.protocol import Method
 from asm_py.remote import RemoteAttribute
 from asm_py.transport.can import CanTransport
 
@@ -110,6 +112,15 @@ def test_the_host_build_calibrates_and_reports_as_the_python_module(c_module) ->
     info = {"version": VERSION, "build": build_id("host.c"), "language": 1, "max_states": 64, "max_modes": 16,
             "max_message": 4096, "tick_cycles": 0, "stack_bytes": 0}  # fmt: skip
     check_calibration_over_the_bus(tool, "c1", module.driver, info)
+    # what a broken tool might send: a record cut short, a byte too many, a long payload; nothing changes
+    remote = attribute(tool, "c1", "joint.calibration")
+    good = struct.pack("<fbff", 1.0, 1, -10.0, 10.0)
+    for data in (good[:12], good + b"\0", good * 40):
+        with pytest.raises((ValueError, TypeError, RemoteError, MessageTooLarge)):
+            tool.port("c1").call(Method.SET, remote.info.class_id, remote.info.object_id, data, timeout=5)
+    assert remote.get(timeout=5) == TURNED
+    with pytest.raises(ReadOnlyError):
+        attribute(tool, "c1", "module.info").set(info | {"tick_cycles": 1, "stack_bytes": 1}, wait=True)
 
 
 # -- the board image -----------------------------------------------------------------------------------------------
