@@ -10,6 +10,7 @@ import time
 import pytest
 
 from asm_py.node import Node
+from asm_py.remote import RemoteAttribute
 from asm_py.transport.zenoh import ZenohTransport
 
 from ..helpers import ARTIFACTS, wait_until
@@ -27,6 +28,12 @@ def _fill(page, label: str, value: str) -> None:
 def _pick(page, label: str, option: str) -> None:
     page.get_by_role("combobox", name=label).click()
     page.get_by_role("option", name=option, exact=True).click()
+
+
+def attribute(client: Node, node: str, name: str) -> RemoteAttribute:
+    remote = client.lookup(node, name, timeout=5)
+    assert isinstance(remote, RemoteAttribute)
+    return remote
 
 
 def test_the_modules_tab_reads_calibrates_refuses_and_zeros_by_clicks(studio_process):
@@ -62,27 +69,27 @@ def test_the_modules_tab_reads_calibrates_refuses_and_zeros_by_clicks(studio_pro
             )
             expect(page.locator("td", has_text="10° -1 -60..70°")).to_have_count(1, timeout=15_000)
             wanted = {"zero": 10.0, "direction": -1, "min": -60.0, "max": 70.0}
-            assert client.lookup("m3", "joint.calibration", timeout=5).get(timeout=5) == wanted
+            assert attribute(client, "m3", "joint.calibration").get(timeout=5) == wanted
             # a calibration the module refuses: min above max; the page says so and nothing changes
             _fill(page, "Soft min (°)", "80")
             page.get_by_role("button", name="Apply calibration").click()
             expect(page.get_by_text(re.compile(r"⚠ .*joint\.calibration"))).to_be_visible(timeout=30_000)
-            assert client.lookup("m3", "joint.calibration", timeout=5).get(timeout=5) == wanted
+            assert attribute(client, "m3", "joint.calibration").get(timeout=5) == wanted
             # m5, turned to 20° by a tool: that pose becomes its zero
-            client.lookup("m5", "joint.goal", timeout=5).set(20.0, wait=True)
-            m5_angle = client.lookup("m5", "joint.angle", timeout=5)
+            attribute(client, "m5", "joint.goal").set(20.0, wait=True)
+            m5_angle = attribute(client, "m5", "joint.angle")
             assert wait_until(lambda: abs(m5_angle.get(timeout=5) - 20.0) < 3.0, timeout=20)
             _pick(page, "Calibrate module", "m5")
             page.get_by_role("button", name="Set current pose as zero").click()
             expect(page.get_by_text("m5: its pose now is its zero", exact=False)).to_be_visible(timeout=30_000)
             page.screenshot(path=str(ARTIFACTS / "modules-tab.png"))
             browser.close()
-        zeroed = client.lookup("m5", "joint.calibration", timeout=5).get(timeout=5)
+        zeroed = attribute(client, "m5", "joint.calibration").get(timeout=5)
         # where the joint stood when the page read it (the simulated chain still settles under its goal of 20°)
         assert abs(zeroed["zero"] - 20.0) < 6.0 and zeroed["direction"] == 1, zeroed
         raw_limits = (zeroed["zero"] + zeroed["min"], zeroed["zero"] + zeroed["max"])
         assert raw_limits == (pytest.approx(-89.99, abs=0.006), pytest.approx(89.99, abs=0.006)), "stay on the joint"
-        goal = client.lookup("m5", "joint.goal", timeout=5).get(timeout=5)
+        goal = attribute(client, "m5", "joint.goal").get(timeout=5)
         assert goal == pytest.approx(20.0 - zeroed["zero"], abs=0.01), "the joint kept where it was commanded"
     finally:
         client.close()
