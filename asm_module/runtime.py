@@ -137,7 +137,8 @@ class ModuleRuntime:
         self.info = Attribute("module.info", python_info(), codec=parse_codec(PROFILE["module.info"].codec),
                               clock=self.clock)  # fmt: skip
         self.limits = CheckedAttribute("joint.limits", self._check_limits(limits), codec=float_array(2),
-                                       check=self._check_limits, clock=self.clock)  # fmt: skip
+                                       check=self._check_limits, reset=self._soft_limits,
+                                       clock=self.clock)  # fmt: skip
         self.goal = CheckedAttribute("joint.goal", 0.0, codec=FLOAT32, check=self._clamp_goal, reset=self._reset_goal,
                                      clock=self.clock)  # fmt: skip
         self.angle = Attribute("joint.angle", 0.0, codec=FLOAT32, clock=self.clock)
@@ -233,6 +234,12 @@ class ModuleRuntime:
             raise ValueError(f"joint limits must satisfy {soft.min} <= min < max <= {soft.max} (the calibration's "
                              f"soft limits), not ({lo}, {hi})")  # fmt: skip
         return (lo, hi)
+
+    def _soft_limits(self) -> tuple[float, float]:
+        """A RESET of joint.limits: the calibration's soft limits (the C runtime's too), the goal re-clamped."""
+        soft = self.joint.calibration
+        self.goal.set(min(max(float(self.goal.peek()), soft.min), soft.max))
+        return (soft.min, soft.max)
 
     def _calibrate(self, value: Any) -> dict[str, Any]:
         """joint.calibration set (or reset: none): checked, stored before it is taken (a value is answered OK only

@@ -88,6 +88,10 @@ def check_calibration_over_the_bus(tool: Node, node: str, driver, info: dict) ->
     assert goal.peek() == 70.0, "clamped to the soft limits as joint.limits clamps"
     with pytest.raises(ValueError):
         attribute(tool, node, "joint.limits").set((-70.0, 0.0), wait=True)
+    limits = attribute(tool, node, "joint.limits")
+    limits.set((-20.0, 20.0), wait=True)
+    limits.reset(wait=True)  # back to the soft limits
+    assert tuple(limits.get(timeout=5)) == (-60.0, 70.0)
     for value in HOSTILE:
         with pytest.raises(ValueError):
             calibration.set(value, wait=True)

@@ -79,6 +79,8 @@ def test_a_calibration_maps_the_joint_both_ways_and_its_limits_bound_the_goal(pa
             limits.set(wider, wait=True)
     limits.set((-30.0, 30.0), wait=True)  # narrower: as before
     assert goal.peek() == -30.0
+    limits.reset(wait=True)  # back to the soft limits, as the C runtime does
+    assert tuple(limits.get(timeout=2)) == (-60.0, 70.0)
 
 
 def test_a_new_zero_keeps_the_joint_where_it_is_commanded(pair) -> None:
