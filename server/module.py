@@ -25,6 +25,9 @@ from asm_py.node import Node
 from asm_py.transport.can import CanTransport
 from server.realtime import prefer_latency
 
+HARDWARE_RANGE = (-90.0, 90.0)
+"""The joint's range (ModuleRuntime's default): what a stored calibration is checked against."""
+
 
 def main(argv: list[str] | None = None) -> int:
     """``asm-module --can INTERFACE:CHANNEL --node-id N``: one module on a CAN bus (a Linux-based module)."""
@@ -59,9 +62,11 @@ def _serve(args: argparse.Namespace) -> int:
     options = {**args.can, **({"bitrate": args.bitrate} if args.bitrate else {})}
     if args.id_file is not None:
         return _serve_commissioned(args, options)
+    store = CalibrationFile(args.calibration_file) if args.calibration_file is not None else None
+    if store is not None:
+        store.load(HARDWARE_RANGE)  # a damaged file is refused before the bus is opened
     name = args.name or f"m{args.node_id}"
     node = Node(name, CanTransport(args.node_id, **options))
-    store = CalibrationFile(args.calibration_file) if args.calibration_file is not None else None
     runtime = ModuleRuntime(FakeDriver(), node=node, limits=tuple(args.limits), control_rate=args.rate,
                             calibration_store=store)  # fmt: skip
     done = stop_requested()
@@ -74,6 +79,7 @@ def _serve(args: argparse.Namespace) -> int:
 
 def _serve_commissioned(args: argparse.Namespace, options: dict) -> int:
     store = CalibrationFile(args.calibration_file or calibration_path(args.id_file))
+    store.load(HARDWARE_RANGE)  # a damaged file is refused before the bus is opened
 
     def runtime(node: Node, module_id: int) -> ModuleRuntime:
         return ModuleRuntime(FakeDriver(), node=node, limits=tuple(args.limits), control_rate=args.rate,

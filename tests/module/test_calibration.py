@@ -203,3 +203,17 @@ def test_a_commissioned_module_keeps_its_calibration_across_a_power_cycle(tmp_pa
         tool.close()
         bus.shutdown()
         fleet.close()
+
+
+@pytest.mark.parametrize("flag", ["--calibration-file", "--id-file"])
+def test_asm_module_refuses_a_damaged_calibration_file_before_opening_the_bus(tmp_path, capsys, flag) -> None:
+    """``asm-module --calibration-file`` reads the file it names, and with ``--id-file`` the one next to it."""
+    from server import module
+
+    identity = tmp_path / "m.json"
+    target = tmp_path / "c.json" if flag == "--calibration-file" else calibration_path(identity)
+    target.write_text(json.dumps({**TURNED, "direction": 7}))
+    argv = ["--can", f"virtual:{fresh_name('cli')}", *(["--node-id", "7", flag, str(target)]
+            if flag == "--calibration-file" else [flag, str(identity)])]  # fmt: skip
+    assert module.main(argv) == 1
+    assert "direction is +1 or -1" in capsys.readouterr().err
