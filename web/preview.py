@@ -335,7 +335,7 @@ class SceneView:
 
     def set_source(self, source: str) -> None:
         """Show the "preview", the "live" robot or a "replay" of a recording (rebuilt at the next draw)."""
-        if source not in ("preview", "live", "replay") or getattr(self, source, None) is None:
+        if source not in ("preview", "live", "replay") or (source != "preview" and getattr(self, source) is None):
             raise ValueError(f"no {source!r} source to show")
         self.source = source
         self._built = None

@@ -47,7 +47,7 @@ class ReplayPanel:
                                             hint="replay a recording from this computer")  # fmt: skip
         self.upload.on_upload(page.safe(self._on_upload))
         self.line = gui.add_markdown("No recording open.")
-        self.play = gui.add_button_group("Replay", ["▶ Play", "⏸ Pause", "Leave replay"])
+        self.play = gui.add_button_group("Replay", ["▶ Play", "Pause", "Leave replay"])
         self.play.on_click(page.safe(self._on_play))
         self.timeline = gui.add_slider("Replay time (s)", min=0.0, max=1.0, step=0.01, initial_value=0.0)
         self.timeline.on_update(page.safe(self._on_seek))
@@ -194,7 +194,7 @@ class ReplayPanel:
                 self.timeline.value = shown
         labels, data = plot_data(recording, self.keys(), t, PLOT_WINDOW)
         self.plot.show(labels or ["-"], data if labels else empty_plot(2))
-        state = "▶ playing" if source.playing else ("■ ended" if t >= source.clock.duration else "⏸ paused")
+        state = "▶ playing" if source.playing else ("■ ended" if t >= source.clock.duration else "paused")
         events = "  \n".join(f"{'●' if e.time <= t else '○'} {e.time:7.2f} s · {e.text}" for e in recording.events[:40])
         more = f"  \n… and {len(recording.events) - 40} more" if len(recording.events) > 40 else ""
         self._set(self.events, f"**t = {t:.2f} s** of {source.clock.duration:.2f} s · {state} · "
