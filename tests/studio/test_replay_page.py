@@ -107,9 +107,8 @@ def test_open_a_recording_play_pause_scrub_and_leave(start_studio, tmp_path):
         page.get_by_label("Recording", exact=True).click()
         page.get_by_role("option", name="not-a-recording.mcap", exact=True).click()
         page.get_by_role("button", name="Open", exact=True).click()
-        expect(page.get_by_text("Not opened: not-a-recording.mcap is not an MCAP file", exact=False).first).to_be_visible(
-            timeout=20_000
-        )
+        refused = page.get_by_text("Not opened: not-a-recording.mcap is not an MCAP file", exact=False)
+        expect(refused.first).to_be_visible(timeout=20_000)
         page.get_by_label("Recording", exact=True).click()
         page.get_by_role("option", name="caterpillar-run.mcap", exact=True).click()
         page.get_by_role("button", name="Open", exact=True).click()
