@@ -56,6 +56,8 @@ class Series:
     times: list[float] = field(default_factory=list)
     values: list[Any] = field(default_factory=list)
     """As the file holds them (JSON-decoded): numbers, booleans, lists, text."""
+    stamps: list[tuple[int, float]] = field(default_factory=list)
+    """Each value's (seq, t) as its publisher stamped it (the JSON view's ``seq`` and ``t``; 0 when absent)."""
 
     def until(self, t: float) -> int:
         """How many values were published at or before ``t``."""
@@ -203,6 +205,7 @@ def _add(recording: Recording, t: float, topic: str, data: bytes, seq: int) -> N
                 series = recording.series.setdefault((parts[0], parts[1]), Series())
                 series.times.append(t)
                 series.values.append(view["value"])
+                series.stamps.append((int(view.get("seq", 0)), float(view.get("t", 0.0))))
     except (ValueError, TypeError, IndexError, AttributeError, struct.error):
         return
 
