@@ -121,6 +121,7 @@ class ReplayPanel:
             except RecordingError as exc:
                 self.line.content = f"⚠ Not opened: {exc}"
                 self.page.notify("Replay", str(exc), error=True)
+                log.info("not replayed: %s", exc)
                 continue
             except Exception as exc:  # a bug must not end the thread: said like a refusal
                 log.exception("opening a recording failed")
@@ -161,6 +162,7 @@ class ReplayPanel:
                              f"{len(recording.series)} attributes of {len(recording.nodes())} nodes, "
                              f"{len(recording.events)} events{kept}{warning}")  # fmt: skip
         self.page.notify("Replay", f"{recording.name} opened: Play, or drag the replay time")
+        log.info("replaying %s: %.2f s, %d poses", recording.name, recording.duration, len(recording.frames))
 
     def leave(self) -> None:
         """Back to the live robot; the recording is closed."""

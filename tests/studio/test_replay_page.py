@@ -93,6 +93,10 @@ def test_open_a_recording_play_pause_scrub_and_leave(start_studio, tmp_path):
 
     simulated_recording(tmp_path / "caterpillar-run.mcap")
     (tmp_path / "not-a-recording.mcap").write_text("a text file named .mcap\n")
+    whole = (tmp_path / "caterpillar-run.mcap").read_bytes()
+    upload = tmp_path / "upload" / "killed.mcap"  # a recorder killed mid-write: no summary, cut mid-chunk
+    upload.parent.mkdir()
+    upload.write_bytes(whole[: len(whole) // 2])
     url, _, log = start_studio("--recordings", str(tmp_path))
 
     def replay_time(page) -> float:
@@ -109,6 +113,11 @@ def test_open_a_recording_play_pause_scrub_and_leave(start_studio, tmp_path):
         page.get_by_role("button", name="Open", exact=True).click()
         refused = page.get_by_text("Not opened: not-a-recording.mcap is not an MCAP file", exact=False)
         expect(refused.first).to_be_visible(timeout=20_000)
+        with page.expect_file_chooser() as chooser:  # uploaded: read tolerantly, up to its last whole chunk
+            page.get_by_role("button", name="Upload an MCAP file").click()
+        chooser.value.set_files(str(upload))
+        expect(page.get_by_text("replayed up to its last whole chunk", exact=False).first).to_be_visible(timeout=30_000)
+        expect(page.get_by_text("Showing: Replay of killed.mcap", exact=False).first).to_be_visible(timeout=15_000)
         page.get_by_label("Recording", exact=True).click()
         page.get_by_role("option", name="caterpillar-run.mcap", exact=True).click()
         page.get_by_role("button", name="Open", exact=True).click()
@@ -168,3 +177,19 @@ def test_open_a_recording_play_pause_scrub_and_leave(start_studio, tmp_path):
         assert wait_until(lambda: green(page.screenshot(clip=VIEW)) < before + 300, 30, 0.5)  # no green robot
         browser.close()
     assert not any("Traceback" in line for line in log), "".join(log[-40:])
+
+
+def test_asm_studio_replay_opens_a_recording_at_start_and_refuses_a_bad_one(start_studio, tmp_path):
+    """``--replay FILE``: the recording is open when the page comes (said in the log); a file that is not MCAP is
+    refused in one line and the studio serves on; a file that does not exist is a usage error."""
+    from ..processes import run
+
+    simulated_recording(tmp_path / "run.mcap", seconds=2.0)
+    _, _, log = start_studio("--replay", str(tmp_path / "run.mcap"))
+    assert wait_until(lambda: any("replaying run.mcap: 1.98 s, 120 poses" in line for line in log), 60, 0.2), log
+    (tmp_path / "bad.mcap").write_bytes(b"PK\x03\x04 a zip file")
+    _, _, bad = start_studio("--replay", str(tmp_path / "bad.mcap"))
+    assert wait_until(lambda: any("not replayed: bad.mcap is not an MCAP file" in line for line in bad), 60, 0.2)
+    missing = run("-m", "server.studio", "--replay", str(tmp_path / "none.mcap"), timeout=60)
+    assert missing.returncode == 2 and "none.mcap" in missing.stderr, missing
+    assert not any("Traceback" in line for line in log + bad)
