@@ -82,6 +82,7 @@ class Recording:
     events: list[Event] = field(default_factory=list)
     complete: bool = False
     """The file ended with its summary and footer; False: its writer was killed, read up to its last whole chunk."""
+    _frame_times: list[float] = field(default_factory=list, repr=False)
 
     @property
     def duration(self) -> float:
@@ -92,7 +93,10 @@ class Recording:
 
     @property
     def frame_times(self) -> list[float]:
-        return [f.time for f in self.frames]
+        """The frames' times (kept: the replay looks one up 60 times a second)."""
+        if len(self._frame_times) != len(self.frames):
+            self._frame_times = [f.time for f in self.frames]
+        return self._frame_times
 
     def frame_at(self, t: float) -> PoseFrame | None:
         """The pose frame shown at ``t``: the last one recorded at or before it (None before the first)."""

@@ -28,8 +28,8 @@ from .recording import Recording
 log = logging.getLogger("asm_studio.replay")
 SPEEDS = (0.25, 0.5, 1.0, 2.0, 4.0)
 """The replay speeds the page offers (and the only ones the clock takes)."""
-TICK = 1 / 60
-"""How often the loop moves the clock while playing (s): the recorder's pose feed runs at up to 60 Hz."""
+MAX_WAIT = 0.25
+"""The longest the loop sleeps while playing (s): the plots and the values move on between sparse frames."""
 
 
 class ReplayClock:
@@ -155,7 +155,7 @@ class ReplaySource:
     def _run(self) -> None:
         while True:
             try:
-                request = self._requests.get(timeout=TICK if self.clock.playing else 0.25)
+                request = self._requests.get(timeout=self._until_next_frame())
             except queue.Empty:
                 request = ()
             if request is None:
@@ -167,6 +167,17 @@ class ReplaySource:
                     self.error = str(exc)
                     log.info("replay request refused: %s", exc)
             self._show(self.clock.time())
+
+    def _until_next_frame(self) -> float:
+        """Wall-clock seconds until the next recorded frame is due: at 1x every frame is shown, at its time (a
+        fixed tick beating against the recording's own rate would skip some)."""
+        clock = self.clock
+        if not clock.playing:
+            return MAX_WAIT
+        t = clock.time()
+        index = bisect_right(self._times, t)
+        due = self._times[index] if index < len(self._times) else clock.duration
+        return min(MAX_WAIT, max(0.001, (due - t) / clock.speed))
 
     def _handle(self, kind: str, value: Any) -> None:
         clock = self.clock

@@ -39,6 +39,8 @@ class ReplayPanel:
         self.page = page
         gui = page.gui
         self.source: ReplaySource | None = None
+        self._plotted: tuple[float, list[tuple[str, str]]] | None = None
+        """The replay time and attributes last plotted."""
         self._opening: queue.Queue[tuple[str, Any] | None] = queue.Queue()
         self.file = gui.add_dropdown("Recording", [NO_FILE], hint="an MCAP file of the recordings folder")
         open_buttons = gui.add_button_group("Recordings", ["Open", "List files"])
@@ -144,6 +146,7 @@ class ReplayPanel:
     def start(self, recording: Recording) -> None:
         """Replay ``recording`` from its start, paused, in the 3D view."""
         old, self.source = self.source, ReplaySource(recording)
+        self._plotted = None
         source = self.source
         with self.page.programmatic():
             self.timeline.max = max(0.01, round(recording.duration, 2))
@@ -173,6 +176,7 @@ class ReplayPanel:
         self.line.content = "No recording open."
         self.events.content = self.roster.content = ""
         self.plot.show(["-"], empty_plot(2))
+        self._plotted = None
 
     # -- the page's refresh ---------------------------------------------------------------------------------------
 
@@ -194,8 +198,11 @@ class ReplayPanel:
             shown = round(t, 2)
             if abs(self.timeline.value - shown) >= 0.005:
                 self.timeline.value = shown
-        labels, data = plot_data(recording, self.keys(), t, PLOT_WINDOW)
-        self.plot.show(labels or ["-"], data if labels else empty_plot(2))
+        keys = self.keys()
+        if (t, keys) != self._plotted:  # paused: the plot is not sent again 20 times a second
+            self._plotted = (t, keys)
+            labels, data = plot_data(recording, keys, t, PLOT_WINDOW)
+            self.plot.show(labels or ["-"], data if labels else empty_plot(2))
         state = "▶ playing" if source.playing else ("■ ended" if t >= source.clock.duration else "paused")
         events = "  \n".join(f"{'●' if e.time <= t else '○'} {e.time:7.2f} s · {e.text}" for e in recording.events[:40])
         more = f"  \n… and {len(recording.events) - 40} more" if len(recording.events) > 40 else ""

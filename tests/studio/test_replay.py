@@ -300,3 +300,42 @@ def test_a_recording_without_a_model_replays_its_values_and_says_why_no_3d(tmp_p
         assert source.model is None and "no robot model" in (source.error or "")
     finally:
         source.close()
+
+
+# -- the Replay tab in the studio of this process ------------------------------------------------------------------
+
+
+def test_the_replay_tab_shows_a_recording_in_the_3d_view_and_leaves_it_for_the_live_robot(studio, tmp_path: Path):
+    from types import SimpleNamespace
+
+    app = studio.app
+    panel, view = app.replay, app.view
+    path = tmp_path / "run.mcap"
+    write_recording(path)
+    upload = SimpleNamespace(target=SimpleNamespace(value=SimpleNamespace(name="junk.mcap", content=b"\x00" * 64)))
+    panel._on_upload(upload)  # hostile bytes uploaded: refused in a line, nothing shown changes
+    assert wait_until(lambda: "Not opened: junk.mcap is not an MCAP file" in panel.line.content, 20)
+    assert view.source == "preview" and panel.source is None
+    with pytest.raises(ValueError, match="no recording open"):
+        panel._request("play")
+    panel.open_path(path)
+    assert wait_until(lambda: view.source == "replay" and panel.source is not None, 20)
+    source = panel.source
+    assert source is not None and source.recording.name == "run.mcap" and "120 poses" in panel.line.content
+    # the render thread draws the replay's first frame, with the recording's model
+    assert wait_until(lambda: view._drawn is source.recording.frames[0], 20)
+    assert view._built is not None and view._built[0] == "replay"
+    assert panel.attribute.value == "joint.angle" and panel.keys() == [("m1", "joint.angle"), ("m2", "joint.angle"),
+                                                                      ("m3", "joint.angle")]  # fmt: skip
+    panel.timeline.value = 1.5  # a user's scrub
+    assert wait_until(lambda: abs(source.time() - 1.5) < 1e-9, 20)
+    assert wait_until(lambda: view._drawn is source.recording.frame_at(1.5), 20)
+    panel.refresh()
+    assert panel.plot.labels == ["m1 joint.angle", "m2 joint.angle", "m3 joint.angle"]
+    assert "t = 1.50 s" in panel.events.content and "● " in panel.events.content and "○ " in panel.events.content
+    assert "`m3` joint.angle = **" in panel.roster.content
+    with pytest.raises(ValueError, match="not one of"):
+        panel._on_speed(SimpleNamespace(target=SimpleNamespace(value="9x")))
+    panel._on_play(SimpleNamespace(target=SimpleNamespace(value="Leave replay")))
+    assert view.source == "live" and panel.source is None and panel.line.content == "No recording open."
+    assert not source._thread.is_alive()
