@@ -17,6 +17,7 @@ import io
 import json
 import struct
 from bisect import bisect_right
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any
@@ -28,6 +29,10 @@ from asm_module.feed import PoseFrame
 MAGIC = b"\x89MCAP0\r\n"
 MAX_BYTES = 256 * 1024 * 1024
 """The largest file opened: a recording is held in memory whole (an hour of a 12-module robot is about 100 MB)."""
+MAX_EXPANDED = 4 * MAX_BYTES
+"""The most its chunks may expand to, decompressed (the recorder's zstd chunks shrink to about a third)."""
+MAX_CHUNK = 64 * 1024 * 1024
+"""The largest chunk decompressed (the recorder writes 64 kB ones)."""
 TOPIC_TRANSFORMS = "/robot/transforms"
 TOPIC_ESTOP = "/robot/estop"
 TOPIC_GROUP = "/robot/group"
@@ -142,8 +147,8 @@ def read_bytes(data: bytes, name: str, max_bytes: int = MAX_BYTES) -> Recording:
 def read_recording(stream: IO[bytes], name: str) -> Recording:
     """Read every whole record of ``stream`` (see the module docstring)."""
     from mcap.exceptions import McapError
-    from mcap.records import Attachment, Channel, DataEnd, Footer, Message, Metadata
-    from mcap.stream_reader import StreamReader
+    from mcap.records import Attachment, Channel, Chunk, DataEnd, Footer, Message, Metadata
+    from mcap.stream_reader import StreamReader, breakup_chunk
 
     head = stream.read(len(MAGIC))
     if head != MAGIC:
@@ -153,9 +158,25 @@ def read_recording(stream: IO[bytes], name: str) -> Recording:
     channels: dict[int, str] = {}
     first: int | None = None
     raw: list[tuple[int, str, bytes, int]] = []
-    reader = StreamReader(stream, record_size_limit=MAX_BYTES)
-    try:
+    reader = StreamReader(stream, emit_chunks=True, record_size_limit=MAX_BYTES)
+    expanded = 0
+
+    def records() -> Iterator[Any]:
+        """The file's records, a chunk's own in its place: decompressed only when it says it expands to a size
+        within the budget (a small hostile file must not expand to gigabytes)."""
+        nonlocal expanded
         for record in reader.records:
+            if isinstance(record, Chunk):
+                expanded += record.uncompressed_size
+                if record.uncompressed_size > MAX_CHUNK or expanded > MAX_EXPANDED:
+                    raise RecordingError(f"{name} expands to more than the {MAX_EXPANDED / 2**20:.0f} MB a replay "
+                                         f"holds (or has a chunk over {MAX_CHUNK / 2**20:.0f} MB)")  # fmt: skip
+                yield from breakup_chunk(record)
+            else:
+                yield record
+
+    try:
+        for record in records():
             if isinstance(record, Channel):
                 channels[record.id] = record.topic
             elif isinstance(record, Message):
@@ -173,6 +194,8 @@ def read_recording(stream: IO[bytes], name: str) -> Recording:
             elif isinstance(record, DataEnd | Footer):
                 recording.complete = True
                 break
+    except RecordingError:
+        raise
     except (McapError, EOFError, ValueError, struct.error, MemoryError):
         pass  # a writer killed mid-record: everything before it stands
     if not raw:

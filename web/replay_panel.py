@@ -32,6 +32,14 @@ PLOTTED_MODULES = 8
 SPEED_LABELS = [f"{s:g}x" for s in SPEEDS]
 
 
+def chosen_file(folder: Path, name: str) -> Path:
+    """The recordings folder's file ``name`` (what the dropdown sent): a plain ``.mcap`` file name, nothing that
+    leaves the folder (a page's value is a client's input)."""
+    if not name.endswith(".mcap") or Path(name).name != name or name.startswith("."):
+        raise ValueError(f"{name!r} is not an MCAP file of the recordings folder")
+    return folder / name
+
+
 class ReplayPanel:
     """The Replay tab of ``page``; its plot is drawn in the page's plots panel."""
 
@@ -73,7 +81,7 @@ class ReplayPanel:
         elif self.file.value == NO_FILE:
             raise ValueError("no recording chosen: pick one of the recordings folder (List files), or upload one")
         else:
-            self.open_path(self.page.recordings_folder / str(self.file.value))
+            self.open_path(chosen_file(self.page.recordings_folder, str(self.file.value)))
 
     def open_path(self, path: Path) -> None:
         """Open ``path`` and replay it (read on the panel's thread; the line says how it went)."""

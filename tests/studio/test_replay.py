@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import os
+import struct
 from pathlib import Path
 
 import mujoco
@@ -229,6 +230,37 @@ def test_a_file_too_large_is_refused_before_it_is_read(tmp_path: Path) -> None:
         read_bytes(b"x" * 2048, "big.mcap", max_bytes=1024)
 
 
+def _record(opcode: int, body: bytes) -> bytes:
+    return bytes([opcode]) + struct.pack("<Q", len(body)) + body
+
+
+def _string(text: str) -> bytes:
+    return struct.pack("<I", len(text)) + text.encode()
+
+
+@pytest.mark.parametrize("claimed", [2**31, 65 * 2**20])
+def test_a_small_file_whose_chunk_would_expand_to_gigabytes_is_refused_unexpanded(tmp_path: Path, claimed: int):
+    """A hostile chunk: a few bytes that say they decompress to 2 GB (or one chunk over the limit)."""
+    import zstandard
+
+    header = _record(0x01, _string("") + _string("bomb"))
+    data = zstandard.compress(b"\0" * 1024)
+    chunk = _record(0x06, struct.pack("<QQQI", 0, 0, claimed, 0) + _string("zstd") + struct.pack("<Q", len(data))
+                    + data)  # fmt: skip
+    path = tmp_path / "bomb.mcap"
+    path.write_bytes(rec.MAGIC + header + chunk * 3)
+    with pytest.raises(RecordingError, match="expands to more than"):
+        open_recording(path)
+
+
+def test_many_chunks_expanding_past_the_budget_are_refused(tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
+    path = tmp_path / "run.mcap"
+    write_recording(path)
+    monkeypatch.setattr(rec, "MAX_EXPANDED", 20_000)  # the recording's 2 kB chunks add up past it
+    with pytest.raises(RecordingError, match="expands to more than"):
+        open_recording(path)
+
+
 def test_a_missing_file_or_a_directory_is_refused(tmp_path: Path) -> None:
     with pytest.raises(RecordingError, match="cannot open"):
         open_recording(tmp_path / "none.mcap")
@@ -339,3 +371,12 @@ def test_the_replay_tab_shows_a_recording_in_the_3d_view_and_leaves_it_for_the_l
     panel._on_play(SimpleNamespace(target=SimpleNamespace(value="Leave replay")))
     assert view.source == "live" and panel.source is None and panel.line.content == "No recording open."
     assert not source._thread.is_alive()
+
+
+@pytest.mark.parametrize("name", ["../secret.mcap", "/etc/passwd", "sub/run.mcap", "run.txt", "..mcap", ".mcap", ""])
+def test_a_chosen_file_that_is_not_a_recording_of_the_folder_is_refused(tmp_path: Path, name: str) -> None:
+    from web.replay_panel import chosen_file
+
+    with pytest.raises(ValueError, match="not an MCAP file of the recordings folder"):
+        chosen_file(tmp_path, name)
+    assert chosen_file(tmp_path, "robot-20261124.mcap") == tmp_path / "robot-20261124.mcap"
