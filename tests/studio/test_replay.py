@@ -351,9 +351,9 @@ def test_the_replay_tab_shows_a_recording_in_the_3d_view_and_leaves_it_for_the_l
     with pytest.raises(ValueError, match="no recording open"):
         panel._request("play")
     panel.open_path(path)
-    assert wait_until(lambda: view.source == "replay" and panel.source is not None, 20)
+    assert wait_until(lambda: view.source == "replay" and "120 poses" in panel.line.content, 20)
     source = panel.source
-    assert source is not None and source.recording.name == "run.mcap" and "120 poses" in panel.line.content
+    assert source is not None and source.recording.name == "run.mcap"
     # the render thread draws the replay's first frame, with the recording's model
     assert wait_until(lambda: view._drawn is source.recording.frames[0], 20)
     assert view._built is not None and view._built[0] == "replay"
