@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import zenoh
+from mcap.reader import make_reader
 
 from asm_module.feed import PoseFrame, decode_poses, poses_key
 from asm_py.node import Node
@@ -28,6 +29,7 @@ from web.replay import ReplaySource, last_values, plot_data
 from ..helpers import wait_until
 from ..processes import Process
 from ..transports import free_port
+from .test_record import transforms
 
 pytestmark = pytest.mark.timeout(300)
 GAIT = LIBRARY / "caterpillar.toml"
@@ -98,35 +100,48 @@ def test_the_replay_serves_the_recorded_poses_and_values_exactly(running, tmp_pa
     assert len(frames) > 20 * seconds, len(frames)  # the feed at up to 60 Hz; a loaded machine gives fewer
     assert recording.duration == pytest.approx(seconds, abs=3.0)
 
-    # each frame in the file is the robot's, float for float; the robot's frames of the time recorded are all there
-    # but for a few a loaded machine's Zenoh may drop on the way to the recorder (counted, at most 1 %)
+    # the file read independently (the mcap library's indexed reader, protobuf decoded by the test's own reader)
+    in_file: dict[int, list[tuple[float, ...]]] = {}
+    file_values: dict[tuple[str, str], list[dict]] = {}
+    with out.open("rb") as stream:
+        for _, channel, message in make_reader(stream).iter_messages():
+            if channel.topic == "/robot/transforms":
+                in_file[message.sequence] = [xyz for _, _, xyz in transforms(message.data)]
+            elif channel.topic.endswith("/joint.angle"):
+                node = channel.topic.split("/")[1]
+                file_values.setdefault((node, "joint.angle"), []).append(json.loads(message.data))
+
+    # the poses: each frame the replay serves at each recorded time (a scrub to each one) is the file's, and the
+    # robot's as the subscriber received it, float for float. Both the recorder and the subscriber may miss a few
+    # frames on a loaded machine (Zenoh drops rather than blocks a publisher): counted, at most 2 % either way
     with published._lock:
         sent = dict(published.frames)
     seqs = [f.seq for f in frames]
-    assert seqs == sorted(seqs) and set(seqs) <= sent.keys(), "the file holds a frame nobody published"
-    for frame in frames:
-        truth = sent[frame.seq]
-        assert np.array_equal(frame.positions, truth.positions) and np.array_equal(frame.quaternions, truth.quaternions)
-    lost_frames = len((set(range(seqs[0], seqs[-1] + 1)) & sent.keys()) - set(seqs))
-    assert lost_frames <= len(frames) / 100, f"{lost_frames} published frames are not in the file"
-    first, last = frames[0].positions[0], frames[-1].positions[0]
-    assert float(np.hypot(*(last - first)[:2])) > 0.005, "the caterpillar did not crawl"
-
-    # the replay's clock serves, at each recorded time, the frame recorded then (a scrub to each one)
+    assert seqs == sorted(seqs) and set(seqs) == in_file.keys()
+    span = set(range(seqs[0], seqs[-1] + 1))
+    not_recorded, not_received = len((span & sent.keys()) - set(seqs)), len(set(seqs) - sent.keys())
+    assert not_recorded <= len(frames) / 50 and not_received <= len(frames) / 50, (not_recorded, not_received)
     source = ReplaySource(recording)
+    compared_frames = 0
     try:
         assert source.model is not None and source.error is None
-        times = sorted({f.time for f in frames})
-        for t in times:
+        for t in sorted({f.time for f in frames}):
             source.request("seek", t)
             assert wait_until(lambda t=t: source.time() == t, 10), (t, source.time())
             served = source.latest
             assert served is not None and served.time == t
-            truth = sent[served.seq]
-            assert np.array_equal(served.positions, truth.positions)
-            assert np.array_equal(served.quaternions, truth.quaternions)
+            assert [tuple(p) for p in served.positions.tolist()] == in_file[served.seq]
+            truth = sent.get(served.seq)
+            if truth is not None:
+                assert np.array_equal(served.positions, truth.positions)
+                assert np.array_equal(served.quaternions, truth.quaternions)
+                compared_frames += 1
     finally:
         source.close()
+    assert compared_frames >= 0.95 * len(frames)
+    first, last = frames[0].positions[0], frames[-1].positions[0]
+    assert float(np.hypot(*(last - first)[:2])) > 0.005, "the caterpillar did not crawl"
+
     # and played at 4x on a wall clock the test moves: each frame served is the one recorded at the replay time
     wall = [0.0]
     played = ReplaySource(recording, lambda: wall[0])
@@ -140,34 +155,38 @@ def test_the_replay_serves_the_recorded_poses_and_values_exactly(running, tmp_pa
             assert wait_until(lambda: played.time() == played.clock.time(), 10)
             frame = played.latest
             assert frame is not None and frame is recording.frame_at(played.time())
-            assert np.array_equal(frame.positions, sent[frame.seq].positions)
+            assert [tuple(p) for p in frame.positions.tolist()] == in_file[frame.seq]
             served_seqs.add(frame.seq)
         assert played.time() == recording.duration and len(served_seqs) > len(frames) / 4
     finally:
         played.close()
 
-    # the plotted values: at each recorded time, what the plot draws of each module's joint.angle is its value then
+    # the plotted values: at each recorded time, what the plot draws of each module's joint.angle is the file's
+    # value then, and the one the robot published (where the subscriber received it)
     with published._lock:
         views = {key: list(v) for key, v in published.views.items()}
-    compared = lost_values = 0
+    compared = not_recorded_values = not_received_values = 0
     for m in range(1, 9):
         key = (f"m{m}", "joint.angle")
         series = recording.series[key]
         assert len(series.values) > 5 * seconds, (key, len(series.values))
-        first, last = series.stamps[0], series.stamps[-1]
-        sent_views = {stamp: value for stamp, value in (((v["seq"], v["t"]), v["value"]) for v in views[key])}
+        assert [v["value"] for v in file_values[key]] == series.values
+        assert [(v["seq"], v["t"]) for v in file_values[key]] == series.stamps
+        sent_views = {(v["seq"], v["t"]): v["value"] for v in views[key]}
         for stamp, value in zip(series.stamps, series.values, strict=True):
-            assert stamp in sent_views and sent_views[stamp] == value, f"{key} {stamp}: not the value published"
-        between = [stamp for stamp in sent_views if first[1] <= stamp[1] <= last[1]]
-        lost_values += len(set(between) - set(series.stamps))
+            assert sent_views.get(stamp, value) == value, f"{key} {stamp}: not the value published"
+        lo, hi = series.stamps[0][1], series.stamps[-1][1]
+        not_recorded_values += len({s for s in sent_views if lo <= s[1] <= hi} - set(series.stamps))
+        not_received_values += len(set(series.stamps) - sent_views.keys())
         for k, t in enumerate(series.times):
             labels, data = plot_data(recording, [key], t, 30.0)
             times, column = data
             assert labels == [f"m{m} joint.angle"] and times[-1] == t
-            assert column[-1] == series.values[k] and isinstance(series.values[k], float)
-            assert last_values(recording, t)[f"m{m}"]["joint.angle"] == series.values[k]
+            assert column[-1] == file_values[key][k]["value"] and isinstance(column[-1], float)
+            assert last_values(recording, t)[f"m{m}"]["joint.angle"] == file_values[key][k]["value"]
             compared += 1
     assert compared > 40 * seconds
-    assert lost_values <= compared / 100, f"{lost_values} published values are not in the file"
-    print(f"replay equality: {len(frames)} frames, {compared} values served exactly; {lost_frames} frames and "
-          f"{lost_values} values published but not recorded")  # fmt: skip
+    assert not_recorded_values <= compared / 50 and not_received_values <= compared / 50
+    print(f"replay equality: {len(frames)} frames and {compared} values served as recorded; published but not "
+          f"recorded: {not_recorded} frames, {not_recorded_values} values; recorded but not received by the test's "
+          f"subscriber: {not_received} frames, {not_received_values} values")  # fmt: skip
