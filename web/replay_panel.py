@@ -16,6 +16,8 @@ import threading
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from viser._messages import GuiSliderMark
+
 from .monitor import SeriesPlot, empty_plot, format_value
 from .recording import Recording, RecordingError, open_recording, read_bytes
 from .replay import SPEEDS, ReplaySource, last_values, plot_data
@@ -30,6 +32,20 @@ PLOT_WINDOW = 30.0
 PLOTTED_MODULES = 8
 """The replay plot shows the chosen attribute of at most this many modules (the first ones)."""
 SPEED_LABELS = [f"{s:g}x" for s in SPEEDS]
+
+
+MARKS = {"e-stop": "E", "group": "G", "status": "S"}
+"""The letter an event of each kind has on the timeline."""
+MAX_MARKS = 60
+"""Events marked on the timeline at most (beyond, the list says them): marks closer than a letter are unreadable."""
+
+
+def timeline_marks(recording: Recording) -> tuple[GuiSliderMark, ...]:
+    """The timeline's marks: its ends, and a letter at each event (the first MAX_MARKS)."""
+    end = max(0.01, round(recording.duration, 2))
+    marks = [GuiSliderMark(value=0.0, label="0"), GuiSliderMark(value=end, label=f"{end:g}")]
+    marks += [GuiSliderMark(value=round(e.time, 2), label=MARKS.get(e.kind, "?")) for e in recording.events[:MAX_MARKS]]
+    return tuple(marks)
 
 
 def chosen_file(folder: Path, name: str) -> Path:
@@ -159,6 +175,7 @@ class ReplayPanel:
         with self.page.programmatic():
             self.timeline.max = max(0.01, round(recording.duration, 2))
             self.timeline.value = 0.0
+            self.timeline._marks = timeline_marks(recording)  # viser has no public setter for a slider's marks
             self.speed.value = "1x"
             objects = recording.objects() or [NO_FILE]
             self.attribute.options = objects
@@ -215,7 +232,8 @@ class ReplayPanel:
         events = "  \n".join(f"{'●' if e.time <= t else '○'} {e.time:7.2f} s · {e.text}" for e in recording.events[:40])
         more = f"  \n… and {len(recording.events) - 40} more" if len(recording.events) > 40 else ""
         self._set(self.events, f"**t = {t:.2f} s** of {source.clock.duration:.2f} s · {state} · "
-                  f"{source.clock.speed:g}x  \n**Events** (● passed)  \n{events or 'none'}{more}")  # fmt: skip
+                  f"{source.clock.speed:g}x  \n**Events** (● passed; on the timeline: E e-stop, G deploy or drive, S "
+                  f"e-stop latched or released)  \n{events or 'none'}{more}")  # fmt: skip
         values = last_values(recording, t)
         rows = [f"`{node}` " + ", ".join(f"{obj} = **{format_value(v)}**" for obj, v in sorted(objs.items())[:4])
                 for node, objs in sorted(values.items(), key=lambda kv: (len(kv[0]), kv[0]))]  # fmt: skip

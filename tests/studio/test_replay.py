@@ -357,6 +357,8 @@ def test_the_replay_tab_shows_a_recording_in_the_3d_view_and_leaves_it_for_the_l
     # the render thread draws the replay's first frame, with the recording's model
     assert wait_until(lambda: view._drawn is source.recording.frames[0], 20)
     assert view._built is not None and view._built[0] == "replay"
+    marks = {(m.value, m.label) for m in panel.timeline._marks or ()}  # the events on the timeline
+    assert {(0.5, "G"), (1.5, "E"), (1.52, "S"), (0.0, "0"), (1.98, "1.98")} == marks, marks
     assert panel.attribute.value == "joint.angle" and panel.keys() == [("m1", "joint.angle"), ("m2", "joint.angle"),
                                                                       ("m3", "joint.angle")]  # fmt: skip
     panel.timeline.value = 1.5  # a user's scrub

@@ -129,6 +129,9 @@ def test_open_a_recording_play_pause_scrub_and_leave(start_studio, tmp_path):
         )
         expect(page.get_by_text("group message to all from studio", exact=False).first).to_be_visible()
         expect(page.get_by_text("E-STOP (robot) by studio: test", exact=False).first).to_be_visible()
+        marks = page.locator(".mantine-Slider-markLabel")  # the events on the timeline: G at 1 s, E at 5 s
+        expect(marks.filter(has_text=re.compile(r"^E$"))).to_have_count(1, timeout=15_000)
+        expect(marks.filter(has_text=re.compile(r"^G$"))).to_have_count(1)
         # the robot is drawn (the replay's green), at t = 0, paused
         if not wait_until(lambda: green(page.screenshot(clip=VIEW)) > before + 500, 60, 0.5):
             page.screenshot(path=str(ARTIFACTS / "replay-no-robot.png"))
