@@ -391,7 +391,8 @@ class SceneView:
             else:
                 continue
             groups.setdefault((round(half[0], 5), round(half[1], 5), round(half[2], 5)), []).append(g)
-        color = {"live": (60, 130, 200), "replay": (90, 170, 90)}.get(key[0], (217, 140, 38))
+        # live blue, a replay violet (apart from the green trail and the magenta heading arrow), the preview tan
+        color = {"live": (60, 130, 200), "replay": (140, 70, 210)}.get(key[0], (217, 140, 38))
         for n, (half, geoms) in enumerate(groups.items()):
             ids = np.array(geoms)
             handle = self.server.scene.add_batched_meshes_simple(

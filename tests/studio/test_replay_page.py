@@ -20,8 +20,9 @@ from .browser import marks, number, open_page, pixels
 pytestmark = marks(2)
 
 
-def green(png: bytes) -> int:
-    """Pixels of the replayed robot: it is drawn green (web/preview.py: SceneView._build), shaded by the lights."""
+def violet(png: bytes) -> int:
+    """Pixels of the replayed robot: violet (web/preview.py: SceneView._build), shaded by the lights — apart from the
+    green trail, the magenta heading arrow, the grey grid, the tan preview and the blue live robot."""
     import io
 
     import numpy as np
@@ -29,7 +30,7 @@ def green(png: bytes) -> int:
 
     image = np.asarray(Image.open(io.BytesIO(png)).convert("RGB"), dtype=int)
     r, g, b = image[..., 0], image[..., 1], image[..., 2]
-    return int(((g - r > 30) & (g - b > 30)).sum())
+    return int(((b - g > 30) & (r - g > 15) & (b - r > 15)).sum())  # the arrow: r >= b; the live robot: g > r
 
 
 VIEW = {"x": 0, "y": 150, "width": 900, "height": 330}
@@ -104,7 +105,7 @@ def test_open_a_recording_play_pause_scrub_and_leave(start_studio, tmp_path):
 
     with sync_playwright() as pw:
         browser, page = open_page(pw, url)
-        before = green(page.screenshot(clip=VIEW))  # the preview (a tan robot) and the grid's green axis
+        assert violet(page.screenshot(clip=VIEW)) < 50  # the preview: a tan robot
         page.get_by_role("tab", name="Replay").click()
         page.get_by_role("button", name="List files").click()
         # hostile first: a file that is not MCAP is refused with a line, nothing else changes
@@ -132,8 +133,8 @@ def test_open_a_recording_play_pause_scrub_and_leave(start_studio, tmp_path):
         marks = page.locator(".mantine-Slider-markLabel")  # the events on the timeline: G at 1 s, E at 5 s
         expect(marks.filter(has_text=re.compile(r"^E$"))).to_have_count(1, timeout=15_000)
         expect(marks.filter(has_text=re.compile(r"^G$"))).to_have_count(1)
-        # the robot is drawn (the replay's green), at t = 0, paused
-        if not wait_until(lambda: green(page.screenshot(clip=VIEW)) > before + 500, 60, 0.5):
+        # the robot is drawn (violet), at t = 0, paused
+        if not wait_until(lambda: violet(page.screenshot(clip=VIEW)) > 500, 60, 0.5):
             page.screenshot(path=str(ARTIFACTS / "replay-no-robot.png"))
             raise AssertionError("no robot drawn")
         assert replay_time(page) == 0.0
@@ -146,7 +147,7 @@ def test_open_a_recording_play_pause_scrub_and_leave(start_studio, tmp_path):
         time.sleep(1.0)
         assert replay_time(page) == paused  # paused: time stands
         moved = page.screenshot(clip=VIEW)
-        assert green(moved) > before + 500
+        assert violet(moved) > 500
         assert moved != still, "the replayed robot did not move"
         plot = page.locator(".uplot", has_text="Replay: recorded values")
         expect(plot).to_contain_text("m1 joint.angle", timeout=15_000)
@@ -182,7 +183,7 @@ def test_open_a_recording_play_pause_scrub_and_leave(start_studio, tmp_path):
         page.get_by_role("button", name="Leave replay").click()
         expect(page.get_by_text("Showing: Live", exact=False).first).to_be_visible(timeout=15_000)
         expect(page.get_by_text("No recording open.").first).to_be_visible()
-        assert wait_until(lambda: green(page.screenshot(clip=VIEW)) < before + 300, 30, 0.5)  # no green robot
+        assert wait_until(lambda: violet(page.screenshot(clip=VIEW)) < 50, 30, 0.5)  # no violet robot
         browser.close()
     assert not any("Traceback" in line for line in log), "".join(log[-40:])
 
