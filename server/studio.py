@@ -312,6 +312,10 @@ class Studio:
         status = self.app.link.status if self.app is not None else self.status
         return status is not None and status.mode == "simulated"
 
+    @property
+    def recordings_folder(self) -> Path:
+        return self.options.recordings
+
     def start_recording(self, robot: str, gait_name: str, gait_text: str, said: Callable[[str, bool], None]) -> None:
         if self.recording is None:
             raise RuntimeError("the studio is closing: nothing can be recorded")
@@ -370,6 +374,8 @@ def main(argv: list[str] | None = None) -> int:
     cli.add_argument("--port", type=port, default=8080, help="HTTP port (default 8080; 0 picks a free one)")
     cli.add_argument("--recordings", type=Path, default=StudioOptions.recordings, metavar="DIR",
                      help="where the page's Record button writes MCAP files (default: recordings)")  # fmt: skip
+    cli.add_argument("--replay", type=input_file, metavar="FILE", help="open this MCAP recording in the Replay tab "
+                     "at start (the 3D view plays it)")  # fmt: skip
     cli.add_argument("--view", choices=["preview", "live"], default="preview",
                      help="what the 3D view shows at start (default: the preview of the edited gait)")  # fmt: skip
     cli.add_argument("--c-modules", type=module_selection, metavar="IDS", help="simulated modules that run the C "
@@ -398,6 +404,8 @@ def _serve(args: argparse.Namespace, network: ZenohOptions) -> int:
                             recordings=args.recordings)  # fmt: skip
     done = stop_requested()
     studio = Studio(options)  # a bad gait file, a busy port, no robot: asm-studio: error: … (asm_py.cli.run)
+    if args.replay is not None:  # read on the Replay tab's thread: a file that cannot be replayed is said there
+        studio.app.replay.open_path(args.replay)
     link = studio.app.link
     where = f"simulated robot {link.robot}" if studio.child else f"robot {link.robot} via {args.robot or args.can}"
     query = f"/?token={studio.token}" if studio.token else ""

@@ -4,7 +4,8 @@ Layout: the side panel (docked right) starts with the robot bar — E-STOP, its 
 of the network and what the 3D view shows (web/robot_bar.py) — then tabs: Gait (web/editor.py), Preview
 (web/preview_panel.py), Deploy (web/deploy_panel.py), Drive (web/drive.py), Monitor (web/monitor_panel.py), Tune
 (web/tune_panel.py: the search for a better gait, in worker processes), Modules (web/modules_panel.py: each
-module's firmware and calibration). A
+module's firmware and calibration), Replay (web/replay_panel.py: an MCAP recording played in the 3D view with a
+timeline, its plots and values). A
 second panel over the 3D view's lower left shows the plots and the gait control table. No dialog ever covers the
 E-STOP: confirmations are rows of the panel (web/confirm.py), and Escape presses E-STOP from anywhere
 (web/page_script.py).
@@ -38,6 +39,7 @@ from .page import Backend, Page
 from .preview import PreviewLoop, SceneView
 from .preview_panel import PreviewPanel
 from .record_panel import RecordPanel
+from .replay_panel import ReplayPanel
 from .robot_bar import RobotBar
 from .tune_panel import TunePanel
 
@@ -126,6 +128,8 @@ class Dashboard:
         with tabs.add_tab("Monitor"):
             self.recording = RecordPanel(page)
             self.monitor = MonitorPanel(page, plots_tab)
+        with tabs.add_tab("Replay"):
+            self.replay = ReplayPanel(page, plots_tab)
         with tabs.add_tab("Tune"):
             self.tuner = TunePanel(page)
         with tabs.add_tab("Modules"):
@@ -179,7 +183,8 @@ class Dashboard:
         self.page.notify("Robot", f"now showing and commanding robot {robot!r}")
 
     def show(self, source: str) -> None:
-        """Show the "preview" or the "live" robot in the 3D view (and say which, under the buttons).
+        """Show the "preview", the "live" robot or the "replay" of a recording in the 3D view (and say which, under
+        the buttons).
 
         A real robot sends no poses: its Live view is a kinematic twin of the edited gait's robot, posed from the
         modules' joint.angle publications (made once, on the first look)."""
@@ -243,6 +248,8 @@ class Dashboard:
             with contextlib.suppress(ValueError):  # a gait with no single period has no cursor
                 self.editor.draw_control_table(cursor=None if shown is None else shown.time / loop.gait.period)
         self.monitor.refresh()
+        if watched:
+            self.replay.refresh()
 
     def close(self) -> None:
         self._stop.set()
@@ -253,6 +260,7 @@ class Dashboard:
         self.monitor.close()
         self.tuner.close()
         self.modules.close()
+        self.replay.close()
         self.link.close()
         self.loop.close()
         self.server.stop()

@@ -19,6 +19,7 @@ import logging
 import threading
 import time
 from collections.abc import Callable, Iterator
+from pathlib import Path
 from typing import Any, Literal, Protocol
 
 import viser
@@ -71,6 +72,11 @@ class Backend(Protocol):
 
     def on_notice(self, callback: Callable[[str, str, bool], None]) -> None:
         """Call ``callback(title, text, error)`` with what the backend has to say."""
+        ...
+
+    @property
+    def recordings_folder(self) -> Path:
+        """Where the Record button writes its MCAP files: the Replay tab lists them."""
         ...
 
     def start_recording(self, robot: str, gait_name: str, gait_text: str, said: Callable[[str, bool], None]) -> None:
@@ -139,6 +145,11 @@ class Page:
         """Make a simulated robot the one ``gait`` describes, on the preview's ground (the Preview tab's picker);
         a message when it was rebuilt."""
         return self._backend.ensure_robot(gait, self.loop.terrain)
+
+    @property
+    def recordings_folder(self) -> Path:
+        """Where the Record button writes its files (the Replay tab lists them)."""
+        return self._backend.recordings_folder
 
     @property
     def recorder(self) -> Backend:

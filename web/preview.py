@@ -298,11 +298,13 @@ class SceneView:
         self.server = server
         self.loop = loop
         self.live = live
+        self.replay: Any = None
+        """A recording played (web/replay.py's ReplaySource): the Replay tab sets it, then shows "replay"."""
         self.source = "preview"
         self._data: mujoco.MjData | None = None
         self._model: mujoco.MjModel | None = None
         self._batches: list[tuple[Any, np.ndarray]] = []
-        self._built: tuple[str, int] | None = None
+        self._built: tuple[Any, ...] | None = None
         self._drawn: object = None
         self._redraw = threading.Event()
         self.rich = rich
@@ -332,8 +334,8 @@ class SceneView:
         self._built = None
 
     def set_source(self, source: str) -> None:
-        """Show the "preview" or the "live" robot (rebuilt at the next draw)."""
-        if source not in ("preview", "live") or (source == "live" and self.live is None):
+        """Show the "preview", the "live" robot or a "replay" of a recording (rebuilt at the next draw)."""
+        if source not in ("preview", "live", "replay") or (source != "preview" and getattr(self, source) is None):
             raise ValueError(f"no {source!r} source to show")
         self.source = source
         self._built = None
@@ -348,16 +350,17 @@ class SceneView:
         if self._redraw.is_set():
             self._redraw.clear()
             return True
-        if self.source == "live":
-            return self.live.wait_changed(timeout)
+        if self.source in ("live", "replay"):
+            return getattr(self, self.source).wait_changed(timeout)
         return self.loop.wait_changed(timeout)
 
-    def _wanted(self) -> tuple[mujoco.MjModel | None, tuple[str, int]]:
-        if self.source == "live":
-            return self.live.model, ("live", self.live.generation)
+    def _wanted(self) -> tuple[mujoco.MjModel | None, tuple[Any, ...]]:
+        if self.source in ("live", "replay"):
+            feed = getattr(self, self.source)
+            return feed.model, (self.source, feed.generation, id(feed))
         return self.loop.sim.model, ("preview", self.loop.generation)
 
-    def _build(self, model: mujoco.MjModel, key: tuple[str, int]) -> None:
+    def _build(self, model: mujoco.MjModel, key: tuple[Any, ...]) -> None:
         for handle, _ in self._batches:
             handle.remove()
         for label in self._labels:
@@ -388,7 +391,8 @@ class SceneView:
             else:
                 continue
             groups.setdefault((round(half[0], 5), round(half[1], 5), round(half[2], 5)), []).append(g)
-        color = (60, 130, 200) if key[0] == "live" else (217, 140, 38)
+        # live blue, a replay violet (apart from the green trail and the magenta heading arrow), the preview tan
+        color = {"live": (60, 130, 200), "replay": (140, 70, 210)}.get(key[0], (217, 140, 38))
         for n, (half, geoms) in enumerate(groups.items()):
             ids = np.array(geoms)
             handle = self.server.scene.add_batched_meshes_simple(
@@ -417,8 +421,8 @@ class SceneView:
 
     def _poses(self) -> tuple[object, np.ndarray, np.ndarray] | None:
         """(what is drawn, body positions, body orientations) of the shown source, bodies 1.. of its model."""
-        if self.source == "live":
-            frame = self.live.latest
+        if self.source in ("live", "replay"):
+            frame = getattr(self, self.source).latest
             model = self._model
             if frame is None or model is None or len(frame.positions) != model.nbody - 1:
                 return None
@@ -441,6 +445,7 @@ class SceneView:
             twin = key[0] == "live" and self.live.latest is not None and not self.live.latest.simulated
             self._label.text = ("LIVE — real robot: kinematic twin from its joint angles, base fixed" if twin
                                 else "LIVE — the robot" if key[0] == "live"
+                                else f"REPLAY — {self.replay.recording.name}" if key[0] == "replay"
                                 else "PREVIEW — simulation of the edited gait")  # fmt: skip
         poses, built = self._poses(), self._model
         if poses is None or built is None or poses[0] is self._drawn:

@@ -123,6 +123,8 @@ class RobotBar:
         if self.page.view.source == "live":
             kind = "simulated" if self.page.simulated else "real: no poses, angles only"
             shown = f"Showing: **Live** (robot {link.robot}, {kind})"
+        elif self.page.view.source == "replay":
+            shown = f"Showing: **Replay** of {self.page.view.replay.recording.name} (Replay tab; Live returns)"
         else:
             shown = "Showing: **Preview** (the edited gait, simulated here)"
         content = shown + self._live_line(lost)

@@ -40,6 +40,8 @@ USAGE_ERRORS = [  # (command, arguments, what the one-line error must mention)
     ("asm-studio", ["--robot-name", "a/b"], "--robot-name"),
     ("asm-studio", ["--bitrate", "0"], "bit rate"),
     ("asm-studio", ["--view", "sideways"], "--view"),
+    ("asm-studio", ["--replay", "/nonexistent/run.mcap"], "no such file"),
+    ("asm-studio", ["--replay", "/tmp"], "not a file"),
     ("asm-studio", ["--can", "virtual:x", "--robot", "tcp/127.0.0.1:1"], "not allowed with"),
     ("asm-robot", ["--sim", "/nonexistent.toml"], "no such file"),
     ("asm-robot", ["--can", "nope:xx"], "unknown CAN interface"),

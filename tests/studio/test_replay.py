@@ -1,0 +1,384 @@
+"""Replay of a recording (issue 29), without a browser: the replay clock (play, scrub, speed, end), the tolerant
+reader of MCAP files (a killed writer's file, hostile files refused with one sentence), and the ReplaySource's
+loop serving the recorded frame, plot values and roster at the replay time."""
+
+from __future__ import annotations
+
+import json
+import os
+import struct
+from pathlib import Path
+
+import mujoco
+import numpy as np
+import pytest
+
+from asm_module.feed import PoseFrame
+from gaits.mjcf import build_mjcf
+from gaits.model import LIBRARY, load
+from server import foxglove_msgs as fx
+from server.mcap_files import Attachment, McapFiles, RecordingInfo
+from server.record import ATTRIBUTE, ESTOP, GROUP, STATUS, TRANSFORMS
+from web import recording as rec
+from web.recording import RecordingError, open_recording, read_bytes
+from web.replay import SPEEDS, ReplayClock, ReplaySource, last_values, plot_data, step_time
+
+from ..helpers import wait_until
+
+pytestmark = pytest.mark.timeout(120)
+
+
+class FakeTime:
+    """A wall clock the test moves."""
+
+    def __init__(self) -> None:
+        self.now = 100.0
+
+    def __call__(self) -> float:
+        return self.now
+
+
+# -- the clock ------------------------------------------------------------------------------------------------------
+
+
+def test_the_clock_plays_at_its_speed_pauses_and_stops_at_the_end() -> None:
+    wall = FakeTime()
+    clock = ReplayClock(10.0, wall)
+    assert clock.time() == 0.0 and not clock.playing
+    wall.now += 5  # paused: time stands
+    assert clock.time() == 0.0
+    clock.play()
+    wall.now += 2
+    assert clock.time() == 2.0
+    clock.set_speed(4.0)
+    wall.now += 1
+    assert clock.time() == 6.0
+    clock.pause()
+    wall.now += 3
+    assert clock.time() == 6.0
+    clock.set_speed(0.25)
+    clock.play()
+    wall.now += 2
+    assert clock.time() == 6.5
+    wall.now += 100  # past the end: it stops there, paused
+    assert clock.time() == 10.0 and clock.ended and not clock.playing
+    clock.play()  # Play at the end starts again
+    assert clock.time() == 0.0 and clock.playing
+
+
+def test_a_scrub_keeps_playing_or_paused_and_clamps_to_the_recording() -> None:
+    wall = FakeTime()
+    clock = ReplayClock(10.0, wall)
+    clock.seek(7.5)
+    assert clock.time() == 7.5 and not clock.playing
+    clock.play()
+    wall.now += 1
+    clock.seek(2.0)  # a scrub backwards while playing: it plays on from there (not from the end)
+    wall.now += 1
+    assert clock.time() == 3.0 and clock.playing
+    clock.seek(-3)
+    assert clock.time() == 0.0
+    clock.seek(1e9)
+    assert clock.time() == 10.0
+
+
+@pytest.mark.parametrize("bad", [float("nan"), float("inf"), "3", None, True, [1.0]])
+def test_a_scrub_to_something_not_a_time_is_refused(bad: object) -> None:
+    clock = ReplayClock(10.0, FakeTime())
+    clock.seek(4.0)
+    with pytest.raises(ValueError, match="replay time"):
+        clock.seek(bad)  # type: ignore[arg-type]
+    assert clock.time() == 4.0
+
+
+@pytest.mark.parametrize("speed", [0.0, -1.0, 0.3, 8.0, float("nan")])
+def test_speeds_other_than_the_offered_ones_are_refused_not_clamped(speed: float) -> None:
+    clock = ReplayClock(10.0, FakeTime())
+    with pytest.raises(ValueError, match="not one of"):
+        clock.set_speed(speed)
+    assert clock.speed == 1.0
+    for ok in SPEEDS:
+        clock.set_speed(ok)
+        assert clock.speed == ok
+
+
+@pytest.mark.parametrize("duration", [-1.0, float("nan"), float("inf")])
+def test_a_clock_of_no_sensible_length_is_refused(duration: float) -> None:
+    with pytest.raises(ValueError):
+        ReplayClock(duration)
+
+
+def test_stepping_goes_to_the_neighbouring_recorded_frame() -> None:
+    times = [0.0, 0.1, 0.25, 0.4]
+    assert step_time(times, 0.1, 1) == 0.25
+    assert step_time(times, 0.12, 1) == 0.25
+    assert step_time(times, 0.25, -1) == 0.1
+    assert step_time(times, 0.3, -1) == 0.25
+    assert step_time(times, 0.4, 1) == 0.4  # the last: stays
+    assert step_time(times, 0.0, -1) == 0.0
+
+
+# -- a recording written by the recorder's own file writer ---------------------------------------------------------
+
+GAIT = load(LIBRARY / "caterpillar.toml")
+MJCF = build_mjcf(GAIT.robot, name=GAIT.name)
+BODIES = mujoco.MjModel.from_xml_string(MJCF).nbody - 1
+START = 1_700_000_000_000_000_000
+
+
+def write_recording(path: Path, frames: int = 120, *, finish: bool = True, mjcf: str | None = MJCF) -> McapFiles:
+    """A synthetic run at 60 frames a second: poses, joint.angle of m1-m3 every other frame (and a text value),
+    a deploy's group message at 0.5 s, an e-stop at 1.5 s with the status saying so."""
+    info = RecordingInfo({"robot": "robot", "modules": "8"}, [Attachment("caterpillar.toml", "application/toml",
+                                                                         b"name = 'x'")])  # fmt: skip
+    if mjcf is not None:
+        info.attachments.append(Attachment("robot.mjcf", "application/xml", mjcf.encode()))
+    files = McapFiles(path, info, chunk_size=2048)
+    bodies = fx.bodies(mjcf, BODIES)
+    rng = np.random.default_rng(7)
+    for k in range(frames):
+        ns = START + k * 16_666_667
+        frame = PoseFrame(k + 1, k / 60, rng.normal(size=(BODIES, 3)), rng.normal(size=(BODIES, 4)))
+        files.write(fx.TOPIC_TRANSFORMS, TRANSFORMS, fx.frame_transforms(frame, bodies, ns).encode(), ns, seq=k + 1)
+        if k % 2 == 0:
+            for m in (1, 2, 3):
+                view = {"node": f"m{m}", "object": "joint.angle", "seq": k, "t": k / 60, "value": float(rng.normal())}
+                files.write(f"/m{m}/joint.angle", ATTRIBUTE, json.dumps(view).encode(), ns + m)
+            text = {"node": "m1", "object": "name", "value": f"module {k}"}
+            files.write("/m1/name", ATTRIBUTE, json.dumps(text).encode(), ns + 9)
+        if k == 30:
+            group = {"group": "all", "source": "studio", "kind": 1, "method": 2, "class_id": 3, "object_id": 4,
+                     "data": ""}  # fmt: skip
+            files.write(fx.TOPIC_GROUP, GROUP, json.dumps(group).encode(), ns + 5)
+        if k == 90:
+            files.write(fx.TOPIC_ESTOP, ESTOP, json.dumps({"scope": "robot", "source": "t", "reason": "r"}).encode(),
+                        ns + 5)  # fmt: skip
+        status = {"robot": "robot", "mode": "simulated", "modules": 8, "estop": [1, 2] if k >= 91 else []}
+        if k % 30 == 1:
+            files.write(fx.TOPIC_STATUS, STATUS, json.dumps(status).encode(), ns + 6)
+    if finish:
+        files.close()
+    else:
+        files.flush()
+    return files
+
+
+def test_the_topics_read_are_the_recorders() -> None:
+    assert (rec.TOPIC_TRANSFORMS, rec.TOPIC_ESTOP, rec.TOPIC_GROUP, rec.TOPIC_STATUS) == (
+        fx.TOPIC_TRANSFORMS, fx.TOPIC_ESTOP, fx.TOPIC_GROUP, fx.TOPIC_STATUS)  # fmt: skip
+    assert fx.TOPIC_SCENE in rec.ROBOT_TOPICS
+
+
+def test_a_recording_reads_back_every_pose_value_and_event(tmp_path: Path) -> None:
+    path = tmp_path / "run.mcap"
+    write_recording(path)
+    recording = open_recording(path)
+    assert recording.complete and recording.mjcf == MJCF and recording.gait == ("caterpillar.toml", "name = 'x'")
+    assert recording.metadata["robot"] == "robot"
+    assert len(recording.frames) == 120 and [f.seq for f in recording.frames] == list(range(1, 121))
+    assert recording.frames[0].time == 0.0 and recording.frames[60].time == pytest.approx(1.0, abs=1e-6)
+    rng = np.random.default_rng(7)
+    first = rng.normal(size=(BODIES, 3)), rng.normal(size=(BODIES, 4))
+    assert np.array_equal(recording.frames[0].positions, first[0])  # exactly the floats written
+    assert np.array_equal(recording.frames[0].quaternions, first[1])
+    assert recording.nodes() == ["m1", "m2", "m3"] and recording.objects() == ["joint.angle"]
+    assert len(recording.series[("m2", "joint.angle")].values) == 60
+    assert recording.series[("m1", "name")].values[-1] == "module 118"
+    kinds = [(e.kind, round(e.time, 2)) for e in recording.events]
+    assert kinds == [("group", 0.5), ("e-stop", 1.5), ("status", 1.52)], kinds
+    assert "E-STOP (robot) by t: r" in recording.events[1].text
+
+
+def test_a_file_whose_writer_was_killed_replays_up_to_its_last_whole_chunk(tmp_path: Path) -> None:
+    path = tmp_path / "killed.mcap"
+    write_recording(path, finish=False)  # no summary, no footer: what SIGKILL leaves
+    whole = path.read_bytes()
+    recording = open_recording(path)
+    assert not recording.complete and len(recording.frames) == 120
+    path.write_bytes(whole[: len(whole) * 2 // 3])  # and cut mid-chunk
+    cut = open_recording(path)
+    assert 10 < len(cut.frames) < 120
+    assert all(np.array_equal(a.positions, b.positions) for a, b in zip(cut.frames, recording.frames, strict=False))
+
+
+@pytest.mark.parametrize(
+    ("content", "why"),
+    [
+        (b"", "not an MCAP file"),
+        (b"hello, this is text\n" * 10, "not an MCAP file"),
+        (b"\x89MCAP0\r\n", "holds no messages"),
+        (b"\x89MCAP0\r\n" + os.urandom(4096), "holds no messages"),
+        (b"\x89MCAP0\r\n\x01" + (2**62).to_bytes(8, "little") + b"x" * 100, "holds no messages"),  # a huge length
+    ],
+)
+def test_a_file_that_is_not_a_recording_is_refused_with_one_sentence(tmp_path: Path, content: bytes, why: str) -> None:
+    path = tmp_path / "bad.mcap"
+    path.write_bytes(content)
+    with pytest.raises(RecordingError, match=why):
+        open_recording(path)
+    with pytest.raises(RecordingError, match=why):
+        read_bytes(content, "bad.mcap")
+
+
+def test_a_file_too_large_is_refused_before_it_is_read(tmp_path: Path) -> None:
+    path = tmp_path / "big.mcap"
+    with path.open("wb") as f:
+        f.truncate(3 * 2**20)  # sparse: it costs no disk
+    with pytest.raises(RecordingError, match="larger than the 1 MB"):
+        open_recording(path, max_bytes=2**20)
+    with pytest.raises(RecordingError, match="larger than"):
+        read_bytes(b"x" * 2048, "big.mcap", max_bytes=1024)
+
+
+def _record(opcode: int, body: bytes) -> bytes:
+    return bytes([opcode]) + struct.pack("<Q", len(body)) + body
+
+
+def _string(text: str) -> bytes:
+    return struct.pack("<I", len(text)) + text.encode()
+
+
+@pytest.mark.parametrize("claimed", [2**31, 65 * 2**20])
+def test_a_small_file_whose_chunk_would_expand_to_gigabytes_is_refused_unexpanded(tmp_path: Path, claimed: int):
+    """A hostile chunk: a few bytes that say they decompress to 2 GB (or one chunk over the limit)."""
+    import zstandard
+
+    header = _record(0x01, _string("") + _string("bomb"))
+    data = zstandard.compress(b"\0" * 1024)
+    chunk = _record(0x06, struct.pack("<QQQI", 0, 0, claimed, 0) + _string("zstd") + struct.pack("<Q", len(data))
+                    + data)  # fmt: skip
+    path = tmp_path / "bomb.mcap"
+    path.write_bytes(rec.MAGIC + header + chunk * 3)
+    with pytest.raises(RecordingError, match="expands to more than"):
+        open_recording(path)
+
+
+def test_many_chunks_expanding_past_the_budget_are_refused(tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
+    path = tmp_path / "run.mcap"
+    write_recording(path)
+    monkeypatch.setattr(rec, "MAX_EXPANDED", 20_000)  # the recording's 2 kB chunks add up past it
+    with pytest.raises(RecordingError, match="expands to more than"):
+        open_recording(path)
+
+
+def test_a_missing_file_or_a_directory_is_refused(tmp_path: Path) -> None:
+    with pytest.raises(RecordingError, match="cannot open"):
+        open_recording(tmp_path / "none.mcap")
+    with pytest.raises(RecordingError, match="not a file"):
+        open_recording(tmp_path)
+
+
+def test_an_mcap_without_robot_messages_is_refused(tmp_path: Path) -> None:
+    path = tmp_path / "other.mcap"
+    files = McapFiles(path, RecordingInfo({}))
+    files.write("/camera", ESTOP, b"not json at all", START)
+    files.close()
+    with pytest.raises(RecordingError, match="no poses and no attribute values"):
+        open_recording(path)
+
+
+# -- the source: frames, plot values and last values at the replay time --------------------------------------------
+
+
+def test_the_source_serves_the_recorded_frame_and_values_at_each_time(tmp_path: Path) -> None:
+    path = tmp_path / "run.mcap"
+    write_recording(path)
+    recording = open_recording(path)
+    wall = FakeTime()
+    source = ReplaySource(recording, wall)
+    try:
+        assert source.model is not None and source.error is None and source.model.nbody - 1 == BODIES
+        for frame in recording.frames[::7]:
+            source.request("seek", frame.time)
+            assert wait_until(lambda f=frame: source.time() == f.time, 10)
+            assert source.latest is frame
+        source.request("seek", 0.0)
+        source.request("play")
+        assert wait_until(lambda: source.playing, 10)  # the wall clock moves once the loop has started playing
+        wall.now += 1.0  # a second of wall clock at 1x: the frame at 1.0 s
+        assert wait_until(lambda: source.time() == 1.0, 10)
+        assert source.latest is recording.frame_at(1.0) and source.latest is not None
+        source.request("speed", 4.0)
+        wall.now += 100
+        assert wait_until(lambda: not source.playing and source.time() == recording.duration, 10)
+        assert source.latest is recording.frames[-1]
+        source.request("step", -1)
+        assert wait_until(lambda: source.latest is recording.frames[-2], 10)
+        source.request("speed", 3.0)  # refused by the loop, said, and the loop lives on
+        assert wait_until(lambda: source.error is not None and "not one of" in source.error, 10)
+        source.request("step", -1)
+        assert wait_until(lambda: source.latest is recording.frames[-3], 10)
+    finally:
+        source.close()
+    assert not source._thread.is_alive()
+
+    series = recording.series[("m2", "joint.angle")]
+    for k in range(0, len(series.times), 5):
+        t = series.times[k]
+        labels, data = plot_data(recording, [("m1", "joint.angle"), ("m2", "joint.angle"), ("m1", "name")], t, 30.0)
+        assert labels == ["m1 joint.angle", "m2 joint.angle"]  # text is not plotted
+        times, _, m2 = data
+        assert times[-1] <= t and m2[list(times).index(t)] == series.values[k]  # the same float
+        assert last_values(recording, t)["m2"]["joint.angle"] == series.values[k]
+    labels, data = plot_data(recording, [("m1", "joint.angle")], 1.0, 0.5)
+    assert data[0][0] >= 0.5 and data[0][-1] <= 1.0
+
+
+def test_a_recording_without_a_model_replays_its_values_and_says_why_no_3d(tmp_path: Path) -> None:
+    path = tmp_path / "nomodel.mcap"
+    write_recording(path, mjcf=None)
+    source = ReplaySource(open_recording(path))
+    try:
+        assert source.model is None and "no robot model" in (source.error or "")
+    finally:
+        source.close()
+
+
+# -- the Replay tab in the studio of this process ------------------------------------------------------------------
+
+
+def test_the_replay_tab_shows_a_recording_in_the_3d_view_and_leaves_it_for_the_live_robot(studio, tmp_path: Path):
+    from types import SimpleNamespace
+
+    app = studio.app
+    panel, view = app.replay, app.view
+    path = tmp_path / "run.mcap"
+    write_recording(path)
+    upload = SimpleNamespace(target=SimpleNamespace(value=SimpleNamespace(name="junk.mcap", content=b"\x00" * 64)))
+    panel._on_upload(upload)  # hostile bytes uploaded: refused in a line, nothing shown changes
+    assert wait_until(lambda: "Not opened: junk.mcap is not an MCAP file" in panel.line.content, 20)
+    assert view.source == "preview" and panel.source is None
+    with pytest.raises(ValueError, match="no recording open"):
+        panel._request("play")
+    panel.open_path(path)
+    assert wait_until(lambda: view.source == "replay" and "120 poses" in panel.line.content, 20)
+    source = panel.source
+    assert source is not None and source.recording.name == "run.mcap"
+    # the render thread draws the replay's first frame, with the recording's model
+    assert wait_until(lambda: view._drawn is source.recording.frames[0], 20)
+    assert view._built is not None and view._built[0] == "replay"
+    marks = {(m.value, m.label) for m in panel.timeline._marks or ()}  # the events on the timeline
+    assert {(0.5, "G"), (1.5, "E"), (1.52, "S"), (0.0, "0"), (1.98, "1.98")} == marks, marks
+    assert panel.attribute.value == "joint.angle" and panel.keys() == [("m1", "joint.angle"), ("m2", "joint.angle"),
+                                                                      ("m3", "joint.angle")]  # fmt: skip
+    panel.timeline.value = 1.5  # a user's scrub
+    assert wait_until(lambda: abs(source.time() - 1.5) < 1e-9, 20)
+    assert wait_until(lambda: view._drawn is source.recording.frame_at(1.5), 20)
+    panel.refresh()
+    assert panel.plot.labels == ["m1 joint.angle", "m2 joint.angle", "m3 joint.angle"]
+    assert "t = 1.50 s" in panel.events.content and "● " in panel.events.content and "○ " in panel.events.content
+    assert "`m3` joint.angle = **" in panel.roster.content
+    with pytest.raises(ValueError, match="not one of"):
+        panel._on_speed(SimpleNamespace(target=SimpleNamespace(value="9x")))
+    panel._on_play(SimpleNamespace(target=SimpleNamespace(value="Leave replay")))
+    assert view.source == "live" and panel.source is None and panel.line.content == "No recording open."
+    assert not source._thread.is_alive()
+
+
+@pytest.mark.parametrize("name", ["../secret.mcap", "/etc/passwd", "sub/run.mcap", "run.txt", "..mcap", ".mcap", ""])
+def test_a_chosen_file_that_is_not_a_recording_of_the_folder_is_refused(tmp_path: Path, name: str) -> None:
+    from web.replay_panel import chosen_file
+
+    with pytest.raises(ValueError, match="not an MCAP file of the recordings folder"):
+        chosen_file(tmp_path, name)
+    assert chosen_file(tmp_path, "robot-20261124.mcap") == tmp_path / "robot-20261124.mcap"

@@ -1,0 +1,306 @@
+"""A recording read back for replay: what asm-record or the Record button wrote (server/record.py), held in memory
+as the Replay tab serves it — the pose frames, every attribute value, the events, the robot's model.
+
+Why a reader of its own (and not server/): the page imports nothing of server/, and replay needs the file read
+*tolerantly*: a recording whose writer was killed has no summary and ends mid-record, and everything up to its last
+whole chunk must replay (as ``mcap_files.read_tolerant`` reads it). So the file is read front to back with the
+``mcap`` stream reader, stopping at the first incomplete record, and its protobuf poses are decoded here by field
+number (``foxglove.FrameTransforms``: the few fields the recorder writes; no protobuf runtime is needed).
+
+Hostile input is refused with :class:`RecordingError`, one sentence the page shows: not an MCAP file, larger than
+``MAX_BYTES`` (the whole recording is held in memory), nothing replayable in it.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import struct
+from bisect import bisect_right
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import IO, Any
+
+import numpy as np
+
+from asm_module.feed import PoseFrame
+
+MAGIC = b"\x89MCAP0\r\n"
+MAX_BYTES = 256 * 1024 * 1024
+"""The largest file opened: a recording is held in memory whole (an hour of a 12-module robot is about 100 MB)."""
+MAX_EXPANDED = 4 * MAX_BYTES
+"""The most its chunks may expand to, decompressed (the recorder's zstd chunks shrink to about a third)."""
+MAX_CHUNK = 64 * 1024 * 1024
+"""The largest chunk decompressed (the recorder writes 64 kB ones)."""
+TOPIC_TRANSFORMS = "/robot/transforms"
+TOPIC_ESTOP = "/robot/estop"
+TOPIC_GROUP = "/robot/group"
+TOPIC_STATUS = "/robot/status"
+ROBOT_TOPICS = (TOPIC_TRANSFORMS, TOPIC_ESTOP, TOPIC_GROUP, TOPIC_STATUS, "/robot/scene")
+"""The recorder's topics (server/foxglove_msgs.py, docs/protocol.md §11); any other is ``/<node>/<object>``."""
+
+
+class RecordingError(ValueError):
+    """The file cannot be replayed: why, in one sentence."""
+
+
+@dataclass(frozen=True)
+class Event:
+    time: float
+    """Seconds since the recording's first message."""
+    kind: str
+    """``e-stop``, ``group`` (a deploy's activation, a drive's goals) or ``status`` (e-stop latched/released)."""
+    text: str
+
+
+@dataclass
+class Series:
+    """One publishing object's recorded values, in file order."""
+
+    times: list[float] = field(default_factory=list)
+    values: list[Any] = field(default_factory=list)
+    """As the file holds them (JSON-decoded): numbers, booleans, lists, text."""
+    stamps: list[tuple[int, float]] = field(default_factory=list)
+    """Each value's (seq, t) as its publisher stamped it (the JSON view's ``seq`` and ``t``; 0 when absent)."""
+
+    def until(self, t: float) -> int:
+        """How many values were published at or before ``t``."""
+        return bisect_right(self.times, t)
+
+
+@dataclass
+class Recording:
+    """A recording's content, times in seconds since its first message (``start_ns``)."""
+
+    name: str
+    start_ns: int = 0
+    metadata: dict[str, str] = field(default_factory=dict)
+    mjcf: str | None = None
+    """The robot's model (the ``robot.mjcf`` attachment): what the 3D view draws."""
+    gait: tuple[str, str] | None = None
+    """(file name, text) of the gait attached."""
+    frames: list[PoseFrame] = field(default_factory=list)
+    """The pose frames: ``time`` is seconds since the start, ``seq`` the feed's sequence number."""
+    series: dict[tuple[str, str], Series] = field(default_factory=dict)
+    """(node, object) → its values."""
+    events: list[Event] = field(default_factory=list)
+    complete: bool = False
+    """The file ended with its summary and footer; False: its writer was killed, read up to its last whole chunk."""
+    _frame_times: list[float] = field(default_factory=list, repr=False)
+
+    @property
+    def duration(self) -> float:
+        ends = [self.frames[-1].time] if self.frames else []
+        ends += [s.times[-1] for s in self.series.values() if s.times]
+        ends += [e.time for e in self.events]
+        return max(ends, default=0.0)
+
+    @property
+    def frame_times(self) -> list[float]:
+        """The frames' times (kept: the replay looks one up 60 times a second)."""
+        if len(self._frame_times) != len(self.frames):
+            self._frame_times = [f.time for f in self.frames]
+        return self._frame_times
+
+    def frame_at(self, t: float) -> PoseFrame | None:
+        """The pose frame shown at ``t``: the last one recorded at or before it (None before the first)."""
+        index = bisect_right(self.frame_times, t) - 1
+        return self.frames[index] if index >= 0 else None
+
+    def nodes(self) -> list[str]:
+        """The nodes that published, m2 before m10."""
+        return sorted({node for node, _ in self.series}, key=lambda n: (len(n), n))
+
+    def objects(self) -> list[str]:
+        """The objects with numeric values (what a plot can show), sorted."""
+        return sorted({obj for (_, obj), s in self.series.items() if s.values and all(map(_numeric, s.values))})
+
+
+def _numeric(value: Any) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, str)
+
+
+def open_recording(path: Path, max_bytes: int = MAX_BYTES) -> Recording:
+    """The recording in ``path``; RecordingError when it cannot be replayed."""
+    try:
+        size = path.stat().st_size
+    except OSError as exc:
+        raise RecordingError(f"cannot open {path}: {exc.strerror or exc}") from None
+    if not path.is_file():
+        raise RecordingError(f"{path} is not a file")
+    if size > max_bytes:
+        raise RecordingError(f"{path.name} has {size / 2**20:.0f} MB: larger than the {max_bytes / 2**20:.0f} MB a "
+                             "replay holds in memory (split it with asm-record --max-bytes)")  # fmt: skip
+    with path.open("rb") as stream:
+        return read_recording(stream, path.name)
+
+
+def read_bytes(data: bytes, name: str, max_bytes: int = MAX_BYTES) -> Recording:
+    """A recording uploaded through the page (``data`` its bytes)."""
+    if len(data) > max_bytes:
+        raise RecordingError(f"{name} has {len(data) / 2**20:.0f} MB: larger than the {max_bytes / 2**20:.0f} MB a "
+                             "replay holds in memory")  # fmt: skip
+    return read_recording(io.BytesIO(data), name)
+
+
+def read_recording(stream: IO[bytes], name: str) -> Recording:
+    """Read every whole record of ``stream`` (see the module docstring)."""
+    from mcap.exceptions import McapError
+    from mcap.records import Attachment, Channel, Chunk, DataEnd, Footer, Message, Metadata
+    from mcap.stream_reader import StreamReader, breakup_chunk
+
+    head = stream.read(len(MAGIC))
+    if head != MAGIC:
+        raise RecordingError(f"{name} is not an MCAP file (it does not start with the MCAP magic)")
+    stream.seek(0)
+    recording = Recording(name)
+    channels: dict[int, str] = {}
+    first: int | None = None
+    raw: list[tuple[int, str, bytes, int]] = []
+    reader = StreamReader(stream, emit_chunks=True, record_size_limit=MAX_BYTES)
+    expanded = 0
+
+    def records() -> Iterator[Any]:
+        """The file's records, a chunk's own in its place: decompressed only when it says it expands to a size
+        within the budget (a small hostile file must not expand to gigabytes)."""
+        nonlocal expanded
+        for record in reader.records:
+            if isinstance(record, Chunk):
+                expanded += record.uncompressed_size
+                if record.uncompressed_size > MAX_CHUNK or expanded > MAX_EXPANDED:
+                    raise RecordingError(f"{name} expands to more than the {MAX_EXPANDED / 2**20:.0f} MB a replay "
+                                         f"holds (or has a chunk over {MAX_CHUNK / 2**20:.0f} MB)")  # fmt: skip
+                yield from breakup_chunk(record)
+            else:
+                yield record
+
+    try:
+        for record in records():
+            if isinstance(record, Channel):
+                channels[record.id] = record.topic
+            elif isinstance(record, Message):
+                topic = channels.get(record.channel_id)
+                if topic is not None:
+                    raw.append((record.log_time, topic, record.data, record.sequence))
+                    first = record.log_time if first is None else min(first, record.log_time)
+            elif isinstance(record, Attachment):
+                if record.name == "robot.mjcf":
+                    recording.mjcf = record.data.decode("utf-8", "replace")
+                elif record.name.endswith(".toml"):
+                    recording.gait = (record.name, record.data.decode("utf-8", "replace"))
+            elif isinstance(record, Metadata) and record.name == "asm.recording":
+                recording.metadata = dict(record.metadata)
+            elif isinstance(record, DataEnd | Footer):
+                recording.complete = True
+                break
+    except RecordingError:
+        raise
+    except (McapError, EOFError, ValueError, struct.error, MemoryError):
+        pass  # a writer killed mid-record: everything before it stands
+    if not raw:
+        raise RecordingError(f"{name} holds no messages: nothing to replay")
+    recording.start_ns = first or 0
+    raw.sort(key=lambda m: m[0])  # chunks are in file order; a replay is in time order
+    for log_ns, topic, data, seq in raw:
+        _add(recording, (log_ns - recording.start_ns) / 1e9, topic, data, seq)
+    if not recording.frames and not recording.series:
+        raise RecordingError(f"{name} holds no poses and no attribute values: not a recording of a robot")
+    return recording
+
+
+def _add(recording: Recording, t: float, topic: str, data: bytes, seq: int) -> None:
+    """One message into the recording; one that does not decode is skipped (the file is someone else's input)."""
+    try:
+        if topic == TOPIC_TRANSFORMS:
+            positions, quaternions = decode_transforms(data)
+            recording.frames.append(PoseFrame(seq, t, positions, quaternions, simulated=True))
+        elif topic == TOPIC_ESTOP:
+            view = json.loads(data)
+            recording.events.append(Event(t, "e-stop", f"E-STOP ({view.get('scope', '?')}) by "
+                                          f"{view.get('source', '?')}: {view.get('reason', '')}"))  # fmt: skip
+        elif topic == TOPIC_GROUP:
+            view = json.loads(data)
+            text = f"group message to {view.get('group', '?')} from {view.get('source', '?')} (a deploy, a drive)"
+            recording.events.append(Event(t, "group", text))
+        elif topic == TOPIC_STATUS:
+            _status(recording, t, json.loads(data))
+        elif topic not in ROBOT_TOPICS:
+            view = json.loads(data)
+            parts = topic.strip("/").split("/", 1)
+            if isinstance(view, dict) and "value" in view and len(parts) == 2:
+                series = recording.series.setdefault((parts[0], parts[1]), Series())
+                series.times.append(t)
+                series.values.append(view["value"])
+                series.stamps.append((int(view.get("seq", 0)), float(view.get("t", 0.0))))
+    except (ValueError, TypeError, IndexError, AttributeError, struct.error):
+        return
+
+
+def _status(recording: Recording, t: float, status: Any) -> None:
+    """A status whose latched e-stops differ from the previous one's is an event (latched, released)."""
+    latched = status.get("estop") if isinstance(status, dict) else None
+    previous = next((e for e in reversed(recording.events) if e.kind == "status"), None)
+    text = f"e-stop latched on modules {latched}" if latched else "no e-stop latched"
+    if (previous is None and latched) or (previous is not None and previous.text != text):
+        recording.events.append(Event(t, "status", text))
+
+
+# -- foxglove.FrameTransforms, by field number ------------------------------------------------------------------------
+
+
+def _varint(data: bytes, i: int) -> tuple[int, int]:
+    value = shift = 0
+    while True:
+        byte = data[i]
+        value |= (byte & 0x7F) << shift
+        i, shift = i + 1, shift + 7
+        if not byte & 0x80:
+            return value, i
+        if shift > 63:
+            raise ValueError("a varint longer than 64 bits")
+
+
+def _fields(data: bytes) -> list[tuple[int, Any]]:
+    """(field number, value) of a protobuf message: length-delimited as bytes, doubles as float, varints as int."""
+    out: list[tuple[int, Any]] = []
+    i = 0
+    while i < len(data):
+        key, i = _varint(data, i)
+        number, wire = key >> 3, key & 7
+        if wire == 0:
+            value, i = _varint(data, i)
+            out.append((number, value))
+        elif wire == 1:
+            out.append((number, struct.unpack_from("<d", data, i)[0]))
+            i += 8
+        elif wire == 2:
+            length, i = _varint(data, i)
+            if i + length > len(data):
+                raise ValueError("a field runs past the message")
+            out.append((number, data[i : i + length]))
+            i += length
+        elif wire == 5:
+            out.append((number, struct.unpack_from("<f", data, i)[0]))
+            i += 4
+        else:
+            raise ValueError(f"protobuf wire type {wire}")
+    return out
+
+
+def decode_transforms(data: bytes) -> tuple[np.ndarray, np.ndarray]:
+    """The bodies' positions (n×3) and orientations (n×4, w first as MuJoCo's) of a ``foxglove.FrameTransforms``
+    (FrameTransform: translation field 4, rotation field 5; Vector3 x, y, z and Quaternion x, y, z, w are fields
+    1-4; zero fields are absent)."""
+    positions, quaternions = [], []
+    for number, each in _fields(data):
+        if number != 1 or not isinstance(each, bytes):
+            continue
+        parts = dict(_fields(each))
+        xyz = dict(_fields(parts.get(4, b"")))
+        xyzw = dict(_fields(parts.get(5, b"")))
+        positions.append([float(xyz.get(k, 0.0)) for k in (1, 2, 3)])
+        quaternions.append([float(xyzw.get(k, 0.0)) for k in (4, 1, 2, 3)])
+    if not positions:
+        raise ValueError("a FrameTransforms without transforms")
+    return np.array(positions, dtype=float), np.array(quaternions, dtype=float)
