@@ -39,6 +39,9 @@ PROFILE: dict[str, ClassSpec] = {
     "gait.done": ClassSpec(0x2e, "event", "uint8", True, True, "1: a one-shot mode finished; 2: a state timed out with outcome stop"),
     "gait.signal": ClassSpec(0x2f, "attribute", "uint8", False, False, "the last broadcast signal heard, 1..255"),
     "sensor.contact": ClassSpec(0x30, "attribute", "bool", True, True, "the module touches the ground"),
+    "firmware.image": ClassSpec(0x48, "attribute", "bytes", False, False, "a SET writes a piece of a new image to the inactive slot: uint32 offset (little-endian), then its bytes, in order from 0 (offset 0 erases the slot); a GET reads the uint32 count of bytes written"),
+    "firmware.install": ClassSpec(0x49, "attribute", "uint32", False, False, "a SET of the image's CRC-32 verifies the written image (header, size, CRC) and, if it holds, swaps to it at a reset 0.1 s later; VALUE_ERROR refuses it"),
+    "firmware.status": ClassSpec(0x4a, "attribute", "record{state:uint8,running:uint32,other:uint32,received:uint32}", True, False, "the update's state (firmware.state), the running image's version, the other slot's (0xFFFFFFFF: none) and the bytes written"),
 }
 """Every class of the module profile, by name."""
 CLASSES: dict[str, int] = {name: spec.id for name, spec in PROFILE.items()}
@@ -59,3 +62,12 @@ INTERPOLATIONS = ('step', 'linear')
 EVENTS = ('contact', 'no_contact', 'at_goal', 'torque', 'neighbour', 'signal')
 """State events by code 1.. (0: none, time-driven)."""
 OUTCOMES = ('next', 'stop')
+
+IMAGE_MAGIC = 0x494d5341
+IMAGE_HEADER_VERSION = 1
+IMAGE_HEADER_SIZE = 128
+IMAGE_CHUNK = 512
+CONFIRM_SECONDS = 4
+RESET_DELAY = 0.1
+FIRMWARE_STATES = ('idle', 'receiving', 'installed', 'refused', 'interrupted', 'rolled_back', 'flash_error')
+"""firmware.status's state by code (docs/protocol.md §12)."""

@@ -24,6 +24,9 @@
 #define ASM_C_GAIT_DONE 0x2eu /* uint8 */
 #define ASM_C_GAIT_SIGNAL 0x2fu /* uint8 */
 #define ASM_C_SENSOR_CONTACT 0x30u /* bool */
+#define ASM_C_FIRMWARE_IMAGE 0x48u /* bytes */
+#define ASM_C_FIRMWARE_INSTALL 0x49u /* uint32 */
+#define ASM_C_FIRMWARE_STATUS 0x4au /* record{state:uint8,running:uint32,other:uint32,received:uint32} */
 
 /* Each class's codec descriptor (§2), the one statement of its type: static const uint8_t d[] = {...}; */
 #define ASM_D_JOINT_GOAL 0x0a
@@ -48,6 +51,9 @@
 #define ASM_D_GAIT_DONE 0x06
 #define ASM_D_GAIT_SIGNAL 0x06
 #define ASM_D_SENSOR_CONTACT 0x01
+#define ASM_D_FIRMWARE_IMAGE 0x0d, 0x00
+#define ASM_D_FIRMWARE_INSTALL 0x08
+#define ASM_D_FIRMWARE_STATUS 0x0f, 0x04, 0x05, 0x73, 0x74, 0x61, 0x74, 0x65, 0x06, 0x07, 0x72, 0x75, 0x6e, 0x6e, 0x69, 0x6e, 0x67, 0x08, 0x05, 0x6f, 0x74, 0x68, 0x65, 0x72, 0x08, 0x08, 0x72, 0x65, 0x63, 0x65, 0x69, 0x76, 0x65, 0x64, 0x08
 
 #define ASM_MIN_DURATION 0.02f /* seconds: one control tick */
 #define ASM_PROTOCOL_MAX_STATES 1024
@@ -56,5 +62,13 @@
 #define ASM_MAX_LEASE_S 60.0f
 
 enum asm_event { ASM_EV_NONE = 0, ASM_EV_CONTACT = 1, ASM_EV_NO_CONTACT = 2, ASM_EV_AT_GOAL = 3, ASM_EV_TORQUE = 4, ASM_EV_NEIGHBOUR = 5, ASM_EV_SIGNAL = 6 };
+
+#define ASM_IMAGE_MAGIC 0x494d5341u
+#define ASM_IMAGE_HEADER_VERSION 1u
+#define ASM_IMAGE_HEADER_SIZE 128u
+#define ASM_IMAGE_CHUNK 512u
+#define ASM_CONFIRM_MS 4000u
+#define ASM_RESET_DELAY_MS 100u
+enum asm_firmware_state { ASM_FW_IDLE = 0, ASM_FW_RECEIVING = 1, ASM_FW_INSTALLED = 2, ASM_FW_REFUSED = 3, ASM_FW_INTERRUPTED = 4, ASM_FW_ROLLED_BACK = 5, ASM_FW_FLASH_ERROR = 6 };
 
 #endif
