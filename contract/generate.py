@@ -324,7 +324,8 @@ def _reserved(core: dict[str, Any]) -> list[list[str]]:
     return [[ids, "reserved", "", "", "a node answers UNSUPPORTED"]]
 
 
-_MARKED = re.compile(r"(<!-- contract:(\w+) -->\n)(.*?)(\n<!-- /contract -->)", re.S)
+_MARKED = re.compile(r"(<!-- contract:(\w+) -->\n)(.*?)\n?(<!-- /contract -->)", re.S)
+"""A marked table; an empty one (its close right after its open) too, which must not reach the next close."""
 
 
 def document(text: str, tables: dict[str, str]) -> str:
@@ -332,7 +333,7 @@ def document(text: str, tables: dict[str, str]) -> str:
         name = match.group(2)
         if name not in tables:
             raise KeyError(f"docs/protocol.md names a contract table {name!r} that the generator does not make")
-        return match.group(1) + tables[name] + match.group(4)
+        return match.group(1) + tables[name] + "\n" + match.group(4)
 
     return _MARKED.sub(fill, text)
 
