@@ -264,9 +264,11 @@ def c_profile(profile: dict[str, Any]) -> str:
             ""]  # fmt: skip
     out += _c_enum("asm_event", "ASM_EV_", profile["event"])
     fw = profile["firmware"]
-    out += ["", f"#define ASM_IMAGE_MAGIC {fw['image_magic']:#010x}u", f"#define ASM_IMAGE_HEADER_VERSION {fw['header_version']}u",
+    out += ["", f"#define ASM_IMAGE_MAGIC {fw['image_magic']:#010x}u",
+            f"#define ASM_IMAGE_HEADER_VERSION {fw['header_version']}u",
             f"#define ASM_IMAGE_HEADER_SIZE {fw['header_size']}u", f"#define ASM_IMAGE_CHUNK {fw['chunk']}u",
-            f"#define ASM_CONFIRM_MS {fw['confirm_seconds'] * 1000}u", f"#define ASM_RESET_DELAY_MS {fw['reset_delay_ms']}u"]  # fmt: skip
+            f"#define ASM_CONFIRM_MS {fw['confirm_seconds'] * 1000}u",
+            f"#define ASM_RESET_DELAY_MS {fw['reset_delay_ms']}u"]  # fmt: skip
     out += _c_enum("asm_firmware_state", "ASM_FW_", profile["firmware_state"])
     return "\n".join([*out, "", "#endif", ""])
 
