@@ -69,5 +69,5 @@ IMAGE_HEADER_SIZE = 128
 IMAGE_CHUNK = 512
 CONFIRM_SECONDS = 4
 RESET_DELAY = 0.1
-FIRMWARE_STATES = ('idle', 'receiving', 'installed', 'refused', 'interrupted', 'rolled_back', 'flash_error')
+FIRMWARE_STATES = ('idle', 'receiving', 'installed', 'refused', 'interrupted', 'rolled_back', 'flash_error', 'trial', 'confirmed')
 """firmware.status's state by code (docs/protocol.md §12)."""

@@ -88,13 +88,13 @@ PORT_SOURCES = ["stm32f4_bxcan.c", "stm32f4_update.c", "stm32f4_flash.c"]
 """The example port: the board (CAN, SysTick, joint, settings), the update objects, the flash driver and boot log."""
 
 
-def build_cortex_m4(elf: Path, *, port: Path | None = None, flags: tuple[str, ...] = ()) -> tuple[int, int, int]:
-    """Link the example STM32F4 port (firmware/port/; ``port`` instead of its stm32f4_bxcan.c, ``flags`` added) with
-    the runtime, -Os; its (text, data, bss) in bytes."""
+def build_cortex_m4(elf: Path, *, replace: dict[str, Path] | None = None,
+                    flags: tuple[str, ...] = ()) -> tuple[int, int, int]:  # fmt: skip
+    """Link the example STM32F4 port (firmware/port/; ``replace``: other files for some of its PORT_SOURCES by name,
+    ``flags`` added: a test's broken port) with the runtime, -Os; its (text, data, bss) in bytes."""
     ensure_contract()
-    sources = [*runtime_sources(), *(FIRMWARE / "port" / name for name in PORT_SOURCES)]
-    if port is not None:
-        sources[len(runtime_sources())] = port
+    replace = replace or {}
+    sources = [*runtime_sources(), *(replace.get(name, FIRMWARE / "port" / name) for name in PORT_SOURCES)]
     _link(elf, sources, FIRMWARE / "port" / "stm32f4.ld", flags)
     report = subprocess.run(["arm-none-eabi-size", str(elf)], capture_output=True, text=True, check=True)
     text, data, bss = (int(v) for v in report.stdout.splitlines()[1].split()[:3])

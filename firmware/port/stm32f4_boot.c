@@ -8,6 +8,7 @@
 #include <stdint.h>
 
 #include "asm/profile.h"
+#include "asm/wire.h"
 #include "stm32f4_flash.h"
 
 #define REG(address) (*(volatile uint32_t *)(address))
@@ -29,19 +30,6 @@ static uint32_t header_size(uint32_t slot)
     return h->size;
 }
 
-/* CRC-32 (IEEE, as asm_crc32), its bit loop unrolled: a boot checks up to 64 KiB, and every loop turn is a branch. */
-static uint32_t crc32(const uint8_t *data, uint32_t length)
-{
-    uint32_t crc = 0xFFFFFFFFu;
-#define STEP crc = (crc >> 1) ^ (0xEDB88320u & (0u - (crc & 1u)))
-    for (uint32_t k = 0; k < length; k++) {
-        crc ^= data[k];
-        STEP; STEP; STEP; STEP; STEP; STEP; STEP; STEP;
-    }
-#undef STEP
-    return ~crc;
-}
-
 /* Copy the image of ``slot`` into RAM and check its CRC-32 there (what runs is what was checked): 1 if whole. */
 static int load(uint32_t slot)
 {
@@ -52,7 +40,7 @@ static int load(uint32_t slot)
         return 0;
     for (uint32_t k = 0; k < size / 4u; k++)
         to[k] = from[k];
-    return crc32((const uint8_t *)to + 8, size - 8u) == to[1];
+    return asm_crc32((const uint8_t *)to + 8, size - 8u) == to[1];
 }
 
 /* Load the image to boot (-1: none) and say its slot, generation and trial: the highest generation that is

@@ -52,7 +52,7 @@ void update_boot(void)
     else if (o->recorded && o->tried && !o->confirmed && o->generation > generation)
         report(ASM_FW_ROLLED_BACK);
     else
-        report(ASM_FW_IDLE);
+        report(trial ? ASM_FW_TRIAL : ASM_FW_IDLE);
 }
 
 static int set_image(struct asm_node *node, struct asm_object *o, const uint8_t *data, size_t length)
@@ -124,8 +124,11 @@ void update_register(struct asm_node *node)
 
 void update_poll(uint32_t now_ms)
 {
-    if (!confirmed) /* on the bus, its node running: this image works */
+    if (!confirmed) { /* on the bus, its node running: this image works */
         confirmed = !boot_log_append(LOG_CONFIRMED, slot, generation);
+        if (confirmed)
+            report(ASM_FW_CONFIRMED);
+    }
     if (confirmed)
         IWDG_KR = 0xAAAAu;
     if (resetting && (int32_t)(now_ms - reset_at) >= 0)

@@ -282,7 +282,7 @@ def test_the_emulator_stops_an_image_that_would_fail_on_the_board(tmp_path) -> N
     def image(source: str) -> Path:
         c_file, elf = tmp_path / "port.c", tmp_path / "port.elf"
         c_file.write_text(source)
-        build_cortex_m4(elf, port=c_file)
+        build_cortex_m4(elf, replace={"stm32f4_bxcan.c": c_file})
         return elf
 
     joint = Joint(lambda _: None, lambda: None, lambda: (0.0, False))
