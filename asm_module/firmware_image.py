@@ -83,3 +83,22 @@ def check(data: bytes) -> ImageInfo:
     if zlib.crc32(data[8:]) != crc:
         raise ImageError(f"CRC-32 {zlib.crc32(data[8:]):#010x}, the header says {crc:#010x}: the image is damaged")
     return ImageInfo(version, size, crc)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m asm_module.firmware_image ELF OUT``: the update image of a linked ELF, for asm-flash."""
+    import argparse
+
+    cli = argparse.ArgumentParser(prog="python -m asm_module.firmware_image", description=main.__doc__)
+    cli.add_argument("elf", type=Path)
+    cli.add_argument("out", type=Path)
+    args = cli.parse_args(argv)
+    data = elf_image(args.elf)
+    args.out.write_bytes(data)
+    info = check(data)
+    print(f"{args.out}: version {info.version_text}, {info.size} bytes, CRC-32 {info.crc:08x}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
