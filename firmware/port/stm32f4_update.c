@@ -21,7 +21,7 @@ __attribute__((section(".image_header"), used)) const struct image_header image_
 static const uint8_t D_IMAGE[] = {ASM_D_FIRMWARE_IMAGE}, D_INSTALL[] = {ASM_D_FIRMWARE_INSTALL},
                      D_STATUS[] = {ASM_D_FIRMWARE_STATUS};
 static struct asm_object image, install, status;
-static uint32_t slot, generation, trial, confirmed, received, install_crc, reset_at, resetting;
+static uint32_t slot, generation, trial, confirmed, received, install_crc, reset_at, resetting, fed_at;
 static uint8_t status_v[13]; /* record{state:uint8,running:uint32,other:uint32,received:uint32} */
 
 static uint32_t other(void) { return slot ^ 1u; }
@@ -129,8 +129,10 @@ void update_poll(uint32_t now_ms)
         if (confirmed)
             report(ASM_FW_CONFIRMED);
     }
-    if (confirmed)
+    if (confirmed && now_ms - fed_at >= 100u) { /* well within the watchdog's ASM_CONFIRM_MS */
         IWDG_KR = 0xAAAAu;
+        fed_at = now_ms;
+    }
     if (resetting && (int32_t)(now_ms - reset_at) >= 0)
         SCB_AIRCR = 0x05FA0004u; /* SYSRESETREQ: into the bootloader */
 }
