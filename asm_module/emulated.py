@@ -40,6 +40,8 @@ log = logging.getLogger("asm_module.emulated")
 CLOCK_HZ = 168_000_000
 """The STM32F405/407's core clock, which the port's SysTick reload assumes (1 ms = 168,000 cycles)."""
 CONTROL_MS = 20
+CATCH_UP_MS = 200
+"""The most emulated milliseconds run in one hold of a board's lock."""
 _image_lock = threading.Lock()
 _image: Image | None = None
 
@@ -146,24 +148,35 @@ class EmulatedModule(FirmwareCalls):
         return max(0, int(seconds * 1000))
 
     def advance(self) -> None:
-        """Run the image up to now (its clock's): frames received so far reach it, its ticks due run."""
-        with self._lock:
-            if self.fault is not None or self._stop.is_set():
-                return
+        """Run the image up to now (its clock's): frames received so far reach it, its ticks due run. A board far
+        behind (a loaded machine) catches up CATCH_UP_MS at a time, the core free between them: close() and the
+        host's calls never wait for a whole backlog."""
+        target = self._now_ms()
+        while True:
+            with self._lock:
+                if self.fault is not None or self._stop.is_set():
+                    return
+                core = self.core
+                step = min(target, core.systicks + CATCH_UP_MS)
+                self._run_to(step)
+                if step >= target or not core.idle or self.core is not core:  # done, busy, or reset (a new clock)
+                    return
+
+    def _run_to(self, milliseconds: int) -> None:
+        try:
+            self.core.run(milliseconds)
+        except BoardReset as reset:
+            self.resets.append(str(reset))
+            log.info("%s: the board resets: %s", self.name, reset)
+            self._t0 = self.clock.now() if self.clock is not None else time.monotonic()
             try:
-                self.core.run(self._now_ms())
-            except BoardReset as reset:
-                self.resets.append(str(reset))
-                log.info("%s: the board resets: %s", self.name, reset)
-                self._t0 = self.clock.now() if self.clock is not None else time.monotonic()
-                try:
-                    self._boot()
-                except (FirmwareFault, RuntimeError) as exc:
-                    self.fault = FirmwareFault(f"after a reset: {exc}")
-                    log.error("%s: the emulated board stopped after a reset: %s", self.name, exc)
-            except FirmwareFault as exc:
-                self.fault = exc
-                log.error("%s: the emulated board stopped: %s", self.name, exc)
+                self._boot()
+            except (FirmwareFault, RuntimeError) as exc:
+                self.fault = FirmwareFault(f"after a reset: {exc}")
+                log.error("%s: the emulated board stopped after a reset: %s", self.name, exc)
+        except FirmwareFault as exc:
+            self.fault = exc
+            log.error("%s: the emulated board stopped: %s", self.name, exc)
 
     def _transmit(self, can_id: int, extended: bool, data: bytes) -> None:
         try:

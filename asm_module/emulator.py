@@ -18,6 +18,9 @@ Why each piece is as it is:
   finish) and the emulator pops the frame. The core stays in thread mode while the handler runs (Unicorn's own
   exception return needs the NVIC it lacks). The extended frame's FP part is stacked lazily, as the M4 does by
   default: the FP registers are kept aside only for a handler not proven FP-free from its code.
+- **Boot**: a fresh board's flash is written as a probe writes it (asm_module/board_flash.py); the core starts in
+  the bootloader (sector 0), which copies the chosen image to RAM and points VTOR at it; the image is known by its
+  header's CRC (its ELF's symbols). The watchdog and SYSRESETREQ end a core with :class:`BoardReset`.
 - **Faults**: any access outside the mapped memory and peripherals, or reaching Default_Handler, raises
   :class:`FirmwareFault` naming the address — the emulated board has stopped. FPU instructions before the image
   sets CPACR would fault on the board (Unicorn runs them anyway); the emulator checks CONTROL.FPCA at every stop.
@@ -25,7 +28,6 @@ Why each piece is as it is:
 
 from __future__ import annotations
 
-import ctypes
 import struct
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -34,18 +36,18 @@ from unicorn import UC_ARCH_ARM, UC_HOOK_BLOCK, UC_HOOK_CODE, UC_MODE_MCLASS, UC
 from unicorn import arm_const as arm
 from unicorn.unicorn import Uc, UcContext, UcError
 
+from .board_flash import bootloader, known_image, known_images, probe_flash, register_image
 from .bxcan import RF0R, BxCan
-from .elf import Image, read_image
-from .firmware_image import LOAD_ADDRESS, MAX_SIZE, image_bytes
+from .elf import Image
+from .firmware_image import LOAD_ADDRESS, MAX_SIZE
 from .flash import INTERFACE, SECTORS, FlashInterface, Settings
+from .thumb import Batch, local_16bit
 
 FLASH, FLASH_SIZE = 0x08000000, 1 << 20
 BOOT_SIZE = SECTORS[0][1]
 """The bootloader's sector: the only flash the core executes from (images run from RAM), so mapped as memory; the
 rest of the flash is the flash interface's (asm_module/flash.py), read and programmed through it."""
 RAM, RAM_SIZE = 0x20000000, 128 << 10
-SLOT_A = 0x08020000
-"""Where the probe writes the first image (firmware/port/stm32f4_layout.h)."""
 IWDG, SCB_VTOR, SCB_AIRCR = 0x40003000, 0xE000ED08, 0xE000ED0C
 LSI_HZ = 32_000
 CLOCK_HZ = 168_000_000
@@ -68,54 +70,6 @@ _FP_REGS = [getattr(arm, f"UC_ARM_REG_S{k}") for k in range(16)]
 _ENTRY_REGS = [*_FRAME_REGS, arm.UC_ARM_REG_CONTROL, arm.UC_ARM_REG_SP]
 
 
-def _local_16bit(halfword: int, address: int, start: int, end: int) -> bool:
-    """A 16-bit Thumb instruction at ``address`` that stays inside [start, end): not the first half of a 32-bit
-    one, not BLX/BX to a register other than LR, and a branch only to inside."""
-    if halfword >> 11 in (0b11101, 0b11110, 0b11111):
-        return False  # a 32-bit instruction (every FP one is): not proven local
-    if halfword & 0xFF00 == 0x4700:  # BX/BLX Rm
-        return halfword == 0x4770  # BX LR: the return
-    if halfword & 0xFF87 == 0x4687:  # MOV PC, Rm: a jump anywhere
-        return False
-    if halfword & 0xF500 == 0xB100:  # CBZ/CBNZ, forward
-        target = address + 4 + ((halfword >> 9 & 1) << 6 | (halfword >> 3 & 0x1F) << 1)
-        return start <= target < end
-    if halfword & 0xF800 == 0xE000:  # B, 11-bit offset
-        offset = (halfword & 0x7FF) << 1
-        target = address + 4 + (offset - 0x1000 if offset & 0x800 else offset)
-        return start <= target < end
-    if halfword & 0xF000 == 0xD000 and halfword & 0x0F00 not in (0x0E00, 0x0F00):  # B<cond>, 8-bit offset
-        offset = (halfword & 0xFF) << 1
-        target = address + 4 + (offset - 0x200 if offset & 0x100 else offset)
-        return start <= target < end
-    return True
-
-
-class _Batch:
-    """32-bit registers read or written together (uc_reg_read_batch), their buffers made once: the binding's
-    reg_read_batch looks up each register's type on every call, most of what an interrupt cost here."""
-
-    def __init__(self, uc: Uc, registers: list[int]) -> None:
-        self.uc, n = uc, len(registers)
-        self.ids = (ctypes.c_int * n)(*registers)
-        self.values = (ctypes.c_uint32 * n)()
-        base = ctypes.addressof(self.values)
-        self.pointers = (ctypes.c_void_p * n)(*(base + 4 * k for k in range(n)))
-        self.count = ctypes.c_int(n)
-
-    def read(self) -> list[int]:
-        status = self.uc._do_reg_read_batch(self.ids, self.pointers, self.count)
-        if status:
-            raise UcError(status)
-        return list(self.values)
-
-    def write(self, values: list[int]) -> None:
-        self.values[:] = [v & 0xFFFFFFFF for v in values]
-        status = self.uc._do_reg_write_batch(self.ids, self.pointers, self.count)
-        if status:
-            raise UcError(status)
-
-
 class FirmwareFault(RuntimeError):
     """The emulated core stopped on something a board would fault on (or hang in Default_Handler for)."""
 
@@ -123,39 +77,6 @@ class FirmwareFault(RuntimeError):
 class BoardReset(Exception):
     """The board reset itself: the independent watchdog expired, or the image asked (SCB AIRCR SYSRESETREQ). A new
     :class:`Cortex` on the same flash is the board after it."""
-
-
-_images: dict[int, Image] = {}
-"""Linked images by their update image's CRC-32: the symbols the emulator measures and calls a running image by, as
-a debugger finds an image's ELF (asm_module.emulated registers the board image and every image it builds)."""
-_bootloader: Image | None = None
-
-
-def register_image(image: Image) -> int:
-    """Make ``image``'s symbols known to every core that boots it; its update image's CRC-32."""
-    crc = struct.unpack_from("<I", image_bytes(image), 4)[0]
-    _images[crc] = image
-    return crc
-
-
-def bootloader() -> Image:
-    """The example port's bootloader (built once per process)."""
-    global _bootloader
-    if _bootloader is None:
-        from .firmware_build import build_board_bootloader
-
-        _bootloader = read_image(build_board_bootloader())
-    return _bootloader
-
-
-def probe_flash(settings: Settings, image: Image) -> None:
-    """Write a fresh board's flash as a debug probe does once: the bootloader in sector 0, the board data the image
-    links in sector 1 (its defaults), the image in slot A."""
-    boot = bootloader()
-    for segment in [*boot.segments, *image.segments]:
-        if segment.data and FLASH <= segment.address < FLASH + FLASH_SIZE:
-            settings.write(segment.address - FLASH, segment.data)
-    settings.write(SLOT_A - FLASH, image_bytes(image))
 
 
 @dataclass
@@ -241,7 +162,7 @@ class Cortex:
         self._returns: set[int] = set()
         uc.hook_add(UC_HOOK_BLOCK, self._block, begin=FLASH, end=FLASH + BOOT_SIZE - 1)
         uc.hook_add(UC_HOOK_BLOCK, self._block, begin=LOAD_ADDRESS, end=LOAD_ADDRESS + MAX_SIZE - 1)
-        for known in {id(i): i for i in [*_images.values(), image]}.values():  # each image's, while it runs
+        for known in {id(i): i for i in [*known_images(), image]}.values():  # each image's, while it runs
             tick = known.symbol("asm_module_tick")
             uc.hook_add(UC_HOOK_CODE, self._tick_entered, known, begin=tick, end=tick)
             fault = known.symbol("Default_Handler")
@@ -254,10 +175,10 @@ class Cortex:
         uc.reg_write(arm.UC_ARM_REG_SP, stack)
         uc.reg_write(arm.UC_ARM_REG_CONTROL, 0)
         self._resume_at = reset & ~1  # where the next run continues (the PC, kept here between runs)
-        self._entry_read = _Batch(uc, _ENTRY_REGS)
-        self._entry_write = _Batch(uc, [arm.UC_ARM_REG_SP, arm.UC_ARM_REG_LR, arm.UC_ARM_REG_CONTROL])
-        self._return_read = _Batch(uc, [arm.UC_ARM_REG_SP, arm.UC_ARM_REG_CONTROL])
-        self._return_write = _Batch(uc, [*_FRAME_REGS[:6], arm.UC_ARM_REG_XPSR, arm.UC_ARM_REG_CONTROL,
+        self._entry_read = Batch(uc, _ENTRY_REGS)
+        self._entry_write = Batch(uc, [arm.UC_ARM_REG_SP, arm.UC_ARM_REG_LR, arm.UC_ARM_REG_CONTROL])
+        self._return_read = Batch(uc, [arm.UC_ARM_REG_SP, arm.UC_ARM_REG_CONTROL])
+        self._return_write = Batch(uc, [*_FRAME_REGS[:6], arm.UC_ARM_REG_XPSR, arm.UC_ARM_REG_CONTROL,
                                          arm.UC_ARM_REG_SP])  # fmt: skip
         self._fp_free_vectors: dict[int, bool] = {}
         self.vectors = struct.unpack_from("<16I", settings.memory, 0)
@@ -410,7 +331,7 @@ class Cortex:
             size = next((size for address, size in symbols if address & ~1 == start and size), 0)
             code = bytes(self.uc.mem_read(start, size))
             halfwords = struct.unpack(f"<{len(code) // 2}H", code[: len(code) // 2 * 2])
-            known = bool(halfwords) and all(_local_16bit(h, start + 2 * k, start, start + size)
+            known = bool(halfwords) and all(local_16bit(h, start + 2 * k, start, start + size)
                                             for k, h in enumerate(halfwords))  # fmt: skip
             self._fp_free_vectors[vector] = known
         return known
@@ -555,12 +476,12 @@ class Cortex:
             self.registers[address] = value
 
     def _vector_table(self, address: int) -> None:
-        """VTOR moved (the bootloader starting an image): exceptions vector there, and the image is looked up by
-        its header's CRC (in RAM, just below the table) for its symbols."""
+        """VTOR moved (the bootloader starting an image): exceptions vector there, and the image (in RAM, its header
+        just below the table) is looked up among the known ones for its symbols."""
         self.registers[SCB_VTOR] = address
         self.vectors = struct.unpack("<16I", self.uc.mem_read(address, 64))
         if address == LOAD_ADDRESS + 0x80:
-            self.app = _images.get(struct.unpack("<I", self.uc.mem_read(LOAD_ADDRESS + 4, 4))[0])
+            self.app = known_image(lambda at, n: bytes(self.uc.mem_read(LOAD_ADDRESS + at, n)))
 
     def _watchdog(self, offset: int, value: int) -> None:
         """The independent watchdog (RM0090 §19): KR 0x5555 opens PR and RLR, 0xCCCC starts it, 0xAAAA reloads

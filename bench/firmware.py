@@ -232,7 +232,7 @@ def main() -> None:
     if m4 is not None:  # firmware update over the bus: bench/firmware_update.py, on emulated boards
         import firmware_update
 
-        firmware_update.main()
+        firmware_update.main([])
     print(f"ratio c_fuzz_inputs_vs_10m {fed / INPUTS:.2f} (target >= 1)")
     if m4 is None:
         print("# Cortex-M4: arm-none-eabi-gcc is not installed (make test installs it)")

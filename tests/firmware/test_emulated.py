@@ -302,7 +302,7 @@ def test_the_emulator_stops_an_image_that_would_fail_on_the_board(tmp_path) -> N
 
 
 def test_a_handler_is_fp_free_only_if_every_instruction_is_16_bit_and_stays_inside() -> None:
-    from asm_module.emulator import _local_16bit
+    from asm_module.thumb import local_16bit as _local_16bit
 
     def free(*halfwords: int) -> bool:
         return all(_local_16bit(h, 0x100 + 2 * k, 0x100, 0x100 + 2 * len(halfwords)) for k, h in enumerate(halfwords))
