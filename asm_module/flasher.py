@@ -44,7 +44,7 @@ class ModuleUpdate:
 
 
 def update_modules(node: Node, modules: Sequence[str], image: bytes, *, progress: Progress | None = None,
-                   timeout: float = 5.0, reboot_timeout: float = 30.0) -> list[ModuleUpdate]:  # fmt: skip
+                   timeout: float = 10.0, reboot_timeout: float = 30.0) -> list[ModuleUpdate]:  # fmt: skip
     """Update ``modules`` (node names) to ``image`` (ImageError before anything is sent if it is not a whole image),
     all at once; one :class:`ModuleUpdate` per module, in their order. ``timeout`` bounds each request,
     ``reboot_timeout`` the wait for a module to come back running the new image."""

@@ -70,6 +70,8 @@ def main(argv: list[str] | None = None) -> int:
     cli.add_argument("--node-id", type=node_id, default=253, help="the tool's own CAN node ID (default 253)")
     cli.add_argument("--discover", type=positive_seconds, default=1.5,
                      help="seconds to listen for the modules' heartbeats first (default 1.5)")  # fmt: skip
+    cli.add_argument("--timeout", type=positive_seconds, default=10.0,
+                     help="seconds each request may take (default 10)")  # fmt: skip
     cli.add_argument("--reboot-timeout", type=positive_seconds, default=30.0,
                      help="seconds a module may take to come back running the new image (default 30)")  # fmt: skip
     cli.add_argument("image", type=input_file)
@@ -93,7 +95,8 @@ def _flash(args: argparse.Namespace) -> int:
             raise RuntimeError("no module to update on the bus")
         print(f"updating {', '.join(modules)} to {info.version_text} ({info.size} bytes, CRC-32 {info.crc:08x})")
         bar = ProgressBar(modules, info.size, sys.stderr)
-        results = update_modules(node, modules, image, progress=bar, reboot_timeout=args.reboot_timeout)
+        results = update_modules(node, modules, image, progress=bar, timeout=args.timeout,
+                                 reboot_timeout=args.reboot_timeout)  # fmt: skip
         print(file=sys.stderr)
     finally:
         node.close()

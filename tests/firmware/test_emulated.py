@@ -105,7 +105,9 @@ def board() -> Iterator[tuple[object, Node, str]]:
 
     channel = fresh_name("emulated")
     module = EmulatedModule("m5", 5, interface="virtual", channel=channel)
-    tool = Node("tool", CanTransport(100, interface="virtual", channel=channel, heartbeat_period=0.1))
+    tool = Node(
+        "tool", CanTransport(100, interface="virtual", channel=channel, heartbeat_period=0.1, missed_heartbeats=10)
+    )  # the board beats every 0.5 s
     try:
         assert wait_until(lambda: "m5" in tool.discover(), timeout=20), "the board's heartbeat names it"
         yield module, tool, channel
