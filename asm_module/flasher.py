@@ -97,7 +97,7 @@ def _come_back(node: Node, module: str, old: int | None, version: int, timeout: 
     last = ""
     while time.monotonic() < deadline:
         try:
-            status = _status(node, module, min(timeout, 1.0))
+            status = _status(node, module, timeout)
         except (AsmError, OSError, LookupError) as exc:
             last = str(exc)
             time.sleep(0.1)
