@@ -41,6 +41,9 @@ PROFILE: dict[str, ClassSpec] = {
     "sensor.contact": ClassSpec(0x30, "attribute", "bool", True, True, "the module touches the ground"),
     "module.info": ClassSpec(0x40, "attribute", "record{version:uint32,build:uint32,language:uint8,max_states:uint16,max_modes:uint8,max_message:uint32,tick_cycles:uint32,stack_bytes:uint32}", True, False, "firmware version 0xMMmmpp, build (CRC-32 of the sources), language (0 Python, 1 C), limits, worst control tick in target cycles and stack high-water bytes (0: not measured)"),
     "joint.calibration": ClassSpec(0x41, "attribute", "record{zero:float32,direction:int8,min:float32,max:float32}", False, False, "angle = direction·(raw − zero); soft limits (min, max) bound joint.limits; stored in the module's flash"),
+    "firmware.image": ClassSpec(0x48, "attribute", "bytes", False, False, "a SET writes a piece of a new image to the inactive slot: uint32 offset (little-endian), then its bytes, in order from 0 (offset 0 erases the slot); a GET reads the uint32 count of bytes written"),
+    "firmware.install": ClassSpec(0x49, "attribute", "uint32", False, False, "a SET of the image's CRC-32 verifies the written image (header, size, CRC) and, if it holds, swaps to it at a reset 0.1 s later; VALUE_ERROR refuses it"),
+    "firmware.status": ClassSpec(0x4a, "attribute", "record{state:uint8,running:uint32,other:uint32,received:uint32}", True, False, "the update's state (firmware.state), the running image's version, the other slot's (0xFFFFFFFF: none) and the bytes written"),
 }
 """Every class of the module profile, by name."""
 CLASSES: dict[str, int] = {name: spec.id for name, spec in PROFILE.items()}
@@ -61,3 +64,12 @@ INTERPOLATIONS = ('step', 'linear')
 EVENTS = ('contact', 'no_contact', 'at_goal', 'torque', 'neighbour', 'signal')
 """State events by code 1.. (0: none, time-driven)."""
 OUTCOMES = ('next', 'stop')
+
+IMAGE_MAGIC = 0x494d5341
+IMAGE_HEADER_VERSION = 1
+IMAGE_HEADER_SIZE = 128
+IMAGE_CHUNK = 512
+CONFIRM_SECONDS = 4
+RESET_DELAY = 0.1
+FIRMWARE_STATES = ('idle', 'receiving', 'installed', 'refused', 'interrupted', 'rolled_back', 'flash_error', 'trial', 'confirmed')
+"""firmware.status's state by code (docs/protocol.md §12)."""

@@ -31,7 +31,7 @@ from ._profile import CLASSES
 from .bxcan import BxCan
 from .drivers import FakeDriver, JointDriver
 from .elf import Image, read_image
-from .emulator import Cortex, FirmwareFault, Joint, TickStats
+from .emulator import BoardReset, Cortex, FirmwareFault, Joint, TickStats, register_image
 from .firmware_build import build_board_image
 from .firmware_calls import FirmwareCalls
 from .flash import Settings
@@ -40,6 +40,8 @@ log = logging.getLogger("asm_module.emulated")
 CLOCK_HZ = 168_000_000
 """The STM32F405/407's core clock, which the port's SysTick reload assumes (1 ms = 168,000 cycles)."""
 CONTROL_MS = 20
+CATCH_UP_MS = 200
+"""The most emulated milliseconds run in one hold of a board's lock."""
 _image_lock = threading.Lock()
 _image: Image | None = None
 
@@ -50,7 +52,16 @@ def board_image() -> Image:
     with _image_lock:
         if _image is None:
             _image = read_image(build_board_image())
+            register_image(_image)
         return _image
+
+
+def versioned_image(version: int) -> Image:
+    """The board image's sources built as version ``version`` (0xMMmmpp), known to the emulator (its symbols for a
+    board that boots it after an update): what a test or a bench updates boards to."""
+    image = read_image(build_board_image(version))
+    register_image(image)
+    return image
 
 
 def board_config(node_id: int, name: str, hardware_range: tuple[float, float]) -> bytes:
@@ -94,6 +105,7 @@ class EmulatedModule(FirmwareCalls):
         self.settings = settings if settings is not None else Settings()
         self.clock = clock
         image = board_image()  # before the bus is opened: a build or a name that fails leaves nothing open
+        self._image = image
         config = board_config(node_id, name, hardware_range)
         self._own_bus = bus is None
         self.bus = bus if bus is not None else can.Bus(**bus_options)
@@ -101,17 +113,33 @@ class EmulatedModule(FirmwareCalls):
         self.fault: FirmwareFault | None = None
         self._lock = threading.RLock()  # the core is single-threaded: one runner at a time
         self._t0 = clock.now() if clock is not None else time.monotonic()
-        self.can = BxCan(self._transmit)
-        joint = Joint(self.driver.command, self.driver.relax, self._read_joint)
+        self.resets: list[str] = []  # why the board reset itself (watchdog, an installed update), in order
         with self._lock:
-            self.core = Cortex(image, self.can, joint, config, settings=self.settings, serial=self.serial)
-        self._probe = struct.unpack("<14I", self.core.uc.mem_read(image.symbol("asm_probe"), 56))
-        if self._probe[0] != 2:
-            raise RuntimeError(f"the board image's asm_probe is version {self._probe[0]}, not 2")
+            self._boot(config)
         self._stop = threading.Event()
         self._unlisten = tick.on_change(lambda _: self.advance()) if tick is not None else None
         self._thread = threading.Thread(target=self._run, name=f"asm-emulated:{name}", daemon=True)
         self._thread.start()
+
+    def _boot(self, config: bytes | None = None) -> None:
+        """Power on (or reset): a new core on the board's flash; the bootloader starts what the flash holds."""
+        if hasattr(self, "core"):
+            self.core.release()
+        self.can = BxCan(self._transmit)
+        joint = Joint(self.driver.command, self.driver.relax, self._read_joint)
+        self.core = Cortex(self._image, self.can, joint, config, settings=self.settings, serial=self.serial)
+        app = self.core.app
+        if app is None:
+            raise RuntimeError(f"{self.name}: the board runs an image the emulator has no ELF for (register_image)")
+        self._probe = struct.unpack("<14I", self.core.uc.mem_read(app.symbol("asm_probe"), 56))
+        if self._probe[0] != 2:
+            raise RuntimeError(f"the board image's asm_probe is version {self._probe[0]}, not 2")
+
+    @property
+    def firmware_version(self) -> int:
+        """The running image's version (0xMMmmpp), from its header in RAM."""
+        with self._lock:
+            return self.core.read_word(0x20000000 + 12)
 
     # -- the bridge ----------------------------------------------------------------------------------------------
 
@@ -120,15 +148,35 @@ class EmulatedModule(FirmwareCalls):
         return max(0, int(seconds * 1000))
 
     def advance(self) -> None:
-        """Run the image up to now (its clock's): frames received so far reach it, its ticks due run."""
-        with self._lock:
-            if self.fault is not None or self._stop.is_set():
-                return
+        """Run the image up to now (its clock's): frames received so far reach it, its ticks due run. A board far
+        behind (a loaded machine) catches up CATCH_UP_MS at a time, the core free between them: close() and the
+        host's calls never wait for a whole backlog."""
+        target = self._now_ms()
+        while True:
+            with self._lock:
+                if self.fault is not None or self._stop.is_set():
+                    return
+                core = self.core
+                step = min(target, core.systicks + CATCH_UP_MS)
+                self._run_to(step)
+                if step >= target or not core.idle or self.core is not core:  # done, busy, or reset (a new clock)
+                    return
+
+    def _run_to(self, milliseconds: int) -> None:
+        try:
+            self.core.run(milliseconds)
+        except BoardReset as reset:
+            self.resets.append(str(reset))
+            log.info("%s: the board resets: %s", self.name, reset)
+            self._t0 = self.clock.now() if self.clock is not None else time.monotonic()
             try:
-                self.core.run(self._now_ms())
-            except FirmwareFault as exc:
-                self.fault = exc
-                log.error("%s: the emulated board stopped: %s", self.name, exc)
+                self._boot()
+            except (FirmwareFault, RuntimeError) as exc:
+                self.fault = FirmwareFault(f"after a reset: {exc}")
+                log.error("%s: the emulated board stopped after a reset: %s", self.name, exc)
+        except FirmwareFault as exc:
+            self.fault = exc
+            log.error("%s: the emulated board stopped: %s", self.name, exc)
 
     def _transmit(self, can_id: int, extended: bool, data: bytes) -> None:
         try:

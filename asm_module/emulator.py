@@ -18,6 +18,9 @@ Why each piece is as it is:
   finish) and the emulator pops the frame. The core stays in thread mode while the handler runs (Unicorn's own
   exception return needs the NVIC it lacks). The extended frame's FP part is stacked lazily, as the M4 does by
   default: the FP registers are kept aside only for a handler not proven FP-free from its code.
+- **Boot**: a fresh board's flash is written as a probe writes it (asm_module/board_flash.py); the core starts in
+  the bootloader (sector 0), which copies the chosen image to RAM and points VTOR at it; the image is known by its
+  header's CRC (its ELF's symbols). The watchdog and SYSRESETREQ end a core with :class:`BoardReset`.
 - **Faults**: any access outside the mapped memory and peripherals, or reaching Default_Handler, raises
   :class:`FirmwareFault` naming the address — the emulated board has stopped. FPU instructions before the image
   sets CPACR would fault on the board (Unicorn runs them anyway); the emulator checks CONTROL.FPCA at every stop.
@@ -27,21 +30,29 @@ Why each piece is as it is:
 
 from __future__ import annotations
 
-import ctypes
 import struct
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from unicorn import UC_ARCH_ARM, UC_HOOK_BLOCK, UC_HOOK_CODE, UC_MODE_MCLASS, UC_MODE_THUMB, UC_PROT_READ
+from unicorn import UC_ARCH_ARM, UC_HOOK_BLOCK, UC_HOOK_CODE, UC_MODE_MCLASS, UC_MODE_THUMB, UC_PROT_EXEC, UC_PROT_READ
 from unicorn import arm_const as arm
 from unicorn.unicorn import Uc, UcContext, UcError
 
+from .board_flash import bootloader, known_image, known_images, probe_flash, register_image
 from .bxcan import RF0R, BxCan
 from .elf import Image
-from .flash import INTERFACE, SECTOR_ADDRESS, SECTOR_SIZE, FlashInterface, Settings
+from .firmware_image import LOAD_ADDRESS, MAX_SIZE
+from .flash import INTERFACE, SECTORS, FlashInterface, Settings
+from .thumb import Batch, local_16bit
 
 FLASH, FLASH_SIZE = 0x08000000, 1 << 20
+BOOT_SIZE = SECTORS[0][1]
+"""The bootloader's sector: the only flash the core executes from (images run from RAM), so mapped as memory; the
+rest of the flash is the flash interface's (asm_module/flash.py), read and programmed through it."""
 RAM, RAM_SIZE = 0x20000000, 128 << 10
+IWDG, SCB_VTOR, SCB_AIRCR = 0x40003000, 0xE000ED08, 0xE000ED0C
+LSI_HZ = 32_000
+CLOCK_HZ = 168_000_000
 UID = 0x1FFF7A10
 """The 96-bit unique ID (RM0090 §39.1): the board's serial."""
 PAINT = 0xC5C5C5C5
@@ -62,56 +73,13 @@ _FP_REGS = [getattr(arm, f"UC_ARM_REG_S{k}") for k in range(16)]
 _ENTRY_REGS = [*_FRAME_REGS, arm.UC_ARM_REG_CONTROL, arm.UC_ARM_REG_SP]
 
 
-def _local_16bit(halfword: int, address: int, start: int, end: int) -> bool:
-    """A 16-bit Thumb instruction at ``address`` that stays inside [start, end): not the first half of a 32-bit
-    one, not BLX/BX to a register other than LR, and a branch only to inside."""
-    if halfword >> 11 in (0b11101, 0b11110, 0b11111):
-        return False  # a 32-bit instruction (every FP one is): not proven local
-    if halfword & 0xFF00 == 0x4700:  # BX/BLX Rm
-        return halfword == 0x4770  # BX LR: the return
-    if halfword & 0xFF87 == 0x4687:  # MOV PC, Rm: a jump anywhere
-        return False
-    if halfword & 0xF500 == 0xB100:  # CBZ/CBNZ, forward
-        target = address + 4 + ((halfword >> 9 & 1) << 6 | (halfword >> 3 & 0x1F) << 1)
-        return start <= target < end
-    if halfword & 0xF800 == 0xE000:  # B, 11-bit offset
-        offset = (halfword & 0x7FF) << 1
-        target = address + 4 + (offset - 0x1000 if offset & 0x800 else offset)
-        return start <= target < end
-    if halfword & 0xF000 == 0xD000 and halfword & 0x0F00 not in (0x0E00, 0x0F00):  # B<cond>, 8-bit offset
-        offset = (halfword & 0xFF) << 1
-        target = address + 4 + (offset - 0x200 if offset & 0x100 else offset)
-        return start <= target < end
-    return True
-
-
-class _Batch:
-    """32-bit registers read or written together (uc_reg_read_batch), their buffers made once: the binding's
-    reg_read_batch looks up each register's type on every call, most of what an interrupt cost here."""
-
-    def __init__(self, uc: Uc, registers: list[int]) -> None:
-        self.uc, n = uc, len(registers)
-        self.ids = (ctypes.c_int * n)(*registers)
-        self.values = (ctypes.c_uint32 * n)()
-        base = ctypes.addressof(self.values)
-        self.pointers = (ctypes.c_void_p * n)(*(base + 4 * k for k in range(n)))
-        self.count = ctypes.c_int(n)
-
-    def read(self) -> list[int]:
-        status = self.uc._do_reg_read_batch(self.ids, self.pointers, self.count)
-        if status:
-            raise UcError(status)
-        return list(self.values)
-
-    def write(self, values: list[int]) -> None:
-        self.values[:] = [v & 0xFFFFFFFF for v in values]
-        status = self.uc._do_reg_write_batch(self.ids, self.pointers, self.count)
-        if status:
-            raise UcError(status)
-
-
 class FirmwareFault(RuntimeError):
     """The emulated core stopped on something a board would fault on (or hang in Default_Handler for)."""
+
+
+class BoardReset(Exception):
+    """The board reset itself: the independent watchdog expired, or the image asked (SCB AIRCR SYSRESETREQ). A new
+    :class:`Cortex` on the same flash is the board after it."""
 
 
 @dataclass
@@ -134,33 +102,42 @@ class TickStats:
 
 
 class Cortex:
-    """One board: the image loaded and booted to its main loop's first idle point. ``board_config``, if given, is
-    written over the image's symbol of that name (as a flasher writes a module's own settings); ``settings`` is its
-    settings sector (asm_module/flash.py: erased if not given), ``serial`` its unique ID."""
+    """One board booted to its image's main loop's first idle point: its bootloader chose the image, copied it to
+    RAM and started it. ``settings`` is its flash (asm_module/flash.py): a fresh one (erased) is first written as a
+    probe would (:func:`probe_flash`: the bootloader and ``image``); on a used one the board boots what the flash
+    holds. ``board_config``, if given, is written over the image's symbol of that name in the board's sector (as a
+    flasher writes a module's own settings); ``serial`` is its unique ID."""
 
     def __init__(self, image: Image, can: BxCan, joint: Joint, board_config: bytes | None = None, *,
                  settings: Settings | None = None, serial: bytes = bytes(12)) -> None:  # fmt: skip
         self.image, self.can, self.joint = image, can, joint
         self.uc = uc = Uc(UC_ARCH_ARM, UC_MODE_THUMB | UC_MODE_MCLASS)
-        uc.mem_map(FLASH, SECTOR_ADDRESS - FLASH)
-        self.flash_interface = flash = FlashInterface(settings if settings is not None else Settings())
-        uc.mmio_map(SECTOR_ADDRESS, SECTOR_SIZE, lambda _, at, size, __: flash.read(at, size), None,
-                    lambda _, at, size, value, __: flash.write(at, size, value), None)  # fmt: skip
+        self.settings = settings = settings if settings is not None else Settings()
+        register_image(image)
+        if settings.memory[:4] == b"\xff" * 4:
+            probe_flash(settings, image)
+        if board_config is not None:
+            address, size = image.symbols["board_config"]
+            settings.write(address - FLASH, board_config[:size].ljust(size, b"\0"))
+        self.flash_interface = flash = FlashInterface(settings)
+        uc.mem_map(FLASH, BOOT_SIZE, UC_PROT_READ | UC_PROT_EXEC)
+        uc.mem_write(FLASH, bytes(settings.memory[:BOOT_SIZE]))
+        self._mirror = lambda at, _: at < BOOT_SIZE and uc.mem_write(FLASH + at, bytes(settings.memory[at:BOOT_SIZE]))
+        settings.listeners.append(self._mirror)
+        uc.mmio_map(FLASH + BOOT_SIZE, FLASH_SIZE - BOOT_SIZE, lambda _, at, size, __: flash.read(BOOT_SIZE + at, size),
+                    None, lambda _, at, size, value, __: flash.write(BOOT_SIZE + at, size, value), None)  # fmt: skip
         uc.mem_map(UID & ~0xFFF, 0x1000, UC_PROT_READ)
         uc.mem_write(UID, serial)
         uc.mem_map(RAM, RAM_SIZE)
-        for segment in image.segments:
-            if segment.data:
-                uc.mem_write(segment.address, segment.data)
-        if board_config is not None:
-            address, size = image.symbols["board_config"]
-            uc.mem_write(address, board_config[:size].ljust(size, b"\0"))
-        self.flash = bytes(uc.mem_read(FLASH, max(s.address + len(s.data) for s in image.segments) - FLASH))
+        self.app: Image | None = None  # the image running, once the bootloader started one the emulator knows
         self.stack_bottom = (image.symbol("_ebss") + 7) & ~7
         self.stack_top = image.symbol("_stack_top")
         uc.mem_write(self.stack_bottom, struct.pack("<I", PAINT) * ((self.stack_top - self.stack_bottom) // 4))
         self.registers: dict[int, int] = {}  # every peripheral register written and not modelled further
-        for page in (0x40000000, 0x40006000, 0x40020000, 0x40023000, 0xE0001000, 0xE000E000):
+        self.iwdg: dict[int, int] = {4: 0, 8: 0xFFF}  # PR, RLR
+        self._iwdg_unlocked = False
+        self.watchdog_at: int | None = None  # the cycle the independent watchdog resets the board at (running)
+        for page in (0x40000000, 0x40003000, 0x40006000, 0x40020000, 0x40023000, 0xE0001000, 0xE000E000):
             uc.mmio_map(page, 0x1000, self._read, page, self._write, page)
         self.cycles = 0  # instructions executed since reset (the emulated clock)
         self.systicks = 0  # SysTick interrupts taken
@@ -180,31 +157,41 @@ class Cortex:
         self._depth = 0  # exceptions being handled
         self._calling = False
         self._reason = ""
+        self._reset_cause = ""
         self._pending = False  # a SysTick interrupt waits to be taken
         self._fp_context: UcContext | None = None  # the FP registers at exception entry (lazy stacking)
         self._sizes: dict[tuple[int, int], int] = {}
         self.ticks = TickStats()
         self._tick_start: int | None = None
         self._returns: set[int] = set()
-        uc.hook_add(UC_HOOK_BLOCK, self._block, begin=FLASH, end=FLASH + FLASH_SIZE - 1)
-        tick = image.symbol("asm_module_tick")
-        uc.hook_add(UC_HOOK_CODE, self._tick_entered, begin=tick, end=tick)
-        fault = image.symbol("Default_Handler")
-        uc.hook_add(UC_HOOK_CODE, self._faulted, begin=fault, end=fault)
+        uc.hook_add(UC_HOOK_BLOCK, self._block, begin=FLASH, end=FLASH + BOOT_SIZE - 1)
+        uc.hook_add(UC_HOOK_BLOCK, self._block, begin=LOAD_ADDRESS, end=LOAD_ADDRESS + MAX_SIZE - 1)
+        for known in {id(i): i for i in [*known_images(), image]}.values():  # each image's, while it runs
+            tick = known.symbol("asm_module_tick")
+            uc.hook_add(UC_HOOK_CODE, self._tick_entered, known, begin=tick, end=tick)
+            fault = known.symbol("Default_Handler")
+            uc.hook_add(UC_HOOK_CODE, self._faulted, known, begin=fault, end=fault)
+        boot_fault = bootloader().symbol("Default_Handler")
+        uc.hook_add(UC_HOOK_CODE, self._faulted, None, begin=boot_fault, end=boot_fault)
         uc.ctl_exits_enabled(True)
         uc.ctl_set_exits([EXC_RETURN_BASIC & ~1, EXC_RETURN_FP & ~1, CALL_RETURN])
-        stack, reset = struct.unpack_from("<II", self.flash, 0)
+        stack, reset = struct.unpack_from("<II", settings.memory, 0)
         uc.reg_write(arm.UC_ARM_REG_SP, stack)
         uc.reg_write(arm.UC_ARM_REG_CONTROL, 0)
         self._resume_at = reset & ~1  # where the next run continues (the PC, kept here between runs)
-        self._entry_read = _Batch(uc, _ENTRY_REGS)
-        self._entry_write = _Batch(uc, [arm.UC_ARM_REG_SP, arm.UC_ARM_REG_LR, arm.UC_ARM_REG_CONTROL])
-        self._return_read = _Batch(uc, [arm.UC_ARM_REG_SP, arm.UC_ARM_REG_CONTROL])
-        self._return_write = _Batch(uc, [*_FRAME_REGS[:6], arm.UC_ARM_REG_XPSR, arm.UC_ARM_REG_CONTROL,
+        self._entry_read = Batch(uc, _ENTRY_REGS)
+        self._entry_write = Batch(uc, [arm.UC_ARM_REG_SP, arm.UC_ARM_REG_LR, arm.UC_ARM_REG_CONTROL])
+        self._return_read = Batch(uc, [arm.UC_ARM_REG_SP, arm.UC_ARM_REG_CONTROL])
+        self._return_write = Batch(uc, [*_FRAME_REGS[:6], arm.UC_ARM_REG_XPSR, arm.UC_ARM_REG_CONTROL,
                                          arm.UC_ARM_REG_SP])  # fmt: skip
         self._fp_free_vectors: dict[int, bool] = {}
-        self.vectors = struct.unpack_from("<16I", self.flash, 0)
+        self.vectors = struct.unpack_from("<16I", settings.memory, 0)
         self.run(0)
+
+    def release(self) -> None:
+        """Stop mirroring the flash into this core (it was reset or powered off; the flash lives on)."""
+        if self._mirror in self.settings.listeners:
+            self.settings.listeners.remove(self._mirror)
 
     # -- running -----------------------------------------------------------------------------------------------
 
@@ -222,12 +209,16 @@ class Cortex:
                 self._enter(self.vectors[SYSTICK_VECTOR])
             elif reason == "return":
                 self._exception_return()
+            elif reason == "reset":
+                raise BoardReset(self._reset_cause)
             elif reason == "idle":
                 if not (self.csr & 3 == 3 and self.rvr) or self.systicks >= until_systicks:
                     self.idle = True
                     return
                 self.idle_cycles += max(0, self._systick_next - self.cycles)
                 self.cycles = max(self.cycles, self._systick_next)
+                if self.watchdog_at is not None and self.cycles >= self.watchdog_at:
+                    raise BoardReset("the independent watchdog expired")
                 self._count_down()
                 self._pending = False
                 self._enter(self.vectors[SYSTICK_VECTOR])
@@ -255,13 +246,15 @@ class Cortex:
     def _block(self, uc: Uc, address: int, size: int, _: object) -> None:
         count = self._sizes.get((address, size))
         if count is None:
-            count, at = 0, address - FLASH
-            while at < address - FLASH + size:
-                at += 4 if self.flash[at + 1] >> 3 in (0b11101, 0b11110, 0b11111) else 2
+            code, count, at = bytes(uc.mem_read(address, size)), 0, 0
+            while at < size:
+                at += 4 if code[at + 1] >> 3 in (0b11101, 0b11110, 0b11111) else 2
                 count += 1
             self._sizes[(address, size)] = count
         self.cycles += count
         self._count_down()
+        if self.watchdog_at is not None and self.cycles >= self.watchdog_at and not self._reason:
+            self._reset("the independent watchdog expired")
         if (self._pending and not self._depth and not self._calling and not self._reason
                 and not int(uc.reg_read(arm.UC_ARM_REG_XPSR)) & 0x0600FC00):  # fmt: skip  # never inside an IT block
             self._pending = False
@@ -276,11 +269,19 @@ class Cortex:
             self._countflag = True
             self._pending = self._pending or bool(self.csr & 2)
 
-    def _faulted(self, uc: Uc, address: int, size: int, _: object) -> None:
+    def _reset(self, cause: str) -> None:
+        self._reason, self._reset_cause = "reset", cause
+        self.uc.emu_stop()
+
+    def _faulted(self, uc: Uc, address: int, size: int, image: Image | None) -> None:
+        if image is not self.app:
+            return  # another image's Default_Handler address: code of the one running
         self._reason = "Default_Handler: an exception the image does not handle"
         uc.emu_stop()
 
-    def _tick_entered(self, uc: Uc, address: int, size: int, _: object) -> None:
+    def _tick_entered(self, uc: Uc, address: int, size: int, image: Image) -> None:
+        if image is not self.app:
+            return
         self._tick_start = self.cycles
         back = int(uc.reg_read(arm.UC_ARM_REG_LR)) & ~1
         if back not in self._returns:
@@ -330,10 +331,11 @@ class Cortex:
         known = self._fp_free_vectors.get(vector)
         if known is None:
             start = vector & ~1
-            size = next((size for address, size in self.image.symbols.values() if address & ~1 == start and size), 0)
-            code = self.flash[start - FLASH : start - FLASH + size]
+            symbols = self.app.symbols.values() if self.app is not None else ()
+            size = next((size for address, size in symbols if address & ~1 == start and size), 0)
+            code = bytes(self.uc.mem_read(start, size))
             halfwords = struct.unpack(f"<{len(code) // 2}H", code[: len(code) // 2 * 2])
-            known = bool(halfwords) and all(_local_16bit(h, start + 2 * k, start, start + size)
+            known = bool(halfwords) and all(local_16bit(h, start + 2 * k, start, start + size)
                                             for k, h in enumerate(halfwords))  # fmt: skip
             self._fp_free_vectors[vector] = known
         return known
@@ -426,6 +428,10 @@ class Cortex:
                 return int(self._reading[1]) << 2
             if INTERFACE <= address < INTERFACE + 0x20:
                 return self.flash_interface.read_register(address - INTERFACE)
+            if address == SCB_VTOR:
+                return self.registers.get(SCB_VTOR, 0)
+            if IWDG <= address < IWDG + 0x10:
+                return self.iwdg.get(address - IWDG, 0)
             value = self._systick(address)
         self._activity += 1
         return value
@@ -450,6 +456,9 @@ class Cortex:
 
     def _write(self, uc: Uc, offset: int, size: int, value: int, page: int) -> None:
         address = page + offset
+        if IWDG <= address < IWDG + 0x10:
+            self._watchdog(address - IWDG, value)  # feeding the watchdog is no activity: the loop may still idle
+            return
         self._activity += 1
         if 0x40006400 <= address < 0x40006800:
             self.can.write(address - 0x40006400, value)
@@ -471,8 +480,32 @@ class Cortex:
             self._pwm(address & 0x3FF, value)
         elif INTERFACE <= address < INTERFACE + 0x20:
             self.flash_interface.write_register(address - INTERFACE, value)
+        elif address == SCB_VTOR:
+            self._vector_table(value)
+        elif address == SCB_AIRCR and value >> 16 == 0x05FA and value & 4:
+            self._reset("the image asked for a reset (SYSRESETREQ)")
         else:
             self.registers[address] = value
+
+    def _vector_table(self, address: int) -> None:
+        """VTOR moved (the bootloader starting an image): exceptions vector there, and the image (in RAM, its header
+        just below the table) is looked up among the known ones for its symbols."""
+        self.registers[SCB_VTOR] = address
+        self.vectors = struct.unpack("<16I", self.uc.mem_read(address, 64))
+        if address == LOAD_ADDRESS + 0x80:
+            self.app = known_image(lambda at, n: bytes(self.uc.mem_read(LOAD_ADDRESS + at, n)))
+
+    def _watchdog(self, offset: int, value: int) -> None:
+        """The independent watchdog (RM0090 §19): KR 0x5555 opens PR and RLR, 0xCCCC starts it, 0xAAAA reloads
+        it; it counts the LSI's 32 kHz divided by 4 << PR down from RLR, and then resets the board."""
+        if offset == 0:
+            key = value & 0xFFFF
+            self._iwdg_unlocked = key == 0x5555
+            if key == 0xCCCC or (key == 0xAAAA and self.watchdog_at is not None):
+                period = (self.iwdg[8] + 1) * (4 << self.iwdg[4])
+                self.watchdog_at = self.cycles + period * CLOCK_HZ // LSI_HZ
+        elif offset in (4, 8) and self._iwdg_unlocked:
+            self.iwdg[offset] = value & (7 if offset == 4 else 0xFFF)
 
     def _pwm(self, offset: int, value: int) -> None:
         """TIM3: a new compare value or output enable commands the servo (the preload's wait for the next 20 ms

@@ -13,6 +13,7 @@ import subprocess
 import sys
 import tempfile
 import zlib
+from collections.abc import Callable
 from pathlib import Path
 
 FIRMWARE = Path(__file__).resolve().parent.parent / "firmware"
@@ -44,19 +45,20 @@ def ensure_contract() -> None:
     subprocess.run([sys.executable, str(generator), "--headers"], check=True, capture_output=True, text=True)
 
 
-def build_id(port: str = "stm32f4_bxcan.c") -> int:
-    """The build ID module.info reports (``-DASM_FW_BUILD``): the CRC-32 of the sources of a build with ``port``
-    (the runtime, that port, the headers) by path and content, so two images report the same build exactly when
-    they were built from the same sources (and a build is redone exactly when they change)."""
+def build_id(*ports: str) -> int:
+    """The build ID module.info reports (``-DASM_FW_BUILD``): the CRC-32 of the sources of a build with the port
+    files ``ports`` (the runtime, those port files, the headers) by path and content, so two images report the same
+    build exactly when they were built from the same sources (and a build is redone exactly when they change)."""
+    port = FIRMWARE / "port"
     crc = 0
-    for path in sorted([*runtime_sources(), FIRMWARE / "port" / port, *(FIRMWARE / "include" / "asm").glob("*.h")]):
+    for path in sorted([*runtime_sources(), *(port / p for p in ports), *(FIRMWARE / "include" / "asm").glob("*.h")]):
         crc = zlib.crc32(path.relative_to(FIRMWARE).as_posix().encode() + b"\0" + path.read_bytes(), crc)
     return crc
 
 
-def stamp(port: str) -> str:
-    """The compiler flag that stamps :func:`build_id` of ``port``'s build into it."""
-    return f"-DASM_FW_BUILD={build_id(port):#x}u"
+def stamp(*ports: str) -> str:
+    """The compiler flag that stamps :func:`build_id` of a build with ``ports`` into it."""
+    return f"-DASM_FW_BUILD={build_id(*ports):#x}u"
 
 
 def runtime_sources() -> list[Path]:
@@ -99,14 +101,36 @@ CORTEX_M4_FLAGS = [
 no loop turned into a library call: newlib's word-at-a-time strlen alone is 220 bytes, for names a few bytes long."""
 
 
-def build_cortex_m4(elf: Path) -> tuple[int, int, int]:
-    """Link the example STM32F4 port (firmware/port/) with the runtime, -Os; its (text, data, bss) in bytes."""
+PORT_SOURCES = ["stm32f4_bxcan.c", "stm32f4_update.c", "stm32f4_flash.c"]
+"""The example port: the board (CAN, SysTick, joint, settings), the update objects, the flash driver and boot log."""
+
+
+def build_cortex_m4(elf: Path, *, replace: dict[str, Path] | None = None,
+                    flags: tuple[str, ...] = ()) -> tuple[int, int, int]:  # fmt: skip
+    """Link the example STM32F4 port (firmware/port/; ``replace``: other files for some of its PORT_SOURCES by name,
+    ``flags`` added: a test's broken port) with the runtime, -Os; its (text, data, bss) in bytes."""
     ensure_contract()
-    sources = [*runtime_sources(), FIRMWARE / "port" / "stm32f4_bxcan.c"]
-    subprocess.run(["arm-none-eabi-gcc", *C_FLAGS, "-Os", *CORTEX_M4_FLAGS, stamp("stm32f4_bxcan.c"),
+    replace = replace or {}
+    sources = [*runtime_sources(), *(replace.get(name, FIRMWARE / "port" / name) for name in PORT_SOURCES)]
+    _link(elf, sources, FIRMWARE / "port" / "stm32f4.ld", (stamp(*PORT_SOURCES), *flags))
+    report = subprocess.run(["arm-none-eabi-size", str(elf)], capture_output=True, text=True, check=True)
+    text, data, bss = (int(v) for v in report.stdout.splitlines()[1].split()[:3])
+    return text, data, bss
+
+
+def _link(elf: Path, sources: list[Path], script: Path, flags: tuple[str, ...] = ()) -> None:
+    subprocess.run(["arm-none-eabi-gcc", *C_FLAGS, f"-I{FIRMWARE / 'port'}", "-Os", *CORTEX_M4_FLAGS, *flags,
                     *map(str, sources), "-nostartfiles", "--specs=nano.specs", "--specs=nosys.specs",
-                    "-Wl,--gc-sections", f"-T{FIRMWARE / 'port' / 'stm32f4.ld'}", "-lm", "-o", str(elf)],
-                   check=True, capture_output=True, text=True)  # fmt: skip
+                    "-Wl,--gc-sections", f"-T{script}", "-lm", "-o", str(elf)], check=True, capture_output=True,
+                   text=True)  # fmt: skip
+
+
+def build_bootloader(elf: Path) -> tuple[int, int, int]:
+    """Link the example port's bootloader (firmware/port/stm32f4_boot.c, sector 0); its (text, data, bss)."""
+    ensure_contract()
+    port = FIRMWARE / "port"
+    _link(elf, [port / "stm32f4_boot.c", port / "stm32f4_flash.c", FIRMWARE / "src" / "wire.c"],
+          port / "stm32f4_boot.ld")  # fmt: skip
     report = subprocess.run(["arm-none-eabi-size", str(elf)], capture_output=True, text=True, check=True)
     text, data, bss = (int(v) for v in report.stdout.splitlines()[1].split()[:3])
     return text, data, bss
@@ -123,26 +147,46 @@ def build_test_program(out: Path, program: str) -> Path:
 
 
 BOARD_IMAGE = FIRMWARE / "build" / "stm32f4.elf"
+BOOTLOADER = FIRMWARE / "build" / "stm32f4_boot.elf"
 
 
-def build_board_image() -> Path:
-    """firmware/build/stm32f4.elf, the example port's image (build_cortex_m4), linked now if missing or older than
-    a source, header or the linker script: what asm_module.emulated runs."""
-    ensure_contract()
+def _inputs() -> list[Path]:
     port = FIRMWARE / "port"
-    inputs = [*runtime_sources(), port / "stm32f4_bxcan.c", port / "stm32f4.ld",
-              *(FIRMWARE / "include" / "asm").glob("*.h")]  # fmt: skip
-    if BOARD_IMAGE.exists() and BOARD_IMAGE.stat().st_mtime >= max(p.stat().st_mtime for p in inputs):
-        return BOARD_IMAGE
-    BOARD_IMAGE.parent.mkdir(exist_ok=True)
-    fd, temporary = tempfile.mkstemp(dir=BOARD_IMAGE.parent, suffix=".elf")  # renamed after: builds never clash
+    return [*runtime_sources(), *port.glob("stm32f4*"), *(FIRMWARE / "include" / "asm").glob("*.h")]
+
+
+def _cached(out: Path, build: Callable[[Path], object]) -> Path:
+    """``out``, built now with ``build`` if missing or older than a source, header or linker script (through a
+    temporary file renamed after: parallel builds never clash)."""
+    ensure_contract()
+    if out.exists() and out.stat().st_mtime >= max(p.stat().st_mtime for p in _inputs()):
+        return out
+    out.parent.mkdir(exist_ok=True)
+    fd, temporary = tempfile.mkstemp(dir=out.parent, suffix=".elf")
     os.close(fd)
     try:
-        build_cortex_m4(Path(temporary))
-        os.replace(temporary, BOARD_IMAGE)
+        build(Path(temporary))
+        os.replace(temporary, out)
     except subprocess.CalledProcessError as exc:
-        raise RuntimeError(f"building the board image failed:\n{exc.stderr}") from None
+        raise RuntimeError(f"building {out.name} failed:\n{exc.stderr}") from None
     finally:
         if os.path.exists(temporary):
             os.unlink(temporary)
-    return BOARD_IMAGE
+    return out
+
+
+def build_board_image(version: int | None = None) -> Path:
+    """firmware/build/stm32f4.elf, the example port's image (build_cortex_m4), linked now if missing or stale: what
+    asm_module.emulated runs. ``version`` (0xMMmmpp) builds the same sources as another version
+    (stm32f4-<version>.elf): an update to try."""
+    if version is None:
+        return _cached(BOARD_IMAGE, build_cortex_m4)
+    if not 0 <= version <= 0xFFFFFF:
+        raise ValueError(f"a firmware version is 0xMMmmpp, not {version:#x}")
+    out = BOARD_IMAGE.with_name(f"stm32f4-{version:06x}.elf")
+    return _cached(out, lambda elf: build_cortex_m4(elf, flags=(f"-DASM_FW_VERSION={version:#x}u",)))
+
+
+def build_board_bootloader() -> Path:
+    """firmware/build/stm32f4_boot.elf, the example port's bootloader, linked now if missing or stale."""
+    return _cached(BOOTLOADER, build_bootloader)

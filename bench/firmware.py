@@ -8,7 +8,8 @@ the example Cortex-M4 port (firmware/port/stm32f4_bxcan.c, -Os, one 640-byte rea
 and RAM with arm-none-eabi-size (`make test` installs Debian's gcc-arm-none-eabi); reproduces every golden vector;
 and counts the remote gets a C module and a Python module answer on the simulated robot's bus (asm_sim), in the
 same run, from bursts a raw CAN tester sends: per second of each module's own CPU time (the headline: a module has
-a processor of its own) and, for context, per second of wall time on this shared 2-core machine.
+a processor of its own) and, for context, per second of wall time on this shared 2-core machine. Then
+bench/firmware_update.py: 8 emulated boards updated over the bus at once.
 """
 
 from __future__ import annotations
@@ -228,6 +229,10 @@ def main() -> None:
         reproduced, present = vectors_reproduced(workdir)
     gets = c_vs_python_gets()
     mixed = mixed_vs_python()
+    if m4 is not None:  # firmware update over the bus: bench/firmware_update.py, on emulated boards
+        import firmware_update
+
+        firmware_update.main([])
     print(f"ratio c_fuzz_inputs_vs_10m {fed / INPUTS:.2f} (target >= 1)")
     if m4 is None:
         print("# Cortex-M4: arm-none-eabi-gcc is not installed (make test installs it)")

@@ -183,6 +183,12 @@ def python_profile(profile: dict[str, Any]) -> str:
             f"EVENTS = {tuple(e['name'] for e in profile['event'] if e['id'])}",
             '"""State events by code 1.. (0: none, time-driven)."""',
             f"OUTCOMES = {tuple(o['name'] for o in profile['outcome'])}"]  # fmt: skip
+    fw = profile["firmware"]
+    out += ["", f"IMAGE_MAGIC = {fw['image_magic']:#010x}", f"IMAGE_HEADER_VERSION = {fw['header_version']}",
+            f"IMAGE_HEADER_SIZE = {fw['header_size']}", f"IMAGE_CHUNK = {fw['chunk']}",
+            f"CONFIRM_SECONDS = {fw['confirm_seconds']}", f"RESET_DELAY = {fw['reset_delay_ms'] / 1000}",
+            f"FIRMWARE_STATES = {tuple(s['name'] for s in profile['firmware_state'])}",
+            '"""firmware.status\'s state by code (docs/protocol.md §12)."""']  # fmt: skip
     return "\n".join(out).rstrip() + "\n"
 
 
@@ -257,6 +263,13 @@ def c_profile(profile: dict[str, Any]) -> str:
             f"#define ASM_MAX_SEQUENCE {lim['max_sequence']}", f"#define ASM_MAX_LEASE_S {lim['max_lease_seconds']}f",
             ""]  # fmt: skip
     out += _c_enum("asm_event", "ASM_EV_", profile["event"])
+    fw = profile["firmware"]
+    out += ["", f"#define ASM_IMAGE_MAGIC {fw['image_magic']:#010x}u",
+            f"#define ASM_IMAGE_HEADER_VERSION {fw['header_version']}u",
+            f"#define ASM_IMAGE_HEADER_SIZE {fw['header_size']}u", f"#define ASM_IMAGE_CHUNK {fw['chunk']}u",
+            f"#define ASM_CONFIRM_MS {fw['confirm_seconds'] * 1000}u",
+            f"#define ASM_RESET_DELAY_MS {fw['reset_delay_ms']}u"]  # fmt: skip
+    out += _c_enum("asm_firmware_state", "ASM_FW_", profile["firmware_state"])
     return "\n".join([*out, "", "#endif", ""])
 
 
@@ -283,6 +296,8 @@ def doc_tables(core: dict[str, Any], profile: dict[str, Any]) -> dict[str, str]:
                           for c in core["class"]]
                          + [[f"0x{c['id']:02X}", c["name"], c["kind"], c["codec"], "yes" if c.get("read_only") else "",
                              "yes" if c.get("published") else "", c["doc"]] for c in profile["class"]]),
+        "firmware_states": table(["state", "name", "meaning"],
+                                 [[str(r["id"]), r["name"], r["doc"]] for r in profile["firmware_state"]]),
         "priorities": table(["priority", "name", "used by"],
                             [[str(r["id"]), r["name"], r["doc"]] for r in core["can"]["priority"]]),
         "system_codes": table(["code (bits 23-16)", "frame", "data", "priority"],
@@ -311,7 +326,8 @@ def _reserved(core: dict[str, Any]) -> list[list[str]]:
     return [[ids, "reserved", "", "", "a node answers UNSUPPORTED"]]
 
 
-_MARKED = re.compile(r"(<!-- contract:(\w+) -->\n)(.*?)(\n<!-- /contract -->)", re.S)
+_MARKED = re.compile(r"(<!-- contract:(\w+) -->\n)(.*?)\n?(<!-- /contract -->)", re.S)
+"""A marked table; an empty one (its close right after its open) too, which must not reach the next close."""
 
 
 def document(text: str, tables: dict[str, str]) -> str:
@@ -319,7 +335,7 @@ def document(text: str, tables: dict[str, str]) -> str:
         name = match.group(2)
         if name not in tables:
             raise KeyError(f"docs/protocol.md names a contract table {name!r} that the generator does not make")
-        return match.group(1) + tables[name] + match.group(4)
+        return match.group(1) + tables[name] + "\n" + match.group(4)
 
     return _MARKED.sub(fill, text)
 

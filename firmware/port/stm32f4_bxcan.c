@@ -12,6 +12,7 @@
 #include "asm/commission.h"
 #include "asm/module.h"
 #include "asm/wire.h"
+#include "stm32f4_update.h"
 
 #define REG(address) (*(volatile uint32_t *)(address))
 #define CAN1 0x40006400u
@@ -64,14 +65,15 @@
 #define ENCODER_COUNTS 4096  /* per turn (1,024 lines, both edges of both channels) */
 #define PWM_CENTRE_US 1500.0f /* the servo's pulse at 0 degrees; 1,000 us more at +90 */
 
-/* What differs between modules of one robot, written with the image when a module is flashed (the emulator writes
- * it as a flasher would): volatile, so the compiler reads it rather than folding the defaults in. */
+/* What differs between modules of one robot, written by the probe in flash sector 1 (stm32f4.ld; the emulator writes
+ * it as a flasher would), never part of an image an update carries: volatile, so the compiler reads it rather than
+ * folding the defaults in. */
 struct board_config {
     uint8_t node_id;
     char name[15];
     float hardware_min, hardware_max;
 };
-__attribute__((section(".rodata.board_config"), used)) static const volatile struct board_config board_config = {7, "m7", -90.0f, 90.0f};
+__attribute__((section(".board_config"), used)) static const volatile struct board_config board_config = {7, "m7", -90.0f, 90.0f};
 
 static struct asm_module module;
 static volatile uint32_t milliseconds;
@@ -423,6 +425,7 @@ static void boot_node(void)
         if (settings_calibration(&calibration))
             asm_module_calibrate(&module, &calibration); /* refused (no change) if the board's range has moved */
         asm_module_set_store(&module, store_calibration, 0);
+        update_register(&module.node);
     }
     can_filters();
 }
@@ -477,11 +480,13 @@ int main(void)
     uint8_t node_id = board_config.node_id; /* flashed with the image, or else ... */
     settings_node_id(&node_id);             /* ... as commissioned, which wins */
     asm_commission_init(&commission, (const uint8_t *)UID, node_id);
+    update_boot();
     can_init();
     boot_node();
     uint32_t next_tick = milliseconds;
     for (;;) {
         can_receive();
+        update_poll(milliseconds);
         if (!configured)
             continue;
         watch_neighbours();

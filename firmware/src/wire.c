@@ -89,14 +89,23 @@ uint16_t asm_crc16(const uint8_t *data, size_t length)
     return crc;
 }
 
+/* The bit loop unrolled: a board checks whole firmware images with it (64 KiB at most), a branch a bit otherwise. */
 uint32_t asm_crc32(const uint8_t *data, size_t length)
 {
     uint32_t crc = 0xFFFFFFFFu;
+#define ASM_CRC32_BIT crc = (crc >> 1) ^ (0xEDB88320u & (0u - (crc & 1u)))
     for (size_t k = 0; k < length; k++) {
         crc ^= data[k];
-        for (int bit = 0; bit < 8; bit++)
-            crc = (crc >> 1) ^ (0xEDB88320u & (0u - (crc & 1u)));
+        ASM_CRC32_BIT;
+        ASM_CRC32_BIT;
+        ASM_CRC32_BIT;
+        ASM_CRC32_BIT;
+        ASM_CRC32_BIT;
+        ASM_CRC32_BIT;
+        ASM_CRC32_BIT;
+        ASM_CRC32_BIT;
     }
+#undef ASM_CRC32_BIT
     return ~crc;
 }
 

@@ -16,7 +16,26 @@ import pytest
 
 from asm_module.emulated import EmulatedModule
 from asm_module.firmware_build import build_library
-from asm_module.flash import CR, KEYR, KEYS, PG, PGPERR, PGSERR, SER, SR, STRT, WRPERR, FlashInterface, Settings
+from asm_module.flash import (
+    BASE,
+    CR,
+    KEYR,
+    KEYS,
+    OPTCR,
+    OPTKEYR,
+    OPTKEYS,
+    PG,
+    PGPERR,
+    PGSERR,
+    SECTOR_ADDRESS,
+    SECTORS,
+    SER,
+    SR,
+    STRT,
+    WRPERR,
+    FlashInterface,
+    Settings,
+)
 from asm_py.canbus.commission import SERIAL_BYTES, Commissioner, CommissionScope, conflicts, parse_reply
 from asm_py.node import Node
 from asm_py.remote import RemoteAttribute
@@ -71,25 +90,48 @@ def _unlocked(settings: Settings) -> FlashInterface:
 
 def test_flash_programs_only_unlocked_with_pg_and_only_clears_bits(tmp_path) -> None:
     settings = Settings(tmp_path / "settings.bin")
+    at = SECTOR_ADDRESS - BASE  # the settings sector, as the interface addresses it (from 0x08000000)
     locked = FlashInterface(settings)
-    locked.write(0, 4, 0x12345678)
-    assert locked.read(0, 4) == 0xFFFFFFFF and locked.read_register(SR) & PGSERR  # locked: nothing programmed
+    locked.write(at, 4, 0x12345678)
+    assert locked.read(at, 4) == 0xFFFFFFFF and locked.read_register(SR) & PGSERR  # locked: nothing programmed
     flash = _unlocked(settings)
-    flash.write(0, 4, 0x12345678)
-    assert flash.read(0, 4) == 0xFFFFFFFF and flash.read_register(SR) & PGSERR  # unlocked but PG clear
+    flash.write(at, 4, 0x12345678)
+    assert flash.read(at, 4) == 0xFFFFFFFF and flash.read_register(SR) & PGSERR  # unlocked but PG clear
     flash.write_register(SR, 0xF3)
     flash.write_register(CR, 2 << 8 | PG)  # PSIZE x32
-    flash.write(4, 2, 0)
-    assert flash.read_register(SR) & PGPERR and flash.read(4, 4) == 0xFFFFFFFF  # a half-word under PSIZE x32
-    flash.write(0, 4, 0x12345678)
-    flash.write(0, 4, 0xFFFF00FF)  # programming clears bits, never sets one
-    assert flash.read(0, 4) == 0x12340078
+    flash.write(at + 4, 2, 0)
+    assert flash.read_register(SR) & PGPERR and flash.read(at + 4, 4) == 0xFFFFFFFF  # a half-word under PSIZE x32
+    flash.write(at, 4, 0x12345678)
+    flash.write(at, 4, 0xFFFF00FF)  # programming clears bits, never sets one
+    assert flash.read(at, 4) == 0x12340078
     assert Settings(tmp_path / "settings.bin").data[:4] == (0x12340078).to_bytes(4, "little")  # kept in the file
-    flash.write_register(CR, 2 << 8 | 5 << 3 | SER)
-    flash.write_register(CR, 2 << 8 | 5 << 3 | SER | STRT)  # sector 5: the image's
-    assert flash.read_register(SR) & WRPERR and flash.read(0, 4) == 0x12340078
     flash.write_register(CR, 2 << 8 | 11 << 3 | SER | STRT)
-    assert flash.read(0, 4) == 0xFFFFFFFF and settings.erases == 1
+    assert flash.read(at, 4) == 0xFFFFFFFF and settings.erases == 1
+
+
+def test_write_protected_sectors_refuse_erase_and_program(tmp_path) -> None:
+    """The option bytes' nWRP (RM0090 §3.7.3), as the bootloader sets them over itself and the running image's slot:
+    WRPERR and nothing changed; kept across power cycles (in the file too); other sectors still work."""
+    settings = Settings(tmp_path / "flash.bin")
+    flash = _unlocked(settings)
+    slot = SECTORS[5][0]
+    flash.write_register(CR, 2 << 8 | PG)
+    flash.write(slot, 4, 0x11223344)
+    flash.write_register(OPTCR, 0x0FFFAAEC)  # still locked: ignored
+    assert not settings.protected(5)
+    for key in OPTKEYS:
+        flash.write_register(OPTKEYR, key)
+    flash.write_register(OPTCR, (0xFFF & ~(1 << 5)) << 16 | 2)  # nWRP5 = 0, OPTSTRT
+    assert settings.protected(5) and Settings(tmp_path / "flash.bin").protected(5)
+    flash.write(slot + 4, 4, 0)
+    assert flash.read_register(SR) & WRPERR and flash.read(slot + 4, 4) == 0xFFFFFFFF, "program refused"
+    flash.write_register(SR, 0xF3)
+    flash.write_register(CR, 2 << 8 | 5 << 3 | SER | STRT)
+    assert flash.read_register(SR) & WRPERR and flash.read(slot, 4) == 0x11223344, "erase refused"
+    flash.write_register(CR, 2 << 8 | 6 << 3 | SER | STRT)  # the other slot: erased
+    assert settings.erases == 1
+    flash.write_register(CR, 2 << 8 | 12 << 3 | SER | STRT)  # no sector 12 on an STM32F405
+    assert flash.read_register(SR) & PGSERR
 
 
 # -- the board --------------------------------------------------------------------------------------------------

@@ -15,7 +15,7 @@ import pytest
 from asm_module import demo
 from asm_py.canbus import busload, dbc
 from gaits import cli as gaits_cli
-from server import bridge, commission, module, robot, studio
+from server import bridge, commission, flash, module, robot, studio
 
 from ..helpers import ROOT
 
@@ -23,7 +23,7 @@ GAIT = str(ROOT / "gaits" / "library" / "caterpillar.toml")
 COMMANDS: dict[str, Callable[[list[str]], int]] = {
     "asm-studio": studio.main, "asm-robot": robot.main, "asm-bridge": bridge.main, "asm-module": module.main,
     "asm-dbc": dbc.main, "asm-demo": demo.main, "asm-busload": busload.main, "gaits": gaits_cli.main,
-    "asm-commission": commission.main,
+    "asm-commission": commission.main, "asm-flash": flash.main,
 }  # fmt: skip
 USAGE_ERRORS = [  # (command, arguments, what the one-line error must mention)
     ("asm-studio", ["--port", "99999"], "--port"),
@@ -98,6 +98,12 @@ USAGE_ERRORS = [  # (command, arguments, what the one-line error must mention)
     ("asm-busload", ["8xnan"], "finite"),
     ("asm-busload", ["8x5", "--bitrate", "0"], "bit rate"),
     ("asm-busload", ["8x5", "--fd", "--data-bitrate", "-1"], "bit rate"),
+    ("asm-flash", [GAIT], "--robot"),
+    ("asm-flash", ["--robot", "virtual:x", "/nonexistent/image.bin"], "no such file"),
+    ("asm-flash", ["--robot", "virtual:x", "--modules", "0,3", GAIT], "1..254"),
+    ("asm-flash", ["--robot", "virtual:x", "--modules", "first", GAIT], "module IDs"),
+    ("asm-flash", ["--robot", "can0", GAIT], "INTERFACE:CHANNEL"),
+    ("asm-flash", ["--robot", "virtual:x", "--timeout", "0", GAIT], "seconds"),
     ("gaits", [], "command"),
     ("gaits", ["expand", GAIT, "--samples", "0"], "samples"),
     ("gaits", ["expand", GAIT, "--samples", "100000000"], "samples"),

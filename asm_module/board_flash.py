@@ -1,0 +1,60 @@
+"""A board's flash as a debug probe first writes it (the bootloader, the board data, the first image: docs/protocol.md
+§12), and the images the emulator knows the symbols of, by their CRC-32, as a debugger finds an image's ELF."""
+
+from __future__ import annotations
+
+import zlib
+from collections.abc import Callable
+
+from ._profile import IMAGE_HEADER_SIZE
+from .elf import Image, read_image
+from .firmware_image import image_bytes
+from .flash import BASE, SIZE, Settings
+
+SLOT_A = 0x08020000
+"""Where the probe writes the first image (firmware/port/stm32f4_layout.h)."""
+
+_images: dict[int, tuple[Image, int]] = {}
+"""Linked images by the CRC-32 of their code and data past the header (what runs, whatever padding or header an
+update image adds), with its length: the symbols the emulator measures and calls a running image by, as a debugger
+finds an image's ELF (asm_module.emulated registers the board image and every image it builds)."""
+_bootloader: Image | None = None
+
+
+def register_image(image: Image) -> None:
+    """Make ``image``'s symbols known to every core that boots it."""
+    body = image_bytes(image)[IMAGE_HEADER_SIZE:]
+    _images[zlib.crc32(body)] = (image, len(body))
+
+
+def bootloader() -> Image:
+    """The example port's bootloader (built once per process)."""
+    global _bootloader
+    if _bootloader is None:
+        from .firmware_build import build_board_bootloader
+
+        _bootloader = read_image(build_board_bootloader())
+    return _bootloader
+
+
+def probe_flash(settings: Settings, image: Image) -> None:
+    """Write a fresh board's flash as a debug probe does once: the bootloader in sector 0, the board data the image
+    links in sector 1 (its defaults), the image in slot A."""
+    boot = bootloader()
+    for segment in [*boot.segments, *image.segments]:
+        if segment.data and BASE <= segment.address < BASE + SIZE:
+            settings.write(segment.address - BASE, segment.data)
+    settings.write(SLOT_A - BASE, image_bytes(image))
+
+
+def known_images() -> list[Image]:
+    """Every image registered so far."""
+    return [image for image, _ in _images.values()]
+
+
+def known_image(read: Callable[[int, int], bytes]) -> Image | None:
+    """The registered image that runs, if any: ``read(offset, length)`` reads the image in RAM from its start."""
+    for crc, (image, length) in list(_images.items()):
+        if zlib.crc32(read(IMAGE_HEADER_SIZE, length)) == crc:
+            return image
+    return None

@@ -1,0 +1,206 @@
+"""Firmware update over the bus (issue 28, docs/protocol.md §12) on emulated boards running the board image behind
+its bootloader: a good image is adopted and reports its version (a Python module on the same bus is skipped); a
+corrupted image is refused before the swap; a reset in the middle of a write leaves the old image running and the
+failed update reported; an image that never confirms itself is rolled back by the watchdog and the bootloader."""
+
+from __future__ import annotations
+
+import shutil
+import struct
+import zlib
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from asm_module._profile import FIRMWARE_STATES, IMAGE_CHUNK
+from asm_module.firmware_image import ImageError, check
+from asm_module.flash import Settings
+from asm_py.errors import MessageTooLarge
+from asm_py.node import Node
+from asm_py.transport.can import CanTransport
+
+from ..helpers import wait_until
+from ..transports import fresh_name
+
+pytestmark = [
+    pytest.mark.timeout(300),
+    pytest.mark.skipif(shutil.which("arm-none-eabi-gcc") is None, reason="the board image needs arm-none-eabi-gcc"),
+]
+OLD, NEW = 0x000100, 0x000200
+
+
+@pytest.fixture
+def bus() -> Iterator[tuple[str, Node]]:
+    channel = fresh_name("fwupdate")
+    # a board checking an image (a CRC over up to 64 KiB; on a real one, erasing a sector: 1-2 s) is silent a while
+    tool = Node("tool", CanTransport(100, interface="virtual", channel=channel, missed_heartbeats=10))
+    try:
+        yield channel, tool
+    finally:
+        tool.close()
+
+
+def _board(channel: str, node_id: int, settings: Settings):
+    from asm_module.emulated import EmulatedModule
+
+    return EmulatedModule(f"m{node_id}", node_id, settings=settings, interface="virtual", channel=channel)
+
+
+def _new_image(pad_to: int = 0) -> bytes:
+    from asm_module.emulated import versioned_image
+    from asm_module.firmware_image import image_bytes
+
+    return image_bytes(versioned_image(NEW), pad_to=pad_to)
+
+
+def _status(tool: Node, name: str) -> dict[str, int]:
+    return tool.lookup(name, "firmware.status", timeout=5).get(timeout=5)  # pyright: ignore[reportAttributeAccessIssue]
+
+
+def _write(tool: Node, name: str, image: bytes, *, upto: int | None = None) -> None:
+    target = tool.lookup(name, "firmware.image", timeout=5)
+    for offset in range(0, len(image) if upto is None else upto, IMAGE_CHUNK):
+        target.set(struct.pack("<I", offset) + image[offset : offset + IMAGE_CHUNK], timeout=10)  # pyright: ignore[reportAttributeAccessIssue]
+
+
+def test_a_good_image_is_adopted_reports_its_version_and_a_python_module_is_skipped(bus) -> None:
+    from asm_module.drivers import FakeDriver
+    from asm_module.flasher import update_modules
+    from asm_module.runtime import ModuleRuntime
+
+    channel, tool = bus
+    image = _new_image(pad_to=24 * 1024)  # padded (covered by the CRC): the board still runs the same code
+    flashes = [Settings(), Settings()]
+    boards = [_board(channel, k + 1, flashes[k]) for k in range(2)]
+    python_node = Node("m3", CanTransport(3, interface="virtual", channel=channel, watch_bus=False))
+    runtime = ModuleRuntime(FakeDriver(), node=python_node, module_id=3)
+    seen: dict[str, list[int]] = {}
+    try:
+        assert wait_until(lambda: {"m1", "m2", "m3"} <= set(tool.discover()), timeout=30)
+        assert [b.firmware_version for b in boards] == [OLD, OLD]
+        report = update_modules(tool, ["m1", "m2", "m3"], image,
+                                progress=lambda name, done, total: seen.setdefault(name, []).append(done))  # fmt: skip
+        by_name = {r.module: r for r in report}
+        for name in ("m1", "m2"):
+            assert (by_name[name].outcome, by_name[name].old_version, by_name[name].new_version) == (
+                "updated", OLD, NEW), by_name[name]  # fmt: skip
+            assert seen[name] == sorted(seen[name]) and seen[name][-1] == len(image), "progress up to the whole image"
+        assert by_name["m3"].outcome == "skipped" and "m3" not in seen, by_name["m3"]
+        assert [b.firmware_version for b in boards] == [NEW, NEW]
+        resets = [b.resets for b in boards]
+        assert resets == [["the image asked for a reset (SYSRESETREQ)"]] * 2, resets
+        status = _status(tool, "m1")
+        assert (FIRMWARE_STATES[status["state"]], status["running"], status["other"]) == ("confirmed", NEW, OLD)
+        assert tool.lookup("m1", "joint.goal", timeout=5) is not None, "the new image serves the module's objects"
+    finally:
+        for board in boards:
+            board.close()
+        runtime.close()
+        python_node.close()
+    again = _board(channel, 1, flashes[0])  # power cycled: the confirmed new image is the one booted
+    try:
+        assert again.firmware_version == NEW and again.fault is None
+    finally:
+        again.close()
+
+
+def test_a_corrupted_image_is_refused_before_the_swap_and_hostile_pieces_are_refused(bus) -> None:
+    from asm_module.flasher import update_modules
+
+    channel, tool = bus
+    image = _new_image()
+    corrupted = bytearray(image)
+    corrupted[len(image) // 2] ^= 0x40  # one bit in the code; the header still claims the good CRC
+    with pytest.raises(ImageError, match="damaged"):
+        check(bytes(corrupted))
+    with pytest.raises(ImageError):
+        update_modules(tool, ["m1"], bytes(corrupted))  # the tool checks first: nothing is sent
+    board = _board(channel, 1, Settings())
+    try:
+        assert wait_until(lambda: "m1" in tool.discover(), timeout=30)
+        _write(tool, "m1", bytes(corrupted))  # past the tool's check, as a damaged transfer would be
+        install = tool.lookup("m1", "firmware.install", timeout=5)
+        with pytest.raises(ValueError):
+            install.set(check(image).crc, timeout=10)
+        status = _status(tool, "m1")
+        assert (FIRMWARE_STATES[status["state"]], status["running"], status["received"]) == (
+            "refused", OLD, len(image))  # fmt: skip
+        target = tool.lookup("m1", "firmware.image", timeout=5)
+        for piece, error in [
+            (struct.pack("<I", 4096) + bytes(16), ValueError),  # not the next offset
+            (struct.pack("<I", 0) + bytes(6), ValueError),  # not whole words
+            (b"\x00\x00", ValueError),  # no offset
+            (struct.pack("<I", 0) + bytes(IMAGE_CHUNK + 4), ValueError),  # over a piece (the object's capacity)
+        ]:
+            with pytest.raises(error):
+                target.set(piece, timeout=10)
+        _write(tool, "m1", image, upto=IMAGE_CHUNK)  # a fresh start from 0, one piece
+        with pytest.raises(ValueError):
+            install.set(check(image).crc, timeout=10)  # incomplete
+        beyond = struct.pack("<I", 64 * 1024 - 8) + bytes(16)
+        _write(tool, "m1", b"\xff" * (64 * 1024 - 8))
+        with pytest.raises(MessageTooLarge):
+            target.set(beyond, timeout=10)  # past the 64 KiB an image may have
+        assert board.resets == [] and board.firmware_version == OLD and board.fault is None, "no swap, no reset"
+        assert tool.lookup("m1", "joint.goal", timeout=5) is not None
+    finally:
+        board.close()
+
+
+def test_a_reset_in_the_middle_of_a_write_leaves_the_old_image_running_and_reports_it(bus) -> None:
+    from asm_module.flasher import update_modules
+
+    channel, tool = bus
+    image = _new_image()
+    flash = Settings()
+    board = _board(channel, 1, flash)
+    try:
+        assert wait_until(lambda: "m1" in tool.discover(), timeout=30)
+        _write(tool, "m1", image, upto=len(image) // 2)
+    finally:
+        board.close()  # the power goes (the emulator stops mid-image)
+    board = _board(channel, 1, flash)
+    try:
+        assert board.firmware_version == OLD and board.fault is None
+        assert wait_until(lambda: "m1" in tool.discover(), timeout=30)
+        status = _status(tool, "m1")
+        assert (FIRMWARE_STATES[status["state"]], status["running"]) == ("interrupted", OLD), status
+        (result,) = update_modules(tool, ["m1"], image)  # and the update can simply be run again
+        assert (result.outcome, result.new_version) == ("updated", NEW), result
+    finally:
+        board.close()
+
+
+def test_an_image_that_never_confirms_itself_is_rolled_back(bus, tmp_path: Path) -> None:
+    from asm_module.elf import read_image
+    from asm_module.emulator import register_image
+    from asm_module.firmware_build import FIRMWARE, build_cortex_m4
+    from asm_module.firmware_image import image_bytes
+    from asm_module.flasher import update_modules
+
+    source = (FIRMWARE / "port" / "stm32f4_update.c").read_text()
+    confirm = "confirmed = !boot_log_append(LOG_CONFIRMED, slot, generation);"
+    assert confirm in source
+    broken = tmp_path / "stm32f4_update.c"
+    broken.write_text(source.replace(confirm, "confirmed = 0; /* never */"))
+    elf = tmp_path / "broken.elf"
+    build_cortex_m4(elf, replace={"stm32f4_update.c": broken}, flags=("-DASM_FW_VERSION=0x000300u",))
+    linked = read_image(elf)
+    register_image(linked)
+    image = image_bytes(linked)
+    assert zlib.crc32(image[8:]) == check(image).crc and check(image).version == 0x000300
+    channel, tool = bus
+    board = _board(channel, 1, Settings())
+    try:
+        assert wait_until(lambda: "m1" in tool.discover(), timeout=30)
+        (result,) = update_modules(tool, ["m1"], image, reboot_timeout=60)
+        assert (result.outcome, result.old_version, result.new_version) == ("rolled_back", OLD, OLD), result
+        assert board.resets == ["the image asked for a reset (SYSRESETREQ)", "the independent watchdog expired"]
+        status = _status(tool, "m1")
+        assert (FIRMWARE_STATES[status["state"]], status["other"]) == ("rolled_back", 0x000300)
+        assert board.firmware_version == OLD and board.fault is None
+        assert wait_until(lambda: len(board.resets) == 2 and board.milliseconds() > 6000, timeout=30), (
+            "the old image, confirmed, feeds the watchdog: no further reset")  # fmt: skip
+    finally:
+        board.close()
