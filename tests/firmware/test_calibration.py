@@ -18,7 +18,7 @@ import pytest
 
 from asm_module.c_module import CModule
 from asm_module.calibration import VERSION, Calibration, flash_record
-from asm_module.firmware_build import build_id
+from asm_module.firmware_build import PORT_SOURCES, build_id
 from asm_module.flash import Settings
 from asm_py.codec_parse import parse_codec
 from asm_py.errors import MessageTooLarge, ReadOnlyError, RemoteError
@@ -163,7 +163,7 @@ def test_the_board_reports_its_tick_and_stack_and_keeps_its_calibration_across_a
     with booted(settings) as (board, tool):
         info = attribute(tool, "m5", "module.info")
         assert wait_until(lambda: info.get(timeout=5)["tick_cycles"] > 0, timeout=20), "measured by the board itself"
-        expected = {"version": VERSION, "build": build_id("stm32f4_bxcan.c"), "language": 1, "max_states": 64,
+        expected = {"version": VERSION, "build": build_id(*PORT_SOURCES), "language": 1, "max_states": 64,
                     "max_modes": 16, "max_message": 640}  # fmt: skip
         check_calibration_over_the_bus(tool, "m5", board.driver, expected)
         reported = info.get(timeout=5)
