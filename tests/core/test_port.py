@@ -97,7 +97,7 @@ def test_stop_interrupts_a_service_waiting_for_a_reply(pair) -> None:
     ended: list[str] = []
 
     class Caller(Service):
-        def run(self) -> None:
+        def run(self, *params: object) -> None:
             try:
                 get(client, 60.0)
             finally:
