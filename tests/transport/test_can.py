@@ -434,3 +434,41 @@ def test_a_quiet_module_hears_only_what_it_must_act_on() -> None:
     finally:
         for node in (tool, quiet, talker):
             node.close()
+
+
+class _CountingTransport(CanTransport):
+    """Counts the wakes of its timer (issue 31: a node with nothing to watch wakes at its heartbeats alone)."""
+
+    wakes = 0
+
+    def _on_timer(self, due: float) -> float | None:
+        self.wakes += 1
+        return super()._on_timer(due)
+
+
+def test_a_node_with_no_live_peer_wakes_its_timer_at_its_heartbeats_alone(bus: Bus) -> None:
+    transport = _CountingTransport(1, interface="virtual", channel=bus.channel, heartbeat_period=0.1, watch_bus=False)
+    node = Node("lonely", transport)
+    try:
+        began, beats = time.monotonic(), transport.frames_sent
+        assert wait_until(lambda: transport.frames_sent - beats >= 8, timeout=30), "it still sends its heartbeats"
+        elapsed, wakes = time.monotonic() - began, transport.wakes
+        # a quarter-period timer would have woken ~4 times per beat; at the beats alone it wakes about once each
+        assert wakes <= elapsed / 0.1 + 3, f"{wakes} wakes in {elapsed:.2f} s of 0.1 s heartbeats"
+    finally:
+        node.close()
+
+
+def test_a_live_peer_is_watched_every_quarter_period_again(bus: Bus) -> None:
+    a = bus.node("a", 1)
+    transport = _CountingTransport(2, interface="virtual", channel=bus.channel, heartbeat_period=0.1)
+    b = Node("b", transport)
+    try:
+        assert wait_until(lambda: "a" in b.discover(), timeout=10)
+        began, wakes = time.monotonic(), transport.wakes
+        assert wait_until(lambda: transport.wakes - wakes >= 12, timeout=30), "four wakes a period while 'a' lives"
+        assert time.monotonic() - began < 10
+        a.close()
+        assert wait_until(lambda: "a" not in b.discover(), timeout=10), "its loss is still seen (LEAVE or silence)"
+    finally:
+        b.close()
