@@ -165,8 +165,10 @@ class CanTransport(Transport):
             thread = threading.Thread(target=self._read_loop, name=f"asm-can:{name}", daemon=True)
             thread.start()
             self._threads.append(thread)
-        self._next_beat = time.monotonic() + self.heartbeat_period
-        self._timer = timers_of(WALL_CLOCK).call_at(time.monotonic() + self.heartbeat_period / 4, self._on_timer)
+        now, period = time.monotonic(), self.heartbeat_period
+        # Beats on the grid k·period: a process's transports beat in one batch, one wake for all of them (issue 31).
+        self._next_beat = ((now + period / 2) // period + 1) * period
+        self._timer = timers_of(WALL_CLOCK).call_at(now + period / 4, self._on_timer)
         self._send_heartbeat()
 
     def _join(self, group: str) -> None:

@@ -472,3 +472,35 @@ def test_a_live_peer_is_watched_every_quarter_period_again(bus: Bus) -> None:
         assert wait_until(lambda: "a" not in b.discover(), timeout=10), "its loss is still seen (LEAVE or silence)"
     finally:
         b.close()
+
+
+def test_the_nodes_of_one_process_beat_together_on_one_grid(bus: Bus) -> None:
+    """128 simulated modules in one process send their heartbeats in one batch (one wake for all; issue 31)."""
+    period, transports = 0.4, []
+    for k in range(3):
+        transports.append(CanTransport(10 + k, interface="virtual", channel=bus.channel, heartbeat_period=period))
+        Node(f"n{k}", transports[-1])
+        time.sleep(0.15)  # opened at phases 0.15 s apart: without the grid their beats are too
+    try:
+        assert all(abs(t._next_beat / period - round(t._next_beat / period)) < 1e-6 for t in transports), "on the grid"
+        beats: list[tuple[float, int]] = []
+        firsts: set[int] = set()
+        deadline = time.monotonic() + 30
+        while time.monotonic() < deadline and len(beats) < 15:
+            frame = bus.sniffer.recv(timeout=0.1)
+            if frame is None or not_heartbeat(frame):
+                continue
+            source = CanId.unpack(frame.arbitration_id).source
+            if source in firsts:  # a node's first beat is at its opening, off the grid
+                beats.append((frame.timestamp, source))
+            firsts.add(source)
+        beats.sort()
+        batches: list[set[int]] = [set()]
+        for (t, source), (before, _) in zip(beats, [beats[0], *beats[:-1]], strict=True):
+            if t - before > period / 4:
+                batches.append(set())
+            batches[-1].add(source)
+        assert len(batches) >= 4 and all(b == {10, 11, 12} for b in batches[1:-1]), batches  # ends may be partial
+    finally:
+        for transport in transports:
+            transport.close()
