@@ -9,14 +9,16 @@ the one table in asm_py.status.
 from __future__ import annotations
 
 import itertools
+import threading
 from typing import TYPE_CHECKING
 
 from ._contract import TIMEOUT_LONGEST
-from .clock import WALL_CLOCK, Monitor
+from .clock import WALL_CLOCK, Monitor, current_service
 from .errors import AsmTimeout
 from .protocol import (
     HEADER_SIZE,
     MAX_TXN,
+    METHOD_MASK,
     Kind,
     Message,
     ProtocolError,
@@ -36,13 +38,19 @@ REPLY_MARGIN = 1.0
 
 
 class _Call:
-    __slots__ = ("failure", "method", "object_id", "reply")
+    """One call in flight. ``done`` is held from the start and released once by whoever completes the call (the
+    reply's delivery or ``fail_all``): a caller outside a service thread waits on it alone, the cheapest hand-off
+    from the receive thread (no condition, no re-taking the port's lock to return; issue 31)."""
+
+    __slots__ = ("done", "failure", "method", "object_id", "reply")
 
     def __init__(self, method: int, object_id: int) -> None:
         self.method = method
         self.object_id = object_id
         self.reply: Message | None = None
         self.failure: str | None = None
+        self.done = threading.Lock()
+        self.done.acquire()
 
 
 class Port:
@@ -109,11 +117,14 @@ class Port:
         what: object,
     ) -> Message:
         mon = self._mon
-        raw = check_size(encode(Message(Kind.REQUEST_REPLY, method, 0, class_id, object_id, timeout=code, data=data)),
-                          what)  # fmt: skip
+        if code is None and 0 <= method <= METHOD_MASK:  # the header built in place (bytes() checks the IDs' range)
+            raw = check_size(bytes((first_byte(Kind.REQUEST_REPLY, method), 0, class_id, object_id)) + data, what)
+        else:
+            raw = check_size(encode(Message(Kind.REQUEST_REPLY, method, 0, class_id, object_id, timeout=code,
+                                            data=data)), what)  # fmt: skip
         call = _Call(method, object_id)
         with mon:
-            if not mon.wait_for(lambda: len(self._pending) <= MAX_TXN, wait):
+            if len(self._pending) > MAX_TXN and not mon.wait_for(lambda: len(self._pending) <= MAX_TXN, wait):
                 raise AsmTimeout(f"{what}: all {MAX_TXN + 1} transaction ids of the port are in use")
             txn = self._next_txn
             while txn in self._pending:
@@ -122,13 +133,17 @@ class Port:
             self._pending[txn] = call
         try:
             self.node.transport.send(self.remote, raw[:1] + bytes((raw[1] | txn,)) + raw[2:])
-            with mon:
-                mon.wait_for(lambda: call.reply is not None or call.failure is not None, wait)
+            if current_service() is None:
+                call.done.acquire(True, -1 if wait is None else max(0.0, wait))
+            else:  # a service thread waits on the monitor, where its service's stop() can interrupt it
+                with mon:
+                    mon.wait_for(lambda: call.reply is not None or call.failure is not None, wait)
         finally:
-            with mon:
-                if self._pending.get(txn) is call:
-                    del self._pending[txn]
-                mon.notify_all()
+            if call.reply is None and call.failure is None:  # completed calls left _pending when completed
+                with mon:
+                    if self._pending.get(txn) is call:
+                        del self._pending[txn]
+                    mon.notify_all()
         if call.reply is None:
             reason = call.failure or f"no reply within {wait:.3g}s"  # done without a reply means a failure
             raise AsmTimeout(f"{what} timed out: {reason}")
@@ -161,12 +176,14 @@ class Port:
                 return
             del self._pending[reply.txn]
             call.reply = reply
-            self._mon.notify_all()
+            call.done.release()
+            self._mon.notify_all()  # a service thread waiting for this reply, or a caller for a free transaction id
 
     def fail_all(self, reason: str) -> None:
         """Fail every call in flight (the peer left, or the node closed)."""
         with self._mon:
             for call in self._pending.values():
                 call.failure = reason
+                call.done.release()
             self._pending.clear()
             self._mon.notify_all()

@@ -33,7 +33,10 @@ TimerCallback = Callable[[float], "float | None"]
 
 
 class TimerHandle:
-    """A filed deadline; ``cancel`` ends it (waiting for its callback if that is running in another thread)."""
+    """A filed deadline; ``cancel`` ends it (waiting for its callback if that is running in another thread).
+
+    The heap holds ``(when, seq, handle)`` tuples: compared in C, where a ``__lt__`` of the handle's own was the
+    timer thread's largest cost in an idle 128-module robot (issue 31)."""
 
     __slots__ = ("_timers", "alive", "callback", "seq", "when")
 
@@ -43,9 +46,6 @@ class TimerHandle:
         self.seq = seq
         self.callback = callback
         self.alive = True
-
-    def __lt__(self, other: TimerHandle) -> bool:
-        return (self.when, self.seq) < (other.when, other.seq)
 
     def cancel(self) -> None:
         self._timers._cancel(self)
@@ -75,7 +75,7 @@ class Timers:
     def __init__(self, clock: Clock) -> None:
         self.clock = clock
         self._mon = Monitor(clock)
-        self._heap: list[TimerHandle] = []
+        self._heap: list[tuple[float, int, TimerHandle]] = []
         self._seq = itertools.count()
         self._worker: _Worker | None = None
         self._running: TimerHandle | None = None
@@ -86,7 +86,7 @@ class Timers:
         start = None
         with self._mon:
             handle = TimerHandle(self, when, next(self._seq), callback)
-            heapq.heappush(self._heap, handle)
+            heapq.heappush(self._heap, (when, handle.seq, handle))
             if self._worker is None:
                 self._worker = start = _Worker(self)
             self._mon.notify_all()
@@ -99,22 +99,22 @@ class Timers:
         mon, clock, heap = self._mon, self.clock, self._heap
         with mon:
             while True:
-                while heap and not heap[0].alive:
+                while heap and not heap[0][2].alive:
                     heapq.heappop(heap)
                 if worker.stop_requested or not heap:
                     if self._worker is worker:
                         self._worker = None
                     return None
-                top = heap[0]
-                if clock.reached(top.when):
+                when, _, top = heap[0]
+                if clock.reached(when):
                     heapq.heappop(heap)
                     self._running, self._running_in = top, threading.get_ident()
                     return top
 
                 def changed(top: TimerHandle = top) -> bool:
-                    return worker.stop_requested or not heap or heap[0] is not top or not top.alive
+                    return worker.stop_requested or not heap or heap[0][2] is not top or not top.alive
 
-                mon.wait_for(changed, top.when - clock.now(), interruptible=False)
+                mon.wait_for(changed, when - clock.now(), interruptible=False)
 
     def _done(self, handle: TimerHandle, again: float | None) -> None:
         with self._mon:
@@ -122,7 +122,7 @@ class Timers:
             if again is not None and handle.alive:
                 handle.when = again
                 handle.seq = next(self._seq)
-                heapq.heappush(self._heap, handle)
+                heapq.heappush(self._heap, (again, handle.seq, handle))
             self._mon.notify_all()
 
     def _cancel(self, handle: TimerHandle) -> None:
@@ -135,7 +135,7 @@ class Timers:
     def close(self) -> None:
         """End every deadline and the thread (tests; a process's timers otherwise end with their last deadline)."""
         with self._mon:
-            for handle in self._heap:
+            for _, _, handle in self._heap:
                 handle.alive = False
             worker = self._worker
             self._mon.notify_all()
@@ -145,7 +145,7 @@ class Timers:
     @property
     def pending(self) -> int:
         """Deadlines filed and not cancelled."""
-        return sum(1 for h in self._heap if h.alive)
+        return sum(1 for _, _, h in self._heap if h.alive)
 
 
 _BY_CLOCK: weakref.WeakKeyDictionary[Clock, Timers] = weakref.WeakKeyDictionary()

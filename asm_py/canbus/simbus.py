@@ -44,6 +44,10 @@ URGENT_MASK = CAN_PRIORITY_MASK << CAN_PRIORITY_SHIFT
 """Extended identifiers with these bits clear (priority 0) go to the urgent FIFO."""
 
 
+_KNOWN_IDS = 4096
+"""Identifiers whose receivers a channel remembers (bounded: a bus may send any of 2**29)."""
+
+
 class _Receivers:
     """Who receives what on one channel: the buses without filters, and per (mask, extended) the buses by masked ID."""
 
@@ -54,12 +58,24 @@ class _Receivers:
             for can_id, mask, extended in bus._accept or ():
                 self.by_mask.setdefault((mask, extended), {}).setdefault(can_id & mask, []).append(bus)
 
+        self._known: dict[tuple[int, bool], list[SimBus]] = {}
+
     def of(self, arbitration_id: int, extended: bool) -> list[SimBus]:
+        """The buses that accept a frame; remembered per identifier (a bus's traffic is a few identifiers sent again
+        and again; the index is rebuilt, and this forgotten, whenever a bus joins, leaves or changes filters)."""
+        key = (arbitration_id, extended)
+        known = self._known.get(key)
+        if known is not None:
+            return known
         found = list(self.everything)
         for (mask, only), table in self.by_mask.items():
             if only is None or only == extended:
                 found.extend(table.get(arbitration_id & mask, ()))
-        return list(dict.fromkeys(found)) if len(found) > 1 else found
+        found = list(dict.fromkeys(found)) if len(found) > 1 else found
+        if len(self._known) >= _KNOWN_IDS:
+            self._known.clear()
+        self._known[key] = found
+        return found
 
 
 FrameCallback = Callable[[can.Message], None]
@@ -72,22 +88,22 @@ class _Dispatcher:
     def __init__(self, channel: str) -> None:
         self._urgent: queue.SimpleQueue[tuple[SimBus, can.Message] | None] = queue.SimpleQueue()
         self._normal: queue.SimpleQueue[tuple[SimBus, can.Message] | None] = queue.SimpleQueue()
-        self._ready = threading.Semaphore(0)
+        self._ready: queue.SimpleQueue[None] = queue.SimpleQueue()  # one token per frame: see SimBus._ready
         self._thread = threading.Thread(target=self._run, name=f"asm-can-dispatch:{channel}", daemon=True)
         self._thread.start()
 
     def put(self, bus: SimBus, message: can.Message, urgent: bool) -> None:
         (self._urgent if urgent else self._normal).put((bus, message))
-        self._ready.release()
+        self._ready.put(None)
 
     def close(self) -> None:
         """End the thread after the frames queued so far (called under the channel lock: never joins)."""
         self._normal.put(None)
-        self._ready.release()
+        self._ready.put(None)
 
     def _run(self) -> None:
         while True:
-            self._ready.acquire()
+            self._ready.get()
             try:
                 item = self._urgent.get_nowait()
             except queue.Empty:
@@ -119,7 +135,9 @@ class SimBus(can.BusABC):
         self._accept: tuple[tuple[int, int, bool | None], ...] | None = None  # None: accept everything
         self._urgent: queue.SimpleQueue[can.Message] = queue.SimpleQueue()
         self._normal: queue.SimpleQueue[can.Message] = queue.SimpleQueue()
-        self._ready = threading.Semaphore(0)
+        self._ready: queue.SimpleQueue[None] = queue.SimpleQueue()
+        """One token per queued frame: a counting semaphore in C (threading.Semaphore is Python over a Condition, and
+        releasing it was the largest cost of a frame on an idle 128-module robot; issue 31)."""
         self._open = True
         self._push: FrameCallback | None = None
         super().__init__(channel=channel, **kwargs)
@@ -191,11 +209,12 @@ class SimBus(can.BusABC):
                         dispatcher.put(bus, msg, urgent)
                     else:
                         (bus._urgent if urgent else bus._normal).put(msg)
-                        bus._ready.release()
+                        bus._ready.put(None)
 
     def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
-        acquired = self._ready.acquire() if timeout is None else self._ready.acquire(timeout=max(0.0, timeout))
-        if not acquired:
+        try:
+            self._ready.get(timeout=None if timeout is None else max(0.0, timeout))
+        except queue.Empty:
             return None, True
         try:
             return self._urgent.get_nowait(), True

@@ -25,13 +25,13 @@ import logging
 import threading
 import time
 import zlib
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
 import can
 
-from ..canbus.fragments import Reassembler, fragment
+from ..canbus.fragments import FD_SIZES, Reassembler, fragment
 from ..canbus.ids import (
     CanId,
     Dest,
@@ -54,6 +54,8 @@ log = logging.getLogger("asm_py.transport.can")
 
 ALIAS_PREFIX = "can."
 _PUBLICATIONS = (Priority.PUBLICATION, Priority.BULK_PUBLICATION)
+_ID_CACHE_SIZE = 4096
+"""Identifiers of SINGLE frames a transport keeps packed (one per (priority, destination, source) it sends to)."""
 
 
 def message_priority(data: bytes) -> int:
@@ -130,6 +132,7 @@ class CanTransport(Transport):
         self._group_ids: set[int] = set()
         self._stop = threading.Event()
         self._threads: list[threading.Thread] = []
+        self._single_ids: dict[tuple[int, int, int, int], int] = {}
         self._timer: TimerHandle | None = None
         self._next_beat = 0.0
         self._pushed = False
@@ -162,8 +165,10 @@ class CanTransport(Transport):
             thread = threading.Thread(target=self._read_loop, name=f"asm-can:{name}", daemon=True)
             thread.start()
             self._threads.append(thread)
-        self._next_beat = time.monotonic() + self.heartbeat_period
-        self._timer = timers_of(WALL_CLOCK).call_at(time.monotonic() + self.heartbeat_period / 4, self._on_timer)
+        now, period = time.monotonic(), self.heartbeat_period
+        # Beats on the grid k·period: a process's transports beat in one batch, one wake for all of them (issue 31).
+        self._next_beat = ((now + period / 2) // period + 1) * period
+        self._timer = timers_of(WALL_CLOCK).call_at(now + period / 4, self._on_timer)
         self._send_heartbeat()
 
     def _join(self, group: str) -> None:
@@ -287,28 +292,51 @@ class CanTransport(Transport):
         ``source`` other than this node's ID is for gateways sending on behalf of a node they represent.
         """
         src = self.node_id if source is None else source
-        if len(data) > self.reassembler.max_message and dest_kind != Dest.SYSTEM:
-            raise MessageTooLarge(f"message of {len(data)} bytes exceeds the {self.reassembler.max_message}-byte "
+        length = len(data)
+        if length > self.reassembler.max_message and dest_kind != Dest.SYSTEM:
+            raise MessageTooLarge(f"message of {length} bytes exceeds the {self.reassembler.max_message}-byte "
                                   "maximum")  # fmt: skip
+        if length <= self.frame_size and (not self.fd or length in FD_SIZES):
+            # Most traffic is one frame: no fragment generator, and the identifier from the cache (issue 31).
+            base = self._single_ids.get((priority, dest_kind, dest, src))
+            if base is None:
+                base = self._single_id(priority, dest_kind, dest, src)
+            return self._send_frames(((FrameType.SINGLE, 0, data),), base, length)
         frames = list(fragment(data, frame_size=self.frame_size))
         # Packing validates every field once; each frame then only adds its type and counter.
         base = CanId(frame_priority(priority, len(frames)), dest_kind, dest, src, FrameType.SINGLE).pack()
+        return self._send_frames(frames, base, length)
+
+    def _single_id(self, priority: int, dest_kind: int, dest: int, src: int) -> int:
+        """The identifier of a SINGLE frame, validated once by packing and then cached (bounded: cleared when full,
+        as a gateway speaking for many sources may fill it)."""
+        base = CanId(frame_priority(priority, 1), dest_kind, dest, src, FrameType.SINGLE).pack()
+        if len(self._single_ids) >= _ID_CACHE_SIZE:
+            self._single_ids.clear()
+        self._single_ids[(priority, dest_kind, dest, src)] = base
+        return base
+
+    def _send_frames(self, frames: Iterable[tuple[int, int, bytes]], base: int, length: int) -> int:
+        """Send the frames of one message contiguously (under the send lock); the count, or 0 when one failed."""
+        fd, bus, timeout = self.fd, self.bus, self.send_timeout
+        count = 0
         with self._send_lock:
             for frame_type, counter, chunk in frames:
                 message = can.Message(arbitration_id=base | frame_type << 6 | counter, is_extended_id=True,
-                                      data=chunk, is_fd=self.fd, bitrate_switch=self.fd)  # fmt: skip
+                                      data=chunk, is_fd=fd, bitrate_switch=fd)  # fmt: skip
                 try:
-                    self.bus.send(message, timeout=self.send_timeout)
+                    bus.send(message, timeout=timeout)
                 except (can.CanError, RuntimeError) as exc:
                     self.send_errors += 1
-                    log.warning("CAN send failed (%s); message of %d bytes dropped", exc, len(data))
+                    log.warning("CAN send failed (%s); message of %d bytes dropped", exc, length)
                     return 0
                 self.frames_sent += 1
+                count += 1
                 if self._logger is not None:
                     message.timestamp = time.time()
                     message.is_rx = False
                     self._log(message)
-        return len(frames)
+        return count
 
     # -- receiving ------------------------------------------------------------------------------------------------
 
@@ -363,41 +391,41 @@ class CanTransport(Transport):
         self.frames_received += 1
         if self._logger is not None:
             self._log(frame)
-        cid = CanId.unpack(frame.arbitration_id)
-        if cid.dest_kind == Dest.SYSTEM and cid.dest == SystemCode.ESTOP:
+        priority, dest_kind, dest, source, frame_type, counter = CanId.unpack(frame.arbitration_id)
+        if dest_kind == Dest.SYSTEM and dest == SystemCode.ESTOP:
             # an e-stop is honoured whoever sent it, even with this node's own ID or an invalid one: stopping twice
             # is harmless, ignoring a stop is not
-            self._estop_received(self.name_of(cid.source), bytes(frame.data).decode("utf-8", errors="replace"))
+            self._estop_received(self.name_of(source), bytes(frame.data).decode("utf-8", errors="replace"))
             return
-        if cid.source == self.node_id or not 1 <= cid.source <= 254:
+        if source == self.node_id or not 1 <= source <= 254:
             return  # our own frame (a loopback interface), or a forged source
-        if not self._accepts(cid):
+        if not self._accepts(dest_kind, dest, priority):
             return
-        if cid.frame == FrameType.SINGLE:  # most traffic: no reassembly, no lock
-            self.on_message(cid.source, cid.dest_kind, cid.dest, bytes(frame.data))
+        if frame_type == FrameType.SINGLE:  # most traffic: no reassembly, no lock
+            self.on_message(source, dest_kind, dest, bytes(frame.data))
             return
         with self._rx_lock:
-            message = self.reassembler.feed((cid.source, cid.dest_kind, cid.dest), cid.frame, cid.counter,
+            message = self.reassembler.feed((source, dest_kind, dest), frame_type, counter,
                                             bytes(frame.data), time.monotonic())  # fmt: skip
         if message is not None:
-            self.on_message(cid.source, cid.dest_kind, cid.dest, message)
+            self.on_message(source, dest_kind, dest, message)
 
     def _log(self, frame: can.Message) -> None:
         with self._log_lock:
             if self._logger is not None:
                 self._logger.on_message_received(frame)
 
-    def _accepts(self, cid: CanId) -> bool:
+    def _accepts(self, dest_kind: int, dest: int, priority: int) -> bool:
         """Software acceptance (interfaces without hardware filters, and replays): the same rules as the filters."""
-        if cid.dest_kind == Dest.NODE:
-            return cid.dest in self._accept_ids
-        if cid.dest_kind == Dest.GROUP:
-            return cid.dest in self._group_ids
+        if dest_kind == Dest.NODE:
+            return dest in self._accept_ids
+        if dest_kind == Dest.GROUP:
+            return dest in self._group_ids
         if self.watch_bus:
             return True
-        if cid.dest_kind == Dest.BROADCAST:
-            return cid.priority not in _PUBLICATIONS or self._hear_publications
-        return cid.dest == SystemCode.ESTOP
+        if dest_kind == Dest.BROADCAST:
+            return priority not in _PUBLICATIONS or self._hear_publications
+        return dest == SystemCode.ESTOP
 
     def on_message(self, source_id: int, dest_kind: int, dest: int, data: bytes) -> None:
         """A complete message arrived: dispatch it (a gateway overrides this to forward)."""
@@ -446,8 +474,10 @@ class CanTransport(Transport):
             self._peer_changed(self.name_of(source_id), False)
 
     def _on_timer(self, due: float) -> float | None:
-        """Every quarter heartbeat period (beats and losses within a quarter period, without waking needlessly), on
-        the wall clock's shared timer thread: heartbeat, lost nodes, stale partial messages."""
+        """On the wall clock's shared timer thread: heartbeat, lost nodes, stale partial messages. Every quarter
+        heartbeat period while a node is alive or a message partial (losses and expiries within a quarter period,
+        without waking needlessly); otherwise at the next heartbeat alone — a module of a simulated robot hears no
+        heartbeats, and 128 of them woke the timer 1,024 times a second for nothing (issue 31)."""
         if self._stop.is_set():
             return None
         now = time.monotonic()
@@ -463,4 +493,7 @@ class CanTransport(Transport):
             self._lost(source_id)
         with self._rx_lock:
             self.reassembler.expire(now)
-        return max(due + self.heartbeat_period / 4, now)
+            partial = self.reassembler.partials > 0
+        if self._alive or partial:
+            return max(due + self.heartbeat_period / 4, now)
+        return max(self._next_beat, now)

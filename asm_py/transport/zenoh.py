@@ -45,6 +45,7 @@ from .zenoh_config import (  # noqa: F401  (re-exported: the configuration is pa
     make_config,
     security_problems,
 )
+from .zenoh_watch import WatchedPublisher
 
 log = logging.getLogger("asm_py.transport.zenoh")
 
@@ -117,7 +118,7 @@ class ZenohTransport(Transport):
         """Queriers kept (one per destination and deadline: 8 deadlines of 128 modules fit)."""
         self._routes: dict[str, _Route] = {}
         self._pub_keys: dict[str, tuple[str, str]] = {}  # object -> its publication and JSON view keys
-        self._watched: dict[str, bool] = {}  # JSON key -> a subscriber matches it (kept by matching listeners)
+        self._views: dict[str, WatchedPublisher] = {}  # JSON view key -> its publisher, and whether it is watched
         self._claims: dict[str, set[str]] = {}  # segment -> sessions whose liveliness token claims it
         self._pub_lock = threading.Lock()
 
@@ -343,24 +344,22 @@ class ZenohTransport(Transport):
         binary, view = keys
         self._publisher(binary, reliable=False, express=False).put(data)  # lock-free once declared
         if json_text is not None:
-            watched = self._watched.get(view)
+            watched = self._views.get(view)
             if watched is None:
                 watched = self._watch(view)
-            if watched:
-                self._publisher(view, reliable=False, express=False).put(json_text())
+            if watched.watched:
+                watched.put(json_text())
 
-    def _watch(self, key: str) -> bool:
-        """Follow whether anyone subscribes to the JSON view ``key``: nobody watching costs no formatting."""
-        publisher = self._publisher(key, reliable=False, express=False)
-
-        def on_matching(status: zenoh.MatchingStatus) -> None:
-            self._watched[key] = status.matching
-
+    def _watch(self, key: str) -> WatchedPublisher:
+        """The JSON view ``key``'s publisher, following whether anyone subscribes: nobody watching costs no
+        formatting. One per object of this node (bounded by its registry)."""
         with self._pub_lock:
-            if key not in self._watched:
-                self._watched[key] = publisher.matching_status.matching  # pyright: ignore[reportAttributeAccessIssue]  # zenoh's stub says bool; it is a MatchingStatus
-                self._keep.append(publisher.declare_matching_listener(on_matching))
-            return self._watched[key]
+            watched = self._views.get(key)
+            if watched is None:
+                drop = zenoh.CongestionControl.DROP
+                publisher = self.session.declare_publisher(key, congestion_control=drop, express=False)
+                watched = self._views[key] = WatchedPublisher(publisher)
+            return watched
 
     def subscribe(
         self, node: str, object_name: str, callback: PublicationHandler, *, object_id: int | None = None
@@ -401,6 +400,12 @@ class ZenohTransport(Transport):
             except Exception:  # already gone with its session
                 log.debug("undeclare failed during close", exc_info=True)
         self._keep.clear()
+        for watched in self._views.values():
+            try:
+                watched.close()
+            except Exception:  # already gone with its session
+                log.debug("undeclare failed during close", exc_info=True)
+        self._views.clear()
         self._publishers.clear()
         self._queriers.clear()
         session.close()

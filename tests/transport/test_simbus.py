@@ -127,3 +127,25 @@ def test_an_urgent_frame_overtakes_the_frames_queued_for_the_dispatch_thread() -
     finally:
         receiver.shutdown()
         sender.shutdown()
+
+
+def test_the_receivers_remembered_for_an_identifier_follow_filter_changes() -> None:
+    channel = fresh_name("simbus")
+    sender, receiver = SimBus(channel=channel), SimBus(channel=channel)
+    frame_id = 0x0102_0304
+    try:
+        receiver.set_filters([{"can_id": frame_id, "can_mask": 0x1FFF_FFFF, "extended": True}])
+        for _ in range(3):  # the second and third use the remembered receivers
+            sender.send(can.Message(arbitration_id=frame_id, data=b"a"))
+        assert _drain(receiver) == [frame_id] * 3
+        receiver.set_filters([{"can_id": frame_id + 1, "can_mask": 0x1FFF_FFFF, "extended": True}])
+        sender.send(can.Message(arbitration_id=frame_id, data=b"b"))
+        assert _drain(receiver) == [], "a filter change forgets what was remembered"
+        receiver.set_filters(None)
+        for k in range(5000):  # more identifiers than are remembered: the memory is bounded, delivery unchanged
+            sender.send(can.Message(arbitration_id=k, data=b"c"))
+        assert _drain(receiver) == list(range(5000))
+        assert len(SimBus._receivers[channel]._known) <= 4096
+    finally:
+        sender.shutdown()
+        receiver.shutdown()

@@ -1,0 +1,73 @@
+"""A JSON view is formatted only while someone watches it: the one piece (asm_py/transport/zenoh_watch.py) that the
+node's Zenoh transport and the bridge's outlets share (issue 31), its listener on Zenoh's own threads."""
+
+from __future__ import annotations
+
+import json
+import threading
+
+import zenoh
+
+from asm_py import Attribute
+from asm_py.node import Node
+from asm_py.transport.zenoh import ZenohTransport, make_config
+from asm_py.transport.zenoh_watch import WatchedPublisher
+
+from ..helpers import wait_until
+from ..transports import free_port
+
+
+def test_a_watched_publisher_follows_its_subscribers_without_a_thread_of_its_own() -> None:
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    publishing = zenoh.open(make_config(listen=[endpoint]))
+    watching = zenoh.open(make_config(connect=[endpoint]))
+    try:
+        threads = threading.active_count()
+        view = WatchedPublisher(publishing.declare_publisher("asm/test/watch/json/x"))
+        assert not view.watched
+        assert threading.active_count() == threads, "the matching listener runs on Zenoh's threads"
+        seen: list[str] = []
+        subscriber = watching.declare_subscriber("asm/test/watch/json/*", lambda s: seen.append(s.payload.to_string()))
+        assert wait_until(lambda: view.watched, timeout=10)
+        assert wait_until(lambda: (view.put('{"v":1}'), seen)[1], timeout=10)
+        subscriber.undeclare()
+        assert wait_until(lambda: not view.watched, timeout=10)
+        view.close()
+    finally:
+        watching.close()
+        publishing.close()
+
+
+def test_the_transport_formats_a_view_only_while_it_is_watched() -> None:
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    transport = ZenohTransport(listen=[endpoint], role="module")
+    node = Node("module", transport)
+    watcher = zenoh.open(make_config(connect=[endpoint]))
+    formatted: list[str] = []
+
+    def view() -> str:
+        formatted.append("x")
+        return json.dumps({"value": len(formatted)})
+
+    try:
+        angle = Attribute("joint.angle", 0.0, codec="float32")
+        node.register(angle)
+        for _ in range(50):
+            transport.publish("joint.angle", b"\x1f\x00\x01\x01\x00\x00\x00\x00", view)
+        assert formatted == [], "nobody watches: nothing formatted"
+        seen: list[dict] = []
+        subscriber = watcher.declare_subscriber(
+            "asm/robot/module/json/joint.angle", lambda sample: seen.append(json.loads(sample.payload.to_string()))
+        )
+        assert wait_until(
+            lambda: (transport.publish("joint.angle", b"\x1f\x00\x01\x01\x00\x00\x00\x00", view), seen)[1], timeout=10
+        )
+        subscriber.undeclare()
+        assert wait_until(lambda: not transport._views["asm/robot/module/json/joint.angle"].watched, timeout=10)
+        before = len(formatted)
+        for _ in range(50):
+            transport.publish("joint.angle", b"\x1f\x00\x01\x01\x00\x00\x00\x00", view)
+        assert len(formatted) == before, "unwatched again: nothing formatted"
+    finally:
+        watcher.close()
+        node.close()
