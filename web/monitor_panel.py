@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING, Any
 from asm_module.names import module_name
 
 from .inputs import ValueInput
-from .monitor import PLOT_SECONDS, WINDOWS, LivePlot, SeriesPlot, describe, empty_plot, format_value, plot_csv
+from .monitor import PLOT_SECONDS, WINDOWS, LivePlot, SeriesPlot, StudioClock, describe, format_value, plot_csv
 
 if TYPE_CHECKING:
     from gaits.model import Gait
@@ -29,7 +29,9 @@ class MonitorPanel:
     def __init__(self, page: Page, plots_tab: Any) -> None:
         self.page = page
         gui = page.gui
-        self.plots = [LivePlot(page.robot.lookup) for _ in LIVE_PLOTS]
+        self.clock = StudioClock()
+        """The live plots' one time base (the studio's, not a robot's: a restarted robot starts again at 0)."""
+        self.plots = [LivePlot(page.robot.lookup, self.clock) for _ in LIVE_PLOTS]
         self.roster_md = gui.add_markdown("")
         with gui.add_folder("Attribute browser"):
             self.browse_module = gui.add_dropdown("Node", ["-"])
@@ -206,14 +208,12 @@ class MonitorPanel:
             f"{' · ' + roster.gait(name) if roster.gait(name) else ''}"
             for name, alive, age in rows
         )  # fmt: skip
+        now = self.clock()  # one now for every plot: their windows end at the same instant
         for plot, live in zip(self.plots, self.lives, strict=True):
-            labels, data = plot.data()
+            labels, data = plot.data(now)
             if self.freeze.value:
                 continue
-            if labels:
-                live.show(labels, data)
-            elif live.labels != ["-"]:  # cleared: its lines go too (they stayed on the plot after Clear)
-                live.show(["-"], empty_plot(2))
+            live.show(labels, data, now, plot.window)  # cleared: its lines go too (they stayed after Clear)
 
     def close(self) -> None:
         for plot in self.plots:

@@ -184,12 +184,18 @@ def test_a_failing_grid_edit_becomes_a_notification(studio):
 def test_every_plot_is_against_seconds_with_units_and_the_live_window_is_chosen(studio):
     """uPlot takes an x axis as UNIX dates unless told otherwise: the page showed "1/1/70 12:00am" for 0 s."""
     app = studio.app
-    for plot in (app.preview.angles, app.monitor.lives[0].handle, app.editor.expanded):
+    for plot in (app.preview.angles, app.editor.expanded):
         assert plot.scales == {"x": {"time": False}}
         assert plot.axes[0]["label"] == "time (s)" and plot.axes[1]["label"]
+    # the live plots: seconds before now on a fixed range, the window chosen (web/monitor.py SeriesPlot)
+    assert app.monitor.lives[0].handle.scales == {"x": {"time": False, "range": (-10.0, 0.0)}}
+    assert app.monitor.lives[0].handle.axes[0]["label"] == "seconds before now"
     assert app.monitor.plot.window == 10.0
     app.monitor.window.value = "300"  # as the page's dropdown sets it
     assert app.monitor.plot.window == 300.0
+    for live in app.monitor.lives:
+        assert wait_until(lambda live=live: live.handle.scales["x"]["range"] == (-300.0, 0.0), timeout=10)
+    app.monitor.window.value = "10"
 
 
 def test_one_toast_per_distinct_problem_and_the_status_line_is_always_current(studio):
@@ -255,11 +261,11 @@ def test_the_live_plot_can_be_paused_and_resumed(studio):
     import numpy as np
 
     app = studio.app
-    app.monitor.plot.series[("m1", "joint.angle")] = deque([(0.0, 1.0), (1.0, 2.0)])
-    app.monitor.plot.t0 -= 1.0  # the samples are recent
+    now = app.monitor.clock()  # the samples are recent
+    app.monitor.plot.series[("m1", "joint.angle")] = deque([(now - 1.0, 1.0), (now, 2.0)])
     assert wait_until(lambda: len(app.monitor.lives[0].handle.data[0]) == 2, timeout=10)
     app.monitor.freeze.value = True
-    app.monitor.plot.series[("m1", "joint.angle")].append((1.5, 3.0))
+    app.monitor.plot.series[("m1", "joint.angle")].append((now + 0.5, 3.0))
     time.sleep(0.5)  # ten refreshes
     assert len(app.monitor.lives[0].handle.data[0]) == 2  # held still
     app.monitor.freeze.value = False
