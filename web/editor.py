@@ -30,6 +30,7 @@ from .generator import GaitTools
 from .grid import StateGrid
 from .monitor import empty_plot, seconds_axes, stroke
 from .program_editor import EventControls, ProgramPanel
+from .state_timeline import WINDOW_SECONDS, legend, state_timeline
 
 if TYPE_CHECKING:
     from .page import Page
@@ -90,11 +91,11 @@ class GaitEditor:
             self.robot_problem = gui.add_markdown("")
         self.table_html = gui.add_html("")
         with table_tab:  # beside the 3D view, in the page's own panel, not in the side panel
-            gui.add_markdown("Modules 1… top to bottom, one period across; blue −, red + (full at the limits); "
-                             "black: where the preview is; framed: the selected module")  # fmt: skip
+            self.table_caption = gui.add_markdown(TABLE_CAPTION)
             self.control = gui.add_image(control_table([], (-90.0, 90.0)), label=None, format="png")
+            self.state_legend = gui.add_html("")
         self._table: tuple[list[list[float]], tuple[float, float]] = ([], (-90.0, 90.0))
-        self._table_drawn: tuple[int, int | None, int | None] | None = None
+        self._table_drawn: tuple[Any, ...] | None = None
         with expanded_tab:
             self.expanded = gui.add_uplot(data=empty_plot(2), series=({"label": "t"}, {"label": "m1"}),
                                           title="Expanded table: commanded angle per module", aspect=2.2,
@@ -259,7 +260,7 @@ class GaitEditor:
         self.table_html.content = _states_table(data, self.automaton.value, index)
         if not self.doc.problems and not self.doc.gait().timed:  # events decide its timing: no table to expand
             self._table = ([], self.doc.gait().limits)
-            self.draw_control_table(force=True)
+            self.redraw_later()  # the page's refresh draws its states over time (draw_states)
             with self.page.atomic():
                 self.expanded.series = ({"label": "t"}, {"label": "(event-driven: see the preview)"})
                 self.expanded.data = empty_plot(2)
@@ -287,7 +288,40 @@ class GaitEditor:
         if not force and key == self._table_drawn:
             return
         self._table_drawn = key
+        self._caption(TABLE_CAPTION, "")
         self.control.image = control_table(rows, limits, cursor=cursor, selected=self.selected_module())
+
+    def redraw_later(self) -> None:
+        """The next refresh draws the table (or the states over time) even if nothing moved."""
+        self._table_drawn = None
+
+    def draw_states(self, times: np.ndarray, states: np.ndarray, ended_at: float | None) -> None:
+        """An event-driven or one-shot gait has no period to tabulate: draw instead the states each module of the
+        preview was in over its last seconds (``times``, ``states`` as PreviewLoop.state_history gives them), with
+        the end of a one-shot program (``ended_at``, when the frames reach it) — redrawn five times a second."""
+        ended_at = ended_at if ended_at is not None and len(times) and ended_at <= times[-1] + 1e-9 else None
+        newest = round(float(times[-1]) * 5) if len(times) else None
+        key = ("states", newest, states.shape, ended_at, self.selected_module())
+        if key == self._table_drawn:
+            return
+        self._table_drawn = key
+        count = max((len(a.states) for a in self.page.loop.gait.automata.values()), default=0)
+        ended = f" · **■ ended** at t = {ended_at:.2f} s (the black line)" if ended_at is not None else ""
+        span = f"t = {times[0]:.1f} … {times[-1]:.1f} s" if len(times) else "no frames yet"
+        self._caption(f"States over time (event-driven: no period to tabulate) · modules 1… top to bottom, "
+                      f"{WINDOW_SECONDS:g} s across, a tick each second · {span}{ended}",
+                      legend([f"S{k + 1}" for k in range(count)]))  # fmt: skip
+        self.control.image = state_timeline(times, states, ended_at=ended_at, selected=self.selected_module())
+
+    def _caption(self, caption: str, legend_html: str) -> None:
+        if self.table_caption.content != caption:
+            self.table_caption.content = caption
+        if self.state_legend.content != legend_html:
+            self.state_legend.content = legend_html
+
+
+TABLE_CAPTION = ("Modules 1… top to bottom, one period across; blue −, red + (full at the limits); black: where the "
+                 "preview is; framed: the selected module")  # fmt: skip
 
 
 def page_label(problem: Any) -> str:
