@@ -12,6 +12,7 @@ do not take them for user edits.
 
 from __future__ import annotations
 
+import html
 import re
 from collections.abc import Callable
 from pathlib import Path
@@ -29,6 +30,7 @@ from .document import assignments
 from .generator import GaitTools
 from .grid import StateGrid
 from .monitor import empty_plot, seconds_axes, stroke
+from .page_script import CLICKED_FIELD
 from .program_editor import EventControls, ProgramPanel
 from .state_timeline import WINDOW_SECONDS, legend, state_timeline
 
@@ -60,6 +62,9 @@ class GaitEditor:
         self.tools = GaitTools(gui, self.doc, edited=self.after_edit, safe=safe, syncing=lambda: page.syncing)
         grid_folder = gui.add_folder("States")
         self.grid = StateGrid(page.server, grid_folder, on_edit=self._on_grid, syncing=lambda: page.syncing, safe=safe)
+        with grid_folder:  # hidden by the page's script, which writes a clicked state into it (web/page_script.py)
+            self.clicked = gui.add_text(CLICKED_FIELD, "")
+        self.clicked.on_update(safe(lambda e: None if page.syncing else self.select_clicked(str(e.target.value))))
         with gui.add_folder("Selected state"):
             self.automaton = gui.add_dropdown("Automaton", ["-"])
             self.state_index = gui.add_slider("State", min=1, max=2, step=1, initial_value=1)
@@ -187,12 +192,28 @@ class GaitEditor:
 
     def _on_grid(self, automaton: str, index: int, changes: dict[str, float]) -> None:
         """A grid row changed: select that state in the cell editor too, and apply the change."""
+        self._select(automaton, index)
+        self.doc.update_state(automaton, index, changes)
+        self.after_edit()
+
+    def _select(self, automaton: str, index: int) -> None:
         with self.page.programmatic():
             self.automaton.value = automaton
             self.state_index.max = max(2, index + 1, int(self.state_index.max))
             self.state_index.value = index + 1
-        self.doc.update_state(automaton, index, changes)
-        self.after_edit()
+
+    def select_clicked(self, text: str) -> None:
+        """A state clicked in the page (``automaton:index:count`` from the page's script): select it. Anything else
+        — not three parts, an automaton or state the gait does not have — is refused, nothing selected."""
+        parts = text.split(":")
+        automata = self.doc.data()["automata"]
+        if len(parts) != 3 or parts[0] not in automata or not parts[1].isdigit():
+            raise ValueError(f"not a state of the gait: {text[:80]!r}")
+        index = int(parts[1])
+        if index >= len(automata[parts[0]]["states"]):
+            raise ValueError(f"{parts[0]} has no state S{index + 1}")
+        self._select(parts[0], index)
+        self.sync()
 
     def after_edit(self) -> None:
         self.page.edited(f"{self.doc.data().get('name', 'the gait')} edited")
@@ -342,7 +363,9 @@ def _states_table(data: dict[str, Any], selected: str, index: int) -> str:
     for name, automaton in data["automata"].items():
         cells = []
         for k, state in enumerate(automaton["states"]):
-            mark = ' style="background:#ffe8a8"' if name == selected and k == index else ""
+            mark = f' data-asm-state="{html.escape(name)}:{k}" style="cursor:pointer' + (
+                ';background:#ffe8a8"' if name == selected and k == index else '"'
+            )
             duration = state.get("duration")
             cells.append(
                 f"<td{mark}>{state.get('angle', 0):.1f}°<br><small>{duration if duration else '…'}s</small></td>"

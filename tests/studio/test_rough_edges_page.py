@@ -56,3 +56,52 @@ def test_a_one_shot_gait_shows_its_states_over_time_and_where_it_ended(start_stu
         expect(page.locator("div", has_text=re.compile(r"^S1S2S3S4not running$")).last).to_be_visible()
         browser.close()
     assert not any("Traceback" in line for line in log), "".join(log[-40:])
+
+
+def _slider_box(page, label: str):
+    """The number box beside a viser slider (the slider's own label names the slider)."""
+    row = page.locator(f"xpath=//label[normalize-space()='{label}']/ancestor::*[.//input[@inputmode]][1]")
+    return row.locator("input.mantine-NumberInput-input")
+
+
+SELECTED = "el => el.value.substring(el.selectionStart, el.selectionEnd)"
+
+
+def test_a_double_click_selects_the_number_and_a_click_on_a_state_selects_it(studio_process):
+    """A double-click in a number field holding -33.5 selected "33.5" (the browser's word), so typing over it kept
+    the minus; clicking a state's row in the grid, or its cell in the states table, did not select the state."""
+    from playwright.sync_api import expect, sync_playwright
+
+    url, _, log = studio_process
+    with sync_playwright() as pw:
+        browser, page = open_page(pw, url)
+        page.get_by_role("tab", name="Gait").click()
+        angle = page.get_by_label("Angle (deg)", exact=True)
+        expect(angle).to_be_visible(timeout=15_000)
+        angle.click()
+        angle.press("Control+a")
+        angle.press_sequentially("-33.5")
+        angle.press("Tab")
+        expect(page.get_by_text("wave S1 (°, s)", exact=True)).to_be_visible()
+        expect(angle).to_have_value("-33.5", timeout=15_000)
+        angle.dblclick()
+        assert angle.evaluate(SELECTED) == "-33.5"
+        angle.press_sequentially("12")  # typed over the whole number
+        angle.press("Tab")
+        expect(angle).to_have_value("12", timeout=15_000)
+        state = _slider_box(page, "State")
+        expect(state).to_have_value("1")
+        page.get_by_text("wave S5 (°, s)", exact=True).click()  # a row of the state grid
+        expect(state).to_have_value("5", timeout=15_000)
+        expect(angle).to_have_value(re.compile(r"^46\.(19|2)"), timeout=15_000)
+        page.locator('[data-asm-state="wave:8"]').click()  # S9's cell in the states table
+        expect(state).to_have_value("9", timeout=15_000)
+        expect(angle).to_have_value(re.compile(r"^-19\.1"), timeout=15_000)
+        expect(page.locator('[data-asm-state="wave:8"]')).to_have_attribute("style", re.compile("background"))
+        grid_input = page.get_by_label("wave S3 (°, s)").first  # a click into a row's input selects it too
+        grid_input.click()
+        expect(state).to_have_value("3", timeout=15_000)
+        expect(page.get_by_label("Clicked state")).to_be_hidden()  # the script's field is not shown
+        page.screenshot(path=str(ARTIFACTS / "rough-click-selects-state.png"))
+        browser.close()
+    assert not any("Traceback" in line for line in log), "".join(log[-40:])
