@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import logging
 import threading
+import time
 from typing import TYPE_CHECKING, Any
 
 from asm_module.names import module_name
@@ -19,6 +20,8 @@ if TYPE_CHECKING:
     from .page import Page
 
 log = logging.getLogger("asm_studio.monitor")
+LIST_RETRY = 2.0
+"""Seconds between the page's own tries to list the chosen node's objects while none are listed."""
 LIVE_PLOTS = {"Live plot 1": "Live 1: module attributes (from the robot)",
               "Live plot 2": "Live 2: module attributes (from the robot)"}  # fmt: skip
 
@@ -59,7 +62,10 @@ class MonitorPanel:
         self.lives = [SeriesPlot(gui, plots_tab, title=title, y_label="value", aspect=3.0)
                       for title in LIVE_PLOTS.values()]  # fmt: skip
         self._value_input: ValueInput | None = None
-        self._browsing = threading.RLock()  # the user's choices (viser's pool) and the refresh's first listing
+        self._browsing = threading.RLock()  # the user's choices (viser's pool) and the refresh's own listing
+        self._listing = threading.Lock()
+        """Held by the refresh's own listing (one at a time)."""
+        self._listed_at = -LIST_RETRY
         page.on("relinked", self.relink)
         page.on("modules_removed", self.forget)
         page.on("deployed", self.watch_angles)
@@ -154,11 +160,26 @@ class MonitorPanel:
         with self._browsing:
             self._list_objects()
 
+    def _list_by_itself(self, names: list[str]) -> None:
+        """While the chosen node's objects are not listed, list them without a click on List: off the refresh
+        thread, one try at a time, every LIST_RETRY seconds. Listing once, when the roster first named a node, left
+        "-" for good whenever that try failed (a robot still starting, a node answering late)."""
+        now = time.monotonic()
+        if (not names or self.browse_module.value not in names or list(self.browse_object.options) != ["-"]
+                or self._listing.locked() or now - self._listed_at < LIST_RETRY):  # fmt: skip
+            return
+        self._listed_at = now
+        threading.Thread(target=self._list_quietly, name="studio-list-objects", daemon=True).start()
+
     def _list_quietly(self) -> None:
+        if not self._listing.acquire(blocking=False):
+            return
         try:
             self.list_objects()
-        except Exception as exc:  # the robot went away meanwhile: List says why when pressed
+        except Exception as exc:  # not answering yet, or gone: tried again LIST_RETRY s on; List says why
             log.debug("listing the objects of %s failed: %s", self.browse_module.value, exc)
+        finally:
+            self._listing.release()
 
     def _list_objects(self) -> None:
         if self.browse_module.value == "-":
@@ -197,10 +218,8 @@ class MonitorPanel:
         names = [n for n, _, _ in rows]
         if names and list(self.browse_module.options) != names:
             with self.page.programmatic():
-                chosen = self.browse_module.value
                 self.browse_module.options = names
-            if chosen == "-":  # the first node's objects without a click on List: looked up off the refresh thread
-                threading.Thread(target=self._list_quietly, name="studio-list-objects", daemon=True).start()
+        self._list_by_itself(names)
         others = sorted(roster.tools)
         watching = f"  \nAlso attached: {', '.join(others)}" if others else ""
         self.roster_md.content = "**Nodes**" + watching + "  \n" + "  \n".join(

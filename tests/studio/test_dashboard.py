@@ -349,3 +349,23 @@ def test_a_layout_round_trips_and_a_file_that_is_not_one_changes_nothing(studio)
         assert monitor.layout() == saved  # nothing changed
     monitor.apply_layout({"plots": {"Live plot 2": []}, "window": 10.0})
     assert monitor.layout()["plots"]["Live plot 2"] == []
+
+
+def test_the_monitor_lists_the_objects_by_itself_once_the_node_answers(studio, monkeypatch):
+    """The object list showed "-" until List was pressed when the page's one listing failed (a robot still
+    starting): it tries again by itself until the chosen node answers."""
+    monitor = studio.app.monitor
+    link = studio.app.page.robot
+    real, calls = link.list_objects, []
+
+    def not_up_yet(*args, **kwargs):
+        calls.append(args)
+        if len(calls) < 3:
+            raise TimeoutError("no answer yet")
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(link, "list_objects", not_up_yet)
+    monitor.relink()  # as when the page shows a robot afresh: nothing listed
+    assert list(monitor.browse_object.options) == ["-"]
+    assert wait_until(lambda: "joint.goal" in monitor.browse_object.options, timeout=30), calls
+    assert len(calls) == 3 and monitor.browse_module.value == "m1"

@@ -105,3 +105,29 @@ def test_a_double_click_selects_the_number_and_a_click_on_a_state_selects_it(stu
         page.screenshot(path=str(ARTIFACTS / "rough-click-selects-state.png"))
         browser.close()
     assert not any("Traceback" in line for line in log), "".join(log[-40:])
+
+
+def test_the_monitor_lists_a_module_s_objects_by_itself(studio_process):
+    """The Monitor's object list showed "-" until List was pressed: it lists the first module's objects once the
+    robot is up, another module's when it is chosen, and again after a deploy restarted the robot."""
+    from playwright.sync_api import expect, sync_playwright
+
+    from .browser import deploy_and_start
+
+    url, _, log = studio_process
+    with sync_playwright() as pw:
+        browser, page = open_page(pw, url)
+        page.get_by_role("tab", name="Monitor").click()
+        objects = page.get_by_label("Object")
+        expect(objects).to_have_value("joint.goal", timeout=60_000)  # m1's first object, no List pressed
+        expect(page.get_by_text("gait.state", exact=False).first).to_be_visible()
+        page.get_by_label("Node").click()
+        page.get_by_role("option", name="m3", exact=True).click()
+        expect(page.get_by_label("joint.goal (float32)")).to_be_visible(timeout=30_000)  # m3's, its input shown
+        deploy_and_start(page, 8)
+        page.get_by_role("tab", name="Monitor").click()
+        expect(objects).to_have_value("joint.goal", timeout=60_000)
+        expect(page.get_by_label("joint.goal (float32)")).to_be_visible(timeout=30_000)
+        page.screenshot(path=str(ARTIFACTS / "rough-monitor-lists.png"))
+        browser.close()
+    assert not any("Traceback" in line for line in log), "".join(log[-40:])
