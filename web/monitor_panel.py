@@ -145,12 +145,16 @@ class MonitorPanel:
                 f"`{value.obj.name}` ({describe(value.obj)}) = **{format_value(value.refresh())}**"
             )
         elif action == "Set":
+            where = f"{self.browse_module.value}/{value.obj.name}"
             try:
                 written = value.write()
-            except (ValueError, TypeError) as exc:  # refused in the page: nothing was sent to the module
+            except Exception as exc:  # refused in the page or by the module, or no answer: said under "Set"
                 self.browse_value.content = f"⚠ `{value.obj.name}` not set: {exc}"
-                raise
+                self.page.notify("Set", f"{where}: {exc}", error=True)
+                return
             self.browse_value.content = f"`{value.obj.name}` set to **{format_value(written)}**"
+            # the refusal of an earlier Set is over: the status line says so (it stayed, even after a reload)
+            self.page.resolved("Set", f"{where} set to {format_value(written)}")
         else:
             self.plots[list(LIVE_PLOTS).index(self.plot_into.value)].watch(self.browse_module.value, value.obj.name)
             self.page.emit("plotted")

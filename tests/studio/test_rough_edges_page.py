@@ -131,3 +131,34 @@ def test_the_monitor_lists_a_module_s_objects_by_itself(studio_process):
         page.screenshot(path=str(ARTIFACTS / "rough-monitor-lists.png"))
         browser.close()
     assert not any("Traceback" in line for line in log), "".join(log[-40:])
+
+
+def test_a_refused_set_s_error_goes_when_a_set_succeeds_and_stays_gone_after_a_reload(studio_process):
+    """joint.limits of (-200, 90) is refused by the module; the error stayed in the status line after a successful
+    Set, and after a reload."""
+    from playwright.sync_api import expect, sync_playwright
+
+    from .browser import VIEW_DPR, type_and_set
+
+    url, _, log = studio_process
+    with sync_playwright() as pw:
+        browser, page = open_page(pw, url)
+        page.get_by_role("tab", name="Monitor").click()
+        page.get_by_label("Node").click()
+        page.get_by_role("option", name="m2", exact=True).click()
+        type_and_set(page, "joint.limits", "joint.limits (float32[2])", "-200")
+        error = page.get_by_text("joint limits must satisfy", exact=False)
+        expect(error.first).to_be_visible(timeout=15_000)
+        page.screenshot(path=str(ARTIFACTS / "rough-limit-refused.png"))
+        type_and_set(page, "joint.limits", "joint.limits (float32[2])", "-45")
+        expect(page.get_by_text("set to", exact=False).first).to_be_visible(timeout=15_000)
+        expect(error).to_have_count(0, timeout=15_000)
+        page.goto(f"{url}/?fixedDpr={VIEW_DPR}")
+        expect(page.get_by_role("button", name=re.compile(r"^E-STOP"))).to_be_visible(timeout=60_000)
+        page.get_by_role("tab", name="Monitor").click()
+        expect(page.get_by_label("Node")).to_be_visible(timeout=15_000)
+        expect(page.get_by_text("set to", exact=False).first).to_be_visible(timeout=15_000)
+        expect(error).to_have_count(0, timeout=15_000)
+        page.screenshot(path=str(ARTIFACTS / "rough-limit-cleared.png"))
+        browser.close()
+    assert not any("Traceback" in line for line in log), "".join(log[-40:])
