@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING, Any
 from asm_module.names import module_name
 
 from .inputs import ValueInput
+from .layout_store import LayoutStore
 from .monitor import PLOT_SECONDS, WINDOWS, LivePlot, SeriesPlot, StudioClock, describe, format_value, plot_csv
 
 if TYPE_CHECKING:
@@ -21,7 +22,9 @@ if TYPE_CHECKING:
 
 log = logging.getLogger("asm_studio.monitor")
 LIST_RETRY = 2.0
-"""Seconds between the page's own tries to list the chosen node's objects while none are listed."""
+"""Seconds between the page's own tries to list the chosen node's objects while none are listed (and to restore
+the last layout while the robot does not answer)."""
+RESTORE_TRIES = 15
 LIVE_PLOTS = {"Live plot 1": "Live 1: module attributes (from the robot)",
               "Live plot 2": "Live 2: module attributes (from the robot)"}  # fmt: skip
 
@@ -66,6 +69,11 @@ class MonitorPanel:
         self._listing = threading.Lock()
         """Held by the refresh's own listing (one at a time)."""
         self._listed_at = -LIST_RETRY
+        self._restored_at = -LIST_RETRY
+        self.store = LayoutStore(page.layout_file)
+        self._restoring: dict[str, Any] | None = self.store.load()
+        """The layout the studio showed when it last ran, plotted again once the robot answers (None: done)."""
+        self._restore_tries = 0
         page.on("relinked", self.relink)
         page.on("modules_removed", self.forget)
         page.on("deployed", self.watch_angles)
@@ -101,6 +109,33 @@ class MonitorPanel:
         with self.page.programmatic():
             self.window.value = f"{float(window):g}"
         self.page.notify("Layout", f"loaded: {sum(len(k) for k in wanted.values())} plotted attributes")
+
+    def _keep_layout(self) -> None:
+        """Keep the layout in the store whenever it changes; first restore the last one (off the refresh thread,
+        a try every LIST_RETRY s while the robot's modules do not answer yet, RESTORE_TRIES at most)."""
+        if self._restoring is None:
+            self.store.save(self.layout())
+            return
+        now = time.monotonic()
+        if self._listing.locked() or now - self._restored_at < LIST_RETRY or not self.page.robot.roster.alive():
+            return
+        self._restored_at = now
+        threading.Thread(target=self._restore, name="studio-restore-layout", daemon=True).start()
+
+    def _restore(self) -> None:
+        if self._restoring is None or not self._listing.acquire(blocking=False):
+            return
+        try:
+            self.apply_layout(self._restoring)
+            self.page.notify("Layout", f"the last one restored (from {self.store.path})")
+            self._restoring = None
+        except Exception as exc:  # the modules not up yet, or a layout no longer valid: said at the last try
+            self._restore_tries += 1
+            if self._restore_tries >= RESTORE_TRIES:
+                self._restoring = None
+                self.page.notify("Layout", f"the last one ({self.store.path}) was not restored: {exc}", error=True)
+        finally:
+            self._listing.release()
 
     def _export(self, event: Any) -> None:
         """Download what a live plot shows now (its window) as CSV, to the tab that asked."""
@@ -231,6 +266,7 @@ class MonitorPanel:
             f"{' · ' + roster.gait(name) if roster.gait(name) else ''}"
             for name, alive, age in rows
         )  # fmt: skip
+        self._keep_layout()
         now = self.clock()  # one now for every plot: their windows end at the same instant
         for plot, live in zip(self.plots, self.lives, strict=True):
             labels, data = plot.data(now)

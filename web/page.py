@@ -19,6 +19,7 @@ import logging
 import threading
 import time
 from collections.abc import Callable, Iterator
+from pathlib import Path
 from typing import Any, Literal, Protocol
 
 import viser
@@ -51,6 +52,8 @@ class Backend(Protocol):
     """The text of its file (a download keeps its comments)."""
     c_modules: str | None
     """The simulated modules that run the C runtime ("odd", "even", "all", "1,3,5"), in the robot and the preview."""
+    layout_file: Path | None
+    """Where the page keeps its last layout across restarts of the studio (web/layout_store.py); None: nowhere."""
 
     @property
     def simulated(self) -> bool:
@@ -139,6 +142,11 @@ class Page:
         """Make a simulated robot the one ``gait`` describes, on the preview's ground (the Preview tab's picker);
         a message when it was rebuilt."""
         return self._backend.ensure_robot(gait, self.loop.terrain)
+
+    @property
+    def layout_file(self) -> Path | None:
+        """Where the page keeps its last layout (the backend's choice)."""
+        return getattr(self._backend, "layout_file", None)
 
     @property
     def recorder(self) -> Backend:

@@ -10,7 +10,7 @@ import re
 
 import numpy as np
 
-from ..helpers import ARTIFACTS
+from ..helpers import ARTIFACTS, wait_until
 from .browser import marks, open_page
 
 pytestmark = marks(2)
@@ -162,3 +162,70 @@ def test_a_refused_set_s_error_goes_when_a_set_succeeds_and_stays_gone_after_a_r
         page.screenshot(path=str(ARTIFACTS / "rough-limit-cleared.png"))
         browser.close()
     assert not any("Traceback" in line for line in log), "".join(log[-40:])
+
+
+def test_the_layout_comes_back_after_the_studio_restarts(tmp_path):
+    """m3's joint.angle plotted into Live plot 2 with a 60 s window; the studio process stopped and started again
+    (the same recordings directory): the page shows the same plots and window without a Load layout."""
+    import json
+
+    from playwright.sync_api import expect, sync_playwright
+
+    from ..processes import Process
+    from ..transports import free_port
+
+    layout_file = tmp_path / "studio-layout.json"
+    started: list[Process] = []
+
+    def start() -> str:
+        port = free_port()
+        proc = Process("-m", "server.studio", "--port", str(port), "--zenoh-listen",
+                       f"tcp/127.0.0.1:{free_port()}", "--recordings", str(tmp_path))  # fmt: skip
+        started.append(proc)
+        proc.wait_for_line("READY studio", timeout=60)
+        return f"http://127.0.0.1:{port}"
+
+    try:
+        with sync_playwright() as pw:
+            url = start()
+            browser, page = open_page(pw, url)
+            page.get_by_role("tab", name="Monitor").click()
+            page.get_by_label("Node").click()
+            page.get_by_role("option", name="m3", exact=True).click()
+            page.get_by_label("Object").click()
+            page.get_by_role("option", name="joint.angle", exact=True).click()
+            page.get_by_label("Plot into").click()
+            page.get_by_role("option", name="Live plot 2", exact=True).click()
+            page.get_by_role("button", name="Plot", exact=True).click()
+            page.get_by_label("Window (s)").click()
+            page.get_by_role("option", name="60", exact=True).click()
+            expected = {"Live plot 1": [], "Live plot 2": ["m3/joint.angle"]}
+
+            def kept() -> bool:
+                try:
+                    saved = json.loads(layout_file.read_text())
+                except (OSError, ValueError):
+                    return False
+                return saved["plots"] == expected and saved["window"] == 60.0
+
+            assert wait_until(kept, timeout=30), layout_file.read_text() if layout_file.exists() else "no file"
+            browser.close()
+            first = started.pop()
+            first.stop()
+            assert not any("Traceback" in line for line in first.output), "".join(first.output[-40:])
+            url = start()  # the studio again, as after a restart
+            browser, page = open_page(pw, url)
+            page.get_by_role("tab", name="Monitor").click()
+            expect(page.get_by_label("Window (s)")).to_have_value("60", timeout=30_000)
+            expect(page.get_by_text("the last one restored", exact=False).first).to_be_visible(timeout=60_000)
+            page.get_by_role("tab", name="Plots").click()
+            second = page.locator(".uplot", has_text="Live 2")
+            second.scroll_into_view_if_needed()
+            expect(second).to_contain_text("m3 joint.angle", timeout=30_000)
+            page.screenshot(path=str(ARTIFACTS / "rough-layout-after-restart.png"))
+            browser.close()
+        assert json.loads(layout_file.read_text())["plots"] == expected  # still the same layout
+        assert not any("Traceback" in line for line in started[0].output), "".join(started[0].output[-40:])
+    finally:
+        for proc in started:
+            proc.stop()
