@@ -220,11 +220,12 @@ class SeriesPlot:
     """A live plot against seconds before now, whose set of series can change (it gains a series per watched
     attribute).
 
-    Its x scale is fixed at [-window, 0] and the data moves through it. With times on an x scale of its own the
-    page's uPlot kept the scale's position relative to the data's ends from one update to the next, and once that
-    slipped (a plot re-targeted, a slow page) the axis stayed at 34 s while the samples were at 853 s: a blank plot
-    until a reload, and two plots on different scales. A fixed range has nothing to slip, and every live plot shows
-    the same window ending at the same now.
+    Its x scale is fixed at [-window, 0] and the data moves through it. With an automatic x scale, viser's uPlot
+    component carries each plot's range from one update to the next relative to the ends of that plot's own data
+    (its client's UplotComponent.tsx): two plots showed different ranges (one from its first sample, one from the
+    other's), and a range that stopped following its data — reported: an axis at 34 s against samples at 853 s —
+    stayed until a reload. A fixed range has nothing to carry over, and every live plot shows the same window
+    ending at the same now.
 
     A new set of series (or window) makes a new uPlot in the same place, holding its data from the start: the page
     applies a plot's ``series`` and ``data`` as two updates, and a plot that had five series with two arrays in
