@@ -261,6 +261,11 @@ class Simulation:
         """A chain's first and last bodies: its heading is the line between them."""
         self._started = False
         hub = LocalNeighbours() if node_of is None else None  # without a bus, neighbours are heard in-process
+        self._states = {a.id: 0 for a in gait.modules}
+        """Each module's automaton state as it announced it on the in-process hub (Python and C alike)."""
+        for assignment in gait.modules:
+            if hub is not None:
+                hub.watch(assignment.id, lambda state, i=assignment.id: self._states.__setitem__(i, state))
         for assignment in gait.modules:
             driver = MujocoJoint(self, assignment.id)
             if assignment.id in emulated_modules:
@@ -326,6 +331,11 @@ class Simulation:
     def running(self) -> int:
         """How many modules' gaits run now (none, once a one-shot program has ended on every module)."""
         return sum(1 for module in self.modules.values() if module.gait_running())
+
+    def states(self) -> tuple[int, ...]:
+        """Each module's automaton state now (0-based, as ``gait.state``), -1 where its gait does not run: what the
+        preview's states-over-time view draws. Heard on the in-process hub: all 0 for modules on a bus."""
+        return tuple(self._states[i] if m.gait_running() else -1 for i, m in self.modules.items())
 
     def stop_gaits(self) -> None:
         """Stop every module's gait: the joints hold their last goals (the Drive panel's stop)."""

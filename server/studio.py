@@ -48,6 +48,7 @@ from asm_py.transport.zenoh import NameTaken
 from gaits.model import LIBRARY, Gait, dumps, loads
 from gaits.terrain import FLAT, Terrain
 from gaits.validate import read
+from web.layout_store import LAYOUT_FILE  # the standard library alone: viser still loads only for the studio
 
 from .child import Child, ChildError
 from .realtime import prefer_latency
@@ -85,6 +86,9 @@ class StudioOptions:
     """Simulated modules that run the C runtime (``asm-robot --c-modules``): "odd", "even", "all" or "1,3,5"."""
     recordings: Path = Path("recordings")
     """Where the page's Record button writes its MCAP files."""
+    layout: Path | None = None
+    """Where the page keeps its last layout across restarts (web/layout_store.py); None: nowhere. ``asm-studio``
+    keeps it in ``<recordings>/studio-layout.json`` unless told ``--layout``."""
 
 
 def free_loopback_port() -> int:
@@ -139,6 +143,8 @@ class Studio:
         self._watcher: threading.Thread | None = None
         self._link: Any = None
         self.recording: StudioRecording | None = None
+        self.layout_file: Path | None = options.layout
+        """The page's last layout, restored when the studio starts again (web/layout_store.py)."""
         try:
             self.network = self._start_robot(self.gait) if options.robot is None else self._join(options.robot)
             self.session = self.network.open()
@@ -376,6 +382,9 @@ def main(argv: list[str] | None = None) -> int:
                      help="where the page's Record button writes MCAP files (default: recordings)")  # fmt: skip
     cli.add_argument("--replay", type=input_file, metavar="FILE", help="open this MCAP recording in the Replay tab "
                      "at start (the 3D view plays it)")  # fmt: skip
+    cli.add_argument("--layout", type=Path, metavar="FILE", help="where the page keeps its last layout (the "
+                     "live plots and their window), restored when the studio starts again (default: "
+                     f"RECORDINGS/{LAYOUT_FILE})")  # fmt: skip
     cli.add_argument("--view", choices=["preview", "live"], default="preview",
                      help="what the 3D view shows at start (default: the preview of the edited gait)")  # fmt: skip
     cli.add_argument("--c-modules", type=module_selection, metavar="IDS", help="simulated modules that run the C "
@@ -401,7 +410,8 @@ def _serve(args: argparse.Namespace, network: ZenohOptions) -> int:
     options = StudioOptions(gait=args.gait, can=args.can, robot=args.robot, robot_name=args.robot_name,
                             name=args.name, bitrate=args.bitrate, network=network, host=args.host, port=args.port,
                             view=args.view, c_modules=_selection_text(args.c_modules),
-                            recordings=args.recordings)  # fmt: skip
+                            recordings=args.recordings,
+                            layout=args.layout or args.recordings / LAYOUT_FILE)  # fmt: skip
     done = stop_requested()
     studio = Studio(options)  # a bad gait file, a busy port, no robot: asm-studio: error: … (asm_py.cli.run)
     if args.replay is not None:  # read on the Replay tab's thread: a file that cannot be replayed is said there

@@ -41,6 +41,7 @@ from .preview_panel import PreviewPanel
 from .record_panel import RecordPanel
 from .replay_panel import ReplayPanel
 from .robot_bar import RobotBar
+from .state_timeline import WINDOW_SECONDS
 from .tune_panel import TunePanel
 
 __all__ = ["Backend", "Dashboard"]
@@ -95,8 +96,11 @@ class Dashboard:
         """A browser came: what was not drawn while nobody watched is drawn now, from the newest state."""
         self._frame_camera(client)
         self.view.redraw()
-        with contextlib.suppress(ValueError):
-            self.editor.draw_control_table(force=True)
+        if self.loop.gait.timed:  # else the refresh draws the states over time
+            with contextlib.suppress(ValueError):
+                self.editor.draw_control_table(force=True)
+        else:
+            self.editor.redraw_later()
 
     def _frame_camera(self, client: Any) -> None:
         """Look at the robot from close enough to see its modules move."""
@@ -244,9 +248,11 @@ class Dashboard:
         with self.page.programmatic():
             self.drive.sync(loop.gait)
         shown = loop.shown()
-        if watched:
+        if watched and loop.gait.timed:
             with contextlib.suppress(ValueError):  # a gait with no single period has no cursor
                 self.editor.draw_control_table(cursor=None if shown is None else shown.time / loop.gait.period)
+        elif watched:  # event-driven or one-shot: what the preview's modules did, in place of a blank table
+            self.editor.draw_states(*loop.state_history(WINDOW_SECONDS), loop.ended_at)
         self.monitor.refresh()
         if watched:
             self.replay.refresh()

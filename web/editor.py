@@ -12,6 +12,7 @@ do not take them for user edits.
 
 from __future__ import annotations
 
+import html
 import re
 from collections.abc import Callable
 from pathlib import Path
@@ -29,7 +30,9 @@ from .document import assignments
 from .generator import GaitTools
 from .grid import StateGrid
 from .monitor import empty_plot, seconds_axes, stroke
+from .page_script import CLICKED_FIELD
 from .program_editor import EventControls, ProgramPanel
+from .state_timeline import WINDOW_SECONDS, legend, state_timeline
 
 if TYPE_CHECKING:
     from .page import Page
@@ -59,6 +62,9 @@ class GaitEditor:
         self.tools = GaitTools(gui, self.doc, edited=self.after_edit, safe=safe, syncing=lambda: page.syncing)
         grid_folder = gui.add_folder("States")
         self.grid = StateGrid(page.server, grid_folder, on_edit=self._on_grid, syncing=lambda: page.syncing, safe=safe)
+        with grid_folder:  # hidden by the page's script, which writes a clicked state into it (web/page_script.py)
+            self.clicked = gui.add_text(CLICKED_FIELD, "")
+        self.clicked.on_update(safe(lambda e: None if page.syncing else self.select_clicked(str(e.target.value))))
         with gui.add_folder("Selected state"):
             self.automaton = gui.add_dropdown("Automaton", ["-"])
             self.state_index = gui.add_slider("State", min=1, max=2, step=1, initial_value=1)
@@ -90,11 +96,11 @@ class GaitEditor:
             self.robot_problem = gui.add_markdown("")
         self.table_html = gui.add_html("")
         with table_tab:  # beside the 3D view, in the page's own panel, not in the side panel
-            gui.add_markdown("Modules 1… top to bottom, one period across; blue −, red + (full at the limits); "
-                             "black: where the preview is; framed: the selected module")  # fmt: skip
+            self.table_caption = gui.add_markdown(TABLE_CAPTION)
             self.control = gui.add_image(control_table([], (-90.0, 90.0)), label=None, format="png")
+            self.state_legend = gui.add_html("")
         self._table: tuple[list[list[float]], tuple[float, float]] = ([], (-90.0, 90.0))
-        self._table_drawn: tuple[int, int | None, int | None] | None = None
+        self._table_drawn: tuple[Any, ...] | None = None
         with expanded_tab:
             self.expanded = gui.add_uplot(data=empty_plot(2), series=({"label": "t"}, {"label": "m1"}),
                                           title="Expanded table: commanded angle per module", aspect=2.2,
@@ -186,12 +192,28 @@ class GaitEditor:
 
     def _on_grid(self, automaton: str, index: int, changes: dict[str, float]) -> None:
         """A grid row changed: select that state in the cell editor too, and apply the change."""
+        self._select(automaton, index)
+        self.doc.update_state(automaton, index, changes)
+        self.after_edit()
+
+    def _select(self, automaton: str, index: int) -> None:
         with self.page.programmatic():
             self.automaton.value = automaton
             self.state_index.max = max(2, index + 1, int(self.state_index.max))
             self.state_index.value = index + 1
-        self.doc.update_state(automaton, index, changes)
-        self.after_edit()
+
+    def select_clicked(self, text: str) -> None:
+        """A state clicked in the page (``automaton:index:count`` from the page's script): select it. Anything else
+        — not three parts, an automaton or state the gait does not have — is refused, nothing selected."""
+        parts = text.split(":")
+        automata = self.doc.data()["automata"]
+        if len(parts) != 3 or parts[0] not in automata or not parts[1].isdigit():
+            raise ValueError(f"not a state of the gait: {text[:80]!r}")
+        index = int(parts[1])
+        if index >= len(automata[parts[0]]["states"]):
+            raise ValueError(f"{parts[0]} has no state S{index + 1}")
+        self._select(parts[0], index)
+        self.sync()
 
     def after_edit(self) -> None:
         self.page.edited(f"{self.doc.data().get('name', 'the gait')} edited")
@@ -259,7 +281,7 @@ class GaitEditor:
         self.table_html.content = _states_table(data, self.automaton.value, index)
         if not self.doc.problems and not self.doc.gait().timed:  # events decide its timing: no table to expand
             self._table = ([], self.doc.gait().limits)
-            self.draw_control_table(force=True)
+            self.redraw_later()  # the page's refresh draws its states over time (draw_states)
             with self.page.atomic():
                 self.expanded.series = ({"label": "t"}, {"label": "(event-driven: see the preview)"})
                 self.expanded.data = empty_plot(2)
@@ -287,7 +309,40 @@ class GaitEditor:
         if not force and key == self._table_drawn:
             return
         self._table_drawn = key
+        self._caption(TABLE_CAPTION, "")
         self.control.image = control_table(rows, limits, cursor=cursor, selected=self.selected_module())
+
+    def redraw_later(self) -> None:
+        """The next refresh draws the table (or the states over time) even if nothing moved."""
+        self._table_drawn = None
+
+    def draw_states(self, times: np.ndarray, states: np.ndarray, ended_at: float | None) -> None:
+        """An event-driven or one-shot gait has no period to tabulate: draw instead the states each module of the
+        preview was in over its last seconds (``times``, ``states`` as PreviewLoop.state_history gives them), with
+        the end of a one-shot program (``ended_at``, when the frames reach it) — redrawn five times a second."""
+        ended_at = ended_at if ended_at is not None and len(times) and ended_at <= times[-1] + 1e-9 else None
+        newest = round(float(times[-1]) * 5) if len(times) else None
+        key = ("states", newest, states.shape, ended_at, self.selected_module())
+        if key == self._table_drawn:
+            return
+        self._table_drawn = key
+        count = max((len(a.states) for a in self.page.loop.gait.automata.values()), default=0)
+        ended = f" · **■ ended** at t = {ended_at:.2f} s (the black line)" if ended_at is not None else ""
+        span = f"t = {times[0]:.1f} … {times[-1]:.1f} s" if len(times) else "no frames yet"
+        self._caption(f"States over time (event-driven: no period to tabulate) · modules 1… top to bottom, "
+                      f"{WINDOW_SECONDS:g} s across, a tick each second · {span}{ended}",
+                      legend([f"S{k + 1}" for k in range(count)]))  # fmt: skip
+        self.control.image = state_timeline(times, states, ended_at=ended_at, selected=self.selected_module())
+
+    def _caption(self, caption: str, legend_html: str) -> None:
+        if self.table_caption.content != caption:
+            self.table_caption.content = caption
+        if self.state_legend.content != legend_html:
+            self.state_legend.content = legend_html
+
+
+TABLE_CAPTION = ("Modules 1… top to bottom, one period across; blue −, red + (full at the limits); black: where the "
+                 "preview is; framed: the selected module")  # fmt: skip
 
 
 def page_label(problem: Any) -> str:
@@ -308,7 +363,9 @@ def _states_table(data: dict[str, Any], selected: str, index: int) -> str:
     for name, automaton in data["automata"].items():
         cells = []
         for k, state in enumerate(automaton["states"]):
-            mark = ' style="background:#ffe8a8"' if name == selected and k == index else ""
+            mark = f' data-asm-state="{html.escape(name)}:{k}" style="cursor:pointer' + (
+                ';background:#ffe8a8"' if name == selected and k == index else '"'
+            )
             duration = state.get("duration")
             cells.append(
                 f"<td{mark}>{state.get('angle', 0):.1f}°<br><small>{duration if duration else '…'}s</small></td>"

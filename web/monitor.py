@@ -113,16 +113,31 @@ Lookup = Callable[..., Any]
 """``lookup(node, name, timeout=…)``: a client object (RobotLink.lookup, Node.lookup)."""
 
 
+class StudioClock:
+    """Seconds since the studio's monitor started: the one time base of every live plot.
+
+    Each plot used to count from its own start, so two plots (or one re-targeted) ran on different scales; a robot
+    restart resets the robot's own time, so that is no base either. Injectable (``now``) so a test can run a
+    studio for days in a moment."""
+
+    def __init__(self, now: Callable[[], float] = time.monotonic) -> None:
+        self._now = now
+        self.t0 = now()
+
+    def __call__(self) -> float:
+        return self._now() - self.t0
+
+
 class LivePlot:
     """Bounded time series of remote attributes, filled by their publications (looked up with ``lookup``, which
-    the page swaps for the new robot's)."""
+    the page swaps for the new robot's), timed by ``clock`` (shared by the page's plots)."""
 
-    def __init__(self, lookup: Lookup) -> None:
+    def __init__(self, lookup: Lookup, clock: Callable[[], float] | None = None) -> None:
         self.lookup = lookup
+        self.clock = clock if clock is not None else StudioClock()
         self._lock = threading.Lock()
         self.series: dict[tuple[str, str], deque[tuple[float, float]]] = {}
         self._unsubscribe: dict[tuple[str, str], Callable[[], None]] = {}
-        self.t0 = time.monotonic()
         self.received = 0
         self.window = PLOT_SECONDS
         """Seconds shown, up to the newest sample."""
@@ -137,7 +152,7 @@ class LivePlot:
             self.series[key] = buffer
 
         def arrived(value: Any) -> None:
-            buffer.append((time.monotonic() - self.t0, float(value)))
+            buffer.append((self.clock(), float(value)))
             self.received += 1
 
         self._unsubscribe[key] = remote.on_change(arrived)
@@ -156,20 +171,23 @@ class LivePlot:
         with self._lock:
             self.series.clear()
 
-    def data(self) -> tuple[list[str], tuple[np.ndarray, ...]]:
-        """Labels and uPlot data: a shared time axis (every sample's time), one array per series.
+    def data(self, now: float | None = None) -> tuple[list[str], tuple[np.ndarray, ...]]:
+        """Labels and uPlot data: a shared time axis (every sample's time on the clock, the last ``window`` seconds
+        up to ``now``), one array per series.
 
         Publications of different attributes arrive at different times, so each series is interpolated linearly
         between its own samples onto the shared axis, and held at its first and last value outside them. No NaN:
         uPlot takes only null as a gap, and one NaN leaves its whole scale (and every line on it) undrawn."""
         with self._lock:
             items = [(f"{m} {a}", list(buf)) for (m, a), buf in sorted(self.series.items())]
-        horizon = time.monotonic() - self.t0 - self.window
-        recent = [(label, [(t, v) for t, v in points if t >= horizon]) for label, points in items]
+        now = self.clock() if now is None else now
+        horizon = now - self.window
+        # up to now: a sample that arrived since waits for the next refresh (past now it would be off the plot)
+        recent = [(label, [(t, v) for t, v in points if horizon <= t <= now]) for label, points in items]
         items_last = {label: float(np.nan_to_num(points[-1][1])) for label, points in items if points}
         times = np.unique(np.array([t for _, points in recent for t, _ in points], dtype=float))
-        if not items or not len(times):
-            return [label for label, _ in items], (np.zeros(1), *(np.zeros(1) for _ in items))
+        if not items or not len(times):  # nothing to draw: one point at now, inside the shown window
+            return [label for label, _ in items], (np.full(1, now), *(np.zeros(1) for _ in items))
         columns = []
         for label, points in recent:
             if not points:  # nothing recent: flat at its last value, or zero
@@ -199,33 +217,54 @@ def plot_csv(labels: list[str], data: tuple[np.ndarray, ...]) -> str:
 
 
 class SeriesPlot:
-    """A plot against seconds whose set of series can change (a live plot gains a series per watched attribute).
+    """A live plot against seconds before now, whose set of series can change (it gains a series per watched
+    attribute).
 
-    A new set of series makes a new uPlot in the same place, holding its data from the start: the page applies a
-    plot's ``series`` and ``data`` as two updates, and a plot that had five series with two arrays in between kept
-    a broken x scale (millions of seconds, no line) for as long as it lived."""
+    Its x scale is fixed at [-window, 0] and the data moves through it. With an automatic x scale, viser's uPlot
+    component carries each plot's range from one update to the next relative to the ends of that plot's own data
+    (its client's UplotComponent.tsx): two plots showed different ranges (one from its first sample, one from the
+    other's), and a range that stopped following its data — reported: an axis at 34 s against samples at 853 s —
+    stayed until a reload. A fixed range has nothing to carry over, and every live plot shows the same window
+    ending at the same now.
+
+    A new set of series (or window) makes a new uPlot in the same place, holding its data from the start: the page
+    applies a plot's ``series`` and ``data`` as two updates, and a plot that had five series with two arrays in
+    between kept a broken x scale (millions of seconds, no line) for as long as it lived."""
 
     def __init__(self, gui: Any, container: Any, *, title: str, y_label: str, aspect: float) -> None:
         self._gui = gui
         self._container = container
-        self._options = {"title": title, "aspect": aspect, **seconds_axes(y_label)}
+        self._title, self._y_label, self._aspect = title, y_label, aspect
         self.labels: list[str] = ["-"]
+        self.window = PLOT_SECONDS
         with container:
-            self.handle = gui.add_uplot(data=empty_plot(2), series=self._series(self.labels), **self._options)
+            self.handle = gui.add_uplot(data=self._empty(), series=self._series(self.labels), **self._options())
         self._order = self.handle.order
+
+    def _options(self) -> dict[str, Any]:
+        return {"title": self._title, "aspect": self._aspect, **live_axes(self._y_label, self.window)}
+
+    def _empty(self) -> tuple[np.ndarray, ...]:
+        return (np.array([-self.window, 0.0]), np.zeros(2))
 
     @staticmethod
     def _series(labels: list[str]) -> tuple[dict[str, Any], ...]:
         return ({"label": "t"}, *({"label": label, "stroke": stroke(k)} for k, label in enumerate(labels)))
 
-    def show(self, labels: list[str], data: tuple[np.ndarray, ...]) -> None:
-        if labels == self.labels:
-            self.handle.data = data
+    def show(self, labels: list[str], data: tuple[np.ndarray, ...], now: float, window: float) -> None:
+        """Show ``data`` (times on the plots' clock) as seconds before ``now``, the last ``window`` of them;
+        ``labels`` empty: nothing plotted."""
+        if not labels:
+            labels, data = ["-"], (np.array([now - window, now]), np.zeros(2))
+        shown = (np.asarray(data[0], dtype=float) - now, *data[1:])
+        if labels == self.labels and window == self.window:
+            self.handle.data = shown
             return
         old = self.handle
+        self.window = window
         with self._container:
-            self.handle = self._gui.add_uplot(data=data, series=self._series(labels), order=self._order,
-                                              **self._options)  # fmt: skip
+            self.handle = self._gui.add_uplot(data=shown, series=self._series(labels), order=self._order,
+                                              **self._options())  # fmt: skip
         old.remove()
         self.labels = labels
 
@@ -243,6 +282,12 @@ def seconds_axes(y_label: str) -> dict[str, Any]:
     """uPlot options for a plot against time in seconds: uPlot's default x scale takes numbers as UNIX dates
     (and labelled 0..10 s as "1/1/70 12:00am"); the y axis carries its unit."""
     return {"scales": {"x": {"time": False}}, "axes": ({"label": "time (s)"}, {"label": y_label})}
+
+
+def live_axes(y_label: str, window: float) -> dict[str, Any]:
+    """uPlot options for a live plot: seconds before now on a fixed x range (see SeriesPlot), its y unit."""
+    return {"scales": {"x": {"time": False, "range": (-float(window), 0.0)}},
+            "axes": ({"label": "seconds before now"}, {"label": y_label})}  # fmt: skip
 
 
 def empty_plot(count: int) -> tuple[np.ndarray, ...]:

@@ -6,12 +6,14 @@ from __future__ import annotations
 import json
 import logging
 import threading
+import time
 from typing import TYPE_CHECKING, Any
 
 from asm_module.names import module_name
 
 from .inputs import ValueInput
-from .monitor import PLOT_SECONDS, WINDOWS, LivePlot, SeriesPlot, describe, empty_plot, format_value, plot_csv
+from .layout_store import LayoutStore
+from .monitor import PLOT_SECONDS, WINDOWS, LivePlot, SeriesPlot, StudioClock, describe, format_value, plot_csv
 
 if TYPE_CHECKING:
     from gaits.model import Gait
@@ -19,6 +21,10 @@ if TYPE_CHECKING:
     from .page import Page
 
 log = logging.getLogger("asm_studio.monitor")
+LIST_RETRY = 2.0
+"""Seconds between the page's own tries to list the chosen node's objects while none are listed (and to restore
+the last layout while the robot does not answer)."""
+RESTORE_TRIES = 15
 LIVE_PLOTS = {"Live plot 1": "Live 1: module attributes (from the robot)",
               "Live plot 2": "Live 2: module attributes (from the robot)"}  # fmt: skip
 
@@ -29,7 +35,9 @@ class MonitorPanel:
     def __init__(self, page: Page, plots_tab: Any) -> None:
         self.page = page
         gui = page.gui
-        self.plots = [LivePlot(page.robot.lookup) for _ in LIVE_PLOTS]
+        self.clock = StudioClock()
+        """The live plots' one time base (the studio's, not a robot's: a restarted robot starts again at 0)."""
+        self.plots = [LivePlot(page.robot.lookup, self.clock) for _ in LIVE_PLOTS]
         self.roster_md = gui.add_markdown("")
         with gui.add_folder("Attribute browser"):
             self.browse_module = gui.add_dropdown("Node", ["-"])
@@ -57,7 +65,15 @@ class MonitorPanel:
         self.lives = [SeriesPlot(gui, plots_tab, title=title, y_label="value", aspect=3.0)
                       for title in LIVE_PLOTS.values()]  # fmt: skip
         self._value_input: ValueInput | None = None
-        self._browsing = threading.RLock()  # the user's choices (viser's pool) and the refresh's first listing
+        self._browsing = threading.RLock()  # the user's choices (viser's pool) and the refresh's own listing
+        self._listing = threading.Lock()
+        """Held by the refresh's own listing (one at a time)."""
+        self._listed_at = -LIST_RETRY
+        self._restored_at = -LIST_RETRY
+        self.store = LayoutStore(page.layout_file)
+        self._restoring: dict[str, Any] | None = self.store.load()
+        """The layout the studio showed when it last ran, plotted again once the robot answers (None: done)."""
+        self._restore_tries = 0
         page.on("relinked", self.relink)
         page.on("modules_removed", self.forget)
         page.on("deployed", self.watch_angles)
@@ -93,6 +109,33 @@ class MonitorPanel:
         with self.page.programmatic():
             self.window.value = f"{float(window):g}"
         self.page.notify("Layout", f"loaded: {sum(len(k) for k in wanted.values())} plotted attributes")
+
+    def _keep_layout(self) -> None:
+        """Keep the layout in the store whenever it changes; first restore the last one (off the refresh thread,
+        a try every LIST_RETRY s while the robot's modules do not answer yet, RESTORE_TRIES at most)."""
+        if self._restoring is None:
+            self.store.save(self.layout())
+            return
+        now = time.monotonic()
+        if self._listing.locked() or now - self._restored_at < LIST_RETRY or not self.page.robot.roster.alive():
+            return
+        self._restored_at = now
+        threading.Thread(target=self._restore, name="studio-restore-layout", daemon=True).start()
+
+    def _restore(self) -> None:
+        if self._restoring is None or not self._listing.acquire(blocking=False):
+            return
+        try:
+            self.apply_layout(self._restoring)
+            self.page.notify("Layout", f"the last one restored (from {self.store.path})")
+            self._restoring = None
+        except Exception as exc:  # the modules not up yet, or a layout no longer valid: said at the last try
+            self._restore_tries += 1
+            if self._restore_tries >= RESTORE_TRIES:
+                self._restoring = None
+                self.page.notify("Layout", f"the last one ({self.store.path}) was not restored: {exc}", error=True)
+        finally:
+            self._listing.release()
 
     def _export(self, event: Any) -> None:
         """Download what a live plot shows now (its window) as CSV, to the tab that asked."""
@@ -137,12 +180,16 @@ class MonitorPanel:
                 f"`{value.obj.name}` ({describe(value.obj)}) = **{format_value(value.refresh())}**"
             )
         elif action == "Set":
+            where = f"{self.browse_module.value}/{value.obj.name}"
             try:
                 written = value.write()
-            except (ValueError, TypeError) as exc:  # refused in the page: nothing was sent to the module
+            except Exception as exc:  # refused in the page or by the module, or no answer: said under "Set"
                 self.browse_value.content = f"⚠ `{value.obj.name}` not set: {exc}"
-                raise
+                self.page.notify("Set", f"{where}: {exc}", error=True)
+                return
             self.browse_value.content = f"`{value.obj.name}` set to **{format_value(written)}**"
+            # the refusal of an earlier Set is over: the status line says so (it stayed, even after a reload)
+            self.page.resolved("Set", f"{where} set to {format_value(written)}")
         else:
             self.plots[list(LIVE_PLOTS).index(self.plot_into.value)].watch(self.browse_module.value, value.obj.name)
             self.page.emit("plotted")
@@ -152,11 +199,26 @@ class MonitorPanel:
         with self._browsing:
             self._list_objects()
 
+    def _list_by_itself(self, names: list[str]) -> None:
+        """While the chosen node's objects are not listed, list them without a click on List: off the refresh
+        thread, one try at a time, every LIST_RETRY seconds. Listing once, when the roster first named a node, left
+        "-" for good whenever that try failed (a robot still starting, a node answering late)."""
+        now = time.monotonic()
+        if (not names or self.browse_module.value not in names or list(self.browse_object.options) != ["-"]
+                or self._listing.locked() or now - self._listed_at < LIST_RETRY):  # fmt: skip
+            return
+        self._listed_at = now
+        threading.Thread(target=self._list_quietly, name="studio-list-objects", daemon=True).start()
+
     def _list_quietly(self) -> None:
+        if not self._listing.acquire(blocking=False):
+            return
         try:
             self.list_objects()
-        except Exception as exc:  # the robot went away meanwhile: List says why when pressed
+        except Exception as exc:  # not answering yet, or gone: tried again LIST_RETRY s on; List says why
             log.debug("listing the objects of %s failed: %s", self.browse_module.value, exc)
+        finally:
+            self._listing.release()
 
     def _list_objects(self) -> None:
         if self.browse_module.value == "-":
@@ -195,10 +257,8 @@ class MonitorPanel:
         names = [n for n, _, _ in rows]
         if names and list(self.browse_module.options) != names:
             with self.page.programmatic():
-                chosen = self.browse_module.value
                 self.browse_module.options = names
-            if chosen == "-":  # the first node's objects without a click on List: looked up off the refresh thread
-                threading.Thread(target=self._list_quietly, name="studio-list-objects", daemon=True).start()
+        self._list_by_itself(names)
         others = sorted(roster.tools)
         watching = f"  \nAlso attached: {', '.join(others)}" if others else ""
         self.roster_md.content = "**Nodes**" + watching + "  \n" + "  \n".join(
@@ -206,14 +266,13 @@ class MonitorPanel:
             f"{' · ' + roster.gait(name) if roster.gait(name) else ''}"
             for name, alive, age in rows
         )  # fmt: skip
+        self._keep_layout()
+        now = self.clock()  # one now for every plot: their windows end at the same instant
         for plot, live in zip(self.plots, self.lives, strict=True):
-            labels, data = plot.data()
+            labels, data = plot.data(now)
             if self.freeze.value:
                 continue
-            if labels:
-                live.show(labels, data)
-            elif live.labels != ["-"]:  # cleared: its lines go too (they stayed on the plot after Clear)
-                live.show(["-"], empty_plot(2))
+            live.show(labels, data, now, plot.window)  # cleared: its lines go too (they stayed after Clear)
 
     def close(self) -> None:
         for plot in self.plots:

@@ -52,6 +52,8 @@ class Backend(Protocol):
     """The text of its file (a download keeps its comments)."""
     c_modules: str | None
     """The simulated modules that run the C runtime ("odd", "even", "all", "1,3,5"), in the robot and the preview."""
+    layout_file: Path | None
+    """Where the page keeps its last layout across restarts of the studio (web/layout_store.py); None: nowhere."""
 
     @property
     def simulated(self) -> bool:
@@ -150,6 +152,11 @@ class Page:
     def recordings_folder(self) -> Path:
         """Where the Record button writes its files (the Replay tab lists them)."""
         return self._backend.recordings_folder
+
+    @property
+    def layout_file(self) -> Path | None:
+        """Where the page keeps its last layout (the backend's choice)."""
+        return getattr(self._backend, "layout_file", None)
 
     @property
     def recorder(self) -> Backend:

@@ -14,6 +14,11 @@ puts this script and style into the page's ``<head>``:
   ``-0.1`` sent ``-0`` (which the field then showed as ``0``, and the next keys made ``0.1``: a refusal became a
   clamp) and typing ``1.5`` was validated at ``1.``. The field's input events are held back from the page's
   handlers until Enter, Tab, a step arrow or leaving the field, then the field's text is sent once.
+- **A click on a state selects it** — a row of the state grid (its inputs included) or a cell of the states table:
+  viser sends no clicks of its own for these, so the script writes ``automaton:index:count`` into a hidden text
+  field of the editor (``CLICKED_FIELD``), whose update the editor takes as a selection.
+- **A double-click in a number field selects the whole number**: the browser selected a word, and ``-33.5``
+  became ``33.5`` selected, so typing over it kept the minus.
 """
 
 from __future__ import annotations
@@ -21,6 +26,8 @@ from __future__ import annotations
 import gzip
 
 ESTOP_KEY = "Escape"
+CLICKED_FIELD = "Clicked state"
+"""The label of the editor's hidden text field the script writes a clicked state into (web/editor.py)."""
 
 SCRIPT = """<script>
 (function () {
@@ -84,8 +91,52 @@ SCRIPT = """<script>
   window.addEventListener("focusout", function (event) {
     if (isNumber(event.target)) commit(event.target);
   }, true);
+  // a click on a state (a row of the state grid, a cell of the states table) selects it: the page's hidden
+  // "CLICKED" field is set to "automaton:index:count" (count: the same state clicked again is still news)
+  var clicks = 0;
+  var ROW = /^(\\S+) S(\\d+)(?: ⇥\\S+)? \\(°, s\\)$/;
+  function clickedState(el) {
+    var cell = el.closest && el.closest("[data-asm-state]");
+    if (cell) return cell.getAttribute("data-asm-state");
+    for (var up = el, i = 0; up && i < 8; up = up.parentElement, i++) {
+      var label = up.querySelector && up.querySelector("label");
+      var match = label && ROW.exec((label.textContent || "").trim());
+      if (match && up.querySelectorAll("label").length === 1) return match[1] + ":" + (Number(match[2]) - 1);
+    }
+    return null;
+  }
+  function field(text) {
+    var labels = document.querySelectorAll("label");
+    for (var i = 0; i < labels.length; i++) {
+      if ((labels[i].textContent || "").trim() !== text) continue;
+      var row = labels[i].closest(".mantine-Flex-root");  // viser's text input: its label's "for" names nothing
+      return row && row.querySelector("input");
+    }
+    return null;
+  }
+  window.addEventListener("click", function (event) {
+    var state = clickedState(event.target);
+    var input = state && field("CLICKED");
+    if (!input) return;
+    clicks += 1;
+    var setter = Object.getOwnPropertyDescriptor(HTMLInputElement.prototype, "value").set;
+    setter.call(input, state + ":" + clicks);
+    input.dispatchEvent(new Event("input", {bubbles: true}));
+  }, true);
+  var hidden = null;
+  function hideClicked() {
+    if (hidden && hidden.isConnected) return;
+    var input = field("CLICKED");
+    var row = input && input.closest(".mantine-Flex-root");
+    if (row && row.parentElement) { row.parentElement.style.display = "none"; hidden = input; }
+  }
+  new MutationObserver(hideClicked).observe(document.documentElement, {childList: true, subtree: true});
+  // a double-click selects the whole number (the browser's word selection left out a minus sign)
+  window.addEventListener("dblclick", function (event) {
+    if (isNumber(event.target)) event.target.select();
+  }, true);
 })();
-</script>""".replace("ESTOP_KEY", ESTOP_KEY)
+</script>""".replace("ESTOP_KEY", ESTOP_KEY).replace("CLICKED", CLICKED_FIELD)
 
 STYLE = """<style>
 button:has(> svg.tabler-icon-adjustments), .mantine-ActionIcon-root:has(svg.tabler-icon-adjustments),

@@ -51,6 +51,8 @@ class Frame:
     follow the timeline as the pose does."""
     running: int = -1
     """How many modules' gaits ran at this frame (0: a one-shot program ended, or the gaits were stopped)."""
+    states: tuple[int, ...] = ()
+    """Each module's automaton state at this frame, -1 where its gait did not run (gaits.sim.Simulation.states)."""
 
 
 class PreviewLoop:
@@ -140,6 +142,20 @@ class PreviewLoop:
         angle = np.array([f.angles[module_index] if module_index < len(f.angles) else math.nan for f in frames])
         return (t, goal, angle)
 
+    def state_history(self, seconds: float) -> tuple[np.ndarray, np.ndarray]:
+        """Times (n,) and each module's state (n, modules) over the ``seconds`` of frames up to the one shown: the
+        states-over-time view follows the timeline as the plot does."""
+        with self._lock:
+            frames = list(self.frames)
+            cursor = self.cursor
+        if frames and cursor is not None:
+            frames = frames[: min(cursor, len(frames) - 1) + 1]
+        frames = [f for f in frames if f.time >= frames[-1].time - seconds and f.states] if frames else []
+        width = len(frames[-1].states) if frames else 0
+        frames = [f for f in frames if len(f.states) == width]
+        return (np.array([f.time for f in frames], dtype=float),
+                np.array([f.states for f in frames], dtype=int).reshape(len(frames), width))  # fmt: skip
+
     def close(self) -> None:
         self._stop.set()
         self._thread.join(timeout=10)
@@ -216,7 +232,8 @@ class PreviewLoop:
                     self.ended_at = sim.data.time
                 elif running:
                     self.ended_at = None
-                self.frames.append(Frame(sim.data.time, sim.data.qpos.copy(), goals, angles, metrics, running))
+                self.frames.append(Frame(sim.data.time, sim.data.qpos.copy(), goals, angles, metrics, running,
+                                         sim.states()))  # fmt: skip
                 self._changed.set()
 
     def _handle(self, kind: str, value: Any) -> None:

@@ -15,11 +15,15 @@ StudioProcess = tuple[str, str, list[str]]
 
 
 @pytest.fixture
-def start_studio() -> Iterator[Callable[..., StudioProcess]]:
-    """Start ``asm-studio`` processes (extra arguments as given) on free ports; every one is stopped at the end."""
+def start_studio(tmp_path_factory) -> Iterator[Callable[..., StudioProcess]]:
+    """Start ``asm-studio`` processes (extra arguments as given) on free ports; every one is stopped at the end.
+    Each writes its recordings and keeps its last layout in a directory of its own unless given ``--recordings``
+    (a layout kept in the checkout's recordings/ would be restored by the next test's studio)."""
     started: list[Process] = []
 
     def start(*args: str) -> StudioProcess:
+        if "--recordings" not in args:
+            args = (*args, "--recordings", str(tmp_path_factory.mktemp("recordings")))
         port, zenoh_port = free_port(), free_port()
         endpoint = f"tcp/127.0.0.1:{zenoh_port}"
         proc = Process("-m", "server.studio", "--port", str(port), "--zenoh-listen", endpoint, *args)

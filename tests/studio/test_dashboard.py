@@ -184,12 +184,18 @@ def test_a_failing_grid_edit_becomes_a_notification(studio):
 def test_every_plot_is_against_seconds_with_units_and_the_live_window_is_chosen(studio):
     """uPlot takes an x axis as UNIX dates unless told otherwise: the page showed "1/1/70 12:00am" for 0 s."""
     app = studio.app
-    for plot in (app.preview.angles, app.monitor.lives[0].handle, app.editor.expanded):
+    for plot in (app.preview.angles, app.editor.expanded):
         assert plot.scales == {"x": {"time": False}}
         assert plot.axes[0]["label"] == "time (s)" and plot.axes[1]["label"]
+    # the live plots: seconds before now on a fixed range, the window chosen (web/monitor.py SeriesPlot)
+    assert app.monitor.lives[0].handle.scales == {"x": {"time": False, "range": (-10.0, 0.0)}}
+    assert app.monitor.lives[0].handle.axes[0]["label"] == "seconds before now"
     assert app.monitor.plot.window == 10.0
     app.monitor.window.value = "300"  # as the page's dropdown sets it
     assert app.monitor.plot.window == 300.0
+    for live in app.monitor.lives:
+        assert wait_until(lambda live=live: live.handle.scales["x"]["range"] == (-300.0, 0.0), timeout=10)
+    app.monitor.window.value = "10"
 
 
 def test_one_toast_per_distinct_problem_and_the_status_line_is_always_current(studio):
@@ -255,11 +261,11 @@ def test_the_live_plot_can_be_paused_and_resumed(studio):
     import numpy as np
 
     app = studio.app
-    app.monitor.plot.series[("m1", "joint.angle")] = deque([(0.0, 1.0), (1.0, 2.0)])
-    app.monitor.plot.t0 -= 1.0  # the samples are recent
+    now = app.monitor.clock()  # the samples are recent
+    app.monitor.plot.series[("m1", "joint.angle")] = deque([(now - 1.0, 1.0), (now, 2.0)])
     assert wait_until(lambda: len(app.monitor.lives[0].handle.data[0]) == 2, timeout=10)
     app.monitor.freeze.value = True
-    app.monitor.plot.series[("m1", "joint.angle")].append((1.5, 3.0))
+    app.monitor.plot.series[("m1", "joint.angle")].append((now + 0.5, 3.0))
     time.sleep(0.5)  # ten refreshes
     assert len(app.monitor.lives[0].handle.data[0]) == 2  # held still
     app.monitor.freeze.value = False
@@ -343,3 +349,23 @@ def test_a_layout_round_trips_and_a_file_that_is_not_one_changes_nothing(studio)
         assert monitor.layout() == saved  # nothing changed
     monitor.apply_layout({"plots": {"Live plot 2": []}, "window": 10.0})
     assert monitor.layout()["plots"]["Live plot 2"] == []
+
+
+def test_the_monitor_lists_the_objects_by_itself_once_the_node_answers(studio, monkeypatch):
+    """The object list showed "-" until List was pressed when the page's one listing failed (a robot still
+    starting): it tries again by itself until the chosen node answers."""
+    monitor = studio.app.monitor
+    link = studio.app.page.robot
+    real, calls = link.list_objects, []
+
+    def not_up_yet(*args, **kwargs):
+        calls.append(args)
+        if len(calls) < 3:
+            raise TimeoutError("no answer yet")
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(link, "list_objects", not_up_yet)
+    monitor.relink()  # as when the page shows a robot afresh: nothing listed
+    assert list(monitor.browse_object.options) == ["-"]
+    assert wait_until(lambda: "joint.goal" in monitor.browse_object.options, timeout=30), calls
+    assert len(calls) == 3 and monitor.browse_module.value == "m1"

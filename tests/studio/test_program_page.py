@@ -118,3 +118,18 @@ def test_the_drive_tab_sends_a_broadcast_signal_to_the_preview(studio) -> None:
     assert "signal **7**" in app.drive.state.content
     app.page.safe(lambda _: app.drive.send_signal(300))(None)
     assert "1..255" in app.page.status.content
+
+
+def test_a_clicked_state_is_selected_and_anything_else_the_page_sends_is_refused(studio) -> None:
+    """What the page's script writes into the editor's hidden field when a state is clicked (web/page_script.py):
+    ``automaton:index:count`` selects that state; a hostile or stale text selects nothing."""
+    editor = studio.app.editor
+    editor.open_file(LIBRARY / "contact_inchworm.toml")
+    editor.select_clicked("lead:7:1")
+    assert (editor.automaton.value, editor.state_index.value) == ("lead", 8)
+    for wrong in ("lead:99:2", "nope:1:3", "lead:-1:4", "lead:x:5", "lead:1", "", "lead:1:2:3", "a" * 100_000):
+        with pytest.raises(ValueError):
+            editor.select_clicked(wrong)
+        assert (editor.automaton.value, editor.state_index.value) == ("lead", 8)
+    editor.clicked.value = "lead:2:6"  # as the page sets it: through the field's callback
+    assert wait_until(lambda: editor.state_index.value == 3, timeout=10)

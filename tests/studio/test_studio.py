@@ -125,13 +125,18 @@ def test_a_grid_row_is_one_undoable_edit():
         doc.update_state("wave", 0, {"until": "contact"})
 
 
+def _no_lookup(*_: object, **__: object) -> object:
+    """A plot's lookup in tests that fill its series by hand: never called."""
+    raise AssertionError("no lookup: the series are filled by hand")
+
+
 def test_live_series_are_continuous_on_a_shared_time_axis():
     from collections import deque
 
     from web.monitor import LivePlot
 
-    plot = LivePlot(lookup=None)  # filled by hand: no subscriptions
-    now = time.monotonic() - plot.t0
+    plot = LivePlot(lookup=_no_lookup)  # filled by hand: no subscriptions
+    now = plot.clock()
     plot.series[("m1", "joint.angle")] = deque([(now - 1.0, 0.0), (now - 0.5, 10.0), (now, 20.0)])
     plot.series[("m2", "joint.angle")] = deque([(now - 0.75, 5.0), (now - 0.25, 7.0)])
     labels, (t, a, b) = plot.data()
@@ -139,6 +144,28 @@ def test_live_series_are_continuous_on_a_shared_time_axis():
     assert list(t) == sorted(t) and len(t) == 5
     assert list(a) == pytest.approx([0.0, 5.0, 10.0, 15.0, 20.0])  # m1 between its own samples
     assert list(b) == pytest.approx([5.0, 5.0, 6.0, 7.0, 7.0])  # held outside m2's samples, no NaN (uPlot)
+
+
+def test_every_live_plot_runs_on_one_studio_clock_for_as_long_as_the_studio_runs():
+    """Two plots share the page's clock (not each its own start, nor a robot's time): after a day of running, a
+    series added to the second plot a moment ago sits in the same window, ending at the same now, as the first's."""
+    from collections import deque
+
+    from web.monitor import LivePlot, StudioClock
+
+    wall = [1000.0]
+    clock = StudioClock(lambda: wall[0])
+    first, second = LivePlot(lookup=_no_lookup, clock=clock), LivePlot(lookup=_no_lookup, clock=clock)
+    first.series[("m1", "joint.angle")] = deque([(clock(), 1.0)])
+    wall[0] += 86_400.0  # a day later
+    first.series[("m1", "joint.angle")].append((clock(), 2.0))
+    second.series[("m7", "joint.angle")] = deque([(clock() - 0.5, 3.0), (clock(), 4.0)])
+    now = clock()
+    assert now == 86_400.0
+    (_, (t1, a)), (_, (t2, b)) = first.data(now), second.data(now)
+    assert list(t1) == [now] and list(a) == [2.0]  # the sample a day old is out of the window
+    assert list(t2) == [now - 0.5, now] and list(b) == [3.0, 4.0]
+    assert list(first.data(now + 60.0)[1][0]) == [now + 60.0]  # nothing recent: one point at now, in the window
 
 
 def test_undo_takes_back_a_typed_value_not_a_keystroke():
@@ -215,8 +242,8 @@ def test_a_plot_exported_as_csv_reads_back_as_what_it_shows():
 
     from web.monitor import LivePlot, plot_csv
 
-    plot = LivePlot(lookup=None)  # filled by hand: no subscriptions
-    now = time.monotonic() - plot.t0
+    plot = LivePlot(lookup=_no_lookup)  # filled by hand: no subscriptions
+    now = plot.clock()
     rng = np.random.default_rng(7)
     plot.series[("m1", "joint.angle")] = deque(
         (now - 2.0 + k * 0.1, float(v)) for k, v in enumerate(rng.normal(size=20))

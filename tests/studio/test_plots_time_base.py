@@ -1,0 +1,83 @@
+"""Live plots that never go blank and share one time base (issue 29), driven in Chromium by clicks: the page's
+uPlots are read through viser's own test point (``window.__viserTestpoints.uplots``: each chart's x scale and data)."""
+
+from __future__ import annotations
+
+import time
+
+from ..helpers import ARTIFACTS
+from .browser import LINE_COLOR, deploy_and_start, marks, open_page, pixels
+
+pytestmark = marks(1)
+
+CHARTS = """() => Object.values((window.__viserTestpoints || {}).uplots || {}).map(({chart}) => ({
+  title: chart.root.querySelector('.u-title')?.textContent || '',
+  min: chart.scales.x.min, max: chart.scales.x.max,
+  first: chart.data[0][0], last: chart.data[0][chart.data[0].length - 1]}))"""
+
+
+def _live(page) -> dict[str, dict]:
+    return {c["title"][:6]: c for c in page.evaluate(CHARTS) if c["title"].startswith("Live ")}
+
+
+def _plot_into(page, module: str, target: str) -> None:
+    page.get_by_label("Node").click()
+    page.get_by_role("option", name=module, exact=True).click()
+    page.get_by_role("button", name="List").click()
+    page.get_by_label("Object").click()
+    page.get_by_role("option", name="joint.angle", exact=True).click()
+    page.get_by_label("Plot into").click()
+    page.get_by_role("option", name=target, exact=True).click()
+    page.get_by_role("button", name="Plot", exact=True).click()
+
+
+def _watch(page, window: float, seconds: float) -> list[dict[str, dict]]:
+    """Every half second for ``seconds``: both live plots show the same x range, the window ending at now, and
+    their newest samples inside it (a plot whose axis stays behind its samples is blank)."""
+    seen = []
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        charts = _live(page)
+        seen.append(charts)
+        assert set(charts) == {"Live 1", "Live 2"}, charts
+        one, two = charts["Live 1"], charts["Live 2"]
+        assert (one["min"], one["max"]) == (two["min"], two["max"]), charts  # one time base, one window
+        assert (one["min"], one["max"]) == (-window, 0.0), charts
+        for chart in (one, two):
+            assert -window <= chart["first"] <= chart["last"] <= 0.0, charts
+            assert chart["last"] > -2.0, charts  # the newest sample is recent: the line reaches now
+        time.sleep(0.5)
+    return seen
+
+
+def test_live_plots_share_one_time_base_and_never_go_blank(studio_process):
+    """m2's then m7's joint.angle into Live plot 2 beside the deploy's angles in Live plot 1: both plots keep the
+    same window ending at now, through re-targeting, a Clear, a window change and a redeploy."""
+    from playwright.sync_api import expect, sync_playwright
+
+    url, _, log = studio_process
+    with sync_playwright() as pw:
+        browser, page = open_page(pw, url)
+        deploy_and_start(page, 8)
+        page.get_by_role("tab", name="Monitor").click()
+        _plot_into(page, "m2", "Live plot 2")
+        _watch(page, 10.0, 4.0)
+        _plot_into(page, "m7", "Live plot 2")  # re-targeted: a new series on the same plot
+        _watch(page, 10.0, 6.0)
+        page.get_by_role("button", name="Live plot 2", exact=True).last.click()  # Clear
+        _plot_into(page, "m7", "Live plot 2")
+        page.get_by_label("Window (s)").click()
+        page.get_by_role("option", name="30", exact=True).click()
+        _watch(page, 30.0, 4.0)
+        deploy_and_start(page, 8)  # deployed again: the plots go on on the same clock
+        page.get_by_role("tab", name="Monitor").click()
+        _plot_into(page, "m7", "Live plot 2")
+        _watch(page, 30.0, 4.0)
+        page.get_by_role("tab", name="Plots").click()
+        second = page.locator(".uplot", has_text="Live 2").locator("canvas").first
+        second.scroll_into_view_if_needed()
+        expect(page.locator(".uplot", has_text="Live 2")).to_contain_text("m7 joint.angle", timeout=15_000)
+        assert pixels(second.screenshot(), LINE_COLOR) > 50, "no line in Live plot 2"
+        page.screenshot(path=str(ARTIFACTS / "rough-plots-one-time-base.png"))
+        browser.close()
+    assert not any("Traceback" in line for line in log), "".join(log[-40:])
