@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Any
 
 from viser._messages import GuiSliderMark
 
-from .monitor import SeriesPlot, empty_plot, format_value
+from .monitor import SeriesPlot, format_value
 from .recording import Recording, RecordingError, open_recording, read_bytes
 from .replay import SPEEDS, ReplaySource, last_values, plot_data
 
@@ -200,7 +200,7 @@ class ReplayPanel:
             source.close()
         self.line.content = "No recording open."
         self.events.content = self.roster.content = ""
-        self.plot.show(["-"], empty_plot(2))
+        self.plot.show([], (), 0.0, PLOT_WINDOW)
         self._plotted = None
 
     # -- the page's refresh ---------------------------------------------------------------------------------------
@@ -227,7 +227,7 @@ class ReplayPanel:
         if (t, keys) != self._plotted:  # paused: the plot is not sent again 20 times a second
             self._plotted = (t, keys)
             labels, data = plot_data(recording, keys, t, PLOT_WINDOW)
-            self.plot.show(labels or ["-"], data if labels else empty_plot(2))
+            self.plot.show(labels, data, t, PLOT_WINDOW)  # seconds before the replay time, as the live plots
         state = "▶ playing" if source.playing else ("■ ended" if t >= source.clock.duration else "paused")
         events = "  \n".join(f"{'●' if e.time <= t else '○'} {e.time:7.2f} s · {e.text}" for e in recording.events[:40])
         more = f"  \n… and {len(recording.events) - 40} more" if len(recording.events) > 40 else ""
