@@ -84,6 +84,9 @@ class StudioOptions:
     """The page's access token; None: none on loopback, a new random one when served beyond it."""
     c_modules: str | None = None
     """Simulated modules that run the C runtime (``asm-robot --c-modules``): "odd", "even", "all" or "1,3,5"."""
+    emulated_modules: str | None = None
+    """Simulated modules that run the board image in the emulator (``asm-robot --emulated-modules``), in the robot
+    only: the preview runs the same modules as Python (the emulator runs in real time, not as fast as a preview)."""
     recordings: Path = Path("recordings")
     """Where the page's Record button writes its MCAP files."""
     layout: Path | None = None
@@ -188,6 +191,8 @@ class Studio:
             args += ["--sim", str(self._gait_file)]
             if options.c_modules:
                 args += ["--c-modules", options.c_modules]
+            if options.emulated_modules:
+                args += ["--emulated-modules", options.emulated_modules]
             if self.robot_terrain != FLAT:
                 args += ["--terrain", self.robot_terrain.spec]
             self.robot_gait = gait
@@ -389,12 +394,17 @@ def main(argv: list[str] | None = None) -> int:
                      help="what the 3D view shows at start (default: the preview of the edited gait)")  # fmt: skip
     cli.add_argument("--c-modules", type=module_selection, metavar="IDS", help="simulated modules that run the C "
                      "runtime (firmware/), in the robot and the preview: IDs as 1,3,5, or odd, even, all")  # fmt: skip
+    cli.add_argument("--emulated-modules", type=module_selection, metavar="IDS", help="simulated modules that run "
+                     "the STM32F4 board image in an instruction-level emulator, in the robot (the preview runs them "
+                     "as Python): IDs or odd, even, all (needs arm-none-eabi-gcc)")  # fmt: skip
     args = cli.parse_args(argv)
     if args.robot:  # the network to join is the robot's (or its router's): every session of the studio connects
         args.zenoh_connect = [args.robot, *args.zenoh_connect]
     network = zenoh_options(cli, args)
     if args.c_modules and (args.can or args.robot):
         cli.error("--c-modules chooses simulated modules of the studio's own robot: not with --can or --robot")
+    if args.emulated_modules and (args.can or args.robot):
+        cli.error("--emulated-modules chooses simulated modules of the studio's own robot: not with --can or --robot")
     return run(cli.prog, lambda: _serve(args, network))
 
 
@@ -410,6 +420,7 @@ def _serve(args: argparse.Namespace, network: ZenohOptions) -> int:
     options = StudioOptions(gait=args.gait, can=args.can, robot=args.robot, robot_name=args.robot_name,
                             name=args.name, bitrate=args.bitrate, network=network, host=args.host, port=args.port,
                             view=args.view, c_modules=_selection_text(args.c_modules),
+                            emulated_modules=_selection_text(args.emulated_modules),
                             recordings=args.recordings,
                             layout=args.layout or args.recordings / LAYOUT_FILE)  # fmt: skip
     done = stop_requested()

@@ -44,6 +44,8 @@ def roster_markdown(names: list[str], infos: dict[str, Any], calibrations: dict[
     for name in names:
         info, c, angle = infos.get(name), calibrations.get(name), angles.get(name)
         firmware = f"{_version(info)} `{int(info['build']):08x}` {info['max_states']} states" if info else "—"
+        if info and int(info.get("tick_cycles", 0)) > 0:  # a board that times its own tick: its CPU budget in use
+            firmware += f", tick {int(info['tick_cycles']):,} cycles, stack {int(info['stack_bytes']):,} B"
         calibration = f"{c['zero']:g}° {int(c['direction']):+d} {c['min']:g}..{c['max']:g}°" if c else "—"
         shown = f"{angle:.1f}°" if angle is not None else "—"
         rows.append(f"| {name} | {firmware} | {calibration} | {shown} |")

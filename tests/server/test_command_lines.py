@@ -58,6 +58,8 @@ USAGE_ERRORS = [  # (command, arguments, what the one-line error must mention)
     ("asm-robot", ["--can", "virtual:x", "--c-modules", "all"], "with --sim"),
     ("asm-studio", ["--c-modules", "seven"], "commas"),
     ("asm-studio", ["--robot", "tcp/127.0.0.1:7447", "--c-modules", "odd"], "not with --can or --robot"),
+    ("asm-studio", ["--emulated-modules", "0"], "1..254"),
+    ("asm-studio", ["--can", "virtual:x", "--emulated-modules", "all"], "not with --can or --robot"),
     ("asm-bridge", [], "--can"),
     ("asm-bridge", ["--can", "nope:xx"], "unknown CAN interface"),
     ("asm-bridge", ["--can", "virtual:x", "--node-id", "0"], "node ID"),
@@ -196,3 +198,16 @@ def test_the_studio_passes_its_c_module_choice_to_its_robot(tmp_path) -> None:
                             own_robot="robot", _child_endpoint="tcp/127.0.0.1:1", robot_terrain=FLAT)  # fmt: skip
     args = Studio._robot_args(owner, load(LIBRARY / "caterpillar.toml"))  # type: ignore[arg-type]
     assert args[args.index("--c-modules") + 1] == "1,3" and "--sim" in args
+
+
+def test_the_studio_passes_its_emulated_module_choice_to_its_robot_only(tmp_path) -> None:
+    from types import SimpleNamespace
+
+    from gaits.model import LIBRARY, load
+    from gaits.terrain import FLAT
+    from server.studio import Studio, StudioOptions
+
+    owner = SimpleNamespace(options=StudioOptions(emulated_modules="odd"), _gait_file=tmp_path / "robot.toml",
+                            own_robot="robot", _child_endpoint="tcp/127.0.0.1:1", robot_terrain=FLAT)  # fmt: skip
+    args = Studio._robot_args(owner, load(LIBRARY / "caterpillar.toml"))  # type: ignore[arg-type]
+    assert args[args.index("--emulated-modules") + 1] == "odd" and "--sim" in args and "--c-modules" not in args
