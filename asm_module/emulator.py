@@ -31,28 +31,27 @@ Why each piece is as it is:
 from __future__ import annotations
 
 import struct
-from collections.abc import Callable
-from dataclasses import dataclass
 
 from unicorn import UC_ARCH_ARM, UC_HOOK_BLOCK, UC_HOOK_CODE, UC_MODE_MCLASS, UC_MODE_THUMB, UC_PROT_EXEC, UC_PROT_READ
 from unicorn import arm_const as arm
 from unicorn.unicorn import Uc, UcContext, UcError
 
 from .board_flash import bootloader, known_image, known_images, probe_flash, register_image
+from .board_types import BoardReset, FirmwareFault, Joint, TickStats
 from .bxcan import RF0R, BxCan
 from .elf import Image
 from .firmware_image import LOAD_ADDRESS, MAX_SIZE
 from .flash import INTERFACE, SECTORS, FlashInterface, Settings
 from .thumb import Batch, local_16bit
+from .watchdog import BASE as IWDG
+from .watchdog import IndependentWatchdog
 
 FLASH, FLASH_SIZE = 0x08000000, 1 << 20
 BOOT_SIZE = SECTORS[0][1]
 """The bootloader's sector: the only flash the core executes from (images run from RAM), so mapped as memory; the
 rest of the flash is the flash interface's (asm_module/flash.py), read and programmed through it."""
 RAM, RAM_SIZE = 0x20000000, 128 << 10
-IWDG, SCB_VTOR, SCB_AIRCR = 0x40003000, 0xE000ED08, 0xE000ED0C
-LSI_HZ = 32_000
-CLOCK_HZ = 168_000_000
+SCB_VTOR, SCB_AIRCR = 0xE000ED08, 0xE000ED0C
 UID = 0x1FFF7A10
 """The 96-bit unique ID (RM0090 §39.1): the board's serial."""
 PAINT = 0xC5C5C5C5
@@ -71,34 +70,6 @@ _FRAME_REGS = [arm.UC_ARM_REG_R0, arm.UC_ARM_REG_R1, arm.UC_ARM_REG_R2, arm.UC_A
                arm.UC_ARM_REG_LR, arm.UC_ARM_REG_PC, arm.UC_ARM_REG_XPSR]  # fmt: skip
 _FP_REGS = [getattr(arm, f"UC_ARM_REG_S{k}") for k in range(16)]
 _ENTRY_REGS = [*_FRAME_REGS, arm.UC_ARM_REG_CONTROL, arm.UC_ARM_REG_SP]
-
-
-class FirmwareFault(RuntimeError):
-    """The emulated core stopped on something a board would fault on (or hang in Default_Handler for)."""
-
-
-class BoardReset(Exception):
-    """The board reset itself: the independent watchdog expired, or the image asked (SCB AIRCR SYSRESETREQ). A new
-    :class:`Cortex` on the same flash is the board after it."""
-
-
-@dataclass
-class Joint:
-    """The joint's side of the pins: ``command(degrees)`` when the servo's pulse changes, ``relax()`` when the
-    pulse stops, ``read()`` the (angle in degrees, contact) the encoder and the switch show now."""
-
-    command: Callable[[float], None]
-    relax: Callable[[], None]
-    read: Callable[[], tuple[float, bool]]
-
-
-@dataclass
-class TickStats:
-    """Instructions per call of asm_module_tick (the control tick): how many ticks, their sum and the worst."""
-
-    ticks: int = 0
-    total: int = 0
-    worst: int = 0
 
 
 class Cortex:
@@ -134,9 +105,7 @@ class Cortex:
         self.stack_top = image.symbol("_stack_top")
         uc.mem_write(self.stack_bottom, struct.pack("<I", PAINT) * ((self.stack_top - self.stack_bottom) // 4))
         self.registers: dict[int, int] = {}  # every peripheral register written and not modelled further
-        self.iwdg: dict[int, int] = {4: 0, 8: 0xFFF}  # PR, RLR
-        self._iwdg_unlocked = False
-        self.watchdog_at: int | None = None  # the cycle the independent watchdog resets the board at (running)
+        self.watchdog = IndependentWatchdog()
         for page in (0x40000000, 0x40003000, 0x40006000, 0x40020000, 0x40023000, 0xE0001000, 0xE000E000):
             uc.mmio_map(page, 0x1000, self._read, page, self._write, page)
         self.cycles = 0  # instructions executed since reset (the emulated clock)
@@ -217,7 +186,7 @@ class Cortex:
                     return
                 self.idle_cycles += max(0, self._systick_next - self.cycles)
                 self.cycles = max(self.cycles, self._systick_next)
-                if self.watchdog_at is not None and self.cycles >= self.watchdog_at:
+                if self.watchdog.expired(self.cycles):
                     raise BoardReset("the independent watchdog expired")
                 self._count_down()
                 self._pending = False
@@ -253,7 +222,7 @@ class Cortex:
             self._sizes[(address, size)] = count
         self.cycles += count
         self._count_down()
-        if self.watchdog_at is not None and self.cycles >= self.watchdog_at and not self._reason:
+        if self.watchdog.expired(self.cycles) and not self._reason:
             self._reset("the independent watchdog expired")
         if (self._pending and not self._depth and not self._calling and not self._reason
                 and not int(uc.reg_read(arm.UC_ARM_REG_XPSR)) & 0x0600FC00):  # fmt: skip  # never inside an IT block
@@ -431,7 +400,7 @@ class Cortex:
             if address == SCB_VTOR:
                 return self.registers.get(SCB_VTOR, 0)
             if IWDG <= address < IWDG + 0x10:
-                return self.iwdg.get(address - IWDG, 0)
+                return self.watchdog.read(address - IWDG)
             value = self._systick(address)
         self._activity += 1
         return value
@@ -457,7 +426,7 @@ class Cortex:
     def _write(self, uc: Uc, offset: int, size: int, value: int, page: int) -> None:
         address = page + offset
         if IWDG <= address < IWDG + 0x10:
-            self._watchdog(address - IWDG, value)  # feeding the watchdog is no activity: the loop may still idle
+            self.watchdog.write(address - IWDG, value, self.cycles)  # feeding it is no activity: the loop may idle
             return
         self._activity += 1
         if 0x40006400 <= address < 0x40006800:
@@ -494,18 +463,6 @@ class Cortex:
         self.vectors = struct.unpack("<16I", self.uc.mem_read(address, 64))
         if address == LOAD_ADDRESS + 0x80:
             self.app = known_image(lambda at, n: bytes(self.uc.mem_read(LOAD_ADDRESS + at, n)))
-
-    def _watchdog(self, offset: int, value: int) -> None:
-        """The independent watchdog (RM0090 §19): KR 0x5555 opens PR and RLR, 0xCCCC starts it, 0xAAAA reloads
-        it; it counts the LSI's 32 kHz divided by 4 << PR down from RLR, and then resets the board."""
-        if offset == 0:
-            key = value & 0xFFFF
-            self._iwdg_unlocked = key == 0x5555
-            if key == 0xCCCC or (key == 0xAAAA and self.watchdog_at is not None):
-                period = (self.iwdg[8] + 1) * (4 << self.iwdg[4])
-                self.watchdog_at = self.cycles + period * CLOCK_HZ // LSI_HZ
-        elif offset in (4, 8) and self._iwdg_unlocked:
-            self.iwdg[offset] = value & (7 if offset == 4 else 0xFFF)
 
     def _pwm(self, offset: int, value: int) -> None:
         """TIM3: a new compare value or output enable commands the servo (the preload's wait for the next 20 ms

@@ -48,12 +48,15 @@ from asm_py.transport.zenoh import NameTaken
 from gaits.model import LIBRARY, Gait, dumps, loads
 from gaits.terrain import FLAT, Terrain
 from gaits.validate import read
-from web.layout_store import LAYOUT_FILE  # the standard library alone: viser still loads only for the studio
 
 from .child import Child, ChildError
 from .realtime import prefer_latency
 from .studio_record import StudioRecording
 from .zenoh_args import ZenohOptions, add_zenoh_arguments, zenoh_options
+
+LAYOUT_FILE = "studio-layout.json"
+"""The page's last layout in the recordings directory unless ``--layout`` says elsewhere (web/layout_store.py keeps
+it; the backend names the path)."""
 
 log = logging.getLogger("asm_studio")
 ROBOT_START_TIMEOUT = 60.0

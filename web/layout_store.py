@@ -16,8 +16,6 @@ from pathlib import Path
 from typing import Any
 
 log = logging.getLogger("asm_studio.layout")
-LAYOUT_FILE = "studio-layout.json"
-"""Its name in the studio's recordings directory."""
 MAX_BYTES = 1 << 20
 """A layout names a few dozen attributes: a larger file is not one (read no further)."""
 

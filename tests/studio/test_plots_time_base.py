@@ -31,21 +31,42 @@ def _plot_into(page, module: str, target: str) -> None:
     page.get_by_role("button", name="Plot", exact=True).click()
 
 
+def _wrong(charts: dict[str, dict], window: float) -> str | None:
+    """What is wrong with the two live plots' time base (None: nothing)."""
+    if set(charts) != {"Live 1", "Live 2"}:
+        return f"not two live plots: {charts}"
+    one, two = charts["Live 1"], charts["Live 2"]
+    if (one["min"], one["max"]) != (two["min"], two["max"]):
+        return f"two time bases: {charts}"
+    if (one["min"], one["max"]) != (-window, 0.0):
+        return f"not the window ending at now: {charts}"
+    for chart in (one, two):
+        if not -window <= chart["first"] <= chart["last"] <= 0.0:
+            return f"samples outside the window (a blank plot): {charts}"
+        if chart["last"] <= -FRESH:
+            return f"no recent sample: {charts}"
+    return None
+
+
+FRESH = 5.0
+"""Seconds within which the newest sample must be (the line reaches now); generous for the suite's load."""
+
+
 def _watch(page, window: float, seconds: float) -> list[dict[str, dict]]:
-    """Every half second for ``seconds``: both live plots show the same x range, the window ending at now, and
-    their newest samples inside it (a plot whose axis stays behind its samples is blank)."""
+    """Once the page has taken the last change (within 30 s: a loaded machine draws late), every half second for
+    ``seconds``: both live plots show the same x range, the window ending at now, and their newest samples inside it
+    (a plot whose axis stays behind its samples is blank)."""
+    settle = time.monotonic() + 30.0
+    while (wrong := _wrong(_live(page), window)) is not None:
+        assert time.monotonic() < settle, wrong
+        time.sleep(0.5)
     seen = []
     end = time.monotonic() + seconds
     while time.monotonic() < end:
         charts = _live(page)
         seen.append(charts)
-        assert set(charts) == {"Live 1", "Live 2"}, charts
-        one, two = charts["Live 1"], charts["Live 2"]
-        assert (one["min"], one["max"]) == (two["min"], two["max"]), charts  # one time base, one window
-        assert (one["min"], one["max"]) == (-window, 0.0), charts
-        for chart in (one, two):
-            assert -window <= chart["first"] <= chart["last"] <= 0.0, charts
-            assert chart["last"] > -2.0, charts  # the newest sample is recent: the line reaches now
+        wrong = _wrong(charts, window)
+        assert wrong is None, wrong
         time.sleep(0.5)
     return seen
 
