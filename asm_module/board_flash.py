@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import zlib
 from collections.abc import Callable
+from pathlib import Path
 
 from ._profile import IMAGE_HEADER_SIZE
 from .elf import Image, read_image
@@ -19,6 +20,8 @@ _images: dict[int, tuple[Image, int]] = {}
 update image adds), with its length: the symbols the emulator measures and calls a running image by, as a debugger
 finds an image's ELF (asm_module.emulated registers the board image and every image it builds)."""
 _bootloader: Image | None = None
+_built: set[tuple[Path, float]] = set()
+"""The built images (path, modification time) read by :func:`known_image`'s search."""
 
 
 def register_image(image: Image) -> None:
@@ -53,8 +56,31 @@ def known_images() -> list[Image]:
 
 
 def known_image(read: Callable[[int, int], bytes]) -> Image | None:
-    """The registered image that runs, if any: ``read(offset, length)`` reads the image in RAM from its start."""
-    for crc, (image, length) in list(_images.items()):
-        if zlib.crc32(read(IMAGE_HEADER_SIZE, length)) == crc:
-            return image
+    """The registered image that runs, if any: ``read(offset, length)`` reads the image in RAM from its start. An
+    image not registered in this process (one a tool built and sent over the bus, as the studio's Modules tab
+    does) is looked for among the board images built in firmware/build, as a debugger finds an ELF by its build."""
+    for attempt in range(2):
+        for crc, (image, length) in list(_images.items()):
+            if zlib.crc32(read(IMAGE_HEADER_SIZE, length)) == crc:
+                return image
+        if attempt == 0 and not _register_built():
+            break
     return None
+
+
+def _register_built() -> int:
+    """Register the board images built in firmware/build (stm32f4*.elf) not read yet; how many were new."""
+    from .firmware_build import BOARD_IMAGE
+
+    new = 0
+    for path in sorted(BOARD_IMAGE.parent.glob("stm32f4*.elf")):
+        if path.name.startswith("stm32f4_boot") or (path, path.stat().st_mtime) in _built:
+            continue
+        try:
+            image = read_image(path)
+        except (OSError, ValueError):  # a build being written, or not an ELF: not this one
+            continue
+        register_image(image)
+        _built.add((path, path.stat().st_mtime))
+        new += 1
+    return new

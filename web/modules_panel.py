@@ -5,7 +5,9 @@ per module the calibration edited and applied, or "Set current pose as zero" (do
 A calibration is the module's own: it checks it (a value out of range or not finite is refused, never clamped, and
 the refusal is shown here), stores it (a board's flash, a Python module's file) and applies it to every reading and
 command; setting it never moves the joint. "Set current pose as zero" keeps the soft limits where they are on the
-joint (their raw angles, to 0.01°), so only the numbering of angles moves.
+joint (their raw angles, to 0.01°), so only the numbering of angles moves. "Update firmware" sends an update image
+(``python -m asm_module.firmware_image ELF OUT``) to every module at once (asm_module.flasher, what ``asm-flash``
+runs), a bar following the bytes written, and says per module what it ran before and runs now.
 
 The callbacks only queue work: one thread (``studio-modules``) talks to the modules, so a slow or silent module
 never holds viser's thread pool; it writes the roster and the line under the buttons when it is done.
@@ -18,6 +20,8 @@ import queue
 import threading
 from typing import TYPE_CHECKING, Any
 
+from asm_module.firmware_image import check
+from asm_module.flasher import update_modules
 from gaits.compatible import read_objects
 
 if TYPE_CHECKING:
@@ -70,6 +74,12 @@ class ModulesPanel:
         self.apply_button = gui.add_button("Apply calibration")
         self.zero_button = gui.add_button("Set current pose as zero")
         self.line = gui.add_markdown("")
+        gui.add_markdown("**Firmware update** over the bus (docs/protocol.md §12): every module with the update "
+                         "objects takes the image; Python modules are skipped (their software is a Python "
+                         "package).")  # fmt: skip
+        self.upload = gui.add_upload_button("Update firmware (.img)", mime_type=".img")
+        self.progress = gui.add_progress_bar(0.0)
+        self.update_md = gui.add_markdown("")
         self._lock = threading.Lock()
         self._calibrations: dict[str, dict[str, Any]] = {}
         """The calibrations last read, by module (the worker writes, the module picker reads)."""
@@ -78,6 +88,7 @@ class ModulesPanel:
         self.apply_button.on_click(page.safe(lambda _: self._queue_apply()))
         self.zero_button.on_click(page.safe(lambda _: self._queue_module("zero")))
         self.module.on_update(page.safe(lambda _: self._show_selected()))
+        self.upload.on_upload(page.safe(lambda e: self._jobs.put(("update", bytes(e.target.value.content)))))
         self._thread = threading.Thread(target=self._run, name="studio-modules", daemon=True)
         self._thread.start()
 
@@ -123,6 +134,8 @@ class ModulesPanel:
                     self._apply(*argument)
                 elif kind == "zero":
                     self._zero_here(argument)
+                elif kind == "update":
+                    self._update(argument)
             except Exception as exc:  # a refusal, a silent module: said under the buttons, the worker goes on
                 self.line.content = f"⚠ {exc}"
 
@@ -165,6 +178,27 @@ class ModulesPanel:
         robot.lookup(name, "joint.calibration", timeout=TIMEOUT).set(values, wait=True, timeout=TIMEOUT)
         self._read()
         self.line.content = f"{name}: its pose now is its zero (raw {raw:.2f}°; it was at {angle:.2f}°)"
+
+    def _update(self, image: bytes) -> None:
+        """Every answering module to ``image`` at once (asm_module.flasher), the bar following the bytes written."""
+        check(image)  # not an update image: said before anything is sent
+        robot = self.page.robot
+        names = sorted(robot.alive_modules(), key=lambda n: int(n[1:]))
+        written: dict[str, int] = {}
+        total = len(image) * max(1, len(names))
+
+        def progress(module: str, done: int, size: int) -> None:
+            with self._lock:
+                written[module] = done
+                self.progress.value = 100.0 * sum(written.values()) / total
+
+        self.progress.value = 0.0
+        self.update_md.content = f"Updating {len(names)} modules with a {len(image):,}-byte image …"
+        # patient: a module behind a busy bus or a slow host answers late, and a failed update is redone by hand
+        results = update_modules(robot.node, names, image, progress=progress, timeout=30.0, reboot_timeout=120.0)
+        self.progress.value = 100.0
+        self.update_md.content = "  \n".join(str(result) for result in results)
+        self._read()
 
     def close(self) -> None:
         self._jobs.put(None)
