@@ -21,6 +21,7 @@ from __future__ import annotations
 import asyncio
 import json
 import os
+import re
 import statistics
 import struct
 import subprocess
@@ -221,7 +222,8 @@ def record_overhead(folder: Path, modules: int = 128) -> float:
             cpu = (_cpu_seconds(recorder.pid) - cpu) / (time.monotonic() - began)
         finally:
             out, _ = recorder.communicate(timeout=SECONDS + 60)
-        print(out.strip().splitlines()[-1] if out.strip() else "asm-record said nothing", flush=True)
+        said = out.strip().splitlines()[-1] if out.strip() else "asm-record said nothing"
+        print(said, flush=True)
     finally:
         factors.close()
         client.close()
@@ -231,6 +233,12 @@ def record_overhead(folder: Path, modules: int = 128) -> float:
           f"recording: {', '.join(f'{f:.3f}' for f in with_recording)} (behind: {'yes' if behind_with else 'no'}); "
           f"the recorder used {cpu:.2f} CPU seconds a second on {os.cpu_count()} cores; load average "
           f"{os.getloadavg()[0]:.1f}", flush=True)  # fmt: skip
+    if wrote := re.search(r"(\d+) messages of robot \S+ in ([\d.]+) s", said):
+        # CPU-s/s follows how many messages the robot manages to publish, which the machine's load decides: the cost
+        # of one message (its overall rate taken as the window's) compares runs made under different loads.
+        rate = int(wrote[1]) / max(1e-9, float(wrote[2]))
+        print(f"the recorder: {rate:.0f} messages a second, {cpu / max(1.0, rate) * 1e6:.0f} µs of CPU a message",
+              flush=True)  # fmt: skip
     if behind_without:
         print("the robot fell behind the wall clock without recording too: the machine cannot run it in real time, "
               "so the ratio measures the machine's other load as much as the recorder", flush=True)  # fmt: skip

@@ -19,6 +19,7 @@ gait file, the robot's MJCF model).
 from __future__ import annotations
 
 import json
+import struct
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
@@ -26,8 +27,9 @@ from pathlib import Path
 from typing import IO, Any, cast
 
 from mcap.exceptions import McapError
+from mcap.opcode import Opcode
 from mcap.reader import NonSeekingReader
-from mcap.records import Channel, Message, Schema
+from mcap.records import Channel, Message, MessageIndex, Schema
 from mcap.writer import Writer
 
 LIBRARY = "asm-record"
@@ -76,21 +78,67 @@ class _Unbuffered:
 
     def __init__(self, path: Path) -> None:
         self._file = open(path, "wb", buffering=0)  # noqa: SIM115  # closed by close()
+        self._position = 0
+        """Bytes written: the file is only appended to, so this is its tell() without a system call (asked after
+        every message, to see whether a chunk was written)."""
 
     def write(self, data: bytes | bytearray | memoryview) -> int:
-        view = memoryview(data)
+        view = memoryview(data).cast("B")
+        size = len(view)
         while view:
             view = view[self._file.write(view) or 0 :]
-        return len(data)
+        self._position += size
+        return size
 
     def tell(self) -> int:
-        return self._file.tell()
+        return self._position
 
     def flush(self) -> None:
         pass
 
     def close(self) -> None:
         self._file.close()
+
+
+_MESSAGE_HEADER = struct.Struct("<BQHIQQ")
+"""A Message record up to its data: opcode, record length, channel, sequence, log time, publish time."""
+_FINALIZE_CHUNK: Callable[[Writer], None] | None = vars(Writer).get("_Writer__finalize_chunk")
+
+
+class FastWriter(Writer):
+    """mcap's Writer, with ``add_message`` writing the same bytes in one ``struct.pack``: the library's builds a
+    Message object and packs each field apart (about 14 µs a message, most of the recorder's writing at 6,000
+    messages a second). It updates the writer's statistics and the chunk's index exactly as the library does, through
+    their private attributes; where those are not there (another mcap version), the library's own method runs.
+    tests/server/test_record.py checks that both write the same file."""
+
+    def add_message(self, channel_id: int, log_time: int, data: bytes, publish_time: int, sequence: int = 0) -> None:
+        state = self.__dict__
+        builder, statistics = state.get("_Writer__chunk_builder"), state.get("_Writer__statistics")
+        buffer = getattr(getattr(builder, "record_writer", None), "_buffer", None)
+        chunk_size = state.get("_Writer__chunk_size")
+        if builder is None or statistics is None or buffer is None or chunk_size is None or _FINALIZE_CHUNK is None:
+            return super().add_message(channel_id, log_time, data, publish_time, sequence)
+        if statistics.message_count == 0 or log_time < statistics.message_start_time:
+            statistics.message_start_time = log_time
+        if log_time > statistics.message_end_time:
+            statistics.message_end_time = log_time
+        statistics.channel_message_counts[channel_id] += 1
+        statistics.message_count += 1
+        if builder.num_messages == 0 or log_time < builder.message_start_time:
+            builder.message_start_time = log_time
+        if log_time > builder.message_end_time:
+            builder.message_end_time = log_time
+        index = builder.message_indices.get(channel_id)
+        if index is None:
+            index = builder.message_indices[channel_id] = MessageIndex(channel_id=channel_id, records=[])
+        index.records.append((log_time, buffer.tell()))
+        builder.num_messages += 1
+        buffer.write(_MESSAGE_HEADER.pack(Opcode.MESSAGE, 22 + len(data), channel_id, sequence, log_time,
+                                          publish_time))  # fmt: skip
+        buffer.write(data)
+        if buffer.tell() > chunk_size:
+            _FINALIZE_CHUNK(self)
 
 
 class McapFiles:
@@ -145,7 +193,7 @@ class McapFiles:
     def _start(self, path: Path) -> None:
         self._stream = _Unbuffered(path)
         self.paths.append(path)
-        writer = self._writer = Writer(cast(IO[bytes], self._stream), chunk_size=self.chunk_size)
+        writer = self._writer = FastWriter(cast(IO[bytes], self._stream), chunk_size=self.chunk_size)
         writer.start(profile="", library=LIBRARY)
         self._schemas, self._channels = {}, {}
         self._summary = _SUMMARY_BASE + sum(_ATTACHMENT_INDEX + len(a.name) for a in self.info.attachments)
@@ -202,6 +250,12 @@ class McapFiles:
 
     def _size(self) -> int:
         return self._stream.tell() if self._stream is not None else 0
+
+    def flush_if_due(self) -> None:
+        """:meth:`flush` if the chunk in progress has been open ``flush_seconds`` (the writer calls this when no
+        message has come for a while, since only a message written checks the time otherwise)."""
+        if time.monotonic() - self._flushed >= self.flush_seconds:
+            self.flush()
 
     def flush(self) -> None:
         """Close the chunk in progress: what was written so far is on disk as whole records."""
