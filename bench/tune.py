@@ -20,7 +20,8 @@
 4. ``tuned_live_distance_vs_preview``: the gait tuned in 1, deployed on ``asm-robot --sim`` in its own process:
    metres in 10 s of wall time after 2 s over its preview's in 10 s simulated (bench/robot.py's measure).
 
-The tuned gaits are written to gaits/tuned/ with their provenance (tests/gaits/test_tuned.py checks that they run
+The tuned gaits are written to gaits/tuned/ with their provenance (``--quick``: to a temporary folder, its smaller
+budgets tune worse gaits; tests/gaits/test_tuned.py checks that they run
 backwards with direction -1 and shrug off the 1 N push as the library gaits do).
 """
 
@@ -31,6 +32,7 @@ import contextlib
 import logging
 import os
 import sys
+import tempfile
 import time
 from collections.abc import Iterator
 from concurrent.futures import Executor
@@ -60,7 +62,7 @@ def speed(gait: Gait, terrain: Terrain = FLAT) -> tuple[float, float]:
     return metrics.speed, metrics.peak_torque
 
 
-def tuned_ratio(budget: int, seconds: float) -> Path:
+def tuned_ratio(budget: int, seconds: float, out: Path) -> Path:
     library = load(LIBRARY / "caterpillar.toml")
     frees = [parse_free(text) for text in FREES]
     setup = Setup("speed", seconds=seconds, warmup=1.0)
@@ -78,12 +80,12 @@ def tuned_ratio(budget: int, seconds: float) -> Path:
     print(f"# 10 s runs: library {base:.3f} m/s (peak {base_peak:.2f} N·m), tuned {best:.3f} m/s "
           f"(peak {best_peak:.2f} N·m)")  # fmt: skip
     print(f"ratio tuned_caterpillar_speed_vs_library {best / base:.2f} (target >= 1.5)")
-    path = TUNED / "caterpillar_flat.toml"
+    path = out / "caterpillar_flat.toml"
     path.write_text(tuned_text(result, frees, setup, budget=budget, seed=1, source="caterpillar.toml"), "utf-8")
     return path
 
 
-def rough_ratio(budget: int, seconds: float) -> None:
+def rough_ratio(budget: int, seconds: float, out: Path) -> None:
     """Tuned for the mean speed over ROUGH_TUNE, then it and the library gait run 10 s (after 2 s) on each ground of
     ROUGH_TEST: the ratio of their mean speeds. A tuned gait that falls or is stuck on an unseen field counts its
     speed there as it is."""
@@ -106,7 +108,7 @@ def rough_ratio(budget: int, seconds: float) -> None:
         print(f"#   {spec}: library {b:.3f} m/s, tuned {t:.3f} m/s (peak {peak:.2f} N·m)")
     ratio = sum(best) / sum(base)
     print(f"ratio tuned_rough_speed_vs_library_rough {ratio:.2f} (target >= 1.3)", flush=True)
-    path = TUNED / "caterpillar_rough.toml"
+    path = out / "caterpillar_rough.toml"
     path.write_text(tuned_text(result, frees, setup, budget=budget, seed=1, source="caterpillar.toml"), "utf-8")
 
 
@@ -177,16 +179,17 @@ def main() -> None:
     cli = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
     cli.add_argument("--quick", action="store_true", help="smaller budgets and shorter simulations (under 2 minutes)")
     args = cli.parse_args()
-    TUNED.mkdir(exist_ok=True)
-    if args.quick:
-        flat = tuned_ratio(budget=150, seconds=3.0)
-        rough_ratio(budget=60, seconds=3.0)
-        live_ratio(flat)
+    if args.quick:  # smaller budgets tune worse gaits: they go to a temporary folder, never over gaits/tuned/
+        with tempfile.TemporaryDirectory(prefix="asm-tune-quick-") as out:
+            flat = tuned_ratio(budget=150, seconds=3.0, out=Path(out))
+            rough_ratio(budget=60, seconds=3.0, out=Path(out))
+            live_ratio(flat)
         scaling(budget=33, seconds=2.0, rounds=3)
         scaling(budget=33, seconds=2.0, rounds=3, dask=True)
     else:
-        flat = tuned_ratio(budget=400, seconds=6.0)
-        rough_ratio(budget=90, seconds=4.0)
+        TUNED.mkdir(exist_ok=True)
+        flat = tuned_ratio(budget=400, seconds=6.0, out=TUNED)
+        rough_ratio(budget=90, seconds=4.0, out=TUNED)
         live_ratio(flat)
         scaling(budget=49, seconds=4.0, rounds=3)
         scaling(budget=49, seconds=4.0, rounds=3, dask=True)
