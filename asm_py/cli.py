@@ -10,6 +10,7 @@ through :func:`run`.
 from __future__ import annotations
 
 import argparse
+import logging
 import math
 import os
 import signal
@@ -18,7 +19,7 @@ import threading
 import traceback
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import Any, NoReturn
 
 from .canbus.ids import MAX_NODE_ID, MIN_NODE_ID
 
@@ -121,25 +122,45 @@ EXIT_GRACE = 4.0
 within 5 s whatever the load (a flood of requests, a wedged module, a hung session close)."""
 
 
-def close_in_time(close: Callable[[], None], prog: str, grace: float = EXIT_GRACE) -> None:
-    """Run ``close`` (a command's orderly shutdown) for at most ``grace`` seconds; past that, say so and end the
-    process at once (``os._exit``: the children it started die with it, the kernel closes its sockets)."""
+def close_and_exit(close: Callable[[], None], prog: str, grace: float = EXIT_GRACE) -> NoReturn:
+    """Run ``close`` (a server command's orderly shutdown) for at most ``grace`` seconds, then end the process
+    (exit 0, or 1 if closing failed or took too long: said, with where it was).
+
+    The end is ``os._exit`` after flushing, not the interpreter's finalization: Zenoh's and foxglove-sdk's native
+    threads can still call into Python then (a late callback), and a thread that wants the GIL during
+    finalization is unwound through Rust frames, which aborts the process ("FATAL: exception not rethrown",
+    SIGABRT: seen in a fresh-clone CI when a robot process was stopped). Everything that matters was closed in
+    order by ``close``; the kernel closes the rest, and the children started die with this process."""
     done = threading.Event()
+    failed: list[BaseException] = []
 
     def closing() -> None:
         try:
             close()
+        except BaseException as exc:  # said below; the exit code says it too
+            failed.append(exc)
         finally:
             done.set()
 
     closer = threading.Thread(target=closing, name=f"{prog}-close", daemon=True)
     closer.start()
+    code = 0
     if not done.wait(grace):
         frame = sys._current_frames().get(closer.ident or 0)
         where = "".join(traceback.format_stack(frame)[-6:]) if frame is not None else ""
         print(f"{prog}: closing took longer than {grace:g} s: exiting now; it was at\n{where}", file=sys.stderr,
               flush=True)  # fmt: skip
-        os._exit(1)
+        code = 1
+    elif failed:
+        print(f"{prog}: closing failed: " + "".join(traceback.format_exception(failed[0])), file=sys.stderr, end="")
+        code = 1
+    logging.shutdown()
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):  # a closed pipe: nothing more can be said
+            pass
+    os._exit(code)
 
 
 def run(prog: str, body: Callable[[], int]) -> int:

@@ -35,7 +35,7 @@ import zenoh
 
 from asm_py.canbus.fragments import frame_count
 from asm_py.canbus.ids import Dest
-from asm_py.cli import bitrate, can_channel, name, node_id, run, stop_requested
+from asm_py.cli import bitrate, can_channel, close_and_exit, name, node_id, run, stop_requested
 from asm_py.keys import DEFAULT_ROBOT, RobotKeys, concrete, lab_estop, last, split
 from asm_py.node import Node
 from asm_py.protocol import (
@@ -460,8 +460,7 @@ def _serve(args: argparse.Namespace, zenoh_opts: ZenohOptions) -> int:
     done = stop_requested()
     print("READY bridge", flush=True)
     done.wait()
-    bridge.close()
-    return 0
+    close_and_exit(bridge.close, "asm-bridge")
 
 
 if __name__ == "__main__":

@@ -26,20 +26,18 @@ from foxglove.messages import (
 )
 
 from asm_module.feed import PoseFrame
+from asm_module.recording_topics import (  # noqa: F401 (the topics, re-exported: the writers' one import)
+    ROBOT_TOPICS,
+    TOPIC_ESTOP,
+    TOPIC_GROUP,
+    TOPIC_SCENE,
+    TOPIC_STATUS,
+    TOPIC_TRANSFORMS,
+    attribute_topic,
+)
 
 WORLD = "world"
 """The parent frame of every body: the pose feed carries world-frame poses."""
-
-TOPIC_TRANSFORMS = "/robot/transforms"
-TOPIC_SCENE = "/robot/scene"
-TOPIC_STATUS = "/robot/status"
-TOPIC_ESTOP = "/robot/estop"
-TOPIC_GROUP = "/robot/group"
-
-
-def attribute_topic(node: str, object_name: str) -> str:
-    """``/m3/joint.angle``: one channel per publishing object, so a plot panel picks one by name."""
-    return f"/{node}/{object_name}"
 
 
 _ANY: dict[str, object] = {}

@@ -20,7 +20,18 @@ import can
 from asm_module import FakeDriver, ModuleRuntime
 from asm_module.calibration import CalibrationFile
 from asm_module.commissioning import CommissionedModule, IdFile, calibration_path
-from asm_py.cli import bitrate, bounded, can_channel, name, node_id, output_file, rate, run, stop_requested
+from asm_py.cli import (
+    bitrate,
+    bounded,
+    can_channel,
+    close_and_exit,
+    name,
+    node_id,
+    output_file,
+    rate,
+    run,
+    stop_requested,
+)
 from asm_py.node import Node
 from asm_py.transport.can import CanTransport
 from server.realtime import prefer_latency
@@ -72,9 +83,12 @@ def _serve(args: argparse.Namespace) -> int:
     done = stop_requested()
     print(f"READY {name}", flush=True)
     done.wait()
-    runtime.close()
-    node.close()
-    return 0
+
+    def close() -> None:
+        runtime.close()
+        node.close()
+
+    close_and_exit(close, "asm-module")
 
 
 def _serve_commissioned(args: argparse.Namespace, options: dict) -> int:
@@ -89,8 +103,7 @@ def _serve_commissioned(args: argparse.Namespace, options: dict) -> int:
     done = stop_requested()
     print(f"READY serial {module.serial.hex()} node ID {module.node_id or 'none'}", flush=True)
     done.wait()
-    module.close()
-    return 0
+    close_and_exit(module.close, "asm-module")
 
 
 if __name__ == "__main__":

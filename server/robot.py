@@ -30,7 +30,7 @@ from typing import Any
 
 from asm_module.feed import PoseFrame, RobotStatus, encode_poses
 from asm_module.names import module_name
-from asm_py.cli import can_channel, close_in_time, input_file, module_selection, name, run, stop_requested
+from asm_py.cli import can_channel, close_and_exit, input_file, module_selection, name, run, stop_requested
 from asm_py.keys import DEFAULT_ROBOT
 from asm_py.node import Node
 from asm_py.transport.can import CanTransport
@@ -388,8 +388,7 @@ def _serve(args: argparse.Namespace, network: ZenohOptions) -> int:
     live = f"; foxglove ws://{args.foxglove_host}:{robot.foxglove.port}" if robot.foxglove is not None else ""
     print(f"READY robot {args.name} ({kind}, {robot.status.modules} modules){live}", flush=True)
     done.wait()
-    close_in_time(robot.close, "asm-robot")
-    return 0
+    close_and_exit(robot.close, "asm-robot")
 
 
 if __name__ == "__main__":

@@ -14,7 +14,7 @@ from __future__ import annotations
 import argparse
 import logging
 
-from asm_py.cli import close_in_time, input_file, run, stop_requested, zenoh_endpoint
+from asm_py.cli import close_and_exit, input_file, run, stop_requested, zenoh_endpoint
 
 from .realtime import prefer_latency
 from .zenoh_args import ZenohOptions, zenoh_options
@@ -43,8 +43,7 @@ def _serve(network: ZenohOptions) -> int:
     session = network.open()
     print(f"READY router {' '.join(network.listen)}", flush=True)
     done.wait()
-    close_in_time(session.close, "asm-router")
-    return 0
+    close_and_exit(session.close, "asm-router")
 
 
 if __name__ == "__main__":

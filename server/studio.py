@@ -34,7 +34,7 @@ from asm_py import Node
 from asm_py.cli import (
     bitrate,
     can_channel,
-    close_in_time,
+    close_and_exit,
     input_file,
     module_selection,
     name,
@@ -438,8 +438,7 @@ def _serve(args: argparse.Namespace, network: ZenohOptions) -> int:
         print("The page is served beyond this machine: open it with the token above (it is asked once, then kept "
               "in a cookie).", flush=True)  # fmt: skip
     done.wait()
-    close_in_time(studio.close, "asm-studio")
-    return 0
+    close_and_exit(studio.close, "asm-studio")
 
 
 if __name__ == "__main__":

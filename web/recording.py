@@ -25,6 +25,7 @@ from typing import IO, Any
 import numpy as np
 
 from asm_module.feed import PoseFrame
+from asm_module.recording_topics import TOPIC_ESTOP, TOPIC_GROUP, TOPIC_STATUS, TOPIC_TRANSFORMS, attribute_of
 
 MAGIC = b"\x89MCAP0\r\n"
 MAX_BYTES = 256 * 1024 * 1024
@@ -33,12 +34,6 @@ MAX_EXPANDED = 4 * MAX_BYTES
 """The most its chunks may expand to, decompressed (the recorder's zstd chunks shrink to about a third)."""
 MAX_CHUNK = 64 * 1024 * 1024
 """The largest chunk decompressed (the recorder writes 64 kB ones)."""
-TOPIC_TRANSFORMS = "/robot/transforms"
-TOPIC_ESTOP = "/robot/estop"
-TOPIC_GROUP = "/robot/group"
-TOPIC_STATUS = "/robot/status"
-ROBOT_TOPICS = (TOPIC_TRANSFORMS, TOPIC_ESTOP, TOPIC_GROUP, TOPIC_STATUS, "/robot/scene")
-"""The recorder's topics (server/foxglove_msgs.py, docs/protocol.md §11); any other is ``/<node>/<object>``."""
 
 
 class RecordingError(ValueError):
@@ -225,11 +220,10 @@ def _add(recording: Recording, t: float, topic: str, data: bytes, seq: int) -> N
             recording.events.append(Event(t, "group", text))
         elif topic == TOPIC_STATUS:
             _status(recording, t, json.loads(data))
-        elif topic not in ROBOT_TOPICS:
+        elif (attribute := attribute_of(topic)) is not None:
             view = json.loads(data)
-            parts = topic.strip("/").split("/", 1)
-            if isinstance(view, dict) and "value" in view and len(parts) == 2:
-                series = recording.series.setdefault((parts[0], parts[1]), Series())
+            if isinstance(view, dict) and "value" in view:
+                series = recording.series.setdefault(attribute, Series())
                 series.times.append(t)
                 series.values.append(view["value"])
                 series.stamps.append((int(view.get("seq", 0)), float(view.get("t", 0.0))))

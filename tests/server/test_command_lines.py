@@ -211,3 +211,47 @@ def test_the_studio_passes_its_emulated_module_choice_to_its_robot_only(tmp_path
                             own_robot="robot", _child_endpoint="tcp/127.0.0.1:1", robot_terrain=FLAT)  # fmt: skip
     args = Studio._robot_args(owner, load(LIBRARY / "caterpillar.toml"))  # type: ignore[arg-type]
     assert args[args.index("--emulated-modules") + 1] == "odd" and "--sim" in args and "--c-modules" not in args
+
+
+CLOSE_AND_EXIT = """
+import logging, sys, threading, time
+from asm_py.cli import close_and_exit
+logging.basicConfig(level=logging.INFO)
+how = sys.argv[1]
+
+def late_caller():  # a thread still busy in Python as the process ends (as Zenoh's callbacks can be)
+    while True:
+        time.sleep(0.001)
+
+threading.Thread(target=late_caller, daemon=True).start()
+
+def close():
+    print("closing", flush=True)
+    logging.getLogger("t").info("closed in order")
+    if how == "fails":
+        raise RuntimeError("the session would not close")
+    if how == "hangs":
+        time.sleep(60)
+
+close_and_exit(close, "asm-test", grace=1.0)
+print("never reached")
+"""
+
+
+ENDINGS = [("closes", 0, ""), ("fails", 1, "asm-test: closing failed: "),
+           ("hangs", 1, "asm-test: closing took longer than 1 s")]  # fmt: skip
+
+
+@pytest.mark.parametrize(("how", "code", "said"), ENDINGS)
+def test_a_server_command_closes_in_order_then_ends_at_once(how: str, code: int, said: str) -> None:
+    """``close_and_exit``: the orderly close runs (what it logs is flushed), then the process ends with 0, or 1
+    when closing failed or hung — at once, never through the interpreter's finalization (where a native thread
+    calling into Python aborted a robot process) and never running on past it."""
+    from ..processes import run
+
+    done = run("-c", CLOSE_AND_EXIT, how, timeout=30)
+    assert done.returncode == code, done.stderr
+    assert done.stdout.startswith("closing") and "never reached" not in done.stdout
+    assert "closed in order" in done.stderr  # the logging handler flushed before the end
+    assert said in done.stderr
+    assert "Traceback" not in done.stderr or how == "fails"

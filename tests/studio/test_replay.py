@@ -163,10 +163,15 @@ def write_recording(path: Path, frames: int = 120, *, finish: bool = True, mjcf:
     return files
 
 
-def test_the_topics_read_are_the_recorders() -> None:
-    assert (rec.TOPIC_TRANSFORMS, rec.TOPIC_ESTOP, rec.TOPIC_GROUP, rec.TOPIC_STATUS) == (
-        fx.TOPIC_TRANSFORMS, fx.TOPIC_ESTOP, fx.TOPIC_GROUP, fx.TOPIC_STATUS)  # fmt: skip
-    assert fx.TOPIC_SCENE in rec.ROBOT_TOPICS
+def test_an_attribute_topic_reads_back_as_the_node_and_object_it_was_written_for() -> None:
+    """The writers' topic names and the replay's reading of them are one module's (asm_module/recording_topics)."""
+    from asm_module.recording_topics import ROBOT_TOPICS, attribute_of, attribute_topic
+
+    assert attribute_of(attribute_topic("m3", "joint.angle")) == ("m3", "joint.angle")
+    assert attribute_of(attribute_topic("studio-1", "a/b")) == ("studio-1", "a/b")
+    for topic in (*ROBOT_TOPICS, "/m3", "m3", "//", "/m3/", "", "/"):
+        assert attribute_of(topic) is None, topic
+    assert fx.TOPIC_SCENE in ROBOT_TOPICS and fx.TOPIC_TRANSFORMS in ROBOT_TOPICS
 
 
 def test_a_recording_reads_back_every_pose_value_and_event(tmp_path: Path) -> None:
