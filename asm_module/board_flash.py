@@ -74,13 +74,16 @@ def _register_built() -> int:
 
     new = 0
     for path in sorted(BOARD_IMAGE.parent.glob("stm32f4*.elf")):
-        if path.name.startswith("stm32f4_boot") or (path, path.stat().st_mtime) in _built:
+        if path.name.startswith("stm32f4_boot"):
             continue
         try:
+            seen = (path, path.stat().st_mtime)  # a file rebuilt under the same name is read again
+            if seen in _built:
+                continue
             image = read_image(path)
-        except (OSError, ValueError):  # a build being written, or not an ELF: not this one
+        except (OSError, ValueError):  # a build being written or removed, or not an ELF: not this one
             continue
         register_image(image)
-        _built.add((path, path.stat().st_mtime))
+        _built.add(seen)
         new += 1
     return new
