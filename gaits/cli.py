@@ -77,7 +77,8 @@ def main(argv: list[str] | None = None) -> int:
     tune.add_argument("--warmup", type=bounded(float, 0, 600, what="the warm-up"), default=1.0,
                       help="simulated seconds before measuring (default 1)")  # fmt: skip
     tune.add_argument("--max-torque", type=bounded(float, above=0, high=100, what="the torque limit"), default=None,
-                      help="peak joint torque allowed, N·m (default 95%% of the servos' 1.5 N·m)")  # fmt: skip
+                      help="peak joint torque allowed, N·m (default 95%% of the gait's own servos' stall "
+                      "torque, [robot.module] stall_torque: 1.425 for the library module)")  # fmt: skip
     tune.add_argument(
         "--gait",
         default="forward",

@@ -49,7 +49,8 @@ class Metrics:
     peak_torque: float
     """Largest absolute actuator torque seen, N·m."""
     fell: bool
-    """The robot ended on its side (chains, loops) or upside down (legged)."""
+    """The robot lay on its side (chains, loops) or upside down (legged) at any instant measured (a tumble it
+    rolled out of counts), sampled as the peak torque is."""
     real_time_factor: float = 0.0
     """Simulated seconds per wall-clock second of the whole run."""
     energy: float = 0.0
@@ -252,6 +253,8 @@ class Simulation:
         self._nodes: list[Node] = []
         self._push: tuple[float, np.ndarray] | None = None
         self.peak_torque = 0.0
+        self.fell_seen = False
+        """The robot has fallen (see ``fell``) at some instant since the last measurement began."""
         self.energy = 0.0
         """Joint work since the last measurement began, J (see Metrics.energy)."""
         self.turned = 0.0
@@ -390,6 +393,7 @@ class Simulation:
             steps -= n
             force = self.data.actuator_force
             self.peak_torque = max(self.peak_torque, float(np.abs(force).max(initial=0.0)))
+            self.fell_seen = self.fell_seen or self.fell()
             dt = n * self.model.opt.timestep
             self.energy += float(np.abs(force * self.data.actuator_velocity).sum()) * dt
             yaw = self.yaw()
@@ -453,7 +457,8 @@ class Simulation:
         end = self.center_of_mass()
         robot = self.gait.robot
         return Metrics(seconds, (float(end[0] - start[0]), float(end[1] - start[1])),
-                       robot.modules * robot.module_size, self.peak_torque, self.fell(), real_time_factor,
+                       robot.modules * robot.module_size, self.peak_torque, self.fell_seen or self.fell(),
+                       real_time_factor,
                        self.energy, float(self.model.body_mass.sum()), self.turned)  # fmt: skip
 
     def fell(self) -> bool:
@@ -471,6 +476,7 @@ class Simulation:
         self.advance(warmup)
         start = self.center_of_mass()
         self.peak_torque = self.energy = self.turned = 0.0
+        self.fell_seen = False
         if push_at is not None and push_at > warmup:
             self.advance(push_at - warmup)
             self.push(push, push_seconds)

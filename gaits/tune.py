@@ -27,6 +27,7 @@ import math
 import os
 import signal
 import sys
+import threading
 import time
 import warnings
 from collections.abc import Callable
@@ -52,8 +53,15 @@ WORST_COST = 100.0
 """Cost of transport counted for a robot that did not move (inf otherwise): keeps the scores finite for CMA-ES."""
 LEADERS = 8
 """How many of the best valid candidates are kept for the final, longer check (the start, if valid, besides)."""
-DEFAULT_MAX_TORQUE = round(0.95 * Physics.torque, 3)
-"""A gait that keeps its servos at their torque limit (1.5 N·m) cannot follow its own references."""
+TORQUE_MARGIN = 0.95
+"""The default torque constraint, as a share of the robot's servo stall torque (``[robot.module] stall_torque``):
+a gait that keeps its servos at their limit cannot follow its own references (and the torque saturates there, so
+a constraint at the stall torque itself could never be broken)."""
+
+
+def default_max_torque(gait: Gait) -> float:
+    """The torque constraint of ``gait``'s own servos (the library module's 1.5 N·m gives 1.425)."""
+    return round(TORQUE_MARGIN * Physics.of(gait.robot).torque, 3)
 
 
 @dataclass(frozen=True)
@@ -64,13 +72,18 @@ class Setup:
     terrains: tuple[Terrain, ...] = (FLAT,)
     seconds: float = 6.0
     warmup: float = 1.0
-    max_torque: float = DEFAULT_MAX_TORQUE
+    max_torque: float | None = None
+    """N·m; None: :func:`default_max_torque` of the gait tuned (tune() fills it in before any evaluation)."""
     gait: str = FORWARD
     """The program gait simulated: ``forward`` (the file's ``modules``) or one of its ``[gaits]`` (``left`` to tune a
     turn); the robot starts in forward and switches at its first cycle boundary, within the warm-up."""
     verify: float = 2.0
     """The best candidates are checked again over this many times ``seconds``: a rare torque peak (a gait near its
     servos' limit can meet one only every few seconds) must not slip through a short search run."""
+    forward: float | None = None
+    """The direction of "forward", degrees from +x: the way the starting gait travels on flat ground (tune() measures
+    it). Speed and cost of transport count progress along it, signed: a candidate that goes backwards, or slides
+    down a slope, makes negative progress, never a fast gait. None: the distance travelled, whichever way."""
 
 
 @dataclass
@@ -116,21 +129,24 @@ def evaluate(document: dict[str, Any], setup: Setup) -> Outcome:
         return Outcome(INVALID, problem=f"not simulated: {exc}")
     peak = max(start_peak, *(m.peak_torque for m in runs))
     fell = any(m.fell for m in runs)
+    max_torque = setup.max_torque if setup.max_torque is not None else default_max_torque(gait)
+    progress = [m.along(setup.forward) if setup.forward is not None else m.distance for m in runs]
     if setup.objective == "speed":
-        value = float(np.mean([m.speed for m in runs]))
+        value = float(np.mean([p / m.seconds for p, m in zip(progress, runs, strict=True)]))
     elif setup.objective == "cost_of_transport":
-        value = float(np.mean([min(m.cost_of_transport, WORST_COST) for m in runs]))
+        value = float(np.mean([min(m.energy / (m.mass * 9.81 * p), WORST_COST) if p > 0 and m.mass > 0
+                               else WORST_COST for p, m in zip(progress, runs, strict=True)]))  # fmt: skip
     else:
         value = float(np.mean([abs(m.heading_rate) for m in runs]))
     problems = []
-    if peak > setup.max_torque:
-        problems.append(f"peak torque {peak:.2f} > {setup.max_torque:g} N·m")
+    if peak > max_torque:
+        problems.append(f"peak torque {peak:.2f} > {max_torque:g} N·m")
     if fell:
         problems.append("fell")
     if problems:
         # The peak saturates at the servos' limit, so by itself it scores many refused candidates alike: their mean
         # joint power (W) tells them apart, steering the search towards gentler gaits, which is where it comes back.
-        excess = max(0.0, peak - setup.max_torque) + (1.0 if fell else 0.0)
+        excess = max(0.0, peak - max_torque) + (1.0 if fell else 0.0)
         power = float(np.mean([m.energy / m.seconds for m in runs]))
         return Outcome(VIOLATION + excess + power, value, ", ".join(problems), peak, fell)
     return Outcome(-OBJECTIVES[setup.objective][0] * value, value, "", peak, fell)
@@ -181,6 +197,10 @@ class Result:
     """CPU seconds they got meanwhile (Outcome.cpu)."""
     simulated: float = 0.0
     """Simulated seconds in all, the final check's runs included."""
+    setup: Setup | None = None
+    """The setup searched with, its defaults filled in (the torque limit, the forward direction)."""
+    start_inside: bool = True
+    """The starting gait's values lie inside the free parameters' bounds (else it is measured, never the result)."""
 
     def account(self, outcomes: list[Outcome], setup: Setup) -> None:
         self.simulated += len(outcomes) * len(setup.terrains) * (setup.warmup + setup.seconds)
@@ -201,6 +221,7 @@ def tune(gait: Gait, frees: list[Free], setup: Setup, *, budget: int = 60, seed:
         raise ValueError(f"the file has no gait {setup.gait!r} (it has {', '.join(gait.program_gaits())})")
     if setup.objective not in OBJECTIVES:
         raise ValueError(f"objective must be one of {', '.join(OBJECTIVES)}, not {setup.objective!r}")
+    setup = resolved(setup, gait)
     document = to_dict(gait)
     low = np.array([f.low for f in frees])
     span = np.array([f.high - f.low for f in frees])
@@ -210,7 +231,8 @@ def tune(gait: Gait, frees: list[Free], setup: Setup, *, budget: int = 60, seed:
         x0 = np.append(x0, 0.5)
     own = executor is None
     pool = executor or ProcessPoolExecutor(max_workers=workers or os.cpu_count() or 1, initializer=ignore_sigint)
-    result = Result(None, [], math.nan, math.nan, "")
+    result = Result(None, [], math.nan, math.nan, "", setup=setup)
+    result.start_inside = all(f.low <= v <= f.high for f, v in zip(frees, start, strict=True))
     sign = OBJECTIVES[setup.objective][0]
     order = itertools.count()
     leaders: list[Leader] = []
@@ -239,11 +261,11 @@ def tune(gait: Gait, frees: list[Free], setup: Setup, *, budget: int = 60, seed:
                 own_start, outcomes = outcomes[0], outcomes[1:]
                 result.start_value = own_start.value if own_start.feasible else math.nan
                 result.start_problem = own_start.problem
-                if own_start.feasible:
+                if own_start.feasible and result.start_inside:  # a start outside the bounds is no answer to them
                     result.best, result.values, result.value = gait, start, own_start.value
                     lead(own_start.value, start, document)
                     fallback = leaders[0]
-                else:
+                elif not own_start.feasible:
                     result.rejected += 1
             for values, doc, outcome in zip(candidates, documents, outcomes, strict=True):
                 result.samples.append((values, outcome.value if outcome.feasible else math.nan))
@@ -270,6 +292,29 @@ def tune(gait: Gait, frees: list[Free], setup: Setup, *, budget: int = 60, seed:
         if own:
             pool.shutdown(wait=not result.interrupted, cancel_futures=True)
     return result
+
+
+def resolved(setup: Setup, gait: Gait) -> Setup:
+    """``setup`` with its defaults filled in for ``gait``: its servos' torque limit, and for speed and cost of
+    transport the direction the gait travels on flat ground (see ``Setup.forward``)."""
+    if setup.max_torque is None:
+        setup = replace(setup, max_torque=default_max_torque(gait))
+    if setup.forward is None and setup.objective in ("speed", "cost_of_transport"):
+        setup = replace(setup, forward=forward_heading(gait, setup))
+    return setup
+
+
+def forward_heading(gait: Gait, setup: Setup) -> float | None:
+    """Degrees from +x the starting gait travels on flat ground over the setup's run (None: it hardly moves, a
+    tenth of a body length, so no direction is its own: then distance counts, whichever way)."""
+    from .sim import Simulation  # MuJoCo loads where it runs
+
+    with Simulation(gait) as sim:
+        sim.start()
+        if setup.gait != FORWARD:
+            sim.drive(setup.gait)
+        metrics = sim.run(setup.seconds, warmup=setup.warmup)
+    return round(metrics.heading, 3) if metrics.body_lengths >= 0.1 else None
 
 
 Leader = tuple[float, int, list[float], dict[str, Any]]
@@ -317,6 +362,7 @@ def _line(result: Result, setup: Setup, best: Outcome | None, outcomes: list[Out
 
 def provenance(result: Result, frees: list[Free], setup: Setup, *, budget: int, seed: int, source: str) -> str:
     """The comment lines at the top of a tuned file: how it was made, so it can be made again."""
+    setup = result.setup or setup
     goal = "maximised" if OBJECTIVES[setup.objective][0] > 0 else "minimised"
     start = _amount(result.start_value, setup) if result.start_problem == "" else f"refused: {result.start_problem}"
     checked = (f"held again over {setup.seconds * setup.verify:g} s ({result.verify_refused} better candidates did "
@@ -325,7 +371,8 @@ def provenance(result: Result, frees: list[Free], setup: Setup, *, budget: int, 
         f"Tuned by `gaits tune` from {source}: objective {setup.objective} ({goal}), seed {seed}, budget {budget} "
         f"({result.evaluations} simulated{', interrupted' if result.interrupted else ''})",
         f"gait {setup.gait}; terrains {', '.join(t.spec for t in setup.terrains)}; {setup.seconds:g} s measured after "
-        f"{setup.warmup:g} s",
+        f"{setup.warmup:g} s"
+        + (f"; forward = {setup.forward:g}° from +x (the start's direction)" if setup.forward is not None else ""),
         f"score {setup.objective} {_amount(result.value, setup)} (start {start})",
         f"constraints: peak torque <= {setup.max_torque:g} N·m (warm-up included), no fall, joint limits "
         f"(the loader's); {checked}",
@@ -355,6 +402,20 @@ def _described(result: Result, setup: Setup) -> str:
     return text.strip()[:4096]
 
 
+def _terminate_as_interrupt() -> threading.Event:
+    """SIGTERM raises KeyboardInterrupt in the main thread, as Ctrl-C does: the best so far is kept and written, and
+    the worker processes are shut down (killed outright, the parent would leave them orphaned). The event says a
+    SIGTERM came (exit 143, not 130)."""
+    terminated = threading.Event()
+
+    def interrupt(*_: object) -> None:
+        terminated.set()
+        raise KeyboardInterrupt
+
+    signal.signal(signal.SIGTERM, interrupt)
+    return terminated
+
+
 def command(args: argparse.Namespace) -> int:
     """``gaits tune``: parse, search, write the best gait (also after Ctrl-C); exit 1 when nothing met the
     constraints, 130 after an interruption."""
@@ -365,12 +426,12 @@ def command(args: argparse.Namespace) -> int:
               file=sys.stderr)  # fmt: skip
         return 1
     frees: list[Free] = args.free
-    setup = Setup(args.objective, tuple(args.terrain or [FLAT]), args.seconds, args.warmup,
-                  args.max_torque if args.max_torque is not None else DEFAULT_MAX_TORQUE, args.gait)  # fmt: skip
+    setup = Setup(args.objective, tuple(args.terrain or [FLAT]), args.seconds, args.warmup, args.max_torque, args.gait)
     out = Path(args.out) if args.out else Path(Path(args.file).stem + ".tuned.toml")  # here, not beside the library
     print(f"tuning {gait.name}: {len(frees)} free, {args.objective}, budget {args.budget}, seed {args.seed}",
           file=sys.stderr)  # fmt: skip
     progress: Progress = lambda _, line: print(line, file=sys.stderr, flush=True)  # noqa: E731
+    terminated = _terminate_as_interrupt()  # a scheduler's SIGTERM or `timeout` ends it as Ctrl-C does
     if args.scheduler:
         from .distributed import dask_executor
 
@@ -391,10 +452,15 @@ def command(args: argparse.Namespace) -> int:
     elif result.verify_refused:
         print(f"{result.verify_refused} leading candidate(s) broke a constraint when run {setup.verify:g} times "
               "longer and were passed over", file=sys.stderr)  # fmt: skip
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    stopped = 143 if terminated.is_set() else 130
     if result.best is None:
-        print("gaits tune: error: no candidate met the constraints; nothing written", file=sys.stderr)
-        return 1
+        inside = "" if result.start_inside else " inside the bounds (the start lies outside them)"
+        print(f"gaits tune: error: no candidate{inside} met the constraints; nothing written", file=sys.stderr)
+        return stopped if result.interrupted else 1
+    if result.start_inside and result.values == [current(gait, f) for f in frees]:
+        print("no candidate beat the start inside the bounds: the start is written again", file=sys.stderr)
     out.write_text(tuned_text(result, frees, setup, budget=args.budget, seed=args.seed, source=Path(args.file).name),
                    encoding="utf-8")  # fmt: skip
     print(f"{args.objective} {_amount(result.value, setup)} (start {result.start_value:.4g}); written to {out}")
-    return 130 if result.interrupted else 0
+    return stopped if result.interrupted else 0

@@ -107,6 +107,119 @@ def test_ctrl_c_writes_the_best_so_far(tmp_path):
     assert tuned.description.endswith(load(CATERPILLAR).description)
 
 
+def test_sigterm_writes_the_best_so_far_and_leaves_no_worker_behind(tmp_path):
+    """A scheduler's SIGTERM (or `timeout`) ends a search as Ctrl-C does, exit 143; its worker processes end with
+    it (killed by default, the parent left them orphaned and idle)."""
+    import psutil
+
+    out = tmp_path / "tuned.toml"
+    command = [sys.executable, "-m", "gaits.cli", "tune", str(CATERPILLAR), "--free", "amplitude=20:85",
+               "--budget", "200", "--seconds", "1", "--warmup", "0.5", "--workers", "2", "--out", str(out)]  # fmt: skip
+    process = subprocess.Popen(command, stderr=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
+                               cwd=Path(__file__).resolve().parents[2])  # fmt: skip
+    assert process.stderr is not None
+    workers: list[psutil.Process] = []
+    try:
+        for line in process.stderr:
+            if line.startswith("generation 1:"):
+                workers = psutil.Process(process.pid).children(recursive=True)
+                os.kill(process.pid, signal.SIGTERM)
+                break
+        _, rest = process.communicate(timeout=120)
+        assert process.returncode == 143, rest
+        assert "keeping the best so far" in rest and "interrupted" in out.read_text(encoding="utf-8")
+        assert workers, "no worker process was seen"
+        _, alive = psutil.wait_procs(workers, timeout=60)
+        assert not alive, f"workers left running: {alive}"
+    finally:
+        for child in workers:
+            if child.is_running():
+                child.kill()
+        if process.poll() is None:
+            process.kill()
+            process.wait()
+
+
+def test_a_start_outside_the_bounds_is_never_written_as_the_tuned_gait(tmp_path):
+    """Bounds that hold no valid gait (an amplitude of a thousandth of a degree barely moves the robot, below what
+    a start of 50° does) end with nothing written, never the start's 50° under a `free amplitude=0.0001:0.001`."""
+    out = tmp_path / "tuned.toml"
+    done = subprocess.run([sys.executable, "-m", "gaits.cli", "tune", str(CATERPILLAR), "--free",
+                           "period=0.05:0.1", "--budget", "4", "--seconds", "1", "--warmup", "0.5", "--workers", "1",
+                           "--out", str(out)], capture_output=True, text=True, timeout=240,
+                          cwd=Path(__file__).resolve().parents[2])  # fmt: skip
+    assert done.returncode == 1, done.stderr
+    assert "inside the bounds (the start lies outside them)" in done.stderr
+    assert not out.exists()
+    result = tune(load(CATERPILLAR), [parse_free("amplitude=0.0001:0.001")], SETUP, budget=4, seed=1, workers=1)
+    assert not result.start_inside and result.start_value > 0.1  # the start was measured, for comparison
+    assert result.best is None or max(abs(v) for v in result.values) <= 0.001
+
+
+def test_the_torque_limit_is_the_robots_own_servos():
+    """Without --max-torque the constraint is 95 % of the gait's own servo stall torque ([robot.module]), not the
+    library module's: 1.14 N·m for the heavy caterpillar's 1.2 N·m servos."""
+    from gaits.tune import default_max_torque, provenance, resolved
+
+    heavy = load(LIBRARY / "caterpillar_heavy.toml")
+    assert default_max_torque(heavy) == pytest.approx(1.14)
+    assert default_max_torque(load(CATERPILLAR)) == pytest.approx(1.425)
+    assert resolved(SETUP, heavy).max_torque == pytest.approx(1.14)
+    assert resolved(Setup("speed", max_torque=0.9), heavy).max_torque == 0.9  # a limit given stays
+    result = tune(heavy, [parse_free("amplitude=20:60")], SETUP, budget=3, seed=1, workers=1)
+    assert result.setup is not None and result.setup.max_torque == pytest.approx(1.14)
+    if result.best is not None:
+        text = provenance(result, [parse_free("amplitude=20:60")], SETUP, budget=3, seed=1, source="x")
+        assert "peak torque <= 1.14 N·m" in text
+
+
+def test_speed_is_progress_forward_signed_not_distance_whichever_way():
+    """ "Forward" is the way the start travels on flat ground: the same gait run backwards, or judged against the
+    opposite direction, scores negative progress (a gait sliding down a slope backwards is not fast)."""
+    from dataclasses import replace
+
+    from gaits.tune import evaluate, resolved
+
+    gait = load(CATERPILLAR)
+    setup = resolved(SETUP, gait)
+    assert setup.forward is not None
+    ahead = evaluate(to_dict(gait), setup)
+    assert ahead.feasible and ahead.value > 0.1
+    assert evaluate(to_dict(gait), replace(setup, forward=setup.forward + 180)).value == pytest.approx(-ahead.value)
+    document = to_dict(gait)
+    for module in document["modules"]:
+        module["direction"] = -module.get("direction", 1)
+    backwards = evaluate(document, setup)
+    assert backwards.value < -0.05, backwards
+    cost = evaluate(document, replace(setup, objective="cost_of_transport"))
+    assert cost.value == 100.0  # no forward progress: the worst cost, never a cheap one
+
+
+def test_a_fall_the_robot_rolls_out_of_still_counts():
+    """``fell`` is sampled through the run as the peak torque is, not read at its last instant only."""
+    import mujoco
+    import numpy as np
+
+    with Simulation(load(CATERPILLAR)) as sim:
+        sim.start()
+        sim.advance(0.5)
+        start = sim.center_of_mass()
+        sim.fell_seen = False
+        upright = sim.data.qpos[3:7].copy()
+        sim.data.qpos[3:7] = [np.cos(np.pi / 4), np.sin(np.pi / 4), 0.0, 0.0]  # rolled 90° onto its side
+        mujoco.mj_forward(sim.model, sim.data)
+        sim.advance(0.04)
+        sim.data.qpos[3:7] = upright
+        sim.data.qvel[:] = 0.0
+        mujoco.mj_forward(sim.model, sim.data)
+        assert not sim.fell()
+        metrics = sim.measure(start, 0.04)
+        assert metrics.fell
+        sim.fell_seen = False
+        sim.advance(0.2)
+        assert not sim.measure(start, 0.24).fell
+
+
 def test_free_parameters_apply_as_the_generator_would():
     made = generate(WaveSpec(modules=8, amplitude=40.0, wavelength=6.0, period=1.0))
     document = to_dict(made)
