@@ -363,6 +363,9 @@ def _line(result: Result, setup: Setup, best: Outcome | None, outcomes: list[Out
 def provenance(result: Result, frees: list[Free], setup: Setup, *, budget: int, seed: int, source: str) -> str:
     """The comment lines at the top of a tuned file: how it was made, so it can be made again."""
     setup = result.setup or setup
+    max_torque = setup.max_torque
+    if max_torque is None:  # a result put together before the search filled it in (the studio's, stopped early)
+        max_torque = default_max_torque(result.best) if result.best is not None else math.nan
     goal = "maximised" if OBJECTIVES[setup.objective][0] > 0 else "minimised"
     start = _amount(result.start_value, setup) if result.start_problem == "" else f"refused: {result.start_problem}"
     checked = (f"held again over {setup.seconds * setup.verify:g} s ({result.verify_refused} better candidates did "
@@ -374,7 +377,7 @@ def provenance(result: Result, frees: list[Free], setup: Setup, *, budget: int, 
         f"{setup.warmup:g} s"
         + (f"; forward = {setup.forward:g}° from +x (the start's direction)" if setup.forward is not None else ""),
         f"score {setup.objective} {_amount(result.value, setup)} (start {start})",
-        f"constraints: peak torque <= {setup.max_torque:g} N·m (warm-up included), no fall, joint limits "
+        f"constraints: peak torque <= {max_torque:g} N·m (warm-up included), no fall, joint limits "
         f"(the loader's); {checked}",
         *(f"free {f} = {v:g}" for f, v in zip(frees, result.values, strict=True)),
     ]

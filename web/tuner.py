@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 
 from gaits.model import Gait
 from gaits.params import Free
-from gaits.tune import Result, Setup, ignore_sigint, tune, tuned_text
+from gaits.tune import Result, Setup, ignore_sigint, resolved, tune, tuned_text
 
 
 @dataclass
@@ -109,6 +109,7 @@ class TuneRun:
 
     def _run(self, popsize: int | None) -> None:
         try:
+            self.setup = resolved(self.setup, self.gait)  # its torque limit and forward, as the file will say
             result = tune(self.gait, self.frees, self.setup, budget=self.budget, seed=self.seed,
                           workers=self.workers, popsize=popsize, progress=self._progress,
                           executor=self._pool)  # fmt: skip
