@@ -59,6 +59,8 @@ USAGE_ERRORS = [  # (command, arguments, what the one-line error must mention)
     ("asm-studio", ["--c-modules", "seven"], "commas"),
     ("asm-studio", ["--robot", "tcp/127.0.0.1:7447", "--c-modules", "odd"], "not with --can or --robot"),
     ("asm-studio", ["--emulated-modules", "0"], "1..254"),
+    ("asm-robot", ["--board-flash", "/tmp/x"], "use it with --emulated-modules"),
+    ("asm-robot", ["--emulated-modules", "2", "--board-flash", "/dev/null"], "not a folder"),
     ("asm-studio", ["--can", "virtual:x", "--emulated-modules", "all"], "not with --can or --robot"),
     ("asm-bridge", [], "--can"),
     ("asm-bridge", ["--can", "nope:xx"], "unknown CAN interface"),
