@@ -53,6 +53,10 @@ class BoardBatch:
             raise ValueError(f"{path}: a board's serial is {SERIAL_BYTES * 2} hex digits, not {text[:40]!r}")
         return serial
 
+    def board(self, position: int) -> tuple[bytes, Settings]:
+        """The serial and the flash of the board at ``position``."""
+        return self.serial(position), self.settings(position)
+
     def settings(self, position: int) -> Settings:
         """The flash of the board at ``position`` (kept in its file; erased when new)."""
         return Settings(self._path(position, "flash"))

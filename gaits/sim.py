@@ -202,11 +202,8 @@ class Simulation:
     or, without one, on the in-process hub the Python modules of a preview share — ticked by the same tick event.
     ``emulated_modules`` (IDs) run the board image in the emulator (asm_module.emulated), its joint the same MuJoCo
     actuator, on that bus (they need one: a board has no in-process hub), run up to the simulation's time at every
-    tick; an ID in both is emulated. They are flashed with their chain position as node ID and forget everything at
-    close, unless ``board_flash`` (asm_module.board_batch) keeps their flash and serials: then each is the board of
-    its chain position in that folder — unconfigured when new, with the ID it was commissioned with since — and
-    ``modules`` still keys it by its chain position (its joint), whatever its node ID.
-    ``modules`` holds both kinds, driven through one interface (asm_module.module.Module).
+    tick; an ID in both is emulated; ``board_flash`` (asm_module.board_batch) keeps boards that boot with no ID.
+    ``modules`` holds every kind by chain position (its joint), driven through one interface (asm_module.module).
     ``lock`` guards the model and data: the stepping thread holds it per control period, and a module's joint
     driver takes it, so a request arriving on a bus thread never touches MjData in the middle of a step.
     """
@@ -276,13 +273,10 @@ class Simulation:
             if assignment.id in emulated_modules:
                 from asm_module.emulated import EmulatedModule  # Unicorn is loaded only when a board is emulated
 
-                kept = board_flash is not None
-                self.modules[assignment.id] = EmulatedModule(
-                    module_name(assignment.id), 0 if kept else assignment.id, driver=driver, clock=self.clock,
-                    tick=self.tick, hardware_range=gait.limits,
-                    serial=board_flash.serial(assignment.id) if board_flash is not None else None,
-                    settings=board_flash.settings(assignment.id) if board_flash is not None else None,
-                    **dict(bus_options or {}))  # fmt: skip
+                serial, flash = board_flash.board(assignment.id) if board_flash is not None else (None, None)
+                self.modules[assignment.id] = EmulatedModule(module_name(assignment.id), 0 if flash else assignment.id,
+                    driver=driver, clock=self.clock, tick=self.tick, hardware_range=gait.limits, serial=serial,
+                    settings=flash, **dict(bus_options or {}))  # fmt: skip
                 continue
             if assignment.id in c_modules:
                 self.modules[assignment.id] = CModule(module_name(assignment.id), assignment.id, driver=driver,
