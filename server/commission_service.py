@@ -246,7 +246,7 @@ class CommissionService:
         finally:
             goal.set(home, wait=True, timeout=ASM_TIMEOUT)
         deadline = time.monotonic() + MOVE_TIMEOUT  # back before the answer: the next wiggle starts from rest
-        while abs(float(angle.get(timeout=ASM_TIMEOUT)) - start) > degrees / 4 and time.monotonic() < deadline:
+        while abs(float(angle.get(timeout=ASM_TIMEOUT)) - start) > 1.0 and time.monotonic() < deadline:
             time.sleep(0.05)
         if moved < degrees / 2:
             raise TimeoutError(f"{name}'s joint moved {moved:.1f}° of {degrees:g}° in {MOVE_TIMEOUT:g} s "

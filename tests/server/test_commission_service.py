@@ -71,7 +71,7 @@ def bench(tmp_path) -> Iterator[Bench]:
 
 def _wiggled_position(bench: Bench, request: dict) -> tuple[int, dict]:
     """Wiggle as ``request`` says, sampling every joint meanwhile: the chain position whose joint moved most (the
-    others moved less than a third as far: the neighbours are shaken a little by the chain), with the service's
+    others moved less than two thirds as far: the chain shakes its neighbours a little), with the service's
     answer."""
     rest = {p: bench.angle(p) for p in range(1, 9)}
     swing = dict.fromkeys(rest, 0.0)
@@ -91,7 +91,7 @@ def _wiggled_position(bench: Bench, request: dict) -> tuple[int, dict]:
         done.set()
         sampler.join(5)
     most = max(swing, key=lambda p: swing[p])
-    assert swing[most] > 7.5 and all(s < swing[most] / 3 for p, s in swing.items() if p != most), swing
+    assert swing[most] > 7.5 and all(s < swing[most] / 1.5 for p, s in swing.items() if p != most), swing
     return most, answer
 
 
