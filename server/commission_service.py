@@ -37,6 +37,7 @@ from asm_py.canbus.commission import (
     conflicts,
 )
 from asm_py.canbus.ids import MAX_NODE_ID, MIN_NODE_ID
+from asm_py.errors import AsmError
 from asm_py.keys import RobotKeys
 from asm_py.node import Node
 from asm_py.remote import RemoteAttribute
@@ -221,18 +222,28 @@ class CommissionService:
     def wiggle_id(self, node_id: int, degrees: float) -> dict[str, Any]:
         return {"id": node_id, "temporary": None, "moved": self._wiggle(node_id, degrees)}
 
+    def _joint(self, name: str) -> tuple[RemoteAttribute, RemoteAttribute]:
+        """Module ``name``'s joint.goal and joint.angle, looked up again until ALIVE_TIMEOUT while it is not there
+        (a board given an ID resets into it: it may be heard once, then be gone for its reboot)."""
+        deadline = time.monotonic() + ALIVE_TIMEOUT
+        while True:
+            try:
+                if name not in self.node.transport.peers():
+                    raise LookupError(f"{name} is not on the bus")
+                goal = self.node.lookup(name, "joint.goal", timeout=ASM_TIMEOUT)
+                angle = self.node.lookup(name, "joint.angle", timeout=ASM_TIMEOUT)
+                if not isinstance(goal, RemoteAttribute) or not isinstance(angle, RemoteAttribute):
+                    raise Refused(f"{name} has no joint.goal and joint.angle attributes to wiggle")
+                return goal, angle
+            except (LookupError, TimeoutError, AsmError) as exc:
+                if time.monotonic() > deadline:
+                    raise TimeoutError(f"{name} did not answer within {ALIVE_TIMEOUT:g} s: {exc}") from exc
+                time.sleep(0.2)
+
     def _wiggle(self, node_id: int, degrees: float) -> float:
         """Move module ``node_id``'s joint ``degrees`` away and back over ASM; how far it was seen to move."""
         name = f"m{node_id}"
-        deadline = time.monotonic() + ALIVE_TIMEOUT
-        while name not in self.node.transport.peers():
-            if time.monotonic() > deadline:
-                raise TimeoutError(f"{name} did not come up on the bus within {ALIVE_TIMEOUT:g} s")
-            time.sleep(0.05)
-        goal = self.node.lookup(name, "joint.goal", timeout=ASM_TIMEOUT)
-        angle = self.node.lookup(name, "joint.angle", timeout=ASM_TIMEOUT)
-        if not isinstance(goal, RemoteAttribute) or not isinstance(angle, RemoteAttribute):
-            raise LookupError(f"{name} has no joint.goal and joint.angle attributes to wiggle")
+        goal, angle = self._joint(name)
         home = float(goal.get(timeout=ASM_TIMEOUT))
         start = float(angle.get(timeout=ASM_TIMEOUT))
         target = home - degrees if home > 0 else home + degrees  # towards the middle of its range

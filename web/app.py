@@ -138,8 +138,8 @@ class Dashboard:
         with tabs.add_tab("Tune"):
             self.tuner = TunePanel(page)
         with tabs.add_tab("Modules"):
+            self.numbering = NumberingPanel(page, lambda: self.modules.refresh())  # first: a new batch's first step
             self.modules = ModulesPanel(page)
-            self.numbering = NumberingPanel(page, self.modules.refresh)
         page.on("attach", self.attach)
         page.on("show", self.show)
         page.on("deployed", lambda gait: self.show("live"))

@@ -49,7 +49,11 @@ def test_fresh_boards_are_found_numbered_along_the_chain_and_deployed_to_from_th
         page.get_by_role("button", name="Number along the chain").click()
         for _ in range(2):
             asked = page.get_by_text(re.compile(r"Which chain position moved\? [0-9a-f]{24} was wiggled"))
-            expect(asked).to_be_visible(timeout=120_000)
+            try:
+                expect(asked).to_be_visible(timeout=120_000)
+            except AssertionError as exc:  # say what the page said instead (a refusal, a timeout of the robot)
+                said = [t for t in page.inner_text("body").splitlines() if "⚠" in t or "iggl" in t]
+                raise AssertionError(f"the page said {said}") from exc
             serial = re.search(r"[0-9a-f]{24}", asked.inner_text()).group(0)  # type: ignore[union-attr]
             field = page.get_by_label("Chain position that moved")
             field.fill(str(position_of[serial]))
