@@ -69,3 +69,13 @@ def test_fresh_boards_are_found_numbered_along_the_chain_and_deployed_to_from_th
         deploy_and_start(page, 8)  # the caterpillar onto the numbered boards and the Python modules
         browser.close()
     assert not any("Traceback" in line for line in log), "".join(log[-40:])
+
+
+def test_the_list_says_none_for_a_module_without_an_id_and_names_a_shared_one() -> None:
+    from web.numbering_panel import modules_markdown
+
+    table = modules_markdown([{"serial": "aa" * 12, "id": 0}, {"serial": "bb" * 12, "id": 3},
+                              {"serial": "cc" * 12, "id": 3}], {"3": ["bb" * 12, "cc" * 12]})  # fmt: skip
+    assert f"| `{'aa' * 12}` | none |" in table and f"| `{'bb' * 12}` | 3 |" in table
+    assert f"⚠ node ID 3 is held by 2 modules: {'bb' * 12}, {'cc' * 12}" in table
+    assert "No module answers" in modules_markdown([], {})
