@@ -33,6 +33,7 @@ from asm_py.canbus.commission import (
     UNCONFIGURED,
     Commissioner,
     CommissionOp,
+    CommissionReply,
     CommissionScope,
     conflicts,
 )
@@ -94,6 +95,8 @@ class CommissionService:
         self.tool = Commissioner(self.bus, tool_id=tool_id, window=window)
         self._lock = threading.Lock()
         self._running: str | None = None
+        self._known: set[int] = set()
+        """The IDs the last list found and those given since (the worker's)."""
         self._jobs: queue.Queue[tuple[zenoh.Query, dict[str, Any]] | None] = queue.Queue()
         self._thread = threading.Thread(target=self._work, name="asm-robot-commission", daemon=True)
         self._thread.start()
@@ -169,6 +172,7 @@ class CommissionService:
 
     def list(self) -> dict[str, Any]:
         found = self.tool.discover(CommissionScope.EVERY)
+        self._known = {m.node_id for m in found} - {UNCONFIGURED}
         return {"modules": [{"serial": m.serial_hex, "id": m.node_id} for m in found],
                 "conflicts": {str(k): [s.hex() for s in v] for k, v in conflicts(found).items()}}  # fmt: skip
 
@@ -192,18 +196,37 @@ class CommissionService:
             )
         current = self._current_id(serial)
         if node_id != UNCONFIGURED and node_id != current:
-            holders = [m.serial_hex for m in self.tool.discover(CommissionScope.NODE_ID, node_id)]
+            holders = self._holders(node_id)
             if holders or node_id in self._alive_ids():
                 held = f"module {holders[0]}" if holders else "a module alive on the bus"
                 raise Refused(f"node ID {node_id} is taken by {held}: IDs are never shared")
         self.tool.assign(serial, node_id)
+        self._known.add(node_id)
         log.info("module %s: node ID %d -> %d", serial.hex(), current, node_id)
         return {"serial": serial.hex(), "id": node_id}
 
+    def _holders(self, node_id: int) -> list[str]:
+        """The serials of the modules with ``node_id`` (one not heard on the bus yet: just given it). A first scan
+        with one repetition, not the tool's three (an empty scan's every repetition is a wait, and it is the common
+        case); only if something answers — the holder, or a late answer to an earlier scan — the whole search."""
+        time.sleep(min(0.5, 2 * (self.tool.rtt or 0.05)))  # the answers to the last scan arrive, to be drained
+        retries, self.tool.retries = self.tool.retries, 1
+        try:
+            answered = self.tool.ask(CommissionOp.SCAN, CommissionScope.NODE_ID, node_id, kind=CommissionReply.BYTE)
+        finally:
+            self.tool.retries = retries
+            self.tool.send(CommissionOp.UNMUTE)
+        if answered is None:
+            return []
+        return [m.serial_hex for m in self.tool.discover(CommissionScope.NODE_ID, node_id)]
+
     def _free_id(self) -> int:
-        taken = self._alive_ids() | {m.node_id for m in self.tool.discover(CommissionScope.EVERY)} | self.reserved
+        """The highest ID nobody has (the chain's numbers from 1 stay free): not alive on the bus, not reserved, not
+        listed or given since (a module given an ID is alive under it within a heartbeat), and no module answering
+        a scan for it."""
+        taken = self._alive_ids() | self.reserved | self._known
         for node_id in range(MAX_MODULE_ID, MIN_NODE_ID - 1, -1):
-            if node_id not in taken:
+            if node_id not in taken and not self._holders(node_id):
                 return node_id
         raise Refused("no node ID is free for a temporary one")
 
