@@ -120,6 +120,10 @@ def test_fresh_boards_are_found_wiggled_numbered_along_the_chain_and_kept_across
         assert all(m["id"] == 0 for m in bench.ask({"op": "list"})["modules"]), "a wiggle leaves no ID behind"
         for serial, position in numbered.items():
             assert bench.ask({"op": "assign", "serial": serial, "id": position}) == {"serial": serial, "id": position}
+        third = next(serial for serial, position in numbered.items() if position == 3)
+        assert bench.ask({"op": "assign", "serial": third, "id": 0}) == {"serial": third, "id": 0}  # erased
+        assert {m["serial"]: m["id"] for m in bench.ask({"op": "list"})["modules"]}[third] == 0
+        bench.ask({"op": "assign", "serial": third, "id": 3})
         assert wait_until(lambda: all((_info(bench.client, f"m{p}") or {}).get("language") == 1 for p in BOARDS),
                           timeout=120)  # fmt: skip
         position, answer = _wiggled_position(bench, {"op": "wiggle", "id": 2})  # numbered: wiggled by its ID
