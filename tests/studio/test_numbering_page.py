@@ -46,6 +46,15 @@ def test_fresh_boards_are_found_numbered_along_the_chain_and_deployed_to_from_th
         for serial in position_of:
             expect(page.locator("td", has_text=serial)).to_have_count(1)
         expect(page.locator("td", has_text=re.compile(r"^none$"))).to_have_count(2)
+        page.get_by_role("button", name="Confirm position").click()  # hostile: nothing was wiggled to confirm
+        expect(page.get_by_text("⚠ start with Number along the chain")).to_be_visible(timeout=30_000)
+        field = page.get_by_label("Node ID")
+        field.fill("5")  # hostile: Python module m5 has it
+        field.press("Enter")
+        page.get_by_role("button", name="Assign ID").click()
+        expect(page.get_by_text(re.compile(r"⚠ node ID 5 is taken by a module alive on the bus"))).to_be_visible(
+            timeout=60_000
+        )
         page.get_by_role("button", name="Number along the chain").click()
         for _ in range(2):
             asked = page.get_by_text(re.compile(r"Which chain position moved\? [0-9a-f]{24} was wiggled"))
