@@ -13,6 +13,7 @@ modules have the same names share one Zenoh network without a message ever reach
     asm/<robot>/@estop/<source>              the robot's emergency stop: every node of that robot, no other
     asm/@lab/estop/<source>                  the lab-wide emergency stop: every node of every robot
     asm/<robot>/@robot/status|poses|mjcf     the robot process's feed for viewers (asm_module.feed)
+    asm/<robot>/@robot/commission            the robot process's commissioning service (asm_module.commission_link)
     asm/<robot>/@robot/alive/<session>       liveliness token of the robot process
 
 ``<node>`` is a node's *segment*: a module's name (``m3``), or a tool's name behind a tilde (``~studio``). Modules and
@@ -126,8 +127,12 @@ class RobotKeys:
     # -- the robot process ----------------------------------------------------------------------------------------
 
     def robot_key(self, what: str) -> str:
-        """``asm/<robot>/@robot/<what>``: ``status``, ``poses``, ``mjcf``."""
+        """``asm/<robot>/@robot/<what>``: ``status``, ``poses``, ``mjcf``, ``commission``."""
         return self._patterns["robot_key"].format(what=what)
+
+    def commission(self) -> str:
+        """``asm/<robot>/@robot/commission``: the robot process's commissioning service (a queryable)."""
+        return self.robot_key("commission")
 
     def robot_alive(self, session: str = "*") -> str:
         return self._patterns["robot_alive"].format(session=session)

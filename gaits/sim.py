@@ -22,6 +22,7 @@ import mujoco
 import numpy as np
 
 from asm_module import JointDriver, JointReading, LocalNeighbours, ModuleRuntime
+from asm_module.board_batch import BoardBatch
 from asm_module.c_module import CModule
 from asm_module.module import Module
 from asm_module.names import module_name
@@ -202,8 +203,8 @@ class Simulation:
     or, without one, on the in-process hub the Python modules of a preview share — ticked by the same tick event.
     ``emulated_modules`` (IDs) run the board image in the emulator (asm_module.emulated), its joint the same MuJoCo
     actuator, on that bus (they need one: a board has no in-process hub), run up to the simulation's time at every
-    tick; an ID in both is emulated.
-    ``modules`` holds both kinds, driven through one interface (asm_module.module.Module).
+    tick; an ID in both is emulated; ``board_flash`` (asm_module.board_batch) keeps boards that boot with no ID.
+    ``modules`` holds every kind by chain position (its joint), driven through one interface (asm_module.module).
     ``lock`` guards the model and data: the stepping thread holds it per control period, and a module's joint
     driver takes it, so a request arriving on a bus thread never touches MjData in the middle of a step.
     """
@@ -222,6 +223,7 @@ class Simulation:
         emulated_modules: Collection[int] = (),
         bus_options: Mapping[str, Any] | None = None,
         terrain: Terrain = FLAT,
+        board_flash: BoardBatch | None = None,
     ) -> None:
         if emulated_modules and bus_options is None:
             raise ValueError("emulated modules need a bus (a robot process's), not a preview's hub")
@@ -274,10 +276,10 @@ class Simulation:
             if assignment.id in emulated_modules:
                 from asm_module.emulated import EmulatedModule  # Unicorn is loaded only when a board is emulated
 
-                self.modules[assignment.id] = EmulatedModule(module_name(assignment.id), assignment.id, driver=driver,
-                                                             clock=self.clock, tick=self.tick,
-                                                             hardware_range=gait.limits,
-                                                             **dict(bus_options or {}))  # fmt: skip
+                serial, flash = board_flash.board(assignment.id) if board_flash is not None else (None, None)
+                self.modules[assignment.id] = EmulatedModule(module_name(assignment.id), 0 if flash else assignment.id,
+                    driver=driver, clock=self.clock, tick=self.tick, hardware_range=gait.limits, serial=serial,
+                    settings=flash, **dict(bus_options or {}))  # fmt: skip
                 continue
             if assignment.id in c_modules:
                 self.modules[assignment.id] = CModule(module_name(assignment.id), assignment.id, driver=driver,

@@ -28,6 +28,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from asm_module.board_batch import BoardBatch
 from asm_module.feed import PoseFrame, RobotStatus, encode_poses
 from asm_module.names import module_name
 from asm_py.cli import can_channel, close_and_exit, input_file, module_selection, name, run, stop_requested
@@ -40,6 +41,7 @@ from gaits.terrain import FLAT, Terrain
 from gaits.terrain import argument as terrain_argument
 
 from .bridge import CanZenohBridge, add_bus_arguments
+from .commission_service import CommissionService
 from .foxglove_live import FoxgloveLive
 from .realtime import prefer_latency
 from .rest import CHECK, REST_TICK, Rest
@@ -76,6 +78,10 @@ class RobotOptions:
     emulated_modules: tuple[int, ...] | str = ()
     """Simulated modules that run the board image (firmware/port/stm32f4_bxcan.c) in the emulator
     (asm_module.emulated): IDs, or "odd", "even", "all"."""
+    board_flash: Path | None = None
+    """Keep the emulated boards' flash and serials in this folder (asm_module.board_batch): new boards boot
+    unconfigured, to be numbered (the commissioning service), and keep their IDs across restarts. None: each is
+    flashed with its chain position as its ID, in memory (a batch numbered at the probe)."""
 
 
 class RealTimeLoop:
@@ -183,6 +189,7 @@ class Robot:
         self.feed: RobotFeed | None = None
         self.loop: RealTimeLoop | None = None
         self.foxglove: FoxgloveLive | None = None
+        self.commission: CommissionService | None = None
         self._stop = threading.Event()
         self._status_timer: threading.Thread | None = None
         try:
@@ -197,9 +204,11 @@ class Robot:
                                              receive_thread=False, **can_options)  # fmt: skip
                     return Node(module_name(module_id), transport)
 
+                boards = BoardBatch(options.board_flash) if options.board_flash is not None else None
                 self.sim = Simulation(gait, node_of=node_of, c_modules=select_modules(options.c_modules, gait),
                                       emulated_modules=select_modules(options.emulated_modules, gait),
-                                      bus_options=can_options, terrain=options.terrain)  # fmt: skip
+                                      bus_options=can_options, terrain=options.terrain,
+                                      board_flash=boards)  # fmt: skip
             else:
                 can_options = dict(options.can)
             self.bridge = CanZenohBridge({**can_options, "heartbeat_period": options.heartbeat_period},
@@ -217,6 +226,9 @@ class Robot:
 
             self.feed = RobotFeed(self.bridge.session, self.status, sim.mjcf if sim else None, refresh)
             self.feed.publish_status()
+            self.commission = CommissionService(self.bridge.session, options.name, can_options, self.bridge.node,
+                                                tool_id=options.node_id,
+                                                reserved=self.bridge.clients.alias_pool)  # fmt: skip
             if options.foxglove is not None:
                 self.foxglove = FoxgloveLive(self.bridge.session, options.name, options.foxglove, self.mjcf,
                                              options.foxglove_host)  # fmt: skip
@@ -224,8 +236,9 @@ class Robot:
                 self.loop = RealTimeLoop(self.sim, self.feed, options.pose_rate)
             self._status_timer = threading.Thread(target=self._report, name="asm-robot-status", daemon=True)
             self._status_timer.start()
-            if self.sim is not None:
-                self._await_bridged(modules)
+            if self.sim is not None:  # boards without an ID yet are not on the bus as modules: not waited for
+                unnumbered = sum(1 for m in self.sim.modules.values() if getattr(m, "configured", True) is False)
+                self._await_bridged(modules - unnumbered)
         except BaseException:
             self.close()
             raise
@@ -263,6 +276,9 @@ class Robot:
                 feed.publish_status()
 
     def close(self) -> None:
+        if self.commission is not None:
+            self.commission.close()
+            self.commission = None
         if self.loop is not None:
             self.loop.close()
             self.loop = None
@@ -345,6 +361,10 @@ def main(argv: list[str] | None = None) -> int:
         help="simulated modules that run the STM32F4 board image in an instruction-level emulator: IDs or odd, even, "
         "all (needs arm-none-eabi-gcc)",
     )
+    cli.add_argument("--board-flash", type=Path, metavar="DIR", help="keep the emulated boards' flash and serials "
+                     "in DIR, one pair of files per chain position: new boards boot with no node ID, to be numbered "
+                     "(the studio's Modules tab, the commissioning service), and keep their IDs across restarts "
+                     "(default: each flashed with its chain position as ID, nothing kept)")  # fmt: skip
     cli.add_argument("--parent-pid", type=int, help=argparse.SUPPRESS)
     args = cli.parse_args(argv)
     if args.fd and args.can is None:
@@ -360,6 +380,10 @@ def main(argv: list[str] | None = None) -> int:
         cli.error("--terrain is the simulated ground: use it with --sim")
     if args.emulated_modules and args.can is not None:
         cli.error("--emulated-modules chooses simulated modules: use it with --sim")
+    if args.board_flash is not None and not args.emulated_modules:
+        cli.error("--board-flash keeps emulated boards' flash: use it with --emulated-modules")
+    if args.board_flash is not None and args.board_flash.exists() and not args.board_flash.is_dir():
+        cli.error(f"--board-flash {args.board_flash}: not a folder")
     network = zenoh_options(cli, args)
     return run(cli.prog, lambda: _serve(args, network))
 
@@ -381,7 +405,8 @@ def _serve(args: argparse.Namespace, network: ZenohOptions) -> int:
     options = RobotOptions(sim=None if args.can else (args.sim or RobotOptions.sim), can=can_options, name=args.name,
                            network=network, node_id=args.node_id, c_modules=args.c_modules,
                            foxglove=args.foxglove, foxglove_host=args.foxglove_host,
-                           terrain=args.terrain, emulated_modules=args.emulated_modules)  # fmt: skip
+                           terrain=args.terrain, emulated_modules=args.emulated_modules,
+                           board_flash=args.board_flash)  # fmt: skip
     done = stop_requested()
     robot = Robot(options)  # a bad gait file, a busy port, a taken name: asm-robot: error: … (asm_py.cli.run)
     kind = "simulated" if robot.sim is not None else f"CAN {args.can}"

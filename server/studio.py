@@ -90,6 +90,10 @@ class StudioOptions:
     emulated_modules: str | None = None
     """Simulated modules that run the board image in the emulator (``asm-robot --emulated-modules``), in the robot
     only: the preview runs the same modules as Python (the emulator runs in real time, not as fast as a preview)."""
+    board_flash: Path | None = None
+    """Where the emulated boards keep their flash (``asm-robot --board-flash``): a fresh batch with no IDs the first
+    time, numbered on the Modules tab, kept across the robot's restarts. None: flashed with their chain positions
+    as IDs, nothing kept. ``asm-studio`` keeps them in ``<recordings>/boards`` unless told ``--board-flash``."""
     recordings: Path = Path("recordings")
     """Where the page's Record button writes its MCAP files."""
     layout: Path | None = None
@@ -196,6 +200,8 @@ class Studio:
                 args += ["--c-modules", options.c_modules]
             if options.emulated_modules:
                 args += ["--emulated-modules", options.emulated_modules]
+                if options.board_flash is not None:
+                    args += ["--board-flash", str(options.board_flash)]
             if self.robot_terrain != FLAT:
                 args += ["--terrain", self.robot_terrain.spec]
             self.robot_gait = gait
@@ -400,6 +406,9 @@ def main(argv: list[str] | None = None) -> int:
     cli.add_argument("--emulated-modules", type=module_selection, metavar="IDS", help="simulated modules that run "
                      "the STM32F4 board image in an instruction-level emulator, in the robot (the preview runs them "
                      "as Python): IDs or odd, even, all (needs arm-none-eabi-gcc)")  # fmt: skip
+    cli.add_argument("--board-flash", metavar="DIR", help="where the emulated boards keep their flash: a fresh "
+                     "batch with no IDs the first time, numbered on the Modules tab (default: RECORDINGS/boards); "
+                     "'none': each flashed with its chain position as ID, nothing kept")  # fmt: skip
     args = cli.parse_args(argv)
     if args.robot:  # the network to join is the robot's (or its router's): every session of the studio connects
         args.zenoh_connect = [args.robot, *args.zenoh_connect]
@@ -424,6 +433,8 @@ def _serve(args: argparse.Namespace, network: ZenohOptions) -> int:
                             name=args.name, bitrate=args.bitrate, network=network, host=args.host, port=args.port,
                             view=args.view, c_modules=_selection_text(args.c_modules),
                             emulated_modules=_selection_text(args.emulated_modules),
+                            board_flash=None if args.board_flash == "none" else
+                            Path(args.board_flash or args.recordings / "boards"),
                             recordings=args.recordings,
                             layout=args.layout or args.recordings / LAYOUT_FILE)  # fmt: skip
     done = stop_requested()

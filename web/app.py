@@ -35,6 +35,7 @@ from .link import RobotLink
 from .live import KinematicTwin
 from .modules_panel import ModulesPanel
 from .monitor_panel import MonitorPanel
+from .numbering_panel import NumberingPanel
 from .page import Backend, Page
 from .preview import PreviewLoop, SceneView
 from .preview_panel import PreviewPanel
@@ -137,6 +138,7 @@ class Dashboard:
         with tabs.add_tab("Tune"):
             self.tuner = TunePanel(page)
         with tabs.add_tab("Modules"):
+            self.numbering = NumberingPanel(page, lambda: self.modules.refresh())  # first: a new batch's first step
             self.modules = ModulesPanel(page)
         page.on("attach", self.attach)
         page.on("show", self.show)
@@ -265,6 +267,7 @@ class Dashboard:
         self.deployer.close()
         self.monitor.close()
         self.tuner.close()
+        self.numbering.close()
         self.modules.close()
         self.replay.close()
         self.link.close()

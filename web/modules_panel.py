@@ -200,6 +200,10 @@ class ModulesPanel:
         self.update_md.content = "  \n".join(str(result) for result in results)
         self._read()
 
+    def refresh(self) -> None:
+        """Read the roster again (queued: called from another panel's thread)."""
+        self._jobs.put(("read", None))
+
     def close(self) -> None:
         self._jobs.put(None)
         self._thread.join(timeout=10)

@@ -59,6 +59,8 @@ USAGE_ERRORS = [  # (command, arguments, what the one-line error must mention)
     ("asm-studio", ["--c-modules", "seven"], "commas"),
     ("asm-studio", ["--robot", "tcp/127.0.0.1:7447", "--c-modules", "odd"], "not with --can or --robot"),
     ("asm-studio", ["--emulated-modules", "0"], "1..254"),
+    ("asm-robot", ["--board-flash", "/tmp/x"], "use it with --emulated-modules"),
+    ("asm-robot", ["--emulated-modules", "2", "--board-flash", "/dev/null"], "not a folder"),
     ("asm-studio", ["--can", "virtual:x", "--emulated-modules", "all"], "not with --can or --robot"),
     ("asm-bridge", [], "--can"),
     ("asm-bridge", ["--can", "nope:xx"], "unknown CAN interface"),
@@ -211,6 +213,10 @@ def test_the_studio_passes_its_emulated_module_choice_to_its_robot_only(tmp_path
                             own_robot="robot", _child_endpoint="tcp/127.0.0.1:1", robot_terrain=FLAT)  # fmt: skip
     args = Studio._robot_args(owner, load(LIBRARY / "caterpillar.toml"))  # type: ignore[arg-type]
     assert args[args.index("--emulated-modules") + 1] == "odd" and "--sim" in args and "--c-modules" not in args
+    assert "--board-flash" not in args  # no folder: boards flashed with their chain positions as IDs
+    owner.options = StudioOptions(emulated_modules="odd", board_flash=tmp_path / "boards")
+    args = Studio._robot_args(owner, load(LIBRARY / "caterpillar.toml"))  # type: ignore[arg-type]
+    assert args[args.index("--board-flash") + 1] == str(tmp_path / "boards")  # a fresh batch, kept there
 
 
 CLOSE_AND_EXIT = """

@@ -21,7 +21,7 @@ pytestmark = [
 
 
 def test_the_studio_robot_runs_the_chosen_modules_from_the_board_image(start_studio) -> None:
-    _, endpoint, _ = start_studio("--emulated-modules", "2")
+    _, endpoint, _ = start_studio("--emulated-modules", "2", "--board-flash", "none")  # flashed as m2
     client = Node("emulated-check", ZenohTransport(connect=[endpoint]))
     try:
 

@@ -43,7 +43,7 @@ def test_the_modules_tab_updates_the_emulated_boards_firmware_from_an_uploaded_i
     image.write_bytes(image_bytes(versioned_image(NEW)))  # built in firmware/build, where the robot's emulator finds it
     bogus = tmp_path / "bogus.img"
     bogus.write_bytes(b"not an image" * 20)
-    url, _, log = start_studio("--emulated-modules", "2")
+    url, _, log = start_studio("--emulated-modules", "2", "--board-flash", "none")  # flashed as m2
     with sync_playwright() as pw:
         browser, page = open_page(pw, url)
         page.get_by_role("tab", name="Modules").click()

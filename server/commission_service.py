@@ -1,0 +1,300 @@
+"""The robot process's commissioning service: the modules of its bus found by serial, wiggled and numbered for a
+tool on Zenoh (the request and reply shapes: asm_module/commission_link.py; docs/protocol.md §7 and §10).
+
+The robot process owns the bus (the simulated one, or the real one of ``asm-robot --can``), so commissioning runs
+here: the commissioning protocol (asm_py.canbus.commission.Commissioner) on a bus handle of its own, and the joint
+moved over ASM by the bridge's own CAN node (``bridge.node``: what reads tables already).
+
+A wiggle of a module without an ID needs no protocol of its own: the module is given a free temporary ID (the
+highest free one, so the chain's numbers stay free), moves its joint over ASM under it as every module does, and
+has its ID erased again — each change a reset of the board, as a real one does. One request runs at a time (the
+bus has one scan); another arriving meanwhile is refused at once, never queued behind a long list. Every refusal
+names its cause: an ID outside 1..253 (0 erases), an ID another module holds (a commissioned one, or any node alive
+on the bus, a Python module too), a serial no module answers to, a module that stops answering.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import queue
+import threading
+import time
+from collections.abc import Collection
+from typing import Any
+
+import can
+import zenoh
+
+from asm_module.commission_link import MAX_REQUEST
+from asm_py.canbus.commission import (
+    SERIAL_BYTES,
+    UNCONFIGURED,
+    Commissioner,
+    CommissionOp,
+    CommissionReply,
+    CommissionScope,
+    conflicts,
+)
+from asm_py.canbus.ids import MAX_NODE_ID, MIN_NODE_ID
+from asm_py.errors import AsmError
+from asm_py.keys import RobotKeys
+from asm_py.node import Node
+from asm_py.remote import RemoteAttribute
+
+log = logging.getLogger("asm_robot.commission")
+WIGGLE_DEGREES = (1.0, 30.0)
+"""The least and most a wiggle moves a joint (default 15): seen by a person, harmless to a chain on the floor."""
+ALIVE_TIMEOUT = 30.0
+"""Seconds a board given an ID has to come up under it (it resets; an emulated one on a loaded machine is slow)."""
+MOVE_TIMEOUT = 5.0
+"""Seconds a wiggled joint has to get halfway there."""
+ASM_TIMEOUT = 5.0
+MAX_MODULE_ID = MAX_NODE_ID - 1
+"""The highest ID a module is given: 254 is the tools' (a bridge's, asm-commission's own)."""
+
+
+class Refused(ValueError):
+    """A request the service will not carry out; the text says why."""
+
+
+def _serial(request: dict[str, Any]) -> bytes:
+    text = request.get("serial")
+    if not isinstance(text, str):
+        raise Refused(f"a serial is {2 * SERIAL_BYTES} hex digits, not {text!r}")
+    try:
+        serial = bytes.fromhex(text)
+    except ValueError:
+        serial = b""
+    if len(serial) != SERIAL_BYTES:
+        raise Refused(f"a serial is {2 * SERIAL_BYTES} hex digits, not {text[:40]!r}")
+    return serial
+
+
+def _node_id(request: dict[str, Any], *, erase: bool) -> int:
+    value = request.get("id")
+    if not isinstance(value, int) or isinstance(value, bool):
+        raise Refused(f"a node ID is a whole number, not {value!r}")
+    if not (MIN_NODE_ID <= value <= MAX_MODULE_ID or (erase and value == UNCONFIGURED)):
+        raise Refused(f"a module's node ID is {MIN_NODE_ID}..{MAX_MODULE_ID}" + (" (0 erases)" if erase else "") +
+                      f", not {value}")  # fmt: skip
+    return value
+
+
+class CommissionService:
+    """Answers ``asm/<robot>/@robot/commission`` on ``session`` for the bus ``bus_options`` opens; ``node`` is a CAN
+    node on that bus (the bridge's) that moves joints. ``reserved``: node IDs no module may have on this bus (the
+    bridge's own and the aliases it sends its Zenoh clients' requests from). ``close`` ends it."""
+
+    def __init__(self, session: zenoh.Session, robot: str, bus_options: dict[str, Any], node: Node, *,
+                 tool_id: int = 254, window: float = 0.3, reserved: Collection[int] = ()) -> None:  # fmt: skip
+        self.node = node
+        self.reserved = frozenset(reserved) | {tool_id}
+        self.bus = can.Bus(**bus_options)
+        self.tool = Commissioner(self.bus, tool_id=tool_id, window=window)
+        self._lock = threading.Lock()
+        self._running: str | None = None
+        self._known: set[int] = set()
+        """The IDs the last list found and those given since (the worker's)."""
+        self._jobs: queue.Queue[tuple[zenoh.Query, dict[str, Any]] | None] = queue.Queue()
+        self._thread = threading.Thread(target=self._work, name="asm-robot-commission", daemon=True)
+        self._thread.start()
+        self.key = RobotKeys(robot).commission()
+        try:
+            self._queryable = session.declare_queryable(self.key, self._on_query)
+        except BaseException:
+            self.close()
+            raise
+
+    # -- the queryable: parse, refuse what is wrong or comes while busy, hand the rest to the worker -------------
+
+    def _reply(self, query: zenoh.Query, answer: dict[str, Any]) -> None:
+        try:
+            query.reply(self.key, json.dumps(answer))
+        except zenoh.ZError as exc:  # the asker gave up (timed out) or the session is closing
+            log.debug("commission reply not sent: %s", exc)
+        finally:
+            query.drop()
+
+    def _on_query(self, query: zenoh.Query) -> None:
+        raw = query.payload.to_bytes() if query.payload is not None else b""
+        try:
+            if len(raw) > MAX_REQUEST:
+                raise Refused(f"a commissioning request has at most {MAX_REQUEST} bytes, not {len(raw)}")
+            try:
+                request = json.loads(raw)
+            except (ValueError, UnicodeDecodeError) as exc:
+                raise Refused(f"a commissioning request is JSON: {exc}") from None
+            if not isinstance(request, dict) or request.get("op") not in ("list", "wiggle", "assign"):
+                raise Refused('a commissioning request is {"op": "list"|"wiggle"|"assign", …}')
+            with self._lock:
+                if self._running is not None:
+                    raise Refused(f"busy: another commissioning request ({self._running}) is still running")
+                self._running = str(request["op"])
+        except Refused as refusal:
+            self._reply(query, {"error": str(refusal)})
+            return
+        self._jobs.put((query, request))
+
+    def _work(self) -> None:
+        while (job := self._jobs.get()) is not None:
+            query, request = job
+            try:
+                answer = self.handle(request)
+            except (Refused, LookupError, TimeoutError, ValueError) as exc:
+                answer = {"error": str(exc)}
+            except Exception as exc:  # a bus error, a module's refusal: said to the asker, the service goes on
+                log.exception("commissioning request %s failed", request)
+                answer = {"error": f"{type(exc).__name__}: {exc}"}
+            finally:
+                with self._lock:
+                    self._running = None
+            self._reply(query, answer)
+
+    # -- the operations (also called directly: a robot's own code, tests) ------------------------------------------
+
+    def handle(self, request: dict[str, Any]) -> dict[str, Any]:
+        op = request.get("op")
+        if op == "list":
+            return self.list()
+        if op == "assign":
+            return self.assign(_serial(request), _node_id(request, erase=True))
+        if op == "wiggle":
+            degrees = request.get("degrees", 15.0)
+            if not isinstance(degrees, (int, float)) or isinstance(degrees, bool) or not math.isfinite(degrees) \
+                    or not WIGGLE_DEGREES[0] <= degrees <= WIGGLE_DEGREES[1]:  # fmt: skip
+                raise Refused(f"a wiggle moves {WIGGLE_DEGREES[0]:g}-{WIGGLE_DEGREES[1]:g}°, not {degrees!r}")
+            if "serial" in request:
+                return self.wiggle_serial(_serial(request), float(degrees))
+            return self.wiggle_id(_node_id(request, erase=False), float(degrees))
+        raise Refused(f"no commissioning operation {op!r}")
+
+    def list(self) -> dict[str, Any]:
+        found = self.tool.discover(CommissionScope.EVERY)
+        self._known = {m.node_id for m in found} - {UNCONFIGURED}
+        return {"modules": [{"serial": m.serial_hex, "id": m.node_id} for m in found],
+                "conflicts": {str(k): [s.hex() for s in v] for k, v in conflicts(found).items()}}  # fmt: skip
+
+    def _alive_ids(self) -> set[int]:
+        """The node IDs alive on the bus now (heard by the bridge's node): modules of every kind."""
+        names = self.node.transport.peers()
+        return {int(n[1:]) for n in names if n.startswith("m") and n[1:].isdigit()}
+
+    def _current_id(self, serial: bytes) -> int:
+        node_id = self.tool.select(serial)
+        self.tool.send(CommissionOp.UNMUTE)
+        if node_id is None:
+            raise LookupError(f"no module with serial {serial.hex()} answers")
+        return node_id
+
+    def assign(self, serial: bytes, node_id: int) -> dict[str, Any]:
+        if node_id in self.reserved:
+            raise Refused(
+                f"node ID {node_id} is reserved on this bus (the bridge's own, or an alias it sends its "
+                f"Zenoh clients' requests from: {min(self.reserved)}..{max(self.reserved)})"
+            )
+        current = self._current_id(serial)
+        if node_id != UNCONFIGURED and node_id != current:
+            holders = self._holders(node_id)
+            if holders or node_id in self._alive_ids():
+                held = f"module {holders[0]}" if holders else "a module alive on the bus"
+                raise Refused(f"node ID {node_id} is taken by {held}: IDs are never shared")
+        self.tool.assign(serial, node_id)
+        self._known.add(node_id)
+        log.info("module %s: node ID %d -> %d", serial.hex(), current, node_id)
+        return {"serial": serial.hex(), "id": node_id}
+
+    def _holders(self, node_id: int) -> list[str]:
+        """The serials of the modules with ``node_id`` (one not heard on the bus yet: just given it). A first scan
+        with one repetition, not the tool's three (an empty scan's every repetition is a wait, and it is the common
+        case); only if something answers — the holder, or a late answer to an earlier scan — the whole search."""
+        time.sleep(min(0.5, 2 * (self.tool.rtt or 0.05)))  # the answers to the last scan arrive, to be drained
+        retries, self.tool.retries = self.tool.retries, 1
+        try:
+            answered = self.tool.ask(CommissionOp.SCAN, CommissionScope.NODE_ID, node_id, kind=CommissionReply.BYTE)
+        finally:
+            self.tool.retries = retries
+            self.tool.send(CommissionOp.UNMUTE)
+        if answered is None:
+            return []
+        return [m.serial_hex for m in self.tool.discover(CommissionScope.NODE_ID, node_id)]
+
+    def _free_id(self) -> int:
+        """The highest ID nobody has (the chain's numbers from 1 stay free): not alive on the bus, not reserved, not
+        listed or given since (a module given an ID is alive under it within a heartbeat), and no module answering
+        a scan for it."""
+        taken = self._alive_ids() | self.reserved | self._known
+        for node_id in range(MAX_MODULE_ID, MIN_NODE_ID - 1, -1):
+            if node_id not in taken and not self._holders(node_id):
+                return node_id
+        raise Refused("no node ID is free for a temporary one")
+
+    def wiggle_serial(self, serial: bytes, degrees: float) -> dict[str, Any]:
+        current = self._current_id(serial)
+        if current != UNCONFIGURED:
+            return self.wiggle_id(current, degrees)
+        temporary = self._free_id()
+        self.tool.assign(serial, temporary)
+        try:
+            moved = self._wiggle(temporary, degrees)
+        finally:
+            self.tool.assign(serial, UNCONFIGURED)
+        return {"serial": serial.hex(), "id": UNCONFIGURED, "temporary": temporary, "moved": moved}
+
+    def wiggle_id(self, node_id: int, degrees: float) -> dict[str, Any]:
+        return {"id": node_id, "temporary": None, "moved": self._wiggle(node_id, degrees)}
+
+    def _joint(self, name: str) -> tuple[RemoteAttribute, RemoteAttribute]:
+        """Module ``name``'s joint.goal and joint.angle, looked up again until ALIVE_TIMEOUT while it is not there
+        (a board given an ID resets into it: it may be heard once, then be gone for its reboot)."""
+        deadline = time.monotonic() + ALIVE_TIMEOUT
+        while True:
+            try:
+                if name not in self.node.transport.peers():
+                    raise LookupError(f"{name} is not on the bus")
+                goal = self.node.lookup(name, "joint.goal", timeout=ASM_TIMEOUT)
+                angle = self.node.lookup(name, "joint.angle", timeout=ASM_TIMEOUT)
+                if not isinstance(goal, RemoteAttribute) or not isinstance(angle, RemoteAttribute):
+                    raise Refused(f"{name} has no joint.goal and joint.angle attributes to wiggle")
+                return goal, angle
+            except (LookupError, TimeoutError, AsmError) as exc:
+                if time.monotonic() > deadline:
+                    raise TimeoutError(f"{name} did not answer within {ALIVE_TIMEOUT:g} s: {exc}") from exc
+                time.sleep(0.2)
+
+    def _wiggle(self, node_id: int, degrees: float) -> float:
+        """Move module ``node_id``'s joint ``degrees`` away and back over ASM; how far it was seen to move."""
+        name = f"m{node_id}"
+        goal, angle = self._joint(name)
+        home = float(goal.get(timeout=ASM_TIMEOUT))
+        start = float(angle.get(timeout=ASM_TIMEOUT))
+        target = home - degrees if home > 0 else home + degrees  # towards the middle of its range
+        moved = 0.0
+        goal.set(target, wait=True, timeout=ASM_TIMEOUT)
+        try:
+            deadline = time.monotonic() + MOVE_TIMEOUT
+            while moved < degrees / 2 and time.monotonic() < deadline:
+                moved = max(moved, abs(float(angle.get(timeout=ASM_TIMEOUT)) - start))
+                time.sleep(0.05)
+        finally:
+            goal.set(home, wait=True, timeout=ASM_TIMEOUT)
+        deadline = time.monotonic() + MOVE_TIMEOUT  # back before the answer: the next wiggle starts from rest
+        while abs(float(angle.get(timeout=ASM_TIMEOUT)) - start) > 1.0 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        if moved < degrees / 2:
+            raise TimeoutError(f"{name}'s joint moved {moved:.1f}° of {degrees:g}° in {MOVE_TIMEOUT:g} s "
+                               "(is its servo on, is it e-stopped?)")  # fmt: skip
+        return round(moved, 2)
+
+    def close(self) -> None:
+        queryable = getattr(self, "_queryable", None)
+        if queryable is not None:
+            try:
+                queryable.undeclare()
+            except zenoh.ZError:
+                log.debug("already undeclared", exc_info=True)
+            self._queryable = None
+        self._jobs.put(None)
+        self._thread.join(timeout=ALIVE_TIMEOUT + 10)
+        self.bus.shutdown()
