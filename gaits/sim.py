@@ -30,89 +30,12 @@ from asm_py import Event, Node
 from asm_py.clock import SimClock
 
 from .deploy import module_tables
+from .metrics import Metrics
 from .mjcf import Physics, build_mjcf
 from .model import Gait
 from .programs import mode_index
 from .servo import Servo
 from .terrain import FLAT, Terrain
-
-
-@dataclass
-class Metrics:
-    """What a run achieved, measured on the centre of mass after the warm-up."""
-
-    seconds: float
-    """Simulated seconds measured (after the warm-up)."""
-    displacement: tuple[float, float]
-    """Centre-of-mass travel (x, y), metres."""
-    body_length: float
-    """Modules × module size, metres."""
-    peak_torque: float
-    """Largest absolute actuator torque seen, N·m."""
-    fell: bool
-    """The robot lay on its side (chains, loops) or upside down (legged) at any instant measured (a tumble it
-    rolled out of counts), sampled as the peak torque is."""
-    real_time_factor: float = 0.0
-    """Simulated seconds per wall-clock second of the whole run."""
-    energy: float = 0.0
-    """Mechanical work of the joints, J: Σ|τ·ω| over the joints, integrated (sampled once per physics block, as
-    the peak torque is, the torque and velocity of the same instant): what the servos spend, negative work counted
-    too since a servo does not recover it."""
-    mass: float = 0.0
-    """The robot's mass, kg."""
-    turned: float = 0.0
-    """How far the robot's heading turned, degrees counter-clockwise (unwrapped: two turns are 720)."""
-
-    @property
-    def distance(self) -> float:
-        return math.hypot(*self.displacement)
-
-    @property
-    def body_lengths(self) -> float:
-        return self.distance / self.body_length
-
-    @property
-    def speed(self) -> float:
-        """Mean speed, m/s."""
-        return self.distance / self.seconds if self.seconds > 0 else 0.0
-
-    @property
-    def heading(self) -> float:
-        """Direction of travel, degrees from +x (the chain's axis, the legged body's front) counter-clockwise."""
-        return math.degrees(math.atan2(self.displacement[1], self.displacement[0]))
-
-    @property
-    def stuck(self) -> bool:
-        """Less than half a body length of progress over the run."""
-        return self.body_lengths < 0.5
-
-    @property
-    def cost_of_transport(self) -> float:
-        """Energy / (mass · g · distance): dimensionless, lower is better; inf when the robot did not move."""
-        distance = self.distance
-        return self.energy / (self.mass * 9.81 * distance) if distance > 0 and self.mass > 0 else math.inf
-
-    @property
-    def heading_rate(self) -> float:
-        """Mean turning rate, degrees per second counter-clockwise (the heading drift of a straight gait)."""
-        return self.turned / self.seconds if self.seconds > 0 else 0.0
-
-    def along(self, heading_deg: float) -> float:
-        """Progress along a direction, metres (negative: it went the other way)."""
-        a = math.radians(heading_deg)
-        return self.displacement[0] * math.cos(a) + self.displacement[1] * math.sin(a)
-
-    def across(self, heading_deg: float) -> float:
-        """Drift across a direction, metres (absolute)."""
-        a = math.radians(heading_deg)
-        return abs(-self.displacement[0] * math.sin(a) + self.displacement[1] * math.cos(a))
-
-    def summary(self) -> str:
-        return (f"distance {self.distance:.3f} m = {self.body_lengths:.2f} BL in {self.seconds:g} s, "
-                f"speed {self.speed:.3f} m/s, heading {self.heading:.1f}°, peak torque {self.peak_torque:.2f} N·m, "
-                f"heading drift {self.turned:.1f}°, cost of transport {self.cost_of_transport:.2f}, "
-                f"fell {'yes' if self.fell else 'no'}, stuck {'yes' if self.stuck else 'no'}, "
-                f"real-time factor {self.real_time_factor:.1f}")  # fmt: skip
 
 
 class MujocoJoint(JointDriver):
