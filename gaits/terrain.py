@@ -178,11 +178,17 @@ class Terrain:
             colour = "0.55 0.7 0.85 1" if low else "0.8 0.8 0.8 1"
             geoms.append(f'<geom name="{name}" type="box" pos="{_v(start + col * size, start + row * size, -0.01)}" '
                          f'size="{_v(size / 2, size / 2, 0.01)}" condim="3" friction="{_v(mu, 0.005, 0.0001)}" '
-                         f'rgba="{colour}"/>')  # fmt: skip
+                         f'{TILE_CONTACT} rgba="{colour}"/>')  # fmt: skip
         return Ground(geoms=geoms, names=names)
 
 
 FLAT = Terrain()
+
+TILE_CONTACT = 'priority="1" solref="0.012 1"'
+"""A tile's contact with a module is the tile's own: MuJoCo takes the larger friction of two geoms of one priority,
+so a slippery tile under the modules' μ (their default class's, the ground's) slid nothing at all. With priority the
+tile's parameters win, so its solref is the one the two geoms mixed before (solmix 1 each: the mean of the modules'
+0.004 and the default 0.02), and a tile of the ground's own μ touches exactly as before."""
 
 
 def parse(spec: str) -> Terrain:

@@ -110,3 +110,17 @@ def test_simulate_prints_metrics_per_terrain(capsys):
     out = capsys.readouterr().out
     assert out.count("terrain      ") == 2 and "terrain      slope:angle=5,heading=0" in out
     assert out.count("cost of transport") == 2 and out.count("drift") == 2
+
+
+def test_slippery_patches_slide_under_modules_of_a_higher_friction():
+    """A tile's μ is what a module on it feels, below the modules' own as above it (MuJoCo takes the larger of two
+    geoms' frictions unless one has priority: a user review found patches:friction=0.01 crawling as on flat)."""
+    gait = load(LIBRARY / "caterpillar.toml")
+
+    def distance(spec: str) -> float:
+        with Simulation(gait, terrain=parse(spec)) as sim:
+            return sim.run(2.0, warmup=1.0).distance
+
+    grippy = distance("patches:friction=1.0,fraction=1")  # every tile of the ground's own μ
+    assert distance("patches:friction=0.01,fraction=1") < 0.8 * grippy
+    assert distance("patches:friction=0.3,fraction=1") != grippy
