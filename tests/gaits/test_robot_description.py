@@ -187,7 +187,9 @@ def test_the_servo_numbers_reach_the_actuators() -> None:
 @pytest.mark.parametrize(
     ("fields", "path", "words"),
     [
-        ({"mass": -1.0}, "robot.module.mass", "must be in (0, 1000] kg, not -1.0"),
+        ({"mass": -1.0}, "robot.module.mass", "must be in [0.001, 1000] kg, not -1.0"),
+        ({"mass": 1e-12}, "robot.module.mass", "must be in [0.001, 1000] kg, not 1e-12"),  # MuJoCo's mjMINVAL
+        ({"width": 1e-9}, "robot.module.width", "must be in [0.001, 10] metres, not 1e-09"),
         ({"mass": 0.0}, "robot.module.mass", "not 0.0"),
         ({"stall_torque": 0}, "robot.module.stall_torque", "must be in (0, 10000] N·m, not 0"),
         ({"no_load_speed": -5.0}, "robot.module.no_load_speed", "degrees per second"),
@@ -196,7 +198,7 @@ def test_the_servo_numbers_reach_the_actuators() -> None:
         ({"deadband": 11.0}, "robot.module.deadband", "must be in [0, 10] degrees, not 11.0"),
         ({"mass": 1e300}, "robot.module.mass", "not 1e+300"),
         ({"stall_torque": 1e9}, "robot.module.stall_torque", "not 1000000000.0"),
-        ({"width": 100.0}, "robot.module.width", "must be in (0, 10] metres"),
+        ({"width": 100.0}, "robot.module.width", "must be in [0.001, 10] metres"),
         ({"range": 200.0}, "robot.module.range", "must be in (0, 180]"),
         ({"length": 0.06}, "robot.module.length", "differs from robot.module_size"),
         ({"range": 45.0}, "limits", "exceeds the module's joint range ±45.0°"),
