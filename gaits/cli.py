@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING
 
 from asm_py.cli import bounded, output_file, run
 
+from .distributed import scheduler_address
 from .model import GaitError, load
 from .params import argument as free_argument
 from .table import format_table
@@ -85,7 +86,7 @@ def main(argv: list[str] | None = None) -> int:
         metavar="NAME",
         help="the program gait to simulate: forward (default) or one of the file's [gaits], e.g. left",
     )
-    tune.add_argument("--scheduler", metavar="ADDRESS", default=None,
+    tune.add_argument("--scheduler", metavar="ADDRESS", default=None, type=scheduler_address,
                       help="run the simulations on the Dask distributed scheduler at ADDRESS (tcp://HOST:PORT) "
                       "instead of local worker processes (gaits/distributed.py)")  # fmt: skip
     tune.add_argument("--out", type=output_file, metavar="OUT.toml", help="the tuned gait (default: FILE.tuned.toml)")

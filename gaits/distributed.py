@@ -9,6 +9,7 @@ cluster gives the same gait as a run on local worker processes with the same see
 
 from __future__ import annotations
 
+import argparse
 import contextlib
 from collections.abc import Iterator
 from concurrent.futures import Executor
@@ -16,6 +17,17 @@ from typing import cast
 
 CONNECT_SECONDS = 10.0
 """How long to wait for the scheduler to answer before giving up."""
+
+
+def scheduler_address(text: str) -> str:
+    """``--scheduler``: ``tcp://HOST:PORT``, checked before a client is made — a Dask client made from an address it
+    cannot use fails, then blocks the process's exit for 20 s closing itself (and prints a traceback doing it)."""
+    scheme, sep, rest = text.partition("://")
+    host, colon, port = rest.rpartition(":")
+    if scheme != "tcp" or not sep or not colon or not host.strip("[]") or not port.isdigit() \
+            or not 1 <= int(port) <= 65535:  # fmt: skip
+        raise argparse.ArgumentTypeError(f"a Dask scheduler address is tcp://HOST:PORT (port 1-65535), not {text!r}")
+    return text
 
 
 @contextlib.contextmanager

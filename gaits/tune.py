@@ -199,6 +199,8 @@ class Result:
     """Simulated seconds in all, the final check's runs included."""
     setup: Setup | None = None
     """The setup searched with, its defaults filled in (the torque limit, the forward direction)."""
+    failure: str = ""
+    """Why the executor given to tune() stopped answering mid-search (empty: it did not); the best so far is kept."""
     start_inside: bool = True
     """The starting gait's values lie inside the free parameters' bounds (else it is measured, never the result)."""
 
@@ -288,6 +290,13 @@ def tune(gait: Gait, frees: list[Free], setup: Setup, *, budget: int = 60, seed:
         _verify(result, leaders, pool, setup, workers or os.cpu_count() or 1)
     except KeyboardInterrupt:
         result.interrupted = True
+    except Exception as exc:
+        if own:
+            raise
+        # someone else's executor went away (a Dask scheduler lost, a pool killed): the best so far stands, as after
+        # Ctrl-C, and the failure is said
+        result.interrupted = True
+        result.failure = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
     finally:
         if own:
             pool.shutdown(wait=not result.interrupted, cancel_futures=True)
@@ -450,7 +459,10 @@ def command(args: argparse.Namespace) -> int:
     else:
         result = tune(gait, frees, setup, budget=args.budget, seed=args.seed, workers=args.workers,
                       progress=progress)  # fmt: skip
-    if result.interrupted:
+    if result.failure:
+        print(f"gaits tune: error: the Dask scheduler at {args.scheduler} stopped answering ({result.failure}): "
+              "keeping the best so far", file=sys.stderr)  # fmt: skip
+    elif result.interrupted:
         print("interrupted: keeping the best so far", file=sys.stderr)
     elif result.verify_refused:
         print(f"{result.verify_refused} leading candidate(s) broke a constraint when run {setup.verify:g} times "
@@ -460,10 +472,10 @@ def command(args: argparse.Namespace) -> int:
     if result.best is None:
         inside = "" if result.start_inside else " inside the bounds (the start lies outside them)"
         print(f"gaits tune: error: no candidate{inside} met the constraints; nothing written", file=sys.stderr)
-        return stopped if result.interrupted else 1
+        return stopped if result.interrupted and not result.failure else 1
     if result.start_inside and result.values == [current(gait, f) for f in frees]:
         print("no candidate beat the start inside the bounds: the start is written again", file=sys.stderr)
     out.write_text(tuned_text(result, frees, setup, budget=args.budget, seed=args.seed, source=Path(args.file).name),
                    encoding="utf-8")  # fmt: skip
     print(f"{args.objective} {_amount(result.value, setup)} (start {result.start_value:.4g}); written to {out}")
-    return stopped if result.interrupted else 0
+    return 1 if result.failure else stopped if result.interrupted else 0

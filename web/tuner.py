@@ -127,6 +127,8 @@ class TuneRun:
                 s = self._snapshot
                 s.running = False
                 s.state = "stopped" if result.interrupted or self._stop.is_set() else "done"
+                if result.failure and not self._stop.is_set():  # the workers went away: the best so far is kept
+                    s.state, s.line = "failed", f"tuning failed: {result.failure}"
                 s.best, s.values, s.value = result.best, list(result.values), result.value
                 s.evaluations = result.evaluations
                 if result.best is not None and result.verified:  # the longer check may have passed a leader over

@@ -56,3 +56,32 @@ def test_a_scheduler_that_does_not_answer_is_a_clear_error(tmp_path, capsys, mon
     assert main(["tune", str(CATERPILLAR), *ARGS, "--scheduler", address, "--out", str(out)]) == 1
     assert f"gaits tune: error: the Dask scheduler at {address}" in capsys.readouterr().err
     assert not out.exists()
+
+
+@pytest.mark.parametrize("address", ["garbage", "inproc://x", "tls://127.0.0.1:5", "tcp://127.0.0.1:99999",
+                                     "tcp://:5", "tcp://127.0.0.1:86x"])  # fmt: skip
+def test_an_address_that_is_no_scheduler_address_is_a_usage_error_at_once(address, tmp_path, capsys):
+    """Refused before a Dask client is made (one made from a bad address blocked the exit 20 s closing itself)."""
+    with pytest.raises(SystemExit) as exit_:
+        main(["tune", str(CATERPILLAR), *ARGS, "--scheduler", address, "--out", str(tmp_path / "t.toml")])
+    assert exit_.value.code == 2
+    assert "a Dask scheduler address is tcp://HOST:PORT" in capsys.readouterr().err
+
+
+def test_a_scheduler_lost_mid_search_keeps_the_best_so_far():
+    """The cluster goes away after the first generation: the search ends as after Ctrl-C, with the best so far and
+    why it ended, never a traceback."""
+    from distributed import LocalCluster
+
+    lost = LocalCluster(n_workers=1, threads_per_worker=1, processes=True, host="127.0.0.1", scheduler_port=0,
+                        dashboard_address="127.0.0.1:0", worker_dashboard_address="127.0.0.1:0",
+                        silence_logs=logging.CRITICAL)  # fmt: skip
+    try:
+        with gaits_distributed.dask_executor(lost.scheduler_address) as (executor, width):
+            result = tune(load(CATERPILLAR), [parse_free("amplitude=20:85")], Setup("speed", seconds=1.0, warmup=0.5),
+                          budget=40, seed=1, workers=width, popsize=4, executor=executor,
+                          progress=lambda r, line: lost.close() if r.generations == 1 else None)  # fmt: skip
+    finally:
+        lost.close()
+    assert result.interrupted and result.failure, result
+    assert result.best is not None and result.evaluations < 40
