@@ -168,7 +168,7 @@ def _print_metrics(terrain: Terrain, metrics: Metrics) -> None:
         f"({metrics.heading_rate:.2f} degrees/s)"
     )
     print(
-        f"cost         {metrics.cost_of_transport:.2f} cost of transport ({metrics.energy:.1f} J of joint work "
+        f"cost         {metrics.cost_text()} cost of transport ({metrics.energy:.1f} J of joint work "
         f"for {metrics.mass:.2f} kg)"
     )
     print(f"peak torque  {metrics.peak_torque:.2f} N·m")

@@ -62,6 +62,13 @@ class Metrics:
         distance = self.distance
         return self.energy / (self.mass * 9.81 * distance) if distance > 0 and self.mass > 0 else math.inf
 
+    def cost_text(self) -> str:
+        """The cost of transport for a person: "n/a" for a robot that hardly moved (under a hundredth of a body
+        length), whose energy over a near-zero distance is a meaningless huge number (or a misleading 0.00)."""
+        if self.body_lengths < 0.01 or not math.isfinite(self.cost_of_transport):
+            return "n/a (did not move)"
+        return f"{self.cost_of_transport:.2f}"
+
     @property
     def heading_rate(self) -> float:
         """Mean turning rate, degrees per second counter-clockwise (the heading drift of a straight gait)."""
@@ -80,6 +87,6 @@ class Metrics:
     def summary(self) -> str:
         return (f"distance {self.distance:.3f} m = {self.body_lengths:.2f} BL in {self.seconds:g} s, "
                 f"speed {self.speed:.3f} m/s, heading {self.heading:.1f}°, peak torque {self.peak_torque:.2f} N·m, "
-                f"heading drift {self.turned:.1f}°, cost of transport {self.cost_of_transport:.2f}, "
+                f"heading drift {self.turned:.1f}°, cost of transport {self.cost_text()}, "
                 f"fell {'yes' if self.fell else 'no'}, stuck {'yes' if self.stuck else 'no'}, "
                 f"real-time factor {self.real_time_factor:.1f}")  # fmt: skip

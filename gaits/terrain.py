@@ -196,16 +196,22 @@ def parse(spec: str) -> Terrain:
     if not isinstance(spec, str):
         raise ValueError(f"a terrain spec is a string, not {type(spec).__name__}")
     text = spec.strip()
-    kind, _, rest = text.partition(":")
+    kind, colon, rest = text.partition(":")
     kind = kind.strip().lower()
     if kind not in KINDS:
         raise ValueError(f"terrain {spec!r}: unknown kind {kind!r}; one of {', '.join(KINDS)} "
                          "(e.g. slope:5, step:0.03, rough:seed=3,roughness=0.02, patches:friction=0.3)")  # fmt: skip
     allowed = _PARAMETERS[kind]
     values = dict(_DEFAULTS[kind])
+    if colon and not rest.strip():  # "slope:" is a spec cut short, not the default slope
+        if kind == "flat":
+            raise ValueError(f"terrain {spec!r}: flat takes no parameters")
+        example = f"{kind}:{_number(next(iter(_DEFAULTS[kind].values())))}"
+        raise ValueError(f"terrain {spec!r}: nothing after the colon (e.g. {example})")
     items = [item.strip() for item in rest.split(",")] if rest.strip() else []
     if kind == "flat" and items:
         raise ValueError(f"terrain {spec!r}: flat takes no parameters")
+    given: set[str] = set()
     for k, item in enumerate(items):
         name, equals, value = item.partition("=")
         if not equals:  # a bare number: the kind's first parameter
@@ -215,6 +221,9 @@ def parse(spec: str) -> Terrain:
         name = name.strip()
         if name not in allowed:
             raise ValueError(f"terrain {spec!r}: {kind} has no parameter {name!r} (it has {', '.join(allowed)})")
+        if name in given:  # slope:5,angle=6 gives the angle twice: which was meant is not for us to guess
+            raise ValueError(f"terrain {spec!r}: {name} is given twice")
+        given.add(name)
         values[name] = _value(spec, name, value.strip(), allowed[name])
     if kind == "rough" and (round(values["extent"] / values["cell"]) + 1) ** 2 > MAX_HFIELD_CELLS:
         raise ValueError(f"terrain {spec!r}: extent / cell gives more than {MAX_HFIELD_CELLS} height-field cells")

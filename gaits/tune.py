@@ -440,6 +440,10 @@ def command(args: argparse.Namespace) -> int:
     frees: list[Free] = args.free
     setup = Setup(args.objective, tuple(args.terrain or [FLAT]), args.seconds, args.warmup, args.max_torque, args.gait)
     out = Path(args.out) if args.out else Path(Path(args.file).stem + ".tuned.toml")  # here, not beside the library
+    if out.resolve() == Path(args.file).resolve():
+        print(f"gaits tune: error: --out {out} is the gait being tuned: write the tuned gait to another file",
+              file=sys.stderr)  # fmt: skip
+        return 2
     print(f"tuning {gait.name}: {len(frees)} free, {args.objective}, budget {args.budget}, seed {args.seed}",
           file=sys.stderr)  # fmt: skip
     progress: Progress = lambda _, line: print(line, file=sys.stderr, flush=True)  # noqa: E731

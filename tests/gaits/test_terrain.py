@@ -90,6 +90,9 @@ def test_rough_ground_is_its_seeds():
         ("rough:seed=1,bumps=3", "rough has no parameter 'bumps'"),
         ("patches:0.3,0.5", "needs a name"),
         ("flat:1", "flat takes no parameters"),
+        ("slope:", "nothing after the colon (e.g. slope:5)"),  # cut short: not the default slope in disguise
+        ("slope:5,angle=6", "angle is given twice"),
+        ("rough:seed=3,seed=4", "seed is given twice"),
         ("rough:cell=0.01,extent=20", "height-field cells"),
     ],
 )

@@ -317,3 +317,14 @@ def test_the_other_objectives_improve_too(file, setup, frees):
 def test_an_unknown_program_gait_is_refused():
     with pytest.raises(ValueError, match="no gait 'left'"):
         tune(load(CATERPILLAR), FREES, Setup(gait="left"), budget=2)
+
+
+def test_the_tuned_gait_is_never_written_over_the_gait_being_tuned(tmp_path):
+    source = tmp_path / "mine.toml"
+    source.write_text(CATERPILLAR.read_text(encoding="utf-8"), encoding="utf-8")
+    before = source.read_bytes()
+    done = subprocess.run([sys.executable, "-m", "gaits.cli", "tune", str(source), "--free", "amplitude=20:85",
+                           "--budget", "2", "--out", str(tmp_path / "." / "mine.toml")], capture_output=True,
+                          text=True, timeout=120, cwd=Path(__file__).resolve().parents[2])  # fmt: skip
+    assert done.returncode == 2 and "is the gait being tuned" in done.stderr, done.stderr
+    assert source.read_bytes() == before
