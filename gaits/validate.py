@@ -145,11 +145,15 @@ def _problems(error: ValidationError) -> Iterator[tuple[list[str | int], str]]:
 def structure_problems(data: Any, line: Callable[[str], int | None]) -> tuple[list[Problem], int]:
     """What the schema refuses in ``data``: the first MAX_COUNTED problems, and how many more were not counted."""
     problems: list[Problem] = []
+    said: set[tuple[str, str]] = set()
     errors = _VALIDATOR.iter_errors(data)  # lazy: stopping early bounds the cost on a huge bad document
     for error in errors:
         for parts, message in _problems(error):
             path = format_path(parts) or "(document)"
             shown = path if len(path) <= 120 else path[:119] + "…"  # a key can be as long as the file
+            if (shown, message) in said:  # the schema's alternatives (program or gait) each miss the same field
+                continue
+            said.add((shown, message))
             problems.append(Problem(shown, message, line(path)))
         if len(problems) >= MAX_COUNTED:
             return problems, 1 if next(errors, None) is not None else 0

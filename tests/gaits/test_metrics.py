@@ -17,3 +17,16 @@ def test_the_cost_of_transport_of_a_robot_that_did_not_move_is_not_a_number_to_c
     assert _metrics((0.003, 0.0), 0.0).cost_text() == "n/a (did not move)"  # under a hundredth of a body length
     moved = _metrics((2.0, 0.0), 31.392)
     assert moved.cost_text() == "1.00" and "cost of transport 1.00" in moved.summary()
+
+
+def test_validate_says_each_problem_once(tmp_path, capsys):
+    """A document missing every field broke the schema's alternatives alike, each saying "missing" again."""
+    from gaits.cli import main
+
+    bad = tmp_path / "e.toml"
+    bad.write_text("x = 1\n", encoding="utf-8")
+    assert main(["validate", str(bad)]) == 1
+    captured = capsys.readouterr()
+    out = captured.out + captured.err
+    for field in ("name", "robot", "automata", "modules"):
+        assert out.count(f"{field}: missing") == 1, out
