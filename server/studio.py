@@ -22,7 +22,7 @@ import os
 import socket
 import tempfile
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Collection
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -101,11 +101,17 @@ class StudioOptions:
     keeps it in ``<recordings>/studio-layout.json`` unless told ``--layout``."""
 
 
-def free_loopback_port() -> int:
-    """A TCP port free on 127.0.0.1 now (bound and released: the child binds it a moment later)."""
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return sock.getsockname()[1]
+def free_loopback_port(avoid: Collection[int] = ()) -> int:
+    """A TCP port free on 127.0.0.1 now (bound and released: the child binds it a moment later), none of
+    ``avoid``: the studio's own web port, which it binds only after starting its robot (a port a test had just
+    bound and released to pass as --port came back here, the robot took it, and the page could not start)."""
+    for _ in range(16):
+        with socket.socket() as sock:
+            sock.bind(("127.0.0.1", 0))
+            port = sock.getsockname()[1]
+        if port not in avoid:
+            return port
+    raise OSError("no free loopback port apart from the studio's own")
 
 
 class RobotChild(Child):
@@ -216,7 +222,11 @@ class Studio:
         self.own_robot = self.options.robot_name or DEFAULT_ROBOT
         network = self.options.network
         if network.mode == "peer":
-            self._child_endpoint = f"tcp/127.0.0.1:{free_loopback_port()}"
+            ours = {
+                self.options.port,
+                *(int(e.rsplit(":", 1)[1]) for e in network.listen if e.rsplit(":", 1)[-1].isdigit()),
+            }
+            self._child_endpoint = f"tcp/127.0.0.1:{free_loopback_port(avoid=ours)}"
             network = network.with_(listen=(), connect=(self._child_endpoint, *network.connect))
         self.child = RobotChild(self._robot_args(gait))
         return network

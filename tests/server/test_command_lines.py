@@ -261,3 +261,15 @@ def test_a_server_command_closes_in_order_then_ends_at_once(how: str, code: int,
     assert "closed in order" in done.stderr  # the logging handler flushed before the end
     assert said in done.stderr
     assert "Traceback" not in done.stderr or how == "fails"
+
+
+def test_the_studios_robot_never_gets_the_studios_own_port() -> None:
+    """The robot child's Zenoh port is picked before the page binds its web port: never that one (a port a test had
+    bound, released and passed as --port came back for the robot, and the page could not start)."""
+    from server.studio import free_loopback_port
+
+    port = free_loopback_port()
+    assert 0 < port < 65536
+    assert free_loopback_port(avoid={port}) != port
+    with pytest.raises(OSError, match="no free loopback port"):
+        free_loopback_port(avoid=range(1, 65536))

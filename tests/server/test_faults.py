@@ -314,9 +314,8 @@ def test_sigterm_ends_the_studio_and_its_robot_within_five_seconds_during_a_floo
 
     from asm_py.protocol import Message, encode
 
-    port, zport = free_port(), free_port()
-    endpoint = f"tcp/127.0.0.1:{zport}"
-    studio = Process("-m", "server.studio", "--port", str(port), "--zenoh-listen", endpoint)
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    studio = Process("-m", "server.studio", "--port", "0", "--zenoh-listen", endpoint)
     stop = threading.Event()
     try:
         studio.wait_for_line("READY studio", timeout=60)
