@@ -189,6 +189,9 @@ class Result:
     """The best objective among the candidates refused for a constraint (what keeping the constraints cost)."""
     verified: bool = False
     """The best held every constraint over the longer check run too (False after an interruption: not checked)."""
+    verify_value: float = math.nan
+    """The best's objective over the longer check run: a score found in short runs can be luck, and this says how
+    it held (the search's own value is the one its file reproduces over the search's run)."""
     verify_refused: int = 0
     """Leading candidates that broke a constraint in the longer check run and were passed over."""
     busy: float = 0.0
@@ -342,6 +345,7 @@ def _verify(result: Result, leaders: list[Leader], pool: Executor, setup: Setup,
         for (score, _, values, doc), outcome in zip(batch, outcomes, strict=True):
             if outcome.feasible:
                 result.best, result.values, result.verified = from_dict(doc), values, True
+                result.verify_value = outcome.value
                 result.value = -OBJECTIVES[setup.objective][0] * score
                 return
             result.verify_refused += 1
@@ -377,8 +381,9 @@ def provenance(result: Result, frees: list[Free], setup: Setup, *, budget: int, 
         max_torque = default_max_torque(result.best) if result.best is not None else math.nan
     goal = "maximised" if OBJECTIVES[setup.objective][0] > 0 else "minimised"
     start = _amount(result.start_value, setup) if result.start_problem == "" else f"refused: {result.start_problem}"
-    checked = (f"held again over {setup.seconds * setup.verify:g} s ({result.verify_refused} better candidates did "
-               "not)" if result.verified else "not checked over a longer run (interrupted)")  # fmt: skip
+    checked = (f"held again over {setup.seconds * setup.verify:g} s, {setup.objective} "
+               f"{_amount(result.verify_value, setup)} there ({result.verify_refused} better candidates did not)"
+               if result.verified else "not checked over a longer run (interrupted)")  # fmt: skip
     lines = [
         f"Tuned by `gaits tune` from {source}: objective {setup.objective} ({goal}), seed {seed}, budget {budget} "
         f"({result.evaluations} simulated{', interrupted' if result.interrupted else ''})",
@@ -481,5 +486,8 @@ def command(args: argparse.Namespace) -> int:
         print("no candidate beat the start inside the bounds: the start is written again", file=sys.stderr)
     out.write_text(tuned_text(result, frees, setup, budget=args.budget, seed=args.seed, source=Path(args.file).name),
                    encoding="utf-8")  # fmt: skip
+    if result.verified:
+        print(f"over the {setup.seconds * setup.verify:g} s check run: {args.objective} "
+              f"{_amount(result.verify_value, setup)}", file=sys.stderr)  # fmt: skip
     print(f"{args.objective} {_amount(result.value, setup)} (start {result.start_value:.4g}); written to {out}")
     return 1 if result.failure else stopped if result.interrupted else 0

@@ -46,6 +46,11 @@ def test_it_improves_on_the_start_and_reports_what_it_simulated(tuned):
     assert tuned.history == sorted(tuned.history)  # the best never gets worse
     assert len(tuned.samples) == tuned.evaluations - 1  # every candidate but the start, with its objective
     assert (tuned.values, tuned.value) in tuned.samples  # the best is one of them (not the start: it beat it)
+    assert tuned.verify_value > 0.1  # its objective over the longer check run, said in the file too
+    from gaits.tune import provenance
+
+    text = provenance(tuned, FREES, SETUP, budget=9, seed=1, source="x")
+    assert f"held again over 4 s, speed {tuned.verify_value:.4g} m/s there" in text
 
 
 def test_the_same_seed_gives_the_same_gait(tuned):
