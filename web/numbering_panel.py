@@ -57,26 +57,39 @@ class NumberingPanel:
         self.list_md = gui.add_markdown("Not searched yet.")
         self.serial = gui.add_dropdown("Module (serial)", [NONE])
         self.wiggle_button = gui.add_button("Wiggle")
-        self.node_id = gui.add_number("Node ID", 1, min=0, max=253, step=1)
+        # no min/max: the browser would clamp a typed -1 to 0 (erase!) or 300 to 253; _id_value refuses instead
+        self.node_id = gui.add_number("Node ID", 1, step=1)
         self.assign_button = gui.add_button("Assign ID")
         self.guide_button = gui.add_button("Number along the chain")
-        self.position = gui.add_number("Chain position that moved", 1, min=1, max=253, step=1)
+        self.position = gui.add_number("Chain position that moved", 1, step=1)
         self.confirm_button = gui.add_button("Confirm position")
         self.line = gui.add_markdown("")
         self._modules: list[dict[str, Any]] = []
         self._guided: str | None = None
         """The serial the guided numbering wiggled last and asks the position of (None: not numbering)."""
         self._jobs: queue.Queue[tuple[str, Any] | None] = queue.Queue()
-        self.find_button.on_click(page.safe(lambda _: self._jobs.put(("find", None))))
-        self.wiggle_button.on_click(page.safe(lambda _: self._jobs.put(("wiggle", self._picked()))))
-        self.assign_button.on_click(page.safe(lambda _: self._jobs.put(("assign", (self._picked(),
-                                                                                   self._id_value())))))  # fmt: skip
-        self.guide_button.on_click(page.safe(lambda _: self._jobs.put(("guide", None))))
-        self.confirm_button.on_click(page.safe(lambda _: self._jobs.put(("confirm", self._position_value()))))
+        self.find_button.on_click(self._said(lambda: self._jobs.put(("find", None))))
+        self.wiggle_button.on_click(self._said(lambda: self._jobs.put(("wiggle", self._picked()))))
+        self.assign_button.on_click(self._said(lambda: self._jobs.put(("assign", (self._picked(),
+                                                                                  self._id_value())))))  # fmt: skip
+        self.guide_button.on_click(self._said(lambda: self._jobs.put(("guide", None))))
+        self.confirm_button.on_click(self._said(lambda: self._jobs.put(("confirm", self._position_value()))))
         self._thread = threading.Thread(target=self._run, name="studio-numbering", daemon=True)
         self._thread.start()
 
     # -- the callbacks: they only read the fields and queue work --------------------------------------------------
+
+    def _said(self, queue_it: Callable[[], None]) -> Callable[[Any], None]:
+        """A button's callback: a refused field is said on the panel's own line, which the next step overwrites
+        (said on the page's status line, an error stayed there after every later success)."""
+
+        def clicked(_: Any) -> None:
+            try:
+                queue_it()
+            except ValueError as exc:
+                self.line.content = f"⚠ {exc}"
+
+        return clicked
 
     def _picked(self) -> str:
         serial = str(self.serial.value)
@@ -92,8 +105,9 @@ class NumberingPanel:
 
     def _position_value(self) -> int:
         value = float(self.position.value)
-        if not value.is_integer() or not 1 <= value <= 253:
-            raise ValueError(f"a chain position is a whole number 1..253, not {value:g}")
+        chain = max(self._chain()[0], 1)
+        if not value.is_integer() or not 1 <= value <= chain:
+            raise ValueError(f"a chain position is a whole number 1..{chain} (the robot's modules), not {value:g}")
         return int(value)
 
     # -- the worker ---------------------------------------------------------------------------------------------
@@ -145,6 +159,13 @@ class NumberingPanel:
         if node_id:
             self._after_numbering([f"m{node_id}"])
 
+    def _chain(self) -> tuple[int, set[int]]:
+        """(how many modules the robot has, the node IDs they hold): the boards the list found, numbered or not,
+        and the modules alive on the robot that the list does not hold (its Python modules)."""
+        found = {int(m["id"]) for m in self._modules}
+        alive = {int(n[1:]) for n in self.page.robot.alive_modules()} - found
+        return len(self._modules) + len(alive), (found | alive) - {0}
+
     def _guess(self) -> int:
         """The lowest ID no module has (listed, or alive on the robot): the next chain position, most often."""
         taken = {m["id"] for m in self._modules} | {int(n[1:]) for n in self.page.robot.alive_modules()}
@@ -156,7 +177,11 @@ class NumberingPanel:
         if not todo:
             self._guided = None
             names = sorted((f"m{m['id']}" for m in self._modules), key=lambda n: int(n[1:]))
-            self.line.content = f"Every module has a node ID: {', '.join(names) or 'none found'}."
+            count, held = self._chain()
+            missing = [f"m{k}" for k in range(1, count + 1) if k not in held]
+            gap = (f" — but no module is {', '.join(missing)}: a gait deploys to m1..m{count} "
+                   "(Assign ID renumbers one)") if missing else ""  # fmt: skip
+            self.line.content = f"Every module has a node ID: {', '.join(names) or 'none found'}{gap}."
             self._after_numbering(names)
             return
         serial = self._guided = todo[0]

@@ -55,8 +55,15 @@ def test_fresh_boards_are_found_numbered_along_the_chain_and_deployed_to_from_th
         expect(page.get_by_text(re.compile(r"⚠ node ID 5 is taken by a module alive on the bus"))).to_be_visible(
             timeout=60_000
         )
+        field.fill("-1")  # hostile: refused, never clamped to 0 (which erases a module's ID)
+        field.press("Enter")
+        page.get_by_role("button", name="Assign ID").click()
+        expect(page.get_by_text("⚠ a node ID is a whole number 1..253 (0 erases), not -1")).to_be_visible(
+            timeout=30_000
+        )
+        expect(page.locator("td", has_text=re.compile(r"^none$"))).to_have_count(2)
         page.get_by_role("button", name="Number along the chain").click()
-        for _ in range(2):
+        for round_ in range(2):
             asked = page.get_by_text(re.compile(r"Which chain position moved\? [0-9a-f]{24} was wiggled"))
             try:
                 expect(asked).to_be_visible(timeout=120_000)
@@ -65,6 +72,13 @@ def test_fresh_boards_are_found_numbered_along_the_chain_and_deployed_to_from_th
                 raise AssertionError(f"the page said {said}") from exc
             serial = re.search(r"[0-9a-f]{24}", asked.inner_text()).group(0)  # type: ignore[union-attr]
             field = page.get_by_label("Chain position that moved")
+            if round_ == 0:  # hostile: the robot has 8 modules, so there is no position 9
+                field.fill("9")
+                field.press("Enter")
+                page.get_by_role("button", name="Confirm position").click()
+                expect(page.get_by_text("⚠ a chain position is a whole number 1..8 (the robot's modules), not 9"))\
+                    .to_be_visible(timeout=30_000)  # fmt: skip
+                expect(page.locator("td", has_text=re.compile(r"^none$"))).to_have_count(2)
             field.fill(str(position_of[serial]))
             field.press("Enter")
             page.get_by_role("button", name="Confirm position").click()
