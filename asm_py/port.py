@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import itertools
 import threading
+import time
 from typing import TYPE_CHECKING
 
 from ._contract import TIMEOUT_LONGEST
@@ -157,8 +158,13 @@ class Port:
         """
         txn = next(self._direct_txns) & MAX_TXN  # atomic; these replies never pass through _pending
         head = bytes((first_byte(Kind.REQUEST_REPLY, method), txn, class_id, object_id))
+        began = time.monotonic()
         raw = self.node.transport.request(self.remote, check_size(head + data, what), wait)
         if raw is None:
+            waited = time.monotonic() - began
+            if waited < 0.9 * wait:  # over at once: Zenoh found nothing to ask, or only an error answered
+                raise AsmTimeout(f"{what} failed: nothing answered after {waited:.2g}s ({self.remote} is not "
+                                 "reachable now)")  # fmt: skip
             raise AsmTimeout(f"{what} timed out: no reply within {wait:.3g}s")
         if len(raw) < HEADER_SIZE or raw[0] != first_byte(Kind.REPLY, method) or raw[1] != txn or raw[3] != object_id:
             raise ProtocolError(f"{what}: answer is not the reply to transaction {txn}")
