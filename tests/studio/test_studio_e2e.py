@@ -181,8 +181,9 @@ def test_upload_grid_history_robot_size_and_attribute_browser(studio_process, tm
             page.screenshot(path=str(ARTIFACTS / "studio-grid.png"))
             page.get_by_role("tab", name="Deploy").click()
             page.get_by_role("button", name="Deploy", exact=True).click()
-            page.get_by_role("button", name="Start", exact=True).click()
-            expect(page.get_by_text("10 modules confirmed running", exact=False).first).to_be_visible(timeout=30_000)
+            # ten modules: the studio restarts its robot first, which took over 30 s under the suite's load (CI)
+            page.get_by_role("button", name="Start", exact=True).click(timeout=120_000)
+            expect(page.get_by_text("10 modules confirmed running", exact=False).first).to_be_visible(timeout=60_000)
             assert wait_until(lambda: client.lookup("m10", "gait.service", timeout=2).running, timeout=15)
             table = client.lookup("m1", "gait.table", timeout=2).peek()
             assert abs(decode_table(table)[2].target + 33.0) < 1e-4  # state 3's angle, as deployed
