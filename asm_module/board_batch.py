@@ -18,7 +18,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from asm_py.canbus.commission import SERIAL_BYTES
+from asm_py.canbus.commission import SERIAL_BYTES, parse_serial
 
 from .flash import Settings
 
@@ -46,12 +46,9 @@ class BoardBatch:
             return serial
         text = path.read_text(errors="replace").strip()
         try:
-            serial = bytes.fromhex(text)
-        except ValueError:
-            serial = b""
-        if len(serial) != SERIAL_BYTES:
-            raise ValueError(f"{path}: a board's serial is {SERIAL_BYTES * 2} hex digits, not {text[:40]!r}")
-        return serial
+            return parse_serial(text)
+        except ValueError as exc:
+            raise ValueError(f"{path}: a board's {str(exc).removeprefix('a ')}") from None
 
     def board(self, position: int) -> tuple[bytes, Settings]:
         """The serial and the flash of the board at ``position``."""

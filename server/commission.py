@@ -19,12 +19,12 @@ from pathlib import Path
 import can
 
 from asm_py.canbus.commission import (
-    SERIAL_BYTES,
     UNCONFIGURED,
     Commissioner,
     CommissionScope,
     conflicts,
     describe_conflicts,
+    parse_serial,
 )
 from asm_py.cli import bitrate, bounded, can_channel, input_file, node_id, positive_seconds, run
 
@@ -32,12 +32,9 @@ from asm_py.cli import bitrate, bounded, can_channel, input_file, node_id, posit
 def serial(text: str) -> bytes:
     """A module's serial: 24 hex digits."""
     try:
-        value = bytes.fromhex(text)
-    except ValueError:
-        value = b""
-    if len(value) != SERIAL_BYTES:
-        raise argparse.ArgumentTypeError(f"a serial is {2 * SERIAL_BYTES} hex digits, not {text!r}")
-    return value
+        return parse_serial(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 def read_order(path: Path) -> list[bytes]:

@@ -36,6 +36,7 @@ from asm_py.canbus.commission import (
     CommissionReply,
     CommissionScope,
     conflicts,
+    parse_serial,
 )
 from asm_py.canbus.ids import MAX_NODE_ID, MIN_NODE_ID
 from asm_py.errors import AsmError
@@ -64,12 +65,9 @@ def _serial(request: dict[str, Any]) -> bytes:
     if not isinstance(text, str):
         raise Refused(f"a serial is {2 * SERIAL_BYTES} hex digits, not {text!r}")
     try:
-        serial = bytes.fromhex(text)
-    except ValueError:
-        serial = b""
-    if len(serial) != SERIAL_BYTES:
-        raise Refused(f"a serial is {2 * SERIAL_BYTES} hex digits, not {text[:40]!r}")
-    return serial
+        return parse_serial(text)
+    except ValueError as exc:
+        raise Refused(str(exc)) from None
 
 
 def _node_id(request: dict[str, Any], *, erase: bool) -> int:

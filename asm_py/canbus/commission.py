@@ -99,6 +99,18 @@ def check_serial(serial: bytes) -> bytes:
     return bytes(serial)
 
 
+def parse_serial(text: str) -> bytes:
+    """A serial as people and files write it: 24 hex digits. ValueError naming what was given (its first 40
+    characters: a hostile text can be as long as its file)."""
+    try:
+        serial = bytes.fromhex(text)
+    except ValueError:
+        serial = b""
+    if len(serial) != SERIAL_BYTES:
+        raise ValueError(f"a serial is {2 * SERIAL_BYTES} hex digits, not {text[:40]!r}")
+    return serial
+
+
 class Commissionee:
     """A module's side of commissioning: :meth:`command` takes a COMMISSION frame's data and says what to answer.
 
