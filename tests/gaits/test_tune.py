@@ -89,12 +89,17 @@ def test_an_interrupted_search_keeps_the_best_so_far():
     assert result.value >= result.start_value
 
 
-def test_ctrl_c_writes_the_best_so_far(tmp_path):
-    out = tmp_path / "tuned.toml"
+def _long_search(out: Path) -> subprocess.Popen[str]:
+    """``gaits tune`` with two workers and a budget far beyond a test's patience: to be stopped by a signal."""
     command = [sys.executable, "-m", "gaits.cli", "tune", str(CATERPILLAR), "--free", "amplitude=20:85",
                "--budget", "200", "--seconds", "1", "--warmup", "0.5", "--workers", "2", "--out", str(out)]  # fmt: skip
-    process = subprocess.Popen(command, stderr=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
-                               cwd=Path(__file__).resolve().parents[2])  # fmt: skip
+    return subprocess.Popen(command, stderr=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
+                            cwd=Path(__file__).resolve().parents[2])  # fmt: skip
+
+
+def test_ctrl_c_writes_the_best_so_far(tmp_path):
+    out = tmp_path / "tuned.toml"
+    process = _long_search(out)
     assert process.stderr is not None
     lines = []
     for line in process.stderr:
@@ -118,10 +123,7 @@ def test_sigterm_writes_the_best_so_far_and_leaves_no_worker_behind(tmp_path):
     import psutil
 
     out = tmp_path / "tuned.toml"
-    command = [sys.executable, "-m", "gaits.cli", "tune", str(CATERPILLAR), "--free", "amplitude=20:85",
-               "--budget", "200", "--seconds", "1", "--warmup", "0.5", "--workers", "2", "--out", str(out)]  # fmt: skip
-    process = subprocess.Popen(command, stderr=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
-                               cwd=Path(__file__).resolve().parents[2])  # fmt: skip
+    process = _long_search(out)
     assert process.stderr is not None
     workers: list[psutil.Process] = []
     try:
