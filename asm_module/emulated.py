@@ -42,6 +42,9 @@ CLOCK_HZ = 168_000_000
 CONTROL_MS = 20
 CATCH_UP_MS = 200
 """The most emulated milliseconds run in one hold of a board's lock."""
+IDLE_WAIT, FRAMES_WAIT = 0.005, 0.001
+"""Seconds a board's bus thread waits for a frame before running its clock on: on a quiet bus, and while frames
+wait for room in its receive FIFO."""
 _image_lock = threading.Lock()
 _image: Image | None = None
 
@@ -189,8 +192,12 @@ class EmulatedModule(FirmwareCalls):
         return reading.angle, reading.contact
 
     def _run(self) -> None:
+        # a frame ends the wait at once; without one, on its own the board runs the wall clock's milliseconds 5 at a
+        # time (its 20 ms control tick stays on time to 5 ms; waking every 1 ms, half an idle board's CPU was the
+        # wake itself), and on a simulation's clock its ticks run it: this thread only waits for frames
         while not self._stop.is_set():
-            frame = self.bus.recv(timeout=0.001)
+            frame = self.bus.recv(timeout=FRAMES_WAIT if self.can.pending() else IDLE_WAIT if self.clock is None
+                                  else 0.05)  # fmt: skip
             while frame is not None:
                 if not frame.is_error_frame and not frame.is_remote_frame:
                     self.can.deliver(frame.arbitration_id, frame.is_extended_id, bytes(frame.data))

@@ -220,9 +220,12 @@ class Cortex:
                 at += 4 if code[at + 1] >> 3 in (0b11101, 0b11110, 0b11111) else 2
                 count += 1
             self._sizes[(address, size)] = count
-        self.cycles += count
-        self._count_down()
-        if self.watchdog.expired(self.cycles) and not self._reason:
+        # run for every block the image executes: the checks are inlined (a method call each cost more than them)
+        cycles = self.cycles = self.cycles + count
+        if cycles >= self._systick_next:
+            self._count_down()
+        expires = self.watchdog.expires_at
+        if expires is not None and cycles >= expires and not self._reason:
             self._reset("the independent watchdog expired")
         if (self._pending and not self._depth and not self._calling and not self._reason
                 and not int(uc.reg_read(arm.UC_ARM_REG_XPSR)) & 0x0600FC00):  # fmt: skip  # never inside an IT block

@@ -169,7 +169,10 @@ class CommissionService:
         raise Refused(f"no commissioning operation {op!r}")
 
     def list(self) -> dict[str, Any]:
-        found = self.tool.discover(CommissionScope.EVERY)
+        # in one order every time (numbered by ID, then the unnumbered by serial), as asm-commission lists them: the
+        # scan's own order follows which board answered first
+        found = sorted(self.tool.discover(CommissionScope.EVERY),
+                       key=lambda m: (m.node_id == UNCONFIGURED, m.node_id, m.serial))  # fmt: skip
         self._known = {m.node_id for m in found} - {UNCONFIGURED}
         return {"modules": [{"serial": m.serial_hex, "id": m.node_id} for m in found],
                 "conflicts": {str(k): [s.hex() for s in v] for k, v in conflicts(found).items()}}  # fmt: skip

@@ -125,6 +125,7 @@ class DeployPanel:
             robot.forget(removed)
             page.emit("modules_removed", removed)
             robot.await_modules(wanted, timeout=30.0)
+            robot.await_present(timeout=30.0)  # its process too: a deploy right after was refused as "lost"
         report = robot.stage(gait, progress)
         self.log(_staged(gait, report) + "; nothing moves until Start (the deploy lease is held until then)")
         page.notify("Staged", _staged(gait, report))

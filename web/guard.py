@@ -20,6 +20,7 @@ from __future__ import annotations
 import hmac
 import http
 import ipaddress
+import logging
 import secrets
 import threading
 from collections.abc import Callable
@@ -31,6 +32,7 @@ import viser
 import viser.infra._infra as viser_infra
 import websockets.asyncio.server
 from websockets.datastructures import Headers
+from websockets.exceptions import InvalidMessage
 from websockets.http11 import Request, Response
 
 from .page_script import inject
@@ -152,8 +154,23 @@ class _Namespace:
         return getattr(self._real, name)
 
 
+class _ClosedBeforeAsking(logging.Filter):
+    """Drops websockets' "opening handshake failed" for a connection closed before it sent a request line: a
+    browser's speculative preconnect (Chromium opens one beside the page's and closes it unused) or a port probe.
+    It was logged as an error with three chained tracebacks, in the terminal of a studio nothing was wrong with."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        exc = record.exc_info[1] if record.exc_info else None
+        return not (isinstance(exc, InvalidMessage) and isinstance(exc.__cause__, EOFError))
+
+
+_QUIET = _ClosedBeforeAsking()
+
+
 def guarded_server(guard: AccessGuard, **options: Any) -> viser.ViserServer:
     """A ViserServer whose every request passes ``guard`` first."""
+    if _QUIET not in logging.getLogger("websockets.server").filters:
+        logging.getLogger("websockets.server").addFilter(_QUIET)
     # viser imports websockets into its _infra module without re-exporting it; the shim swaps that one name
     real: Any = getattr(viser_infra, "websockets")  # noqa: B009  (a name the module does not export)
     shim = _Namespace(real, asyncio=_Namespace(real.asyncio, server=_ServerModule(guard)))

@@ -134,6 +134,16 @@ class RobotLink:
             return f"robot {self.robot!r} has sent no status for {age:.1f} s"
         return None
 
+    def await_present(self, timeout: float) -> bool:
+        """Wait up to ``timeout`` for the robot to be there (:meth:`lost` None); whether it is. A robot the studio
+        has just restarted is back on the network a moment after its modules are heard."""
+        deadline = time.monotonic() + timeout
+        while self.lost() is not None:
+            if time.monotonic() >= deadline:
+                return False
+            time.sleep(0.1)
+        return True
+
     def require(self, action: str) -> None:
         """RobotLost, naming ``action``, when the robot is lost."""
         why = self.lost()

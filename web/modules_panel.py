@@ -5,9 +5,10 @@ per module the calibration edited and applied, or "Set current pose as zero" (do
 A calibration is the module's own: it checks it (a value out of range or not finite is refused, never clamped, and
 the refusal is shown here), stores it (a board's flash, a Python module's file) and applies it to every reading and
 command; setting it never moves the joint. "Set current pose as zero" keeps the soft limits where they are on the
-joint (their raw angles, to 0.01°), so only the numbering of angles moves. "Update firmware" sends an update image
-(``python -m asm_module.firmware_image ELF OUT``) to every module at once (asm_module.flasher, what ``asm-flash``
-runs), a bar following the bytes written, and says per module what it ran before and runs now.
+joint (their raw angles, to 0.01°; 0.01° inward if the module refuses them exact), so only the numbering of angles
+moves. "Update firmware" sends an update image (``python -m asm_module.firmware_image ELF OUT``) to every module at
+once (asm_module.flasher, what ``asm-flash`` runs), a bar following the bytes written, and says per module what it
+ran before and runs now; a file that is not an image is refused at once, before anything is sent.
 
 The callbacks only queue work: one thread (``studio-modules``) talks to the modules, so a slow or silent module
 never holds viser's thread pool; it writes the roster and the line under the buttons when it is done.
@@ -31,7 +32,7 @@ NONE = "-"
 TIMEOUT = 2.0
 """Seconds a module has to answer each read or set."""
 LIMIT_MARGIN = 0.01
-"""Degrees "Set current pose as zero" moves the soft limits inward (see _zero_here)."""
+"""Degrees "Set current pose as zero" moves the soft limits inward when the module refuses them exact (_zero_here)."""
 
 
 def _version(info: dict[str, Any]) -> str:
@@ -54,6 +55,18 @@ def roster_markdown(names: list[str], infos: dict[str, Any], calibrations: dict[
         shown = f"{angle:.1f}°" if angle is not None else "—"
         rows.append(f"| {name} | {firmware} | {calibration} | {shown} |")
     return "\n".join(rows) + "\n\nCalibration: zero, direction, soft limits."
+
+
+def refusal_text(name: str, values: dict[str, Any], exc: Exception) -> str:
+    """Why ``name`` refused the calibration ``values``, field by field: with min < max checked here already, what is
+    left is the module's rule that each soft limit's raw angle (zero + direction·limit) lies within the joint's
+    hardware range, which only the module knows."""
+    raw = sorted(values["zero"] + values["direction"] * values[k] for k in ("min", "max"))
+    said = str(exc).split(": ", 1)[-1].strip()
+    return (f"{name} refused the calibration{f' ({said})' if said else ''}: Soft min {values['min']:g}° and Soft "
+            f"max {values['max']:g}° are raw {raw[0]:g}..{raw[1]:g}° with Zero {values['zero']:g}° and direction "
+            f"{values['direction']:+d}, which must lie within the joint's hardware range (a reset calibration "
+            "shows it as the soft limits)")  # fmt: skip
 
 
 class ModulesPanel:
@@ -88,7 +101,7 @@ class ModulesPanel:
         self.apply_button.on_click(page.safe(lambda _: self._queue_apply()))
         self.zero_button.on_click(page.safe(lambda _: self._queue_module("zero")))
         self.module.on_update(page.safe(lambda _: self._show_selected()))
-        self.upload.on_upload(page.safe(lambda e: self._jobs.put(("update", bytes(e.target.value.content)))))
+        self.upload.on_upload(page.safe(lambda e: self._queue_update(bytes(e.target.value.content))))
         self._thread = threading.Thread(target=self._run, name="studio-modules", daemon=True)
         self._thread.start()
 
@@ -109,6 +122,17 @@ class ModulesPanel:
         if not all(math.isfinite(values[k]) for k in ("zero", "min", "max")):
             raise ValueError(f"a calibration's numbers are finite, not {values}")
         self._jobs.put(("apply", (self._selected(), values)))
+
+    def _queue_update(self, image: bytes) -> None:
+        """A file that is not an update image is refused at once, under the update's own button (it was said by the
+        worker, after whatever it was doing, on the calibration's line)."""
+        try:
+            check(image)
+        except ValueError as exc:
+            self.update_md.content = f"⚠ not sent: {exc}"
+            return
+        self.update_md.content = f"Queued a {len(image):,}-byte image …"
+        self._jobs.put(("update", image))
 
     def _show_selected(self) -> None:
         """The picked module's calibration into the fields (as last read)."""
@@ -159,7 +183,12 @@ class ModulesPanel:
                             "their calibration."  # fmt: skip
 
     def _apply(self, name: str, values: dict[str, Any]) -> None:
-        self.page.robot.lookup(name, "joint.calibration", timeout=TIMEOUT).set(values, wait=True, timeout=TIMEOUT)
+        if not values["min"] < values["max"]:
+            raise ValueError(f"Soft min ({values['min']:g}°) must be below Soft max ({values['max']:g}°)")
+        try:
+            self.page.robot.lookup(name, "joint.calibration", timeout=TIMEOUT).set(values, wait=True, timeout=TIMEOUT)
+        except ValueError as exc:  # a board's refusal carries no words: name the fields that can break its rule
+            raise ValueError(refusal_text(name, values, exc)) from None
         self._read()
         self.line.content = (f"{name} calibrated: zero {values['zero']:g}°, direction {values['direction']:+d}, "
                              f"soft limits {values['min']:g}..{values['max']:g}° (stored in the module)")  # fmt: skip
@@ -167,15 +196,22 @@ class ModulesPanel:
     def _zero_here(self, name: str) -> None:
         """The joint's raw angle now becomes its zero; the soft limits stay where they are on the joint."""
         robot = self.page.robot
-        c = dict(robot.lookup(name, "joint.calibration", timeout=TIMEOUT).get(timeout=TIMEOUT))
+        calibration = robot.lookup(name, "joint.calibration", timeout=TIMEOUT)
+        c = dict(calibration.get(timeout=TIMEOUT))
         angle = float(robot.lookup(name, "joint.angle", timeout=TIMEOUT).get(timeout=TIMEOUT))
         raw = round(c["zero"] + c["direction"] * angle, 2)
         shift = c["direction"] * (raw - c["zero"])  # the angle the new zero reads 0 at
-        # the limits moved by as much, to 0.01° and 0.01° inward: float32 rounding must not put a limit's raw angle
-        # a hair past the hardware's range (the module refuses it, never clamps)
-        values = {"zero": raw, "direction": c["direction"], "min": round(c["min"] - shift + LIMIT_MARGIN, 2),
-                  "max": round(c["max"] - shift - LIMIT_MARGIN, 2)}  # fmt: skip
-        robot.lookup(name, "joint.calibration", timeout=TIMEOUT).set(values, wait=True, timeout=TIMEOUT)
+        # the limits moved by as much, to 0.01°; when the module refuses that (float32 rounding put a limit's raw
+        # angle a hair past the hardware's range: it refuses, never clamps), 0.01° inward — once, not at every press
+        for margin in (0.0, LIMIT_MARGIN):
+            values = {"zero": raw, "direction": c["direction"], "min": round(c["min"] - shift + margin, 2),
+                      "max": round(c["max"] - shift - margin, 2)}  # fmt: skip
+            try:
+                calibration.set(values, wait=True, timeout=TIMEOUT)
+                break
+            except ValueError:
+                if margin:
+                    raise
         self._read()
         self.line.content = f"{name}: its pose now is its zero (raw {raw:.2f}°; it was at {angle:.2f}°)"
 

@@ -67,6 +67,8 @@ class NumberingPanel:
         self._modules: list[dict[str, Any]] = []
         self._guided: str | None = None
         """The serial the guided numbering wiggled last and asks the position of (None: not numbering)."""
+        self._question = ""
+        """What the guided numbering asks while ``_guided`` is set: kept under whatever the line says next."""
         self._jobs: queue.Queue[tuple[str, Any] | None] = queue.Queue()
         self.find_button.on_click(self._said(lambda: self._jobs.put(("find", None))))
         self.wiggle_button.on_click(self._said(lambda: self._jobs.put(("wiggle", self._picked()))))
@@ -87,9 +89,14 @@ class NumberingPanel:
             try:
                 queue_it()
             except ValueError as exc:
-                self.line.content = f"⚠ {exc}"
+                self._say(f"⚠ {exc}")
 
         return clicked
+
+    def _say(self, text: str) -> None:
+        """``text`` on the panel's line, with the guided numbering's pending question under it: the page is shared
+        by every tab, and another tab's Find or Wiggle must not hide what this one was asked."""
+        self.line.content = text + (f"  \n{self._question}" if self._guided is not None else "")
 
     def _picked(self) -> str:
         serial = str(self.serial.value)
@@ -132,10 +139,10 @@ class NumberingPanel:
                 elif kind == "confirm":
                     self._confirm(argument)
             except Exception as exc:  # a refusal, a silent module: said under the buttons, the worker goes on
-                self.line.content = f"⚠ {exc}"
+                self._say(f"⚠ {exc}")
 
     def _find(self) -> None:
-        self.line.content = "Finding modules …"
+        self._say("Finding modules …")
         answer = self._ask({"op": "list"})
         self._modules = list(answer["modules"])
         self.list_md.content = modules_markdown(self._modules, answer["conflicts"])
@@ -145,17 +152,19 @@ class NumberingPanel:
             self.serial.options = serials or [NONE]
             self.serial.value = chosen if chosen in serials else (serials[0] if serials else NONE)
         unnumbered = sum(1 for m in self._modules if not m["id"])
-        self.line.content = f"Found {len(serials)} modules, {unnumbered} without a node ID."
+        self._say(f"Found {len(serials)} modules, {unnumbered} without a node ID.")
 
     def _wiggle(self, serial: str) -> None:
-        self.line.content = f"Wiggling `{serial}` …"
+        self._say(f"Wiggling `{serial}` …")
         answer = self._ask({"op": "wiggle", "serial": serial})
-        self.line.content = f"`{serial}` wiggled: its joint moved {answer['moved']:g}°."
+        self._say(f"`{serial}` wiggled: its joint moved {answer['moved']:g}°.")
 
     def _assign(self, serial: str, node_id: int) -> None:
         self._ask({"op": "assign", "serial": serial, "id": node_id})
+        if serial == self._guided:  # numbered by hand while the guide asked about it: the question is answered
+            self._guided = None
         self._find()
-        self.line.content = f"`{serial}` is now " + (f"m{node_id}" if node_id else "without a node ID") + "."
+        self._say(f"`{serial}` is now " + (f"m{node_id}" if node_id else "without a node ID") + ".")
         if node_id:
             self._after_numbering([f"m{node_id}"])
 
@@ -184,19 +193,23 @@ class NumberingPanel:
             self.line.content = f"Every module has a node ID: {', '.join(names) or 'none found'}{gap}."
             self._after_numbering(names)
             return
-        serial = self._guided = todo[0]
+        serial = todo[0]
+        self._guided = None  # a question is asked once its module has moved
         with self.page.programmatic():
             self.serial.value = serial
             self.position.value = self._guess()
         self._wiggle(serial)
-        self.line.content = (f"Which chain position moved? `{serial}` was wiggled ({len(todo)} left): set **Chain "
-                             "position that moved** and **Confirm position** (or **Wiggle** again).")  # fmt: skip
+        self._guided = serial
+        self._question = (f"Which chain position moved? `{serial}` was wiggled ({len(todo)} left): set **Chain "
+                          "position that moved** and **Confirm position** (or **Wiggle** again).")  # fmt: skip
+        self.line.content = self._question
 
     def _confirm(self, position: int) -> None:
         serial = self._guided
         if serial is None:
             raise ValueError("start with Number along the chain: it wiggles a module and asks where it sits")
         self._ask({"op": "assign", "serial": serial, "id": position})
+        self._guided = None  # answered
         self._find()
         self._next()
 

@@ -9,6 +9,7 @@ for); what the run found is read at the page's refresh."""
 from __future__ import annotations
 
 import math
+import os
 import re
 import threading
 from typing import TYPE_CHECKING, Any
@@ -68,6 +69,10 @@ class TunePanel:
         self.budget = gui.add_number("Budget (simulations)", initial_value=60, min=4, max=100_000, step=1)
         self.seconds = gui.add_number("Seconds per candidate", initial_value=3.0, min=0.5, max=60.0, step=0.5)
         self.seed = gui.add_number("Seed", initial_value=1, min=0, max=2**31 - 1, step=1)
+        cores = os.cpu_count() or 1
+        self.workers = gui.add_number("Workers (processes)", initial_value=cores, min=1, max=4 * cores, step=1,
+                                      hint=f"candidates simulated at once (this machine has {cores} cores): fewer "
+                                      "leave a core to the live robot and the page")  # fmt: skip
         self.control = gui.add_button_group("Tuning", ["Start tuning", "Stop tuning"])
         self.control.on_click(page.safe(self._on_control))
         self.progress = gui.add_progress_bar(0.0)
@@ -109,11 +114,16 @@ class TunePanel:
             self.stop()
 
     def start(self, *, workers: int | None = None, popsize: int | None = None) -> TuneRun:
-        """Start a search from the edited gait (a running one is stopped first)."""
+        """Start a search from the edited gait (a running one is stopped first); ``workers`` None: the tab's."""
         gait = self.page.doc.gait()
         frees = self.frees()
         check(gait, frees)
         setup = self.setup()
+        if workers is None:
+            chosen = float(self.workers.value)
+            if not chosen.is_integer() or chosen < 1:
+                raise ValueError(f"Workers is a whole number of processes, at least 1, not {chosen:g}")
+            workers = int(chosen)
         with self._lock:
             if self.run is not None:
                 self.run.stop(timeout=0.0)

@@ -109,10 +109,10 @@ def test_fresh_boards_are_found_wiggled_numbered_along_the_chain_and_kept_across
     try:
         listed = bench.ask({"op": "list"})
         serials = {BoardBatch(folder).serial(p).hex(): p for p in BOARDS}
-        assert sorted(m["serial"] for m in listed["modules"]) == sorted(serials), listed
+        assert [m["serial"] for m in listed["modules"]] == sorted(serials), "in serial order, every time"
         assert all(m["id"] == 0 for m in listed["modules"]) and listed["conflicts"] == {}
         numbered = {}
-        for module in listed["modules"]:  # the order found, not the chain's: the wiggle says where each sits
+        for module in listed["modules"]:  # the serials' order, not the chain's: the wiggle says where each sits
             position, answer = _wiggled_position(bench, {"op": "wiggle", "serial": module["serial"]})
             assert position == serials[module["serial"]]
             assert answer["id"] == 0 and answer["temporary"] == 199 and answer["moved"] >= 7.5, answer
@@ -134,6 +134,7 @@ def test_fresh_boards_are_found_wiggled_numbered_along_the_chain_and_kept_across
     try:
         listed = bench.ask({"op": "list"})
         assert {m["serial"]: m["id"] for m in listed["modules"]} == numbered
+        assert [m["id"] for m in listed["modules"]] == list(BOARDS), "numbered ones in the order of their IDs"
         assert wait_until(lambda: all(_info(bench.client, f"m{p}") for p in BOARDS), timeout=120)
     finally:
         bench.close()

@@ -13,6 +13,8 @@ import re
 
 import pytest
 
+from ..helpers import ARTIFACTS
+
 CHROMIUM = "/usr/bin/chromium"
 
 
@@ -162,12 +164,29 @@ def number(text: str, pattern: str) -> float:
     return float(match.group(1))
 
 
-def deploy_and_start(page, modules: int) -> None:
+def deploy_log(page) -> list[str]:
+    """The deploy log's lines and any warning or error the page shows: what a failed deploy step reports."""
+    text = page.inner_text("body").splitlines()
+    return [t for t in text if any(k in t for k in ("⚠", "Error", "deploy", "staged", "Staged", "robot", "started"))]
+
+
+def press_start(page, timeout_ms: float = 30_000) -> None:
+    """Press Start in the question a deploy asks; if none comes, fail saying what the page said instead."""
+    from playwright.sync_api import Error
+
+    try:
+        page.get_by_role("button", name="Start", exact=True).click(timeout=timeout_ms)
+    except Error as exc:
+        page.screenshot(path=str(ARTIFACTS / "no-start.png"))
+        raise AssertionError(f"no Start was asked; the page said {deploy_log(page)[-25:]}") from exc
+
+
+def deploy_and_start(page, modules: int, start_timeout_ms: float = 60_000) -> None:
     """Deploy the edited gait from the Deploy tab, press Start in the question that follows, and wait until every
     module is confirmed running — as a user does it."""
     from playwright.sync_api import expect
 
     page.get_by_role("tab", name="Deploy").click()
     page.get_by_role("button", name="Deploy", exact=True).click()
-    page.get_by_role("button", name="Start", exact=True).click()
+    press_start(page, start_timeout_ms)
     expect(page.get_by_text(f"{modules} modules confirmed running", exact=False).first).to_be_visible(timeout=60_000)

@@ -113,6 +113,34 @@ def test_deploying_another_robot_resizes_the_simulated_modules(studio):
     assert wait_until(lambda: [n for n, _, _ in app.link.roster.rows()] == [f"m{i}" for i in range(1, 7)], 20)
 
 
+def test_a_deploy_that_rebuilds_the_robot_waits_for_its_process_to_be_back(studio, monkeypatch):
+    """The studio restarts its robot for a gait of another size; the robot's modules were heard again before the
+    robot process itself, and the deploy was refused ("robot 'robot' is not on the network (for 7.2 s)", a
+    Chromium run under load): the deploy now waits for the process too."""
+    app = studio.app
+    link = app.link
+    real_lost, real_await = link.lost, link.await_modules
+    heard: list[float] = []
+
+    def await_modules(names: set[str], timeout: float) -> bool:
+        done = real_await(names, timeout)
+        heard.append(time.monotonic())
+        return done
+
+    def lost() -> str | None:  # the new process is seen 1.5 s after its modules
+        if heard and time.monotonic() - heard[0] < 1.5:
+            return "robot 'robot' is not on the network (for 0.1 s)"
+        return real_lost()
+
+    app.editor.modules.value = 6
+    monkeypatch.setattr(link, "await_modules", await_modules)
+    monkeypatch.setattr(link, "lost", lost)
+    gait = app.doc.gait()
+    app.deployer.start(gait, app.deployer.stage(gait))
+    assert heard and time.monotonic() - heard[0] >= 1.5
+    assert wait_until(lambda: app.link.status.modules == 6, 20)
+
+
 def test_the_attribute_browser_gives_each_type_its_input(studio):
     app = studio.app
     assert wait_until(lambda: "m1" in app.monitor.browse_module.options, timeout=10)

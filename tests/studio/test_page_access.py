@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import http.client
+import logging
 import urllib.error
 import urllib.request
 
@@ -63,3 +64,25 @@ def test_a_studio_served_beyond_loopback_makes_a_token_and_loopback_does_not() -
     assert is_loopback("127.0.0.1") and is_loopback("::1") and is_loopback("localhost")
     assert not is_loopback("0.0.0.0") and not is_loopback("192.0.2.1")
     assert AccessGuard("0.0.0.0").token is None  # the studio passes one (tested above); the guard only checks it
+
+
+def test_a_connection_closed_before_its_request_logs_no_error_but_a_bad_request_still_does(studio, caplog) -> None:
+    """A browser's unused preconnect (Chromium opens one and closes it) or a port probe: websockets logged it as
+    "opening handshake failed" with three chained tracebacks in the studio's terminal. A malformed request is
+    still an error worth its line."""
+    import socket
+    import time
+
+    from ..helpers import wait_until
+
+    caplog.set_level(logging.INFO, logger="websockets.server")
+    with socket.create_connection(("127.0.0.1", studio.port), timeout=10):
+        pass  # closed without a word
+    with socket.create_connection(("127.0.0.1", studio.port), timeout=10) as garbage:
+        garbage.sendall(b"\xff\xfe not http\r\n\r\n")
+        garbage.recv(100)
+    assert wait_until(lambda: any(r.getMessage() == "opening handshake failed" for r in caplog.records), timeout=10)
+    time.sleep(0.5)  # the first connection's handling, had it been logged, would be by now
+    failed = [r for r in caplog.records if r.getMessage() == "opening handshake failed"]
+    assert len(failed) == 1 and failed[0].exc_info is not None
+    assert not isinstance(failed[0].exc_info[1].__cause__, EOFError)  # the garbage one, not the silent one

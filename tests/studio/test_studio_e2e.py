@@ -20,6 +20,7 @@ from .browser import (
     number,
     open_page,
     pixels,
+    press_start,
     robot_point,
     text_input,
     type_and_set,
@@ -182,7 +183,7 @@ def test_upload_grid_history_robot_size_and_attribute_browser(studio_process, tm
             page.get_by_role("tab", name="Deploy").click()
             page.get_by_role("button", name="Deploy", exact=True).click()
             # ten modules: the studio restarts its robot first, which took over 30 s under the suite's load (CI)
-            page.get_by_role("button", name="Start", exact=True).click(timeout=120_000)
+            press_start(page, 120_000)
             expect(page.get_by_text("10 modules confirmed running", exact=False).first).to_be_visible(timeout=60_000)
             assert wait_until(lambda: client.lookup("m10", "gait.service", timeout=2).running, timeout=15)
             table = client.lookup("m1", "gait.table", timeout=2).peek()
@@ -203,9 +204,11 @@ def test_upload_grid_history_robot_size_and_attribute_browser(studio_process, tm
             page.get_by_role("option", name="Live plot 2", exact=True).click()
             page.get_by_role("button", name="Plot", exact=True).click()
             page.get_by_role("tab", name="Plots").click()
+            # the plot is drawn anew with its new series: wait for that before scrolling to it (the canvas found
+            # before was detached under the scroll once)
+            expect(page.locator(".uplot", has_text="Live 2")).to_contain_text("m2 joint.torque", timeout=15_000)
             second = page.locator(".uplot", has_text="Live 2").locator("canvas").first
             second.scroll_into_view_if_needed()
-            expect(page.locator(".uplot", has_text="Live 2")).to_contain_text("m2 joint.torque", timeout=15_000)
             assert wait_until(lambda: pixels(second.screenshot(), LINE_COLOR) > 50, timeout=15), "no torque line"
             first = page.locator(".uplot", has_text="Live 1")
             expect(first).to_contain_text("joint.angle", timeout=15_000)  # the first still plots the angles

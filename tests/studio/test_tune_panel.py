@@ -93,8 +93,10 @@ def test_closing_the_studio_ends_a_running_search(studio):
     panel = studio.app.tuner
     panel.free["amplitude"].value = True
     panel.budget.value = 400
-    run = panel.start(workers=2, popsize=4)
-    assert wait_until(lambda: len(run.worker_pids()) == 2, timeout=90)
+    panel.workers.value = 1  # the tab's Workers field: one process, a core left to the robot
+    run = panel.start(popsize=4)
+    assert run.workers == 1
+    assert wait_until(lambda: len(run.worker_pids()) == 1, timeout=90)
     pids = run.worker_pids()
     panel.close()
     assert not run.running
@@ -108,6 +110,12 @@ def test_a_bad_free_parameter_is_refused_before_anything_starts(studio):
     panel.other.value = "automata.nope.states[0].angle=-10:10"
     with pytest.raises(ValueError, match="no automaton 'nope'"):
         panel.start()
+    panel.other.value = ""
+    panel.free["period"].value = True
+    for workers in (0, -2):  # (viser rounds a number to its step: no 1.5 reaches the panel)
+        panel.workers.value = workers
+        with pytest.raises(ValueError, match=f"Workers is a whole number of processes, at least 1, not {workers:g}"):
+            panel.start()
     assert panel.run is None
 
 
