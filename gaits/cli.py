@@ -147,12 +147,20 @@ def _simulate(args: argparse.Namespace) -> int:
     robot = gait.robot
     timing = f"period {gait.period:g} s" if gait.timed else "timed by events"
     print(f"{gait.name}: {robot.modules}-module {robot.shape}, {timing}, direction {args.direction:+d}")
+    if args.mjcf and Path(args.mjcf).exists() and Path(args.mjcf).samefile(args.file):
+        print(f"gaits simulate: error: --mjcf {args.mjcf} is the gait file itself: it would be overwritten",
+              file=sys.stderr)  # fmt: skip
+        return 2
     for k, terrain in enumerate(args.terrain or [FLAT]):
         with Simulation(gait, direction=args.direction, terrain=terrain) as sim:
             if args.mjcf and k == 0:
                 Path(args.mjcf).write_text(sim.mjcf, encoding="utf-8")
                 print(f"model written to {args.mjcf}")
-            metrics = sim.run(args.seconds, warmup=args.warmup, push_at=args.push_at)
+            try:
+                metrics = sim.run(args.seconds, warmup=args.warmup, push_at=args.push_at)
+            except FloatingPointError as exc:
+                print(f"gaits simulate: error: {args.file} on {terrain.spec}: {exc}", file=sys.stderr)
+                return 1
         _print_metrics(terrain, metrics)
     return 0
 

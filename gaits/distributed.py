@@ -30,6 +30,31 @@ def scheduler_address(text: str) -> str:
     return text
 
 
+def _probe(address: str, seconds: float) -> None:
+    """Ask the scheduler who it is, within ``seconds`` in all; OSError if it does not say. A Client made to a
+    listener that accepts and never answers waited for ever (its registration's reply has no timeout)."""
+    import asyncio
+
+    from distributed.comm import connect
+
+    async def ask() -> None:
+        comm = await connect(address, timeout=seconds)
+        try:
+            await comm.write({"op": "identity", "reply": True})
+            await comm.read()
+        finally:
+            comm.abort()
+
+    try:
+        asyncio.run(asyncio.wait_for(ask(), seconds))
+    except TimeoutError:  # (asyncio.TimeoutError is it since 3.11; an OSError too, so caught first)
+        raise OSError(f"no answer within {seconds:g} s (is a Dask scheduler listening there?)") from None
+    except OSError:
+        raise
+    except Exception as exc:  # what answered is not a Dask scheduler
+        raise OSError(f"not a Dask scheduler ({type(exc).__name__}: {exc})") from None
+
+
 @contextlib.contextmanager
 def dask_executor(address: str) -> Iterator[tuple[Executor, int]]:
     """An Executor on the Dask scheduler at ``address`` and how many candidates its workers run at once (their
@@ -39,7 +64,8 @@ def dask_executor(address: str) -> Iterator[tuple[Executor, int]]:
         from distributed import Client
     except ImportError as exc:  # pragma: no cover - a dependency of the package
         raise RuntimeError("--scheduler needs the dask[distributed] package") from exc
-    client = Client(address, timeout=CONNECT_SECONDS, set_as_default=False)  # read now: tests shorten it
+    _probe(address, CONNECT_SECONDS)  # read now: tests shorten it
+    client = Client(address, timeout=CONNECT_SECONDS, set_as_default=False)
     try:
         width = sum(cast(dict[str, int], client.nthreads()).values())  # a dict from a synchronous client
         if width == 0:

@@ -329,6 +329,10 @@ class Simulation:
                 self._push = None
             if not np.isfinite(self.data.qpos).all():
                 raise FloatingPointError(f"the simulation diverged at t = {self.data.time:.3f} s")
+            if self.data.warning[mujoco.mjtWarning.mjWARN_BADQACC].number:
+                # MuJoCo resets an unstable state to the start and goes on: time went back and a run never ended
+                raise FloatingPointError("the simulation diverged (MuJoCo reset an unstable state: a servo too "
+                                         "stiff or too strong for the timestep?)")  # fmt: skip
 
     def _control_tick(self) -> None:
         self._sense_contacts()

@@ -53,6 +53,9 @@ WORST_COST = 100.0
 """Cost of transport counted for a robot that did not move (inf otherwise): keeps the scores finite for CMA-ES."""
 LEADERS = 8
 """How many of the best valid candidates are kept for the final, longer check (the start, if valid, besides)."""
+CHECK_ROUND = 2
+"""Leaders run at once in the final check (the start besides, in the first round): a fixed number, so one worker
+or many choose the same best."""
 TORQUE_MARGIN = 0.95
 """The default torque constraint, as a share of the robot's servo stall torque (``[robot.module] stall_torque``):
 a gait that keeps its servos at their limit cannot follow its own references (and the torque saturates there, so
@@ -288,9 +291,7 @@ def tune(gait: Gait, frees: list[Free], setup: Setup, *, budget: int = 60, seed:
             if progress is not None:
                 best = min((o for o in outcomes if o.feasible), key=lambda o: -sign * o.value, default=None)
                 progress(result, _line(result, setup, best, outcomes, float(es.sigma)))
-        if fallback is not None and fallback not in leaders:
-            leaders.append(fallback)  # the start, checked last: a tuned gait is never worse off than its start
-        _verify(result, leaders, pool, setup, workers or os.cpu_count() or 1)
+        _verify(result, leaders, pool, setup, fallback)  # the start checked beside the first leaders
     except KeyboardInterrupt:
         result.interrupted = True
     except Exception as exc:
@@ -333,23 +334,37 @@ Leader = tuple[float, int, list[float], dict[str, Any]]
 """A valid candidate kept for the final check: (score, order found, values, document); sorted, the best first."""
 
 
-def _verify(result: Result, leaders: list[Leader], pool: Executor, setup: Setup, width: int) -> None:
-    """The best becomes the first leader that keeps every constraint over ``setup.verify`` × the search's run
-    (none: no best); its value stays the one the search measured, which its file reproduces. A batch as wide as the
-    pool at a time: usually the first batch settles it."""
+def _verify(result: Result, leaders: list[Leader], pool: Executor, setup: Setup, start: Leader | None) -> None:
+    """The final check: leaders run ``setup.verify`` × the search's run, CHECK_ROUND at a time, the start with the
+    first round. Of a round's leaders that keep every constraint and, when the start held, do at least as well as
+    the start over the longer run (a score a short run found by luck — a tumble end over end that looked fast —
+    does not), the best-scored in the search is the best; none in any round: no best. The search's value stays the
+    result's (its file reproduces it), the longer run's is ``verify_value``. Interrupted, the best is never a leader
+    the check already refused."""
     longer = replace(setup, seconds=setup.seconds * setup.verify)
-    for k in range(0, len(leaders), width):
-        batch = leaders[k : k + width]
+    sign = OBJECTIVES[setup.objective][0]
+    rest = [leader for leader in leaders if leader is not start]
+    batch = rest[:CHECK_ROUND] + ([start] if start is not None else [])
+    rest = rest[CHECK_ROUND:]
+    while batch:
         outcomes = list(pool.map(_evaluate_job, [(doc, longer) for *_, doc in batch]))
         result.account(outcomes, longer)
-        for (score, _, values, doc), outcome in zip(batch, outcomes, strict=True):
-            if outcome.feasible:
-                result.best, result.values, result.verified = from_dict(doc), values, True
-                result.verify_value = outcome.value
-                result.value = -OBJECTIVES[setup.objective][0] * score
-                return
-            result.verify_refused += 1
-    result.best, result.values, result.value = None, [], math.nan  # (an interruption above keeps the search's)
+        held = [(outcome.value, leader) for leader, outcome in zip(batch, outcomes, strict=True) if outcome.feasible]
+        result.verify_refused += len(batch) - len(held)
+        floor = next((value for value, leader in held if leader is start), None)
+        if floor is not None:  # the start held: a leader that does worse than it over the longer run is passed over
+            result.verify_refused += sum(sign * value < sign * floor for value, _ in held)
+            held = [(value, leader) for value, leader in held if sign * value >= sign * floor]
+        if held:  # the best search score of those that held (the start is among them: never worse than it)
+            value, (score, _, values, doc) = min(held, key=lambda h: h[1][:2])
+            result.best, result.values, result.verified = from_dict(doc), values, True
+            result.verify_value, result.value = value, -sign * score
+            return
+        if rest:  # an interruption from here on keeps the next leader, never one the check refused
+            score, _, values, doc = rest[0]
+            result.best, result.values, result.value = from_dict(doc), values, -sign * score
+        batch, rest = rest[:CHECK_ROUND], rest[CHECK_ROUND:]
+    result.best, result.values, result.value = None, [], math.nan
 
 
 def _strategy(x0: np.ndarray, seed: int, popsize: int | None, budget: int) -> Any:
@@ -369,7 +384,8 @@ def _line(result: Result, setup: Setup, best: Outcome | None, outcomes: list[Out
     gen = f"{best.value:.4g}" if best is not None else "none valid"
     refused = sum(not o.feasible for o in outcomes)
     return (f"generation {result.generations}: {result.evaluations} simulations, best {setup.objective} "
-            f"{_amount(result.value, setup)} (this generation {gen}, {refused} refused), "
+            f"{'none yet' if math.isnan(result.value) else _amount(result.value, setup)} (this generation {gen}, "
+            f"{refused} refused), "
             f"sigma {sigma:.3f}")  # fmt: skip
 
 
@@ -382,7 +398,8 @@ def provenance(result: Result, frees: list[Free], setup: Setup, *, budget: int, 
     goal = "maximised" if OBJECTIVES[setup.objective][0] > 0 else "minimised"
     start = _amount(result.start_value, setup) if result.start_problem == "" else f"refused: {result.start_problem}"
     checked = (f"held again over {setup.seconds * setup.verify:g} s, {setup.objective} "
-               f"{_amount(result.verify_value, setup)} there ({result.verify_refused} better candidates did not)"
+               f"{_amount(result.verify_value, setup)} there ({result.verify_refused} leading candidates broke a "
+               "constraint or did worse than the start there)"
                if result.verified else "not checked over a longer run (interrupted)")  # fmt: skip
     lines = [
         f"Tuned by `gaits tune` from {source}: objective {setup.objective} ({goal}), seed {seed}, budget {budget} "
@@ -445,7 +462,7 @@ def command(args: argparse.Namespace) -> int:
     frees: list[Free] = args.free
     setup = Setup(args.objective, tuple(args.terrain or [FLAT]), args.seconds, args.warmup, args.max_torque, args.gait)
     out = Path(args.out) if args.out else Path(Path(args.file).stem + ".tuned.toml")  # here, not beside the library
-    if out.resolve() == Path(args.file).resolve():
+    if out.resolve() == Path(args.file).resolve() or (out.exists() and out.samefile(args.file)):  # a hard link too
         print(f"gaits tune: error: --out {out} is the gait being tuned: write the tuned gait to another file",
               file=sys.stderr)  # fmt: skip
         return 2
@@ -474,13 +491,17 @@ def command(args: argparse.Namespace) -> int:
     elif result.interrupted:
         print("interrupted: keeping the best so far", file=sys.stderr)
     elif result.verify_refused:
-        print(f"{result.verify_refused} leading candidate(s) broke a constraint when run {setup.verify:g} times "
-              "longer and were passed over", file=sys.stderr)  # fmt: skip
+        print(f"{result.verify_refused} leading candidate(s) broke a constraint or did worse than the start when "
+              f"run {setup.verify:g} times longer and were passed over", file=sys.stderr)  # fmt: skip
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
     stopped = 143 if terminated.is_set() else 130
     if result.best is None:
         inside = "" if result.start_inside else " inside the bounds (the start lies outside them)"
-        print(f"gaits tune: error: no candidate{inside} met the constraints; nothing written", file=sys.stderr)
+        start = f"; the start: {result.start_problem}" if result.start_problem else ""
+        hint = (" (--max-torque sets the limit: by default 95 % of the servos' stall torque)"
+                if "peak torque" in result.start_problem else "")  # fmt: skip
+        print(f"gaits tune: error: no candidate{inside} met the constraints{start}{hint}; nothing written",
+              file=sys.stderr)  # fmt: skip
         return stopped if result.interrupted and not result.failure else 1
     if result.start_inside and result.values == [current(gait, f) for f in frees]:
         print("no candidate beat the start inside the bounds: the start is written again", file=sys.stderr)

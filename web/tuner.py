@@ -134,7 +134,8 @@ class TuneRun:
                 if result.best is not None and result.verified:  # the longer check may have passed a leader over
                     s.history.append((result.evaluations, result.value))
                     s.line = (f"the best held every constraint over {self.setup.seconds * self.setup.verify:g} s "
-                              f"({result.verify_refused} better candidate(s) did not)")  # fmt: skip
+                              f"({result.verify_refused} leading candidate(s) broke a constraint or did worse "
+                              "than the start there)")  # fmt: skip
                 if result.best is None:
                     s.line = "no candidate met the constraints"
                 s.version += 1

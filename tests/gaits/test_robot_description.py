@@ -242,3 +242,22 @@ def test_the_editor_resizes_a_described_module_with_its_length() -> None:
     doc.set_robot("module_size", 0.07)
     gait = loads(doc.text())  # still valid: the length followed the size
     assert gait.robot.module_size == 0.07 and gait.robot.module.length == 0.07 and gait.robot.size[2] == 0.07
+
+
+@pytest.mark.timeout(60)
+def test_a_servo_too_stiff_for_the_timestep_is_a_divergence_not_a_run_without_end(tmp_path) -> None:
+    """A second user review: stall torque 1000 N·m and kp 10000 (both within the schema) made MuJoCo reset an
+    unstable state again and again; `gaits simulate` never ended and `gaits tune` printed nothing."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    text = caterpillar(stall_torque=1000.0, kp=10000.0)
+    with pytest.raises(FloatingPointError, match="diverged"):
+        _run(text, seconds=1.0)
+    path = tmp_path / "stiff.toml"
+    path.write_text(text, encoding="utf-8")
+    done = subprocess.run([sys.executable, "-m", "gaits.cli", "simulate", str(path), "--seconds", "1"],
+                          capture_output=True, text=True, timeout=50,
+                          cwd=Path(__file__).resolve().parents[2])  # fmt: skip
+    assert done.returncode == 1 and "diverged" in done.stderr.splitlines()[-1], done.stderr

@@ -297,6 +297,55 @@ def test_the_best_must_hold_its_constraints_over_a_longer_run_too():
     assert result.value <= 0.6 < max(result.history)
 
 
+class _Lucky(Executor):
+    """Scores without MuJoCo: in the search's short runs speed = the largest angle / 100; over a longer run a gait
+    above 60° slows to 0.01 m/s (a tumble end over end that looked fast for a moment), keeping every constraint.
+    ``interrupt_at``: Ctrl-C arrives at that longer run (counted from 1)."""
+
+    def __init__(self, interrupt_at: int = 0, refuse_above: float = 1e9) -> None:
+        self.longer = 0
+        self.interrupt_at, self.refuse_above = interrupt_at, refuse_above
+
+    def map(self, fn, *iterables, timeout=None, chunksize=1):
+        for document, setup in iterables[0]:
+            amplitude = max(abs(s["angle"]) for s in document["automata"]["wave"]["states"])
+            if setup.seconds <= 2.0:
+                yield Outcome(-amplitude / 100, amplitude / 100, "")
+                continue
+            self.longer += 1
+            if self.longer == self.interrupt_at:
+                raise KeyboardInterrupt
+            if amplitude > self.refuse_above:
+                yield Outcome(VIOLATION, amplitude / 100, "peak torque")
+            else:
+                speed = 0.01 if amplitude > 60 else amplitude / 100
+                yield Outcome(-speed, speed, "")
+
+
+def _largest(gait) -> float:
+    return max(abs(s.angle) for s in gait.automata["wave"].states)
+
+
+def test_a_score_that_does_not_hold_over_the_check_run_loses_to_the_start():
+    """A second user review: a tuned gait that tumbled end over end was written as 30 % faster (0.26 m/s in the
+    search, 0.06 m/s in its own check run, 0.006 m/s over 8 s)."""
+    result = tune(load(CATERPILLAR), [parse_free("amplitude=20:85")], SETUP, budget=30, seed=1, executor=_Lucky())
+    assert max(result.history) > 0.6, "the search found the lucky ones"
+    assert result.verified and result.best is not None
+    assert _largest(result.best) <= 60 and result.verify_value > 0.01, "the best over the check run, not the luckiest"
+    assert result.verify_value >= 0.5  # the start's 50° holds 0.5 m/s there: nothing worse is written
+
+
+def test_an_interrupted_check_never_keeps_a_leader_it_refused():
+    """A second user review: Ctrl-C during the final check wrote the candidate the check had just refused."""
+    lucky = _Lucky(interrupt_at=4, refuse_above=20)  # the first round (2 leaders and the start) all refused
+    result = tune(load(CATERPILLAR), [parse_free("amplitude=20:85")], SETUP, budget=30, seed=1, executor=lucky)
+    assert result.interrupted and not result.verified and result.verify_refused == 3
+    assert result.best is not None
+    refused = sorted(result.samples, key=lambda s: -s[1])[:2]  # the two leaders of the first round
+    assert result.values not in [values for values, _ in refused]
+
+
 @pytest.mark.parametrize(
     ("file", "setup", "frees"),
     [
@@ -335,3 +384,28 @@ def test_the_tuned_gait_is_never_written_over_the_gait_being_tuned(tmp_path):
                           text=True, timeout=120, cwd=Path(__file__).resolve().parents[2])  # fmt: skip
     assert done.returncode == 2 and "is the gait being tuned" in done.stderr, done.stderr
     assert source.read_bytes() == before
+    (tmp_path / "link.toml").hardlink_to(source)  # the same file under another name (a second review)
+    done = subprocess.run([sys.executable, "-m", "gaits.cli", "tune", str(source), "--free", "amplitude=20:85",
+                           "--budget", "2", "--out", str(tmp_path / "link.toml")], capture_output=True,
+                          text=True, timeout=120, cwd=Path(__file__).resolve().parents[2])  # fmt: skip
+    assert done.returncode == 2 and "is the gait being tuned" in done.stderr, done.stderr
+    done = subprocess.run([sys.executable, "-m", "gaits.cli", "simulate", str(source), "--seconds", "0.2",
+                           "--mjcf", str(tmp_path / "link.toml")], capture_output=True,
+                          text=True, timeout=120, cwd=Path(__file__).resolve().parents[2])  # fmt: skip
+    assert done.returncode == 2 and "is the gait file itself" in done.stderr, done.stderr
+    assert source.read_bytes() == before
+
+
+def test_no_valid_candidate_says_what_the_start_broke_and_how_to_set_the_limit(tmp_path, capsys):
+    """A second user review: the library's heavy caterpillar could not be tuned with the default flags, and the
+    error did not say why (every candidate, the start too, reaches its servos' 1.2 N·m, over the 95 % limit)."""
+    from gaits.cli import main
+
+    out = tmp_path / "heavy.toml"
+    code = main(["tune", str(LIBRARY / "caterpillar_heavy.toml"), "--free", "amplitude=5:30", "--budget", "4",
+                 "--workers", "1", "--seconds", "1", "--warmup", "0.5", "--out", str(out)])  # fmt: skip
+    err = capsys.readouterr().err
+    assert code == 1 and not out.exists()
+    assert "met the constraints; the start: peak torque" in err, err
+    assert "best speed none yet (this generation none valid" in err
+    assert "(--max-torque sets the limit: by default 95 % of the servos' stall torque)" in err

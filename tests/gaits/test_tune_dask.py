@@ -58,6 +58,44 @@ def test_a_scheduler_that_does_not_answer_is_a_clear_error(tmp_path, capsys, mon
     assert not out.exists()
 
 
+def test_a_listener_that_accepts_and_never_answers_is_a_clear_error_in_time(tmp_path, capsys, monkeypatch):
+    """A second user review: a Client made to such a listener waited for ever (5 minutes and counting)."""
+    import socket
+    import threading
+    import time
+
+    monkeypatch.setattr(gaits_distributed, "CONNECT_SECONDS", 1.0)
+    listener = socket.create_server(("127.0.0.1", 0))
+    accepted: list[socket.socket] = []
+    stop = threading.Event()
+
+    def accept() -> None:
+        listener.settimeout(0.2)
+        while not stop.is_set():
+            try:
+                accepted.append(listener.accept()[0])
+            except TimeoutError:
+                continue
+
+    thread = threading.Thread(target=accept, daemon=True)
+    thread.start()
+    address = f"tcp://127.0.0.1:{listener.getsockname()[1]}"
+    out = tmp_path / "tuned.toml"
+    try:
+        began = time.monotonic()
+        assert main(["tune", str(CATERPILLAR), *ARGS, "--scheduler", address, "--out", str(out)]) == 1
+        assert time.monotonic() - began < 30
+        assert "no answer within 1 s" in capsys.readouterr().err
+        assert accepted, "it did connect"
+        assert not out.exists()
+    finally:
+        stop.set()
+        thread.join(5)
+        for conn in accepted:
+            conn.close()
+        listener.close()
+
+
 @pytest.mark.parametrize("address", ["garbage", "inproc://x", "tls://127.0.0.1:5", "tcp://127.0.0.1:99999",
                                      "tcp://:5", "tcp://127.0.0.1:86x"])  # fmt: skip
 def test_an_address_that_is_no_scheduler_address_is_a_usage_error_at_once(address, tmp_path, capsys):
