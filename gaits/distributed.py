@@ -35,7 +35,7 @@ def _probe(address: str, seconds: float) -> None:
     listener that accepts and never answers waited for ever (its registration's reply has no timeout)."""
     import asyncio
 
-    from distributed.comm import connect
+    from distributed.comm.core import connect
 
     async def ask() -> None:
         comm = await connect(address, timeout=seconds)
