@@ -406,7 +406,9 @@ def provenance(result: Result, frees: list[Free], setup: Setup, *, budget: int, 
         f"({result.evaluations} simulated{', interrupted' if result.interrupted else ''})",
         f"gait {setup.gait}; terrains {', '.join(t.spec for t in setup.terrains)}; {setup.seconds:g} s measured after "
         f"{setup.warmup:g} s"
-        + (f"; forward = {setup.forward:g}° from +x (the start's direction)" if setup.forward is not None else ""),
+        + (
+            f"; forward = {setup.forward + 0.0:g}° from +x (the start's direction)" if setup.forward is not None else ""
+        ),
         f"score {setup.objective} {_amount(result.value, setup)} (start {start})",
         f"constraints: peak torque <= {max_torque:g} N·m (warm-up included), no fall, joint limits "
         f"(the loader's); {checked}",
