@@ -89,7 +89,12 @@ def main(argv: list[str] | None = None) -> int:
     tune.add_argument("--scheduler", metavar="ADDRESS", default=None, type=scheduler_address,
                       help="run the simulations on the Dask distributed scheduler at ADDRESS (tcp://HOST:PORT) "
                       "instead of local worker processes (gaits/distributed.py)")  # fmt: skip
-    tune.add_argument("--out", type=output_file, metavar="OUT.toml", help="the tuned gait (default: FILE.tuned.toml)")
+    tune.add_argument(
+        "--out",
+        type=output_file,
+        metavar="OUT.toml",
+        help="the tuned gait (default: NAME.tuned.toml in the current folder, NAME the file's stem; never over FILE)",
+    )
     args = cli.parse_args(argv)
     if args.command == "simulate":
         return run("gaits simulate", lambda: _simulate(args))

@@ -101,6 +101,9 @@ def check(gait: Gait, frees: list[Free]) -> None:
     names = [f.name for f in frees]
     if len(set(names)) != len(names):
         raise ValueError("a free parameter is given twice")
+    scaled = [n for n in names if (m := _AMPLITUDE.match(n)) and m.group(1)]
+    if "amplitude" in names and scaled:  # one scale over the other: one search dimension would do nothing
+        raise ValueError(f"amplitude scales every automaton's angles, {scaled[0]} one automaton's: give one of them")
     for free in frees:
         if m := _STATE.match(free.name):
             automaton = gait.automata.get(m.group(1))

@@ -468,6 +468,11 @@ def command(args: argparse.Namespace) -> int:
         print(f"gaits tune: error: --out {out} is the gait being tuned: write the tuned gait to another file",
               file=sys.stderr)  # fmt: skip
         return 2
+    try:  # the free parameters against this gait, before anything starts: a usage error, as a bad one's syntax is
+        check(gait, frees)
+    except ValueError as exc:
+        print(f"gaits tune: error: {exc}", file=sys.stderr)
+        return 2
     print(f"tuning {gait.name}: {len(frees)} free, {args.objective}, budget {args.budget}, seed {args.seed}",
           file=sys.stderr)  # fmt: skip
     progress: Progress = lambda _, line: print(line, file=sys.stderr, flush=True)  # noqa: E731

@@ -266,6 +266,14 @@ def test_a_bad_free_parameter_is_a_clear_error(text, says):
     assert says in str(caught.value)
 
 
+def test_two_names_for_one_scale_are_refused():
+    """A second user review: amplitude and automata.wave.amplitude were both searched, the file's comments then
+    disagreeing with its angles."""
+    with pytest.raises(ValueError, match="give one of them"):
+        tune(load(CATERPILLAR), [parse_free("amplitude=20:85"), parse_free("automata.wave.amplitude=30:40")], SETUP,
+             budget=2)  # fmt: skip
+
+
 def test_a_free_parameter_the_gait_lacks_is_refused():
     with pytest.raises(ValueError, match="no automaton 'legs'"):
         tune(load(CATERPILLAR), [parse_free("automata.legs.states[0].angle=0:1")], SETUP, budget=2)
@@ -409,3 +417,20 @@ def test_no_valid_candidate_says_what_the_start_broke_and_how_to_set_the_limit(t
     assert "met the constraints; the start: peak torque" in err, err
     assert "best speed none yet (this generation none valid" in err
     assert "(--max-torque sets the limit: by default 95 % of the servos' stall torque)" in err
+
+
+@pytest.mark.parametrize(
+    "frees",
+    [
+        ["amplitude=20:85", "amplitude=30:40"],
+        ["amplitude=20:85", "automata.wave.amplitude=30:40"],
+        ["automata.legs.states[0].angle=0:1"],
+    ],
+)
+def test_free_parameters_that_do_not_fit_the_gait_are_a_usage_error_before_anything_starts(frees, tmp_path, capsys):
+    from gaits.cli import main
+
+    args = [a for f in frees for a in ("--free", f)]
+    assert main(["tune", str(CATERPILLAR), *args, "--budget", "2", "--out", str(tmp_path / "t.toml")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("gaits tune: error: ") and "tuning" not in err, err
