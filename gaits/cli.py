@@ -99,7 +99,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.command == "simulate":
         return run("gaits simulate", lambda: _simulate(args))
     if args.command == "tune":
-        from .tune import command  # cma and MuJoCo load only for this command
+        from .tune_command import command  # cma and MuJoCo load only for this command
 
         return run("gaits tune", lambda: command(args))
     if args.command == "validate":

@@ -101,9 +101,10 @@ def check(gait: Gait, frees: list[Free]) -> None:
     names = [f.name for f in frees]
     if len(set(names)) != len(names):
         raise ValueError("a free parameter is given twice")
-    scaled = [n for n in names if (m := _AMPLITUDE.match(n)) and m.group(1)]
-    if "amplitude" in names and scaled:  # one scale over the other: one search dimension would do nothing
-        raise ValueError(f"amplitude scales every automaton's angles, {scaled[0]} one automaton's: give one of them")
+    scaled = {m.group(1) for n in names if (m := _AMPLITUDE.match(n)) and m.group(1)}
+    if "amplitude" in names and scaled and scaled >= set(gait.automata):  # every automaton rescaled after it
+        raise ValueError(f"amplitude scales every automaton's angles, and {', '.join(sorted(scaled))} rescale each "
+                         "of them after it: the first would do nothing (give one or the other)")  # fmt: skip
     for free in frees:
         if m := _STATE.match(free.name):
             automaton = gait.automata.get(m.group(1))
@@ -148,11 +149,18 @@ def _wavelength(gait: Gait) -> float:
     return abs((group[1].id - group[0].id) / step) if step else math.inf
 
 
+def _rank(free: Free) -> tuple[int, int]:
+    """The order free parameters are applied in: the period, then the whole gait's amplitude before one
+    automaton's (which then rescales that automaton alone), then the rest — whatever order they were given in."""
+    named = bool((m := _AMPLITUDE.match(free.name)) and m.group(1))
+    return _ORDER[free.kind], int(named)
+
+
 def apply(document: dict[str, Any], frees: list[Free], values: list[float]) -> dict[str, Any]:
     """A copy of a gait document (gaits.model.to_dict) with the free parameters set to ``values`` (rounded)."""
     doc = copy.deepcopy(document)
     automata: dict[str, Any] = doc["automata"]
-    for free, raw in sorted(zip(frees, values, strict=True), key=lambda fv: _ORDER[fv[0].kind]):
+    for free, raw in sorted(zip(frees, values, strict=True), key=lambda fv: _rank(fv[0])):
         value = free.rounded(raw)
         if m := _STATE.match(free.name):
             automata[m.group(1)]["states"][int(m.group(2))][m.group(3)] = value

@@ -21,25 +21,21 @@ deterministic, and the results come back in the order they were asked for whatev
 
 from __future__ import annotations
 
-import argparse
 import itertools
 import math
 import os
 import signal
-import sys
-import threading
 import time
 import warnings
 from collections.abc import Callable
 from concurrent.futures import Executor, ProcessPoolExecutor
 from dataclasses import dataclass, field, replace
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from .mjcf import Physics
-from .model import FORWARD, Gait, GaitError, dumps, from_dict, load, to_dict
+from .model import FORWARD, Gait, GaitError, dumps, from_dict, to_dict
 from .params import Free, apply, check, current
 from .terrain import FLAT, Terrain
 
@@ -384,7 +380,7 @@ def _line(result: Result, setup: Setup, best: Outcome | None, outcomes: list[Out
     gen = f"{best.value:.4g}" if best is not None else "none valid"
     refused = sum(not o.feasible for o in outcomes)
     return (f"generation {result.generations}: {result.evaluations} simulations, best {setup.objective} "
-            f"{'none yet' if math.isnan(result.value) else _amount(result.value, setup)} (this generation {gen}, "
+            f"{'none yet' if math.isnan(result.value) else amount(result.value, setup)} (this generation {gen}, "
             f"{refused} refused), "
             f"sigma {sigma:.3f}")  # fmt: skip
 
@@ -396,9 +392,9 @@ def provenance(result: Result, frees: list[Free], setup: Setup, *, budget: int, 
     if max_torque is None:  # a result put together before the search filled it in (the studio's, stopped early)
         max_torque = default_max_torque(result.best) if result.best is not None else math.nan
     goal = "maximised" if OBJECTIVES[setup.objective][0] > 0 else "minimised"
-    start = _amount(result.start_value, setup) if result.start_problem == "" else f"refused: {result.start_problem}"
+    start = amount(result.start_value, setup) if result.start_problem == "" else f"refused: {result.start_problem}"
     checked = (f"held again over {setup.seconds * setup.verify:g} s, {setup.objective} "
-               f"{_amount(result.verify_value, setup)} there ({result.verify_refused} leading candidates broke a "
+               f"{amount(result.verify_value, setup)} there ({result.verify_refused} leading candidates broke a "
                "constraint or did worse than the start there)"
                if result.verified else "not checked over a longer run (interrupted)")  # fmt: skip
     lines = [
@@ -409,7 +405,7 @@ def provenance(result: Result, frees: list[Free], setup: Setup, *, budget: int, 
         + (
             f"; forward = {setup.forward + 0.0:g}° from +x (the start's direction)" if setup.forward is not None else ""
         ),
-        f"score {setup.objective} {_amount(result.value, setup)} (start {start})",
+        f"score {setup.objective} {amount(result.value, setup)} (start {start})",
         f"constraints: peak torque <= {max_torque:g} N·m (warm-up included), no fall, joint limits "
         f"(the loader's); {checked}",
         *(f"free {f} = {v:g}" for f, v in zip(frees, result.values, strict=True)),
@@ -424,7 +420,8 @@ def tuned_text(result: Result, frees: list[Free], setup: Setup, *, budget: int, 
     return header + dumps(replace(result.best, description=_described(result, setup)))
 
 
-def _amount(value: float, setup: Setup) -> str:
+def amount(value: float, setup: Setup) -> str:
+    """An objective's value with its unit, as the command line, the file's comments and the page print it."""
     unit = OBJECTIVES[setup.objective][1]
     return f"{value:.4g} {unit}" if unit else f"{value:.4g}"
 
@@ -434,88 +431,5 @@ def _described(result: Result, setup: Setup) -> str:
     schema's 4096 characters however often a file is tuned again."""
     assert result.best is not None
     terrains = ", ".join(t.kind for t in setup.terrains)
-    text = f"Tuned for {setup.objective} ({_amount(result.value, setup)} on {terrains}) from: {result.best.description}"
+    text = f"Tuned for {setup.objective} ({amount(result.value, setup)} on {terrains}) from: {result.best.description}"
     return text.strip()[:4096]
-
-
-def _terminate_as_interrupt() -> threading.Event:
-    """SIGTERM raises KeyboardInterrupt in the main thread, as Ctrl-C does: the best so far is kept and written, and
-    the worker processes are shut down (killed outright, the parent would leave them orphaned). The event says a
-    SIGTERM came (exit 143, not 130)."""
-    terminated = threading.Event()
-
-    def interrupt(*_: object) -> None:
-        terminated.set()
-        raise KeyboardInterrupt
-
-    signal.signal(signal.SIGTERM, interrupt)
-    return terminated
-
-
-def command(args: argparse.Namespace) -> int:
-    """``gaits tune``: parse, search, write the best gait (also after Ctrl-C); exit 1 when nothing met the
-    constraints, 130 after an interruption."""
-    try:
-        gait = load(args.file)
-    except (GaitError, OSError) as exc:
-        print(f"gaits tune: error: {args.file}: {exc.lines()[0] if isinstance(exc, GaitError) else exc}",
-              file=sys.stderr)  # fmt: skip
-        return 1
-    frees: list[Free] = args.free
-    setup = Setup(args.objective, tuple(args.terrain or [FLAT]), args.seconds, args.warmup, args.max_torque, args.gait)
-    out = Path(args.out) if args.out else Path(Path(args.file).stem + ".tuned.toml")  # here, not beside the library
-    if out.resolve() == Path(args.file).resolve() or (out.exists() and out.samefile(args.file)):  # a hard link too
-        print(f"gaits tune: error: --out {out} is the gait being tuned: write the tuned gait to another file",
-              file=sys.stderr)  # fmt: skip
-        return 2
-    try:  # the free parameters against this gait, before anything starts: a usage error, as a bad one's syntax is
-        check(gait, frees)
-    except ValueError as exc:
-        print(f"gaits tune: error: {exc}", file=sys.stderr)
-        return 2
-    print(f"tuning {gait.name}: {len(frees)} free, {args.objective}, budget {args.budget}, seed {args.seed}",
-          file=sys.stderr)  # fmt: skip
-    progress: Progress = lambda _, line: print(line, file=sys.stderr, flush=True)  # noqa: E731
-    terminated = _terminate_as_interrupt()  # a scheduler's SIGTERM or `timeout` ends it as Ctrl-C does
-    if args.scheduler:
-        from .distributed import dask_executor
-
-        try:
-            with dask_executor(args.scheduler) as (executor, width):
-                print(f"evaluating on the Dask scheduler at {args.scheduler}: {width} worker thread(s)",
-                      file=sys.stderr)  # fmt: skip
-                result = tune(gait, frees, setup, budget=args.budget, seed=args.seed, workers=width,
-                              progress=progress, executor=executor)  # fmt: skip
-        except (OSError, RuntimeError) as exc:
-            print(f"gaits tune: error: the Dask scheduler at {args.scheduler}: {exc}", file=sys.stderr)
-            return 1
-    else:
-        result = tune(gait, frees, setup, budget=args.budget, seed=args.seed, workers=args.workers,
-                      progress=progress)  # fmt: skip
-    if result.failure:
-        print(f"gaits tune: error: the Dask scheduler at {args.scheduler} stopped answering ({result.failure}): "
-              "keeping the best so far", file=sys.stderr)  # fmt: skip
-    elif result.interrupted:
-        print("interrupted: keeping the best so far", file=sys.stderr)
-    elif result.verify_refused:
-        print(f"{result.verify_refused} leading candidate(s) broke a constraint or did worse than the start when "
-              f"run {setup.verify:g} times longer and were passed over", file=sys.stderr)  # fmt: skip
-    signal.signal(signal.SIGTERM, signal.SIG_DFL)
-    stopped = 143 if terminated.is_set() else 130
-    if result.best is None:
-        inside = "" if result.start_inside else " inside the bounds (the start lies outside them)"
-        start = f"; the start: {result.start_problem}" if result.start_problem else ""
-        hint = (" (--max-torque sets the limit: by default 95 % of the servos' stall torque)"
-                if "peak torque" in result.start_problem else "")  # fmt: skip
-        print(f"gaits tune: error: no candidate{inside} met the constraints{start}{hint}; nothing written",
-              file=sys.stderr)  # fmt: skip
-        return stopped if result.interrupted and not result.failure else 1
-    if result.start_inside and result.values == [current(gait, f) for f in frees]:
-        print("no candidate beat the start inside the bounds: the start is written again", file=sys.stderr)
-    out.write_text(tuned_text(result, frees, setup, budget=args.budget, seed=args.seed, source=Path(args.file).name),
-                   encoding="utf-8")  # fmt: skip
-    if result.verified:
-        print(f"over the {setup.seconds * setup.verify:g} s check run: {args.objective} "
-              f"{_amount(result.verify_value, setup)}", file=sys.stderr)  # fmt: skip
-    print(f"{args.objective} {_amount(result.value, setup)} (start {result.start_value:.4g}); written to {out}")
-    return 1 if result.failure else stopped if result.interrupted else 0
