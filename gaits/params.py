@@ -15,7 +15,9 @@ plain states), the generator's own parameters are applied to what the file holds
                                          the modules running one automaton, the first's phase and the direction
                                          the wave travels kept (a negative wavelength reverses it)
 
-Whole-gait parameters apply first, then single states and phases. A value is rounded (angles to 0.001°, durations
+Whole-gait parameters apply first (the period, then ``amplitude`` before an automaton's own, which rescales that
+automaton alone; an automaton amplitude for every automaton beside ``amplitude`` is refused: it would undo it), then
+single states and phases, whatever order they were given in. A value is rounded (angles to 0.001°, durations
 to 0.1 ms, phases to 1e-6) before the gait is built, so the file written is exactly the gait that was simulated.
 """
 
