@@ -19,6 +19,11 @@ puts this script and style into the page's ``<head>``:
   field of the editor (``CLICKED_FIELD``), whose update the editor takes as a selection.
 - **A double-click in a number field selects the whole number**: the browser selected a word, and ``-33.5``
   became ``33.5`` selected, so typing over it kept the minus.
+- **``?maxFps=N`` caps the page's frames** (1 to 59 a second; anything else leaves the page as it is): a browser
+  without a GPU draws WebGL in software on the CPU, and a moving robot keeps the 3D view drawing at the display's
+  rate, about a core of a laptop (bench/studio.py). The page's animation frames (``requestAnimationFrame``, which
+  the 3D view, the plots and the panels draw in) are run together at most N times a second, all callbacks of one
+  frame in one frame, so the view stays in step with itself and only its rate changes.
 """
 
 from __future__ import annotations
@@ -135,6 +140,32 @@ SCRIPT = """<script>
   window.addEventListener("dblclick", function (event) {
     if (isNumber(event.target)) event.target.select();
   }, true);
+  // ?maxFps=N: animation frames at most N a second (before the page's bundle runs, so every caller is capped)
+  var maxFps = Number(new URLSearchParams(window.location.search).get("maxFps"));
+  if (maxFps >= 1 && maxFps < 60) {
+    var nativeFrame = window.requestAnimationFrame.bind(window);
+    var interval = 1000 / maxFps, due = 0, waiting = [], timer = null, ids = 0;
+    var runFrame = function (time) {
+      var run = waiting;
+      waiting = [];
+      for (var k = 0; k < run.length; k++) run[k][1](time);
+    };
+    var flush = function () {
+      timer = null;
+      due = performance.now() + interval;
+      nativeFrame(runFrame);
+    };
+    window.requestAnimationFrame = function (callback) {
+      ids += 1;
+      waiting.push([ids, callback]);
+      if (timer === null) timer = setTimeout(flush, Math.max(0, due - performance.now()));
+      return ids;
+    };
+    window.cancelAnimationFrame = function (id) {
+      waiting = waiting.filter(function (entry) { return entry[0] !== id; });
+    };
+    window.__asmMaxFps = maxFps;
+  }
 })();
 </script>""".replace("ESTOP_KEY", ESTOP_KEY).replace("CLICKED", CLICKED_FIELD)
 
