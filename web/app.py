@@ -243,6 +243,7 @@ class Dashboard:
     def _refresh_once(self) -> None:
         self.bar.tick()
         watched = self.watched()
+        self.loop.hold(not watched)  # nobody sees the preview: it waits where it is (its CPU is the studio's most)
         if watched:
             self.preview.refresh()
             self.tuner.refresh()

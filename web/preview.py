@@ -69,6 +69,9 @@ class PreviewLoop:
         self.cursor: int | None = None
         """Index into ``frames`` shown while scrubbing; None: the live end."""
         self.playing = True
+        self.held = False
+        """Nobody looks at the page (the dashboard sets it): the simulation waits where it is, as if paused, and goes
+        on from there when a browser comes (it was half of an unwatched studio's CPU). Not the user's Play/Pause."""
         self.speed = 1.0
         self.error: str | None = None
         self.ended_at: float | None = None
@@ -81,6 +84,8 @@ class PreviewLoop:
         self._start_com = self.sim.center_of_mass()
         self._stop = threading.Event()
         self._changed = threading.Event()
+        self._wake = threading.Event()
+        """Set by a request, a hold or release, or close: a loop with nothing to simulate waits on it."""
         self._thread = threading.Thread(target=self._run, name="preview-loop", daemon=True)
         self._thread.start()
 
@@ -102,6 +107,13 @@ class PreviewLoop:
         ``seek`` (frame index), ``step`` (±1), ``reset``,
         ``drive`` ((program gait or "stop", direction)), ``signal`` (a broadcast signal number)."""
         self._requests.put((kind, value))
+        self._wake.set()
+
+    def hold(self, held: bool) -> None:
+        """Hold the simulation while nobody watches (``held``), or let it go on (see ``held``)."""
+        if held != self.held:
+            self.held = held
+            self._wake.set()
 
     def wait_changed(self, timeout: float) -> bool:
         """Wait until what :meth:`shown` returns may have changed (a frame recorded, a request handled)."""
@@ -158,6 +170,7 @@ class PreviewLoop:
 
     def close(self) -> None:
         self._stop.set()
+        self._wake.set()
         self._thread.join(timeout=10)
         self.sim.close()
 
@@ -171,10 +184,15 @@ class PreviewLoop:
                 self._handle(kind, value)
                 self._changed.set()
             now = time.monotonic()
-            if self.playing and self.cursor is not None:  # played from a scrubbed point: the recorded frames first
+            if self.held or not self.playing or (self.error is not None and self.cursor is None):
+                self._wake.wait(0.25)  # nothing to simulate or replay: wait for a request rather than poll
+                self._wake.clear()
+                last = time.monotonic()
+                continue
+            if self.cursor is not None:  # played from a scrubbed point: the recorded frames first
                 owed = min(owed + (now - last) * self.speed, 0.25)
                 owed = self._replay(owed)
-            elif self.playing and self.error is None:
+            else:
                 owed = min(owed + (now - last) * self.speed, 0.25)  # never try to catch up more than 0.25 s
                 dt = self.sim.model.opt.timestep
                 try:
