@@ -84,6 +84,7 @@ def delivered(port: int) -> float:
     from websockets.sync.client import connect
 
     with connect(f"ws://127.0.0.1:{port}", subprotocols=[f"viser-v{viser.__version__}"], max_size=None) as ws:  # type: ignore[list-item]
+        ws.send(camera_message())  # a browser's first message: viser counts a client as connected from it on
         end = time.monotonic() + 2.0  # the scene is built and the preview plays
         while time.monotonic() < end:
             ws.recv(timeout=5)
@@ -92,6 +93,18 @@ def delivered(port: int) -> float:
             received.append(ws.recv(timeout=5))
         elapsed = time.monotonic() - start
         return sum(1 for m in received if isinstance(m, bytes) and carries_poses(m)) / elapsed
+
+
+def camera_message() -> bytes:
+    """The camera a browser reports when it opens the page (viser's ViewerCameraMessage, msgpack): viser counts a
+    client as connected only from its first camera message, and the studio draws only for connected clients (it
+    draws nothing nobody sees), so a client that never sends one receives no scene updates at all."""
+    import msgspec
+
+    return msgspec.msgpack.encode({"type": "ViewerCameraMessage", "wxyz": [1.0, 0.0, 0.0, 0.0],
+                                   "position": [0.6, -1.2, 0.6], "fov": 1.0, "near": 0.01, "far": 100.0,
+                                   "image_height": 800, "image_width": 1280, "look_at": [0.0, 0.0, 0.05],
+                                   "up_direction": [0.0, 0.0, 1.0]})  # fmt: skip
 
 
 def deploy_from_outside(path: Path, endpoint: str) -> None:
