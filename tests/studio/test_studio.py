@@ -258,15 +258,6 @@ def test_a_held_preview_waits_where_it_is_and_goes_on_from_there():
         loop.close()
 
 
-def test_an_unwatched_studio_holds_its_preview_and_a_browser_releases_it(studio):
-    """The dashboard holds the preview while no browser is connected (and the tests' ``draw_unwatched`` is off)."""
-    app = studio.app
-    app.draw_unwatched = False
-    assert wait_until(lambda: app.loop.held, timeout=5)
-    app.draw_unwatched = True  # as a browser connected: watched again
-    assert wait_until(lambda: not app.loop.held, timeout=5)
-
-
 def test_a_plot_exported_as_csv_reads_back_as_what_it_shows():
     import csv
     from collections import deque
