@@ -152,14 +152,13 @@ class Simulation:
             raise ValueError("emulated modules need a bus (a robot process's), not a preview's hub")
         self.gait = gait
         self.lock = threading.RLock()
-        self.physics = physics or Physics.of(gait.robot, friction=gait.ground.friction,
-                                             anisotropic=gait.ground.anisotropic)  # fmt: skip
+        self.physics = physics or Physics(friction=gait.ground.friction, anisotropic=gait.ground.anisotropic)
         self.terrain = terrain
         self.mjcf = build_mjcf(gait.robot, self.physics, name=gait.name, terrain=terrain)
         self.model = mujoco.MjModel.from_xml_string(self.mjcf)
         self.data = mujoco.MjData(self.model)
-        self._servo = None if self.physics.ideal_servo else Servo(self.model, self.physics)
-        """The torque-speed line and deadband (gaits/servo.py); None for an ideal servo: MuJoCo's actuator alone."""
+        self._servo = None if gait.robot.ideal_servo else Servo(self.model, gait.robot)
+        """The torque-speed lines and deadbands (gaits/servo.py); None for ideal servos: MuJoCo's actuators alone."""
         self.clock = SimClock()
         self.tick = Event("gait.tick", codec="float64", clock=self.clock)
         self.steps_per_tick = max(1, round(1.0 / (control_rate * self.model.opt.timestep)))
@@ -178,6 +177,9 @@ class Simulation:
         self._nodes: list[Node] = []
         self._push: tuple[float, np.ndarray] | None = None
         self.peak_torque = 0.0
+        self.peak_load = 0.0
+        """The largest |torque| / stall torque of its module's servo since the last measurement began."""
+        self._stall = np.array([t.stall_torque for t in gait.robot.every_module()])
         self.fell_seen = False
         """The robot has fallen (see ``fell``) at some instant since the last measurement began."""
         self.energy = 0.0
@@ -318,6 +320,7 @@ class Simulation:
             steps -= n
             force = self.data.actuator_force
             self.peak_torque = max(self.peak_torque, float(np.abs(force).max(initial=0.0)))
+            self.peak_load = max(self.peak_load, float((np.abs(force) / self._stall).max(initial=0.0)))
             self.fell_seen = self.fell_seen or self.fell()
             dt = n * self.model.opt.timestep
             self.energy += float(np.abs(force * self.data.actuator_velocity).sum()) * dt
@@ -386,9 +389,9 @@ class Simulation:
         end = self.center_of_mass()
         robot = self.gait.robot
         return Metrics(seconds, (float(end[0] - start[0]), float(end[1] - start[1])),
-                       robot.modules * robot.module_size, self.peak_torque, self.fell_seen or self.fell(),
+                       robot.length, self.peak_torque, self.fell_seen or self.fell(),
                        real_time_factor,
-                       self.energy, float(self.model.body_mass.sum()), self.turned)  # fmt: skip
+                       self.energy, float(self.model.body_mass.sum()), self.turned, self.peak_load)  # fmt: skip
 
     def fell(self) -> bool:
         xmat = self.data.xmat[self._root].reshape(3, 3)
@@ -404,7 +407,7 @@ class Simulation:
             self.start()
         self.advance(warmup)
         start = self.center_of_mass()
-        self.peak_torque = self.energy = self.turned = 0.0
+        self.peak_torque = self.peak_load = self.energy = self.turned = 0.0
         self.fell_seen = False
         if push_at is not None and push_at > warmup:
             self.advance(push_at - warmup)
