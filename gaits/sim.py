@@ -128,6 +128,8 @@ class Simulation:
     actuator, on that bus (they need one: a board has no in-process hub), run up to the simulation's time at every
     tick; an ID in both is emulated; ``board_flash`` (asm_module.board_batch) keeps boards that boot with no ID.
     ``modules`` holds every kind by chain position (its joint), driven through one interface (asm_module.module).
+    Each Python or C module reports its type's name from the gait's robot description (``module.type``); an
+    emulated board reports its own port's.
     ``lock`` guards the model and data: the stepping thread holds it per control period, and a module's joint
     driver takes it, so a request arriving on a bus thread never touches MjData in the middle of a step.
     """
@@ -206,10 +208,11 @@ class Simulation:
                     driver=driver, clock=self.clock, tick=self.tick, hardware_range=gait.limits, serial=serial,
                     settings=flash, **dict(bus_options or {}))  # fmt: skip
                 continue
+            kind = gait.robot.type_name(assignment.id)  # what the module reports as its module.type
             if assignment.id in c_modules:
                 self.modules[assignment.id] = CModule(module_name(assignment.id), assignment.id, driver=driver,
                                                       clock=self.clock, tick=self.tick, hardware_range=gait.limits,
-                                                      hub=hub if bus_options is None else None,
+                                                      hub=hub if bus_options is None else None, module_type=kind,
                                                       **dict(bus_options or {}))  # fmt: skip
                 continue
             node = node_of(assignment.id) if node_of is not None else None
@@ -217,7 +220,8 @@ class Simulation:
                 self._nodes.append(node)
             self.modules[assignment.id] = ModuleRuntime(driver, node=node, clock=self.clock, tick=self.tick,
                                                         limits=gait.limits, ramp=ramp, inline=True,
-                                                        module_id=assignment.id, neighbours=hub)  # fmt: skip
+                                                        module_id=assignment.id, neighbours=hub,
+                                                        module_type=kind)  # fmt: skip
         mujoco.mj_forward(self.model, self.data)
         self._yaw = self.yaw()
 

@@ -1,6 +1,6 @@
 """Module types by name (issue 30 part 1): a robot of several module types, in the gait's ``[robot]`` or a robot file
 it names, each module simulated by its own type's mass, size, inertia and servo; the library's robots build exactly
-the model they built before types existed."""
+the model they built before types existed. A simulated module reports its type (``module.type``, part 2)."""
 
 from __future__ import annotations
 
@@ -13,12 +13,18 @@ import mujoco
 import numpy as np
 import pytest
 
+from asm_module.calibration import TYPE_NAME
+from asm_py import Node
+from asm_py.transport.can import CanTransport
 from gaits.mjcf import Physics, build_mjcf
 from gaits.model import LIBRARY, ModuleType, Robot, dumps, from_dict, load, loads, to_dict
 from gaits.roundtrip import annotated
 from gaits.sim import Metrics, Simulation
 from gaits.terrain import parse
 from gaits.tune import Setup, default_max_torque, evaluate
+from gaits.validate import SCHEMA
+from tests.helpers import wait_until
+from tests.transports import fresh_name
 
 pytestmark = pytest.mark.timeout(120)
 CATERPILLAR = (LIBRARY / "caterpillar.toml").read_text(encoding="utf-8")
@@ -341,3 +347,31 @@ def test_a_named_default_types_length_sizes_the_robot() -> None:
     gait = loads(CATERPILLAR.replace("module_size = 0.05\n", 'type = "long"\n[robot.types.long]\nlength = 0.08\n', 1))
     assert gait.robot.module_size == 0.08 and gait.robot.length == pytest.approx(8 * 0.08)
     assert math.isclose(loads(caterpillar("[robot.types.long]\nlength = 0.08\nids = [1]\n")).robot.length, 0.43)
+
+
+# -- module.type ----------------------------------------------------------------------------------------------------
+
+
+def test_the_gait_schema_and_the_module_runtime_agree_on_a_name() -> None:
+    """Stated twice (gaits/schema.json for a file, asm_module for a module): the same rule."""
+    schema = SCHEMA["$defs"]["type_name"]
+    assert schema["pattern"] == "^" + TYPE_NAME.pattern.replace("{0,31}", "*") + "$" and schema["maxLength"] == 32
+
+
+def test_a_simulated_robots_modules_report_their_gaits_types() -> None:
+    """asm-robot --sim: each module, Python or C, reports the type its gait's description gives it."""
+    text = (LIBRARY / "caterpillar.toml").read_text(encoding="utf-8").replace(
+        "module_size = 0.05\n", 'module_size = 0.05\ntype = "light"\n[robot.types.light]\n[robot.types.heavy]\n'
+        "mass = 0.6\nids = [2, 5]\n", 1)  # fmt: skip
+    channel = fresh_name("sim-types")
+    bus = {"interface": "virtual", "channel": channel}
+    tool = Node("tool", CanTransport(100, heartbeat_period=0.1, **bus))
+    sim = Simulation(loads(text), node_of=lambda i: Node(f"m{i}", CanTransport(i, **bus)), c_modules=[4, 5],
+                     bus_options=bus)  # fmt: skip
+    try:
+        assert wait_until(lambda: len(tool.discover()) >= 8, timeout=20)
+        reported = {k: tool.lookup(f"m{k}", "module.type", timeout=5).get(timeout=5) for k in range(1, 9)}
+        assert reported == {k: "heavy" if k in (2, 5) else "light" for k in range(1, 9)}  # m4, m5: the C runtime
+    finally:
+        sim.close()
+        tool.close()
