@@ -314,11 +314,15 @@ class GaitDocument:
 
 
 def _resize_module(data: dict[str, Any], size: Any) -> None:
-    """A new module size; a described module's length (``[robot.module]``) is the same number, so it follows."""
-    data["robot"]["module_size"] = size
-    module = data["robot"].get("module")
-    if isinstance(module, dict) and "length" in module:
-        module["length"] = size
+    """A new module size; the default type's length (``[robot.module]``'s, or the named type ``robot.type`` names)
+    is the same number, so it follows."""
+    robot = data["robot"]
+    robot["module_size"] = size
+    types = robot.get("types")
+    named = types.get(robot.get("type")) if isinstance(types, dict) and isinstance(robot.get("type"), str) else None
+    for module in (robot.get("module"), named):
+        if isinstance(module, dict) and "length" in module:
+            module["length"] = size
 
 
 def _resize(data: dict[str, Any], count: int, spare: dict[Any, dict[str, Any]]) -> None:

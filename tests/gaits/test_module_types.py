@@ -225,6 +225,15 @@ def test_the_editor_keeps_the_robot_file_and_validates_against_it(tmp_path: Path
     assert not doc.problems
 
 
+def test_the_editor_resizes_a_named_default_type_with_its_length() -> None:
+    from web.document import GaitDocument
+
+    text = CATERPILLAR.replace("module_size = 0.05\n", 'type = "long"\n[robot.types.long]\nlength = 0.05\n', 1)
+    doc = GaitDocument(loads(text), text=text)
+    doc.set_robot("module_size", 0.07)
+    assert not doc.problems and doc.gait().robot.module.length == 0.07 == doc.gait().robot.module_size
+
+
 def test_a_gait_read_without_its_folder_cannot_name_a_robot_file() -> None:
     with pytest.raises(Exception, match=r"robot\.file: this gait has no folder to find 'robot\.toml'"):
         loads(caterpillar('file = "robot.toml"\n'))
