@@ -139,8 +139,9 @@ class Studio:
         self.options = options
         self.c_modules = options.c_modules
         raw = read(options.gait)  # once: the gait, and its text for a download that keeps its comments
-        self.gait: Gait = loads(raw, source=str(options.gait))
+        self.gait: Gait = loads(raw, source=str(options.gait), path=options.gait)
         self.gait_text: str | None = raw.decode("utf-8-sig")  # it decoded as the gait above
+        self.gait_path: Path | None = options.gait
         self.child: RobotChild | None = None
         self.own_robot: str | None = None
         """The name of the robot this studio started (and restarts should it die); None when attached."""
@@ -200,7 +201,7 @@ class Studio:
                 handle, path = tempfile.mkstemp(prefix="asm-studio-robot-", suffix=".toml")
                 os.close(handle)
                 self._gait_file = Path(path)
-            self._gait_file.write_text(dumps(gait))
+            self._gait_file.write_text(dumps(gait, inline=True))  # a temporary file: no robot file beside it
             args += ["--sim", str(self._gait_file)]
             if options.c_modules:
                 args += ["--c-modules", options.c_modules]

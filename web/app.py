@@ -64,7 +64,7 @@ class Dashboard:
         self.guard = AccessGuard(host, token)
         self.server = guarded_server(self.guard, host=host, port=port, label="ASM Studio", verbose=False)
         self.port = self.server.get_port()
-        self.doc = GaitDocument(studio.gait, text=studio.gait_text)
+        self.doc = GaitDocument(studio.gait, text=studio.gait_text, path=studio.gait_path)
         self.loop = PreviewLoop(studio.gait, c_modules=studio.c_modules)
         self.view = SceneView(self.server, self.loop, link.feed)
         self.page = Page(self.server, studio, link, self.doc, self.loop, self.view)
