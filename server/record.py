@@ -8,8 +8,9 @@ Why a separate process: a recorder is a tool that joins a robot's network like a
 namespace, docs/protocol.md §6) and only listens — it needs no lease, sends nothing, and can be started and killed
 without touching the robot. What it records (channels and schemas: docs/protocol.md §11):
 
-- every attribute and event publication, decoded (the bridge's JSON view ``asm/<robot>/<node>/json/<object>``),
-  one channel per object (``/m3/joint.angle``);
+- every attribute and event publication, decoded: the binary publication ``asm/<robot>/<node>/pub/<object>``
+  written as its JSON view (server/record_values.py: taking the views would make the robot format them), one
+  channel per object (``/m3/joint.angle``);
 - the pose feed as ``foxglove.FrameTransforms`` and the bodies as a ``foxglove.SceneUpdate`` (server/foxglove_msgs.py),
   so Foxglove's 3D panel shows the robot moving;
 - the robot's status, its e-stops and the lab's, and group messages (a deploy's activation, a drive's goals);
@@ -41,11 +42,17 @@ from asm_py.keys import RobotKeys, lab_estop, split
 from asm_py.protocol import ProtocolError, decode
 
 from . import foxglove_msgs as fx
+from .bridge_outlets import stamp_seconds
 from .mcap_files import Attachment, McapFiles, RecordingInfo, SchemaDef
+from .record_values import Objects, Publications, values_key
 from .zenoh_args import ZenohOptions, add_zenoh_arguments, zenoh_options
 
 QUEUE_BOUND = 50_000
 """Samples waiting for the writer; beyond it a sample is dropped and counted (a stalled disk must not grow memory)."""
+CHANNEL = 10_000
+"""Publications Zenoh holds for the receiving thread (a FIFO: when full, Zenoh waits). That thread only moves them
+into the writer's queue, where the bound above is kept and counted."""
+RECEIVE_PERIOD = 0.002
 WRITER_PERIOD = 0.02
 """Seconds the writer sleeps when nothing waits: it takes what arrived meanwhile in one batch. Waking it per sample
 (a queue.Queue's condition) cost a lock hand-off per message, at 6,000 a second a large part of the recorder's CPU;
@@ -109,22 +116,31 @@ class Recorder:
         self.bodies = fx.bodies(mjcf)
         self.counts: Counter[str] = Counter()
         """Messages written, per topic."""
-        self.dropped = 0
+        self._overflow = 0
+        """Samples dropped because the queue was full (counted by the receiving threads)."""
+        self._refused = 0
+        """Samples that were not what their key says (counted by the writer)."""
         self._pending: deque[tuple[Any, ...]] = deque()
-        """(handler, its arguments…, the arrival time in ns) per sample: appended on Zenoh's threads, taken by the
-        writer (a deque's append and popleft are atomic, no lock)."""
+        """(handler, its arguments…, the arrival time in ns) per sample, or per batch of publications: appended on
+        the receiving threads, taken by the writer (a deque's append and popleft are atomic, no lock)."""
+        self._received = 0
+        self._taken = 0
+        """Publications queued by the receiving thread and taken by the writer, each counted by its one thread: the
+        difference is what waits."""
         self._closing = False
-        self._topics: dict[str, str] = {}
-        """A JSON view's key → its channel (``/m3/joint.angle``): worked out once per key, not per message."""
         self._scene_file = -1
+        self.objects = Objects(session, robot, self._post, self._write_value)
         files.on_new_file = self._new_file
         self._new_file()
         keys = RobotKeys(robot)
-        # zenoh-python's default handler (a Python thread per subscriber), not direct callbacks on Zenoh's own
-        # threads: measured with 3,000 views a second, a direct callback cost more CPU a message (52 µs against
-        # 41-45 µs in all; why, not profiled). Either way a callback only appends to a deque and never blocks.
+        # The publications, by far the most frequent, through a channel that one thread of ours empties in batches:
+        # zenoh-python's default handler runs a Python thread per subscriber that takes the GIL once per sample.
+        # The rest through that default handler (a callback only appends to the deque and never blocks).
+        values = session.declare_subscriber(values_key(robot), zenoh.handlers.FifoChannel(CHANNEL))
+        self._receiver = threading.Thread(target=self._receive, args=(values.handler,), name="asm-record-receive",
+                                          daemon=True)  # fmt: skip
         self._subs = [
-            session.declare_subscriber(keys.json_view("*", "*"), self._on_json),
+            values,
             session.declare_subscriber(poses_key(robot), self._on_poses),
             session.declare_subscriber(status_key(robot), self._on_status),
             session.declare_subscriber(keys.estop("*"), lambda s: self._on_estop(s, "robot")),
@@ -133,20 +149,50 @@ class Recorder:
         ]
         self._writer = threading.Thread(target=self._write_loop, name="asm-record-writer", daemon=True)
         self._writer.start()
+        self._receiver.start()
 
-    # -- Zenoh threads: take the sample, nothing more -------------------------------------------------------------
+    @property
+    def queued(self) -> int:
+        """Publications waiting for the writer."""
+        return self._received - self._taken
+
+    @property
+    def dropped(self) -> int:
+        """Samples not recorded: the queue was full, or a payload was not what its key says."""
+        return self._overflow + self._refused + self.objects.dropped
+
+    # -- receiving threads: take the sample, nothing more ---------------------------------------------------------
 
     def _enqueue(self, handler: Callable[..., None], *args: Any) -> None:
         if len(self._pending) >= QUEUE_BOUND:
-            self.dropped += 1
+            self._overflow += 1
         else:
             self._pending.append((handler, *args, time.time_ns()))
 
-    def _on_json(self, sample: zenoh.Sample) -> None:  # the most frequent by far: _enqueue inlined
-        if len(self._pending) >= QUEUE_BOUND:
-            self.dropped += 1
-        else:
-            self._pending.append((self._write_json, str(sample.key_expr), sample.payload.to_bytes(), time.time_ns()))
+    def _post(self, handler: Callable[..., None], *args: Any) -> None:
+        """Run ``handler(*args)`` on the writer thread, after what is queued (not bounded: lookups' answers)."""
+        self._pending.append((handler, *args))
+
+    def _receive(self, channel: zenoh.handlers.Handler[zenoh.Sample]) -> None:
+        """Moves the publications into the writer's queue, all that waits at once: one wake-up and one queue entry
+        for a batch. Ends when the subscriber is undeclared (the channel says it is closed once empty)."""
+        recv, try_recv, pending = channel.recv, channel.try_recv, self._pending
+        while True:
+            try:
+                batch = [recv()]
+            except zenoh.ZError:
+                return
+            ns = time.time_ns()
+            while (sample := try_recv()) is not None:
+                batch.append(sample)
+            room = QUEUE_BOUND - (self._received - self._taken)
+            if len(batch) > room:
+                self._overflow += len(batch) - max(0, room)
+                batch = batch[: max(0, room)]
+            if batch:
+                self._received += len(batch)
+                pending.append((self._write_values, batch, ns))
+            time.sleep(RECEIVE_PERIOD)
 
     def _on_poses(self, sample: zenoh.Sample) -> None:
         self._enqueue(self._write_poses, sample.payload.to_bytes())
@@ -178,7 +224,7 @@ class Recorder:
             try:
                 item[0](*item[1:])
             except (ValueError, KeyError, IndexError, ProtocolError):
-                self.dropped += 1  # a payload that is not what its key says: not recorded, counted
+                self._refused += 1  # a payload that is not what its key says: not recorded, counted
             except OSError as exc:  # the disk: nothing more can be written, so say so and end the recording
                 self.error = exc
                 if self.on_error is not None:
@@ -189,16 +235,27 @@ class Recorder:
         self.files.write(topic, schema, data, ns, publish_ns, seq)
         self.counts[topic] += 1
 
-    def _write_json(self, key: str, data: bytes, ns: int) -> None:
-        view = json.loads(data)
-        if not isinstance(view, dict) or "value" not in view:
-            raise ValueError("not a JSON view")
-        topic = self._topics.get(key)
-        if topic is None:
-            chunks = split(key)  # asm/<robot>/<node>/json/<object>
-            topic = self._topics[key] = fx.attribute_topic(chunks[2], chunks[4])
-        published = int(float(view.get("t", 0)) * 1e9)
-        self._put(topic, ATTRIBUTE, data, ns, published, int(view.get("seq", 0)))
+    def _write_values(self, batch: list[zenoh.Sample], ns: int) -> None:
+        """A batch of publications, each written as its JSON view; ``t`` is the publication's Zenoh timestamp (the
+        bridge's time when it put it), or its arrival here when it has none."""
+        self._taken += len(batch)
+        resolve, write = self.objects.resolve, self._write_value
+        arrived = ns / 1e9
+        for sample in batch:
+            stamp = sample.timestamp
+            t = arrived if stamp is None else stamp_seconds(stamp)
+            key, data = str(sample.key_expr), sample.payload.to_bytes()
+            publications = resolve(key, data, t, ns)
+            if publications is not None:
+                write(publications, data, t, ns)
+
+    def _write_value(self, publications: Publications, data: bytes, t: float, ns: int) -> None:
+        try:
+            view = publications.view(data, t)
+        except ValueError:
+            self._refused += 1  # a payload that is not what its key says: not recorded, counted
+            return
+        self._put(publications.topic, ATTRIBUTE, view, ns, int(t * 1e9), data[1])
 
     def _new_file(self, ns: int = 0) -> None:
         """Every file starts with the bodies it draws (when the robot's model is known)."""
@@ -235,6 +292,7 @@ class Recorder:
             except zenoh.ZError:
                 pass
         self._subs.clear()
+        self._receiver.join(10)  # the channel emptied into the queue
         self._closing = True  # the writer writes what is pending, then ends (at once if it stopped on an error)
         self._writer.join(10)
         if self.error is not None:

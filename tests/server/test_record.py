@@ -23,6 +23,7 @@ from mcap.exceptions import EndOfFile, McapError
 from mcap.reader import NonSeekingReader, make_reader
 
 from asm_py.node import Node
+from asm_py.protocol import Kind, Method, first_byte
 from asm_py.transport.zenoh import ZenohTransport
 from gaits.deploy import deploy
 from gaits.model import LIBRARY, load
@@ -167,6 +168,11 @@ def test_the_protobuf_reader_reads_what_foxglove_sdk_writes() -> None:
 
 
 # -- the recorder --------------------------------------------------------------------------------------------------
+
+
+def publication(class_id: int, object_id: int, value: bytes, seq: int = 5) -> bytes:
+    """A publication message as a node puts it on ``asm/<robot>/<node>/pub/<object>``."""
+    return bytes((first_byte(Kind.PUBLICATION, Method.PUBLISH), seq, class_id, object_id)) + value
 
 
 def test_a_recording_of_the_running_caterpillar_holds_what_was_published(robot: Robot, tmp_path: Path) -> None:
@@ -360,7 +366,7 @@ def test_a_write_error_while_recording_ends_the_recording_with_it(tmp_path: Path
     stopped = threading.Event()
     try:
         recorder = Recorder(session, "robot", Filling(tmp_path / "x.mcap", RecordingInfo({})), None, stopped.set)
-        session.put("asm/robot/m1/json/joint.angle", json.dumps({"node": "m1", "object": "joint.angle", "value": 1.0}))
+        session.put("asm/robot/m1/pub/joint.angle", publication(0x11, 3, struct.pack("<f", 1.0)))
         assert stopped.wait(10)
         with pytest.raises(OSError, match=r"the recording stopped: cannot write .*x\.mcap: No space left on device"):
             recorder.close()

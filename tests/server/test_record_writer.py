@@ -4,7 +4,8 @@
   the same bytes, whatever the messages (many channels, log times out of order, empty and chunk-sized payloads,
   extreme times and sequence numbers);
 - the Recorder takes samples on Zenoh's threads into a bounded deque a writer drains in batches: closing writes
-  everything taken, and beyond the bound samples are dropped and counted, not held.
+  everything taken, and beyond the bound samples are dropped and counted, not held (the publications, written as
+  their JSON views: tests/server/test_record_values.py).
 """
 
 from __future__ import annotations
@@ -12,6 +13,7 @@ from __future__ import annotations
 import io
 import json
 import random
+import struct
 import threading
 from pathlib import Path
 
@@ -19,6 +21,7 @@ import pytest
 from mcap.reader import make_reader
 from mcap.writer import Writer
 
+from asm_py.protocol import Kind, Method, first_byte
 from server import record
 from server.mcap_files import FastWriter, McapFiles, RecordingInfo
 from server.record import Recorder
@@ -55,8 +58,9 @@ def test_the_fast_writer_writes_the_same_bytes_as_mcaps(chunk_size: int) -> None
     assert sorted(read) == sorted((log, data, seq) for _, log, data, _, seq in messages)
 
 
-def _view(node: str, seq: int) -> str:
-    return json.dumps({"node": node, "object": "joint.angle", "seq": seq, "t": 1.5, "value": seq})
+def _publication(seq: int, value: float) -> bytes:
+    """joint.angle's publication (class 0x11, float32) as a module puts it."""
+    return bytes((first_byte(Kind.PUBLICATION, Method.PUBLISH), seq & 0x7F, 0x11, 3)) + struct.pack("<f", value)
 
 
 @pytest.fixture
@@ -70,18 +74,19 @@ def test_closing_writes_every_sample_taken_in_order(session, tmp_path: Path) -> 
     out = tmp_path / "all.mcap"
     recorder = Recorder(session, "robot", McapFiles(out, RecordingInfo({})), None)
     try:
-        for seq in range(3000):
-            session.put(f"asm/robot/m{seq % 7}/json/joint.angle", _view(f"m{seq % 7}", seq))
-        session.put("asm/robot/m1/json/joint.angle", b"\xff not json")  # hostile: counted as dropped
-        session.put("asm/robot/m1/json/joint.angle", b"[1, 2]")  # JSON, but not a view
+        for k in range(3000):
+            session.put(f"asm/robot/m{k % 7}/pub/joint.angle", _publication(k, float(k)))
+        session.put("asm/robot/m1/pub/joint.angle", b"\xff not a publication")  # hostile: counted as dropped
+        session.put("asm/robot/m1/pub/joint.angle", _publication(1, 1.0)[:-1])  # a float32 of 3 bytes
         assert wait_until(lambda: sum(recorder.counts.values()) + recorder.dropped >= 3002, timeout=60)
     finally:
         recorder.close()
     assert recorder.dropped == 2
     with out.open("rb") as f:
-        seqs = [json.loads(m.data)["seq"] for _, c, m in make_reader(f).iter_messages(log_time_order=False)
-                if c.topic.startswith("/m")]  # fmt: skip
-    assert seqs == list(range(3000))
+        views = [json.loads(m.data) for _, c, m in make_reader(f).iter_messages(log_time_order=False)
+                 if c.topic.startswith("/m")]  # fmt: skip
+    assert [v["value"] for v in views] == list(range(3000))
+    assert [v["seq"] for v in views] == [k & 0x7F for k in range(3000)]
 
 
 def test_beyond_the_bound_samples_are_dropped_and_counted_not_held(
@@ -99,12 +104,12 @@ def test_beyond_the_bound_samples_are_dropped_and_counted_not_held(
 
     recorder = Recorder(session, "robot", Stalled(tmp_path / "s.mcap", RecordingInfo({})), None)
     try:
-        session.put("asm/robot/m1/json/joint.angle", _view("m1", 0))
+        session.put("asm/robot/m1/pub/joint.angle", _publication(0, 0.0))
         assert entered.wait(30)
-        for seq in range(1, 501):
-            session.put("asm/robot/m1/json/joint.angle", _view("m1", seq))
-        assert wait_until(lambda: recorder.dropped + len(recorder._pending) >= 500, timeout=60)
-        assert len(recorder._pending) == 50 and recorder.dropped == 450
+        for k in range(1, 501):
+            session.put("asm/robot/m1/pub/joint.angle", _publication(k, float(k)))
+        assert wait_until(lambda: recorder.dropped + recorder.queued >= 500, timeout=60)
+        assert recorder.queued == 50 and recorder.dropped == 450
     finally:
         release.set()
         recorder.close()
