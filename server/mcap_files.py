@@ -23,6 +23,7 @@ import struct
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
+from itertools import chain
 from pathlib import Path
 from typing import IO, Any, cast
 
@@ -103,6 +104,19 @@ class _Unbuffered:
 _MESSAGE_HEADER = struct.Struct("<BQHIQQ")
 """A Message record up to its data: opcode, record length, channel, sequence, log time, publish time."""
 _FINALIZE_CHUNK: Callable[[Writer], None] | None = vars(Writer).get("_Writer__finalize_chunk")
+_INDEX_HEADER = struct.Struct("<BQHI")
+"""A MessageIndex record up to its entries: opcode, record length, channel, the entries' length."""
+
+
+class _MessageIndex(MessageIndex):
+    """mcap's MessageIndex, written in two ``struct.pack`` calls instead of two per entry: the same bytes. A chunk
+    ends with one per channel, and a 128-module robot's chunk holds a few hundred messages of hundreds of channels
+    (a tenth of the recorder's writing, measured with py-spy)."""
+
+    def write(self, stream: Any) -> None:
+        entries = len(self.records)
+        stream.write(_INDEX_HEADER.pack(Opcode.MESSAGE_INDEX, 6 + 16 * entries, self.channel_id, 16 * entries))
+        stream.write(struct.pack(f"<{2 * entries}Q", *chain.from_iterable(self.records)))
 
 
 class FastWriter(Writer):
@@ -131,7 +145,7 @@ class FastWriter(Writer):
             builder.message_end_time = log_time
         index = builder.message_indices.get(channel_id)
         if index is None:
-            index = builder.message_indices[channel_id] = MessageIndex(channel_id=channel_id, records=[])
+            index = builder.message_indices[channel_id] = _MessageIndex(channel_id=channel_id, records=[])
         index.records.append((log_time, buffer.tell()))
         builder.num_messages += 1
         buffer.write(_MESSAGE_HEADER.pack(Opcode.MESSAGE, 22 + len(data), channel_id, sequence, log_time,
