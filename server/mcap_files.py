@@ -34,7 +34,7 @@ from mcap.records import Channel, Message, MessageIndex, Schema
 from mcap.writer import Writer
 
 LIBRARY = "asm-record"
-CHUNK_SIZE = 64 * 1024
+CHUNK_SIZE = 1024 * 1024
 _SUMMARY_BASE = 600
 """Statistics, summary offsets, data end, footer, magic and the metadata indexes, with room to spare (bytes)."""
 _CHUNK_INDEX = 100
@@ -126,13 +126,22 @@ class FastWriter(Writer):
     their private attributes; where those are not there (another mcap version), the library's own method runs.
     tests/server/test_record.py checks that both write the same file."""
 
-    def add_message(self, channel_id: int, log_time: int, data: bytes, publish_time: int, sequence: int = 0) -> None:
+    def __init__(self, output: IO[bytes], **options: Any) -> None:
+        super().__init__(output, **options)
         state = self.__dict__
         builder, statistics = state.get("_Writer__chunk_builder"), state.get("_Writer__statistics")
-        buffer = getattr(getattr(builder, "record_writer", None), "_buffer", None)
         chunk_size = state.get("_Writer__chunk_size")
-        if builder is None or statistics is None or buffer is None or chunk_size is None or _FINALIZE_CHUNK is None:
+        self._fast: tuple[Any, Any, int] | None = None
+        """The library's chunk builder, statistics and chunk size (each made once, in its ``__init__``)."""
+        if None not in (builder, statistics, chunk_size, _FINALIZE_CHUNK) and hasattr(builder, "record_writer"):
+            self._fast = (builder, statistics, cast(int, chunk_size))
+
+    def add_message(self, channel_id: int, log_time: int, data: bytes, publish_time: int, sequence: int = 0) -> None:
+        fast = self._fast
+        buffer = getattr(fast[0].record_writer, "_buffer", None) if fast is not None else None
+        if fast is None or buffer is None:
             return super().add_message(channel_id, log_time, data, publish_time, sequence)
+        builder, statistics, chunk_size = fast
         if statistics.message_count == 0 or log_time < statistics.message_start_time:
             statistics.message_start_time = log_time
         if log_time > statistics.message_end_time:
@@ -146,12 +155,14 @@ class FastWriter(Writer):
         index = builder.message_indices.get(channel_id)
         if index is None:
             index = builder.message_indices[channel_id] = _MessageIndex(channel_id=channel_id, records=[])
-        index.records.append((log_time, buffer.tell()))
+        position = buffer.tell()
+        index.records.append((log_time, position))
         builder.num_messages += 1
         buffer.write(_MESSAGE_HEADER.pack(Opcode.MESSAGE, 22 + len(data), channel_id, sequence, log_time,
                                           publish_time))  # fmt: skip
         buffer.write(data)
-        if buffer.tell() > chunk_size:
+        if position + _MESSAGE_HEADER.size + len(data) > chunk_size:
+            assert _FINALIZE_CHUNK is not None
             _FINALIZE_CHUNK(self)
 
 
@@ -224,7 +235,7 @@ class McapFiles:
 
     def write(self, topic: str, schema: SchemaDef, data: bytes, log_ns: int, publish_ns: int = 0, seq: int = 0) -> None:
         """One message on ``topic`` (its channel and schema are declared in the current file the first time)."""
-        if self._full(len(data)):
+        if self.max_bytes is not None and self._full(len(data)):
             self._finish()
             self._index += 1
             self._open()
@@ -247,8 +258,9 @@ class McapFiles:
         self._in_file += 1
         if time.monotonic() - self._flushed >= self.flush_seconds:
             self.flush()
-        if self._size() > self._written:  # a chunk was written: the summary will index it
-            self._written = self._size()
+        size = self._stream.tell() if self._stream is not None else 0
+        if size > self._written:  # a chunk was written: the summary will index it
+            self._written = size
             self._summary += _CHUNK_INDEX + _PER_CHANNEL * len(self._channels)
 
     @property
