@@ -28,7 +28,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from asm_py.protocol import Kind, Method, first_byte
 from server.child import free_port
 from server.mcap_files import McapFiles, RecordingInfo
-from server.record import Recorder
+from server.record import CHUNK_SIZE, Recorder
 from server.zenoh_args import ZenohOptions
 
 MESSAGES, RATE = 30_000, 3_000
@@ -65,7 +65,8 @@ def main() -> None:
     session = ZenohOptions(listen=(endpoint,)).open()
     try:
         with tempfile.TemporaryDirectory() as folder:
-            recorder = Recorder(session, "robot", McapFiles(Path(folder) / "cpu.mcap", RecordingInfo({})), None)
+            files = McapFiles(Path(folder) / "cpu.mcap", RecordingInfo({}), chunk_size=CHUNK_SIZE)  # asm-record's
+            recorder = Recorder(session, "robot", files, None)
             publisher = subprocess.Popen(
                 [sys.executable, "-c", PUBLISHER, endpoint, str(MESSAGES), str(RATE), str(HEAD)]
             )

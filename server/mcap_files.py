@@ -34,7 +34,7 @@ from mcap.records import Channel, Message, MessageIndex, Schema
 from mcap.writer import Writer
 
 LIBRARY = "asm-record"
-CHUNK_SIZE = 1024 * 1024
+CHUNK_SIZE = 64 * 1024
 _SUMMARY_BASE = 600
 """Statistics, summary offsets, data end, footer, magic and the metadata indexes, with room to spare (bytes)."""
 _CHUNK_INDEX = 100

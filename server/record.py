@@ -53,6 +53,11 @@ CHANNEL = 10_000
 """Publications Zenoh holds for the receiving thread (a FIFO: when full, Zenoh waits). That thread only moves them
 into the writer's queue, where the bound above is kept and counted."""
 RECEIVE_PERIOD = 0.002
+"""Seconds the receiving thread waits between batches: at 6,000 publications a second, a dozen a batch."""
+CHUNK_SIZE = 1 << 20
+"""asm-record's chunks, uncompressed (mcap's default; McapFiles' is 64 KiB): a 128-module robot publishes on ~640
+channels, and a chunk ends with an index record per channel in it — at 64 KiB, about one a message. A killed
+recorder still loses at most ``--flush-seconds``: the chunk in progress is closed that often."""
 WRITER_PERIOD = 0.02
 """Seconds the writer sleeps when nothing waits: it takes what arrived meanwhile in one batch. Waking it per sample
 (a queue.Queue's condition) cost a lock hand-off per message, at 6,000 a second a large part of the recorder's CPU;
@@ -361,7 +366,7 @@ def _record(args: argparse.Namespace, network: ZenohOptions, done: threading.Eve
         if args.gait:
             info.attachments.append(Attachment(args.gait.name, "application/toml", args.gait.read_bytes()))
         files = McapFiles(args.output, info, max_bytes=args.max_bytes, max_files=args.max_files,
-                          flush_seconds=args.flush_seconds)  # fmt: skip
+                          chunk_size=CHUNK_SIZE, flush_seconds=args.flush_seconds)  # fmt: skip
         recorder = Recorder(session, args.robot, files, mjcf, on_error=done.set)
         started = time.monotonic()
         print(f"RECORDING robot {args.robot} to {files.paths[0]}", flush=True)
