@@ -181,22 +181,23 @@ class Recorder:
     def _receive(self, channel: zenoh.handlers.Handler[zenoh.Sample]) -> None:
         """Moves the publications into the writer's queue, all that waits at once: one wake-up and one queue entry
         for a batch. Ends when the subscriber is undeclared (the channel says it is closed once empty)."""
-        recv, try_recv, pending = channel.recv, channel.try_recv, self._pending
+        recv, try_recv, pending, time_ns = channel.recv, channel.try_recv, self._pending, time.time_ns
         while True:
             try:
                 batch = [recv()]
             except zenoh.ZError:
                 return
-            ns = time.time_ns()
+            times = [time_ns()]  # each its own: the replay orders and places a series' values by their log times
             while (sample := try_recv()) is not None:
                 batch.append(sample)
-            room = QUEUE_BOUND - (self._received - self._taken)
+                times.append(time_ns())
+            room = max(0, QUEUE_BOUND - (self._received - self._taken))
             if len(batch) > room:
-                self._overflow += len(batch) - max(0, room)
-                batch = batch[: max(0, room)]
+                self._overflow += len(batch) - room
+                del batch[room:], times[room:]
             if batch:
                 self._received += len(batch)
-                pending.append((self._write_values, batch, ns))
+                pending.append((self._write_values, batch, times))
             time.sleep(RECEIVE_PERIOD)
 
     def _on_poses(self, sample: zenoh.Sample) -> None:
@@ -240,15 +241,14 @@ class Recorder:
         self.files.write(topic, schema, data, ns, publish_ns, seq)
         self.counts[topic] += 1
 
-    def _write_values(self, batch: list[zenoh.Sample], ns: int) -> None:
-        """A batch of publications, each written as its JSON view; ``t`` is the publication's Zenoh timestamp (the
-        bridge's time when it put it), or its arrival here when it has none."""
+    def _write_values(self, batch: list[zenoh.Sample], times: list[int]) -> None:
+        """A batch of publications (and the times they were taken, ns), each written as its JSON view; ``t`` is the
+        publication's Zenoh timestamp (the bridge's time when it put it), or when it was taken here if it has none."""
         self._taken += len(batch)
         resolve, write = self.objects.resolve, self._write_value
-        arrived = ns / 1e9
-        for sample in batch:
+        for sample, ns in zip(batch, times, strict=True):
             stamp = sample.timestamp
-            t = arrived if stamp is None else stamp_seconds(stamp)
+            t = ns / 1e9 if stamp is None else stamp_seconds(stamp)
             key, data = str(sample.key_expr), sample.payload.to_bytes()
             publications = resolve(key, data, t, ns)
             if publications is not None:
