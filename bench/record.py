@@ -10,12 +10,13 @@
   Foxglove WebSocket client (the ``websockets`` package, subscribed per the Foxglove protocol) counting
   ``/robot/transforms`` messages for 10 s, over 60 a second (the pose feed's rate). Target >= 0.9.
 - ``record_overhead_rtf_128``: ``asm-robot --sim`` with the 128-module caterpillar deployed and running; its
-  published real-time factor (the median of one reading a second) for 10 s while ``asm-record`` records everything
-  (every attribute publication, poses, status, events, the gait embedded) in its own process, over the same for
-  10 s without it, just before and just after (their mean: the machine's other load drifts; until 2026-11-27 only
-  the window before was measured, and that ratio is still printed beside). Target >= 0.95. It also prints what the
-  recorder cost (its CPU seconds per wall second and per message), the robot process's CPU per publication it
-  forwarded in each window, and whether the robot fell behind the wall clock.
+  published real-time factor, one reading a second, in 8 s windows without recording and recording alternately
+  (two of each, and a third without: the machine's other load comes and goes for seconds at a time), ``asm-record``
+  recording everything (every attribute publication, poses, status, events, the gait embedded) in its own process:
+  the median of the seconds recording over the median of the seconds without. Until 2026-11-27 it was one 10 s
+  window recording against the 10 s before; the first window recording against the one before it is printed
+  beside. Target >= 0.95. It also prints what the recorder cost (its CPU seconds per wall second and per message),
+  the robot process's CPU per publication it forwarded in each window, and whether the robot fell behind.
 """
 
 from __future__ import annotations
@@ -33,6 +34,7 @@ import threading
 import time
 from collections import defaultdict
 from pathlib import Path
+from typing import NamedTuple
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
@@ -49,6 +51,9 @@ from server import foxglove_msgs as fx
 from web.document import GaitDocument
 
 SECONDS = 10.0
+WINDOW = 8.0
+CYCLES = 2
+"""record_overhead_rtf_128: windows without recording and recording alternate, CYCLES of each, one more without."""
 
 
 class Published:
@@ -172,6 +177,15 @@ def foxglove_rate(folder: Path, modules: int = 32) -> float:
     return received / SECONDS
 
 
+class Window(NamedTuple):
+    factors: list[float]
+    """The robot's real-time factor, one reading a second."""
+    behind: bool
+    """Whether it fell behind the wall clock."""
+    robot_us: float
+    """The robot process's CPU per publication its bridge forwarded, µs."""
+
+
 class Factors:
     """The robot's published real-time factor, one reading a second, whether it fell behind, and the robot process's
     CPU per publication its bridge forwarded meanwhile (the status counts them)."""
@@ -187,8 +201,7 @@ class Factors:
     def _forwarded(self) -> int:
         return self.status.traffic.get("publications", 0) if self.status is not None else 0
 
-    def over(self, seconds: float) -> tuple[list[float], bool, float]:
-        """(a real-time factor a second, fell behind, µs of robot CPU a publication forwarded)."""
+    def over(self, seconds: float) -> Window:
         factors, behind = [], False
         cpu, forwarded = _cpu_seconds(self.pid), self._forwarded()
         for _ in range(int(seconds)):
@@ -197,7 +210,7 @@ class Factors:
             factors.append(status.real_time_factor or 0.0 if status is not None else 0.0)
             behind |= bool(status is not None and status.behind)
         each = (_cpu_seconds(self.pid) - cpu) / max(1, self._forwarded() - forwarded) * 1e6
-        return factors, behind, each
+        return Window(factors, behind, each)
 
     def close(self) -> None:
         self._sub.undeclare()
@@ -209,6 +222,25 @@ def _cpu_seconds(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
+def _recording(folder: Path, gait: Path, endpoint: str, factors: Factors, k: int) -> tuple[Window, float, str]:
+    """One window recording (asm-record in its own process, started before it and waited for after it): the
+    window, the recorder's CPU seconds a second over it and its last line."""
+    recorder = subprocess.Popen([sys.executable, "-m", "server.record", "--robot", "robot", "--zenoh-connect", endpoint,
+                                 "--output", str(folder / f"overhead-{k}.mcap"), "--gait", str(gait), "--max-seconds",
+                                 str(WINDOW + 6)], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                                text=True)  # fmt: skip
+    try:
+        first = recorder.stdout.readline() if recorder.stdout is not None else ""  # RECORDING …: it listens
+        time.sleep(2.0)  # its start-up (imports, the robot's model) is not the recording's cost
+        cpu, began = _cpu_seconds(recorder.pid), time.monotonic()
+        window = factors.over(WINDOW)
+        cpu = (_cpu_seconds(recorder.pid) - cpu) / (time.monotonic() - began)
+    finally:
+        out, _ = recorder.communicate(timeout=WINDOW + 60)
+    lines = (first + out).strip().splitlines()
+    return window, cpu, lines[-1] if lines else "asm-record said nothing"
+
+
 def record_overhead(folder: Path, modules: int = 128) -> float:
     """The 128-module robot's real-time factor while asm-record records everything, over without (see above)."""
     doc = GaitDocument(load(LIBRARY / "caterpillar.toml"))
@@ -218,50 +250,46 @@ def record_overhead(folder: Path, modules: int = 128) -> float:
     robot, client, _ = start_robot(gait, modules)
     endpoint = robot.popen.args[robot.popen.args.index("--zenoh-listen") + 1]  # type: ignore[union-attr]
     factors = Factors(client.transport.session, robot.popen.pid)  # type: ignore[attr-defined,union-attr]
+    without: list[Window] = []
+    recording: list[tuple[Window, float, str]] = []
     try:
         time.sleep(4.0)
-        without, behind_without, robot_without = factors.over(SECONDS)
-        recorder = subprocess.Popen([sys.executable, "-m", "server.record", "--robot", "robot", "--zenoh-connect",
-                                     endpoint, "--output", str(folder / "overhead.mcap"), "--gait", str(gait),
-                                     "--max-seconds", str(SECONDS + 8)], cwd=ROOT, stdout=subprocess.PIPE,
-                                    stderr=subprocess.STDOUT, text=True)  # fmt: skip
-        try:
-            time.sleep(3.0)  # its subscriptions made and its tables read
-            cpu, began = _cpu_seconds(recorder.pid), time.monotonic()
-            with_recording, behind_with, robot_with = factors.over(SECONDS)
-            cpu = (_cpu_seconds(recorder.pid) - cpu) / (time.monotonic() - began)
-        finally:
-            out, _ = recorder.communicate(timeout=SECONDS + 60)
-        said = out.strip().splitlines()[-1] if out.strip() else "asm-record said nothing"
-        print(said, flush=True)
-        after, behind_after, robot_after = factors.over(SECONDS)
+        for k in range(CYCLES):
+            without.append(factors.over(WINDOW))
+            recording.append(_recording(folder, gait, endpoint, factors, k))
+            print(recording[-1][2], flush=True)
+        without.append(factors.over(WINDOW))
     finally:
         factors.close()
         client.close()
         robot.stop()
-    behind_without |= behind_after
-    print(f"{modules} modules, real-time factor each second without recording: "
-          f"{', '.join(f'{f:.3f}' for f in without)} (behind: {'yes' if behind_without else 'no'}); "
-          f"recording: {', '.join(f'{f:.3f}' for f in with_recording)} (behind: {'yes' if behind_with else 'no'}); "
-          f"without again: {', '.join(f'{f:.3f}' for f in after)}; "
-          f"the recorder used {cpu:.2f} CPU seconds a second on {os.cpu_count()} cores; load average "
-          f"{os.getloadavg()[0]:.1f}", flush=True)  # fmt: skip
-    print(f"the robot process: {robot_without:.0f} µs of CPU a publication forwarded without recording, "
-          f"{robot_with:.0f} recording, {robot_after:.0f} without again", flush=True)  # fmt: skip
-    if wrote := re.search(r"(\d+) messages of robot \S+ in ([\d.]+) s", said):
-        # CPU-s/s follows how many messages the robot manages to publish, which the machine's load decides: the cost
-        # of one message (its overall rate taken as the window's) compares runs made under different loads.
-        rate = int(wrote[1]) / max(1e-9, float(wrote[2]))
-        print(f"the recorder: {rate:.0f} messages a second, {cpu / max(1.0, rate) * 1e6:.0f} µs of CPU a message",
-              flush=True)  # fmt: skip
-    if behind_without:
+    for k, window in enumerate(without):
+        print(f"{modules} modules without recording ({k + 1}): {_described(window)}", flush=True)
+        if k < len(recording):
+            print(f"{modules} modules recording ({k + 1}): {_described(recording[k][0])}; the recorder used "
+                  f"{recording[k][1]:.2f} CPU seconds a second", flush=True)  # fmt: skip
+    print(f"{os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f}", flush=True)
+    for _, cpu, said in recording:
+        if wrote := re.search(r"(\d+) messages of robot \S+ in ([\d.]+) s", said):
+            # CPU-s/s follows how many messages the robot manages to publish, which the machine's load decides: the
+            # cost of one message (its overall rate taken as the window's) compares runs made under other loads.
+            rate = int(wrote[1]) / max(1e-9, float(wrote[2]))
+            print(f"the recorder: {rate:.0f} messages a second, {cpu / max(1.0, rate) * 1e6:.0f} µs of CPU a message",
+                  flush=True)  # fmt: skip
+    if any(w.behind for w in without):
         print("the robot fell behind the wall clock without recording too: the machine cannot run it in real time, "
               "so the ratio measures the machine's other load as much as the recorder", flush=True)  # fmt: skip
-    before_only = statistics.median(with_recording) / max(1e-9, statistics.median(without))
-    print(f"record_overhead_rtf_128 against the window before only (the measure until 2026-11-27): {before_only:.3f}",
-          flush=True)  # fmt: skip
-    baseline = (statistics.median(without) + statistics.median(after)) / 2
-    return statistics.median(with_recording) / max(1e-9, baseline)
+    before_only = statistics.median(recording[0][0].factors) / max(1e-9, statistics.median(without[0].factors))
+    print(f"record_overhead_rtf_128 of the first window recording against the one before only (the measure until "
+          f"2026-11-27): {before_only:.3f}", flush=True)  # fmt: skip
+    recorded = [f for window, _, _ in recording for f in window.factors]
+    return statistics.median(recorded) / max(1e-9, statistics.median([f for w in without for f in w.factors]))
+
+
+def _described(window: Window) -> str:
+    return (f"real-time factor each second {', '.join(f'{f:.3f}' for f in window.factors)} (behind: "
+            f"{'yes' if window.behind else 'no'}); the robot process {window.robot_us:.0f} µs of CPU a publication "
+            "forwarded")  # fmt: skip
 
 
 def main() -> None:
