@@ -34,8 +34,9 @@ would lower it on its own on a slow machine; fixing it keeps the screenshots the
 
 
 MAX_FPS = 20
-"""The page's frames capped at 20 a second (web/page_script.py's ``?maxFps``): a moving robot kept Chromium drawing
-at 60 frames a second in software, about a core of the suite's two, whatever the test looked at."""
+"""The page's frames capped at 20 a second (web/page_script.py's ``?maxFps``; the studios the tests start draw no
+more, ``--max-fps``): a moving robot kept Chromium drawing at 60 frames a second in software, about a core of the
+suite's two, whatever the test looked at."""
 PAGE_QUERY = f"?fixedDpr={VIEW_DPR}&maxFps={MAX_FPS}"
 """What every browser test opens the page with (after the studio's URL)."""
 
