@@ -46,7 +46,8 @@ def draw_cost(path: Path) -> float:
     """Seconds per SceneView.draw of the 32-module robot (viser server in this process, nobody connected)."""
     import viser
 
-    from web.preview import PreviewLoop, SceneView
+    from web.preview import PreviewLoop
+    from web.scene_view import SceneView
 
     server = viser.ViserServer(host="127.0.0.1", port=free_port(), verbose=False)
     loop = PreviewLoop(load(path))

@@ -37,11 +37,12 @@ from .modules_panel import ModulesPanel
 from .monitor_panel import MonitorPanel
 from .numbering_panel import NumberingPanel
 from .page import Backend, Page
-from .preview import PreviewLoop, SceneView
+from .preview import PreviewLoop
 from .preview_panel import PreviewPanel
 from .record_panel import RecordPanel
 from .replay_panel import ReplayPanel
 from .robot_bar import RobotBar
+from .scene_view import SceneView
 from .state_timeline import WINDOW_SECONDS
 from .tune_panel import TunePanel
 
