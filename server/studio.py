@@ -177,8 +177,9 @@ class Studio:
             self._link = self.connect(robot)  # the page's, once it is built; closed here if it cannot be
             self.status = self._wait_status(self._link.feed, timeout=10.0)
             self.token = options.token or (None if is_loopback(options.host) else new_token())
-            self.app = Dashboard(self, self._link, host=options.host, port=options.port, token=self.token,
-                                 max_fps=options.max_fps)
+            self.app = Dashboard(
+                self, self._link, host=options.host, port=options.port, token=self.token, max_fps=options.max_fps
+            )
             self._link = None
             self.app.show(options.view)
             if self.child is not None:

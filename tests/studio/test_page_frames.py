@@ -99,3 +99,31 @@ def test_the_studio_s_max_fps_caps_what_it_sends_and_the_page_s_frames_unless_th
         finally:
             browser.close()
     assert not any("Traceback" in line for line in log), "".join(log[-40:])
+
+
+def test_software_webgl_draws_the_view_at_a_lower_resolution_unless_the_url_chooses_one(studio_process) -> None:
+    """Chromium here has no GPU (SwiftShader, as viser's own notice says): the page adds viser's ``fixedDpr`` to its
+    URL before viser reads it; a URL that chooses one keeps it; the token and other parameters stay."""
+    from playwright.sync_api import sync_playwright
+
+    from web.page_script import SOFTWARE_RENDER_SCALE
+
+    url, _, log = studio_process
+    with sync_playwright() as pw:
+        browser = pw.chromium.launch(executable_path=CHROMIUM, args=["--no-sandbox"])
+        try:
+            page = browser.new_page(viewport={"width": 1280, "height": 800})
+            renderer = page.evaluate("""() => { const gl = document.createElement('canvas').getContext('webgl');
+                const info = gl.getExtension('WEBGL_debug_renderer_info');
+                return gl.getParameter(info ? info.UNMASKED_RENDERER_WEBGL : gl.RENDERER); }""")
+            assert re.search(r"swiftshader|llvmpipe|software", renderer, re.I), renderer
+            _open(page, url, "&maxFps=30")  # fixedDpr given (the tests' own 0.25): kept
+            assert page.evaluate("new URLSearchParams(location.search).get('fixedDpr')") == str(VIEW_DPR)
+            assert page.evaluate("window.__asmSoftwareScale") is None
+            page.goto(f"{url}/?maxFps=30")
+            assert page.evaluate("new URLSearchParams(location.search).get('fixedDpr')") == str(SOFTWARE_RENDER_SCALE)
+            assert page.evaluate("new URLSearchParams(location.search).get('maxFps')") == "30"
+            assert page.evaluate("window.__asmSoftwareScale") == SOFTWARE_RENDER_SCALE
+        finally:
+            browser.close()
+    assert not any("Traceback" in line for line in log), "".join(log[-40:])
