@@ -37,8 +37,6 @@ from .firmware_calls import FirmwareCalls
 from .flash import Settings
 
 log = logging.getLogger("asm_module.emulated")
-CLOCK_HZ = 168_000_000
-"""The STM32F405/407's core clock, which the port's SysTick reload assumes (1 ms = 168,000 cycles)."""
 CONTROL_MS = 20
 CATCH_UP_MS = 200
 """The most emulated milliseconds run in one hold of a board's lock."""
@@ -134,9 +132,9 @@ class EmulatedModule(FirmwareCalls):
         app = self.core.app
         if app is None:
             raise RuntimeError(f"{self.name}: the board runs an image the emulator has no ELF for (register_image)")
-        self._probe = struct.unpack("<14I", self.core.uc.mem_read(app.symbol("asm_probe"), 56))
-        if self._probe[0] != 2:
-            raise RuntimeError(f"the board image's asm_probe is version {self._probe[0]}, not 2")
+        self._probe = struct.unpack("<15I", self.core.uc.mem_read(app.symbol("asm_probe"), 60))
+        if self._probe[0] != 3:
+            raise RuntimeError(f"the board image's asm_probe is version {self._probe[0]}, not 3")
 
     @property
     def firmware_version(self) -> int:
@@ -160,7 +158,7 @@ class EmulatedModule(FirmwareCalls):
                 if self.fault is not None or self._stop.is_set():
                     return
                 core = self.core
-                step = min(target, core.systicks + CATCH_UP_MS)
+                step = min(target, core.now_ms + CATCH_UP_MS)
                 self._run_to(step)
                 if step >= target or not core.idle or self.core is not core:  # done, busy, or reset (a new clock)
                     return
@@ -221,7 +219,7 @@ class EmulatedModule(FirmwareCalls):
         with self._lock:
             if self.fault is not None:
                 raise RuntimeError(f"{self.name}: the emulated board stopped: {self.fault}")
-            self.core.uc.mem_write(now_ms, struct.pack("<I", self.core.read_word(self._probe[9])))
+            self.core.uc.mem_write(now_ms, struct.pack("<I", self.core.call(self._probe[14])))  # the port's clock
             status = self.core.call(local, node, message, len(message))
         if status != Status.OK:
             raise ValueError(f"{self.name}: {Method(method).name} of {name} refused: {Status(status).name}")

@@ -5,13 +5,16 @@ interrupt, the FPU's enable bit, the servo's PWM timer, the encoder's timer and 
 Why each piece is as it is:
 
 - **Time** is the instruction count (one instruction taken as one cycle: a Cortex-M4 retires most in one, loads,
-  branches and divisions take more, so real cycles are somewhat higher). SysTick fires every RVR + 1 of them, as
-  the image configured it (168,000: 1 ms at 168 MHz). Instructions are counted per translated block, from the
-  block's bytes (Thumb-2: a halfword starting 0b11101, 0b11110 or 0b11111 begins a 32-bit instruction).
+  branches and divisions take more, so real cycles are somewhat higher), in milliseconds of 168,000 from the end
+  of the boot. SysTick fires every RVR + 1 of them, as the image configured it (3,360,000: the port's 20 ms control
+  period), and SCB_ICSR.PENDSTSET says when its interrupt is pending. Instructions are counted per translated
+  block, from the block's bytes (Thumb-2: a halfword starting 0b11101, 0b11110 or 0b11111 begins a 32-bit
+  instruction), by a hook in C (asm_module/cortex_clock.c).
 - **Idle**: the port polls CAN_RF0R in its main loop. Two empty polls with nothing else touched between them and
   no interrupt taken mean the loop can do nothing until an interrupt or a frame: the emulator stops there and
-  jumps the clock to the next SysTick when the outside clock allows, so an idle module costs a few blocks per
-  millisecond, and the host may call into the image at that point (the main loop, outside the runtime).
+  jumps the clock to the next SysTick interrupt or the watchdog's expiry, as far as the outside clock allows, so an
+  idle module costs a few blocks per interrupt, and the host may call into the image at that point (the main loop,
+  outside the runtime).
 - **Interrupts**: Unicorn has no NVIC. A SysTick exception is entered as the core would: the basic or (when the
   FPU is in use, CONTROL.FPCA) extended frame pushed on the main stack, 8-byte aligned, LR = EXC_RETURN, PC = the
   vector; the handler's branch to EXC_RETURN stops Unicorn (its core raises an exception return it cannot
@@ -40,7 +43,7 @@ from unicorn import (
     UC_MODE_MCLASS,
     UC_MODE_THUMB,
     UC_PROT_EXEC,
-    UC_PROT_READ,  # fmt: skip
+    UC_PROT_READ,
 )
 from unicorn import arm_const as arm
 from unicorn.unicorn import Uc, UcContext, UcError
@@ -54,7 +57,7 @@ from .firmware_image import LOAD_ADDRESS, MAX_SIZE
 from .flash import INTERFACE, SECTORS, FlashInterface, Settings
 from .thumb import Batch, local_16bit
 from .watchdog import BASE as IWDG
-from .watchdog import IndependentWatchdog
+from .watchdog import CLOCK_HZ, IndependentWatchdog
 
 FLASH, FLASH_SIZE = 0x08000000, 1 << 20
 BOOT_SIZE = SECTORS[0][1]
@@ -74,8 +77,10 @@ CALL_RETURN = 0x1FFFFF00
 SYSTICK_VECTOR = 15
 AHEAD = 50
 """Milliseconds a busy image may run ahead of the outside clock in one call of Cortex.run."""
-CONTROL_PERIOD = 20
-"""SysTicks (milliseconds) in one control period: the port's CONTROL_MS."""
+CYCLES_PER_MS = CLOCK_HZ // 1000
+"""The emulated clock's millisecond: the STM32F405/407's core clock (168 MHz), which the port's SysTick reload
+assumes, at one instruction a cycle."""
+SCB_ICSR, PENDSTSET = 0xE000ED04, 1 << 26
 ENCODER_COUNTS = 4096
 _FRAME_REGS = [arm.UC_ARM_REG_R0, arm.UC_ARM_REG_R1, arm.UC_ARM_REG_R2, arm.UC_ARM_REG_R3, arm.UC_ARM_REG_R12,
                arm.UC_ARM_REG_LR, arm.UC_ARM_REG_PC, arm.UC_ARM_REG_XPSR]  # fmt: skip
@@ -126,8 +131,9 @@ class Cortex:
         self.systicks = 0  # SysTick interrupts taken
         self.idle = False  # the last run ended in the main loop's idle poll: the host may call into the image
         self.idle_cycles = 0  # of those, skipped while the main loop idled
-        self.worst_period = 0  # the most cycles executed in one control period (20 SysTicks)
-        self._period_start = 0
+        self.worst_period = 0  # the most cycles executed in one control period (from a control tick to the next)
+        self._period_start: int | None = None
+        self.epoch = 0  # the cycle count at the end of the boot: the emulated clock's millisecond 0
         self.cpacr = 0
         self._cyccnt_base = 0  # CYCCNT = cycles - this (it counts while DEMCR.TRCENA and DWT_CTRL.CYCCNTENA are set)
         self.pwm: dict[int, int] = {}  # TIM3's registers by offset
@@ -163,6 +169,7 @@ class Cortex:
         self._fp_free_vectors: dict[int, bool] = {}
         self.vectors = struct.unpack_from("<16I", settings.memory, 0)
         self.run(0)
+        self.epoch = self.cycles
 
     def release(self) -> None:
         """Stop following the flash's changes (this core was reset or powered off; the flash lives on)."""
@@ -183,16 +190,23 @@ class Cortex:
 
     # -- running -----------------------------------------------------------------------------------------------
 
-    def run(self, until_systicks: int) -> None:
-        """Run the image until it idles having taken ``until_systicks`` SysTick interrupts (its milliseconds): the
-        clock jumps over idle stretches up to there, and no further. A busy image runs on past it, by AHEAD
-        milliseconds at most in one call (then ``idle`` is False: the host must not call into it yet)."""
+    @property
+    def now_ms(self) -> int:
+        """The emulated clock in milliseconds since the boot ended (the first idle point): what run() runs to."""
+        return (self._c.cycles - self.epoch) // CYCLES_PER_MS
+
+    def run(self, until_ms: int) -> None:
+        """Run the image until it idles at millisecond ``until_ms`` of the emulated clock (:attr:`now_ms`): idle, the
+        clock jumps to what comes first of the next SysTick interrupt, the watchdog's expiry and ``until_ms`` — no
+        instruction could run before it — and no further. A busy image runs on past it, by AHEAD milliseconds at
+        most in one call (then ``idle`` is False: the host must not call into it yet)."""
         self.idle = False
         c = self._c
+        until = self.epoch + until_ms * CYCLES_PER_MS
         while True:
             reason = self._resume()
             if reason == REASON_SYSTICK:
-                if self.systicks >= until_systicks + AHEAD:
+                if c.cycles >= until + AHEAD * CYCLES_PER_MS:
                     c.pending = 1  # taken at the next run
                     return
                 self._enter(self.vectors[SYSTICK_VECTOR])
@@ -203,13 +217,15 @@ class Cortex:
             elif reason == REASON_WATCHDOG:
                 raise BoardReset("the independent watchdog expired")
             elif reason == REASON_IDLE:
-                if not (c.csr & 3 == 3 and c.rvr) or self.systicks >= until_systicks:
-                    self.idle = True
-                    return
-                self.idle_cycles += max(0, c.systick_next - c.cycles)
-                c.cycles = max(c.cycles, c.systick_next)
+                interrupt = c.systick_next if c.csr & 3 == 3 and c.rvr else NEVER
+                wake = min(interrupt, c.watchdog_at, until)
+                self.idle_cycles += max(0, wake - c.cycles)
+                c.cycles = max(c.cycles, wake)
                 if self.watchdog.expired(c.cycles):
                     raise BoardReset("the independent watchdog expired")
+                if c.cycles < interrupt:  # the outside clock's now: the host's turn
+                    self.idle = True
+                    return
                 self.clock.count_down()
                 c.pending = 0
                 self._enter(self.vectors[SYSTICK_VECTOR])
@@ -258,6 +274,10 @@ class Cortex:
         if image is not self.app:
             return
         self._tick_start = self.cycles
+        busy = self._tick_start - self.idle_cycles
+        if self._period_start is not None:  # the first period is the boot's
+            self.worst_period = max(self.worst_period, busy - self._period_start)
+        self._period_start = busy
         back = int(uc.reg_read(arm.UC_ARM_REG_LR)) & ~1
         if back not in self._returns:
             self._returns.add(back)
@@ -280,10 +300,6 @@ class Cortex:
         uc = self.uc
         self._activity += 1
         self.systicks += 1
-        if self.systicks % CONTROL_PERIOD == 0:
-            busy = self.cycles - self.idle_cycles
-            self.worst_period = max(self.worst_period, busy - self._period_start)
-            self._period_start = busy
         values = self._entry_read.read()
         sp, control = values.pop(), values.pop()
         values[6] = self._resume_at  # the return address: the instruction not yet executed
@@ -424,6 +440,8 @@ class Cortex:
             return max(0, c.systick_next - c.cycles - 1) if c.csr & 1 else 0
         if address == 0xE000ED88:
             return self.cpacr
+        if address == SCB_ICSR:
+            return PENDSTSET if c.pending else 0
         if address == DWT_CYCCNT:
             return self._cyccnt()
         return self.registers.get(address, 0)
