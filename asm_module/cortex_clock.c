@@ -72,15 +72,18 @@ void asm_cortex_count_down(struct core_clock *c)
     }
 }
 
-/* Unicorn's UC_HOOK_BLOCK callback, ``user_data`` the core's clock. */
+/* Unicorn's UC_HOOK_BLOCK callback, ``user_data`` the core's clock. A block the core is stopped before (a reset,
+ * an interrupt taken first) does not run now, and its instructions are counted when it does. */
 void asm_cortex_block(void *uc, uint64_t address, uint32_t size, void *user_data)
 {
     struct core_clock *c = user_data;
-    c->cycles += instructions(c, uc, address, size);
+    uint32_t count = instructions(c, uc, address, size);
+    c->cycles += count;
     if (c->cycles >= c->systick_next)
         asm_cortex_count_down(c);
     if (c->cycles >= c->watchdog_at && !c->reason) {
         c->reason = REASON_WATCHDOG;
+        c->cycles -= count;
         c->emu_stop(uc);
     }
     if (c->pending && !c->depth && !c->calling && !c->reason) {
@@ -89,6 +92,7 @@ void asm_cortex_block(void *uc, uint64_t address, uint32_t size, void *user_data
         if (!(xpsr & 0x0600FC00u)) { /* never inside an IT block */
             c->pending = 0;
             c->reason = REASON_SYSTICK;
+            c->cycles -= count;
             c->emu_stop(uc);
         }
     }

@@ -33,7 +33,6 @@ Why each piece is as it is:
 
 from __future__ import annotations
 
-import ctypes
 import struct
 
 from unicorn import (
@@ -61,9 +60,10 @@ from .watchdog import CLOCK_HZ, IndependentWatchdog
 
 FLASH, FLASH_SIZE = 0x08000000, 1 << 20
 BOOT_SIZE = SECTORS[0][1]
-"""The bootloader's sector: the only flash the core executes from (images run from RAM). The whole flash is the
-board's :class:`Settings` memory mapped read-only into the core (read as fast as RAM, as the board's flash
-accelerator reads it); every store to it goes to the flash interface (asm_module/flash.py), which programs it."""
+"""The bootloader's sector: the only flash the core executes from (images run from RAM). The whole flash is mapped
+read-only into the core, a copy of the board's :class:`Settings` kept in step with it (read as fast as RAM, as the
+board's flash accelerator reads it); every store to it goes to the flash interface (asm_module/flash.py), which
+programs it."""
 RAM, RAM_SIZE = 0x20000000, 128 << 10
 SCB_VTOR, SCB_AIRCR = 0xE000ED08, 0xE000ED0C
 UID = 0x1FFF7A10
@@ -110,13 +110,11 @@ class Cortex:
             address, size = image.symbols["board_config"]
             settings.write(address - FLASH, board_config[:size].ljust(size, b"\0"))
         self.flash_interface = FlashInterface(settings)
-        self._flash = (ctypes.c_char * FLASH_SIZE).from_buffer(settings.memory)  # the core reads the flash itself
-        uc.mem_map_ptr(FLASH, BOOT_SIZE, UC_PROT_READ | UC_PROT_EXEC, ctypes.addressof(self._flash))
-        uc.mem_map_ptr(
-            FLASH + BOOT_SIZE, FLASH_SIZE - BOOT_SIZE, UC_PROT_READ, ctypes.addressof(self._flash) + BOOT_SIZE
-        )
+        uc.mem_map(FLASH, BOOT_SIZE, UC_PROT_READ | UC_PROT_EXEC)
+        uc.mem_map(FLASH + BOOT_SIZE, FLASH_SIZE - BOOT_SIZE, UC_PROT_READ)
+        uc.mem_write(FLASH, bytes(settings.memory))
         uc.hook_add(UC_HOOK_MEM_WRITE_PROT, self._flash_write, begin=FLASH, end=FLASH + FLASH_SIZE - 1)
-        settings.listeners.append(self._recode)
+        settings.listeners.append(self._mirror)
         uc.mem_map(UID & ~0xFFF, 0x1000, UC_PROT_READ)
         uc.mem_write(UID, serial)
         uc.mem_map(RAM, RAM_SIZE)
@@ -172,21 +170,22 @@ class Cortex:
         self.epoch = self.cycles
 
     def release(self) -> None:
-        """Stop following the flash's changes (this core was reset or powered off; the flash lives on)."""
-        if self._recode in self.settings.listeners:
-            self.settings.listeners.remove(self._recode)
+        """Stop mirroring the flash into this core (it was reset or powered off; the flash lives on)."""
+        if self._mirror in self.settings.listeners:
+            self.settings.listeners.remove(self._mirror)
 
     def _flash_write(self, uc: Uc, access: int, address: int, size: int, value: int, _: object) -> bool:
-        """A store to the flash: the flash interface decides what it programs (asm_module/flash.py), in the memory
-        the core reads; the store itself does not happen (the flash is mapped read-only, so every store comes
-        here and none changes a bit the controller would not)."""
+        """A store to the flash: the flash interface decides what it programs (asm_module/flash.py), mirrored into
+        the core at once (the next load reads it); the store itself does not happen (the flash is mapped read-only:
+        every store comes here, and a handled one is dropped), so no bit changes that the controller would not."""
         self.flash_interface.write(address - FLASH, size, value)
         return True
 
-    def _recode(self, offset: int, length: int) -> None:
-        """The flash changed under code the core may have translated (the bootloader's sector): translate again."""
-        if offset < BOOT_SIZE and length:
-            self.uc.ctl_remove_cache(FLASH + offset, FLASH + min(offset + length, BOOT_SIZE))
+    def _mirror(self, offset: int, length: int) -> None:
+        """The flash changed (programmed, erased, or written by a probe): the core's copy follows (Unicorn
+        translates again any code of the bootloader's sector that changed)."""
+        if length:
+            self.uc.mem_write(FLASH + offset, bytes(self.settings.memory[offset : offset + length]))
 
     # -- running -----------------------------------------------------------------------------------------------
 
