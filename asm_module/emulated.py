@@ -28,6 +28,7 @@ from asm_py.event import Event
 from asm_py.protocol import Kind, Method, Status, first_byte
 
 from ._profile import CLASSES
+from .backplane import Backplane
 from .bxcan import BxCan
 from .drivers import FakeDriver, JointDriver
 from .elf import Image, read_image
@@ -40,9 +41,10 @@ log = logging.getLogger("asm_module.emulated")
 CONTROL_MS = 20
 CATCH_UP_MS = 200
 """The most emulated milliseconds run in one hold of a board's lock."""
-IDLE_WAIT, FRAMES_WAIT = 0.005, 0.001
-"""Seconds a board's bus thread waits for a frame before running its clock on: on a quiet bus, and while frames
-wait for room in its receive FIFO."""
+IDLE_WAIT, FRAMES_WAIT, SIM_WAIT = 0.1, 0.001, 0.05
+"""Seconds a board's thread waits for a frame at most: on its own, before running its clock on (less if its next
+interrupt comes sooner: it wakes for that); while frames wait for room in its receive FIFO; on a simulation's
+clock, whose ticks run it (the thread only serves frames)."""
 _image_lock = threading.Lock()
 _image: Image | None = None
 
@@ -108,8 +110,11 @@ class EmulatedModule(FirmwareCalls):
         image = board_image()  # before the bus is opened: a build or a name that fails leaves nothing open
         self._image = image
         config = board_config(node_id, name, hardware_range)
-        self._own_bus = bus is None
-        self.bus = bus if bus is not None else can.Bus(**bus_options)
+        self.can = BxCan(self._transmit)  # frames before the first boot: dropped with it (_boot makes the board's)
+        self._wake = threading.Event()  # a frame kept by its controller, or close()
+        self._receiver = self._receive  # one bound method: the backplane knows the sender by it
+        self._plane = Backplane.join(self._receiver, bus, **bus_options)
+        self.bus = self._plane.bus
         self.send_errors = 0
         self.fault: FirmwareFault | None = None
         self._lock = threading.RLock()  # the core is single-threaded: one runner at a time
@@ -181,27 +186,38 @@ class EmulatedModule(FirmwareCalls):
 
     def _transmit(self, can_id: int, extended: bool, data: bytes) -> None:
         try:
-            self.bus.send(can.Message(arbitration_id=can_id, data=data, is_extended_id=extended), timeout=0.1)
+            self._plane.send(self._receiver, can_id, extended, data)
         except can.CanError:
             self.send_errors += 1
+
+    def _receive(self, can_id: int, extended: bool, data: bytes) -> None:
+        """A frame on the bus (the backplane's reader, or another board's thread): to the controller, which keeps
+        it only if its acceptance filters pass it; the board's thread woken only then."""
+        if self.can.deliver(can_id, extended, data):
+            self._wake.set()
 
     def _read_joint(self) -> tuple[float, bool]:
         reading = self.driver.read()
         return reading.angle, reading.contact
 
     def _run(self) -> None:
-        # a frame ends the wait at once; without one, on its own the board runs the wall clock's milliseconds 5 at a
-        # time (its 20 ms control tick stays on time to 5 ms; waking every 1 ms, half an idle board's CPU was the
-        # wake itself), and on a simulation's clock its ticks run it: this thread only waits for frames
+        # a frame the controller kept ends the wait at once; without one, on its own the board sleeps until its next
+        # interrupt is due (a SysTick every 20 ms: 50 wakes a second, each on time), and on a simulation's clock its
+        # ticks run it: this thread only serves frames
         while not self._stop.is_set():
-            frame = self.bus.recv(timeout=FRAMES_WAIT if self.can.pending() else IDLE_WAIT if self.clock is None
-                                  else 0.05)  # fmt: skip
-            while frame is not None:
-                if not frame.is_error_frame and not frame.is_remote_frame:
-                    self.can.deliver(frame.arbitration_id, frame.is_extended_id, bytes(frame.data))
-                frame = self.bus.recv(timeout=0)
+            self._wake.wait(self._wait())
+            self._wake.clear()
             if self.clock is None or self.can.pending():
                 self.advance()
+
+    def _wait(self) -> float:
+        if self.can.pending():
+            return FRAMES_WAIT
+        if self.clock is not None:
+            return SIM_WAIT
+        with self._lock:
+            due = self._t0 + self.core.wake_ms / 1000  # when its next interrupt is due, on this module's clock
+        return min(IDLE_WAIT, max(FRAMES_WAIT, due - time.monotonic()))
 
     # -- what a debugger reads and calls -------------------------------------------------------------------------
 
@@ -294,13 +310,14 @@ class EmulatedModule(FirmwareCalls):
             return self._byte(self._probe[11])
 
     def close(self) -> None:
-        """Leave the bus in order (asm_node_leave in the image) and stop; the bus is shut down if this module
-        opened it."""
+        """Leave the bus in order (asm_node_leave in the image) and stop; a bus opened for this module's options is
+        shut down with the last module on it (asm_module/backplane.py), a given one is left open."""
         if self._stop.is_set():
             return
         if self._unlisten is not None:
             self._unlisten()
         self._stop.set()
+        self._wake.set()
         if self._thread.is_alive():
             self._thread.join(5)
         with self._lock:
@@ -309,8 +326,7 @@ class EmulatedModule(FirmwareCalls):
                     self.core.call(self._probe[3], self._probe[1])
                 except (FirmwareFault, RuntimeError) as exc:  # faulted while leaving, or too busy to be called
                     log.error("%s: leaving the bus: %s", self.name, exc)
-        if self._own_bus:
-            self.bus.shutdown()
+        self._plane.leave(self._receiver)
 
     def __enter__(self) -> EmulatedModule:
         return self

@@ -33,6 +33,7 @@ Why each piece is as it is:
 
 from __future__ import annotations
 
+import math
 import struct
 
 from unicorn import (
@@ -189,6 +190,18 @@ class Cortex:
 
     # -- running -----------------------------------------------------------------------------------------------
 
+    def _interrupt(self) -> int:
+        """The cycle of the next SysTick interrupt (NEVER while SysTick does not interrupt)."""
+        c = self._c
+        return c.systick_next if c.csr & 3 == 3 and c.rvr else NEVER
+
+    @property
+    def wake_ms(self) -> float:
+        """When an idle image next has something to do without a frame — its next SysTick interrupt or the
+        watchdog's expiry — in milliseconds of the emulated clock (inf: never)."""
+        at = min(self._interrupt(), self._c.watchdog_at)
+        return math.inf if at == NEVER else (at - self.epoch) / CYCLES_PER_MS
+
     @property
     def now_ms(self) -> int:
         """The emulated clock in milliseconds since the boot ended (the first idle point): what run() runs to."""
@@ -216,7 +229,7 @@ class Cortex:
             elif reason == REASON_WATCHDOG:
                 raise BoardReset("the independent watchdog expired")
             elif reason == REASON_IDLE:
-                interrupt = c.systick_next if c.csr & 3 == 3 and c.rvr else NEVER
+                interrupt = self._interrupt()
                 wake = min(interrupt, c.watchdog_at, until)
                 self.idle_cycles += max(0, wake - c.cycles)
                 c.cycles = max(c.cycles, wake)
