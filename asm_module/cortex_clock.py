@@ -4,7 +4,8 @@ updates for every block the image executes and the emulator reads and writes bet
 
 Why C: the hook runs for every translated block — dozens per millisecond of an idle board, hundreds for each CAN
 frame it receives — and as a Python callback it cost two to three microseconds and a GIL hand-over each, most of
-what eight boards in one process spent (docs/benchmarks.md, "Real modules: firmware update over the bus").
+what eight boards in one process spent (docs/benchmarks.md, "Real modules: firmware update over the bus"). For the
+callbacks left (peripheral registers, flash stores) :func:`emu_start` keeps the interpreter lock over a run.
 """
 
 from __future__ import annotations
@@ -65,6 +66,7 @@ class CoreClock(ctypes.Structure):
 
 _lock = threading.Lock()
 _library: ctypes.CDLL | None = None
+_held: ctypes.PyDLL | None = None
 
 
 def _hooks() -> ctypes.CDLL:
@@ -76,6 +78,28 @@ def _hooks() -> ctypes.CDLL:
             library.asm_cortex_count_down.restype = None
             _library = library
         return _library
+
+
+def emu_start(uc: Uc, begin: int) -> None:
+    """``uc.emu_start(begin, 0)`` with the interpreter lock kept while the core runs (Unicorn through a PyDLL, as
+    asm_module/c_module.py calls the host library): the binding's CDLL releases it for the call, and every Python
+    callback of a run (a peripheral register, the flash) then waited to take it back — behind every other thread
+    of the process, up to a switch interval (5 ms) each on a loaded machine. A long run still lets other threads in
+    at its callbacks' switch points."""
+    global _held
+    with _lock:
+        if _held is None:
+            held = ctypes.PyDLL(uclib._name)
+            held.uc_emu_start.argtypes = [ctypes.c_void_p, ctypes.c_uint64, ctypes.c_uint64, ctypes.c_uint64,
+                                          ctypes.c_size_t]  # fmt: skip
+            held.uc_emu_start.restype = ctypes.c_int
+            _held = held
+    uc._hook_exception = None  # what the binding's emu_start does: a hook's exception is raised after the run
+    status = _held.uc_emu_start(uc._uch, begin, 0, 0, 0)
+    if status:
+        raise UcError(status)
+    if uc._hook_exception is not None:
+        raise uc._hook_exception
 
 
 def _address(function: object) -> int:

@@ -51,7 +51,7 @@ from unicorn.unicorn import Uc, UcContext, UcError
 from .board_flash import bootloader, known_image, known_images, probe_flash, register_image
 from .board_types import BoardReset, FirmwareFault, Joint, TickStats
 from .bxcan import RF0R, BxCan
-from .cortex_clock import NEVER, REASON_NONE, REASON_SYSTICK, REASON_WATCHDOG, Clock, CoreClock
+from .cortex_clock import NEVER, REASON_NONE, REASON_SYSTICK, REASON_WATCHDOG, Clock, CoreClock, emu_start
 from .elf import Image
 from .firmware_image import LOAD_ADDRESS, MAX_SIZE
 from .flash import INTERFACE, SECTORS, FlashInterface, Settings
@@ -257,7 +257,7 @@ class Cortex:
         c = self._c
         c.reason = REASON_NONE
         try:
-            self.uc.emu_start(self._resume_at | 1, 0)
+            emu_start(self.uc, self._resume_at | 1)
         except UcError as exc:  # a branch to EXC_RETURN is one: Unicorn's core raises its exception return
             if self.pc not in (EXC_RETURN_BASIC & ~1, EXC_RETURN_FP & ~1):
                 raise FirmwareFault(f"{exc} at {self.pc:#010x}") from None
@@ -386,7 +386,7 @@ class Cortex:
         c = self._c
         c.calling, c.reason, self._fault = 1, REASON_NONE, ""
         try:
-            uc.emu_start(function | 1, 0)
+            emu_start(uc, function | 1)
             if self.pc != CALL_RETURN or c.reason:
                 raise FirmwareFault(f"a call to {function:#010x} stopped at {self.pc:#010x} "
                                     f"({self._fault or self._reset_cause or c.reason})")  # fmt: skip

@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import shutil
 import struct
+import time
+from collections.abc import Callable
 
 import pytest
 from unicorn import UC_ARCH_ARM, UC_MODE_MCLASS, UC_MODE_THUMB
@@ -60,6 +62,45 @@ def test_the_clock_stops_the_core_where_systick_and_the_watchdog_are_due() -> No
     uc.emu_start(CODE | 1, CODE + len(BLOCKS))
     assert clock.state.reason == REASON_WATCHDOG and int(uc.reg_read(arm.UC_ARM_REG_PC)) == SECOND_BLOCK
     assert clock.state.cycles == 4, "reset as the block that runs out the watchdog begins"
+
+
+def test_a_run_keeps_the_interpreter_lock_so_no_other_thread_cuts_in_between_its_callbacks() -> None:
+    """cortex_clock.emu_start holds the GIL over a run (the binding's emu_start releases it): a thread ready to run
+    cannot while a core runs a loop of twenty million instructions (the binding's call lets it)."""
+    import threading
+
+    from asm_module.cortex_clock import emu_start
+
+    # movw r0,#0x9680; movt r0,#0x98 (10,000,000); l: subs r0,#1; bne l; nop
+    loop = bytes.fromhex("49f28060 c0f29800 0138 fdd1 00bf")
+    uc = Uc(UC_ARCH_ARM, UC_MODE_THUMB | UC_MODE_MCLASS)
+    uc.mem_map(CODE, 0x1000)
+    uc.mem_write(CODE, loop)
+    uc.ctl_exits_enabled(True)
+    uc.ctl_set_exits([CODE + len(loop) - 2])
+    clock = Clock(uc, [(CODE, CODE + 0xFFF)])
+    counted, stop = [0], threading.Event()
+
+    def other() -> None:  # counts while it can run: every half millisecond
+        while not stop.is_set():
+            counted[0] += 1
+            time.sleep(0.0005)
+
+    def counted_over(start: Callable[[], None]) -> int:
+        before = counted[0]
+        start()
+        return counted[0] - before
+
+    thread = threading.Thread(target=other)
+    thread.start()
+    try:
+        held = counted_over(lambda: emu_start(uc, CODE | 1))
+        assert clock.state.cycles == 2 + 2 * 10_000_000, "the loop ran: movw, movt, ten million subs and bne"
+        released = max(counted_over(lambda: uc.emu_start(CODE | 1, 0)) for _ in range(3))
+    finally:
+        stop.set()
+        thread.join(10)
+    assert held <= 3 and released >= 10, (held, released)  # a few at the Python steps around the call, at most
 
 
 # -- on the board image -----------------------------------------------------------------------------------------
