@@ -28,6 +28,7 @@ from asm_py.event import Event
 from asm_py.protocol import Kind, Method, Status, first_byte
 
 from ._profile import CLASSES
+from .calibration import check_module_type
 from .drivers import FakeDriver, JointDriver
 from .firmware_build import build_library
 from .firmware_calls import FirmwareCalls
@@ -79,6 +80,7 @@ def library() -> ctypes.CDLL:
             lib.asm_host_angle.restype = ctypes.c_float
             lib.asm_host_goal.argtypes = [ctypes.c_void_p]
             lib.asm_host_goal.restype = ctypes.c_float
+            lib.asm_module_set_type.argtypes = [ctypes.c_void_p, ctypes.c_char_p]
             _library = lib
         return _library
 
@@ -108,8 +110,10 @@ class CModule(FirmwareCalls):
         clock: Clock | None = None,
         tick: Event | None = None,
         hub: LocalNeighbours | None = None,
+        module_type: str = "",
         **bus_options: Any,
     ) -> None:
+        check_module_type(module_type)  # before anything is opened
         self.name = name
         self.node_id = node_id
         self.driver = driver if driver is not None else FakeDriver()
@@ -132,6 +136,7 @@ class CModule(FirmwareCalls):
         with self._call_lock:
             self._lib.asm_host_init(self._memory, self._name, node_id, *self._callbacks, *map(float, hardware_range),
                                     self._now_ms())  # fmt: skip
+            self._lib.asm_module_set_type(self._memory, module_type.encode())  # what a board's port sets: a constant
         self._filter([])
         self._stop = threading.Event()
         self._unlisten = tick.on_change(lambda _: self.tick()) if tick is not None else None

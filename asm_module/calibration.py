@@ -7,7 +7,9 @@ the soft limits joint.limits may be set within, themselves within the hardware's
 that breaks a rule is refused (ValueError: VALUE_ERROR on the wire), never clamped. A Python module keeps it in a
 small JSON file (what flash is to a board): :class:`CalibrationFile`.
 
-``module.info`` says what a tool cannot learn otherwise: the firmware version and build, the language, the limits
+``module.type`` names the module's type as a gait's robot description names it (gaits/robot.py), so a tool can tell a
+robot of other modules than the gait was made for (gaits/compatible.py). ``module.info`` says what a tool cannot
+learn otherwise: the firmware version and build, the language, the limits
 this module holds (states, modes, the longest message it reassembles) and, for a board, its worst control tick in
 target cycles and its stack's high-water mark (0 here: a Python module measures neither).
 """
@@ -17,6 +19,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import re
 import struct
 import zlib
 from dataclasses import asdict, dataclass
@@ -148,6 +151,19 @@ def python_info() -> dict[str, Any]:
     """module.info of a Python module."""
     return {"version": VERSION, "build": build_id(), "language": PYTHON, "max_states": MAX_STATES,
             "max_modes": MAX_MODES, "max_message": MAX_MESSAGE, "tick_cycles": 0, "stack_bytes": 0}  # fmt: skip
+
+
+TYPE_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_+-]{0,31}")
+"""A module type's name (module.type; a gait's ``[robot.types.NAME]``, gaits/schema.json's ``type_name``)."""
+
+
+def check_module_type(name: str) -> str:
+    """``name`` if it may be a module's ``module.type``: empty (the module does not say) or a type's name; else
+    ValueError saying what a name is."""
+    if name and not TYPE_NAME.fullmatch(name):
+        raise ValueError(f"a module type's name is 1 to 32 letters, digits, '_', '+' or '-', the first a letter or "
+                         f"digit, not {name[:40]!r}")  # fmt: skip
+    return name
 
 
 def version_text(version: int) -> str:

@@ -30,6 +30,7 @@ from __future__ import annotations
 import math
 import struct
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Literal
 
 from asm_py.automaton import Interpolation, PhaseState
@@ -127,9 +128,10 @@ class Mode:
         if not 0.0 <= self.phase < 1.0 or self.direction not in (1, -1):
             raise ValueError(f"phase must be in [0, 1) and direction ±1, not {self.phase}, {self.direction}")
 
-    @property
+    @cached_property
     def timed(self) -> bool:
-        """Periodic and time-driven: run by the phase-time rule of PeriodicAutomaton."""
+        """Periodic and time-driven: run by the phase-time rule of PeriodicAutomaton (asked at every tick of every
+        module, so worked out once: a mode never changes)."""
         return not self.one_shot and all(s.until is None for s in self.states)
 
     def _durations(self) -> list[float]:
@@ -141,7 +143,7 @@ class Mode:
     def phase_states(self) -> list[PhaseState]:
         return [PhaseState(s.target, d, s.interpolation) for s, d in zip(self.states, self._durations(), strict=True)]
 
-    @property
+    @cached_property
     def period(self) -> float | None:
         return math.fsum(self._durations()) if self.timed else None
 

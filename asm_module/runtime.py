@@ -9,6 +9,7 @@ What a module has is what it exposes (well-known classes, so groups and tools ad
     joint.calibration  zero, direction, soft limits (asm_module/calibration.py): applied to every command and
                     reading, kept by ``calibration_store`` (a file) when given
     module.info     version, build, limits (read-only)
+    module.type     str      the name of the module's type (read-only; "": not said)
     servo.service   the servo loop: running = joint powered and following joint.goal; stopped = limp
     gait.table      bytes    this module's automaton (asm_module.wire); settable only while the gait is stopped
     gait.checksum   uint32   CRC-32 of gait.table, for a deploying tool to verify the transfer
@@ -53,7 +54,14 @@ from asm_py.node import Node
 from asm_py.protocol import WRITES, Method
 
 from ._profile import PROFILE
-from .calibration import CalibratedJoint, Calibration, CalibrationFile, check_calibration, python_info
+from .calibration import (
+    CalibratedJoint,
+    Calibration,
+    CalibrationFile,
+    check_calibration,
+    check_module_type,
+    python_info,
+)
 from .drivers import JointDriver
 from .gait_service import ModuleGait
 from .neighbours import BusNeighbours, LocalNeighbours, Neighbours
@@ -108,6 +116,7 @@ class ModuleRuntime:
         module_id: int = 1,
         neighbours: Neighbours | None = None,
         calibration_store: CalibrationFile | None = None,
+        module_type: str = "",
     ) -> None:
         self.driver = driver
         """The joint's raw driver (the runtime drives it through :attr:`joint`, the calibration applied)."""
@@ -136,6 +145,10 @@ class ModuleRuntime:
         self._recalibrating = False
         self.info = Attribute("module.info", python_info(), codec=parse_codec(PROFILE["module.info"].codec),
                               clock=self.clock)  # fmt: skip
+        self.module_type = Attribute("module.type", check_module_type(module_type),
+                              codec=parse_codec(PROFILE["module.type"].codec), clock=self.clock)  # fmt: skip
+        """What the module is, as a robot description names its type (the command line's, or the simulated robot's
+        description): gaits/compatible.py compares it with the gait's."""
         self.limits = CheckedAttribute("joint.limits", self._check_limits(limits), codec=float_array(2),
                                        check=self._check_limits, reset=self._soft_limits,
                                        clock=self.clock)  # fmt: skip
@@ -203,6 +216,7 @@ class ModuleRuntime:
         node.register(self.gait.state, name="gait.state", read_only=True)
         register(gait.switch, gait.cycle, gait.mode, gait.done, gait.signal)  # after version 1's objects: IDs stay
         register(self.info, self.calibration)  # and after those: the C runtime registers them in this order too
+        register(self.module_type)  # and after those (module.type came later still)
         # changes beyond the deadband, at most ``publish_limit`` a second (a moving joint changes at every control
         # tick: 32 modules at 50 Hz would be 1 600 frames a second), and a refresh ``refresh_rate`` times a second
         # when nothing moves: a resting robot keeps the bus quiet
@@ -215,8 +229,8 @@ class ModuleRuntime:
 
     def _read_only(self) -> tuple[Attribute, ...]:
         gait = self.gait
-        return (self.info, self.angle, self.torque, self.contact, self.checksum, self.staging.staged_checksum,
-                self.tick, gait.cycle, gait.mode, gait.done)  # fmt: skip
+        return (self.info, self.module_type, self.angle, self.torque, self.contact, self.checksum,
+                self.staging.staged_checksum, self.tick, gait.cycle, gait.mode, gait.done)  # fmt: skip
 
     def _refuse_in_estop(self, name: str, methods: frozenset[int] | tuple[int, ...]) -> Callable[[int], None]:
         def guard(method: int) -> None:

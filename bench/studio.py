@@ -27,6 +27,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from bench._processes import Child, free_port
 from gaits.model import LIBRARY, dumps, load
 from web.document import GaitDocument
+from web.viewer_client import camera_message, carries_poses
 
 CHROMIUM = "/usr/bin/chromium"
 MODULES = 32
@@ -45,7 +46,8 @@ def draw_cost(path: Path) -> float:
     """Seconds per SceneView.draw of the 32-module robot (viser server in this process, nobody connected)."""
     import viser
 
-    from web.preview import PreviewLoop, SceneView
+    from web.preview import PreviewLoop
+    from web.scene_view import SceneView
 
     server = viser.ViserServer(host="127.0.0.1", port=free_port(), verbose=False)
     loop = PreviewLoop(load(path))
@@ -84,6 +86,7 @@ def delivered(port: int) -> float:
     from websockets.sync.client import connect
 
     with connect(f"ws://127.0.0.1:{port}", subprotocols=[f"viser-v{viser.__version__}"], max_size=None) as ws:  # type: ignore[list-item]
+        ws.send(camera_message())  # a browser's first message: viser counts a client as connected from it on
         end = time.monotonic() + 2.0  # the scene is built and the preview plays
         while time.monotonic() < end:
             ws.recv(timeout=5)
@@ -106,17 +109,6 @@ def deploy_from_outside(path: Path, endpoint: str) -> None:
         time.sleep(2.0)  # every module running, past its 1 s ramp
     finally:
         client.close()
-
-
-def carries_poses(window: bytes) -> bool:
-    """Whether a viser websocket window updates batched poses. Its layout (viser/infra/_infra.py): 8 bytes
-    decompressed size, 8 bytes compressed size, zstd-compressed msgpack {"messages": [...]}, raw buffers."""
-    import msgspec
-    import zstandard
-
-    size = int.from_bytes(window[8:16], "little")
-    inner = msgspec.msgpack.decode(zstandard.ZstdDecompressor().decompress(window[16 : 16 + size]))
-    return any("batched_positions" in str(message) for message in inner.get("messages", ()))
 
 
 def drawn_in_browser(port: int) -> float:

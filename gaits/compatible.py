@@ -1,20 +1,23 @@
 """Are a connected robot's modules the ones a gait describes? Checked before a deploy, so a mismatch is said first.
 
-A gait is previewed and tuned for its ``[robot]``: so many modules, each of its ``[robot.module]`` type, whose hinge
-turns ±``range`` degrees. A module reports whether it answers, its ``joint.limits`` — settable only within its
+A gait is previewed and tuned for its ``[robot]``: so many modules, each of its module type (gaits/robot.py), whose
+hinge turns ±``range`` degrees. A module reports whether it answers, its ``joint.limits`` — settable only within its
 calibration's soft limits (``joint.calibration``, themselves within its hardware's range), and every goal sent is
-clamped to them — and its ``module.info``: firmware version, language and how many states it holds. From those,
-:func:`mismatches` finds:
+clamped to them — its ``module.info``: firmware version, language and how many states it holds, and its
+``module.type``: the name of its type (a module older than the object, or one not told its type, says none). From
+those, :func:`mismatches` finds:
 
 * modules the gait assigns that do not answer, and modules that answer but the gait does not name (the robot has
   another count of modules than the one simulated);
 * a module whose limits cut off angles the gait commands (it would be clamped, and not run as previewed);
-* a module whose limits reach beyond the gait's module's hinge range: its joint turns further than the module the
-  gait was made for, so it is another type of module;
+* a module whose type is not the one the gait describes for it (``m3 is module type X, the gait describes Y``),
+  where the module says its type and the gait names it;
+* where the types cannot be compared so, a module whose limits reach beyond the hinge range of its type in the gait:
+  its joint turns further than the module the gait was made for, so it is another type of module;
 * a module that holds fewer states than the gait gives it (its module.info's ``max_states``: a C module keeps 64).
 
 :func:`read_limits` and :func:`read_objects` ask each module; the Deploy tab (web/deploy_panel.py) shows the lines
-before it asks to deploy to a real robot, and :func:`module_lines` (each module's firmware and calibration) in its
+before it asks to deploy to a real robot, and :func:`module_lines` (each module's firmware, type and calibration) in its
 log.
 """
 
@@ -52,9 +55,10 @@ def states_needed(gait: Gait) -> dict[int, int]:
 
 
 def mismatches(gait: Gait, present: Iterable[str], limits: Mapping[str, tuple[float, float]],
-               infos: Mapping[str, Mapping[str, Any]] | None = None) -> list[str]:  # fmt: skip
-    """What differs between the gait's robot and the modules that answered (``present``, with the ``limits`` and
-    the ``module.info`` each reported); empty when nothing does."""
+               infos: Mapping[str, Mapping[str, Any]] | None = None,
+               types: Mapping[str, str] | None = None) -> list[str]:  # fmt: skip
+    """What differs between the gait's robot and the modules that answered (``present``, with the ``limits``, the
+    ``module.info`` and the ``module.type`` each reported); empty when nothing does."""
     present = set(present)
     wanted = {module_name(a.id): a.id for a in gait.modules}
     lines = []
@@ -67,8 +71,14 @@ def mismatches(gait: Gait, present: Iterable[str], limits: Mapping[str, tuple[fl
         lines.append(f"{', '.join(extra)} answered but the gait has {len(wanted)} modules: the robot is not the "
                      f"{gait.robot.modules}-module {gait.robot.shape} it was made for")  # fmt: skip
     spans = commanded(gait)
-    hinge = gait.robot.module.range
+    robot = gait.robot
     for name, module_id in sorted(wanted.items(), key=lambda item: item[1]):
+        described, reported = robot.type_name(module_id), (types or {}).get(name, "")
+        compared = bool(described and reported)  # both name a type: the names say it, not the range
+        if compared and reported != described:
+            where = f"robot.types.{described}"
+            lines.append(f"{name} is module type {reported}, the gait describes {described} ({where}): another "
+                         "type of module than the one simulated")  # fmt: skip
         if name not in limits:
             continue
         low, high = limits[name]
@@ -76,9 +86,11 @@ def mismatches(gait: Gait, present: Iterable[str], limits: Mapping[str, tuple[fl
         if low > want_low + 1e-3 or high < want_high - 1e-3:
             lines.append(f"{name} allows {low:g}..{high:g}°, the gait commands {want_low:g}..{want_high:g}°: it "
                          "would be clamped and not move as previewed")  # fmt: skip
-        if low < -hinge - 1e-3 or high > hinge + 1e-3:
+        hinge = robot.module_type(module_id).range
+        if not compared and (low < -hinge - 1e-3 or high > hinge + 1e-3):
+            where = f"robot.types.{described}.range" if described else "robot.module.range"
             lines.append(f"{name} turns {low:g}..{high:g}°, beyond the ±{hinge:g}° hinge of the gait's module "
-                         "(robot.module.range): another type of module than the one simulated")  # fmt: skip
+                         f"({where}): another type of module than the one simulated")  # fmt: skip
     needed = states_needed(gait)
     for name, module_id in sorted(wanted.items(), key=lambda item: item[1]):
         info = (infos or {}).get(name)
@@ -100,16 +112,20 @@ def read_objects(lookup: Any, names: Iterable[str], object_name: str, timeout: f
     return found
 
 
-def module_lines(infos: Mapping[str, Mapping[str, Any]], calibrations: Mapping[str, Mapping[str, Any]]) -> list[str]:
-    """One line per module: its firmware (language, version, build) and calibration, for a deploy's log."""
+def module_lines(infos: Mapping[str, Mapping[str, Any]], calibrations: Mapping[str, Mapping[str, Any]],
+                 types: Mapping[str, str] | None = None) -> list[str]:  # fmt: skip
+    """One line per module: its firmware (language, version, build), type and calibration, for a deploy's log."""
+    types = types or {}
     lines = []
-    for name in sorted(set(infos) | set(calibrations), key=lambda n: (len(n), n)):
+    for name in sorted(set(infos) | set(calibrations) | set(types), key=lambda n: (len(n), n)):
         parts = [name + ":"]
         info = infos.get(name)
         if info is not None:
             v = int(info["version"])
             language = {0: "Python", 1: "C"}.get(int(info["language"]), f"language {info['language']}")
             parts.append(f"{language} {v >> 16 & 0xFF}.{v >> 8 & 0xFF}.{v & 0xFF} build {int(info['build']):08x}")
+        if types.get(name):
+            parts.append(f"type {types[name]}")
         c = calibrations.get(name)
         if c is not None:
             parts.append(f"zero {c['zero']:g}°, direction {int(c['direction']):+d}, soft limits "

@@ -16,7 +16,7 @@ class Metrics:
     displacement: tuple[float, float]
     """Centre-of-mass travel (x, y), metres."""
     body_length: float
-    """Modules × module size, metres."""
+    """The modules' lengths laid end to end, metres."""
     peak_torque: float
     """Largest absolute actuator torque seen, N·m."""
     fell: bool
@@ -32,6 +32,9 @@ class Metrics:
     """The robot's mass, kg."""
     turned: float = 0.0
     """How far the robot's heading turned, degrees counter-clockwise (unwrapped: two turns are 720)."""
+    peak_load: float = 0.0
+    """The largest share of its own servo's stall torque any module exerted (1: at stall), sampled as the peak
+    torque is: what judges a robot whose module types have different servos."""
 
     @property
     def distance(self) -> float:

@@ -17,33 +17,18 @@ The text is plain MJCF: ``gaits simulate FILE --mjcf OUT.xml`` writes it, and Mu
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
-from typing import Any
+from dataclasses import dataclass
 
-from .model import Robot
+from .robot import Robot
 from .terrain import FLAT, Ground, Terrain
 
 
 @dataclass(frozen=True)
 class Physics:
-    """The physical parameters of a simulated robot; defaults are SIMULATION.md's measured module model, which is
-    also ``ModuleType()``'s (:meth:`of` takes a gait file's own module description)."""
+    """The simulated world around a robot: the ground's friction, the integrator, how contacts are modelled. What a
+    module is — its size, mass, servo — is the gait's robot description (gaits/robot.py), module by module; the
+    defaults are SIMULATION.md's measured model."""
 
-    module_mass: float = 0.2
-    """kg per module."""
-    kp: float = 10.0
-    """Position gain of each joint's actuator, N·m/rad."""
-    kv: float = 0.1
-    """Damping gain, N·m·s/rad."""
-    torque: float = 1.5
-    """Torque limit of each joint, N·m: the servo's stall torque."""
-    no_load_speed: float | None = None
-    """Degrees per second where the servo's torque in its direction of motion reaches 0 (the torque-speed line);
-    None: no speed limit. MuJoCo's force range is constant, so gaits.servo narrows it every physics step."""
-    deadband: float = 0.0
-    """Degrees of error the servo does not correct (gaits.servo zeroes its force range inside the band)."""
-    joint_range: float = 90.0
-    """Mechanical range of each hinge, ± degrees."""
     armature: float = 0.005
     friction: float = 1.0
     """Coulomb friction μ between modules and the ground."""
@@ -56,18 +41,37 @@ class Physics:
     """Collide with capsules along each module instead of boxes: half the contacts, about twice the speed, and
     what anisotropic friction needs. None: capsules for anisotropic ground and for chains of 32 modules or more."""
 
-    @classmethod
-    def of(cls, robot: Robot, **options: Any) -> Physics:
-        """The physics of ``robot``'s own module description (``[robot.module]``), with ``options`` overriding."""
-        m = robot.module
-        physics = cls(module_mass=m.mass, kp=m.kp, kv=m.damping, torque=m.stall_torque, joint_range=m.range,
-                      no_load_speed=m.no_load_speed, deadband=m.deadband)  # fmt: skip
-        return replace(physics, **options)
 
-    @property
-    def ideal_servo(self) -> bool:
-        """MuJoCo's position actuator alone models the servo: no torque-speed line, no deadband."""
-        return self.no_load_speed is None and self.deadband == 0.0
+@dataclass(frozen=True)
+class _Half:
+    """Half a module, from its hinge to one end: a body is one or two of them (the halves on either side of a
+    hinge are rigidly joined)."""
+
+    length: float
+    width: float
+    height: float
+    mass: float
+    inertia: tuple[float, float, float] | None
+    """kg·m² about the half's own centre when its type gives the module's inertia (else a solid box's)."""
+
+    def moments(self) -> tuple[float, float, float]:
+        if self.inertia is not None:
+            return self.inertia
+        m, x, y, z = self.mass, self.length, self.width, self.height
+        return m * (y * y + z * z) / 12, m * (x * x + z * z) / 12, m * (x * x + y * y) / 12
+
+
+def half_of(robot: Robot, module_id: int) -> _Half:
+    """Either half of module ``module_id``: half its length and mass. A given inertia is split so that the two
+    halves, each's mass a quarter of the length from the centre, add up to it (gaits/robot.py checks it can be)."""
+    t = robot.module_type(module_id)
+    length, width, height = robot.size_of(module_id)
+    inertia = None
+    if t.inertia is not None:
+        ixx, iyy, izz = t.inertia
+        spread = t.mass * length * length / 32  # (m/2)·(L/4)²: a half's mass off the module's centre
+        inertia = (ixx / 2, iyy / 2 - spread, izz / 2 - spread)
+    return _Half(length / 2, width, height, t.mass / 2, inertia)
 
 
 def _f(x: float) -> str:
@@ -92,7 +96,6 @@ class _Writer:
         self.robot = robot
         self.ground = ground
         self.p = physics
-        self.s, self.width, self.height = robot.size
         self.lines: list[str] = []
         self.pairs: list[str] = []
         self.excludes: list[tuple[str, str]] = []
@@ -110,10 +113,27 @@ class _Writer:
         for level in reversed(range(count)):
             self.emit(depth + level, "</body>")
 
-    def segment(self, depth: int, name: str, length: float, mass: float, sign: float) -> None:
-        """The geometry of one body: a box of ``length`` along ±x (``sign``) from the body frame."""
-        w, h = self.width / 2, self.height / 2
-        cx = sign * length / 2
+    def segment(self, depth: int, name: str, parts: list[_Half], sign: float) -> None:
+        """The geometry of one body: its module halves laid along ±x (``sign``) from the body frame. One box (or
+        capsule) when they share a cross-section, one each otherwise; an explicit inertial when a type gives its
+        inertia (MuJoCo then ignores the geoms' masses)."""
+        first = parts[0]
+        if all((p.width, p.height) == (first.width, first.height) for p in parts):
+            self.piece(depth, name, sum(p.length for p in parts), first, sum(p.mass for p in parts), 0.0, sign)
+        else:
+            start = 0.0
+            for k, p in enumerate(parts):
+                self.piece(depth, name if k == 0 else f"{name}_{k + 1}", p.length, p, p.mass, start, sign)
+                start += p.length
+        if any(p.inertia is not None for p in parts):
+            self.inertial(depth, parts, sign)
+
+    def piece(self, depth: int, name: str, length: float, section: _Half, mass: float, start: float,
+              sign: float) -> None:  # fmt: skip
+        """A box of ``length`` and ``section``'s cross-section from ``start`` along ±x: a box geom, or a capsule
+        colliding inside a visual box."""
+        w, h = section.width / 2, section.height / 2
+        cx = sign * (start + length / 2)
         if not self.capsules:
             self.emit(depth, f'<geom name="{name}" type="box" size="{_v(length / 2, w, h)}" pos="{_f(cx)} 0 0" '
                              f'mass="{_f(mass)}" class="module"/>')  # fmt: skip
@@ -133,12 +153,32 @@ class _Writer:
                 self.pairs.append(f'<pair geom1="{name}" geom2="{floor}" condim="3" '
                                   f'friction="{_v(along, across, 0.005, 0.0001, 0.0001)}"/>')  # fmt: skip
 
-    def hinge(self, depth: int, module: int, axis: tuple[float, float, float], limits: tuple[float, float]) -> None:
+    def inertial(self, depth: int, parts: list[_Half], sign: float) -> None:
+        """The body's mass, centre and principal moments from its halves' (parallel axes along x)."""
+        centres, start = [], 0.0
+        for p in parts:
+            centres.append(sign * (start + p.length / 2))
+            start += p.length
+        mass = math.fsum(p.mass for p in parts)
+        xc = math.fsum(p.mass * x for p, x in zip(parts, centres, strict=True)) / mass
+        moments = [p.moments() for p in parts]
+        offsets = [p.mass * (x - xc) ** 2 for p, x in zip(parts, centres, strict=True)]
+        ixx = math.fsum(i[0] for i in moments)
+        iyy = math.fsum(i[1] + d for i, d in zip(moments, offsets, strict=True))
+        izz = math.fsum(i[2] + d for i, d in zip(moments, offsets, strict=True))
+        self.emit(depth, f'<inertial pos="{_f(xc)} 0 0" mass="{_f(mass)}" '
+                         f'diaginertia="{ixx:.9g} {iyy:.9g} {izz:.9g}"/>')  # fmt: skip
+
+    def hinge(self, depth: int, module: int, axis: tuple[float, float, float], bend: float = 0.0) -> None:
+        """Module ``module``'s joint and actuator, from its type's range and servo (a loop's range shifted by its
+        ``bend``, rad, to keep the mechanical ±range absolute)."""
+        t = self.robot.module_type(module)
+        limits = (-t.range + math.degrees(bend), t.range + math.degrees(bend)) if bend else (-t.range, t.range)
         lo, hi = (math.radians(v) for v in limits)
         self.emit(depth, f'<joint name="m{module}" type="hinge" axis="{_v(*axis)}" range="{_v(lo, hi)}"/>')
-        self.actuators[module] = (f'<position name="m{module}" joint="m{module}" kp="{_f(self.p.kp)}" '
-                              f'kv="{_f(self.p.kv)}" ctrlrange="{_v(lo, hi)}" '
-                              f'forcerange="{_v(-self.p.torque, self.p.torque)}"/>')  # fmt: skip
+        self.actuators[module] = (f'<position name="m{module}" joint="m{module}" kp="{_f(t.kp)}" '
+                                  f'kv="{_f(t.damping)}" ctrlrange="{_v(lo, hi)}" '
+                                  f'forcerange="{_v(-t.stall_torque, t.stall_torque)}"/>')  # fmt: skip
 
     def axis(self, module_index: int) -> tuple[float, float, float]:
         return (0.0, 1.0, 0.0) if self.robot.axis(module_index) == "pitch" else (0.0, 0.0, 1.0)
@@ -147,26 +187,23 @@ class _Writer:
 
     def chain(self, depth: int, bend: float) -> None:
         """Bodies b0..bn with hinges m1..mn; ``bend`` (rad) pre-bends every hinge about -y (loops)."""
-        n, s = self.robot.modules, self.s
-        m = self.p.module_mass
-        lengths = [s / 2] + [s] * (n - 1) + [s / 2]
-        masses = [m / 2] + [m] * (n - 1) + [m / 2]
+        n = self.robot.modules
+        half = [half_of(self.robot, k) for k in range(1, n + 1)]
+        parts = [[half[0]], *([half[k - 1], half[k]] for k in range(1, n)), [half[n - 1]]]
+        lengths = [sum(p.length for p in body) for body in parts]
         root = 0 if bend else n // 2
-        full = (-self.p.joint_range, self.p.joint_range)
-        # A loop's hinge is bent by `bend` already: its range is shifted to keep the mechanical ±range absolute.
-        limits = (full[0] + math.degrees(bend), full[1] + math.degrees(bend)) if bend else full
         # a chain is centred on the origin; a loop stands on its bottom edge (the two welded end halves)
-        x = 0.0 if bend else -n * s / 2 + sum(lengths[:root])
-        self.emit(depth, f'<body name="b{root}" pos="{_v(x, 0, self.height / 2)}">')
+        x = 0.0 if bend else -self.robot.length / 2 + sum(lengths[:root])
+        self.emit(depth, f'<body name="b{root}" pos="{_v(x, 0, max(h.height for h in half) / 2)}">')
         self.emit(depth + 1, '<freejoint name="root"/>')
-        self.segment(depth + 1, f"b{root}", lengths[root], masses[root], 1.0)
+        self.segment(depth + 1, f"b{root}", parts[root], 1.0)
         # forward branch: b(k) is a child of b(k-1), framed at hinge k, extending +x
         forward = range(root + 1, n + 1)
         for level, k in enumerate(forward, start=depth + 1):
             rotation = f' quat="{_quat_y(-bend)}"' if bend else ""
             self.emit(level, f'<body name="b{k}" pos="{_f(lengths[k - 1])} 0 0"{rotation}>')
-            self.hinge(level + 1, k, self.axis(k - 1), limits)
-            self.segment(level + 1, f"b{k}", lengths[k], masses[k], 1.0)
+            self.hinge(level + 1, k, self.axis(k - 1), bend)
+            self.segment(level + 1, f"b{k}", parts[k], 1.0)
         if bend:  # where the loop's last half ends: the weld brings it onto b0's start
             self.emit(depth + len(forward) + 1, f'<site name="loop_end" pos="{_f(lengths[n])} 0 0"/>')
         self.close_bodies(depth + 1, len(forward))
@@ -176,8 +213,8 @@ class _Writer:
             back = 0.0 if k == root else -lengths[k]  # b(k) is framed at hinge k + 1, except the root
             self.emit(level, f'<body name="b{k - 1}" pos="{_f(back)} 0 0">')
             x, y, z = self.axis(k - 1)
-            self.hinge(level + 1, k, (-x, -y, -z), limits)
-            self.segment(level + 1, f"b{k - 1}", lengths[k - 1], masses[k - 1], -1.0)
+            self.hinge(level + 1, k, (-x, -y, -z), bend)
+            self.segment(level + 1, f"b{k - 1}", parts[k - 1], -1.0)
         self.close_bodies(depth + 1, len(backward))
         self.emit(depth, "</body>")
 
@@ -186,15 +223,16 @@ class _Writer:
     def legged(self, depth: int) -> None:
         """A central body with ``legs`` legs, half on each side (left legs point +y, right legs -y, numbered
         counter-clockwise from the front left). Each leg's first module is a hip (yaw), the others pitch (positive
-        lifts the foot); the last module's distal half carries a foot post pointing down."""
-        robot, s = self.robot, self.s
+        lifts the foot); the last module's distal half carries a foot post pointing down. The central body is
+        sized by the default module type."""
+        robot = self.robot
+        s = robot.size[0]
         legs = robot.legs or 4
         per_leg = robot.modules // legs
         per_side = max(1, legs // 2)
-        m = self.p.module_mass
+        half = [half_of(robot, k) for k in range(1, robot.modules + 1)]
         length, width = 1.5 * s * per_side, s  # half extents of the central body
         foot = 1.2 * s
-        full = (-self.p.joint_range, self.p.joint_range)
         self.emit(depth, f'<body name="body" pos="0 0 {_f(foot + 0.002)}">')
         self.emit(depth + 1, '<freejoint name="root"/>')
         self.emit(depth + 1, f'<geom name="body" type="box" size="{_v(length, width, s / 2)}" '
@@ -207,25 +245,27 @@ class _Writer:
             y, yaw = (width, math.pi / 2) if left else (-width, -math.pi / 2)
             d = depth + 1
             self.emit(d, f'<body name="leg{leg}" pos="{_v(x, y, 0)}" quat="{_quat_z(yaw)}">')
-            self.segment(d + 1, f"leg{leg}", s / 2, m / 2, 1.0)  # the hip module's proximal half, fixed to the body
+            self.segment(d + 1, f"leg{leg}", [half[module]], 1.0)  # the hip module's proximal half, on the body
             for j in range(per_leg):
                 module += 1
                 d += 1
                 last = j == per_leg - 1
-                self.emit(d, f'<body name="b{module}" pos="{_f(s / 2 if j == 0 else s)} 0 0">')
-                self.hinge(d + 1, module, (0.0, 0.0, 1.0) if j == 0 else (0.0, -1.0, 0.0), full)
-                self.segment(d + 1, f"b{module}", s / 2 if last else s, m / 2 if last else m, 1.0)
+                mine = half[module - 1]
+                hinge = mine.length if j == 0 else half[module - 2].length + mine.length  # from the last hinge
+                self.emit(d, f'<body name="b{module}" pos="{_f(hinge)} 0 0">')
+                self.hinge(d + 1, module, (0.0, 0.0, 1.0) if j == 0 else (0.0, -1.0, 0.0))
+                self.segment(d + 1, f"b{module}", [mine] if last else [mine, half[module]], 1.0)
                 if last:
-                    self.emit(d + 1, f'<geom name="foot{leg}" type="capsule" size="{_f(s / 4)}" '
-                                     f'fromto="{_v(s / 2, 0, 0, s / 2, 0, -foot + s / 4)}" mass="0.01" '
-                                     f'class="module"/>')  # fmt: skip
+                    self.emit(d + 1, f'<geom name="foot{leg}" type="capsule" size="{_f(mine.length / 2)}" '
+                                     f'fromto="{_v(mine.length, 0, 0, mine.length, 0, -foot + mine.length / 2)}" '
+                                     f'mass="0.01" class="module"/>')  # fmt: skip
             self.close_bodies(depth + 1, per_leg + 1)
         self.emit(depth, "</body>")
 
 
 def build_mjcf(robot: Robot, physics: Physics | None = None, *, name: str = "robot", terrain: Terrain = FLAT) -> str:
     """The MJCF text of ``robot``: modules, actuators, the ground of ``terrain`` and (for loops) the closing weld."""
-    p = physics or Physics.of(robot)
+    p = physics or Physics()
     if p.anisotropic is not None and terrain.kind == "patches":
         # anisotropic friction is an explicit pair per module and ground geom, whose friction overrides the tile's
         raise ValueError("friction patches need isotropic ground friction; this gait's [ground] is anisotropic")

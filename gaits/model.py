@@ -9,6 +9,9 @@
     [robot.module]           # optional: the module's description (gaits/README.md); every field defaults to today's
     mass = 0.2               # kg
     stall_torque = 1.5       # N·m
+    [robot.types.heavy]      # optional: named module types, each with its module IDs (gaits/robot.py); or
+    mass = 0.6               # [robot] file = "my_robot.toml", a robot file holding the description
+    ids = [4, 5]
     [limits]                 # joint limits, degrees; every module enforces them whatever it is sent
     min = -90.0
     max = 90.0
@@ -31,17 +34,20 @@ every problem with its field path and, where it can be found, its line.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Iterator
-from dataclasses import dataclass, field, fields
+from collections.abc import Callable
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import tomli_w
 
 from .errors import GaitError as GaitError  # re-exported: callers have always found it here
-from .errors import Problem
-from .lines import LineIndex, format_path
-from .validate import SCHEMA, brief, decode, parse, raise_if, read, structure_problems
+from .errors import Problem as Problem
+from .robot import FIELDS as FIELDS  # re-exported: the fields of a module type
+from .robot import ModuleType as ModuleType
+from .robot import Robot as Robot
+from .robot import description, robot_of
+from .validate import SCHEMA, Checker, brief, decode, parse, read
 
 _FIELDS = SCHEMA["properties"]
 SHAPES: tuple[str, ...] = tuple(_FIELDS["robot"]["properties"]["shape"]["enum"])
@@ -106,65 +112,6 @@ class Assignment:
 
 
 @dataclass
-class ModuleType:
-    """The robot's module, described once: its body and its servo. Every default is the module the simulator has
-    always modelled (SIMULATION.md: 5 cm, 0.2 kg, kp 10, kv 0.1, ±1.5 N·m, ±90°), so a file without a
-    ``[robot.module]`` table simulates exactly as before; a field given in the file overrides only itself.
-    The gait is then judged against the servo it will meet, not an ideal one."""
-
-    length: float | None = None
-    """Metres along the chain; None: ``robot.module_size`` (which a given length sets)."""
-    width: float | None = None
-    """Metres across the chain (the hinge axis of a pitch module); None: the length, a cube."""
-    height: float | None = None
-    """Metres, bottom to top; None: the length."""
-    mass: float = 0.2
-    """kg per module."""
-    stall_torque: float = 1.5
-    """N·m: the most the servo exerts, at standstill (the actuator's force limit)."""
-    no_load_speed: float | None = None
-    """Degrees per second at which the torque the servo can give in its direction of motion has fallen (linearly)
-    to zero, as on a DC motor's torque-speed line; None: no such limit (the ideal servo of the past)."""
-    kp: float = 10.0
-    """Position gain, N·m per radian of error (MuJoCo's unit, as SIMULATION.md gives it)."""
-    damping: float = 0.1
-    """Velocity gain, N·m·s per radian."""
-    deadband: float = 0.0
-    """Degrees: while |goal − angle| is below it the servo exerts no torque (no correction), as a hobby servo's
-    deadband or a gearbox's backlash lets the joint sit off its goal."""
-    range: float = 90.0
-    """The hinge's mechanical range, ± degrees: the actuator cannot be commanded beyond it."""
-
-
-_MODULE_FIELDS: tuple[str, ...] = tuple(f.name for f in fields(ModuleType))
-
-
-@dataclass
-class Robot:
-    shape: str = "chain"
-    modules: int = 8
-    axes: str = "pitch"
-    module_size: float = 0.05
-    legs: int = 0
-    """Legged robots: number of legs around the body (the modules are split evenly among them)."""
-    module: ModuleType = field(default_factory=ModuleType)
-    """What each module is: its size, mass and servo (the ``[robot.module]`` table)."""
-
-    @property
-    def size(self) -> tuple[float, float, float]:
-        """A module's (length, width, height), metres: the description's, else a cube of ``module_size``."""
-        m = self.module
-        length = self.module_size if m.length is None else m.length
-        return length, length if m.width is None else m.width, length if m.height is None else m.height
-
-    def axis(self, index: int) -> str:
-        """The axis of module ``index`` (0-based): pitch or yaw."""
-        if self.axes == "alternating":
-            return "pitch" if index % 2 == 0 else "yaw"
-        return self.axes
-
-
-@dataclass
 class Ground:
     """The surface the robot is simulated on (a real robot meets whatever floor it is on)."""
 
@@ -216,67 +163,33 @@ class Gait:
 
 
 def load(path: str | Path) -> Gait:
-    """Read, parse and validate a gait file; GaitError (never anything else) for any bytes it holds."""
-    return loads(read(path), source=str(path))
+    """Read, parse and validate a gait file; GaitError (never anything else) for any bytes it holds (and for a robot
+    file it names, beside it)."""
+    return loads(read(path), source=str(path), path=Path(path))
 
 
-def loads(text: str | bytes, *, source: str = "<gait>") -> Gait:
-    """Parse and validate a gait document; GaitError lists every problem."""
+def loads(text: str | bytes, *, source: str = "<gait>", path: Path | None = None) -> Gait:
+    """Parse and validate a gait document; GaitError lists every problem. ``path``: the file it was read from,
+    whose folder holds a robot file it names (without one it cannot name any)."""
     text = decode(text, source)
-    return from_dict(parse(text, source), source=source, text=text)
+    return from_dict(parse(text, source), source=source, text=text, path=path)
 
 
-def _non_finite(value: Any, path: list[str | int]) -> Iterator[list[str | int]]:
-    """Paths of nan and inf in a document (TOML has them, JSON, and so the schema, does not)."""
-    if isinstance(value, float) and not math.isfinite(value):
-        yield path
-    elif isinstance(value, dict):
-        for key, item in value.items():
-            yield from _non_finite(item, [*path, key])
-    elif isinstance(value, list):
-        for k, item in enumerate(value):
-            yield from _non_finite(item, [*path, k])
-
-
-def from_dict(data: Any, *, source: str = "<gait>", text: str | None = None) -> Gait:
-    """Validate a parsed document (structure by gaits/schema.json, then what a schema cannot say) and build it."""
-    index: list[LineIndex] = []
-
-    def line(path: str) -> int | None:
-        if text is None:  # a document built in memory has no lines
-            return None
-        if not index:
-            index.append(LineIndex(text))  # one pass over the file, only when there is something to point at
-        return index[0].line(path)
-
-    problems, uncounted = structure_problems(data, line)
-    raise_if(problems, source, uncounted=uncounted)  # the checks below rely on the structure being right
-
-    def bad(path: str, message: str) -> None:
-        problems.append(Problem(path, message, line(path)))
-
-    for parts in _non_finite(data, []):
-        bad(format_path(parts), "must be a finite number, not nan or inf")
-    raise_if(problems, source)
-    robot_data = dict(data["robot"])
-    module_data = robot_data.pop("module", {})
-    robot = Robot(**robot_data, module=ModuleType(**module_data))
-    if "length" in module_data:
-        if "module_size" not in robot_data:
-            robot.module_size = module_data["length"]  # everything that measures the body reads module_size
-        elif robot.module_size != module_data["length"]:
-            bad("robot.module.length", f"{module_data['length']} m differs from robot.module_size "
-                                       f"{robot.module_size} m: give one of them")  # fmt: skip
-    if robot.shape == "legged" and (robot.legs < 2 or robot.modules % robot.legs):
-        bad("robot.legs", f"a legged robot needs 2 or more legs sharing its {robot.modules} modules evenly")
-    if robot.shape == "loop" and robot.modules < 4:
-        bad("robot.modules", "a closed loop needs at least 4 modules")
+def from_dict(data: Any, *, source: str = "<gait>", text: str | None = None, path: Path | None = None) -> Gait:
+    """Validate a parsed document (structure by gaits/schema.json, then what a schema cannot say) and build it.
+    ``path``: the gait file's, beside which a robot file it names is read."""
+    check = Checker(source, text)
+    check.check_structure(data)  # the checks below rely on the structure being right
+    bad = check.bad
     limits = data.get("limits", {})
     low, high = limits.get("min", -90.0), limits.get("max", 90.0)
     if not low < high:
         bad("limits", f"min must be below max, not {low}..{high}")
-    elif "range" in module_data and not -robot.module.range <= low < high <= robot.module.range:
-        bad("limits", f"{low}..{high}° exceeds the module's joint range ±{robot.module.range}° (robot.module.range)")
+    robot = robot_of(data["robot"], check, (low, high), path)
+    if robot.shape == "legged" and (robot.legs < 2 or robot.modules % robot.legs):
+        bad("robot.legs", f"a legged robot needs 2 or more legs sharing its {robot.modules} modules evenly")
+    if robot.shape == "loop" and robot.modules < 4:
+        bad("robot.modules", "a closed loop needs at least 4 modules")
     ground_data = data.get("ground", {})
     anisotropic = ground_data.get("anisotropic")
     ground = Ground(
@@ -302,20 +215,20 @@ def from_dict(data: Any, *, source: str = "<gait>", text: str | None = None) -> 
 
     lists = {FORWARD: ("modules", data["modules"])}
     lists |= {name: (f"gaits.{name}.modules", g["modules"]) for name, g in data.get("gaits", {}).items()}
-    for path, listed in lists.values():
-        _check_assignments(path, listed, robot, automata, bad)
+    for where, listed in lists.values():
+        _check_assignments(where, listed, robot, automata, bad)
     sequence = [(step["gait"], step.get("cycles", 0)) for step in data.get("program", {}).get("sequence", [])]
     for k, (name, cycles) in enumerate(sequence):
         if name not in lists:
             bad(f"program.sequence[{k}].gait", f"unknown gait {brief(name)} (the program has: {', '.join(lists)})")
         elif not cycles and k + 1 < len(sequence) and not _ends(automata, lists[name][1]):
             bad(f"program.sequence[{k}]", f"gait {name!r} never ends by itself: give it a number of cycles")
-    raise_if(problems, source)
+    check.raise_if()
     assigned = {name: sorted((Assignment(m["id"], m["automaton"], m.get("phase", 0.0), m.get("direction", 1))
                               for m in listed), key=lambda m: m.id) for name, (_, listed) in lists.items()}  # fmt: skip
-    for name, (path, _) in lists.items():
-        _check_neighbours(path, assigned[name], robot, automata, bad)
-    raise_if(problems, source)
+    for name, (where, _) in lists.items():
+        _check_neighbours(where, assigned[name], robot, automata, bad)
+    check.raise_if()
     modules = assigned.pop(FORWARD)
     return Gait(data["name"], robot, automata, modules, (float(low), float(high)), data.get("description", ""),
                 ground, gaits=assigned, sequence=sequence)  # fmt: skip
@@ -393,7 +306,10 @@ def state_index(automaton: Automaton, state: str | int | None) -> int | None:
 # -- dumping --------------------------------------------------------------------------------------------------------
 
 
-def to_dict(gait: Gait) -> dict[str, Any]:
+def to_dict(gait: Gait, *, inline: bool = False) -> dict[str, Any]:
+    """The gait as a document. A robot file it names is named again, unless ``inline``: then its description is
+    written into ``[robot]``, a document that stands alone (what a tuner's worker or a robot process is sent)."""
+
     def state(s: State) -> dict[str, Any]:
         out: dict[str, Any] = {"angle": s.angle}
         if s.name:
@@ -418,10 +334,7 @@ def to_dict(gait: Gait) -> dict[str, Any]:
              "module_size": gait.robot.module_size}  # fmt: skip
     if gait.robot.shape == "legged":
         robot["legs"] = gait.robot.legs
-    module = {key: value for key in _MODULE_FIELDS if (value := getattr(gait.robot.module, key)) is not None
-              and value != getattr(ModuleType, key, None)}  # fmt: skip
-    if module:
-        robot["module"] = module
+    robot |= description(gait.robot, inline=inline)
     out: dict[str, Any] = {"name": gait.name}
     if gait.description:
         out["description"] = gait.description
@@ -446,6 +359,7 @@ def to_dict(gait: Gait) -> dict[str, Any]:
     return out
 
 
-def dumps(gait: Gait) -> str:
-    """The gait as TOML; ``loads(dumps(g)) == g``."""
-    return tomli_w.dumps(to_dict(gait))
+def dumps(gait: Gait, *, inline: bool = False) -> str:
+    """The gait as TOML; ``loads(dumps(g)) == g`` (``inline``: its robot file's description written in, see
+    :func:`to_dict`)."""
+    return tomli_w.dumps(to_dict(gait, inline=inline))

@@ -29,6 +29,7 @@ UNITS = {
     ("robot.module", "damping"): "N·m·s per radian",
     ("robot.module", "deadband"): "degrees",
     ("robot.module", "range"): "± degrees",
+    ("robot.module", "inertia"): "kg·m² about the centre: along, across, up",
     ("ground", "friction"): "Coulomb μ between modules and the ground",
     ("ground", "anisotropic"): "[μ along each module, μ across it]",
 }
@@ -59,7 +60,8 @@ def annotated(data: dict[str, Any]) -> str:
         if stripped.startswith("[") and not stripped.startswith("[["):
             table = stripped.strip("[]").strip()
         key = stripped.split("=", 1)[0].strip() if "=" in stripped else ""
-        unit = UNITS.get((table, key))
+        described = "robot.module" if table.startswith("robot.types.") else table  # a named type: the same units
+        unit = UNITS.get((described, key))
         lines.append(f"{line}  # {unit}" if unit and not stripped.endswith(("[", "{")) else line)
     return HEADER + "\n".join(lines) + "\n"
 

@@ -12,8 +12,10 @@ physics step (one step at a time, so the range follows the motion):
   exceeds the stall torque either way (a servo's current limit);
 * inside the deadband (``|goal − q| < deadband``), no torque at all: the servo leaves the joint alone.
 
-An ideal servo (no speed limit, no deadband — every gait file without those fields) needs none of this, and the
-simulation then steps exactly as it always has (gaits.sim does not create a Servo).
+Each actuator follows its own module's type (a robot of several module types has several servos); a module without a
+speed limit or deadband keeps its constant range. A robot whose servos are all ideal (no speed limit, no deadband —
+every gait file without those fields) needs none of this, and the simulation then steps exactly as it always has
+(gaits.sim does not create a Servo).
 """
 
 from __future__ import annotations
@@ -23,33 +25,37 @@ import math
 import mujoco
 import numpy as np
 
-from .mjcf import Physics
+from .robot import Robot
 
 
 class Servo:
-    """The torque-speed line and deadband of every actuator of ``model`` (all are module joints)."""
+    """The torque-speed line and deadband of every actuator of ``model`` (actuator i − 1 drives module i), each by
+    its own module's type in ``robot``."""
 
-    def __init__(self, model: mujoco.MjModel, physics: Physics) -> None:
+    def __init__(self, model: mujoco.MjModel, robot: Robot) -> None:
         joints = model.actuator_trnid[:, 0]
         self._qpos = model.jnt_qposadr[joints]
         self._dof = model.jnt_dofadr[joints]
-        self._stall = physics.torque
-        speed = physics.no_load_speed
-        self._speed = None if speed is None else math.radians(speed)
-        """rad/s, MuJoCo's unit (the file's is degrees per second)."""
-        self._band = math.radians(physics.deadband)
+        types = robot.every_module()
+        self._stall = np.array([t.stall_torque for t in types])
+        speeds = [t.no_load_speed for t in types]
+        self._speed = None if all(v is None for v in speeds) else np.radians([math.inf if v is None else v
+                                                                              for v in speeds])  # fmt: skip
+        """rad/s, MuJoCo's unit (the file's is degrees per second); inf: a module without the line."""
+        band = np.radians([t.deadband for t in types])
+        self._band = band if (band > 0).any() else None
 
     def limit(self, model: mujoco.MjModel, data: mujoco.MjData) -> None:
         """Set each actuator's force range for the joint's present velocity and error."""
         stall = self._stall
         omega = data.qvel[self._dof]
-        high = np.full(omega.shape, stall)
+        high = stall.copy()
         low = -high
         if self._speed is not None:
             along = stall * np.clip(1.0 - np.abs(omega) / self._speed, -1.0, 1.0)
             high = np.where(omega > 0, along, high)
             low = np.where(omega < 0, -along, low)
-        if self._band > 0:
+        if self._band is not None:
             inside = np.abs(data.ctrl - data.qpos[self._qpos]) < self._band
             high = np.where(inside, 0.0, high)
             low = np.where(inside, 0.0, low)

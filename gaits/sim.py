@@ -128,6 +128,8 @@ class Simulation:
     actuator, on that bus (they need one: a board has no in-process hub), run up to the simulation's time at every
     tick; an ID in both is emulated; ``board_flash`` (asm_module.board_batch) keeps boards that boot with no ID.
     ``modules`` holds every kind by chain position (its joint), driven through one interface (asm_module.module).
+    Each Python or C module reports its type's name from the gait's robot description (``module.type``); an
+    emulated board reports its own port's.
     ``lock`` guards the model and data: the stepping thread holds it per control period, and a module's joint
     driver takes it, so a request arriving on a bus thread never touches MjData in the middle of a step.
     """
@@ -152,14 +154,13 @@ class Simulation:
             raise ValueError("emulated modules need a bus (a robot process's), not a preview's hub")
         self.gait = gait
         self.lock = threading.RLock()
-        self.physics = physics or Physics.of(gait.robot, friction=gait.ground.friction,
-                                             anisotropic=gait.ground.anisotropic)  # fmt: skip
+        self.physics = physics or Physics(friction=gait.ground.friction, anisotropic=gait.ground.anisotropic)
         self.terrain = terrain
         self.mjcf = build_mjcf(gait.robot, self.physics, name=gait.name, terrain=terrain)
         self.model = mujoco.MjModel.from_xml_string(self.mjcf)
         self.data = mujoco.MjData(self.model)
-        self._servo = None if self.physics.ideal_servo else Servo(self.model, self.physics)
-        """The torque-speed line and deadband (gaits/servo.py); None for an ideal servo: MuJoCo's actuator alone."""
+        self._servo = None if gait.robot.ideal_servo else Servo(self.model, gait.robot)
+        """The torque-speed lines and deadbands (gaits/servo.py); None for ideal servos: MuJoCo's actuators alone."""
         self.clock = SimClock()
         self.tick = Event("gait.tick", codec="float64", clock=self.clock)
         self.steps_per_tick = max(1, round(1.0 / (control_rate * self.model.opt.timestep)))
@@ -178,6 +179,9 @@ class Simulation:
         self._nodes: list[Node] = []
         self._push: tuple[float, np.ndarray] | None = None
         self.peak_torque = 0.0
+        self.peak_load = 0.0
+        """The largest |torque| / stall torque of its module's servo since the last measurement began."""
+        self._stall = np.array([t.stall_torque for t in gait.robot.every_module()])
         self.fell_seen = False
         """The robot has fallen (see ``fell``) at some instant since the last measurement began."""
         self.energy = 0.0
@@ -204,10 +208,11 @@ class Simulation:
                     driver=driver, clock=self.clock, tick=self.tick, hardware_range=gait.limits, serial=serial,
                     settings=flash, **dict(bus_options or {}))  # fmt: skip
                 continue
+            kind = gait.robot.type_name(assignment.id)  # what the module reports as its module.type
             if assignment.id in c_modules:
                 self.modules[assignment.id] = CModule(module_name(assignment.id), assignment.id, driver=driver,
                                                       clock=self.clock, tick=self.tick, hardware_range=gait.limits,
-                                                      hub=hub if bus_options is None else None,
+                                                      hub=hub if bus_options is None else None, module_type=kind,
                                                       **dict(bus_options or {}))  # fmt: skip
                 continue
             node = node_of(assignment.id) if node_of is not None else None
@@ -215,7 +220,8 @@ class Simulation:
                 self._nodes.append(node)
             self.modules[assignment.id] = ModuleRuntime(driver, node=node, clock=self.clock, tick=self.tick,
                                                         limits=gait.limits, ramp=ramp, inline=True,
-                                                        module_id=assignment.id, neighbours=hub)  # fmt: skip
+                                                        module_id=assignment.id, neighbours=hub,
+                                                        module_type=kind)  # fmt: skip
         mujoco.mj_forward(self.model, self.data)
         self._yaw = self.yaw()
 
@@ -318,6 +324,7 @@ class Simulation:
             steps -= n
             force = self.data.actuator_force
             self.peak_torque = max(self.peak_torque, float(np.abs(force).max(initial=0.0)))
+            self.peak_load = max(self.peak_load, float((np.abs(force) / self._stall).max(initial=0.0)))
             self.fell_seen = self.fell_seen or self.fell()
             dt = n * self.model.opt.timestep
             self.energy += float(np.abs(force * self.data.actuator_velocity).sum()) * dt
@@ -386,9 +393,9 @@ class Simulation:
         end = self.center_of_mass()
         robot = self.gait.robot
         return Metrics(seconds, (float(end[0] - start[0]), float(end[1] - start[1])),
-                       robot.modules * robot.module_size, self.peak_torque, self.fell_seen or self.fell(),
+                       robot.length, self.peak_torque, self.fell_seen or self.fell(),
                        real_time_factor,
-                       self.energy, float(self.model.body_mass.sum()), self.turned)  # fmt: skip
+                       self.energy, float(self.model.body_mass.sum()), self.turned, self.peak_load)  # fmt: skip
 
     def fell(self) -> bool:
         xmat = self.data.xmat[self._root].reshape(3, 3)
@@ -404,7 +411,7 @@ class Simulation:
             self.start()
         self.advance(warmup)
         start = self.center_of_mass()
-        self.peak_torque = self.energy = self.turned = 0.0
+        self.peak_torque = self.peak_load = self.energy = self.turned = 0.0
         self.fell_seen = False
         if push_at is not None and push_at > warmup:
             self.advance(push_at - warmup)

@@ -34,7 +34,6 @@ from typing import Any
 
 import numpy as np
 
-from .mjcf import Physics
 from .model import FORWARD, Gait, GaitError, dumps, from_dict, to_dict
 from .params import Free, apply, check, current
 from .terrain import FLAT, Terrain
@@ -55,12 +54,15 @@ or many choose the same best."""
 TORQUE_MARGIN = 0.95
 """The default torque constraint, as a share of the robot's servo stall torque (``[robot.module] stall_torque``):
 a gait that keeps its servos at their limit cannot follow its own references (and the torque saturates there, so
-a constraint at the stall torque itself could never be broken)."""
+a constraint at the stall torque itself could never be broken). A robot whose module types have servos of
+different stall torques holds each module to this share of its own (``Metrics.peak_load``)."""
 
 
-def default_max_torque(gait: Gait) -> float:
-    """The torque constraint of ``gait``'s own servos (the library module's 1.5 N·m gives 1.425)."""
-    return round(TORQUE_MARGIN * Physics.of(gait.robot).torque, 3)
+def default_max_torque(gait: Gait) -> float | None:
+    """The torque constraint of ``gait``'s own servos (the library module's 1.5 N·m gives 1.425); None when its
+    modules' servos differ: then each is held to TORQUE_MARGIN of its own stall torque."""
+    stalls = {t.stall_torque for t in gait.robot.every_module()}
+    return round(TORQUE_MARGIN * stalls.pop(), 3) if len(stalls) == 1 else None
 
 
 @dataclass(frozen=True)
@@ -113,20 +115,21 @@ def evaluate(document: dict[str, Any], setup: Setup) -> Outcome:
     try:
         gait = from_dict(document, source="<candidate>")
         runs = []
-        start_peak = 0.0
+        start_peak = start_load = 0.0
         for terrain in setup.terrains:
             with Simulation(gait, terrain=terrain) as sim:
                 sim.start()
                 if setup.gait != FORWARD:
                     sim.drive(setup.gait)
                 sim.advance(setup.warmup)  # the warm-up (the gait's ramp-in) counts for the constraints too
-                start_peak = max(start_peak, sim.peak_torque)
+                start_peak, start_load = max(start_peak, sim.peak_torque), max(start_load, sim.peak_load)
                 runs.append(sim.run(setup.seconds, warmup=0.0))
     except GaitError as exc:
         return Outcome(INVALID, problem=f"invalid: {exc.lines()[0] if exc.lines() else exc}")
     except (ValueError, FloatingPointError, RuntimeError) as exc:  # a table the runtime refuses, a divergence
         return Outcome(INVALID, problem=f"not simulated: {exc}")
     peak = max(start_peak, *(m.peak_torque for m in runs))
+    load = max(start_load, *(m.peak_load for m in runs))
     fell = any(m.fell for m in runs)
     max_torque = setup.max_torque if setup.max_torque is not None else default_max_torque(gait)
     progress = [m.along(setup.forward) if setup.forward is not None else m.distance for m in runs]
@@ -138,14 +141,20 @@ def evaluate(document: dict[str, Any], setup: Setup) -> Outcome:
     else:
         value = float(np.mean([abs(m.heading_rate) for m in runs]))
     problems = []
-    if peak > max_torque:
-        problems.append(f"peak torque {peak:.2f} > {max_torque:g} N·m")
+    if max_torque is None:  # servos of several stall torques: each module within its own
+        excess = max(0.0, load - TORQUE_MARGIN)
+        if excess > 0:
+            problems.append(f"peak torque {load:.0%} of a module's stall torque > {TORQUE_MARGIN:.0%}")
+    else:
+        excess = max(0.0, peak - max_torque)
+        if excess > 0:
+            problems.append(f"peak torque {peak:.2f} > {max_torque:g} N·m")
     if fell:
         problems.append("fell")
     if problems:
         # The peak saturates at the servos' limit, so by itself it scores many refused candidates alike: their mean
         # joint power (W) tells them apart, steering the search towards gentler gaits, which is where it comes back.
-        excess = max(0.0, peak - max_torque) + (1.0 if fell else 0.0)
+        excess += 1.0 if fell else 0.0
         power = float(np.mean([m.energy / m.seconds for m in runs]))
         return Outcome(VIOLATION + excess + power, value, ", ".join(problems), peak, fell)
     return Outcome(-OBJECTIVES[setup.objective][0] * value, value, "", peak, fell)
@@ -226,7 +235,7 @@ def tune(gait: Gait, frees: list[Free], setup: Setup, *, budget: int = 60, seed:
     if setup.objective not in OBJECTIVES:
         raise ValueError(f"objective must be one of {', '.join(OBJECTIVES)}, not {setup.objective!r}")
     setup = resolved(setup, gait)
-    document = to_dict(gait)
+    document = to_dict(gait, inline=True)  # the workers read no robot file: they may run anywhere
     low = np.array([f.low for f in frees])
     span = np.array([f.high - f.low for f in frees])
     start = [current(gait, f) for f in frees]
@@ -389,8 +398,10 @@ def provenance(result: Result, frees: list[Free], setup: Setup, *, budget: int, 
     """The comment lines at the top of a tuned file: how it was made, so it can be made again."""
     setup = result.setup or setup
     max_torque = setup.max_torque
-    if max_torque is None:  # a result put together before the search filled it in (the studio's, stopped early)
-        max_torque = default_max_torque(result.best) if result.best is not None else math.nan
+    if max_torque is None and result.best is not None:  # a robot of several servos, or a result put together
+        max_torque = default_max_torque(result.best)  # before the search filled it in (the studio's, stopped early)
+    limit = (f"peak torque <= {TORQUE_MARGIN:.0%} of each module's stall torque" if max_torque is None
+             else f"peak torque <= {max_torque:g} N·m")  # fmt: skip
     goal = "maximised" if OBJECTIVES[setup.objective][0] > 0 else "minimised"
     start = amount(result.start_value, setup) if result.start_problem == "" else f"refused: {result.start_problem}"
     checked = (f"held again over {setup.seconds * setup.verify:g} s, {setup.objective} "
@@ -406,8 +417,7 @@ def provenance(result: Result, frees: list[Free], setup: Setup, *, budget: int, 
             f"; forward = {setup.forward + 0.0:g}° from +x (the start's direction)" if setup.forward is not None else ""
         ),
         f"score {setup.objective} {amount(result.value, setup)} (start {start})",
-        f"constraints: peak torque <= {max_torque:g} N·m (warm-up included), no fall, joint limits "
-        f"(the loader's); {checked}",
+        f"constraints: {limit} (warm-up included), no fall, joint limits (the loader's); {checked}",
         *(f"free {f} = {v:g}" for f, v in zip(frees, result.values, strict=True)),
     ]
     return "".join(f"# {line}\n" for line in lines)

@@ -11,6 +11,7 @@ problems collected.
 from __future__ import annotations
 
 import json
+import math
 import re
 import tomllib
 from collections.abc import Callable, Iterator
@@ -21,7 +22,7 @@ from jsonschema import Draft202012Validator
 from jsonschema.exceptions import ValidationError
 
 from .errors import MAX_LISTED, GaitError, Problem
-from .lines import format_path
+from .lines import LineIndex, format_path
 
 MAX_FILE_BYTES = 2 * 1024 * 1024
 """A gait file is at most 2 MiB (254 modules with an automaton of 64 states each is about 1 MiB)."""
@@ -113,9 +114,14 @@ def _problems(error: ValidationError) -> Iterator[tuple[list[str | int], str]]:
     schema: Any = error.schema
     instance: Any = error.instance
     if "propertyNames" in error.schema_path:  # a table key (an automaton's name) that breaks the rules for names
-        yield [*path, instance], f"names must be 1 to 64 characters long, not {len(instance)}"
-    elif kind == "additionalProperties" and value is False:
-        for key in sorted(set(instance) - set(schema.get("properties", {}))):
+        if kind == "pattern":  # the name's own schema says in words what a name is
+            yield [*path, instance], f"{schema.get('description', 'a name')}, not {brief(instance)}"
+        else:
+            longest = schema.get("maxLength", 64)
+            yield [*path, instance], f"names must be 1 to {longest} characters long, not {len(instance)}"
+    elif kind in ("additionalProperties", "unevaluatedProperties") and value is False:
+        known = set(schema.get("properties", {})) | set(_referenced(schema).get("properties", {}))
+        for key in sorted(set(instance) - known):
             yield [*path, key], "unknown field"
     elif kind == "required":
         for key in value:
@@ -142,11 +148,20 @@ def _problems(error: ValidationError) -> Iterator[tuple[list[str | int], str]]:
         yield path, message if len(message) <= 200 else message[:197] + "…"
 
 
-def structure_problems(data: Any, line: Callable[[str], int | None]) -> tuple[list[Problem], int]:
-    """What the schema refuses in ``data``: the first MAX_COUNTED problems, and how many more were not counted."""
+def _referenced(schema: dict[str, Any]) -> dict[str, Any]:
+    """The definition a schema's ``$ref`` names (``#/$defs/NAME``), whose fields it extends; {} without one."""
+    ref = schema.get("$ref", "")
+    return SCHEMA["$defs"][ref.removeprefix("#/$defs/")] if ref.startswith("#/$defs/") else {}
+
+
+def structure_problems(
+    data: Any, line: Callable[[str], int | None], validator: Draft202012Validator = _VALIDATOR
+) -> tuple[list[Problem], int]:
+    """What the schema (``validator``'s: a gait file's unless told) refuses in ``data``: the first MAX_COUNTED
+    problems, and how many more were not counted."""
     problems: list[Problem] = []
     said: set[tuple[str, str]] = set()
-    errors = _VALIDATOR.iter_errors(data)  # lazy: stopping early bounds the cost on a huge bad document
+    errors = validator.iter_errors(data)  # lazy: stopping early bounds the cost on a huge bad document
     for error in errors:
         for parts, message in _problems(error):
             path = format_path(parts) or "(document)"
@@ -168,3 +183,48 @@ def raise_if(problems: list[Problem], source: str, *, uncounted: int = 0) -> Non
         raise GaitError(
             source, listed, more=len(ordered) - len(listed) + uncounted, more_is_lower_bound=bool(uncounted)
         )
+
+
+class Checker:
+    """The problems of one document, each with its line: the line index is built once, and only when a problem needs
+    it (a document built in memory, without ``text``, has no lines)."""
+
+    def __init__(self, source: str, text: str | None) -> None:
+        self.source = source
+        self.text = text
+        self.problems: list[Problem] = []
+        self._index: LineIndex | None = None
+
+    def line(self, path: str) -> int | None:
+        if self.text is None:
+            return None
+        if self._index is None:
+            self._index = LineIndex(self.text)
+        return self._index.line(path)
+
+    def bad(self, path: str, message: str) -> None:
+        self.problems.append(Problem(path, message, self.line(path)))
+
+    def raise_if(self, *, uncounted: int = 0) -> None:
+        raise_if(self.problems, self.source, uncounted=uncounted)
+
+    def check_structure(self, data: Any, validator: Draft202012Validator = _VALIDATOR) -> None:
+        """GaitError unless ``data`` has the schema's structure and only finite numbers: what every other check
+        relies on."""
+        self.problems, uncounted = structure_problems(data, self.line, validator)
+        self.raise_if(uncounted=uncounted)
+        for parts in non_finite(data, []):
+            self.bad(format_path(parts), "must be a finite number, not nan or inf")
+        self.raise_if()
+
+
+def non_finite(value: Any, path: list[str | int]) -> Iterator[list[str | int]]:
+    """Paths of nan and inf in a document (TOML has them, JSON, and so the schema, does not)."""
+    if isinstance(value, float) and not math.isfinite(value):
+        yield path
+    elif isinstance(value, dict):
+        for key, item in value.items():
+            yield from non_finite(item, [*path, key])
+    elif isinstance(value, list):
+        for k, item in enumerate(value):
+            yield from non_finite(item, [*path, k])

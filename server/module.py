@@ -4,6 +4,9 @@
 serial and no ID if missing); without an ID it boots unconfigured and waits to be numbered by ``asm-commission``
 (asm_module/commissioning.py), and keeps the ID it is given across restarts.
 
+``--type NAME`` is what its ``module.type`` reports: its type's name, as a gait's robot description names it, so a
+deploy can tell a robot of other modules (gaits/compatible.py).
+
 ``--calibration-file PATH`` keeps its joint.calibration (zero, direction, soft limits) across restarts; with
 ``--id-file`` it defaults to the file next to it (``<id-file>.calibration.json``, asm_module/commissioning.py).
 
@@ -18,7 +21,7 @@ import argparse
 import can
 
 from asm_module import FakeDriver, ModuleRuntime
-from asm_module.calibration import CalibrationFile
+from asm_module.calibration import CalibrationFile, check_module_type
 from asm_module.commissioning import CommissionedModule, IdFile, calibration_path
 from asm_py.cli import (
     bitrate,
@@ -62,10 +65,20 @@ def main(argv: list[str] | None = None) -> int:
     cli.add_argument("--calibration-file", type=output_file, metavar="PATH",
                      help="where the joint's calibration is kept (default with --id-file: next to it)")  # fmt: skip
     cli.add_argument("--rate", type=rate, default=50.0, help="control ticks per second (default 50)")
+    cli.add_argument("--type", type=_module_type, default="", metavar="NAME",
+                     help="the module's type, as a gait's robot description names it ([robot.types.NAME]): what its "
+                     "module.type reports (default: none said)")  # fmt: skip
     args = cli.parse_args(argv)
     if not args.limits[0] < args.limits[1]:
         cli.error(f"--limits: MIN must be below MAX, not {args.limits[0]:g} {args.limits[1]:g}")
     return run(cli.prog, lambda: _serve(args))
+
+
+def _module_type(text: str) -> str:
+    try:
+        return check_module_type(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 def _serve(args: argparse.Namespace) -> int:
@@ -79,7 +92,7 @@ def _serve(args: argparse.Namespace) -> int:
     name = args.name or f"m{args.node_id}"
     node = Node(name, CanTransport(args.node_id, **options))
     runtime = ModuleRuntime(FakeDriver(), node=node, limits=tuple(args.limits), control_rate=args.rate,
-                            calibration_store=store)  # fmt: skip
+                            calibration_store=store, module_type=args.type)  # fmt: skip
     done = stop_requested()
     print(f"READY {name}", flush=True)
     done.wait()
@@ -97,7 +110,7 @@ def _serve_commissioned(args: argparse.Namespace, options: dict) -> int:
 
     def runtime(node: Node, module_id: int) -> ModuleRuntime:
         return ModuleRuntime(FakeDriver(), node=node, limits=tuple(args.limits), control_rate=args.rate,
-                             module_id=module_id, calibration_store=store)  # fmt: skip
+                             module_id=module_id, calibration_store=store, module_type=args.type)  # fmt: skip
 
     module = CommissionedModule(IdFile(args.id_file), lambda: can.Bus(**options), runtime=runtime)
     done = stop_requested()

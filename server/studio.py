@@ -35,6 +35,7 @@ from asm_py.cli import (
     bitrate,
     can_channel,
     close_and_exit,
+    frame_rate,
     input_file,
     module_selection,
     name,
@@ -99,6 +100,9 @@ class StudioOptions:
     layout: Path | None = None
     """Where the page keeps its last layout across restarts (web/layout_store.py); None: nowhere. ``asm-studio``
     keeps it in ``<recordings>/studio-layout.json`` unless told ``--layout``."""
+    max_fps: float | None = None
+    """Frames a second the 3D view is drawn and sent at most, and the page's own frame cap (``--max-fps``, for a
+    browser without a GPU); None: as many as the robot moves (60)."""
 
 
 def free_loopback_port(avoid: Collection[int] = ()) -> int:
@@ -139,8 +143,9 @@ class Studio:
         self.options = options
         self.c_modules = options.c_modules
         raw = read(options.gait)  # once: the gait, and its text for a download that keeps its comments
-        self.gait: Gait = loads(raw, source=str(options.gait))
+        self.gait: Gait = loads(raw, source=str(options.gait), path=options.gait)
         self.gait_text: str | None = raw.decode("utf-8-sig")  # it decoded as the gait above
+        self.gait_path: Path | None = options.gait
         self.child: RobotChild | None = None
         self.own_robot: str | None = None
         """The name of the robot this studio started (and restarts should it die); None when attached."""
@@ -172,7 +177,8 @@ class Studio:
             self._link = self.connect(robot)  # the page's, once it is built; closed here if it cannot be
             self.status = self._wait_status(self._link.feed, timeout=10.0)
             self.token = options.token or (None if is_loopback(options.host) else new_token())
-            self.app = Dashboard(self, self._link, host=options.host, port=options.port, token=self.token)
+            self.app = Dashboard(self, self._link, host=options.host, port=options.port, token=self.token,
+                                 max_fps=options.max_fps)
             self._link = None
             self.app.show(options.view)
             if self.child is not None:
@@ -200,7 +206,7 @@ class Studio:
                 handle, path = tempfile.mkstemp(prefix="asm-studio-robot-", suffix=".toml")
                 os.close(handle)
                 self._gait_file = Path(path)
-            self._gait_file.write_text(dumps(gait))
+            self._gait_file.write_text(dumps(gait, inline=True))  # a temporary file: no robot file beside it
             args += ["--sim", str(self._gait_file)]
             if options.c_modules:
                 args += ["--c-modules", options.c_modules]
@@ -409,6 +415,9 @@ def main(argv: list[str] | None = None) -> int:
     cli.add_argument("--layout", type=Path, metavar="FILE", help="where the page keeps its last layout (the "
                      "live plots and their window), restored when the studio starts again (default: "
                      f"RECORDINGS/{LAYOUT_FILE})")  # fmt: skip
+    cli.add_argument("--max-fps", type=frame_rate, metavar="N", help="draw the 3D view at most N frames a second, "
+                     "in the studio and in the page (1-60; default 60): a browser without a GPU draws in software, "
+                     "and 20 takes about half the CPU (a page's ?maxFps=N overrides it for that page)")  # fmt: skip
     cli.add_argument("--view", choices=["preview", "live"], default="preview",
                      help="what the 3D view shows at start (default: the preview of the edited gait)")  # fmt: skip
     cli.add_argument("--c-modules", type=module_selection, metavar="IDS", help="simulated modules that run the C "
@@ -445,7 +454,7 @@ def _serve(args: argparse.Namespace, network: ZenohOptions) -> int:
                             emulated_modules=_selection_text(args.emulated_modules),
                             board_flash=None if args.board_flash == "none" else
                             Path(args.board_flash or args.recordings / "boards"),
-                            recordings=args.recordings,
+                            recordings=args.recordings, max_fps=args.max_fps,
                             layout=args.layout or args.recordings / LAYOUT_FILE)  # fmt: skip
     done = stop_requested()
     studio = Studio(options)  # a bad gait file, a busy port, no robot: asm-studio: error: … (asm_py.cli.run)

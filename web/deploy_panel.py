@@ -4,8 +4,9 @@ broadcast when the user says Start — all or nothing (gaits/deploy.py) — and 
 The deploy lease is held from staging until Start (or Cancel, or the question expiring), so no other deployer can
 stage or start meanwhile; the tab says who holds the robot's lease when it is not this page. On a simulated robot
 the robot first becomes the edited gait's robot; on a real bus the user confirms first, told how the robot differs
-from the gait's (gaits/compatible.py: modules missing or not in the gait, joint limits that would clamp it, a joint
-of another module type). Questions are rows of the tab, never a dialog over the E-STOP (web/confirm.py)."""
+from the gait's (gaits/compatible.py: modules missing or not in the gait, joint limits that would clamp it, a module
+that says it is another type than the gait describes, or whose joint turns like another module type's). Questions
+are rows of the tab, never a dialog over the E-STOP (web/confirm.py)."""
 
 from __future__ import annotations
 
@@ -70,9 +71,11 @@ class DeployPanel:
             alive = robot.alive_modules()
             wanted = {module_name(a.id) for a in gait.modules} & set(alive)
             infos = read_objects(robot.lookup, sorted(wanted), "module.info")
-            for line in module_lines(infos, read_objects(robot.lookup, sorted(wanted), "joint.calibration")):
-                self.log(line)  # what each module runs and how it is calibrated, before anything is sent
-            problems = mismatches(gait, alive, read_limits(robot.lookup, sorted(wanted)), infos)
+            types = read_objects(robot.lookup, sorted(wanted), "module.type")  # none from a module that says none
+            calibrations = read_objects(robot.lookup, sorted(wanted), "joint.calibration")
+            for line in module_lines(infos, calibrations, types):
+                self.log(line)  # what each module runs, is and how it is calibrated, before anything is sent
+            problems = mismatches(gait, alive, read_limits(robot.lookup, sorted(wanted)), infos, types)
             question = f"Deploy {gait.name} to the {gait.robot.modules} modules of the REAL robot?"
             if problems:  # said before anything is sent: the robot is not the one previewed
                 question += " ⚠ Not the robot this gait was made for: " + "; ".join(problems) + "."

@@ -14,6 +14,7 @@ import re
 import threading
 import time
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 from gaits.model import FORWARD, MAX_MODULES, Gait, GaitError, Problem, from_dict, loads, to_dict
@@ -25,14 +26,16 @@ EVENT_FIELDS = ("tolerance", "threshold", "neighbour", "state", "on_timeout", "s
 TYPING = 1.0
 """Seconds between two edits of one field that still count as typing one value (one undo step)."""
 
-Snapshot = tuple[dict[str, Any], str | None]
-"""One undo step: the gait's data and the file text it was opened from."""
+Snapshot = tuple[dict[str, Any], str | None, Path | None]
+"""One undo step: the gait's data, the file text it was opened from and that file's path (a robot file it names
+lies beside it)."""
 
 
 class GaitDocument:
     """An editable gait with undo/redo; thread-safe (viser runs GUI callbacks on a thread pool)."""
 
-    def __init__(self, gait: Gait, *, text: str | None = None, clock: Callable[[], float] = time.monotonic) -> None:
+    def __init__(self, gait: Gait, *, text: str | None = None, path: Path | None = None,
+                 clock: Callable[[], float] = time.monotonic) -> None:  # fmt: skip
         self._lock = threading.Lock()
         self._clock = clock
         self._last_edit: tuple[Any, float] | None = None
@@ -40,6 +43,8 @@ class GaitDocument:
         self._data: dict[str, Any] = to_dict(gait)
         self._source: str | None = text
         """The TOML text the gait was opened from: saving keeps its comments and layout (gaits.roundtrip)."""
+        self._path = path
+        """The file it was opened from: a robot file the gait names (``[robot] file``) is read beside it."""
         self._undo: list[Snapshot] = []
         self._redo: list[Snapshot] = []
         self._valid: Gait | None = gait
@@ -62,28 +67,31 @@ class GaitDocument:
                 raise GaitError("edited gait", list(self.problems))
             return self._valid
 
-    def text(self) -> str:
+    def text(self, *, inline: bool = False) -> str:
         """The document as a TOML gait file (the last valid state if it has problems now), keeping the comments
-        and layout of the file it was opened from; a gait with no file gets its units in comments."""
+        and layout of the file it was opened from; a gait with no file gets its units in comments. ``inline``: a
+        robot file it names written in (a file that stands alone, as a recording keeps it)."""
         gait = self.gait()
         with self._lock:
             source = self._source
-        return save(to_dict(gait), source)
+        return save(to_dict(gait, inline=inline), source)
 
     def problem_at(self, prefix: str) -> list[Problem]:
         return [p for p in self.problems if p.path == prefix or p.path.startswith(prefix + ".")]
 
     # -- editing ------------------------------------------------------------------------------------------------
 
-    def replace(self, gait: Gait, *, text: str | None = None) -> None:
-        """Open another gait (undoable); ``text``: the file it comes from, whose comments a save keeps."""
+    def replace(self, gait: Gait, *, text: str | None = None, path: Path | None = None) -> None:
+        """Open another gait (undoable); ``text``: the file it comes from, whose comments a save keeps, ``path``
+        where that file is."""
         self._spare.clear()
-        self._apply(lambda data: data.clear() or data.update(to_dict(gait)), opened=True, text=text)
+        self._apply(lambda data: data.clear() or data.update(to_dict(gait)), opened=(text, path))
 
-    def load_text(self, text: str | bytes, source: str = "upload") -> None:
-        """Open a TOML file's text or bytes; GaitError (nothing changes) if it is not a valid gait."""
-        gait = loads(text, source=source)
-        self.replace(gait, text=text.decode("utf-8-sig") if isinstance(text, bytes) else text)
+    def load_text(self, text: str | bytes, source: str = "upload", path: Path | None = None) -> None:
+        """Open a TOML file's text or bytes (read from ``path``, if from a file); GaitError (nothing changes) if
+        it is not a valid gait."""
+        gait = loads(text, source=source, path=path)
+        self.replace(gait, text=text.decode("utf-8-sig") if isinstance(text, bytes) else text, path=path)
 
     def set_state(self, automaton: str, index: int, field: str, value: Any) -> None:
         """Set ``angle``, ``duration`` or ``interpolation`` of one state of an automaton."""
@@ -265,13 +273,13 @@ class GaitDocument:
         with self._lock:
             if not source:
                 return False
-            target.append((self._data, self._source))
-            self._data, self._source = source.pop()
+            target.append((self._data, self._source, self._path))
+            self._data, self._source, self._path = source.pop()
             self._last_edit = None
             self._revalidate()
             return True
 
-    def _apply(self, edit: Any, *, field: Any = None, opened: bool = False, text: str | None = None) -> None:
+    def _apply(self, edit: Any, *, field: Any = None, opened: tuple[str | None, Path | None] | None = None) -> None:
         """Apply one edit as an undo step. Edits of the same ``field`` less than TYPING seconds apart are one step:
         the page sends a number as it is typed ("4", then "45"), and Undo should give back the value before "45",
         not "4". An edit of the field whose value was refused (the document invalid) joins that step however late,
@@ -284,10 +292,10 @@ class GaitDocument:
             typing = (field is not None and self._last_edit is not None and self._last_edit[0] == field
                       and (now - self._last_edit[1] < TYPING or bool(self.problems))
                       and self._undo and not self._redo)  # fmt: skip
-            before: Snapshot = (copy.deepcopy(self._data), self._source)
+            before: Snapshot = (copy.deepcopy(self._data), self._source, self._path)
             edit(self._data)
-            if opened:  # a gait opened in place of this one: its own file's text (or none)
-                self._source = text
+            if opened is not None:  # a gait opened in place of this one: its own file's text and path (or none)
+                self._source, self._path = opened
             if not typing:
                 self._undo.append(before)
                 del self._undo[:-HISTORY]
@@ -297,7 +305,7 @@ class GaitDocument:
 
     def _revalidate(self) -> None:
         try:
-            self._valid = from_dict(copy.deepcopy(self._data), source="edited gait")
+            self._valid = from_dict(copy.deepcopy(self._data), source="edited gait", path=self._path)
             self.problems = []
         except GaitError as exc:
             self._valid = None
@@ -306,11 +314,15 @@ class GaitDocument:
 
 
 def _resize_module(data: dict[str, Any], size: Any) -> None:
-    """A new module size; a described module's length (``[robot.module]``) is the same number, so it follows."""
-    data["robot"]["module_size"] = size
-    module = data["robot"].get("module")
-    if isinstance(module, dict) and "length" in module:
-        module["length"] = size
+    """A new module size; the default type's length (``[robot.module]``'s, or the named type ``robot.type`` names)
+    is the same number, so it follows."""
+    robot = data["robot"]
+    robot["module_size"] = size
+    types = robot.get("types")
+    named = types.get(robot.get("type")) if isinstance(types, dict) and isinstance(robot.get("type"), str) else None
+    for module in (robot.get("module"), named):
+        if isinstance(module, dict) and "length" in module:
+            module["length"] = size
 
 
 def _resize(data: dict[str, Any], count: int, spare: dict[Any, dict[str, Any]]) -> None:

@@ -149,7 +149,7 @@ class GaitEditor:
 
     def open_file(self, path: Path) -> None:
         """Open a gait file, keeping its text so that a download keeps its comments."""
-        self.doc.load_text(path.read_bytes(), source=path.name)
+        self.doc.load_text(path.read_bytes(), source=path.name, path=path)
         self.after_edit()
         gait = self.doc.gait()
         self.page.notify("Opened", f"{gait.name}: {gait.robot.modules}-module {gait.robot.shape}")

@@ -30,7 +30,8 @@ from gaits.terrain import FLAT, Terrain
 
 from .document import GaitDocument
 from .link import RobotLink
-from .preview import PreviewLoop, SceneView
+from .preview import PreviewLoop
+from .scene_view import SceneView
 
 log = logging.getLogger("asm_studio.web")
 TOAST_SECONDS = 6.0
@@ -50,6 +51,8 @@ class Backend(Protocol):
     """The gait opened at start."""
     gait_text: str | None
     """The text of its file (a download keeps its comments)."""
+    gait_path: Path | None
+    """Its file (a robot file the gait names lies beside it)."""
     c_modules: str | None
     """The simulated modules that run the C runtime ("odd", "even", "all", "1,3,5"), in the robot and the preview."""
     layout_file: Path | None

@@ -19,6 +19,12 @@ puts this script and style into the page's ``<head>``:
   field of the editor (``CLICKED_FIELD``), whose update the editor takes as a selection.
 - **A double-click in a number field selects the whole number**: the browser selected a word, and ``-33.5``
   became ``33.5`` selected, so typing over it kept the minus.
+- **``?maxFps=N`` caps the page's frames** (1 to 59 a second; anything else leaves the page as it is; without the
+  parameter, the studio's ``--max-fps``): a browser without a GPU draws WebGL in software on the CPU, and a moving
+  robot keeps the 3D view drawing at the display's rate, about a core of a laptop (bench/studio.py). The page's
+  animation frames (``requestAnimationFrame``, which the 3D view, the plots and the panels draw in) are run together
+  at most N times a second, all callbacks of one frame in one frame, so the view stays in step with itself and only
+  its rate changes.
 """
 
 from __future__ import annotations
@@ -135,6 +141,33 @@ SCRIPT = """<script>
   window.addEventListener("dblclick", function (event) {
     if (isNumber(event.target)) event.target.select();
   }, true);
+  // ?maxFps=N: animation frames at most N a second (before the page's bundle runs, so every caller is capped)
+  var asked = new URLSearchParams(window.location.search).get("maxFps");
+  var maxFps = asked === null ? DEFAULT_MAX_FPS : Number(asked);
+  if (maxFps >= 1 && maxFps < 60) {
+    var nativeFrame = window.requestAnimationFrame.bind(window);
+    var interval = 1000 / maxFps, due = 0, waiting = [], timer = null, ids = 0;
+    var runFrame = function (time) {
+      var run = waiting;
+      waiting = [];
+      for (var k = 0; k < run.length; k++) run[k][1](time);
+    };
+    var flush = function () {
+      timer = null;
+      due = performance.now() + interval;
+      nativeFrame(runFrame);
+    };
+    window.requestAnimationFrame = function (callback) {
+      ids += 1;
+      waiting.push([ids, callback]);
+      if (timer === null) timer = setTimeout(flush, Math.max(0, due - performance.now()));
+      return ids;
+    };
+    window.cancelAnimationFrame = function (id) {
+      waiting = waiting.filter(function (entry) { return entry[0] !== id; });
+    };
+    window.__asmMaxFps = maxFps;
+  }
 })();
 </script>""".replace("ESTOP_KEY", ESTOP_KEY).replace("CLICKED", CLICKED_FIELD)
 
@@ -146,12 +179,14 @@ button:has(> svg.tabler-icon-adjustments), .mantine-ActionIcon-root:has(svg.tabl
 </style>"""
 
 
-def inject(body: bytes, *, gzipped: bool) -> bytes:
-    """The page ``body`` (gzip-compressed when ``gzipped``) with the script and style in its head."""
+def inject(body: bytes, *, gzipped: bool, max_fps: float | None = None) -> bytes:
+    """The page ``body`` (gzip-compressed when ``gzipped``) with the script and style in its head; ``max_fps``: the
+    page's frame cap when its URL gives none (the studio's ``--max-fps``)."""
     html = gzip.decompress(body) if gzipped else body
     marker = b"</head>"
     at = html.find(marker)
     if at < 0:
         return body
-    html = html[:at] + (STYLE + SCRIPT).encode("utf-8") + html[at:]
+    script = SCRIPT.replace("DEFAULT_MAX_FPS", "null" if max_fps is None else repr(float(max_fps)))
+    html = html[:at] + (STYLE + script).encode("utf-8") + html[at:]
     return gzip.compress(html) if gzipped else html

@@ -29,7 +29,7 @@ class RecordPanel:
             doc = self.page.doc
             self.line.content = f"Recording: looking up robot {self.page.robot.robot} …"
             try:
-                text = doc.text()
+                text = doc.text(inline=True)  # a recording's gait stands alone
             except GaitError:  # a gait with problems now: recorded without it
                 text = ""
             name = str(doc.data().get("name", "gait"))

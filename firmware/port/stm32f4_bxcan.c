@@ -66,6 +66,7 @@
 #define CYCLES_PER_MS 168000u /* the core clock, 168 MHz */
 #define ENCODER_COUNTS 4096  /* per turn (1,024 lines, both edges of both channels) */
 #define PWM_CENTRE_US 1500.0f /* the servo's pulse at 0 degrees; 1,000 us more at +90 */
+#define MODULE_TYPE "stm32f4-servo" /* module.type: what this board is, as a gait's [robot.types.NAME] names it */
 
 /* What differs between modules of one robot, written by the probe in flash sector 1 (stm32f4.ld; the emulator writes
  * it as a flasher would), never part of an image an update carries: volatile, so the compiler reads it rather than
@@ -443,6 +444,7 @@ static void boot_node(void)
         struct asm_calibration calibration;
         asm_module_init(&module, name, id, &port, &joint, board_config.hardware_min, board_config.hardware_max,
                         now_ms());
+        asm_module_set_type(&module, MODULE_TYPE);
         if (settings_calibration(&calibration))
             asm_module_calibrate(&module, &calibration); /* refused (no change) if the board's range has moved */
         asm_module_set_store(&module, store_calibration, 0);

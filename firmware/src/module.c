@@ -14,7 +14,8 @@
 static const uint8_t D_GOAL[] = {ASM_D_JOINT_GOAL}, D_ANGLE[] = {ASM_D_JOINT_ANGLE}, D_TORQUE[] = {ASM_D_JOINT_TORQUE},
                      D_LIMITS[] = {ASM_D_JOINT_LIMITS}, D_SERVO[] = {ASM_D_SERVO_SERVICE},
                      D_CONTACT[] = {ASM_D_SENSOR_CONTACT}, D_ESTOP[] = {ASM_TAG_BOOL},
-                     D_INFO[] = {ASM_D_MODULE_INFO}, D_CALIBRATION[] = {ASM_D_JOINT_CALIBRATION};
+                     D_INFO[] = {ASM_D_MODULE_INFO}, D_CALIBRATION[] = {ASM_D_JOINT_CALIBRATION},
+                     D_TYPE[] = {ASM_D_MODULE_TYPE};
 
 static float clamp(float v, const float limits[2]) { return v < limits[0] ? limits[0] : v > limits[1] ? limits[1] : v; }
 
@@ -193,6 +194,15 @@ void asm_module_measured(struct asm_module *m, uint32_t tick_cycles, uint32_t st
     put32(m->info_v + 20, stack_bytes);
 }
 
+void asm_module_set_type(struct asm_module *m, const char *type)
+{
+    uint16_t n = 0;
+    while (n < ASM_TYPE_BYTES && type[n] != 0) /* no strlen: a board links no C library string routine for it */
+        n++;
+    memcpy(m->type_v, type, n);
+    m->type.length = n;
+}
+
 static void info_init(struct asm_module *m)
 {
     put32(m->info_v, ASM_FW_VERSION);
@@ -256,8 +266,12 @@ void asm_module_init(struct asm_module *m, const char *name, uint8_t node_id, co
                     sizeof D_CALIBRATION, m->calibration_v, ASM_CALIBRATION_BYTES, ASM_CALIBRATION_BYTES);
     m->calibration.set = set_calibration;
     m->calibration.estop_refuses = ASM_WRITES;
+    asm_object_init(&m->type, "module.type", ASM_C_MODULE_TYPE, ASM_ATTRIBUTE, D_TYPE, sizeof D_TYPE, m->type_v, 0,
+                    ASM_TYPE_BYTES);
+    m->type.flags = ASM_F_READ_ONLY;
     asm_node_register(&m->node, &m->info); /* after every object of the first versions: their IDs stay */
     asm_node_register(&m->node, &m->calibration);
+    asm_node_register(&m->node, &m->type); /* and after those */
     control_servo(&m->node, &m->servo, ASM_START);
 }
 

@@ -1,7 +1,8 @@
-"""joint.calibration and module.info in the C runtime (issue 28 parts 1 and 3): the host build behaves as the Python
-module does, and the board image — run in the emulator — reports its own control tick (DWT_CYCCNT) and stack, keeps
-its calibration in its settings sector across a power cycle, survives a record cut by a reset and a full log, and
-writes the bytes tests/vectors/calibration.json says."""
+"""joint.calibration, module.info and module.type in the C runtime (issue 28 parts 1 and 3, issue 30 part 2): the host
+build behaves as the Python module does and reports the module type it is given, and the board image — run in the
+emulator — reports its port's module type, its own control tick (DWT_CYCCNT) and stack, keeps its calibration in
+its settings sector across a power cycle, survives a record cut by a reset and a full log, and writes the bytes
+tests/vectors/calibration.json says."""
 
 from __future__ import annotations
 
@@ -64,6 +65,32 @@ def test_the_vectors_are_what_the_python_side_encodes() -> None:
     assert flash_record(Calibration(**TURNED)).hex() == VECTORS["calibration_flash_record"]["hex"]
     info = parse_codec(PROFILE["module.info"].codec)
     assert info.encode(VECTORS["info"]["value"]).hex() == VECTORS["info"]["hex"]
+    kind = parse_codec(PROFILE["module.type"].codec)
+    assert kind.encode(VECTORS["type"]["value"]).hex() == VECTORS["type"]["hex"]
+
+
+def module_type_bytes(tool: Node, node: str) -> bytes:
+    """The raw value of a module's module.type, as a GET's reply carries it (the vector's bytes)."""
+    remote = attribute(tool, node, "module.type")
+    assert remote.info.read_only
+    with pytest.raises(ReadOnlyError):
+        remote.set("other", wait=True)
+    return tool.port(node).call(Method.GET, remote.info.class_id, remote.info.object_id, b"", timeout=5).data
+
+
+def test_the_host_build_reports_the_module_type_it_is_given() -> None:
+    channel = fresh_name("c-type")
+    module = CModule("c1", 5, interface="virtual", channel=channel, module_type=VECTORS["type"]["value"])
+    tool = Node("tool", CanTransport(100, interface="virtual", channel=channel, heartbeat_period=0.1))
+    try:
+        assert wait_until(lambda: "c1" in tool.discover(), timeout=10)
+        assert module_type_bytes(tool, "c1").hex() == VECTORS["type"]["hex"]
+    finally:
+        tool.close()
+        module.close()
+    for hostile in ("a b", "x" * 33, "é", "-lead", "nul\0"):
+        with pytest.raises(ValueError, match="a module type's name is 1 to 32"):
+            CModule("c2", 6, interface="virtual", channel=channel, module_type=hostile)
 
 
 def check_calibration_over_the_bus(tool: Node, node: str, driver, info: dict) -> None:
@@ -171,6 +198,7 @@ def test_the_board_reports_its_tick_and_stack_and_keeps_its_calibration_across_a
         assert worst * 0.95 - 50 <= reported["tick_cycles"] <= worst * 1.05 + 50, (reported, worst)
         assert 64 < reported["stack_bytes"] <= board.stack_used(), (reported, board.stack_used())
         assert _records(settings) == [bytes.fromhex(VECTORS["calibration_flash_record"]["hex"])], "the vector's bytes"
+        assert module_type_bytes(tool, "m5").hex() == VECTORS["type"]["hex"], "the port's constant: its module type"
     with booted(settings) as (board, tool):  # power cycled: the same sector
         assert attribute(tool, "m5", "joint.calibration").get(timeout=5) == TURNED
         assert tuple(attribute(tool, "m5", "joint.limits").get(timeout=5)) == (-60.0, 70.0)

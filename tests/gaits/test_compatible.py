@@ -1,5 +1,6 @@
 """A robot that is not the gait's is reported before a deploy: modules missing or extra, joint limits that would clamp
-the gait, and a joint that turns further than the gait's module does (another module type). Read from real module
+the gait, a module that says it is another type than the gait describes (module.type), and, where the types cannot
+be compared so, a joint that turns further than the gait's module does (another module type). Read from real module
 runtimes on a memory network, as the Deploy tab reads them."""
 
 from __future__ import annotations
@@ -10,7 +11,7 @@ from asm_module import FakeDriver, ModuleRuntime
 from asm_py import Node
 from asm_py.transport.memory import MemoryNetwork, MemoryTransport
 from gaits.compatible import commanded, mismatches, module_lines, read_limits, read_objects, states_needed
-from gaits.model import LIBRARY, load
+from gaits.model import LIBRARY, load, loads
 
 pytestmark = pytest.mark.timeout(60)
 CATERPILLAR = load(LIBRARY / "caterpillar.toml")  # 8 modules, ±50° commanded, the default module (±90° hinge)
@@ -23,11 +24,14 @@ def robot():
     started: list[tuple[ModuleRuntime, Node]] = []
     client = Node("tool", MemoryTransport(network))
 
-    def start(count: int, limits=(-90.0, 90.0), hardware=(-90.0, 90.0), odd: dict[int, tuple] | None = None):
+    def start(count: int, limits=(-90.0, 90.0), hardware=(-90.0, 90.0), odd: dict[int, tuple] | None = None,
+              types: dict[int, str] | None = None):  # fmt: skip
         for k in range(1, count + 1):
             lo_hi, hw = (odd or {}).get(k, (limits, hardware))
             node = Node(f"m{k}", MemoryTransport(network))
-            started.append((ModuleRuntime(FakeDriver(), node=node, limits=lo_hi, hardware_range=hw), node))
+            runtime = ModuleRuntime(FakeDriver(), node=node, limits=lo_hi, hardware_range=hw,
+                                    module_type=(types or {}).get(k, ""))  # fmt: skip
+            started.append((runtime, node))
         names = [f"m{k}" for k in range(1, count + 1)]
         return names, read_limits(client.lookup, names, timeout=1.0)
 
@@ -99,3 +103,33 @@ def test_module_info_and_calibration_are_read_shown_and_checked(robot):
         f"m1 holds {needed[1] - 1} states, the gait gives it {needed[1]}: it would refuse the table"
     ]
     assert read_objects(client.lookup, ["m99"], "module.info", timeout=0.2) == {}
+
+
+TYPED = loads((LIBRARY / "caterpillar.toml").read_text(encoding="utf-8").replace(
+    "module_size = 0.05\n", 'module_size = 0.05\ntype = "light"\n[robot.types.light]\n[robot.types.heavy]\n'
+    "mass = 0.6\nrange = 120.0\nids = [4, 5]\n", 1))  # fmt: skip
+"""The caterpillar described as light modules with two heavy ones (m4, m5) in the middle."""
+
+
+def test_a_module_of_another_type_than_the_gait_describes_is_named(robot):
+    said = {k: "heavy" if k in (4, 5) else "light" for k in range(1, 9)}
+    names, limits = robot(8, types=said | {4: "servo_v1", 7: ""})  # m4 another type; m7 does not say
+    types = read_objects(robot.client.lookup, names, "module.type", timeout=1.0)
+    assert types == {f"m{k}": v for k, v in (said | {4: "servo_v1", 7: ""}).items()}
+    assert mismatches(TYPED, names, limits, types=types) == [
+        "m4 is module type servo_v1, the gait describes heavy (robot.types.heavy): another type of module than the "
+        "one simulated"
+    ]
+    lines = module_lines({}, {}, types)
+    assert lines[3] == "m4: type servo_v1" and lines[6] == "m7:"
+
+
+def test_the_range_heuristic_judges_only_modules_whose_type_cannot_be_compared(robot):
+    """m1 says its type, m2 says none: only m2's wide joint is judged by its range; the library gait names no type,
+    so there every module is judged by the range (±90°), whatever it says it is."""
+    names, limits = robot(8, limits=(-100.0, 100.0), hardware=(-100.0, 100.0), types={1: "light"})
+    types = read_objects(robot.client.lookup, names, "module.type", timeout=1.0)
+    lines = mismatches(TYPED, names, limits, types=types)
+    assert [line.split(" ")[0] for line in lines] == ["m2", "m3", "m6", "m7", "m8"]  # m4, m5: ±120° heavy modules
+    assert "beyond the ±90° hinge of the gait's module (robot.types.light.range)" in lines[0]
+    assert len(mismatches(CATERPILLAR, names, limits, types=types)) == 8

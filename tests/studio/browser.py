@@ -33,13 +33,21 @@ software here, and a full-resolution canvas took most of a core of the two the s
 would lower it on its own on a slow machine; fixing it keeps the screenshots the same from run to run."""
 
 
+MAX_FPS = 20
+"""The page's frames capped at 20 a second (web/page_script.py's ``?maxFps``; the studios the tests start draw no
+more, ``--max-fps``): a moving robot kept Chromium drawing at 60 frames a second in software, about a core of the
+suite's two, whatever the test looked at."""
+PAGE_QUERY = f"?fixedDpr={VIEW_DPR}&maxFps={MAX_FPS}"
+"""What every browser test opens the page with (after the studio's URL)."""
+
+
 def open_page(pw, url: str):
     """Chromium on the studio's page, once the page is up (its E-STOP shows)."""
     from playwright.sync_api import expect
 
     browser = pw.chromium.launch(executable_path=CHROMIUM, args=["--no-sandbox"])
     page = browser.new_page(viewport={"width": 1400, "height": 900})
-    page.goto(f"{url}/?fixedDpr={VIEW_DPR}")
+    page.goto(f"{url}/{PAGE_QUERY}")
     # generous: the suite's other worker may hold a core while Chromium builds the page in software WebGL
     expect(page.get_by_role("button", name=re.compile(r"^E-STOP"))).to_be_visible(timeout=60_000)
     return browser, page

@@ -12,7 +12,7 @@ from asm_py.transport.zenoh import ZenohTransport
 from gaits.model import loads
 
 from ..helpers import ARTIFACTS, wait_until
-from .browser import CHROMIUM, FOCUS_3D, VIEW_DPR, marks, number, open_page, text_input
+from .browser import CHROMIUM, FOCUS_3D, PAGE_QUERY, marks, number, open_page, text_input
 
 pytestmark = marks(2)
 
@@ -125,7 +125,7 @@ def test_a_laptop_screen_shows_the_common_controls_and_the_control_table_beside_
     with sync_playwright() as pw:
         browser = pw.chromium.launch(executable_path=CHROMIUM, args=["--no-sandbox"])
         page = browser.new_page(viewport={"width": 1366, "height": 768})
-        page.goto(f"{url}/?fixedDpr={VIEW_DPR}")
+        page.goto(f"{url}/{PAGE_QUERY}")
         estop = page.get_by_role("button", name=re.compile(r"^E-STOP"))
         expect(estop).to_be_in_viewport(timeout=30_000)
         for tab, controls in (("Gait", ["Open from library", "Download .toml"]),

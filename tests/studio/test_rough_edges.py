@@ -208,13 +208,13 @@ def test_two_tabs_editing_one_gait_are_told(studio_process):
     says it takes back tab 2's edit."""
     from playwright.sync_api import expect, sync_playwright
 
-    from .browser import VIEW_DPR
+    from .browser import PAGE_QUERY
 
     url, _, log = studio_process
     with sync_playwright() as pw:
         browser, first = open_page(pw, url)
         second = browser.new_page(viewport={"width": 1400, "height": 900})
-        second.goto(f"{url}/?fixedDpr={VIEW_DPR}")
+        second.goto(f"{url}/{PAGE_QUERY}")
         for page in (first, second):
             page.get_by_role("tab", name="Gait").click()
             expect(_number(page, "Angle (deg)")).to_be_visible(timeout=60_000)

@@ -138,7 +138,7 @@ def test_a_refused_set_s_error_goes_when_a_set_succeeds_and_stays_gone_after_a_r
     Set, and after a reload."""
     from playwright.sync_api import expect, sync_playwright
 
-    from .browser import VIEW_DPR, type_and_set
+    from .browser import PAGE_QUERY, type_and_set
 
     url, _, log = studio_process
     with sync_playwright() as pw:
@@ -153,7 +153,7 @@ def test_a_refused_set_s_error_goes_when_a_set_succeeds_and_stays_gone_after_a_r
         type_and_set(page, "joint.limits", "joint.limits (float32[2])", "-45")
         expect(page.get_by_text("set to", exact=False).first).to_be_visible(timeout=15_000)
         expect(error).to_have_count(0, timeout=15_000)
-        page.goto(f"{url}/?fixedDpr={VIEW_DPR}")
+        page.goto(f"{url}/{PAGE_QUERY}")
         expect(page.get_by_role("button", name=re.compile(r"^E-STOP"))).to_be_visible(timeout=60_000)
         page.get_by_role("tab", name="Monitor").click()
         expect(page.get_by_label("Node")).to_be_visible(timeout=15_000)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import time
 
 import pytest
@@ -230,6 +231,29 @@ def test_play_from_a_scrubbed_point_replays_from_there_then_simulates_on():
         assert shown is not None and shown.time < newest  # replaying what was recorded, not at the newest frame
         assert wait_until(lambda: loop.cursor is None, timeout=30)  # played through: the simulation goes on
         assert wait_until(lambda: loop.frames[-1].time > newest + 0.5, timeout=30)
+    finally:
+        loop.close()
+
+
+def test_a_held_preview_waits_where_it_is_and_goes_on_from_there():
+    """Nobody watching the page holds the preview: its time stands still (no frames, no CPU), requests are still
+    taken, and released it goes on from where it was, never catching up the time it was held."""
+    loop = PreviewLoop(load(CATERPILLAR))
+    try:
+        assert wait_until(lambda: len(loop.frames) >= 10, timeout=30)
+        loop.hold(True)
+        time.sleep(0.3)  # a step under way when the hold came is finished
+        held_at, count = loop.frames[-1].time, len(loop.frames)
+        time.sleep(1.0)
+        assert (loop.frames[-1].time, len(loop.frames)) == (held_at, count)
+        assert loop.playing  # a hold is not the user's Pause
+        loop.request("speed", 2.0)  # still taken while held
+        assert wait_until(lambda: loop.speed == 2.0, timeout=5)
+        loop.hold(False)
+        assert wait_until(lambda: loop.frames[-1].time > held_at + 0.2, timeout=10)
+        # on from where it was: frames follow one another on the 1/60 s grid, with no jump over the held second
+        times = [f.time for f in loop.frames if f.time >= held_at]
+        assert max(b - a for a, b in itertools.pairwise(times)) < 0.02
     finally:
         loop.close()
 

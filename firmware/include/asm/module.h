@@ -25,6 +25,7 @@ struct asm_calibration {
 };
 #define ASM_CALIBRATION_BYTES 13u /* on the wire: record{zero:float32,direction:int8,min:float32,max:float32} */
 #define ASM_INFO_BYTES 24u        /* module.info's record */
+#define ASM_TYPE_BYTES 32u        /* module.type: str<32> */
 
 /* Where a port keeps the calibration across resets (a board: its settings flash); nonzero: not stored. */
 typedef int (*asm_calibration_store)(void *ctx, const struct asm_calibration *calibration);
@@ -42,6 +43,8 @@ struct asm_module {
     uint8_t info_v[ASM_INFO_BYTES], calibration_v[ASM_CALIBRATION_BYTES];
     asm_calibration_store store;
     void *store_ctx;
+    struct asm_object type; /* module.type: what the module is, as a gait's robot description names its type */
+    uint8_t type_v[ASM_TYPE_BYTES];
 };
 
 /* The module a node belongs to (the node is its first member): what an object's set or control function needs. */
@@ -60,6 +63,9 @@ int asm_module_calibrate(struct asm_module *m, const struct asm_calibration *c);
 void asm_module_set_store(struct asm_module *m, asm_calibration_store store, void *ctx);
 /* What a port measured itself for module.info: the worst control tick in cycles and the stack's high-water mark. */
 void asm_module_measured(struct asm_module *m, uint32_t tick_cycles, uint32_t stack_bytes);
+/* The module type ``module.type`` reports: its first ASM_TYPE_BYTES bytes (a board's port passes its constant after
+ * asm_module_init; empty until then: the module does not say). */
+void asm_module_set_type(struct asm_module *m, const char *type);
 /* Command the joint to ``degrees``, clamped to joint.limits (the gait's output, a hold). */
 void asm_module_set_goal(struct asm_module *m, float degrees);
 /* One control tick: read the joint into joint.angle, joint.torque and sensor.contact (published by their policies),
