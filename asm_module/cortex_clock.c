@@ -14,7 +14,7 @@ typedef int (*mem_read_fn)(void *uc, uint64_t address, void *bytes, uint64_t siz
 #define CACHE_SLOTS 4096u
 #define MAX_BLOCK 4096u
 
-enum { REASON_NONE, REASON_SYSTICK, REASON_WATCHDOG };
+enum { REASON_NONE, REASON_SYSTICK, REASON_WATCHDOG, REASON_BUDGET };
 
 struct block_entry {
     uint64_t address;
@@ -25,6 +25,9 @@ struct core_clock {
     uint64_t cycles;       /* instructions executed since reset: the emulated clock at one per cycle */
     uint64_t systick_next; /* the cycle at which SysTick next reaches zero (while enabled) */
     uint64_t watchdog_at;  /* the cycle at which the independent watchdog resets the board; ~0 until started */
+    uint64_t run_until;    /* the cycle at which a run gives the host its turn back, whatever the image does: a run
+                            * keeps the host's interpreter lock, so an image spinning with no interrupt due must
+                            * not keep it for good (~0: no bound) */
     uint32_t csr, rvr;     /* SysTick's ENABLE, TICKINT, CLKSOURCE and reload */
     uint32_t countflag;    /* SysTick reached zero since CSR was last read */
     uint32_t pending;      /* a SysTick interrupt waits to be taken */
@@ -83,6 +86,11 @@ void asm_cortex_block(void *uc, uint64_t address, uint32_t size, void *user_data
         asm_cortex_count_down(c);
     if (c->cycles >= c->watchdog_at && !c->reason) {
         c->reason = REASON_WATCHDOG;
+        c->cycles -= count;
+        c->emu_stop(uc);
+    }
+    if (c->cycles >= c->run_until && !c->reason) {
+        c->reason = REASON_BUDGET;
         c->cycles -= count;
         c->emu_stop(uc);
     }

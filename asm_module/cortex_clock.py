@@ -22,8 +22,9 @@ from .firmware_build import build_cortex_clock
 
 NEVER = (1 << 64) - 1
 """``watchdog_at`` of a watchdog not started."""
-REASON_NONE, REASON_SYSTICK, REASON_WATCHDOG = 0, 1, 2
-"""Why the hook stopped the core; the emulator's own reasons are numbered after these."""
+REASON_NONE, REASON_SYSTICK, REASON_WATCHDOG, REASON_BUDGET = 0, 1, 2, 3
+"""Why the hook stopped the core (REASON_BUDGET: the run reached ``run_until``); the emulator's own reasons are
+numbered after these."""
 CACHE_SLOTS = 4096
 
 
@@ -38,6 +39,7 @@ class CoreClock(ctypes.Structure):
         ("cycles", ctypes.c_uint64),
         ("systick_next", ctypes.c_uint64),
         ("watchdog_at", ctypes.c_uint64),
+        ("run_until", ctypes.c_uint64),
         ("csr", ctypes.c_uint32),
         ("rvr", ctypes.c_uint32),
         ("countflag", ctypes.c_uint32),
@@ -55,6 +57,7 @@ class CoreClock(ctypes.Structure):
     cycles: int
     systick_next: int
     watchdog_at: int
+    run_until: int
     csr: int
     rvr: int
     countflag: int
@@ -115,6 +118,7 @@ class Clock:
         library = _hooks()
         self.state = state = CoreClock()
         state.watchdog_at = NEVER
+        state.run_until = NEVER
         state.xpsr = arm.UC_ARM_REG_XPSR
         state.reg_read, state.emu_stop = _address(uclib.uc_reg_read), _address(uclib.uc_emu_stop)
         state.mem_read = _address(uclib.uc_mem_read)

@@ -51,7 +51,16 @@ from unicorn.unicorn import Uc, UcContext, UcError
 from .board_flash import bootloader, known_image, known_images, probe_flash, register_image
 from .board_types import BoardReset, FirmwareFault, Joint, TickStats
 from .bxcan import RF0R, BxCan
-from .cortex_clock import NEVER, REASON_NONE, REASON_SYSTICK, REASON_WATCHDOG, Clock, CoreClock, emu_start
+from .cortex_clock import (
+    NEVER,
+    REASON_BUDGET,
+    REASON_NONE,
+    REASON_SYSTICK,
+    REASON_WATCHDOG,
+    Clock,
+    CoreClock,
+    emu_start,
+)
 from .elf import Image
 from .firmware_image import LOAD_ADDRESS, MAX_SIZE
 from .flash import INTERFACE, SECTORS, FlashInterface, Settings
@@ -78,6 +87,9 @@ CALL_RETURN = 0x1FFFFF00
 SYSTICK_VECTOR = 15
 AHEAD = 50
 """Milliseconds a busy image may run ahead of the outside clock in one call of Cortex.run."""
+CALL_BUDGET_MS = 100
+"""Milliseconds of the board's time a call of the host into the image may take before it is a fault: the run holds
+the interpreter lock, and a handler spinning for good would hold the host's whole process with it."""
 CYCLES_PER_MS = CLOCK_HZ // 1000
 """The emulated clock's millisecond: the STM32F405/407's core clock (168 MHz), which the port's SysTick reload
 assumes, at one instruction a cycle."""
@@ -87,7 +99,7 @@ _FRAME_REGS = [arm.UC_ARM_REG_R0, arm.UC_ARM_REG_R1, arm.UC_ARM_REG_R2, arm.UC_A
                arm.UC_ARM_REG_LR, arm.UC_ARM_REG_PC, arm.UC_ARM_REG_XPSR]  # fmt: skip
 _FP_REGS = [getattr(arm, f"UC_ARM_REG_S{k}") for k in range(16)]
 _ENTRY_REGS = [*_FRAME_REGS, arm.UC_ARM_REG_CONTROL, arm.UC_ARM_REG_SP]
-REASON_IDLE, REASON_RESET, REASON_FAULT, REASON_STOPPED, REASON_RETURN = 3, 4, 5, 6, 7
+REASON_IDLE, REASON_RESET, REASON_FAULT, REASON_STOPPED, REASON_RETURN = 4, 5, 6, 7, 8
 """Why a run stopped, beyond the clock's own (asm_module/cortex_clock.py): the main loop idles, the image asked for a
 reset, it reached Default_Handler, Unicorn stopped for a reason of its own, a handler returned (EXC_RETURN)."""
 
@@ -215,8 +227,18 @@ class Cortex:
         self.idle = False
         c = self._c
         until = self.epoch + until_ms * CYCLES_PER_MS
+        c.run_until = until + AHEAD * CYCLES_PER_MS  # a run keeps the interpreter lock: never longer than this
+        try:
+            self._run_to(until)
+        finally:
+            c.run_until = NEVER
+
+    def _run_to(self, until: int) -> None:
+        c = self._c
         while True:
             reason = self._resume()
+            if reason == REASON_BUDGET:  # busy (spinning with no interrupt due, say): the host's turn, then on
+                return
             if reason == REASON_SYSTICK:
                 if c.cycles >= until + AHEAD * CYCLES_PER_MS:
                     c.pending = 1  # taken at the next run
@@ -385,8 +407,12 @@ class Cortex:
         uc.reg_write(arm.UC_ARM_REG_LR, CALL_RETURN | 1)
         c = self._c
         c.calling, c.reason, self._fault = 1, REASON_NONE, ""
+        c.run_until = c.cycles + CALL_BUDGET_MS * CYCLES_PER_MS
         try:
             emu_start(uc, function | 1)
+            if c.reason == REASON_BUDGET:
+                raise FirmwareFault(f"a call to {function:#010x} did not return within {CALL_BUDGET_MS} ms of the "
+                                    f"board's time (at {self.pc:#010x})")  # fmt: skip
             if self.pc != CALL_RETURN or c.reason:
                 raise FirmwareFault(f"a call to {function:#010x} stopped at {self.pc:#010x} "
                                     f"({self._fault or self._reset_cause or c.reason})")  # fmt: skip
@@ -394,7 +420,7 @@ class Cortex:
         except UcError as exc:
             raise FirmwareFault(f"{exc} at {self.pc:#010x} in a call to {function:#010x}") from None
         finally:
-            c.calling = 0
+            c.calling, c.run_until = 0, NEVER
             uc.context_restore(saved)
 
     def read_word(self, address: int) -> int:

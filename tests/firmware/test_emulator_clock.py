@@ -16,7 +16,7 @@ from unicorn import UC_ARCH_ARM, UC_MODE_MCLASS, UC_MODE_THUMB
 from unicorn import arm_const as arm
 from unicorn.unicorn import Uc
 
-from asm_module.cortex_clock import REASON_SYSTICK, REASON_WATCHDOG, Clock
+from asm_module.cortex_clock import REASON_BUDGET, REASON_SYSTICK, REASON_WATCHDOG, Clock
 
 needs_arm_gcc = pytest.mark.skipif(
     shutil.which("arm-none-eabi-gcc") is None, reason="the board image needs arm-none-eabi-gcc (make test installs it)"
@@ -101,6 +101,39 @@ def test_a_run_keeps_the_interpreter_lock_so_no_other_thread_cuts_in_between_its
         stop.set()
         thread.join(10)
     assert held <= 3 and released >= 10, (held, released)  # a few at the Python steps around the call, at most
+
+
+def test_a_run_gives_the_host_its_turn_at_its_budget_whatever_the_image_does() -> None:
+    """A run keeps the interpreter lock (above), so the hook ends it at ``run_until`` even with no interrupt or
+    watchdog due: an image spinning for good must not hold the host's whole process (every other board, the bus,
+    the e-stop's path). The block it stops before is counted when it runs."""
+    from asm_module.cortex_clock import emu_start
+
+    spin = bytes.fromhex("fee7")  # b.n . (a branch to itself: a spin no interrupt ends)
+    uc = Uc(UC_ARCH_ARM, UC_MODE_THUMB | UC_MODE_MCLASS)
+    uc.mem_map(CODE, 0x1000)
+    uc.mem_write(CODE, spin)
+    clock = Clock(uc, [(CODE, CODE + 0xFFF)])
+    clock.state.run_until = 100_000
+    began = time.monotonic()
+    emu_start(uc, CODE | 1)
+    assert clock.state.reason == REASON_BUDGET and clock.state.cycles == 100_000 - 1, "stopped before the block"
+    assert time.monotonic() - began < 30.0
+    clock.state.reason, clock.state.run_until = 0, 150_000
+    emu_start(uc, int(uc.reg_read(arm.UC_ARM_REG_PC)) | 1)  # resumed where it stopped, for a budget more
+    assert clock.state.reason == REASON_BUDGET and clock.state.cycles == 150_000 - 1
+
+
+@needs_arm_gcc
+def test_a_call_into_the_image_that_never_returns_is_a_fault_not_a_hung_process(core) -> None:
+    from asm_module.emulator import CALL_BUDGET_MS, FirmwareFault
+
+    spin = FREE_RAM + 0x40
+    core.uc.mem_write(spin, bytes.fromhex("fee7"))  # b.n .
+    with pytest.raises(FirmwareFault, match=f"did not return within {CALL_BUDGET_MS} ms"):
+        core.call(spin)
+    core.uc.mem_write(FREE_RAM, STORE_AND_READ)  # the board goes on: a call after it works
+    assert core.call(FREE_RAM, 7, FREE_RAM + 0x100) == 7
 
 
 # -- on the board image -----------------------------------------------------------------------------------------
