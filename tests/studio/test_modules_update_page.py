@@ -17,8 +17,8 @@ from .browser import marks, open_page
 pytestmark = [
     # in the suite again since the emulator's update work (docs/benchmarks.md, 2026-11-27): it was slow-marked when
     # an emulated board, run in real time under the suite's load, answered a firmware.image SET after over 30 s
-    pytest.mark.timeout(420),  # before marks(2)'s 240 s: the closest timeout mark is the first
-    *marks(2),
+    pytest.mark.timeout(420),  # before marks()'s 240 s: the closest timeout mark is the first
+    *marks(__name__),
     pytest.mark.skipif(shutil.which("arm-none-eabi-gcc") is None, reason="make test installs gcc-arm-none-eabi"),
 ]
 NEW = 0x000200

@@ -9,7 +9,7 @@ import time
 
 from .browser import CHROMIUM, VIEW_DPR, marks
 
-pytestmark = marks(2)
+pytestmark = marks(__name__)
 
 COUNT_FRAMES = """async (seconds) => {
   let frames = 0, running = true;

@@ -17,7 +17,7 @@ from pathlib import Path
 from ..helpers import ARTIFACTS, wait_until
 from .browser import marks, number, open_page, pixels
 
-pytestmark = marks(2)
+pytestmark = marks(__name__)
 
 
 def violet(png: bytes) -> int:
