@@ -133,11 +133,12 @@ class Port:
             self._next_txn = (txn + 1) & MAX_TXN
             self._pending[txn] = call
         try:
-            self.node.transport.send(self.remote, raw[:1] + bytes((raw[1] | txn,)) + raw[2:])
-            if current_service() is None:
-                call.done.acquire(True, -1 if wait is None else max(0.0, wait))
+            transport = self.node.transport
+            transport.send(self.remote, raw[:1] + bytes((raw[1] | txn,)) + raw[2:])
+            if current_service() is None:  # on CAN, this thread may read its reply itself
+                transport.wait_reply(call.done, wait, self.remote, bytes((first_byte(Kind.REPLY, method), txn)))
             else:  # a service thread waits on the monitor, where its service's stop() can interrupt it
-                with mon:
+                with transport.waiting(call.done), mon:
                     mon.wait_for(lambda: call.reply is not None or call.failure is not None, wait)
         finally:
             if call.reply is None and call.failure is None:  # completed calls left _pending when completed

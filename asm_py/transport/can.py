@@ -6,14 +6,15 @@ python-can's configuration file / environment, or an already open ``bus=``. ``fd
 64 bytes. Node IDs are 1..254; nodes learn each other's names from heartbeats, and a node not yet heard is
 addressed as ``can.<id>`` (e.g. replies to a client that has not sent its first heartbeat).
 
-One thread reads the bus (``asm-can:<name>``): acceptance filters pass frames to this node, its groups, broadcasts
-and system frames; fragments are reassembled with bounded memory; requests go to the node, publications to
-subscribers (matched by source node and object ID), e-stops to the e-stop handlers at once. With
-``receive_thread=False`` on a bus that delivers frames itself (``asm_sim``'s ``push_to``), there is no such thread:
-the channel's one dispatch thread calls this transport, so a process hosting 128 modules does not run 128 readers.
-A deadline on the wall clock's shared timers (asm_py.timers) sends heartbeats, reports nodes lost after
-``missed_heartbeats`` silent periods (and found again when they return), and expires stale partial messages. Sends
-are serialised per transport, so the fragments of one message are contiguous on the bus.
+One thread reads the bus (``asm-can:<name>``) — or, while a caller waits for its reply, that caller
+(leader/follower, asm_py.transport.can_reader: a round trip wakes two threads instead of three): acceptance filters
+pass frames to this node, its groups, broadcasts and system frames; fragments are reassembled with bounded memory;
+requests go to the node, publications to subscribers (matched by source node and object ID), e-stops to the e-stop
+handlers at once. With ``receive_thread=False`` on a bus that delivers frames itself (``asm_sim``'s ``push_to``),
+there is no such thread: the channel's one dispatch thread calls this transport, so a process hosting 128 modules
+does not run 128 readers. A deadline on the wall clock's shared timers (asm_py.timers) sends heartbeats, reports
+nodes lost after ``missed_heartbeats`` silent periods (and found again when they return), and expires stale partial
+messages. Sends are serialised per transport, so the fragments of one message are contiguous on the bus.
 
 ``record="session.blf"`` (or .asc, .log for candump, .csv, …) writes every frame sent and received with python-can's
 ``Logger``; replay it with ``python -m can.player``.
@@ -26,6 +27,7 @@ import threading
 import time
 import zlib
 from collections.abc import Callable, Iterable, Mapping
+from contextlib import AbstractContextManager, nullcontext
 from pathlib import Path
 from typing import Any
 
@@ -49,6 +51,7 @@ from ..errors import MessageTooLarge
 from ..protocol import MAX_MESSAGE, Kind, kind_of
 from ..timers import TimerHandle, timers_of
 from .base import BROADCAST, PublicationHandler, Transport
+from .can_reader import BusReader
 
 log = logging.getLogger("asm_py.transport.can")
 
@@ -131,7 +134,7 @@ class CanTransport(Transport):
         self._accept_ids: set[int] = {self.node_id}
         self._group_ids: set[int] = set()
         self._stop = threading.Event()
-        self._threads: list[threading.Thread] = []
+        self._reader: BusReader | None = None
         self._single_ids: dict[tuple[int, int, int, int], int] = {}
         self._timer: TimerHandle | None = None
         self._next_beat = 0.0
@@ -162,9 +165,8 @@ class CanTransport(Transport):
             push_to(self._on_pushed)
             self._pushed = True
         else:
-            thread = threading.Thread(target=self._read_loop, name=f"asm-can:{name}", daemon=True)
-            thread.start()
-            self._threads.append(thread)
+            self._reader = BusReader(self._bus, self.on_frame, self._stop)
+            self._reader.start(f"asm-can:{name}")
         now, period = time.monotonic(), self.heartbeat_period
         # Beats on the grid k·period: a process's transports beat in one batch, one wake for all of them (issue 31).
         self._next_beat = ((now + period / 2) // period + 1) * period
@@ -210,10 +212,9 @@ class CanTransport(Transport):
             if push_to is not None:
                 push_to(None)
             self._pushed = False
-        for thread in self._threads:
-            if thread is not threading.current_thread():
-                thread.join(5)
-        self._threads.clear()
+        if self._reader is not None:
+            self._reader.join(5)
+            self._reader = None
         if self._own_bus:
             self._bus.shutdown()
         self._bus = None
@@ -340,6 +341,19 @@ class CanTransport(Transport):
 
     # -- receiving ------------------------------------------------------------------------------------------------
 
+    def wait_reply(self, done: threading.Lock, wait: float | None, source: str, head: bytes) -> bool:
+        """The caller reads the bus itself while nothing else does (asm_py.transport.can_reader)."""
+        reader, source_id = self._reader, self.resolve(source)
+        if reader is None or source_id is None:
+            return super().wait_reply(done, wait, source, head)
+        key = (Priority.REPLY, Dest.NODE, self.node_id, source_id)
+        reply_id = self._single_ids.get(key) or self._single_id(*key)
+        return reader.wait(done, wait, reply_id, head)
+
+    def waiting(self, done: threading.Lock) -> AbstractContextManager[None]:
+        reader = self._reader
+        return nullcontext() if reader is None else reader.following(done)
+
     def subscribe(
         self, node: str, object_name: str, callback: PublicationHandler, *, object_id: int | None = None
     ) -> Callable[[], None]:
@@ -361,23 +375,6 @@ class CanTransport(Transport):
                     self._subscriptions.pop(key, None)
 
         return remove
-
-    def _read_loop(self) -> None:
-        while not self._stop.is_set():
-            try:
-                frame = self.bus.recv(timeout=0.1)  # also how long close() waits for this thread
-            except (can.CanError, RuntimeError, ValueError) as exc:
-                if self._stop.is_set():
-                    return
-                log.warning("CAN receive failed: %s", exc)
-                time.sleep(0.05)
-                continue
-            if frame is None:
-                continue
-            try:
-                self.on_frame(frame)
-            except Exception:
-                log.exception("a CAN frame could not be handled: %s", frame)
 
     def _on_pushed(self, frame: can.Message) -> None:
         """A frame from the channel's dispatch thread (``receive_thread=False``)."""
