@@ -124,7 +124,7 @@ class Port:
             raw = check_size(encode(Message(Kind.REQUEST_REPLY, method, 0, class_id, object_id, timeout=code,
                                             data=data)), what)  # fmt: skip
         call = _Call(method, object_id)
-        with mon:
+        with mon.lock:
             if len(self._pending) > MAX_TXN and not mon.wait_for(lambda: len(self._pending) <= MAX_TXN, wait):
                 raise AsmTimeout(f"{what}: all {MAX_TXN + 1} transaction ids of the port are in use")
             txn = self._next_txn
@@ -142,7 +142,7 @@ class Port:
                     mon.wait_for(lambda: call.reply is not None or call.failure is not None, wait)
         finally:
             if call.reply is None and call.failure is None:  # completed calls left _pending when completed
-                with mon:
+                with mon.lock:
                     if self._pending.get(txn) is call:
                         del self._pending[txn]
                     mon.notify_all()
@@ -176,7 +176,8 @@ class Port:
 
     def deliver(self, reply: Message) -> None:
         """A reply arrived for this port (from the node's receive path)."""
-        with self._mon:
+        mon = self._mon
+        with mon.lock:
             call = self._pending.get(reply.txn)
             if call is None or call.method != reply.method or call.object_id != reply.object_id:
                 self.stale_replies += 1  # its caller gave up already, or it answers another request
@@ -184,11 +185,12 @@ class Port:
             del self._pending[reply.txn]
             call.reply = reply
             call.done.release()
-            self._mon.notify_all()  # a service thread waiting for this reply, or a caller for a free transaction id
+            if mon._waiters:  # a service thread waiting for this reply, or a caller for a free transaction id
+                mon.notify_all()
 
     def fail_all(self, reason: str) -> None:
         """Fail every call in flight (the peer left, or the node closed)."""
-        with self._mon:
+        with self._mon.lock:
             for call in self._pending.values():
                 call.failure = reason
                 call.done.release()

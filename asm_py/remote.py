@@ -26,6 +26,8 @@ from .port import Port
 from .protocol import HEADER_SIZE, Kind, Method, ObjectKind, StatusFlag, encode_timeout, first_byte, has_timeout
 from .service import ServiceStatus
 
+_GET = int(Method.GET)
+
 
 def make_client(port: Port, description: bytes) -> RemoteObject:
     """The client object for the object a LOOKUP reply's data describes."""
@@ -93,7 +95,9 @@ class RemoteAttribute(RemoteObject):
         return self.info.sync_set
 
     def get(self, timeout: float | None = None) -> Any:
-        return self.codec.decode(self._call(Method.GET, timeout=timeout, blocking=self.sync_get))
+        info = self.info  # the hot path of a remote get: no properties, no helper
+        return info.codec.decode(self._port.call(_GET, info.class_id, info.object_id, timeout=timeout,
+                                                 blocking=info.sync_get, subject=self._subject).data)  # fmt: skip
 
     def set(self, value: Any, timeout: float | None = None, *, wait: bool | None = None) -> None:
         """Set the remote value. Returns at once, unless ``wait`` — which a ``timeout`` implies: "up to this long"."""

@@ -19,6 +19,7 @@ from contextlib import AbstractContextManager, nullcontext
 
 from .._contract import ESTOP_REASON_MAX
 from ..keys import check_name
+from ..speedups import COMPILED
 
 log = logging.getLogger("asm_py.transport")
 
@@ -52,6 +53,8 @@ class Transport(ABC):
     bus or an in-process network is one robot."""
 
     def __init__(self) -> None:
+        self.compiled = COMPILED
+        """Whether this transport and its node run the C hot path (asm_py.speedups)."""
         self._name: str | None = None
         self._on_message: MessageHandler | None = None
         self._peer_handlers: tuple[PeerHandler, ...] = ()

@@ -55,6 +55,7 @@ class BusReader:
         """The ``done`` locks of the calls that wait without reading (copy-on-write: read without the lock)."""
         self._led_at = float("-inf")
         self._thread: threading.Thread | None = None
+        self._ident: int | None = None
         self.led = 0
         """Calls whose reply was read by their own caller (for tests and benches)."""
         self.handed = 0
@@ -73,6 +74,7 @@ class BusReader:
     # -- the receive thread ---------------------------------------------------------------------------------------
 
     def _run(self) -> None:
+        self._ident = threading.get_ident()
         lead, handoff, stop = self._lead, self._handoff, self._stop
         while not stop.is_set():
             frame = None
@@ -146,21 +148,27 @@ class BusReader:
         whether it was. While the lead is free this thread reads the bus: a frame with identifier ``reply_id``
         whose data begin with ``head`` (the reply's first two bytes) it handles itself; anything else it hands over
         with the lead to the receive thread, and follows."""
-        deadline = None if timeout is None else time.monotonic() + timeout
-        if threading.current_thread() is self._thread:  # a handler of the receive thread: nobody else reads
+        now = time.monotonic()
+        deadline = None if timeout is None else now + timeout
+        if threading.get_ident() == self._ident:  # a handler of the receive thread: nobody else reads
             return done.acquire(True, -1 if timeout is None else max(0.0, timeout))
-        self._led_at = time.monotonic()
-        with self.following(done):  # counted before the lead is tried: a leader leaving sees it and wakes the reader
-            led = self._lead.acquire(False)
-            if not led:
-                return done.acquire(True, -1 if timeout is None else max(0.0, timeout))
+        self._led_at = now
+        lead = self._lead
+        if not lead.acquire(False):
+            self._follow(done)
+            if not lead.acquire(False):  # tried again once counted: a leader leaving now sees it and wakes the reader
+                try:
+                    return done.acquire(True, -1 if timeout is None else max(0.0, timeout))
+                finally:
+                    self._unfollow(done)
+            self._unfollow(done)
         outcome = _LATE
         try:
             outcome = self._read_for(done, deadline, reply_id, head)
         finally:
             if outcome != _HANDED:
-                self._lead.release()
-                if self._followed():
+                lead.release()
+                if self._followers and self._followed():
                     self._handoff.put(None)  # they wait for the bus to be read: wake the receive thread
         if outcome == _DONE:
             self.led += 1
