@@ -23,7 +23,16 @@ from .clock import Clock
 from .codec import Codec
 from .lookup import ObjectInfo, parse_description
 from .port import Port
-from .protocol import HEADER_SIZE, Kind, Method, ObjectKind, StatusFlag, encode_timeout, first_byte, has_timeout
+from .protocol import (
+    HEADER_SIZE,
+    TIMEOUT_FLAG,
+    Kind,
+    Method,
+    ObjectKind,
+    StatusFlag,
+    encode_timeout,
+    first_byte,
+)
 from .service import ServiceStatus
 
 _GET = int(Method.GET)
@@ -127,7 +136,7 @@ class RemoteAttribute(RemoteObject):
 
         def on_publication(data: bytes) -> None:
             # A publication never carries a timeout byte: header byte 0 says all, the value starts at byte 4.
-            if len(data) >= HEADER_SIZE and data[0] == head0 and not has_timeout(data):
+            if len(data) >= HEADER_SIZE and data[0] == head0 and not data[1] & TIMEOUT_FLAG:
                 try:
                     value = decode_value(data[HEADER_SIZE:])
                 except ValueError:
