@@ -74,7 +74,7 @@ class Node:
         """The C decoder (None for a message it refuses: the Python decoder then says why), or None."""
         self.dropped = 0
         """Messages dropped unread: malformed, or over MAX_MESSAGE."""
-        transport.attach(name, self._on_message, inline=self.server.inline)
+        transport.attach(name, self._on_message)
         self._unpeer = transport.on_peer(self.client.peer_changed)
 
     def _publisher(self, entry: Entry, policy: PublishPolicy) -> Publisher:

@@ -18,7 +18,7 @@ import threading
 from collections.abc import Callable
 from typing import Any
 
-from ._contract import HEADER_SIZE, KIND_MASK, KIND_SHIFT, MAX_PARAMS_DEPTH, METHOD_MASK
+from ._contract import MAX_PARAMS_DEPTH
 from .attribute import Attribute
 from .clock import Clock
 from .errors import AsmTimeout, ReadOnlyError, RemoteError
@@ -48,8 +48,6 @@ Handler = Callable[["Server", str, Entry, Message, Responder], bytes]
 _REPLY_BYTE = tuple(first_byte(Kind.REPLY, method) for method in range(16))
 """Byte 0 of the reply to each method (built once: a reply's header is made on every request)."""
 _REQUEST_REPLY, _LOOKUP, _OK = int(Kind.REQUEST_REPLY), int(Method.LOOKUP), int(Status.OK)
-_REQUESTS = (int(Kind.REQUEST), int(Kind.REQUEST_REPLY))
-_READS = (int(Method.GET), int(Method.PEEK), int(Method.STATUS))
 
 
 def reply(respond: Responder, request: Message, status: int = _OK, data: bytes = b"") -> None:
@@ -83,24 +81,6 @@ class Server:
             return
         if data is not DEFERRED:
             reply(respond, request, _OK, data)
-
-    def inline(self, raw: bytes) -> bool:
-        """Whether serving the request ``raw`` runs no user code and never blocks — a lookup, or a get, peek or
-        status of an attribute whose reads are the plain ones — so a medium may serve it on its own network thread
-        (asm_py.transport.zenoh; issue 31). A set may run change callbacks, a start a service's code: not inline."""
-        if len(raw) < HEADER_SIZE or raw[0] >> KIND_SHIFT & KIND_MASK not in _REQUESTS:
-            return True  # dropped, or a reply: nothing of the user's runs
-        method = raw[0] & METHOD_MASK
-        if method == _LOOKUP:
-            return True
-        if method not in _READS:
-            return False
-        try:
-            entry = self._target(Message(Kind.REQUEST, method, 0, raw[2], raw[3]))
-        except LookupError:
-            return True  # answered NOT_FOUND
-        reads = type(entry.obj)
-        return not issubclass(reads, Attribute) or (reads.get is Attribute.get and reads.peek is Attribute.peek)
 
     def _execute(self, source: str, request: Message, respond: Responder) -> bytes:
         method = request.method

@@ -57,7 +57,6 @@ class Transport(ABC):
         """Whether this transport and its node run the C hot path (asm_py.speedups)."""
         self._name: str | None = None
         self._on_message: MessageHandler | None = None
-        self._inline: Callable[[bytes], bool] | None = None
         self._peer_handlers: tuple[PeerHandler, ...] = ()
         self._estop_handlers: tuple[EstopHandler, ...] = ()
         self._groups: set[str] = set()
@@ -77,16 +76,12 @@ class Transport(ABC):
         """This node as others address it and as :meth:`peers` lists it: its name (a Zenoh tool's is ``~name``)."""
         return self.name
 
-    def attach(self, name: str, on_message: MessageHandler, *, inline: Callable[[bytes], bool] | None = None) -> None:
-        """Connect as node ``name``; ``on_message`` is called for every message to it, its groups or everyone.
-
-        ``inline(message)``: whether the handler runs no user code and never blocks on that message, so a medium
-        may call it on its own network thread (Zenoh); the others go to a thread of the transport's own."""
+    def attach(self, name: str, on_message: MessageHandler) -> None:
+        """Connect as node ``name``; ``on_message`` is called for every message to it, its groups or everyone."""
         if self._name is not None:
             raise RuntimeError(f"transport already attached as {self._name!r}")
         self._name = check_name(name)
         self._on_message = on_message
-        self._inline = inline
         self._open(self._name)
         self.join_group(BROADCAST)
 

@@ -16,7 +16,6 @@ Configuration (safe defaults, the rules for listening beyond loopback) is in asm
 from __future__ import annotations
 
 import logging
-import queue
 import threading
 import time
 from collections.abc import Callable, Sequence
@@ -46,7 +45,7 @@ from .zenoh_config import (  # noqa: F401  (re-exported: the configuration is pa
     make_config,
     security_problems,
 )
-from .zenoh_watch import WatchedPublisher, direct
+from .zenoh_watch import WatchedPublisher
 
 log = logging.getLogger("asm_py.transport.zenoh")
 
@@ -123,11 +122,6 @@ class ZenohTransport(Transport):
         self._claims: dict[str, set[str]] = {}  # segment -> sessions whose liveliness token claims it
         self._pub_lock = threading.Lock()
         self._reply_keys: dict[str, zenoh.KeyExpr] = {}  # request source -> the key its replies carry
-        self._work: queue.SimpleQueue[tuple[str, bytes, zenoh.Query] | None] = queue.SimpleQueue()
-        self._backlog = 0
-        """Requests handed to the worker and not yet served (under _backlog_lock): while any is, the next waits too."""
-        self._backlog_lock = threading.Lock()
-        self._worker: threading.Thread | None = None
 
     @property
     def session(self) -> zenoh.Session:
@@ -154,10 +148,8 @@ class ZenohTransport(Transport):
         try:
             self._refuse_if_taken()
             keys = self.keys
-            self._worker = threading.Thread(target=self._serve_handed, name=f"asm-zenoh:{name}", daemon=True)
-            self._worker.start()
             self._keep += [
-                session.declare_queryable(keys.requests(self.segment), direct(self._on_query)),
+                session.declare_queryable(keys.requests(self.segment), self._on_query),
                 session.declare_subscriber(keys.messages(self.segment), self._on_sample),
                 session.liveliness().declare_token(keys.alive(self.segment, self._zid)),
                 session.liveliness().declare_subscriber(keys.alive(), self._on_alive, history=True),
@@ -200,37 +192,17 @@ class ZenohTransport(Transport):
             self._deliver(source, sample.payload.to_bytes())
 
     def _on_query(self, query: zenoh.Query) -> None:
-        """On Zenoh's own network thread (no hand-off to a Python thread of zenoh-python's: issue 31). A request the
-        node serves without user code or blocking (``inline``), with nothing handed off before it, is served here;
-        any other goes to this transport's worker thread, in order (a get behind a set waits for the set)."""
+        """On zenoh-python's Python thread for this queryable, not on Zenoh's own: a handler may block (a set's
+        change callback calling another node) without holding Zenoh's network thread. Running it there instead
+        (zenoh-python's direct callback) was measured no faster (issue 31, docs/benchmarks.md)."""
         source = last(query.key_expr)
-        data = query.payload.to_bytes() if query.payload is not None else b""
-        inline = self._inline
-        if not self._backlog and inline is not None and inline(data):
-            self._serve(source, data, query)
-            return
-        with self._backlog_lock:
-            self._backlog += 1
-        self._work.put((source, data, query))
-
-    def _serve_handed(self) -> None:
-        """The worker: requests that may run user code or block, served in the order they came."""
-        while (item := self._work.get()) is not None:
-            try:
-                self._serve(*item)
-            except Exception:
-                log.exception("a request could not be served")
-            finally:
-                with self._backlog_lock:
-                    self._backlog -= 1
-
-    def _serve(self, source: str, data: bytes, query: zenoh.Query) -> None:
         key = self._reply_keys.get(source)
         if key is None:  # a reply carries the replier's own, concrete key
             if len(self._reply_keys) > 4096:  # bounded: sources come from the network
                 self._reply_keys.clear()
             # a zenoh.KeyExpr made once: a reply given a str key has it parsed and checked again (7-10 µs each)
             key = self._reply_keys[source] = zenoh.KeyExpr(self.keys.requests(self.segment, concrete(source)))
+        data = query.payload.to_bytes() if query.payload is not None else b""
         answered = False
 
         def respond(reply: bytes) -> None:
@@ -434,11 +406,6 @@ class ZenohTransport(Transport):
         session, self._session = self._session, None
         if session is None:
             return
-        worker, self._worker = self._worker, None
-        if worker is not None:  # requests handed to it before this are served first
-            self._work.put(None)
-            if worker is not threading.current_thread():
-                worker.join(5)
         for entity in reversed(self._keep):
             try:
                 entity.undeclare()
