@@ -111,6 +111,9 @@ class _Fixed(Codec):
             raise ValueError(f"{self.spec}: needs {self._struct.size} bytes, {len(data) - offset} left")
         return self._struct.unpack_from(data, offset)[0], end
 
+    def encode(self, value: Any) -> bytes:
+        return self._struct.pack(self.normalize(value))
+
     def decode(self, data: Buffer) -> Any:
         if self._plain and len(data) == self.size:  # every get and publication of a number: one unpack (issue 31)
             return self._struct.unpack(data)[0]

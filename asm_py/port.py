@@ -18,6 +18,7 @@ from .clock import WALL_CLOCK, Monitor, current_service
 from .errors import AsmTimeout
 from .protocol import (
     HEADER_SIZE,
+    MAX_MESSAGE,
     MAX_TXN,
     METHOD_MASK,
     Kind,
@@ -36,6 +37,11 @@ if TYPE_CHECKING:
 MAX_TIMEOUT_CODE = TIMEOUT_LONGEST
 REPLY_MARGIN = 1.0
 """Seconds a client waits for a reply beyond the time the server may block."""
+
+
+_ASK = tuple(first_byte(Kind.REQUEST_REPLY, method) for method in range(METHOD_MASK + 1))
+_ANSWER = tuple(first_byte(Kind.REPLY, method) for method in range(METHOD_MASK + 1))
+"""Byte 0 of a request that wants a reply, and of its reply, per method (built once)."""
 
 
 class _Call:
@@ -118,11 +124,13 @@ class Port:
         what: object,
     ) -> Message:
         mon = self._mon
-        if code is None and 0 <= method <= METHOD_MASK:  # the header built in place (bytes() checks the IDs' range)
-            raw = check_size(bytes((first_byte(Kind.REQUEST_REPLY, method), 0, class_id, object_id)) + data, what)
-        else:
-            raw = check_size(encode(Message(Kind.REQUEST_REPLY, method, 0, class_id, object_id, timeout=code,
-                                            data=data)), what)  # fmt: skip
+        simple = code is None and 0 <= method <= METHOD_MASK  # the header built in place, once its txn is known
+        encoded = b""
+        if not simple:
+            encoded = check_size(encode(Message(Kind.REQUEST_REPLY, method, 0, class_id, object_id, timeout=code,
+                                                data=data)), what)  # fmt: skip
+        elif len(data) > MAX_MESSAGE - HEADER_SIZE:
+            check_size(bytes(HEADER_SIZE) + data, what)  # raises MessageTooLarge
         call = _Call(method, object_id)
         with mon.lock:
             if len(self._pending) > MAX_TXN and not mon.wait_for(lambda: len(self._pending) <= MAX_TXN, wait):
@@ -134,9 +142,12 @@ class Port:
             self._pending[txn] = call
         try:
             transport = self.node.transport
-            transport.send(self.remote, raw[:1] + bytes((raw[1] | txn,)) + raw[2:])
+            if simple:  # bytes() checks the IDs' range
+                transport.send(self.remote, bytes((_ASK[method], txn, class_id, object_id)) + data)
+            else:
+                transport.send(self.remote, encoded[:1] + bytes((encoded[1] | txn,)) + encoded[2:])
             if current_service() is None:  # on CAN, this thread may read its reply itself
-                transport.wait_reply(call.done, wait, self.remote, bytes((first_byte(Kind.REPLY, method), txn)))
+                transport.wait_reply(call.done, wait, self.remote, bytes((_ANSWER[method], txn)))
             else:  # a service thread waits on the monitor, where its service's stop() can interrupt it
                 with transport.waiting(call.done), mon:
                     mon.wait_for(lambda: call.reply is not None or call.failure is not None, wait)
@@ -149,8 +160,10 @@ class Port:
         if call.reply is None:
             reason = call.failure or f"no reply within {wait:.3g}s"  # done without a reply means a failure
             raise AsmTimeout(f"{what} timed out: {reason}")
-        raise_for_status(call.reply, what)
-        return call.reply
+        reply = call.reply
+        if reply.status:
+            raise_for_status(reply, what)
+        return reply
 
     def _direct(self, method: int, class_id: int, object_id: int, data: bytes, wait: float, what: object) -> Message:
         """A round trip in the caller's thread, on transports that can (requests that cannot block).

@@ -152,8 +152,8 @@ class CanTransport(FrameSender, Transport):
         """The C hot path of :meth:`on_frame` (asm_py._speedups.Receiver), unless ``compiled`` is False."""
         self._single_ids: dict[tuple[int, int, int, int], int] = {}
         self._dest_ids: dict[str, tuple[int, ...]] = {}
-        """Per destination name, the identifiers of a single frame to it: a request, a reply (``send``'s hot path;
-        cleared when a heartbeat changes what a name means)."""
+        """Per node name, the identifiers of a single frame to it — a request, a reply — and of its reply to this
+        node (``send``'s and ``wait_reply``'s hot path; cleared when a heartbeat changes what a name means)."""
         self._single_sizes = frozenset(FD_SIZES if fd else range(9))
         """Message lengths that travel as one frame."""
         self._timer: TimerHandle | None = None
@@ -285,7 +285,8 @@ class CanTransport(FrameSender, Transport):
         self.send_message(Dest.NODE, node_id, data, message_priority(data))
         if len(self._dest_ids) >= ID_CACHE_SIZE:
             self._dest_ids.clear()
-        self._dest_ids[dest] = tuple(self._single_id(p, Dest.NODE, node_id, self.node_id) for p in BY_REPLY)
+        self._dest_ids[dest] = (*(self._single_id(p, Dest.NODE, node_id, self.node_id) for p in BY_REPLY),
+                                self._single_id(Priority.REPLY, Dest.NODE, self.node_id, node_id))  # fmt: skip
 
     def send_group(self, group: str, data: bytes) -> None:
         if group == BROADCAST:
@@ -306,12 +307,15 @@ class CanTransport(FrameSender, Transport):
 
     def wait_reply(self, done: threading.Lock, wait: float | None, source: str, head: bytes) -> bool:
         """The caller reads the bus itself while nothing else does (asm_py.transport.can_reader)."""
-        reader, source_id = self._reader, self.resolve(source)
-        if reader is None or source_id is None:
+        reader, ids = self._reader, self._dest_ids.get(source)
+        if reader is None:
             return super().wait_reply(done, wait, source, head)
-        key = (Priority.REPLY, Dest.NODE, self.node_id, source_id)
-        reply_id = self._single_ids.get(key) or self._single_id(*key)
-        return reader.wait(done, wait, reply_id, head)
+        if ids is None:  # (not sent to by name yet: a request to it fills the cache)
+            source_id = self.resolve(source)
+            if source_id is None:
+                return super().wait_reply(done, wait, source, head)
+            return reader.wait(done, wait, self._single_id(Priority.REPLY, Dest.NODE, self.node_id, source_id), head)
+        return reader.wait(done, wait, ids[2], head)
 
     def waiting(self, done: threading.Lock) -> AbstractContextManager[None]:
         reader = self._reader
