@@ -39,6 +39,8 @@ REPLY_MARGIN = 1.0
 """Seconds a client waits for a reply beyond the time the server may block."""
 
 
+_new_tuple = tuple.__new__  # a Message without NamedTuple's own __new__, a Python function
+_REPLY = int(Kind.REPLY)
 _ASK = tuple(first_byte(Kind.REQUEST_REPLY, method) for method in range(METHOD_MASK + 1))
 _ANSWER = tuple(first_byte(Kind.REPLY, method) for method in range(METHOD_MASK + 1))
 """Byte 0 of a request that wants a reply, and of its reply, per method (built once)."""
@@ -171,7 +173,7 @@ class Port:
         The hot path of a remote get: the 4-byte header is built in place and the reply checked by its header bytes.
         """
         txn = next(self._direct_txns) & MAX_TXN  # atomic; these replies never pass through _pending
-        head = bytes((first_byte(Kind.REQUEST_REPLY, method), txn, class_id, object_id))
+        head = bytes((_ASK[method], txn, class_id, object_id))
         began = time.monotonic()
         raw = self.node.transport.request(self.remote, check_size(head + data, what), wait)
         if raw is None:
@@ -180,9 +182,9 @@ class Port:
                 raise AsmTimeout(f"{what} failed: nothing answered after {waited:.2g}s ({self.remote} is not "
                                  "reachable now)")  # fmt: skip
             raise AsmTimeout(f"{what} timed out: no reply within {wait:.3g}s")
-        if len(raw) < HEADER_SIZE or raw[0] != first_byte(Kind.REPLY, method) or raw[1] != txn or raw[3] != object_id:
+        if len(raw) < HEADER_SIZE or raw[0] != _ANSWER[method] or raw[1] != txn or raw[3] != object_id:
             raise ProtocolError(f"{what}: answer is not the reply to transaction {txn}")
-        reply = Message(Kind.REPLY, method, txn, 0, raw[3], raw[2], None, raw[HEADER_SIZE:])
+        reply = _new_tuple(Message, (_REPLY, method, txn, 0, object_id, raw[2], None, raw[HEADER_SIZE:]))
         if reply.status:
             raise_for_status(reply, what)
         return reply
