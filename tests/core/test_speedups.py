@@ -7,7 +7,9 @@ import os
 import shutil
 import subprocess
 import sys
+import sysconfig
 from collections.abc import Iterator
+from pathlib import Path
 
 import can
 import pytest
@@ -26,7 +28,8 @@ fast = loader.speedups
 needs_c = pytest.mark.skipif(fast is None, reason=f"the C hot path is not built: {loader.REASON}")
 
 
-@pytest.mark.skipif(shutil.which("gcc") is None, reason="no C compiler: the pure-Python path runs")
+@pytest.mark.skipif(shutil.which("gcc") is None or not (Path(sysconfig.get_paths()["include"]) / "Python.h").exists(),
+                    reason="no C compiler or no Python headers: the pure-Python path runs")  # fmt: skip
 def test_make_built_the_extension() -> None:
     assert loader.COMPILED, loader.REASON
 
