@@ -33,23 +33,10 @@ from typing import Any
 
 import can
 
-from .._contract import (
-    CAN_COUNTER_MASK,
-    CAN_DEST_KIND_MASK,
-    CAN_DEST_KIND_SHIFT,
-    CAN_DEST_MASK,
-    CAN_DEST_SHIFT,
-    CAN_FRAME_MASK,
-    CAN_FRAME_SHIFT,
-    CAN_PRIORITY_MASK,
-    CAN_PRIORITY_SHIFT,
-    CAN_SOURCE_MASK,
-    CAN_SOURCE_SHIFT,
-    KIND_MASK,
-    KIND_SHIFT,
-)
+from .._contract import KIND_MASK, KIND_SHIFT
 from ..canbus.fragments import FD_SIZES, Reassembler
 from ..canbus.ids import (
+    FIELDS,
     Dest,
     FrameType,
     Priority,
@@ -72,6 +59,12 @@ __all__ = ["ALIAS_PREFIX", "CanTransport", "group_id", "message_priority"]
 log = logging.getLogger("asm_py.transport.can")
 
 ALIAS_PREFIX = "can."
+_PRIORITY_AT, _PRIORITY_BITS = FIELDS[0]  # (shift, mask) of the identifier's fields, as module globals: on_frame
+_KIND_AT, _KIND_BITS = FIELDS[1]  # unpacks every received identifier without making a CanId
+_DEST_AT, _DEST_BITS = FIELDS[2]
+_SOURCE_AT, _SOURCE_BITS = FIELDS[3]
+_FRAME_AT, _FRAME_BITS = FIELDS[4]
+_COUNTER_BITS = FIELDS[5][1]
 _PUBLICATIONS = (Priority.PUBLICATION, Priority.BULK_PUBLICATION)
 _GO_ON = 2
 """What the C hot path returns when it counted a frame and leaves the rest to :meth:`CanTransport.on_frame`."""
@@ -360,8 +353,8 @@ class CanTransport(FrameSender, Transport):
         if self._logger is not None:
             self._log(frame)
         a = frame.arbitration_id  # every received frame comes here: CanId.unpack's fields, without the tuple
-        dest_kind = a >> CAN_DEST_KIND_SHIFT & CAN_DEST_KIND_MASK
-        dest, source = a >> CAN_DEST_SHIFT & CAN_DEST_MASK, a >> CAN_SOURCE_SHIFT & CAN_SOURCE_MASK
+        dest_kind = a >> _KIND_AT & _KIND_BITS
+        dest, source = a >> _DEST_AT & _DEST_BITS, a >> _SOURCE_AT & _SOURCE_BITS
         if dest_kind == Dest.SYSTEM and dest == SystemCode.ESTOP:
             # an e-stop is honoured whoever sent it, even with this node's own ID or an invalid one: stopping twice
             # is harmless, ignoring a stop is not
@@ -372,14 +365,14 @@ class CanTransport(FrameSender, Transport):
         if dest_kind == Dest.NODE:
             if dest not in self._accept_ids:
                 return
-        elif not self._accepts(dest_kind, dest, a >> CAN_PRIORITY_SHIFT & CAN_PRIORITY_MASK):
+        elif not self._accepts(dest_kind, dest, a >> _PRIORITY_AT & _PRIORITY_BITS):
             return
-        frame_type = a >> CAN_FRAME_SHIFT & CAN_FRAME_MASK
+        frame_type = a >> _FRAME_AT & _FRAME_BITS
         if frame_type == FrameType.SINGLE:  # most traffic: no reassembly, no lock
             self.on_message(source, dest_kind, dest, bytes(frame.data))
             return
         with self._rx_lock:
-            message = self.reassembler.feed((source, dest_kind, dest), frame_type, a & CAN_COUNTER_MASK,
+            message = self.reassembler.feed((source, dest_kind, dest), frame_type, a & _COUNTER_BITS,
                                             bytes(frame.data), time.monotonic())  # fmt: skip
         if message is not None:
             self.on_message(source, dest_kind, dest, message)
