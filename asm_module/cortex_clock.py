@@ -23,8 +23,10 @@ from .firmware_build import build_cortex_clock
 NEVER = (1 << 64) - 1
 """``watchdog_at`` of a watchdog not started."""
 REASON_NONE, REASON_SYSTICK, REASON_WATCHDOG, REASON_BUDGET = 0, 1, 2, 3
-"""Why the hook stopped the core (REASON_BUDGET: the run reached ``run_until``); the emulator's own reasons are
-numbered after these."""
+"""Why the hook stopped the core (REASON_BUDGET: the run reached ``run_until``)."""
+REASON_IDLE, REASON_RESET, REASON_FAULT, REASON_STOPPED, REASON_RETURN = 4, 5, 6, 7, 8
+"""Why a run stopped, beyond the hook's own (asm_module/emulator.py): the main loop idles, the image asked for a
+reset, it reached Default_Handler, Unicorn stopped for a reason of its own, a handler returned (EXC_RETURN)."""
 CACHE_SLOTS = 4096
 
 
