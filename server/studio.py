@@ -29,7 +29,7 @@ from typing import Any
 
 import zenoh
 
-from asm_module.feed import RobotStatus
+from asm_module.feed import RobotStatus, read_statuses
 from asm_py import Node
 from asm_py.cli import (
     bitrate,
@@ -44,7 +44,7 @@ from asm_py.cli import (
     stop_requested,
     zenoh_endpoint,
 )
-from asm_py.keys import ALL_ROBOTS, DEFAULT_ROBOT, robot_of
+from asm_py.keys import DEFAULT_ROBOT
 from asm_py.transport.zenoh import NameTaken
 from gaits.model import LIBRARY, Gait, dumps, loads
 from gaits.terrain import FLAT, Terrain
@@ -241,16 +241,7 @@ class Studio:
     def robots(self, timeout: float = 1.0) -> list[RobotStatus]:
         """The robots on the network, by name, as their processes answer now."""
         assert self.session is not None
-        found: dict[str, RobotStatus] = {}
-        for reply in self.session.get(ALL_ROBOTS.robot_key("status"), timeout=timeout):
-            if reply.ok is None:
-                continue
-            try:
-                status = RobotStatus.from_json(reply.ok.payload.to_bytes())
-            except ValueError:
-                continue
-            if status.robot == robot_of(str(reply.ok.key_expr)):  # a reply under its own key, naming itself
-                found[status.robot] = status
+        found = read_statuses(self.session, timeout=timeout)
         return [found[n] for n in sorted(found)]
 
     def _find_robot(self) -> str:
