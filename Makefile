@@ -7,7 +7,10 @@ STAMP := $(VENV)/.installed
 
 .PHONY: run test test-serial lint format bench clean contract
 
-$(STAMP): pyproject.toml
+# setup.py also builds the C hot path (asm_py/_speedups.c over the C runtime's framing; issue 31) in place; without a
+# C compiler the package installs without it and asm_py.speedups logs that the pure-Python path runs.
+SPEEDUPS := setup.py asm_py/_speedups.c firmware/src/wire.c firmware/src/can.c $(wildcard firmware/include/asm/*.h)
+$(STAMP): pyproject.toml $(SPEEDUPS)
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
 	$(PY) -m pip install --quiet -e '.[test,bench]'
@@ -58,4 +61,4 @@ bench: $(STAMP) $(ARM_GCC)
 	for script in $(filter-out bench/make_test.py,$(wildcard bench/*.py)); do $(PY) $$script || exit 1; done
 
 clean:
-	rm -rf $(VENV) build *.egg-info .pytest_cache .ruff_cache
+	rm -rf $(VENV) build *.egg-info .pytest_cache .ruff_cache asm_py/*.so

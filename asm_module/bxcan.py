@@ -62,17 +62,19 @@ class BxCan:
 
     # -- the bus side -----------------------------------------------------------------------------------------
 
-    def deliver(self, can_id: int, extended: bool, data: bytes) -> None:
+    def deliver(self, can_id: int, extended: bool, data: bytes) -> bool:
         """A frame seen on the bus (any thread), kept if the acceptance filters pass it (or are being set up: they
         are asked again as it enters the FIFO), so a frame for other nodes never wakes the emulated core — as the
-        controller's filters keep it from the CPU. A CAN FD frame is not one the controller can receive."""
+        controller's filters keep it from the CPU. A CAN FD frame is not one the controller can receive. Whether
+        it was kept."""
         if len(data) > 8:
-            return
+            return False
         with self.lock:
             if self.fmr & 1 or self.match(can_id, extended) is not None:
                 self.wire.append((can_id, extended, data))
-            else:
-                self.filtered += 1
+                return True
+            self.filtered += 1
+            return False
 
     def pending(self) -> bool:
         """Frames wait on the wire or in the FIFO."""

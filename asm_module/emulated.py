@@ -28,6 +28,7 @@ from asm_py.event import Event
 from asm_py.protocol import Kind, Method, Status, first_byte
 
 from ._profile import CLASSES
+from .backplane import Backplane
 from .bxcan import BxCan
 from .drivers import FakeDriver, JointDriver
 from .elf import Image, read_image
@@ -37,14 +38,13 @@ from .firmware_calls import FirmwareCalls
 from .flash import Settings
 
 log = logging.getLogger("asm_module.emulated")
-CLOCK_HZ = 168_000_000
-"""The STM32F405/407's core clock, which the port's SysTick reload assumes (1 ms = 168,000 cycles)."""
 CONTROL_MS = 20
 CATCH_UP_MS = 200
 """The most emulated milliseconds run in one hold of a board's lock."""
-IDLE_WAIT, FRAMES_WAIT = 0.005, 0.001
-"""Seconds a board's bus thread waits for a frame before running its clock on: on a quiet bus, and while frames
-wait for room in its receive FIFO."""
+IDLE_WAIT, FRAMES_WAIT, SIM_WAIT = 0.1, 0.001, 0.05
+"""Seconds a board's thread waits for a frame at most: on its own, before running its clock on (less if its next
+interrupt comes sooner: it wakes for that); while frames wait for room in its receive FIFO; on a simulation's
+clock, whose ticks run it (the thread only serves frames)."""
 _image_lock = threading.Lock()
 _image: Image | None = None
 
@@ -110,8 +110,11 @@ class EmulatedModule(FirmwareCalls):
         image = board_image()  # before the bus is opened: a build or a name that fails leaves nothing open
         self._image = image
         config = board_config(node_id, name, hardware_range)
-        self._own_bus = bus is None
-        self.bus = bus if bus is not None else can.Bus(**bus_options)
+        self.can = BxCan(self._transmit)  # frames before the first boot: dropped with it (_boot makes the board's)
+        self._wake = threading.Event()  # a frame kept by its controller, or close()
+        self._receiver = self._receive  # one bound method: the backplane knows the sender by it
+        self._plane = Backplane.join(self._receiver, bus, **bus_options)
+        self.bus = self._plane.bus
         self.send_errors = 0
         self.fault: FirmwareFault | None = None
         self._lock = threading.RLock()  # the core is single-threaded: one runner at a time
@@ -134,9 +137,9 @@ class EmulatedModule(FirmwareCalls):
         app = self.core.app
         if app is None:
             raise RuntimeError(f"{self.name}: the board runs an image the emulator has no ELF for (register_image)")
-        self._probe = struct.unpack("<14I", self.core.uc.mem_read(app.symbol("asm_probe"), 56))
-        if self._probe[0] != 2:
-            raise RuntimeError(f"the board image's asm_probe is version {self._probe[0]}, not 2")
+        self._probe = struct.unpack("<15I", self.core.uc.mem_read(app.symbol("asm_probe"), 60))
+        if self._probe[0] != 3:
+            raise RuntimeError(f"the board image's asm_probe is version {self._probe[0]}, not 3")
 
     @property
     def firmware_version(self) -> int:
@@ -160,7 +163,7 @@ class EmulatedModule(FirmwareCalls):
                 if self.fault is not None or self._stop.is_set():
                     return
                 core = self.core
-                step = min(target, core.systicks + CATCH_UP_MS)
+                step = min(target, core.now_ms + CATCH_UP_MS)
                 self._run_to(step)
                 if step >= target or not core.idle or self.core is not core:  # done, busy, or reset (a new clock)
                     return
@@ -183,27 +186,38 @@ class EmulatedModule(FirmwareCalls):
 
     def _transmit(self, can_id: int, extended: bool, data: bytes) -> None:
         try:
-            self.bus.send(can.Message(arbitration_id=can_id, data=data, is_extended_id=extended), timeout=0.1)
+            self._plane.send(self._receiver, can_id, extended, data)
         except can.CanError:
             self.send_errors += 1
+
+    def _receive(self, can_id: int, extended: bool, data: bytes) -> None:
+        """A frame on the bus (the backplane's reader, or another board's thread): to the controller, which keeps
+        it only if its acceptance filters pass it; the board's thread woken only then."""
+        if self.can.deliver(can_id, extended, data):
+            self._wake.set()
 
     def _read_joint(self) -> tuple[float, bool]:
         reading = self.driver.read()
         return reading.angle, reading.contact
 
     def _run(self) -> None:
-        # a frame ends the wait at once; without one, on its own the board runs the wall clock's milliseconds 5 at a
-        # time (its 20 ms control tick stays on time to 5 ms; waking every 1 ms, half an idle board's CPU was the
-        # wake itself), and on a simulation's clock its ticks run it: this thread only waits for frames
+        # a frame the controller kept ends the wait at once; without one, on its own the board sleeps until its next
+        # interrupt is due (a SysTick every 20 ms: 50 wakes a second, each on time), and on a simulation's clock its
+        # ticks run it: this thread only serves frames
         while not self._stop.is_set():
-            frame = self.bus.recv(timeout=FRAMES_WAIT if self.can.pending() else IDLE_WAIT if self.clock is None
-                                  else 0.05)  # fmt: skip
-            while frame is not None:
-                if not frame.is_error_frame and not frame.is_remote_frame:
-                    self.can.deliver(frame.arbitration_id, frame.is_extended_id, bytes(frame.data))
-                frame = self.bus.recv(timeout=0)
+            self._wake.wait(self._wait())
+            self._wake.clear()
             if self.clock is None or self.can.pending():
                 self.advance()
+
+    def _wait(self) -> float:
+        if self.can.pending():
+            return FRAMES_WAIT
+        if self.clock is not None:
+            return SIM_WAIT
+        with self._lock:
+            due = self._t0 + self.core.wake_ms / 1000  # when its next interrupt is due, on this module's clock
+        return min(IDLE_WAIT, max(FRAMES_WAIT, due - time.monotonic()))
 
     # -- what a debugger reads and calls -------------------------------------------------------------------------
 
@@ -221,7 +235,7 @@ class EmulatedModule(FirmwareCalls):
         with self._lock:
             if self.fault is not None:
                 raise RuntimeError(f"{self.name}: the emulated board stopped: {self.fault}")
-            self.core.uc.mem_write(now_ms, struct.pack("<I", self.core.read_word(self._probe[9])))
+            self.core.uc.mem_write(now_ms, struct.pack("<I", self.core.call(self._probe[14])))  # the port's clock
             status = self.core.call(local, node, message, len(message))
         if status != Status.OK:
             raise ValueError(f"{self.name}: {Method(method).name} of {name} refused: {Status(status).name}")
@@ -296,13 +310,14 @@ class EmulatedModule(FirmwareCalls):
             return self._byte(self._probe[11])
 
     def close(self) -> None:
-        """Leave the bus in order (asm_node_leave in the image) and stop; the bus is shut down if this module
-        opened it."""
+        """Leave the bus in order (asm_node_leave in the image) and stop; a bus opened for this module's options is
+        shut down with the last module on it (asm_module/backplane.py), a given one is left open."""
         if self._stop.is_set():
             return
         if self._unlisten is not None:
             self._unlisten()
         self._stop.set()
+        self._wake.set()
         if self._thread.is_alive():
             self._thread.join(5)
         with self._lock:
@@ -311,8 +326,7 @@ class EmulatedModule(FirmwareCalls):
                     self.core.call(self._probe[3], self._probe[1])
                 except (FirmwareFault, RuntimeError) as exc:  # faulted while leaving, or too busy to be called
                     log.error("%s: leaving the bus: %s", self.name, exc)
-        if self._own_bus:
-            self.bus.shutdown()
+        self._plane.leave(self._receiver)
 
     def __enter__(self) -> EmulatedModule:
         return self

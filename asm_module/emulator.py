@@ -5,13 +5,16 @@ interrupt, the FPU's enable bit, the servo's PWM timer, the encoder's timer and 
 Why each piece is as it is:
 
 - **Time** is the instruction count (one instruction taken as one cycle: a Cortex-M4 retires most in one, loads,
-  branches and divisions take more, so real cycles are somewhat higher). SysTick fires every RVR + 1 of them, as
-  the image configured it (168,000: 1 ms at 168 MHz). Instructions are counted per translated block, from the
-  block's bytes (Thumb-2: a halfword starting 0b11101, 0b11110 or 0b11111 begins a 32-bit instruction).
+  branches and divisions take more, so real cycles are somewhat higher), in milliseconds of 168,000 from the end
+  of the boot. SysTick fires every RVR + 1 of them, as the image configured it (3,360,000: the port's 20 ms control
+  period), and SCB_ICSR.PENDSTSET says when its interrupt is pending. Instructions are counted per translated
+  block, from the block's bytes (Thumb-2: a halfword starting 0b11101, 0b11110 or 0b11111 begins a 32-bit
+  instruction), by a hook in C (asm_module/cortex_clock.c).
 - **Idle**: the port polls CAN_RF0R in its main loop. Two empty polls with nothing else touched between them and
   no interrupt taken mean the loop can do nothing until an interrupt or a frame: the emulator stops there and
-  jumps the clock to the next SysTick when the outside clock allows, so an idle module costs a few blocks per
-  millisecond, and the host may call into the image at that point (the main loop, outside the runtime).
+  jumps the clock to the next SysTick interrupt or the watchdog's expiry, as far as the outside clock allows, so an
+  idle module costs a few blocks per interrupt, and the host may call into the image at that point (the main loop,
+  outside the runtime).
 - **Interrupts**: Unicorn has no NVIC. A SysTick exception is entered as the core would: the basic or (when the
   FPU is in use, CONTROL.FPCA) extended frame pushed on the main stack, 8-byte aligned, LR = EXC_RETURN, PC = the
   vector; the handler's branch to EXC_RETURN stops Unicorn (its core raises an exception return it cannot
@@ -30,32 +33,56 @@ Why each piece is as it is:
 
 from __future__ import annotations
 
+import math
 import struct
 
-from unicorn import UC_ARCH_ARM, UC_HOOK_BLOCK, UC_HOOK_CODE, UC_MODE_MCLASS, UC_MODE_THUMB, UC_PROT_EXEC, UC_PROT_READ
+from unicorn import (
+    UC_ARCH_ARM,
+    UC_HOOK_CODE,
+    UC_HOOK_MEM_WRITE_PROT,
+    UC_MODE_MCLASS,
+    UC_MODE_THUMB,
+    UC_PROT_EXEC,
+    UC_PROT_READ,
+)
 from unicorn import arm_const as arm
 from unicorn.unicorn import Uc, UcContext, UcError
 
-from .board_flash import bootloader, known_image, known_images, probe_flash, register_image
+from .board_flash import bootloader, known_images, probe_flash, register_image
 from .board_types import BoardReset, FirmwareFault, Joint, TickStats
-from .bxcan import RF0R, BxCan
+from .bxcan import BxCan
+from .cortex_clock import (
+    NEVER,
+    REASON_BUDGET,
+    REASON_FAULT,
+    REASON_IDLE,
+    REASON_NONE,
+    REASON_RESET,
+    REASON_RETURN,
+    REASON_STOPPED,
+    REASON_SYSTICK,
+    REASON_WATCHDOG,
+    Clock,
+    CoreClock,
+    emu_start,
+)
+from .cortex_peripherals import Peripherals
 from .elf import Image
 from .firmware_image import LOAD_ADDRESS, MAX_SIZE
-from .flash import INTERFACE, SECTORS, FlashInterface, Settings
+from .flash import SECTORS, FlashInterface, Settings
 from .thumb import Batch, local_16bit
-from .watchdog import BASE as IWDG
-from .watchdog import IndependentWatchdog
+from .watchdog import CLOCK_HZ, IndependentWatchdog
 
 FLASH, FLASH_SIZE = 0x08000000, 1 << 20
 BOOT_SIZE = SECTORS[0][1]
-"""The bootloader's sector: the only flash the core executes from (images run from RAM), so mapped as memory; the
-rest of the flash is the flash interface's (asm_module/flash.py), read and programmed through it."""
+"""The bootloader's sector: the only flash the core executes from (images run from RAM). The whole flash is mapped
+read-only into the core, a copy of the board's :class:`Settings` kept in step with it (read as fast as RAM, as the
+board's flash accelerator reads it); every store to it goes to the flash interface (asm_module/flash.py), which
+programs it."""
 RAM, RAM_SIZE = 0x20000000, 128 << 10
-SCB_VTOR, SCB_AIRCR = 0xE000ED08, 0xE000ED0C
 UID = 0x1FFF7A10
 """The 96-bit unique ID (RM0090 §39.1): the board's serial."""
 PAINT = 0xC5C5C5C5
-DEMCR, DWT_CTRL, DWT_CYCCNT = 0xE000EDFC, 0xE0001000, 0xE0001004
 """What the stack is filled with at boot; the high-water mark is where it was overwritten."""
 EXC_RETURN_BASIC, EXC_RETURN_FP = 0xFFFFFFF9, 0xFFFFFFE9
 CALL_RETURN = 0x1FFFFF00
@@ -63,16 +90,19 @@ CALL_RETURN = 0x1FFFFF00
 SYSTICK_VECTOR = 15
 AHEAD = 50
 """Milliseconds a busy image may run ahead of the outside clock in one call of Cortex.run."""
-CONTROL_PERIOD = 20
-"""SysTicks (milliseconds) in one control period: the port's CONTROL_MS."""
-ENCODER_COUNTS = 4096
+CALL_BUDGET_MS = 100
+"""Milliseconds of the board's time a call of the host into the image may take before it is a fault: the run holds
+the interpreter lock, and a handler spinning for good would hold the host's whole process with it."""
+CYCLES_PER_MS = CLOCK_HZ // 1000
+"""The emulated clock's millisecond: the STM32F405/407's core clock (168 MHz), which the port's SysTick reload
+assumes, at one instruction a cycle."""
 _FRAME_REGS = [arm.UC_ARM_REG_R0, arm.UC_ARM_REG_R1, arm.UC_ARM_REG_R2, arm.UC_ARM_REG_R3, arm.UC_ARM_REG_R12,
                arm.UC_ARM_REG_LR, arm.UC_ARM_REG_PC, arm.UC_ARM_REG_XPSR]  # fmt: skip
 _FP_REGS = [getattr(arm, f"UC_ARM_REG_S{k}") for k in range(16)]
 _ENTRY_REGS = [*_FRAME_REGS, arm.UC_ARM_REG_CONTROL, arm.UC_ARM_REG_SP]
 
 
-class Cortex:
+class Cortex(Peripherals):
     """One board booted to its image's main loop's first idle point: its bootloader chose the image, copied it to
     RAM and started it. ``settings`` is its flash (asm_module/flash.py): a fresh one (erased) is first written as a
     probe would (:func:`probe_flash`: the bootloader and ``image``); on a used one the board boots what the flash
@@ -90,13 +120,12 @@ class Cortex:
         if board_config is not None:
             address, size = image.symbols["board_config"]
             settings.write(address - FLASH, board_config[:size].ljust(size, b"\0"))
-        self.flash_interface = flash = FlashInterface(settings)
+        self.flash_interface = FlashInterface(settings)
         uc.mem_map(FLASH, BOOT_SIZE, UC_PROT_READ | UC_PROT_EXEC)
-        uc.mem_write(FLASH, bytes(settings.memory[:BOOT_SIZE]))
-        self._mirror = lambda at, _: at < BOOT_SIZE and uc.mem_write(FLASH + at, bytes(settings.memory[at:BOOT_SIZE]))
+        uc.mem_map(FLASH + BOOT_SIZE, FLASH_SIZE - BOOT_SIZE, UC_PROT_READ)
+        uc.mem_write(FLASH, bytes(settings.memory))
+        uc.hook_add(UC_HOOK_MEM_WRITE_PROT, self._flash_write, begin=FLASH, end=FLASH + FLASH_SIZE - 1)
         settings.listeners.append(self._mirror)
-        uc.mmio_map(FLASH + BOOT_SIZE, FLASH_SIZE - BOOT_SIZE, lambda _, at, size, __: flash.read(BOOT_SIZE + at, size),
-                    None, lambda _, at, size, value, __: flash.write(BOOT_SIZE + at, size, value), None)  # fmt: skip
         uc.mem_map(UID & ~0xFFF, 0x1000, UC_PROT_READ)
         uc.mem_write(UID, serial)
         uc.mem_map(RAM, RAM_SIZE)
@@ -108,33 +137,26 @@ class Cortex:
         self.watchdog = IndependentWatchdog()
         for page in (0x40000000, 0x40003000, 0x40006000, 0x40020000, 0x40023000, 0xE0001000, 0xE000E000):
             uc.mmio_map(page, 0x1000, self._read, page, self._write, page)
-        self.cycles = 0  # instructions executed since reset (the emulated clock)
         self.systicks = 0  # SysTick interrupts taken
         self.idle = False  # the last run ended in the main loop's idle poll: the host may call into the image
         self.idle_cycles = 0  # of those, skipped while the main loop idled
-        self.worst_period = 0  # the most cycles executed in one control period (20 SysTicks)
-        self._period_start = 0
-        self.csr = self.rvr = 0
-        self._systick_next = 0
-        self._countflag = False
+        self.worst_period = 0  # the most cycles executed in one control period (from a control tick to the next)
+        self._period_start: int | None = None
+        self.epoch = 0  # the cycle count at the end of the boot: the emulated clock's millisecond 0
         self.cpacr = 0
         self._cyccnt_base = 0  # CYCCNT = cycles - this (it counts while DEMCR.TRCENA and DWT_CTRL.CYCCNTENA are set)
         self.pwm: dict[int, int] = {}  # TIM3's registers by offset
         self.encoder: dict[int, int] = {}  # TIM2's
         self._reading = (0.0, False)
         self._activity = self._activity_at_empty = 0
-        self._depth = 0  # exceptions being handled
-        self._calling = False
-        self._reason = ""
         self._reset_cause = ""
-        self._pending = False  # a SysTick interrupt waits to be taken
         self._fp_context: UcContext | None = None  # the FP registers at exception entry (lazy stacking)
-        self._sizes: dict[tuple[int, int], int] = {}
+        self._fault = ""  # what stopped the image, in words (Default_Handler)
         self.ticks = TickStats()
         self._tick_start: int | None = None
         self._returns: set[int] = set()
-        uc.hook_add(UC_HOOK_BLOCK, self._block, begin=FLASH, end=FLASH + BOOT_SIZE - 1)
-        uc.hook_add(UC_HOOK_BLOCK, self._block, begin=LOAD_ADDRESS, end=LOAD_ADDRESS + MAX_SIZE - 1)
+        self.clock = Clock(uc, [(FLASH, FLASH + BOOT_SIZE - 1), (LOAD_ADDRESS, LOAD_ADDRESS + MAX_SIZE - 1)])
+        self._c: CoreClock = self.clock.state  # the cycle count, SysTick, the watchdog's deadline, the stop reason
         for known in {id(i): i for i in [*known_images(), image]}.values():  # each image's, while it runs
             tick = known.symbol("asm_module_tick")
             uc.hook_add(UC_HOOK_CODE, self._tick_entered, known, begin=tick, end=tick)
@@ -156,105 +178,138 @@ class Cortex:
         self._fp_free_vectors: dict[int, bool] = {}
         self.vectors = struct.unpack_from("<16I", settings.memory, 0)
         self.run(0)
+        self.epoch = self.cycles
 
     def release(self) -> None:
         """Stop mirroring the flash into this core (it was reset or powered off; the flash lives on)."""
         if self._mirror in self.settings.listeners:
             self.settings.listeners.remove(self._mirror)
 
+    def _flash_write(self, uc: Uc, access: int, address: int, size: int, value: int, _: object) -> bool:
+        """A store to the flash: the flash interface decides what it programs (asm_module/flash.py), mirrored into
+        the core at once (the next load reads it); the store itself does not happen (the flash is mapped read-only:
+        every store comes here, and a handled one is dropped), so no bit changes that the controller would not."""
+        self.flash_interface.write(address - FLASH, size, value)
+        return True
+
+    def _mirror(self, offset: int, length: int) -> None:
+        """The flash changed (programmed, erased, or written by a probe): the core's copy follows (Unicorn
+        translates again any code of the bootloader's sector that changed)."""
+        if length:
+            self.uc.mem_write(FLASH + offset, bytes(self.settings.memory[offset : offset + length]))
+
     # -- running -----------------------------------------------------------------------------------------------
 
-    def run(self, until_systicks: int) -> None:
-        """Run the image until it idles having taken ``until_systicks`` SysTick interrupts (its milliseconds): the
-        clock jumps over idle stretches up to there, and no further. A busy image runs on past it, by AHEAD
-        milliseconds at most in one call (then ``idle`` is False: the host must not call into it yet)."""
+    def _interrupt(self) -> int:
+        """The cycle of the next SysTick interrupt (NEVER while SysTick does not interrupt)."""
+        c = self._c
+        return c.systick_next if c.csr & 3 == 3 and c.rvr else NEVER
+
+    @property
+    def wake_ms(self) -> float:
+        """When an idle image next has something to do without a frame — its next SysTick interrupt or the
+        watchdog's expiry — in milliseconds of the emulated clock (inf: never)."""
+        at = min(self._interrupt(), self._c.watchdog_at)
+        return math.inf if at == NEVER else (at - self.epoch) / CYCLES_PER_MS
+
+    @property
+    def now_ms(self) -> int:
+        """The emulated clock in milliseconds since the boot ended (the first idle point): what run() runs to."""
+        return (self._c.cycles - self.epoch) // CYCLES_PER_MS
+
+    def run(self, until_ms: int) -> None:
+        """Run the image until it idles at millisecond ``until_ms`` of the emulated clock (:attr:`now_ms`): idle, the
+        clock jumps to what comes first of the next SysTick interrupt, the watchdog's expiry and ``until_ms`` — no
+        instruction could run before it — and no further. A busy image runs on past it, by AHEAD milliseconds at
+        most in one call (then ``idle`` is False: the host must not call into it yet)."""
         self.idle = False
+        c = self._c
+        until = self.epoch + until_ms * CYCLES_PER_MS
+        c.run_until = until + AHEAD * CYCLES_PER_MS  # a run keeps the interpreter lock: never longer than this
+        try:
+            self._run_to(until)
+        finally:
+            c.run_until = NEVER
+
+    def _run_to(self, until: int) -> None:
+        c = self._c
         while True:
             reason = self._resume()
-            if reason == "systick":
-                if self.systicks >= until_systicks + AHEAD:
-                    self._pending = True  # taken at the next run
+            if reason == REASON_BUDGET:  # busy (spinning with no interrupt due, say): the host's turn, then on
+                return
+            if reason == REASON_SYSTICK:
+                if c.cycles >= until + AHEAD * CYCLES_PER_MS:
+                    c.pending = 1  # taken at the next run
                     return
                 self._enter(self.vectors[SYSTICK_VECTOR])
-            elif reason == "return":
+            elif reason == REASON_RETURN:
                 self._exception_return()
-            elif reason == "reset":
+            elif reason == REASON_RESET:
                 raise BoardReset(self._reset_cause)
-            elif reason == "idle":
-                if not (self.csr & 3 == 3 and self.rvr) or self.systicks >= until_systicks:
+            elif reason == REASON_WATCHDOG:
+                raise BoardReset("the independent watchdog expired")
+            elif reason == REASON_IDLE:
+                interrupt = self._interrupt()
+                wake = min(interrupt, c.watchdog_at, until)
+                self.idle_cycles += max(0, wake - c.cycles)
+                c.cycles = max(c.cycles, wake)
+                if self.watchdog.expired(c.cycles):
+                    raise BoardReset("the independent watchdog expired")
+                if c.cycles < interrupt:  # the outside clock's now: the host's turn
                     self.idle = True
                     return
-                self.idle_cycles += max(0, self._systick_next - self.cycles)
-                self.cycles = max(self.cycles, self._systick_next)
-                if self.watchdog.expired(self.cycles):
-                    raise BoardReset("the independent watchdog expired")
-                self._count_down()
-                self._pending = False
+                self.clock.count_down()
+                c.pending = 0
                 self._enter(self.vectors[SYSTICK_VECTOR])
             else:
-                raise FirmwareFault(f"the image stopped at {self.pc:#010x} ({reason})")
+                raise FirmwareFault(f"the image stopped at {self.pc:#010x} ({self._fault or 'stopped'})")
 
     @property
     def pc(self) -> int:
         return int(self.uc.reg_read(arm.UC_ARM_REG_PC))
 
-    def _resume(self) -> str:
-        self._reason = ""
+    @property
+    def cycles(self) -> int:
+        """Instructions executed since reset: the emulated clock (asm_module/cortex_clock.c counts them)."""
+        return self._c.cycles
+
+    def _resume(self) -> int:
+        c = self._c
+        c.reason = REASON_NONE
         try:
-            self.uc.emu_start(self._resume_at | 1, 0)
+            emu_start(self.uc, self._resume_at | 1)
         except UcError as exc:  # a branch to EXC_RETURN is one: Unicorn's core raises its exception return
             if self.pc not in (EXC_RETURN_BASIC & ~1, EXC_RETURN_FP & ~1):
                 raise FirmwareFault(f"{exc} at {self.pc:#010x}") from None
         self._resume_at = pc = self.pc
         if pc in (EXC_RETURN_BASIC & ~1, EXC_RETURN_FP & ~1):
-            return "return"
+            return REASON_RETURN
         if self.cpacr & 0xF << 20 != 0xF << 20 and int(self.uc.reg_read(arm.UC_ARM_REG_CONTROL)) & 4:
             raise FirmwareFault("an FPU instruction ran before CPACR enabled the FPU (a UsageFault on the board)")
-        return self._reason or "stopped"
+        return c.reason or REASON_STOPPED
 
-    def _block(self, uc: Uc, address: int, size: int, _: object) -> None:
-        count = self._sizes.get((address, size))
-        if count is None:
-            code, count, at = bytes(uc.mem_read(address, size)), 0, 0
-            while at < size:
-                at += 4 if code[at + 1] >> 3 in (0b11101, 0b11110, 0b11111) else 2
-                count += 1
-            self._sizes[(address, size)] = count
-        # run for every block the image executes: the checks are inlined (a method call each cost more than them)
-        cycles = self.cycles = self.cycles + count
-        if cycles >= self._systick_next:
-            self._count_down()
-        expires = self.watchdog.expires_at
-        if expires is not None and cycles >= expires and not self._reason:
-            self._reset("the independent watchdog expired")
-        if (self._pending and not self._depth and not self._calling and not self._reason
-                and not int(uc.reg_read(arm.UC_ARM_REG_XPSR)) & 0x0600FC00):  # fmt: skip  # never inside an IT block
-            self._pending = False
-            self._reason = "systick"
-            uc.emu_stop()
-
-    def _count_down(self) -> None:
-        """SysTick reached zero (once or more) by now: COUNTFLAG, and the interrupt pending if TICKINT."""
-        if self.cycles >= self._systick_next and self.csr & 1 and self.rvr:
-            periods = (self.cycles - self._systick_next) // (self.rvr + 1) + 1
-            self._systick_next += periods * (self.rvr + 1)
-            self._countflag = True
-            self._pending = self._pending or bool(self.csr & 2)
+    def _stop(self, reason: int) -> None:
+        self._c.reason = reason
+        self.uc.emu_stop()
 
     def _reset(self, cause: str) -> None:
-        self._reason, self._reset_cause = "reset", cause
-        self.uc.emu_stop()
+        self._reset_cause = cause
+        self._stop(REASON_RESET)
 
     def _faulted(self, uc: Uc, address: int, size: int, image: Image | None) -> None:
         if image is not self.app:
             return  # another image's Default_Handler address: code of the one running
-        self._reason = "Default_Handler: an exception the image does not handle"
-        uc.emu_stop()
+        self._fault = "Default_Handler: an exception the image does not handle"
+        self._stop(REASON_FAULT)
 
     def _tick_entered(self, uc: Uc, address: int, size: int, image: Image) -> None:
         if image is not self.app:
             return
         self._tick_start = self.cycles
+        busy = self._tick_start - self.idle_cycles
+        if self._period_start is not None:  # the first period is the boot's
+            self.worst_period = max(self.worst_period, busy - self._period_start)
+        self._period_start = busy
         back = int(uc.reg_read(arm.UC_ARM_REG_LR)) & ~1
         if back not in self._returns:
             self._returns.add(back)
@@ -277,10 +332,6 @@ class Cortex:
         uc = self.uc
         self._activity += 1
         self.systicks += 1
-        if self.systicks % CONTROL_PERIOD == 0:
-            busy = self.cycles - self.idle_cycles
-            self.worst_period = max(self.worst_period, busy - self._period_start)
-            self._period_start = busy
         values = self._entry_read.read()
         sp, control = values.pop(), values.pop()
         values[6] = self._resume_at  # the return address: the instruction not yet executed
@@ -294,7 +345,7 @@ class Cortex:
         self._fp_context = uc.context_save() if extended and not self._fp_free(vector) else None
         self._entry_write.write([frame, EXC_RETURN_FP if extended else EXC_RETURN_BASIC, control & ~4])
         self._resume_at = vector & ~1
-        self._depth += 1
+        self._c.depth += 1
 
     def _fp_free(self, vector: int) -> bool:
         """The handler at ``vector`` cannot touch the FPU: its code (its symbol's extent) is 16-bit instructions
@@ -326,7 +377,7 @@ class Cortex:
             uc.reg_write_batch(fp)
         self._return_write.write([*words[:6], words[7], control | 4 if extended else control & ~4,
                                   sp + size + (4 if words[7] & 1 << 9 else 0)])  # fmt: skip
-        self._depth -= 1
+        self._c.depth -= 1
 
     # -- the host's calls --------------------------------------------------------------------------------------
 
@@ -352,16 +403,22 @@ class Cortex:
                         strict=False):  # fmt: skip
             uc.reg_write(r, v)
         uc.reg_write(arm.UC_ARM_REG_LR, CALL_RETURN | 1)
-        self._calling, self._reason = True, ""
+        c = self._c
+        c.calling, c.reason, self._fault = 1, REASON_NONE, ""
+        c.run_until = c.cycles + CALL_BUDGET_MS * CYCLES_PER_MS
         try:
-            uc.emu_start(function | 1, 0)
-            if self.pc != CALL_RETURN or self._reason:
-                raise FirmwareFault(f"a call to {function:#010x} stopped at {self.pc:#010x} ({self._reason})")
+            emu_start(uc, function | 1)
+            if c.reason == REASON_BUDGET:
+                raise FirmwareFault(f"a call to {function:#010x} did not return within {CALL_BUDGET_MS} ms of the "
+                                    f"board's time (at {self.pc:#010x})")  # fmt: skip
+            if self.pc != CALL_RETURN or c.reason:
+                raise FirmwareFault(f"a call to {function:#010x} stopped at {self.pc:#010x} "
+                                    f"({self._fault or self._reset_cause or c.reason})")  # fmt: skip
             return int(uc.reg_read(arm.UC_ARM_REG_R0))
         except UcError as exc:
             raise FirmwareFault(f"{exc} at {self.pc:#010x} in a call to {function:#010x}") from None
         finally:
-            self._calling = False
+            c.calling, c.run_until = 0, NEVER
             uc.context_restore(saved)
 
     def read_word(self, address: int) -> int:
@@ -375,106 +432,3 @@ class Cortex:
             if memory[at : at + 4] != paint:
                 return len(memory) - at
         return 0
-
-    # -- the peripherals ---------------------------------------------------------------------------------------
-
-    def _read(self, uc: Uc, offset: int, size: int, page: int) -> int:
-        address = page + offset
-        word = self._register(address & ~3)
-        return (word >> 8 * (address & 3)) & ((1 << 8 * size) - 1)
-
-    def _register(self, address: int) -> int:
-        if 0x40006400 <= address < 0x40006800:
-            value = self.can.read(address - 0x40006400)
-            if address - 0x40006400 == RF0R and not value & 3 and not self.can.wire:
-                if self._activity == self._activity_at_empty and not self._calling and not self._reason:
-                    self._reason = "idle"
-                    self.uc.emu_stop()
-                self._activity_at_empty = self._activity
-                return value
-        else:
-            if address == 0x40000024 and self.encoder.get(0x08, 0) & 7 == 3 and self.encoder.get(0, 0) & 1:
-                self._reading = self.joint.read()
-                return round(self._reading[0] * ENCODER_COUNTS / 360) & 0xFFFFFFFF
-            if address == 0x40020010:  # GPIOA_IDR: the foot switch on PA2
-                return int(self._reading[1]) << 2
-            if INTERFACE <= address < INTERFACE + 0x20:
-                return self.flash_interface.read_register(address - INTERFACE)
-            if address == SCB_VTOR:
-                return self.registers.get(SCB_VTOR, 0)
-            if IWDG <= address < IWDG + 0x10:
-                return self.watchdog.read(address - IWDG)
-            value = self._systick(address)
-        self._activity += 1
-        return value
-
-    def _systick(self, address: int) -> int:
-        if address == 0xE000E010:
-            flag, self._countflag = self._countflag, False
-            return self.csr | int(flag) << 16
-        if address == 0xE000E014:
-            return self.rvr
-        if address == 0xE000E018:
-            return max(0, self._systick_next - self.cycles - 1) if self.csr & 1 else 0
-        if address == 0xE000ED88:
-            return self.cpacr
-        if address == DWT_CYCCNT:
-            return self._cyccnt()
-        return self.registers.get(address, 0)
-
-    def _cyccnt(self) -> int:
-        on = self.registers.get(DEMCR, 0) >> 24 & 1 and self.registers.get(DWT_CTRL, 0) & 1
-        return (self.cycles - self._cyccnt_base) & 0xFFFFFFFF if on else 0
-
-    def _write(self, uc: Uc, offset: int, size: int, value: int, page: int) -> None:
-        address = page + offset
-        if IWDG <= address < IWDG + 0x10:
-            self.watchdog.write(address - IWDG, value, self.cycles)  # feeding it is no activity: the loop may idle
-            return
-        self._activity += 1
-        if 0x40006400 <= address < 0x40006800:
-            self.can.write(address - 0x40006400, value)
-        elif address == 0xE000E010:
-            if value & 1 and not self.csr & 1:
-                self._systick_next = self.cycles + self.rvr + 1
-            self.csr = value & 7
-        elif address == 0xE000E014:
-            self.rvr = value & 0xFFFFFF
-        elif address == 0xE000E018:
-            self._systick_next = self.cycles + self.rvr + 1  # any write clears the counter: it reloads
-        elif address == 0xE000ED88:
-            self.cpacr = value
-        elif address == DWT_CYCCNT:
-            self._cyccnt_base = self.cycles - value  # counting on from the value written
-        elif 0x40000000 <= address < 0x40000400:
-            self.encoder[address & 0x3FF] = value
-        elif 0x40000400 <= address < 0x40000800:
-            self._pwm(address & 0x3FF, value)
-        elif INTERFACE <= address < INTERFACE + 0x20:
-            self.flash_interface.write_register(address - INTERFACE, value)
-        elif address == SCB_VTOR:
-            self._vector_table(value)
-        elif address == SCB_AIRCR and value >> 16 == 0x05FA and value & 4:
-            self._reset("the image asked for a reset (SYSRESETREQ)")
-        else:
-            self.registers[address] = value
-
-    def _vector_table(self, address: int) -> None:
-        """VTOR moved (the bootloader starting an image): exceptions vector there, and the image (in RAM, its header
-        just below the table) is looked up among the known ones for its symbols."""
-        self.registers[SCB_VTOR] = address
-        self.vectors = struct.unpack("<16I", self.uc.mem_read(address, 64))
-        if address == LOAD_ADDRESS + 0x80:
-            self.app = known_image(lambda at, n: bytes(self.uc.mem_read(LOAD_ADDRESS + at, n)))
-
-    def _pwm(self, offset: int, value: int) -> None:
-        """TIM3: a new compare value or output enable commands the servo (the preload's wait for the next 20 ms
-        period is not modelled); the output disabled relaxes it."""
-        before = self.pwm.get(0x20, 0) & 1
-        self.pwm[offset] = value
-        running = self.pwm.get(0, 0) & 1 and self.pwm.get(0x18, 0) >> 4 & 7 in (6, 7)
-        enabled = self.pwm.get(0x20, 0) & 1
-        if running and enabled and offset in (0x34, 0x20):
-            self.joint.command((self.pwm.get(0x34, 0) - 1500) * 90 / 1000)
-        elif before and not enabled:
-            self.joint.relax()

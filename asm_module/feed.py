@@ -24,10 +24,14 @@ from __future__ import annotations
 import json
 import struct
 from dataclasses import asdict, dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from asm_py.keys import RobotKeys
+from asm_py.keys import ALL_ROBOTS, RobotKeys, robot_of
+
+if TYPE_CHECKING:
+    import zenoh
 
 MAGIC = b"RP"
 VERSION = 1
@@ -113,3 +117,20 @@ class RobotStatus:
             return cls(**known)
         except TypeError as exc:
             raise ValueError(f"not a robot status: {exc}") from None
+
+
+def read_statuses(session: zenoh.Session, robot: str | None = None, timeout: float = 1.0) -> dict[str, RobotStatus]:
+    """The robots' statuses now, by name (``robot``'s alone, or every robot's on the network): a status counts only
+    when it came under its own robot's key, naming that robot."""
+    keys = ALL_ROBOTS if robot is None else RobotKeys(robot)
+    found: dict[str, RobotStatus] = {}
+    for reply in session.get(keys.robot_key("status"), timeout=timeout):
+        if reply.ok is None:
+            continue
+        try:
+            status = RobotStatus.from_json(reply.ok.payload.to_bytes())
+        except ValueError:
+            continue
+        if status.robot == robot_of(str(reply.ok.key_expr)):
+            found[status.robot] = status
+    return found

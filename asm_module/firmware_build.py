@@ -74,22 +74,39 @@ def build_library() -> Path:
     """firmware/build/libasm_host.so, compiled now if missing or older than a source or header."""
     ensure_contract()
     inputs = [*_sources(), *(FIRMWARE / "include" / "asm").glob("*.h")]
-    if LIBRARY.exists() and LIBRARY.stat().st_mtime >= max(p.stat().st_mtime for p in inputs):
-        return LIBRARY
-    LIBRARY.parent.mkdir(exist_ok=True)
-    fd, temporary = tempfile.mkstemp(dir=LIBRARY.parent, suffix=".so")  # then renamed: parallel builds never clash
+    flags = [*C_FLAGS, *HOST_FLAGS, stamp("host.c")]
+    return _shared_library(LIBRARY, _sources(), inputs, flags, "the C module runtime")
+
+
+CORTEX_CLOCK = FIRMWARE / "build" / "libasm_cortex_clock.so"
+CORTEX_CLOCK_SOURCE = Path(__file__).resolve().parent / "cortex_clock.c"
+
+
+def build_cortex_clock() -> Path:
+    """firmware/build/libasm_cortex_clock.so, the emulator's per-block hook (asm_module/cortex_clock.c), compiled now
+    if missing or older than its source."""
+    return _shared_library(CORTEX_CLOCK, [CORTEX_CLOCK_SOURCE], [CORTEX_CLOCK_SOURCE],
+                           ["-std=c11", "-Wall", "-Wextra", "-Werror"], "the emulator's clock")  # fmt: skip
+
+
+def _shared_library(out: Path, sources: list[Path], inputs: list[Path], flags: list[str], what: str) -> Path:
+    """``out`` compiled from ``sources`` with the system's C compiler (-O2, position-independent) if missing or
+    older than one of ``inputs``, through a temporary file renamed after: parallel builds never clash."""
+    if out.exists() and out.stat().st_mtime >= max(p.stat().st_mtime for p in inputs):
+        return out
+    out.parent.mkdir(exist_ok=True)
+    fd, temporary = tempfile.mkstemp(dir=out.parent, suffix=".so")
     os.close(fd)
     try:
-        subprocess.run([os.environ.get("CC", "gcc"), *C_FLAGS, *HOST_FLAGS, stamp("host.c"), "-O2", "-fPIC", "-shared",
-                        *map(str, _sources()), "-lm", "-o", temporary], check=True, capture_output=True,
-                       text=True)  # fmt: skip
-        os.replace(temporary, LIBRARY)
+        subprocess.run([os.environ.get("CC", "gcc"), *flags, "-O2", "-fPIC", "-shared", *map(str, sources), "-lm",
+                        "-o", temporary], check=True, capture_output=True, text=True)  # fmt: skip
+        os.replace(temporary, out)
     except subprocess.CalledProcessError as exc:
-        raise RuntimeError(f"building the C module runtime failed:\n{exc.stderr}") from None
+        raise RuntimeError(f"building {what} failed:\n{exc.stderr}") from None
     finally:
         if os.path.exists(temporary):
             os.unlink(temporary)
-    return LIBRARY
+    return out
 
 
 CORTEX_M4_FLAGS = [

@@ -18,7 +18,9 @@ stm32f4_layout.h) — with the controller's rules, so that what a board would do
 
 from __future__ import annotations
 
+import os
 import struct
+import weakref
 from collections.abc import Callable
 from pathlib import Path
 
@@ -64,6 +66,7 @@ class Settings:
         self.erases = 0
         self.programs = 0
         self.listeners: list[Callable[[int, int], None]] = []  # (offset, length) changed: a core's mapped copy
+        self._fd: int | None = None  # the file, opened once: a programmed word is one write, not an open and a close
         if self.path is not None and not (self.path.exists() and self.path.stat().st_size == SIZE + 4):
             self.path.write_bytes(bytes(self.memory) + struct.pack("<I", self.nwrp))
 
@@ -87,11 +90,11 @@ class Settings:
         for listener in self.listeners:
             listener(offset, length)
         if self.path is not None:
-            with self.path.open("r+b") as file:
-                file.seek(offset)
-                file.write(self.memory[offset : offset + length])
-                file.seek(SIZE)
-                file.write(struct.pack("<I", self.nwrp))
+            if self._fd is None:
+                self._fd = os.open(self.path, os.O_RDWR)
+                weakref.finalize(self, os.close, self._fd)
+            os.pwrite(self._fd, self.memory[offset : offset + length], offset)  # in the file at once (no buffer)
+            os.pwrite(self._fd, struct.pack("<I", self.nwrp), SIZE)
 
     def save(self) -> None:
         if self.path is not None:

@@ -218,8 +218,9 @@ class Attribute:
 
         A value ``decoded_by`` this attribute's own codec is canonical already and is not checked again.
         """
-        if self._codec is not None and decoded_by != self._codec:
-            value = self._codec.normalize(value)
+        codec = self._codec
+        if codec is not None and decoded_by is not codec and decoded_by != codec:  # identity first: no __eq__
+            value = codec.normalize(value)
         with self._mon.lock:
             self._store(value)
         self._notify(value)

@@ -61,6 +61,7 @@ node_id = bounded(int, MIN_NODE_ID, MAX_NODE_ID, what="a CAN node ID")
 rate = bounded(float, above=0, high=1000, what="a rate in Hz")
 positive_seconds = bounded(float, above=0, high=86_400, what="a time in seconds")
 _bitrate = bounded(float, 10_000, 8_000_000, what="a CAN bit rate in bit/s")
+frame_rate = bounded(float, 1, 60, what="a frame rate in frames per second")
 
 
 def bitrate(text: str) -> int:

@@ -31,12 +31,19 @@ from .errors import ServiceStopped, SimulationStalled
 if TYPE_CHECKING:
     from .service import Service
 
-_local = threading.local()
+
+class _Local(threading.local):
+    service: Service | None = None
+    """The class's None for threads that never set it: a missing thread-local attribute read with a default costs
+    an exception each time (0.7 µs on every remote call; issue 31)."""
+
+
+_local = _Local()
 
 
 def current_service() -> Service | None:
     """The service whose thread is running this code, if any (set by the service thread itself)."""
-    return getattr(_local, "service", None)
+    return _local.service
 
 
 def _set_current_service(service: Service | None) -> None:

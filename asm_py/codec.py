@@ -93,6 +93,8 @@ class _Fixed(Codec):
         self._struct = struct.Struct("<" + fmt)
         self.size = self._struct.size
         self._tag = tag
+        self._plain = type(self)._unpack is _Fixed._unpack
+        """Whether a value is the struct's unpacking as it is (a bool checks its byte)."""
 
     def descriptor(self) -> bytes:
         return bytes([self._tag])
@@ -108,6 +110,14 @@ class _Fixed(Codec):
         if end > len(data):
             raise ValueError(f"{self.spec}: needs {self._struct.size} bytes, {len(data) - offset} left")
         return self._struct.unpack_from(data, offset)[0], end
+
+    def encode(self, value: Any) -> bytes:
+        return self._struct.pack(self.normalize(value))
+
+    def decode(self, data: Buffer) -> Any:
+        if self._plain and len(data) == self.size:  # every get and publication of a number: one unpack (issue 31)
+            return self._struct.unpack(data)[0]
+        return super().decode(data)
 
 
 class BoolCodec(_Fixed):
@@ -162,6 +172,13 @@ class FloatCodec(_Fixed):
         )
 
     def normalize(self, value: Any) -> float:
+        if type(value) is float:  # the common case first: no type checks, one round trip through the struct
+            if self.size == 8:
+                return value
+            try:
+                return self._struct.unpack(self._struct.pack(value))[0]
+            except OverflowError:
+                raise ValueError(f"{value} is outside the float32 range") from None
         if isinstance(value, bool | str | bytes):
             raise TypeError(f"{self.spec} attribute needs a number, got {type(value).__name__}")
         try:

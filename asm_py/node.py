@@ -34,9 +34,11 @@ from .publisher import Publisher
 from .registry import Entry, Guard, Registrable, Registry
 from .remote import RemoteObject
 from .server import Server
+from .speedups import speedups
 from .transport.base import BROADCAST, Responder, Transport, check_name
 
 log = logging.getLogger("asm_py.node")
+_REPLY, _PUBLICATION = int(Kind.REPLY), int(Kind.PUBLICATION)
 
 __all__ = ["WRITES", "Entry", "Guard", "Node", "Registrable"]
 
@@ -68,6 +70,8 @@ class Node:
         )
         self.client = Client(self)
         self._closed = False
+        self._decode = speedups.decode if speedups is not None and transport.compiled else None
+        """The C decoder (None for a message it refuses: the Python decoder then says why), or None."""
         self.dropped = 0
         """Messages dropped unread: malformed, or over MAX_MESSAGE."""
         transport.attach(name, self._on_message)
@@ -168,18 +172,22 @@ class Node:
         if len(data) > MAX_MESSAGE:
             self._refuse_oversized(source, data, respond)
             return
-        try:
-            message = decode(data)
-        except ProtocolError as exc:
-            self.dropped += 1
-            log.debug("dropped a message from %r: %s", source, exc)
-            return
-        if message.kind == Kind.REPLY:
+        fast = self._decode
+        message = None if fast is None else fast(data)
+        if message is None:
+            try:
+                message = decode(data)
+            except ProtocolError as exc:
+                self.dropped += 1
+                log.debug("dropped a message from %r: %s", source, exc)
+                return
+        kind = message[0]
+        if kind == _REPLY:
             port = self.client.existing_port(source)
             if port is not None:
                 port.deliver(message)
             return
-        if message.kind == Kind.PUBLICATION:
+        if kind == _PUBLICATION:
             return  # publications reach subscribers through transport.subscribe
         if respond is None:
             transport = self.transport

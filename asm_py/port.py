@@ -18,6 +18,7 @@ from .clock import WALL_CLOCK, Monitor, current_service
 from .errors import AsmTimeout
 from .protocol import (
     HEADER_SIZE,
+    MAX_MESSAGE,
     MAX_TXN,
     METHOD_MASK,
     Kind,
@@ -36,6 +37,13 @@ if TYPE_CHECKING:
 MAX_TIMEOUT_CODE = TIMEOUT_LONGEST
 REPLY_MARGIN = 1.0
 """Seconds a client waits for a reply beyond the time the server may block."""
+
+
+_new_tuple = tuple.__new__  # a Message without NamedTuple's own __new__, a Python function
+_REPLY = int(Kind.REPLY)
+_ASK = tuple(first_byte(Kind.REQUEST_REPLY, method) for method in range(METHOD_MASK + 1))
+_ANSWER = tuple(first_byte(Kind.REPLY, method) for method in range(METHOD_MASK + 1))
+"""Byte 0 of a request that wants a reply, and of its reply, per method (built once)."""
 
 
 class _Call:
@@ -118,13 +126,15 @@ class Port:
         what: object,
     ) -> Message:
         mon = self._mon
-        if code is None and 0 <= method <= METHOD_MASK:  # the header built in place (bytes() checks the IDs' range)
-            raw = check_size(bytes((first_byte(Kind.REQUEST_REPLY, method), 0, class_id, object_id)) + data, what)
-        else:
-            raw = check_size(encode(Message(Kind.REQUEST_REPLY, method, 0, class_id, object_id, timeout=code,
-                                            data=data)), what)  # fmt: skip
+        simple = code is None and 0 <= method <= METHOD_MASK  # the header built in place, once its txn is known
+        encoded = b""
+        if not simple:
+            encoded = check_size(encode(Message(Kind.REQUEST_REPLY, method, 0, class_id, object_id, timeout=code,
+                                                data=data)), what)  # fmt: skip
+        elif len(data) > MAX_MESSAGE - HEADER_SIZE:
+            check_size(bytes(HEADER_SIZE) + data, what)  # raises MessageTooLarge
         call = _Call(method, object_id)
-        with mon:
+        with mon.lock:
             if len(self._pending) > MAX_TXN and not mon.wait_for(lambda: len(self._pending) <= MAX_TXN, wait):
                 raise AsmTimeout(f"{what}: all {MAX_TXN + 1} transaction ids of the port are in use")
             txn = self._next_txn
@@ -133,23 +143,29 @@ class Port:
             self._next_txn = (txn + 1) & MAX_TXN
             self._pending[txn] = call
         try:
-            self.node.transport.send(self.remote, raw[:1] + bytes((raw[1] | txn,)) + raw[2:])
-            if current_service() is None:
-                call.done.acquire(True, -1 if wait is None else max(0.0, wait))
+            transport = self.node.transport
+            if simple:  # bytes() checks the IDs' range
+                transport.send(self.remote, bytes((_ASK[method], txn, class_id, object_id)) + data)
+            else:
+                transport.send(self.remote, encoded[:1] + bytes((encoded[1] | txn,)) + encoded[2:])
+            if current_service() is None:  # on CAN, this thread may read its reply itself
+                transport.wait_reply(call.done, wait, self.remote, bytes((_ANSWER[method], txn)))
             else:  # a service thread waits on the monitor, where its service's stop() can interrupt it
-                with mon:
+                with transport.waiting(call.done), mon:
                     mon.wait_for(lambda: call.reply is not None or call.failure is not None, wait)
         finally:
             if call.reply is None and call.failure is None:  # completed calls left _pending when completed
-                with mon:
+                with mon.lock:
                     if self._pending.get(txn) is call:
                         del self._pending[txn]
                     mon.notify_all()
         if call.reply is None:
             reason = call.failure or f"no reply within {wait:.3g}s"  # done without a reply means a failure
             raise AsmTimeout(f"{what} timed out: {reason}")
-        raise_for_status(call.reply, what)
-        return call.reply
+        reply = call.reply
+        if reply.status:
+            raise_for_status(reply, what)
+        return reply
 
     def _direct(self, method: int, class_id: int, object_id: int, data: bytes, wait: float, what: object) -> Message:
         """A round trip in the caller's thread, on transports that can (requests that cannot block).
@@ -157,7 +173,7 @@ class Port:
         The hot path of a remote get: the 4-byte header is built in place and the reply checked by its header bytes.
         """
         txn = next(self._direct_txns) & MAX_TXN  # atomic; these replies never pass through _pending
-        head = bytes((first_byte(Kind.REQUEST_REPLY, method), txn, class_id, object_id))
+        head = bytes((_ASK[method], txn, class_id, object_id))
         began = time.monotonic()
         raw = self.node.transport.request(self.remote, check_size(head + data, what), wait)
         if raw is None:
@@ -166,16 +182,17 @@ class Port:
                 raise AsmTimeout(f"{what} failed: nothing answered after {waited:.2g}s ({self.remote} is not "
                                  "reachable now)")  # fmt: skip
             raise AsmTimeout(f"{what} timed out: no reply within {wait:.3g}s")
-        if len(raw) < HEADER_SIZE or raw[0] != first_byte(Kind.REPLY, method) or raw[1] != txn or raw[3] != object_id:
+        if len(raw) < HEADER_SIZE or raw[0] != _ANSWER[method] or raw[1] != txn or raw[3] != object_id:
             raise ProtocolError(f"{what}: answer is not the reply to transaction {txn}")
-        reply = Message(Kind.REPLY, method, txn, 0, raw[3], raw[2], None, raw[HEADER_SIZE:])
+        reply = _new_tuple(Message, (_REPLY, method, txn, 0, object_id, raw[2], None, raw[HEADER_SIZE:]))
         if reply.status:
             raise_for_status(reply, what)
         return reply
 
     def deliver(self, reply: Message) -> None:
         """A reply arrived for this port (from the node's receive path)."""
-        with self._mon:
+        mon = self._mon
+        with mon.lock:
             call = self._pending.get(reply.txn)
             if call is None or call.method != reply.method or call.object_id != reply.object_id:
                 self.stale_replies += 1  # its caller gave up already, or it answers another request
@@ -183,11 +200,12 @@ class Port:
             del self._pending[reply.txn]
             call.reply = reply
             call.done.release()
-            self._mon.notify_all()  # a service thread waiting for this reply, or a caller for a free transaction id
+            if mon._waiters:  # a service thread waiting for this reply, or a caller for a free transaction id
+                mon.notify_all()
 
     def fail_all(self, reason: str) -> None:
         """Fail every call in flight (the peer left, or the node closed)."""
-        with self._mon:
+        with self._mon.lock:
             for call in self._pending.values():
                 call.failure = reason
                 call.done.release()

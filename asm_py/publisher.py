@@ -70,12 +70,14 @@ class Publisher:
         self._class_id = entry.class_id
         self._object_id = entry.object_id
         self._encode = entry.codec.encode_canonical
+        self._send = node.transport.publish
         attribute = entry.obj
         assert isinstance(attribute, Attribute)
         self._attribute = attribute
         self._unlisten = None
         if policy.rate is None or policy.deadband is not None:
-            self._unlisten = attribute.on_change(self._on_change)
+            every_set = policy.deadband is None and not self._gap  # every set publishes: no check in between
+            self._unlisten = attribute.on_change(self.publish if every_set else self._on_change)
         self._timer: TimerHandle | None = None
         if policy.rate is not None:
             self._period = 1.0 / policy.rate
@@ -134,4 +136,4 @@ class Publisher:
             now = self.clock.now()
             return f'{self._json_prefix}"seq":{seq},"t":{now!r},"value":{json.dumps(to_json(value))}}}'
 
-        self.node.transport.publish(self._name, data, view)
+        self._send(self._name, data, view)

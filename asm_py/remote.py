@@ -23,8 +23,19 @@ from .clock import Clock
 from .codec import Codec
 from .lookup import ObjectInfo, parse_description
 from .port import Port
-from .protocol import HEADER_SIZE, Kind, Method, ObjectKind, StatusFlag, encode_timeout, first_byte, has_timeout
+from .protocol import (
+    HEADER_SIZE,
+    TIMEOUT_FLAG,
+    Kind,
+    Method,
+    ObjectKind,
+    StatusFlag,
+    encode_timeout,
+    first_byte,
+)
 from .service import ServiceStatus
+
+_GET = int(Method.GET)
 
 
 def make_client(port: Port, description: bytes) -> RemoteObject:
@@ -93,7 +104,9 @@ class RemoteAttribute(RemoteObject):
         return self.info.sync_set
 
     def get(self, timeout: float | None = None) -> Any:
-        return self.codec.decode(self._call(Method.GET, timeout=timeout, blocking=self.sync_get))
+        info = self.info  # the hot path of a remote get: no properties, no helper
+        return info.codec.decode(self._port.call(_GET, info.class_id, info.object_id, timeout=timeout,
+                                                 blocking=info.sync_get, subject=self._subject).data)  # fmt: skip
 
     def set(self, value: Any, timeout: float | None = None, *, wait: bool | None = None) -> None:
         """Set the remote value. Returns at once, unless ``wait`` — which a ``timeout`` implies: "up to this long"."""
@@ -123,7 +136,7 @@ class RemoteAttribute(RemoteObject):
 
         def on_publication(data: bytes) -> None:
             # A publication never carries a timeout byte: header byte 0 says all, the value starts at byte 4.
-            if len(data) >= HEADER_SIZE and data[0] == head0 and not has_timeout(data):
+            if len(data) >= HEADER_SIZE and data[0] == head0 and not data[1] & TIMEOUT_FLAG:
                 try:
                     value = decode_value(data[HEADER_SIZE:])
                 except ValueError:

@@ -24,7 +24,16 @@ from .clock import Clock
 from .errors import AsmTimeout, ReadOnlyError, RemoteError
 from .event import Event
 from .lookup import describe_entry, describe_node
-from .protocol import WRITES, Kind, Message, Method, ObjectKind, Status, StatusFlag, first_byte
+from .protocol import (
+    WRITES,
+    Kind,
+    Message,
+    Method,
+    ObjectKind,
+    Status,
+    StatusFlag,
+    first_byte,
+)
 from .registry import Entry, Registry
 from .service import Service
 from .status import BadMessage, Busy, status_of
@@ -36,10 +45,15 @@ DEFERRED = b"\x00deferred"
 Handler = Callable[["Server", str, Entry, Message, Responder], bytes]
 
 
-def reply(respond: Responder, request: Message, status: int = Status.OK, data: bytes = b"") -> None:
+_REPLY_BYTE = tuple(first_byte(Kind.REPLY, method) for method in range(16))
+"""Byte 0 of the reply to each method (built once: a reply's header is made on every request)."""
+_REQUEST_REPLY, _LOOKUP, _OK = int(Kind.REQUEST_REPLY), int(Method.LOOKUP), int(Status.OK)
+
+
+def reply(respond: Responder, request: Message, status: int = _OK, data: bytes = b"") -> None:
     """Answer ``request`` if it wants a reply (the header in place, without re-validation)."""
-    if request.wants_reply:
-        respond(bytes((first_byte(Kind.REPLY, request.method), request.txn, status, request.object_id)) + data)
+    if request[0] == _REQUEST_REPLY:  # request.wants_reply, without the property
+        respond(bytes((_REPLY_BYTE[request.method], request.txn, status, request.object_id)) + data)
 
 
 class Server:
@@ -66,11 +80,11 @@ class Server:
             reply(respond, request, *status_of(exc))
             return
         if data is not DEFERRED:
-            reply(respond, request, Status.OK, data)
+            reply(respond, request, _OK, data)
 
     def _execute(self, source: str, request: Message, respond: Responder) -> bytes:
         method = request.method
-        if method == Method.LOOKUP:
+        if method == _LOOKUP:
             return self._lookup(request)
         entry = self._target(request)
         if method in WRITES:

@@ -27,6 +27,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from bench._processes import Child, free_port
 from gaits.model import LIBRARY, dumps, load
 from web.document import GaitDocument
+from web.viewer_client import camera_message, carries_poses
 
 CHROMIUM = "/usr/bin/chromium"
 MODULES = 32
@@ -45,7 +46,8 @@ def draw_cost(path: Path) -> float:
     """Seconds per SceneView.draw of the 32-module robot (viser server in this process, nobody connected)."""
     import viser
 
-    from web.preview import PreviewLoop, SceneView
+    from web.preview import PreviewLoop
+    from web.scene_view import SceneView
 
     server = viser.ViserServer(host="127.0.0.1", port=free_port(), verbose=False)
     loop = PreviewLoop(load(path))
@@ -95,18 +97,6 @@ def delivered(port: int) -> float:
         return sum(1 for m in received if isinstance(m, bytes) and carries_poses(m)) / elapsed
 
 
-def camera_message() -> bytes:
-    """The camera a browser reports when it opens the page (viser's ViewerCameraMessage, msgpack): viser counts a
-    client as connected only from its first camera message, and the studio draws only for connected clients (it
-    draws nothing nobody sees), so a client that never sends one receives no scene updates at all."""
-    import msgspec
-
-    return msgspec.msgpack.encode({"type": "ViewerCameraMessage", "wxyz": [1.0, 0.0, 0.0, 0.0],
-                                   "position": [0.6, -1.2, 0.6], "fov": 1.0, "near": 0.01, "far": 100.0,
-                                   "image_height": 800, "image_width": 1280, "look_at": [0.0, 0.0, 0.05],
-                                   "up_direction": [0.0, 0.0, 1.0]})  # fmt: skip
-
-
 def deploy_from_outside(path: Path, endpoint: str) -> None:
     """Deploy the gait to the studio's simulated modules and start them, as any Zenoh client can."""
     from asm_py import Node
@@ -119,17 +109,6 @@ def deploy_from_outside(path: Path, endpoint: str) -> None:
         time.sleep(2.0)  # every module running, past its 1 s ramp
     finally:
         client.close()
-
-
-def carries_poses(window: bytes) -> bool:
-    """Whether a viser websocket window updates batched poses. Its layout (viser/infra/_infra.py): 8 bytes
-    decompressed size, 8 bytes compressed size, zstd-compressed msgpack {"messages": [...]}, raw buffers."""
-    import msgspec
-    import zstandard
-
-    size = int.from_bytes(window[8:16], "little")
-    inner = msgspec.msgpack.decode(zstandard.ZstdDecompressor().decompress(window[16 : 16 + size]))
-    return any("batched_positions" in str(message) for message in inner.get("messages", ()))
 
 
 def drawn_in_browser(port: int) -> float:

@@ -17,9 +17,9 @@ import time
 
 import zenoh
 
-from asm_module.feed import RobotStatus
+from asm_module.feed import RobotStatus, read_statuses
 from asm_py.cli import name, run
-from asm_py.keys import ALL_ROBOTS, TOOL, RobotKeys, lab_estop, robot_of
+from asm_py.keys import TOOL, RobotKeys, lab_estop
 from asm_py.transport.base import short_reason
 
 from .zenoh_args import ZenohOptions, add_zenoh_arguments, zenoh_options
@@ -33,22 +33,6 @@ def send_estop(session: zenoh.Session, robot: str | None, reason: str) -> None:
     key = lab_estop(SOURCE) if robot is None else RobotKeys(robot).estop(SOURCE)
     session.put(key, short_reason(reason).encode("utf-8"), priority=zenoh.Priority.REAL_TIME,
                 congestion_control=zenoh.CongestionControl.BLOCK, express=True)  # fmt: skip
-
-
-def read_statuses(session: zenoh.Session, robot: str | None) -> dict[str, RobotStatus]:
-    """The robots' statuses now (``robot``'s alone, or every robot's)."""
-    keys = ALL_ROBOTS if robot is None else RobotKeys(robot)
-    found: dict[str, RobotStatus] = {}
-    for reply in session.get(keys.robot_key("status"), timeout=1.0):
-        if reply.ok is None:
-            continue
-        try:
-            status = RobotStatus.from_json(reply.ok.payload.to_bytes())
-        except ValueError:
-            continue
-        if status.robot == robot_of(str(reply.ok.key_expr)):
-            found[status.robot] = status
-    return found
 
 
 def _latched_everywhere(statuses: dict[str, RobotStatus]) -> bool:

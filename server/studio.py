@@ -29,12 +29,13 @@ from typing import Any
 
 import zenoh
 
-from asm_module.feed import RobotStatus
+from asm_module.feed import RobotStatus, read_statuses
 from asm_py import Node
 from asm_py.cli import (
     bitrate,
     can_channel,
     close_and_exit,
+    frame_rate,
     input_file,
     module_selection,
     name,
@@ -43,7 +44,7 @@ from asm_py.cli import (
     stop_requested,
     zenoh_endpoint,
 )
-from asm_py.keys import ALL_ROBOTS, DEFAULT_ROBOT, robot_of
+from asm_py.keys import DEFAULT_ROBOT
 from asm_py.transport.zenoh import NameTaken
 from gaits.model import LIBRARY, Gait, dumps, loads
 from gaits.terrain import FLAT, Terrain
@@ -99,6 +100,9 @@ class StudioOptions:
     layout: Path | None = None
     """Where the page keeps its last layout across restarts (web/layout_store.py); None: nowhere. ``asm-studio``
     keeps it in ``<recordings>/studio-layout.json`` unless told ``--layout``."""
+    max_fps: float | None = None
+    """Frames a second the 3D view is drawn and sent at most, and the page's own frame cap (``--max-fps``, for a
+    browser without a GPU); None: as many as the robot moves (60)."""
 
 
 def free_loopback_port(avoid: Collection[int] = ()) -> int:
@@ -173,7 +177,9 @@ class Studio:
             self._link = self.connect(robot)  # the page's, once it is built; closed here if it cannot be
             self.status = self._wait_status(self._link.feed, timeout=10.0)
             self.token = options.token or (None if is_loopback(options.host) else new_token())
-            self.app = Dashboard(self, self._link, host=options.host, port=options.port, token=self.token)
+            self.app = Dashboard(
+                self, self._link, host=options.host, port=options.port, token=self.token, max_fps=options.max_fps
+            )
             self._link = None
             self.app.show(options.view)
             if self.child is not None:
@@ -235,16 +241,7 @@ class Studio:
     def robots(self, timeout: float = 1.0) -> list[RobotStatus]:
         """The robots on the network, by name, as their processes answer now."""
         assert self.session is not None
-        found: dict[str, RobotStatus] = {}
-        for reply in self.session.get(ALL_ROBOTS.robot_key("status"), timeout=timeout):
-            if reply.ok is None:
-                continue
-            try:
-                status = RobotStatus.from_json(reply.ok.payload.to_bytes())
-            except ValueError:
-                continue
-            if status.robot == robot_of(str(reply.ok.key_expr)):  # a reply under its own key, naming itself
-                found[status.robot] = status
+        found = read_statuses(self.session, timeout=timeout)
         return [found[n] for n in sorted(found)]
 
     def _find_robot(self) -> str:
@@ -410,6 +407,9 @@ def main(argv: list[str] | None = None) -> int:
     cli.add_argument("--layout", type=Path, metavar="FILE", help="where the page keeps its last layout (the "
                      "live plots and their window), restored when the studio starts again (default: "
                      f"RECORDINGS/{LAYOUT_FILE})")  # fmt: skip
+    cli.add_argument("--max-fps", type=frame_rate, metavar="N", help="draw the 3D view at most N frames a second, "
+                     "in the studio and in the page (1-60; default 60): a browser without a GPU draws in software, "
+                     "and 20 takes about half the CPU (a page's ?maxFps=N overrides it for that page)")  # fmt: skip
     cli.add_argument("--view", choices=["preview", "live"], default="preview",
                      help="what the 3D view shows at start (default: the preview of the edited gait)")  # fmt: skip
     cli.add_argument("--c-modules", type=module_selection, metavar="IDS", help="simulated modules that run the C "
@@ -446,7 +446,7 @@ def _serve(args: argparse.Namespace, network: ZenohOptions) -> int:
                             emulated_modules=_selection_text(args.emulated_modules),
                             board_flash=None if args.board_flash == "none" else
                             Path(args.board_flash or args.recordings / "boards"),
-                            recordings=args.recordings,
+                            recordings=args.recordings, max_fps=args.max_fps,
                             layout=args.layout or args.recordings / LAYOUT_FILE)  # fmt: skip
     done = stop_requested()
     studio = Studio(options)  # a bad gait file, a busy port, no robot: asm-studio: error: … (asm_py.cli.run)

@@ -37,11 +37,12 @@ from .modules_panel import ModulesPanel
 from .monitor_panel import MonitorPanel
 from .numbering_panel import NumberingPanel
 from .page import Backend, Page
-from .preview import PreviewLoop, SceneView
+from .preview import PreviewLoop
 from .preview_panel import PreviewPanel
 from .record_panel import RecordPanel
 from .replay_panel import ReplayPanel
 from .robot_bar import RobotBar
+from .scene_view import SceneView
 from .state_timeline import WINDOW_SECONDS
 from .tune_panel import TunePanel
 
@@ -58,10 +59,20 @@ class Dashboard:
     """The viser app of a Backend, attached to one robot by ``link``; see the module docstring."""
 
     def __init__(
-        self, studio: Backend, link: RobotLink, *, host: str = "127.0.0.1", port: int = 8080, token: str | None = None
+        self,
+        studio: Backend,
+        link: RobotLink,
+        *,
+        host: str = "127.0.0.1",
+        port: int = 8080,
+        token: str | None = None,
+        max_fps: float | None = None,
     ) -> None:
         self.studio = studio
-        self.guard = AccessGuard(host, token)
+        self.draw_interval = MIN_DRAW_INTERVAL if max_fps is None else max(MIN_DRAW_INTERVAL, 1.0 / max_fps)
+        """The least time between two frames of the 3D view sent to the browsers (``--max-fps``): a page that
+        draws at most N frames a second (web/page_script.py) is sent no more, and handles a third of the messages."""
+        self.guard = AccessGuard(host, token, max_fps=max_fps)
         self.server = guarded_server(self.guard, host=host, port=port, label="ASM Studio", verbose=False)
         self.port = self.server.get_port()
         self.doc = GaitDocument(studio.gait, text=studio.gait_text, path=studio.gait_path)
@@ -207,12 +218,12 @@ class Dashboard:
     def _render(self) -> None:
         """Draw each frame the preview records, as it is recorded: at speed 1 the loop records 60 frames a second
         and each is drawn once (a fixed 60 Hz clock beating against the loop's would skip some and repeat others);
-        faster playback is drawn at most every MIN_DRAW_INTERVAL."""
+        faster playback is drawn at most every MIN_DRAW_INTERVAL (and at most every ``draw_interval``)."""
         last = 0.0
         while not self._stop.is_set():
             if not self.view.wait_changed(timeout=0.1) or not self.watched():
                 continue
-            pause = last + MIN_DRAW_INTERVAL - time.monotonic()
+            pause = last + self.draw_interval - time.monotonic()
             if pause > 0 and self._stop.wait(pause):
                 return
             last = time.monotonic()

@@ -59,9 +59,11 @@ def new_token() -> str:
 class AccessGuard:
     """Decides whether one HTTP or websocket request may reach the dashboard; see the module docstring."""
 
-    def __init__(self, host: str, token: str | None = None) -> None:
+    def __init__(self, host: str, token: str | None = None, *, max_fps: float | None = None) -> None:
         self.host = host
         self.token = token
+        self.max_fps = max_fps
+        """The frame cap the page gets when its URL gives none (web/page_script.py); None: none."""
         self.port = 0
         self.refused = 0
 
@@ -114,7 +116,7 @@ class AccessGuard:
             if response is None:
                 return None
             if response.status_code == 200 and response.headers.get("Content-Type", "").startswith("text/html"):
-                response = _with_page_script(response)
+                response = _with_page_script(response, self.max_fps)
             if self.token is not None:
                 response.headers["Set-Cookie"] = f"{COOKIE}={self.token}; HttpOnly; SameSite=Strict; Path=/"
             return response
@@ -122,10 +124,10 @@ class AccessGuard:
         return process_request
 
 
-def _with_page_script(response: Response) -> Response:
+def _with_page_script(response: Response, max_fps: float | None) -> Response:
     """The page with the studio's script and style in it (web/page_script.py)."""
     gzipped = response.headers.get("Content-Encoding") == "gzip"
-    body = inject(bytes(response.body), gzipped=gzipped)
+    body = inject(bytes(response.body), gzipped=gzipped, max_fps=max_fps)
     headers = Headers(response.headers)
     del headers["Content-Length"]  # a Headers item set twice holds both values
     headers["Content-Length"] = str(len(body))

@@ -30,7 +30,8 @@ from gaits.terrain import FLAT, Terrain
 
 from .document import GaitDocument
 from .link import RobotLink
-from .preview import PreviewLoop, SceneView
+from .preview import PreviewLoop
+from .scene_view import SceneView
 
 log = logging.getLogger("asm_studio.web")
 TOAST_SECONDS = 6.0

@@ -19,24 +19,54 @@ puts this script and style into the page's ``<head>``:
   field of the editor (``CLICKED_FIELD``), whose update the editor takes as a selection.
 - **A double-click in a number field selects the whole number**: the browser selected a word, and ``-33.5``
   became ``33.5`` selected, so typing over it kept the minus.
-- **``?maxFps=N`` caps the page's frames** (1 to 59 a second; anything else leaves the page as it is): a browser
-  without a GPU draws WebGL in software on the CPU, and a moving robot keeps the 3D view drawing at the display's
-  rate, about a core of a laptop (bench/studio.py). The page's animation frames (``requestAnimationFrame``, which
-  the 3D view, the plots and the panels draw in) are run together at most N times a second, all callbacks of one
-  frame in one frame, so the view stays in step with itself and only its rate changes.
+- **``?maxFps=N`` caps the page's frames** (1 to 59 a second; anything else leaves the page as it is; without the
+  parameter, the studio's ``--max-fps``): a browser without a GPU draws WebGL in software on the CPU, and a moving
+  robot keeps the 3D view drawing at the display's rate, about a core of a laptop (bench/studio.py). The page's
+  animation frames (``requestAnimationFrame``, which the 3D view, the plots and the panels draw in) are run together
+  at most N times a second, all callbacks of one frame in one frame, so the view stays in step with itself and only
+  its rate changes.
+- **A browser without a GPU draws the 3D view at a lower resolution**: when WebGL's renderer is a software one
+  (SwiftShader, llvmpipe: what viser's own "Software WebGL rendering detected" notice looks for) and the URL does
+  not choose a resolution, the page adds viser's ``fixedDpr`` (SOFTWARE_RENDER_SCALE of the screen's pixel ratio) to
+  its URL before viser reads it: every pixel is shaded on the CPU, and a 32-module robot in a full-resolution view
+  was drawn at about 12 frames a second (bench/studio.py). ``?fixedDpr=1`` in the URL keeps full resolution.
 """
 
 from __future__ import annotations
 
 import gzip
 
+SOFTWARE_RENDER_SCALE = 0.5
+"""The 3D view's resolution, as a fraction of the screen's, in a browser that draws WebGL in software."""
 ESTOP_KEY = "Escape"
 CLICKED_FIELD = "Clicked state"
 """The label of the editor's hidden text field the script writes a clicked state into (web/editor.py)."""
 
-SCRIPT = """<script>
+SCRIPT = (
+    """<script>
 (function () {
   var KEY = "ESTOP_KEY";
+  // software WebGL: the 3D view at a lower resolution, unless the URL chooses one (before viser reads the URL)
+  function softwareWebGL() {
+    try {
+      var gl = document.createElement("canvas").getContext("webgl");
+      if (!gl) return false;
+      var info = gl.getExtension("WEBGL_debug_renderer_info");
+      var renderer = String(gl.getParameter(info ? info.UNMASKED_RENDERER_WEBGL : gl.RENDERER)).toLowerCase();
+      var lose = gl.getExtension("WEBGL_lose_context");
+      if (lose) lose.loseContext();
+      return /swiftshader|llvmpipe|softpipe|software/.test(renderer);
+    } catch (error) {
+      return false;
+    }
+  }
+  var query = new URLSearchParams(window.location.search);
+  if (query.get("fixedDpr") === null && softwareWebGL()) {
+    query.set("fixedDpr", String(SOFTWARE_RENDER_SCALE * (window.devicePixelRatio || 1)));
+    var here = window.location;
+    window.history.replaceState(window.history.state, "", here.pathname + "?" + query + here.hash);
+    window.__asmSoftwareScale = SOFTWARE_RENDER_SCALE;
+  }
   function estopButton() {
     var buttons = document.querySelectorAll("button");
     for (var i = 0; i < buttons.length; i++) {
@@ -141,7 +171,8 @@ SCRIPT = """<script>
     if (isNumber(event.target)) event.target.select();
   }, true);
   // ?maxFps=N: animation frames at most N a second (before the page's bundle runs, so every caller is capped)
-  var maxFps = Number(new URLSearchParams(window.location.search).get("maxFps"));
+  var asked = new URLSearchParams(window.location.search).get("maxFps");
+  var maxFps = asked === null ? DEFAULT_MAX_FPS : Number(asked);
   if (maxFps >= 1 && maxFps < 60) {
     var nativeFrame = window.requestAnimationFrame.bind(window);
     var interval = 1000 / maxFps, due = 0, waiting = [], timer = null, ids = 0;
@@ -167,7 +198,10 @@ SCRIPT = """<script>
     window.__asmMaxFps = maxFps;
   }
 })();
-</script>""".replace("ESTOP_KEY", ESTOP_KEY).replace("CLICKED", CLICKED_FIELD)
+</script>""".replace("ESTOP_KEY", ESTOP_KEY)
+    .replace("CLICKED", CLICKED_FIELD)
+    .replace("SOFTWARE_RENDER_SCALE", repr(SOFTWARE_RENDER_SCALE))
+)
 
 STYLE = """<style>
 button:has(> svg.tabler-icon-adjustments), .mantine-ActionIcon-root:has(svg.tabler-icon-adjustments),
@@ -177,12 +211,14 @@ button:has(> svg.tabler-icon-adjustments), .mantine-ActionIcon-root:has(svg.tabl
 </style>"""
 
 
-def inject(body: bytes, *, gzipped: bool) -> bytes:
-    """The page ``body`` (gzip-compressed when ``gzipped``) with the script and style in its head."""
+def inject(body: bytes, *, gzipped: bool, max_fps: float | None = None) -> bytes:
+    """The page ``body`` (gzip-compressed when ``gzipped``) with the script and style in its head; ``max_fps``: the
+    page's frame cap when its URL gives none (the studio's ``--max-fps``)."""
     html = gzip.decompress(body) if gzipped else body
     marker = b"</head>"
     at = html.find(marker)
     if at < 0:
         return body
-    html = html[:at] + (STYLE + SCRIPT).encode("utf-8") + html[at:]
+    script = SCRIPT.replace("DEFAULT_MAX_FPS", "null" if max_fps is None else repr(float(max_fps)))
+    html = html[:at] + (STYLE + script).encode("utf-8") + html[at:]
     return gzip.compress(html) if gzipped else html

@@ -39,8 +39,8 @@ from .._contract import (
 if TYPE_CHECKING:
     from can.typechecking import CanFilter
 
-__all__ = ["DEST_MASK", "MAX_NODE_ID", "MAX_PRIORITY", "MIN_NODE_ID", "CanId", "Dest", "FrameType", "Priority",
-           "SystemCode", "check_node_id", "dest_filter", "frame_priority", "kind_filter", "priority_filter",
+__all__ = ["DEST_MASK", "FIELDS", "MAX_NODE_ID", "MAX_PRIORITY", "MIN_NODE_ID", "CanId", "Dest", "FrameType",
+           "Priority", "SystemCode", "check_node_id", "dest_filter", "frame_priority", "kind_filter", "priority_filter",
            "source_filter"]  # fmt: skip
 
 MAX_PRIORITY = CAN_PRIORITY_MASK
@@ -90,6 +90,7 @@ _FIELDS = ((CAN_PRIORITY_SHIFT, CAN_PRIORITY_MASK), (CAN_DEST_KIND_SHIFT, CAN_DE
            (CAN_DEST_SHIFT, CAN_DEST_MASK), (CAN_SOURCE_SHIFT, CAN_SOURCE_MASK), (CAN_FRAME_SHIFT, CAN_FRAME_MASK),
            (CAN_COUNTER_SHIFT, CAN_COUNTER_MASK))  # fmt: skip
 """(shift, mask) of each field of the identifier, in CanId's order."""
+FIELDS = _FIELDS
 _PRIORITY_BITS = CAN_PRIORITY_MASK << CAN_PRIORITY_SHIFT
 DEST_MASK = CAN_DEST_KIND_MASK << CAN_DEST_KIND_SHIFT | CAN_DEST_MASK << CAN_DEST_SHIFT
 """Mask of the destination fields: acceptance filters select frames by it."""

@@ -15,9 +15,11 @@ import logging
 import threading
 from abc import ABC, abstractmethod
 from collections.abc import Callable
+from contextlib import AbstractContextManager, nullcontext
 
 from .._contract import ESTOP_REASON_MAX
 from ..keys import check_name
+from ..speedups import COMPILED
 
 log = logging.getLogger("asm_py.transport")
 
@@ -51,6 +53,8 @@ class Transport(ABC):
     bus or an in-process network is one robot."""
 
     def __init__(self) -> None:
+        self.compiled = COMPILED
+        """Whether this transport and its node run the C hot path (asm_py.speedups)."""
         self._name: str | None = None
         self._on_message: MessageHandler | None = None
         self._peer_handlers: tuple[PeerHandler, ...] = ()
@@ -210,6 +214,18 @@ class Transport(ABC):
         Only for transports with ``direct_requests``; the others deliver replies as messages.
         """
         raise NotImplementedError(f"{type(self).__name__} delivers replies as messages")
+
+    def wait_reply(self, done: threading.Lock, wait: float | None, source: str, head: bytes) -> bool:
+        """Wait until ``done`` is released — the delivery of the reply from ``source`` whose data begin with
+        ``head`` completes the call — or ``wait`` seconds pass (None: without limit); whether it was released.
+
+        The base blocks; on CAN the caller reads the bus itself meanwhile (asm_py.transport.can_reader)."""
+        return done.acquire(True, -1 if wait is None else max(0.0, wait))
+
+    def waiting(self, done: threading.Lock) -> AbstractContextManager[None]:
+        """Around a wait until ``done`` is released that does not go through :meth:`wait_reply` (a service
+        thread's, which its service's stop must interrupt): the medium is read for it meanwhile."""
+        return nullcontext()
 
     @abstractmethod
     def _close(self) -> None:

@@ -6,14 +6,15 @@ python-can's configuration file / environment, or an already open ``bus=``. ``fd
 64 bytes. Node IDs are 1..254; nodes learn each other's names from heartbeats, and a node not yet heard is
 addressed as ``can.<id>`` (e.g. replies to a client that has not sent its first heartbeat).
 
-One thread reads the bus (``asm-can:<name>``): acceptance filters pass frames to this node, its groups, broadcasts
-and system frames; fragments are reassembled with bounded memory; requests go to the node, publications to
-subscribers (matched by source node and object ID), e-stops to the e-stop handlers at once. With
-``receive_thread=False`` on a bus that delivers frames itself (``asm_sim``'s ``push_to``), there is no such thread:
-the channel's one dispatch thread calls this transport, so a process hosting 128 modules does not run 128 readers.
-A deadline on the wall clock's shared timers (asm_py.timers) sends heartbeats, reports nodes lost after
-``missed_heartbeats`` silent periods (and found again when they return), and expires stale partial messages. Sends
-are serialised per transport, so the fragments of one message are contiguous on the bus.
+One thread reads the bus (``asm-can:<name>``) — or, while a caller waits for its reply, that caller
+(leader/follower, asm_py.transport.can_reader: a round trip wakes two threads instead of three): acceptance filters
+pass frames to this node, its groups, broadcasts and system frames; fragments are reassembled with bounded memory;
+requests go to the node, publications to subscribers (matched by source node and object ID), e-stops to the e-stop
+handlers at once. With ``receive_thread=False`` on a bus that delivers frames itself (``asm_sim``'s ``push_to``),
+there is no such thread: the channel's one dispatch thread calls this transport, so a process hosting 128 modules
+does not run 128 readers. A deadline on the wall clock's shared timers (asm_py.timers) sends heartbeats, reports
+nodes lost after ``missed_heartbeats`` silent periods (and found again when they return), and expires stale partial
+messages. Sends are serialised per transport, so the fragments of one message are contiguous on the bus.
 
 ``record="session.blf"`` (or .asc, .log for candump, .csv, …) writes every frame sent and received with python-can's
 ``Logger``; replay it with ``python -m can.player``.
@@ -25,43 +26,48 @@ import logging
 import threading
 import time
 import zlib
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Mapping
+from contextlib import AbstractContextManager, nullcontext
 from pathlib import Path
 from typing import Any
 
 import can
 
-from ..canbus.fragments import FD_SIZES, Reassembler, fragment
+from .._contract import KIND_MASK, KIND_SHIFT
+from ..canbus.fragments import FD_SIZES, Reassembler
 from ..canbus.ids import (
-    CanId,
+    FIELDS,
     Dest,
     FrameType,
     Priority,
     SystemCode,
     check_node_id,
     dest_filter,
-    frame_priority,
     kind_filter,
     priority_filter,
 )
 from ..clock import WALL_CLOCK
-from ..errors import MessageTooLarge
 from ..protocol import MAX_MESSAGE, Kind, kind_of
+from ..speedups import COMPILED, speedups
 from ..timers import TimerHandle, timers_of
 from .base import BROADCAST, PublicationHandler, Transport
+from .can_reader import BusReader
+from .can_send import BY_REPLY, ID_CACHE_SIZE, FrameSender, message_priority
+
+__all__ = ["ALIAS_PREFIX", "CanTransport", "group_id", "message_priority"]
 
 log = logging.getLogger("asm_py.transport.can")
 
 ALIAS_PREFIX = "can."
+_PRIORITY_AT, _PRIORITY_BITS = FIELDS[0]  # (shift, mask) of the identifier's fields, as module globals: on_frame
+_KIND_AT, _KIND_BITS = FIELDS[1]  # unpacks every received identifier without making a CanId
+_DEST_AT, _DEST_BITS = FIELDS[2]
+_SOURCE_AT, _SOURCE_BITS = FIELDS[3]
+_FRAME_AT, _FRAME_BITS = FIELDS[4]
+_COUNTER_BITS = FIELDS[5][1]
 _PUBLICATIONS = (Priority.PUBLICATION, Priority.BULK_PUBLICATION)
-_ID_CACHE_SIZE = 4096
-"""Identifiers of SINGLE frames a transport keeps packed (one per (priority, destination, source) it sends to)."""
-
-
-def message_priority(data: bytes) -> int:
-    """The priority an ASM message goes out at: replies before new requests (publications and system frames have
-    their own)."""
-    return Priority.REPLY if kind_of(data) == Kind.REPLY else Priority.REQUEST
+_GO_ON = 2
+"""What the C hot path returns when it counted a frame and leaves the rest to :meth:`CanTransport.on_frame`."""
 
 
 def group_id(group: str, table: Mapping[str, int] | None = None) -> int:
@@ -74,7 +80,7 @@ def group_id(group: str, table: Mapping[str, int] | None = None) -> int:
     return zlib.crc32(group.encode("utf-8")) & 0xFF
 
 
-class CanTransport(Transport):
+class CanTransport(FrameSender, Transport):
     """A node's attachment to a CAN bus; see the module docstring."""
 
     def __init__(
@@ -96,9 +102,12 @@ class CanTransport(Transport):
         send_timeout: float = 0.1,
         watch_bus: bool = True,
         receive_thread: bool = True,
+        compiled: bool | None = None,
         **bus_options: Any,
     ) -> None:
         super().__init__()
+        if compiled is not None:
+            self.compiled = compiled and COMPILED
         self.node_id = check_node_id(node_id)
         self.watch_bus = watch_bus
         """False: the acceptance filters pass only what this node must act on — frames to it and its groups,
@@ -131,8 +140,15 @@ class CanTransport(Transport):
         self._accept_ids: set[int] = {self.node_id}
         self._group_ids: set[int] = set()
         self._stop = threading.Event()
-        self._threads: list[threading.Thread] = []
+        self._reader: BusReader | None = None
+        self._fast: Callable[[can.Message], int] | None = None
+        """The C hot path of :meth:`on_frame` (asm_py._speedups.Receiver), unless ``compiled`` is False."""
         self._single_ids: dict[tuple[int, int, int, int], int] = {}
+        self._dest_ids: dict[str, tuple[int, ...]] = {}
+        """Per node name, the identifiers of a single frame to it — a request, a reply — and of its reply to this
+        node (``send``'s and ``wait_reply``'s hot path; cleared when a heartbeat changes what a name means)."""
+        self._single_sizes = frozenset(FD_SIZES if fd else range(9))
+        """Message lengths that travel as one frame."""
         self._timer: TimerHandle | None = None
         self._next_beat = 0.0
         self._pushed = False
@@ -157,14 +173,18 @@ class CanTransport(Transport):
         self._apply_filters()
         self._names[self.node_id] = name
         self._ids[name] = self.node_id
+        if self.compiled and speedups is not None:
+            overridden = type(self).on_message is not CanTransport.on_message  # a gateway forwards: it decides
+            self._fast = speedups.Receiver(self, self.node_id, self._accept_ids, self._names, self._last_heard,
+                                           self._alive, self.on_message if overridden else self._deliver,
+                                           overridden)  # fmt: skip
         push_to = getattr(self._bus, "push_to", None)
         if not self.receive_thread and push_to is not None:
             push_to(self._on_pushed)
             self._pushed = True
         else:
-            thread = threading.Thread(target=self._read_loop, name=f"asm-can:{name}", daemon=True)
-            thread.start()
-            self._threads.append(thread)
+            self._reader = BusReader(self._bus, self.on_frame, self._stop)
+            self._reader.start(f"asm-can:{name}")
         now, period = time.monotonic(), self.heartbeat_period
         # Beats on the grid k·period: a process's transports beat in one batch, one wake for all of them (issue 31).
         self._next_beat = ((now + period / 2) // period + 1) * period
@@ -210,10 +230,10 @@ class CanTransport(Transport):
             if push_to is not None:
                 push_to(None)
             self._pushed = False
-        for thread in self._threads:
-            if thread is not threading.current_thread():
-                thread.join(5)
-        self._threads.clear()
+        if self._reader is not None:
+            self._reader.join(5)
+            self._reader = None
+        self._fast = None
         if self._own_bus:
             self._bus.shutdown()
         self._bus = None
@@ -245,12 +265,21 @@ class CanTransport(Transport):
     # -- sending --------------------------------------------------------------------------------------------------
 
     def send(self, dest: str, data: bytes) -> None:
+        if len(data) in self._single_sizes and data:  # most traffic: one frame, its identifier by name (issue 31)
+            ids = self._dest_ids.get(dest)
+            if ids is not None:
+                self._send_single(ids[(data[0] >> KIND_SHIFT & KIND_MASK) == Kind.REPLY], data)
+                return
         node_id = self.resolve(dest)
         if node_id is None:
             self.send_errors += 1
             log.debug("no CAN node named %r is known yet; message dropped", dest)
             return
         self.send_message(Dest.NODE, node_id, data, message_priority(data))
+        if len(self._dest_ids) >= ID_CACHE_SIZE:
+            self._dest_ids.clear()
+        self._dest_ids[dest] = (*(self._single_id(p, Dest.NODE, node_id, self.node_id) for p in BY_REPLY),
+                                self._single_id(Priority.REPLY, Dest.NODE, self.node_id, node_id))  # fmt: skip
 
     def send_group(self, group: str, data: bytes) -> None:
         if group == BROADCAST:
@@ -261,84 +290,29 @@ class CanTransport(Transport):
     def publish(self, object_name: str, data: bytes, json_text: Callable[[], str] | None = None) -> None:
         self.send_message(Dest.BROADCAST, 0, data, Priority.PUBLICATION)
 
-    def _send_estop(self, reason: str, lab: bool) -> None:
-        """One priority-0 system frame, sent without waiting for the send lock: a long fragmented message being
-        sent by another thread never holds back a stop (the e-stop's identifier is its own reassembly key, so it
-        cannot tear that message's fragments apart)."""
-        cid = CanId(Priority.ESTOP, Dest.SYSTEM, SystemCode.ESTOP, self.node_id, FrameType.SINGLE).pack()
-        frame = can.Message(arbitration_id=cid, is_extended_id=True, data=reason.encode("utf-8")[: self.frame_size],
-                            is_fd=self.fd, bitrate_switch=self.fd)  # fmt: skip
-        try:
-            self.bus.send(frame, timeout=self.send_timeout)
-        except (can.CanError, RuntimeError) as exc:
-            self.send_errors += 1
-            log.error("CAN e-stop send failed: %s", exc)
-            raise
-        self.frames_sent += 1
-        if self._logger is not None:
-            frame.timestamp = time.time()
-            frame.is_rx = False
-            self._log(frame)
-
     def _send_heartbeat(self) -> None:
         self._send_system(SystemCode.HEARTBEAT, self.name.encode("utf-8"), Priority.HEARTBEAT)
 
     def _send_system(self, code: int, data: bytes, priority: int) -> None:
         self.send_message(Dest.SYSTEM, code, data, priority)
 
-    def send_message(self, dest_kind: int, dest: int, data: bytes, priority: int, *, source: int | None = None) -> int:
-        """Send one message as its frames (fragmented if long: at BULK priority unless more urgent); the frame count.
-
-        ``source`` other than this node's ID is for gateways sending on behalf of a node they represent.
-        """
-        src = self.node_id if source is None else source
-        length = len(data)
-        if length > self.reassembler.max_message and dest_kind != Dest.SYSTEM:
-            raise MessageTooLarge(f"message of {length} bytes exceeds the {self.reassembler.max_message}-byte "
-                                  "maximum")  # fmt: skip
-        if length <= self.frame_size and (not self.fd or length in FD_SIZES):
-            # Most traffic is one frame: no fragment generator, and the identifier from the cache (issue 31).
-            base = self._single_ids.get((priority, dest_kind, dest, src))
-            if base is None:
-                base = self._single_id(priority, dest_kind, dest, src)
-            return self._send_frames(((FrameType.SINGLE, 0, data),), base, length)
-        frames = list(fragment(data, frame_size=self.frame_size))
-        # Packing validates every field once; each frame then only adds its type and counter.
-        base = CanId(frame_priority(priority, len(frames)), dest_kind, dest, src, FrameType.SINGLE).pack()
-        return self._send_frames(frames, base, length)
-
-    def _single_id(self, priority: int, dest_kind: int, dest: int, src: int) -> int:
-        """The identifier of a SINGLE frame, validated once by packing and then cached (bounded: cleared when full,
-        as a gateway speaking for many sources may fill it)."""
-        base = CanId(frame_priority(priority, 1), dest_kind, dest, src, FrameType.SINGLE).pack()
-        if len(self._single_ids) >= _ID_CACHE_SIZE:
-            self._single_ids.clear()
-        self._single_ids[(priority, dest_kind, dest, src)] = base
-        return base
-
-    def _send_frames(self, frames: Iterable[tuple[int, int, bytes]], base: int, length: int) -> int:
-        """Send the frames of one message contiguously (under the send lock); the count, or 0 when one failed."""
-        fd, bus, timeout = self.fd, self.bus, self.send_timeout
-        count = 0
-        with self._send_lock:
-            for frame_type, counter, chunk in frames:
-                message = can.Message(arbitration_id=base | frame_type << 6 | counter, is_extended_id=True,
-                                      data=chunk, is_fd=fd, bitrate_switch=fd)  # fmt: skip
-                try:
-                    bus.send(message, timeout=timeout)
-                except (can.CanError, RuntimeError) as exc:
-                    self.send_errors += 1
-                    log.warning("CAN send failed (%s); message of %d bytes dropped", exc, length)
-                    return 0
-                self.frames_sent += 1
-                count += 1
-                if self._logger is not None:
-                    message.timestamp = time.time()
-                    message.is_rx = False
-                    self._log(message)
-        return count
-
     # -- receiving ------------------------------------------------------------------------------------------------
+
+    def wait_reply(self, done: threading.Lock, wait: float | None, source: str, head: bytes) -> bool:
+        """The caller reads the bus itself while nothing else does (asm_py.transport.can_reader)."""
+        reader, ids = self._reader, self._dest_ids.get(source)
+        if reader is None:
+            return super().wait_reply(done, wait, source, head)
+        if ids is None:  # (not sent to by name yet: a request to it fills the cache)
+            source_id = self.resolve(source)
+            if source_id is None:
+                return super().wait_reply(done, wait, source, head)
+            return reader.wait(done, wait, self._single_id(Priority.REPLY, Dest.NODE, self.node_id, source_id), head)
+        return reader.wait(done, wait, ids[2], head)
+
+    def waiting(self, done: threading.Lock) -> AbstractContextManager[None]:
+        reader = self._reader
+        return nullcontext() if reader is None else reader.following(done)
 
     def subscribe(
         self, node: str, object_name: str, callback: PublicationHandler, *, object_id: int | None = None
@@ -362,23 +336,6 @@ class CanTransport(Transport):
 
         return remove
 
-    def _read_loop(self) -> None:
-        while not self._stop.is_set():
-            try:
-                frame = self.bus.recv(timeout=0.1)  # also how long close() waits for this thread
-            except (can.CanError, RuntimeError, ValueError) as exc:
-                if self._stop.is_set():
-                    return
-                log.warning("CAN receive failed: %s", exc)
-                time.sleep(0.05)
-                continue
-            if frame is None:
-                continue
-            try:
-                self.on_frame(frame)
-            except Exception:
-                log.exception("a CAN frame could not be handled: %s", frame)
-
     def _on_pushed(self, frame: can.Message) -> None:
         """A frame from the channel's dispatch thread (``receive_thread=False``)."""
         if not self._stop.is_set():
@@ -386,12 +343,18 @@ class CanTransport(Transport):
 
     def on_frame(self, frame: can.Message) -> None:
         """Handle one received frame (the read loop calls this; a replay or a test may too)."""
-        if not frame.is_extended_id or frame.is_error_frame or frame.is_remote_frame:
+        fast = self._fast
+        if fast is None:
+            if not frame.is_extended_id or frame.is_error_frame or frame.is_remote_frame:
+                return
+            self.frames_received += 1
+        elif fast(frame) != _GO_ON:  # the C hot path handled the frame, or it was not an ASM frame
             return
-        self.frames_received += 1
         if self._logger is not None:
             self._log(frame)
-        priority, dest_kind, dest, source, frame_type, counter = CanId.unpack(frame.arbitration_id)
+        a = frame.arbitration_id  # every received frame comes here: CanId.unpack's fields, without the tuple
+        dest_kind = a >> _KIND_AT & _KIND_BITS
+        dest, source = a >> _DEST_AT & _DEST_BITS, a >> _SOURCE_AT & _SOURCE_BITS
         if dest_kind == Dest.SYSTEM and dest == SystemCode.ESTOP:
             # an e-stop is honoured whoever sent it, even with this node's own ID or an invalid one: stopping twice
             # is harmless, ignoring a stop is not
@@ -399,21 +362,20 @@ class CanTransport(Transport):
             return
         if source == self.node_id or not 1 <= source <= 254:
             return  # our own frame (a loopback interface), or a forged source
-        if not self._accepts(dest_kind, dest, priority):
+        if dest_kind == Dest.NODE:
+            if dest not in self._accept_ids:
+                return
+        elif not self._accepts(dest_kind, dest, a >> _PRIORITY_AT & _PRIORITY_BITS):
             return
+        frame_type = a >> _FRAME_AT & _FRAME_BITS
         if frame_type == FrameType.SINGLE:  # most traffic: no reassembly, no lock
             self.on_message(source, dest_kind, dest, bytes(frame.data))
             return
         with self._rx_lock:
-            message = self.reassembler.feed((source, dest_kind, dest), frame_type, counter,
+            message = self.reassembler.feed((source, dest_kind, dest), frame_type, a & _COUNTER_BITS,
                                             bytes(frame.data), time.monotonic())  # fmt: skip
         if message is not None:
             self.on_message(source, dest_kind, dest, message)
-
-    def _log(self, frame: can.Message) -> None:
-        with self._log_lock:
-            if self._logger is not None:
-                self._logger.on_message_received(frame)
 
     def _accepts(self, dest_kind: int, dest: int, priority: int) -> bool:
         """Software acceptance (interfaces without hardware filters, and replays): the same rules as the filters."""
@@ -457,6 +419,7 @@ class CanTransport(Transport):
                         self._ids.pop(old, None)
                     self._names[source_id] = name
                     self._ids[name] = source_id
+                    self._dest_ids.clear()  # a name now means another node, or an alias a name
             self._heard(source_id)
         elif code == SystemCode.LEAVE:
             self._lost(source_id)

@@ -117,10 +117,11 @@ class ZenohTransport(Transport):
         self.max_queriers = 1024
         """Queriers kept (one per destination and deadline: 8 deadlines of 128 modules fit)."""
         self._routes: dict[str, _Route] = {}
-        self._pub_keys: dict[str, tuple[str, str]] = {}  # object -> its publication and JSON view keys
+        self._pub_objects: dict[str, tuple[zenoh.Publisher, str]] = {}  # object -> its publisher, JSON view key
         self._views: dict[str, WatchedPublisher] = {}  # JSON view key -> its publisher, and whether it is watched
         self._claims: dict[str, set[str]] = {}  # segment -> sessions whose liveliness token claims it
         self._pub_lock = threading.Lock()
+        self._reply_keys: dict[str, zenoh.KeyExpr] = {}  # request source -> the key its replies carry
 
     @property
     def session(self) -> zenoh.Session:
@@ -191,8 +192,16 @@ class ZenohTransport(Transport):
             self._deliver(source, sample.payload.to_bytes())
 
     def _on_query(self, query: zenoh.Query) -> None:
+        """On zenoh-python's Python thread for this queryable, not on Zenoh's own: a handler may block (a set's
+        change callback calling another node) without holding Zenoh's network thread. Running it there instead
+        (zenoh-python's direct callback) was measured no faster (issue 31, docs/benchmarks.md)."""
         source = last(query.key_expr)
-        key = self.keys.requests(self.segment, concrete(source))  # a reply carries the replier's own, concrete key
+        key = self._reply_keys.get(source)
+        if key is None:  # a reply carries the replier's own, concrete key
+            if len(self._reply_keys) > 4096:  # bounded: sources come from the network
+                self._reply_keys.clear()
+            # a zenoh.KeyExpr made once: a reply given a str key has it parsed and checked again (7-10 µs each)
+            key = self._reply_keys[source] = zenoh.KeyExpr(self.keys.requests(self.segment, concrete(source)))
         data = query.payload.to_bytes() if query.payload is not None else b""
         answered = False
 
@@ -258,6 +267,7 @@ class ZenohTransport(Transport):
             publisher = self._publishers.get(key)
             if publisher is None:
                 if len(self._publishers) > 1024:  # bounded: forget the oldest declared publishers
+                    self._pub_objects.clear()  # it holds some of them
                     for old in list(self._publishers)[:256]:
                         self._publishers.pop(old).undeclare()
                 congestion = zenoh.CongestionControl.BLOCK if reliable else zenoh.CongestionControl.DROP
@@ -337,12 +347,14 @@ class ZenohTransport(Transport):
         self._publisher(self.keys.group(group, self.segment), reliable=True).put(data, attachment=self._attachment)
 
     def publish(self, object_name: str, data: bytes, json_text: Callable[[], str] | None = None) -> None:
-        keys = self._pub_keys.get(object_name)
-        if keys is None:
-            keys = self._pub_keys[object_name] = (self.keys.publication(self.segment, object_name),
-                                                  self.keys.json_view(self.segment, object_name))  # fmt: skip
-        binary, view = keys
-        self._publisher(binary, reliable=False, express=False).put(data)  # lock-free once declared
+        declared = self._pub_objects.get(object_name)  # the hot path: one lookup, lock-free once declared
+        if declared is None:
+            binary = self.keys.publication(self.segment, object_name)
+            declared = (self._publisher(binary, reliable=False, express=False),
+                        self.keys.json_view(self.segment, object_name))  # fmt: skip
+            self._pub_objects[object_name] = declared
+        publisher, view = declared
+        publisher.put(data)
         if json_text is not None:
             watched = self._views.get(view)
             if watched is None:
@@ -406,6 +418,7 @@ class ZenohTransport(Transport):
             except Exception:  # already gone with its session
                 log.debug("undeclare failed during close", exc_info=True)
         self._views.clear()
+        self._pub_objects.clear()
         self._publishers.clear()
         self._queriers.clear()
         session.close()

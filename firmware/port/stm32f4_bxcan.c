@@ -39,6 +39,7 @@
 #define SYST_CSR REG(0xE000E010u)
 #define SYST_RVR REG(0xE000E014u)
 #define SYST_CVR REG(0xE000E018u)
+#define SCB_ICSR REG(0xE000ED04u)   /* PENDSTSET (bit 26): SysTick's interrupt is pending */
 #define SCB_CPACR REG(0xE000ED88u)
 #define DEMCR REG(0xE000EDFCu)      /* TRCENA (bit 24) powers the DWT */
 #define DWT_CTRL REG(0xE0001000u)   /* CYCCNTENA (bit 0) */
@@ -62,6 +63,7 @@
 #define UID ((const volatile uint8_t *)0x1FFF7A10u) /* the 96-bit unique ID: the module's serial */
 
 #define CONTROL_MS 20u       /* the gait tick: 50 Hz */
+#define CYCLES_PER_MS 168000u /* the core clock, 168 MHz */
 #define ENCODER_COUNTS 4096  /* per turn (1,024 lines, both edges of both channels) */
 #define PWM_CENTRE_US 1500.0f /* the servo's pulse at 0 degrees; 1,000 us more at +90 */
 #define MODULE_TYPE "stm32f4-servo" /* module.type: what this board is, as a gait's [robot.types.NAME] names it */
@@ -77,7 +79,7 @@ struct board_config {
 __attribute__((section(".board_config"), used)) static const volatile struct board_config board_config = {7, "m7", -90.0f, 90.0f};
 
 static struct asm_module module;
-static volatile uint32_t milliseconds;
+static volatile uint32_t milliseconds; /* at SysTick's last interrupt: a multiple of CONTROL_MS (now_ms() between) */
 static struct asm_commission commission;
 static uint8_t configured; /* the module runs its node (else it answers only commissioning) */
 static char node_name[8];  /* "m<ID>" of a commissioned module */
@@ -235,7 +237,25 @@ static int store_calibration(void *ctx, const struct asm_calibration *c)
     return settings_append(w, calibration_record(w, c));
 }
 
-void SysTick_Handler(void) { milliseconds++; }
+/* SysTick interrupts once a control period, not every millisecond: nothing in the main loop is due between (the
+ * control tick, the watchdog's feed and an update's reset are on its 20 ms grid), so the core is not interrupted 19
+ * times in 20 for nothing. A frame's time is read from the counter between interrupts (now_ms). */
+void SysTick_Handler(void) { milliseconds += CONTROL_MS; }
+
+/* The millisecond count now: the last interrupt's and what SysTick has counted down since (read again if the
+ * interrupt came meanwhile); a counter that has reloaded while its interrupt is still pending is a period on. */
+static uint32_t now_ms(void)
+{
+    uint32_t ms, elapsed, pending;
+    do {
+        ms = milliseconds;
+        elapsed = CONTROL_MS * CYCLES_PER_MS - 1u - SYST_CVR;
+        pending = SCB_ICSR & (1u << 26);
+    } while (ms != milliseconds);
+    if (pending && elapsed < CONTROL_MS * CYCLES_PER_MS / 2u)
+        ms += CONTROL_MS;
+    return ms + elapsed / CYCLES_PER_MS;
+}
 
 /* One mask filter (32-bit, FIFO 0): extended identifier ``id`` under ``mask`` (bits 28-0). */
 static void filter(uint32_t bank, uint32_t id, uint32_t mask)
@@ -340,7 +360,7 @@ static void can_receive(void)
         if (asm_commission_is_command(id))
             commissioning(data, dlc > 8 ? 8 : dlc);
         else if (configured)
-            asm_node_frame(&module.node, id, data, dlc > 8 ? 8 : dlc, milliseconds);
+            asm_node_frame(&module.node, id, data, dlc > 8 ? 8 : dlc, now_ms());
     }
 }
 
@@ -380,7 +400,7 @@ static void joint_init(void)
  * service's state, when the gait last started and gait.done, the millisecond count, and asm_node_local to make the
  * module's own requests. */
 struct asm_probe {
-    uint32_t version; /* 2: with the commissioning state */
+    uint32_t version; /* 3: with the clock */
     struct asm_node *node;
     int (*local)(struct asm_node *node, const uint8_t *message, size_t length);
     void (*leave)(struct asm_node *node);
@@ -393,11 +413,12 @@ struct asm_probe {
     uint8_t *done;
     uint8_t *configured;
     struct asm_commission *commission;
+    uint32_t (*clock)(void); /* now_ms: what the module's own requests are timed with */
 };
 __attribute__((section(".probe"), used)) const struct asm_probe asm_probe = {
-    2u, &module.node, asm_node_local, asm_node_leave, &module.node.now_ms, &module.node.estop, &module.goal_v,
+    3u, &module.node, asm_node_local, asm_node_leave, &module.node.now_ms, &module.node.estop, &module.goal_v,
     &module.angle_v, &module.gait.service.running, &milliseconds, &module.gait.ramp_start_ms, &module.gait.done_v,
-    &configured, &commission};
+    &configured, &commission, now_ms};
 
 /* Run the module under commission.node_id (none: answer only commissioning). The name is the flashed one under the
  * flashed ID, m<ID> under a commissioned one. */
@@ -422,7 +443,7 @@ static void boot_node(void)
     if (configured) {
         struct asm_calibration calibration;
         asm_module_init(&module, name, id, &port, &joint, board_config.hardware_min, board_config.hardware_max,
-                        milliseconds);
+                        now_ms());
         asm_module_set_type(&module, MODULE_TYPE);
         if (settings_calibration(&calibration))
             asm_module_calibrate(&module, &calibration); /* refused (no change) if the board's range has moved */
@@ -475,7 +496,7 @@ int main(void)
     DEMCR |= 1u << 24; /* the cycle counter */
     DWT_CYCCNT = 0;
     DWT_CTRL |= 1u;
-    SYST_RVR = 168000u - 1u; /* 1 ms at 168 MHz */
+    SYST_RVR = CONTROL_MS * CYCLES_PER_MS - 1u; /* a control period at 168 MHz (24 bits hold 99 ms) */
     SYST_CVR = 0;
     SYST_CSR = 7u;
     joint_init();

@@ -51,15 +51,17 @@ uint32_t flash_erase_sector(uint32_t sector)
     return lock();
 }
 
+/* RM0090 3.6.2: BSY clear, PG set, the data writes — all the words with PG held (a write while the previous one is
+ * still being programmed stalls the bus until it is done), no status read between — then BSY clear again and the
+ * error flags of them all (what refuses one word, a lock, a protected sector, refuses the ones after it too). */
 uint32_t flash_program_words(uint32_t address, const uint32_t *words, uint32_t count)
 {
     unlock();
-    for (uint32_t k = 0; k < count && !(FLASH_SR & SR_ERRORS); k++) {
-        wait();
-        FLASH_CR = PSIZE_X32 | 1u; /* PG */
+    wait();
+    FLASH_CR = PSIZE_X32 | 1u; /* PG */
+    for (uint32_t k = 0; k < count; k++)
         ((volatile uint32_t *)address)[k] = words[k];
-        wait();
-    }
+    wait();
     return lock();
 }
 

@@ -30,7 +30,12 @@ from .programs import random_program
 ROOT = Path(__file__).resolve().parents[2]
 FIRMWARE = ROOT / "firmware"
 VECTORS = ROOT / "tests" / "vectors"
-pytestmark = [pytest.mark.timeout(300), pytest.mark.skipif(shutil.which("gcc") is None, reason="needs gcc")]
+pytestmark = [
+    pytest.mark.xdist_group("test_firmware"),
+    pytest.mark.timeout(300),
+    pytest.mark.skipif(shutil.which("gcc") is None, reason="needs gcc"),
+]
+"""The module's tests run on one worker (an xdist group), so its module-scoped fixture is made once."""
 
 
 @pytest.fixture(scope="module")

@@ -38,6 +38,7 @@ def test_asm_flash_updates_the_selected_modules_and_prints_their_versions(tmp_pa
     boards = [EmulatedModule(f"m{k}", k, settings=Settings(), interface="virtual", channel=channel) for k in (1, 2, 3)]
     watcher = Node("watcher", CanTransport(99, interface="virtual", channel=channel))
     try:
+        assert boards[0].bus is boards[1].bus is boards[2].bus, "one bus for the boards of a channel (a backplane)"
         assert wait_until(lambda: {"m1", "m2", "m3"} <= set(watcher.discover()), timeout=30)
         code = main(["--robot", f"virtual:{channel}", "--modules", "1,3", str(image)])
         out, err = capsys.readouterr()

@@ -20,7 +20,8 @@ from gaits.params import apply, check, current, parse_free
 from gaits.sim import Simulation
 from gaits.tune import VIOLATION, Outcome, Setup, tune
 
-pytestmark = pytest.mark.timeout(300)
+pytestmark = [pytest.mark.xdist_group("test_tune"), pytest.mark.timeout(300)]
+"""The module's tests run on one worker (an xdist group), so its module-scoped fixture is made once."""
 CATERPILLAR = LIBRARY / "caterpillar.toml"
 SETUP = Setup("speed", seconds=2.0, warmup=0.5)
 FREES = [parse_free("amplitude=20:85"), parse_free("period=0.6:1.6")]

@@ -14,7 +14,8 @@ from gaits.params import parse_free
 from gaits.tune import Setup, tune
 from tests.transports import free_port
 
-pytestmark = pytest.mark.timeout(300)
+pytestmark = [pytest.mark.xdist_group("test_tune_dask"), pytest.mark.timeout(300)]
+"""The module's tests run on one worker (an xdist group), so its module-scoped fixture is made once."""
 CATERPILLAR = LIBRARY / "caterpillar.toml"
 ARGS = ["--free", "amplitude=20:85", "--free", "period=0.6:1.6", "--budget", "9", "--seconds", "2", "--warmup",
         "0.5", "--seed", "3"]  # fmt: skip

@@ -33,7 +33,8 @@ from ..helpers import wait_until
 from ..processes import Process, run
 from ..transports import free_port
 
-pytestmark = pytest.mark.timeout(240)
+pytestmark = [pytest.mark.xdist_group("test_record"), pytest.mark.timeout(240)]
+"""The module's tests run on one worker (an xdist group), so its module-scoped fixture is made once."""
 GAIT = LIBRARY / "caterpillar.toml"
 BODIES = ["b4", "b5", "b6", "b7", "b8", "b3", "b2", "b1", "b0"]
 """The caterpillar's 9 rigid bodies (8 modules, each joint between two links), in MuJoCo's order (the pose feed's):

@@ -1,9 +1,10 @@
 """What the browser tests share: Debian's Chromium (never one a tool downloads), the page opened the way a user
 opens it, and readers of what it shows (pixels of a drawn line, the robot in the 3D view, a number in a text).
 
-The browser tests are in two xdist groups, "browser-1" and "browser-2", by module: at most two Chromiums at once
-(each drawing WebGL in software takes most of a core), the rest of the suite on the other workers. A module's
-tests stay in one group, so the studios its fixtures start are started once.
+Each browser test module is an xdist group of its own: its tests run on one worker one after another, so the
+studios its fixtures start are started once, and the modules spread over the workers with the rest of the suite (as
+two groups, one of them held 520 s of scenarios one after another: the suite's tail). At most as many Chromiums
+as workers run at once, each drawing at most MAX_FPS frames a second.
 """
 
 from __future__ import annotations
@@ -18,11 +19,12 @@ from ..helpers import ARTIFACTS
 CHROMIUM = "/usr/bin/chromium"
 
 
-def marks(group: int) -> list[pytest.MarkDecorator]:
-    """What every browser test module sets as ``pytestmark``: its browser group (1 or 2), a generous timeout."""
+def marks(module: str) -> list[pytest.MarkDecorator]:
+    """What every browser test module sets as ``pytestmark`` (``marks(__name__)``): the module's own xdist group, a
+    generous timeout."""
     return [
         pytest.mark.timeout(240),
-        pytest.mark.xdist_group(f"browser-{group}"),
+        pytest.mark.xdist_group(f"browser-{module.rsplit('.', 1)[-1]}"),
         pytest.mark.skipif(not os.path.exists(CHROMIUM), reason="needs Debian's chromium (make test installs it)"),
     ]
 
@@ -34,8 +36,9 @@ would lower it on its own on a slow machine; fixing it keeps the screenshots the
 
 
 MAX_FPS = 20
-"""The page's frames capped at 20 a second (web/page_script.py's ``?maxFps``): a moving robot kept Chromium drawing
-at 60 frames a second in software, about a core of the suite's two, whatever the test looked at."""
+"""The page's frames capped at 20 a second (web/page_script.py's ``?maxFps``; the studios the tests start draw no
+more, ``--max-fps``): a moving robot kept Chromium drawing at 60 frames a second in software, about a core of the
+suite's two, whatever the test looked at."""
 PAGE_QUERY = f"?fixedDpr={VIEW_DPR}&maxFps={MAX_FPS}"
 """What every browser test opens the page with (after the studio's URL)."""
 

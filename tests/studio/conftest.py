@@ -10,6 +10,7 @@ import pytest
 
 from ..processes import Process
 from ..transports import free_port
+from .browser import MAX_FPS
 
 StudioProcess = tuple[str, str, list[str]]
 
@@ -18,12 +19,16 @@ StudioProcess = tuple[str, str, list[str]]
 def start_studio(tmp_path_factory) -> Iterator[Callable[..., StudioProcess]]:
     """Start ``asm-studio`` processes (extra arguments as given) on free ports; every one is stopped at the end.
     Each writes its recordings and keeps its last layout in a directory of its own unless given ``--recordings``
-    (a layout kept in the checkout's recordings/ would be restored by the next test's studio)."""
+    (a layout kept in the checkout's recordings/ would be restored by the next test's studio), and draws at most
+    MAX_FPS frames a second unless given ``--max-fps`` (a moving robot drawn 60 times a second, sent to the page
+    and drawn there in software, took most of the suite's two cores)."""
     started: list[Process] = []
 
     def start(*args: str) -> StudioProcess:
         if "--recordings" not in args:
             args = (*args, "--recordings", str(tmp_path_factory.mktemp("recordings")))
+        if "--max-fps" not in args:
+            args = (*args, "--max-fps", str(MAX_FPS))
         port, zenoh_port = free_port(), free_port()
         endpoint = f"tcp/127.0.0.1:{zenoh_port}"
         proc = Process("-m", "server.studio", "--port", str(port), "--zenoh-listen", endpoint, *args)

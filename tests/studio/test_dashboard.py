@@ -324,6 +324,7 @@ def test_the_studio_deploys_to_and_estops_a_robot_whose_odd_modules_run_in_c() -
     studio = Studio(StudioOptions(port=0, c_modules="odd"))
     try:
         app = studio.app
+        app.draw_unwatched = True  # the test reads the preview with no browser (which would hold it otherwise)
         assert [i for i, m in sorted(app.loop.sim.modules.items()) if m.language == "c"] == [1, 3, 5, 7], (
             "the preview runs the same modules in C"
         )

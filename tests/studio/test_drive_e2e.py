@@ -14,7 +14,7 @@ from gaits.model import loads
 from ..helpers import ARTIFACTS, wait_until
 from .browser import CHROMIUM, FOCUS_3D, PAGE_QUERY, marks, number, open_page, text_input
 
-pytestmark = marks(2)
+pytestmark = marks(__name__)
 
 GAIT = "gaits/library/steerable_caterpillar.toml"
 

@@ -16,7 +16,7 @@ from ..processes import Process
 from ..transports import free_port
 from .browser import marks, open_page
 
-pytestmark = marks(2)
+pytestmark = marks(__name__)
 
 MODULES = [f"m{i}" for i in range(1, 9)]
 

@@ -16,7 +16,7 @@ from asm_py.transport.zenoh import ZenohTransport
 from ..helpers import ARTIFACTS, wait_until
 from .browser import marks, open_page
 
-pytestmark = marks(2)
+pytestmark = marks(__name__)
 
 
 def _fill(page, label: str, value: str) -> None:

@@ -15,13 +15,10 @@ from ..helpers import ARTIFACTS
 from .browser import marks, open_page
 
 pytestmark = [
-    # slow (run with -m slow): it passes in 20-30 s on a quiet machine, but under the suite's load the emulated
-    # board, run in real time, answered a firmware.image SET after more than 30 s (fresh-clone CI, stop 35): the
-    # emulator's per-frame cost (docs/benchmarks.md, firmware update), not the page. tests/firmware/test_update.py
-    # covers the update itself in the suite; tests/studio/test_emulated_studio.py the studio's emulated module.
-    pytest.mark.slow,
-    pytest.mark.timeout(420),  # before marks(2)'s 240 s: the closest timeout mark is the first
-    *marks(2),
+    # in the suite again since the emulator's update work (docs/benchmarks.md, 2026-11-27): it was slow-marked when
+    # an emulated board, run in real time under the suite's load, answered a firmware.image SET after over 30 s
+    pytest.mark.timeout(420),  # before marks()'s 240 s: the closest timeout mark is the first
+    *marks(__name__),
     pytest.mark.skipif(shutil.which("arm-none-eabi-gcc") is None, reason="make test installs gcc-arm-none-eabi"),
 ]
 NEW = 0x000200

@@ -18,8 +18,8 @@ from ..helpers import ARTIFACTS
 from .browser import deploy_and_start, marks, open_page
 
 pytestmark = [
-    pytest.mark.timeout(600),  # before marks(2)'s 240 s: the closest timeout mark is the first
-    *marks(2),
+    pytest.mark.timeout(600),  # before marks()'s 240 s: the closest timeout mark is the first
+    *marks(__name__),
     pytest.mark.skipif(shutil.which("arm-none-eabi-gcc") is None, reason="make test installs gcc-arm-none-eabi"),
 ]
 

@@ -9,7 +9,7 @@ import time
 
 from .browser import CHROMIUM, VIEW_DPR, marks
 
-pytestmark = marks(2)
+pytestmark = marks(__name__)
 
 COUNT_FRAMES = """async (seconds) => {
   let frames = 0, running = true;
@@ -56,6 +56,74 @@ def test_max_fps_caps_the_frames_the_view_still_moves_and_other_values_change_no
                 capped = page.evaluate("window.__asmMaxFps")
                 # the first of two values is the one URLSearchParams gives: "8&maxFps=abc" caps at 8
                 assert capped == (8 if hostile.startswith("8&") else None), (hostile, capped)
+        finally:
+            browser.close()
+    assert not any("Traceback" in line for line in log), "".join(log[-40:])
+
+
+def _scene_updates_per_second(url: str, seconds: float) -> float:
+    """Windows that move the robot, per second, as a client that keeps up receives them."""
+    import viser
+    from websockets.sync.client import connect
+
+    from web.viewer_client import camera_message, carries_poses
+
+    ws_url = url.replace("http://", "ws://")
+    with connect(ws_url, subprotocols=[f"viser-v{viser.__version__}"], max_size=None, open_timeout=10) as ws:  # type: ignore[list-item]  # viser's subprotocol is a plain string
+        ws.send(camera_message())
+        end = time.monotonic() + 2.0  # the scene is built, the preview plays on for this client
+        while time.monotonic() < end:
+            ws.recv(timeout=10)
+        received, began = [], time.monotonic()
+        while time.monotonic() - began < seconds:
+            received.append(ws.recv(timeout=10))
+        elapsed = time.monotonic() - began
+    return sum(1 for m in received if isinstance(m, bytes) and carries_poses(m)) / elapsed
+
+
+def test_the_studio_s_max_fps_caps_what_it_sends_and_the_page_s_frames_unless_the_url_says(start_studio) -> None:
+    from playwright.sync_api import sync_playwright
+
+    url, _, log = start_studio("--max-fps", "10")
+    rate = _scene_updates_per_second(url, 3.0)
+    assert 2 <= rate <= 10 * 1.25, f"{rate:.1f} scene updates a second from a studio at --max-fps 10"
+    with sync_playwright() as pw:
+        browser = pw.chromium.launch(executable_path=CHROMIUM, args=["--no-sandbox"])
+        try:
+            page = browser.new_page(viewport={"width": 1400, "height": 900})
+            _open(page, url, "")  # no maxFps in the URL: the studio's
+            assert page.evaluate("window.__asmMaxFps") == 10
+            assert page.evaluate(COUNT_FRAMES, 2) <= 10 * 1.25
+            page.goto(f"{url}/?maxFps=60", wait_until="domcontentloaded")  # the URL's own: no cap for this page
+            assert page.evaluate("window.__asmMaxFps") is None
+        finally:
+            browser.close()
+    assert not any("Traceback" in line for line in log), "".join(log[-40:])
+
+
+def test_software_webgl_draws_the_view_at_a_lower_resolution_unless_the_url_chooses_one(studio_process) -> None:
+    """Chromium here has no GPU (SwiftShader, as viser's own notice says): the page adds viser's ``fixedDpr`` to its
+    URL before viser reads it; a URL that chooses one keeps it; the token and other parameters stay."""
+    from playwright.sync_api import sync_playwright
+
+    from web.page_script import SOFTWARE_RENDER_SCALE
+
+    url, _, log = studio_process
+    with sync_playwright() as pw:
+        browser = pw.chromium.launch(executable_path=CHROMIUM, args=["--no-sandbox"])
+        try:
+            page = browser.new_page(viewport={"width": 1280, "height": 800})
+            renderer = page.evaluate("""() => { const gl = document.createElement('canvas').getContext('webgl');
+                const info = gl.getExtension('WEBGL_debug_renderer_info');
+                return gl.getParameter(info ? info.UNMASKED_RENDERER_WEBGL : gl.RENDERER); }""")
+            assert re.search(r"swiftshader|llvmpipe|software", renderer, re.I), renderer
+            _open(page, url, "&maxFps=30")  # fixedDpr given (the tests' own 0.25): kept
+            assert page.evaluate("new URLSearchParams(location.search).get('fixedDpr')") == str(VIEW_DPR)
+            assert page.evaluate("window.__asmSoftwareScale") is None
+            page.goto(f"{url}/?maxFps=30")
+            assert page.evaluate("new URLSearchParams(location.search).get('fixedDpr')") == str(SOFTWARE_RENDER_SCALE)
+            assert page.evaluate("new URLSearchParams(location.search).get('maxFps')") == "30"
+            assert page.evaluate("window.__asmSoftwareScale") == SOFTWARE_RENDER_SCALE
         finally:
             browser.close()
     assert not any("Traceback" in line for line in log), "".join(log[-40:])

@@ -8,7 +8,7 @@ import time
 from ..helpers import ARTIFACTS
 from .browser import LINE_COLOR, deploy_and_start, marks, open_page, pixels
 
-pytestmark = marks(1)
+pytestmark = marks(__name__)
 
 CHARTS = """() => Object.values((window.__viserTestpoints || {}).uplots || {}).map(({chart}) => ({
   title: chart.root.querySelector('.u-title')?.textContent || '',

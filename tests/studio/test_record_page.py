@@ -14,7 +14,7 @@ from mcap.reader import make_reader
 from ..helpers import ARTIFACTS
 from .browser import deploy_and_start, marks, open_page
 
-pytestmark = marks(1)
+pytestmark = marks(__name__)
 
 
 def test_record_the_robot_from_the_page_and_read_the_file_back(start_studio, tmp_path):

@@ -17,11 +17,11 @@ from pathlib import Path
 from ..helpers import ARTIFACTS, wait_until
 from .browser import marks, number, open_page, pixels
 
-pytestmark = marks(2)
+pytestmark = marks(__name__)
 
 
 def violet(png: bytes) -> int:
-    """Pixels of the replayed robot: violet (web/preview.py: SceneView._build), shaded by the lights — apart from the
+    """Pixels of the replayed robot: violet (web/scene_view.py: SceneView._build), shaded by the lights — apart from the
     green trail, the magenta heading arrow, the grey grid, the tan preview and the blue live robot."""
     import io
 

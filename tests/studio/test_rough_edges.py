@@ -10,7 +10,7 @@ import time
 from ..helpers import ARTIFACTS, wait_until
 from .browser import deploy_and_start, marks, open_page
 
-pytestmark = marks(2)
+pytestmark = marks(__name__)
 
 
 def _number(page, label: str):

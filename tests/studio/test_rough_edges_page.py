@@ -13,7 +13,7 @@ import numpy as np
 from ..helpers import ARTIFACTS, wait_until
 from .browser import marks, open_page
 
-pytestmark = marks(2)
+pytestmark = marks(__name__)
 
 
 def _image(png: bytes) -> np.ndarray:

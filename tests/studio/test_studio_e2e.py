@@ -26,7 +26,7 @@ from .browser import (
     type_and_set,
 )
 
-pytestmark = marks(1)
+pytestmark = marks(__name__)
 
 
 def test_edit_preview_deploy_watch_and_estop(studio_process):

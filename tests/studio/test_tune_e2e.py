@@ -8,7 +8,7 @@ import re
 from ..helpers import ARTIFACTS, wait_until
 from .browser import LINE_COLOR, marks, open_page, pixels
 
-pytestmark = marks(2)
+pytestmark = marks(__name__)
 
 
 BEST_POINTS = """() => Object.values((window.__viserTestpoints || {}).uplots || {}).map(({chart}) => chart)

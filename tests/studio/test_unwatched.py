@@ -7,6 +7,8 @@ import time
 
 import pytest
 
+from web.viewer_client import camera_message
+
 from ..helpers import wait_until
 
 
@@ -19,17 +21,6 @@ def unwatched_studio():
         yield studio
     finally:
         studio.close()
-
-
-def _camera() -> bytes:
-    """A browser's first message: its camera (msgpack, as viser's client sends it)."""
-    import msgspec
-
-    return msgspec.msgpack.encode({
-        "type": "ViewerCameraMessage", "wxyz": [1.0, 0.0, 0.0, 0.0], "position": [0.0, -1.0, 0.5], "fov": 1.0,
-        "near": 0.01, "far": 100.0, "image_height": 480, "image_width": 640, "look_at": [0.0, 0.0, 0.0],
-        "up_direction": [0.0, 0.0, 1.0],
-    })  # fmt: skip
 
 
 def test_nothing_is_simulated_or_drawn_until_a_browser_connects_then_the_newest_frame_is(unwatched_studio) -> None:
@@ -47,7 +38,7 @@ def test_nothing_is_simulated_or_drawn_until_a_browser_connects_then_the_newest_
     with connect(
         url, origin=f"http://127.0.0.1:{app.port}", subprotocols=[f"viser-v{viser.__version__}"], open_timeout=10
     ) as ws:
-        ws.send(_camera())  # viser counts a client as connected once its camera is known, as a browser sends it
+        ws.send(camera_message())  # viser counts a client as connected once its camera is known, as a browser sends it
         assert wait_until(app.watched, timeout=10)
         assert wait_until(lambda: len(app.loop.frames) > waiting + 30, timeout=20), "it plays once watched"
         assert wait_until(lambda: app.view._drawn is not None, timeout=10), "drawn once a browser came"

@@ -504,3 +504,22 @@ def test_the_nodes_of_one_process_beat_together_on_one_grid(bus: Bus) -> None:
     finally:
         for transport in transports:
             transport.close()
+
+
+def test_a_sent_frame_copies_as_deep_as_a_python_can_message() -> None:
+    """python-can's virtual bus deep-copies each frame per receiver; the transport's frames copy directly (issue
+    31), into an equal frame with its own data, which a receiver may change without touching the sender's."""
+    import copy
+
+    from asm_py.transport.can_send import Frame
+
+    for channel in (None, "bus", ("a", 1), ["mutable"]):
+        frame = Frame(arbitration_id=0x1234, is_extended_id=True, data=b"\x01\x02", is_fd=True, bitrate_switch=True,
+                      channel=channel)  # fmt: skip
+        twin = copy.deepcopy(frame)
+        plain = copy.deepcopy(can.Message(arbitration_id=0x1234, is_extended_id=True, data=b"\x01\x02", is_fd=True,
+                                          bitrate_switch=True, channel=channel))  # fmt: skip
+        assert twin.equals(frame) and twin.equals(plain) and type(twin) is Frame
+        twin.data[0] = 9
+        assert frame.data == bytearray(b"\x01\x02")
+        assert channel is None or isinstance(channel, str | tuple) or twin.channel is not channel

@@ -78,6 +78,9 @@ def test_a_replayed_log_drives_a_fresh_module(tmp_path: Path) -> None:
         module.close()
 
 
+pytestmark = pytest.mark.xdist_group("test_can_tools")  # one worker builds the module's DBC, once
+
+
 @pytest.fixture(scope="module")
 def module_dbc() -> cantools.database.can.Database:
     """The DBC of module 1 and tool 254, loaded strictly (no overlaps): generating and loading it takes seconds, so
