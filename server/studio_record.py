@@ -17,7 +17,7 @@ from pathlib import Path
 import zenoh
 
 from .mcap_files import Attachment, McapFiles, RecordingInfo
-from .record import Recorder, find_robot
+from .record import CHUNK_SIZE, Recorder, find_robot
 
 Said = Callable[[str, bool], None]
 """What a request ended with: (one line for the page, whether it is an error)."""
@@ -69,7 +69,7 @@ class StudioRecording:
             info.attachments.append(Attachment("robot.mjcf", "application/xml", mjcf.encode()))
         if gait_text:
             info.attachments.append(Attachment(f"{gait_name}.toml", "application/toml", gait_text.encode()))
-        self.recorder = Recorder(self.session, robot, McapFiles(path, info), mjcf)
+        self.recorder = Recorder(self.session, robot, McapFiles(path, info, chunk_size=CHUNK_SIZE), mjcf)
         self.path, self._started = path, time.monotonic()
         return f"recording robot {robot} to {path}"
 
