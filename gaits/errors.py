@@ -17,10 +17,13 @@ class Problem:
     message: str
     line: int | None = None
     """1-based line in the file (None only for a document built in memory, which has no lines)."""
+    file: str | None = None
+    """The file the problem is in when it is not the gait file itself: the robot file it names (gaits/robot.py)."""
 
     def __str__(self) -> str:
-        where = f"line {self.line}: " if self.line else ""
-        return f"{where}{self.path}: {self.message}"
+        where = [self.file] if self.file is not None else []
+        where += [f"line {self.line}"] if self.line else []
+        return f"{', '.join(where)}{': ' if where else ''}{self.path}: {self.message}"
 
 
 class GaitError(AsmError, ValueError):

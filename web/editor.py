@@ -346,7 +346,10 @@ TABLE_CAPTION = ("Modules 1… top to bottom, one period across; blue −, red +
 
 
 def page_label(problem: Any) -> str:
-    """A problem as the page names things: 1-based states and modules (``wave S4``, ``module 3``), no file line."""
+    """A problem as the page names things: 1-based states and modules (``wave S4``, ``module 3``), no line of the
+    gait's file; one in the robot file the gait names is said to be there, at its line."""
+    if problem.file is not None:
+        return str(problem)
     path = re.sub(r"automata\.([^.\[]+)\.states\[(\d+)\]", lambda m: f"{m[1]} S{int(m[2]) + 1}", problem.path)
     path = re.sub(r"modules\[(\d+)\]", lambda m: f"module {int(m[1]) + 1}", path)
     path = re.sub(r"(S\d+|module \d+)\.", r"\1 ", path)  # "module 1 phase", "wave S4 angle"
