@@ -93,6 +93,8 @@ def input_file(text: str) -> Path:
 
 def output_file(text: str) -> Path:
     """A file that can be created: its directory exists."""
+    if not text:
+        raise argparse.ArgumentTypeError("an empty file name")
     path = Path(text)
     if path.is_dir():
         raise argparse.ArgumentTypeError(f"{text} is a directory, not a file name")

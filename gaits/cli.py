@@ -77,9 +77,10 @@ def main(argv: list[str] | None = None) -> int:
                       help="simulated seconds measured per candidate (default 6)")  # fmt: skip
     tune.add_argument("--warmup", type=bounded(float, 0, 600, what="the warm-up"), default=1.0,
                       help="simulated seconds before measuring (default 1)")  # fmt: skip
-    tune.add_argument("--max-torque", type=bounded(float, above=0, high=100, what="the torque limit"), default=None,
-                      help="peak joint torque allowed, N·m (default 95%% of the gait's own servos' stall "
-                      "torque, [robot.module] stall_torque: 1.425 for the library module)")  # fmt: skip
+    tune.add_argument("--max-torque", type=bounded(float, above=0, high=10_000, what="the torque limit"), default=None,
+                      help="peak joint torque allowed, N·m, at most 10000 as a stall torque (default 95%% of the "
+                      "gait's own servos' stall torque, [robot.module] stall_torque: 1.425 for the library "
+                      "module)")  # fmt: skip
     tune.add_argument(
         "--gait",
         default="forward",
@@ -93,7 +94,8 @@ def main(argv: list[str] | None = None) -> int:
         "--out",
         type=output_file,
         metavar="OUT.toml",
-        help="the tuned gait (default: NAME.tuned.toml in the current folder, NAME the file's stem; never over FILE)",
+        help="the tuned gait (default: NAME.tuned.toml in the current folder, NAME the file's stem; never over FILE "
+        "or its robot file)",
     )
     args = cli.parse_args(argv)
     if args.command == "simulate":
@@ -142,6 +144,7 @@ def _simulate(args: argparse.Namespace) -> int:
     """One run per terrain; each prints its metrics."""
     from pathlib import Path
 
+    from .output import refused
     from .sim import Simulation  # MuJoCo loads only for this command
 
     try:
@@ -150,12 +153,12 @@ def _simulate(args: argparse.Namespace) -> int:
         _report(args.file, exc)
         return 1
     robot = gait.robot
+    why = refused(Path(args.mjcf), args.file, gait) if args.mjcf else None
+    if why is not None:
+        print(f"gaits simulate: error: --mjcf {args.mjcf} {why}", file=sys.stderr)
+        return 2
     timing = f"period {gait.period:g} s" if gait.timed else "timed by events"
     print(f"{gait.name}: {robot.modules}-module {robot.shape}, {timing}, direction {args.direction:+d}")
-    if args.mjcf and Path(args.mjcf).exists() and Path(args.mjcf).samefile(args.file):
-        print(f"gaits simulate: error: --mjcf {args.mjcf} is the gait file itself: it would be overwritten",
-              file=sys.stderr)  # fmt: skip
-        return 2
     for k, terrain in enumerate(args.terrain or [FLAT]):
         with Simulation(gait, direction=args.direction, terrain=terrain) as sim:
             if args.mjcf and k == 0:

@@ -172,6 +172,22 @@ def ignore_sigint() -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
+def end_workers(pool: Executor, grace: float = 5.0) -> None:
+    """End a process pool's workers now (their simulations killed, not waited for): an interrupted search must not
+    wait for them, and a pool whose workers are gone lets the interpreter exit (concurrent.futures' exit handler
+    joins the pool's thread, which waits for workers that would never be sent their last job)."""
+    processes = list((getattr(pool, "_processes", None) or {}).values())
+    for process in processes:
+        if process.is_alive():
+            process.terminate()
+    deadline = time.monotonic() + grace
+    for process in processes:
+        process.join(max(0.0, deadline - time.monotonic()))
+        if process.is_alive():
+            process.kill()
+            process.join(1.0)
+
+
 @dataclass
 class Result:
     """The search's outcome: the best candidate that met every constraint (None if none did)."""
@@ -295,7 +311,7 @@ def tune(gait: Gait, frees: list[Free], setup: Setup, *, budget: int = 60, seed:
             result.history.append(result.value)
             if progress is not None:
                 best = min((o for o in outcomes if o.feasible), key=lambda o: -sign * o.value, default=None)
-                progress(result, _line(result, setup, best, outcomes, float(es.sigma)))
+                progress(result, _line(result, setup, best, outcomes, float(es.sigma), budget))
         _verify(result, leaders, pool, setup, fallback)  # the start checked beside the first leaders
     except KeyboardInterrupt:
         result.interrupted = True
@@ -309,6 +325,8 @@ def tune(gait: Gait, frees: list[Free], setup: Setup, *, budget: int = 60, seed:
     finally:
         if own:
             pool.shutdown(wait=not result.interrupted, cancel_futures=True)
+            if result.interrupted:
+                end_workers(pool)
     return result
 
 
@@ -385,10 +403,11 @@ def _strategy(x0: np.ndarray, seed: int, popsize: int | None, budget: int) -> An
     return cma.CMAEvolutionStrategy(x0.tolist(), 0.3, options)
 
 
-def _line(result: Result, setup: Setup, best: Outcome | None, outcomes: list[Outcome], sigma: float) -> str:
+def _line(result: Result, setup: Setup, best: Outcome | None, outcomes: list[Outcome], sigma: float,
+          budget: int) -> str:  # fmt: skip
     gen = f"{best.value:.4g}" if best is not None else "none valid"
     refused = sum(not o.feasible for o in outcomes)
-    return (f"generation {result.generations}: {result.evaluations} simulations, best {setup.objective} "
+    return (f"generation {result.generations}: {result.evaluations} of {budget} simulations, best {setup.objective} "
             f"{'none yet' if math.isnan(result.value) else amount(result.value, setup)} (this generation {gen}, "
             f"{refused} refused), "
             f"sigma {sigma:.3f}")  # fmt: skip
@@ -412,15 +431,30 @@ def provenance(result: Result, frees: list[Free], setup: Setup, *, budget: int, 
         f"Tuned by `gaits tune` from {source}: objective {setup.objective} ({goal}), seed {seed}, budget {budget} "
         f"({result.evaluations} simulated{', interrupted' if result.interrupted else ''})",
         f"gait {setup.gait}; terrains {', '.join(t.spec for t in setup.terrains)}; {setup.seconds:g} s measured after "
-        f"{setup.warmup:g} s"
-        + (
-            f"; forward = {setup.forward + 0.0:g}° from +x (the start's direction)" if setup.forward is not None else ""
-        ),
+        f"{setup.warmup:g} s" + _forward(setup),
         f"score {setup.objective} {amount(result.value, setup)} (start {start})",
         f"constraints: {limit} (warm-up included), no fall, joint limits (the loader's); {checked}",
         *(f"free {f} = {v:g}" for f, v in zip(frees, result.values, strict=True)),
     ]
     return "".join(f"# {line}\n" for line in lines)
+
+
+def _forward(setup: Setup) -> str:
+    if setup.forward is not None:
+        return f"; forward = {setup.forward + 0.0:g}° from +x (the start's direction)"
+    if setup.objective == "cost_of_transport" or setup.objective == "speed":
+        return f"; forward: none ({STILL})"
+    return ""
+
+
+STILL = "the start moved less than a tenth of a body length, so distance counts whichever way"
+"""Why a search has no forward direction (Setup.forward None): the start hardly moves."""
+
+
+def source_of(name: str, gait: Gait) -> str:
+    """What a tuned file was tuned from, as its provenance says: ``name``, and the robot file that describes its
+    modules (the tuned file carries the description written in)."""
+    return name + (f" (its modules described by the robot file {gait.robot.file})" if gait.robot.file else "")
 
 
 def tuned_text(result: Result, frees: list[Free], setup: Setup, *, budget: int, seed: int, source: str) -> str:

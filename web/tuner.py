@@ -17,13 +17,12 @@ import math
 import multiprocessing
 import os
 import threading
-import time
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 
 from gaits.model import Gait
 from gaits.params import Free
-from gaits.tune import Result, Setup, ignore_sigint, resolved, tune, tuned_text
+from gaits.tune import Result, Setup, end_workers, ignore_sigint, resolved, source_of, tune, tuned_text
 
 
 @dataclass
@@ -95,12 +94,12 @@ class TuneRun:
             result = Result(s.best, s.values, s.value, s.start_value, "", evaluations=s.evaluations,
                             interrupted=True)  # fmt: skip
         return tuned_text(result, self.frees, self.setup, budget=self.budget, seed=self.seed,
-                          source=f"the studio's {self.gait.name}")  # fmt: skip
+                          source=source_of(f"the studio's {self.gait.name}", self.gait))  # fmt: skip
 
     def stop(self, timeout: float = 10.0) -> None:
         """End the search now, keeping the best so far: the workers are killed, the thread joined."""
         self._stop.set()
-        self._kill_workers()
+        end_workers(self._pool)
         self._thread.join(timeout)
 
     close = stop
@@ -141,7 +140,7 @@ class TuneRun:
                 s.version += 1
         finally:
             self._pool.shutdown(wait=False, cancel_futures=True)
-            self._kill_workers()
+            end_workers(self._pool)
 
     def _progress(self, result: Result, line: str) -> None:
         with self._lock:
@@ -155,15 +154,3 @@ class TuneRun:
             s.version += 1
         if self._stop.is_set():
             raise KeyboardInterrupt  # tune() keeps its best so far and returns
-
-    def _kill_workers(self) -> None:
-        processes = list((getattr(self._pool, "_processes", None) or {}).values())
-        for process in processes:
-            if process.is_alive():
-                process.terminate()
-        deadline = time.monotonic() + 5.0
-        for process in processes:
-            process.join(max(0.0, deadline - time.monotonic()))
-            if process.is_alive():
-                process.kill()
-                process.join(1.0)
