@@ -24,7 +24,6 @@ from __future__ import annotations
 import itertools
 import math
 import os
-import signal
 import time
 import warnings
 from collections.abc import Callable
@@ -37,6 +36,7 @@ import numpy as np
 from .model import FORWARD, Gait, GaitError, dumps, from_dict, to_dict
 from .params import Free, apply, check, current
 from .terrain import FLAT, Terrain
+from .workers import end_workers, start_worker
 
 OBJECTIVES = {"speed": (1.0, "m/s"), "cost_of_transport": (-1.0, ""), "heading_rate": (1.0, "°/s")}
 """Objective → (+1: maximised, -1: minimised; its unit)."""
@@ -167,27 +167,6 @@ def _evaluate_job(job: tuple[dict[str, Any], Setup]) -> Outcome:
     return outcome
 
 
-def ignore_sigint() -> None:
-    """Workers leave Ctrl-C to the parent, which stops the search and keeps the best so far."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-
-
-def end_workers(pool: Executor, grace: float = 5.0) -> None:
-    """End a process pool's workers now (their simulations killed, not waited for): an interrupted search must not
-    wait for them, and a pool whose workers are gone lets the interpreter exit (concurrent.futures' exit handler
-    joins the pool's thread, which waits for workers that would never be sent their last job)."""
-    processes = list((getattr(pool, "_processes", None) or {}).values())
-    for process in processes:
-        if process.is_alive():
-            process.terminate()
-    deadline = time.monotonic() + grace
-    for process in processes:
-        process.join(max(0.0, deadline - time.monotonic()))
-        if process.is_alive():
-            process.kill()
-            process.join(1.0)
-
-
 @dataclass
 class Result:
     """The search's outcome: the best candidate that met every constraint (None if none did)."""
@@ -259,7 +238,7 @@ def tune(gait: Gait, frees: list[Free], setup: Setup, *, budget: int = 60, seed:
     if len(x0) == 1:  # cma searches 2 or more dimensions: one free parameter gets a dummy one, ignored
         x0 = np.append(x0, 0.5)
     own = executor is None
-    pool = executor or ProcessPoolExecutor(max_workers=workers or os.cpu_count() or 1, initializer=ignore_sigint)
+    pool = executor or ProcessPoolExecutor(max_workers=workers or os.cpu_count() or 1, initializer=start_worker)
     result = Result(None, [], math.nan, math.nan, "", setup=setup)
     result.start_inside = all(f.low <= v <= f.high for f, v in zip(frees, start, strict=True))
     sign = OBJECTIVES[setup.objective][0]

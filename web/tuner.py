@@ -22,7 +22,8 @@ from dataclasses import dataclass, field
 
 from gaits.model import Gait
 from gaits.params import Free
-from gaits.tune import Result, Setup, end_workers, ignore_sigint, resolved, source_of, tune, tuned_text
+from gaits.tune import Result, Setup, resolved, source_of, tune, tuned_text
+from gaits.workers import end_workers, start_worker
 
 
 @dataclass
@@ -63,7 +64,7 @@ class TuneRun:
         self._snapshot = Snapshot(budget=budget)
         self.workers = max(1, workers or os.cpu_count() or 1)
         self._pool = ProcessPoolExecutor(max_workers=self.workers, mp_context=multiprocessing.get_context("spawn"),
-                                         initializer=ignore_sigint)  # fmt: skip
+                                         initializer=start_worker)  # fmt: skip
         self._result: Result | None = None
         self._thread = threading.Thread(target=self._run, args=(popsize,), name="studio-tune", daemon=True)
         self._thread.start()

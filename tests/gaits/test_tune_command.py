@@ -134,3 +134,16 @@ def test_a_second_ctrl_c_does_not_hang_the_command(tmp_path) -> None:
         assert "Traceback" not in rest and "interrupted" in out.read_text(encoding="utf-8"), rest
         _, alive = psutil.wait_procs(workers, timeout=30)
         assert workers and not alive, f"workers left running: {alive}"
+
+
+def test_the_workers_end_when_the_command_is_killed(tmp_path) -> None:
+    """kill -9 leaves the command no chance to end its workers: each notices its parent is gone and ends itself
+    (they stayed, orphaned, for minutes)."""
+    import psutil
+
+    process = long_search(tmp_path / "tuned.toml")
+    with workers_of(process) as workers:
+        workers += interrupt(process, "generation 1:", [signal.SIGKILL])
+        process.wait(timeout=10)
+        _, alive = psutil.wait_procs(workers, timeout=20)
+        assert workers and not alive, f"workers left running: {alive}"
