@@ -7,9 +7,25 @@ import re
 
 import pytest
 
+from gaits.compatible import read_objects
+from gaits.model import LIBRARY, loads
 from tests.helpers import wait_until
 
 pytestmark = pytest.mark.timeout(120)
+
+TYPED = (LIBRARY / "caterpillar.toml").read_text(encoding="utf-8").replace(
+    "module_size = 0.05\n", 'module_size = 0.05\ntype = "light"\n[robot.types.light]\n[robot.types.heavy]\n'
+    "mass = 0.6\nids = [4, 5]\n", 1)  # fmt: skip
+"""The caterpillar of light modules with two heavy ones, m4 and m5."""
+
+
+def _typed_robot(studio) -> None:
+    """The studio's simulated robot rebuilt of TYPED's module types, its 8 modules saying them."""
+    app = studio.app
+    assert studio.ensure_robot(loads(TYPED)), "the simulated robot rebuilt of the gait's module types"
+    assert wait_until(lambda: read_objects(app.link.lookup, ["m4", "m1"], "module.type", timeout=1.0)
+                      == {"m4": "heavy", "m1": "light"}, timeout=60)  # fmt: skip
+    assert wait_until(lambda: len(app.link.alive_modules()) == 8, timeout=30)
 
 
 def test_a_real_robot_that_is_not_the_gaits_is_reported_before_deploy(studio, monkeypatch):
@@ -33,19 +49,10 @@ def test_a_real_robot_that_is_not_the_gaits_is_reported_before_deploy(studio, mo
 def test_a_module_of_another_type_than_the_gait_describes_is_reported_before_deploy(studio, monkeypatch):
     """The simulated robot is built of the gait's module types, so its modules say them (module.type); taken for a
     real bus, a gait that describes m4 and m5 as another type is told so, and the log says what each module is."""
-    from gaits.compatible import read_objects
-    from gaits.model import LIBRARY, loads
-
-    text = (LIBRARY / "caterpillar.toml").read_text(encoding="utf-8").replace(
-        "module_size = 0.05\n", 'module_size = 0.05\ntype = "light"\n[robot.types.light]\n[robot.types.heavy]\n'
-        "mass = 0.6\nids = [4, 5]\n", 1)  # fmt: skip
     app = studio.app
-    assert studio.ensure_robot(loads(text)), "the simulated robot rebuilt of the gait's module types"
-    assert wait_until(lambda: read_objects(app.link.lookup, ["m4", "m1"], "module.type", timeout=1.0)
-                      == {"m4": "heavy", "m1": "light"}, timeout=60)  # fmt: skip
+    _typed_robot(studio)
     monkeypatch.setattr(type(studio), "simulated", property(lambda self: False))
-    assert wait_until(lambda: len(app.link.alive_modules()) == 8, timeout=30)
-    app.doc.replace(loads(text.replace("heavy", "servo_v3")))
+    app.doc.replace(loads(TYPED.replace("heavy", "servo_v3")))
     app.editor.after_edit()
     app.deployer.on_deploy()
     question = app.deployer.confirm.asked
@@ -62,20 +69,11 @@ def test_a_simulated_robot_someone_else_started_is_checked_before_deploy(studio,
     asked, as for a real robot; a yes deploys knowingly."""
     from types import SimpleNamespace
 
-    from gaits.compatible import read_objects
-    from gaits.model import LIBRARY, loads
-
-    text = (LIBRARY / "caterpillar.toml").read_text(encoding="utf-8").replace(
-        "module_size = 0.05\n", 'module_size = 0.05\ntype = "light"\n[robot.types.light]\n[robot.types.heavy]\n'
-        "mass = 0.6\nids = [4, 5]\n", 1)  # fmt: skip
     app = studio.app
-    assert studio.ensure_robot(loads(text)), "the simulated robot rebuilt of the gait's module types"
-    assert wait_until(lambda: read_objects(app.link.lookup, ["m4", "m1"], "module.type", timeout=1.0)
-                      == {"m4": "heavy", "m1": "light"}, timeout=60)  # fmt: skip
-    assert wait_until(lambda: len(app.link.alive_modules()) == 8, timeout=30)
+    _typed_robot(studio)
     monkeypatch.setattr(studio, "own_robot", "someone-else")  # the robot is not the studio's own: not rebuilt
     assert app.deployer.page.simulated
-    app.doc.replace(loads(text.replace("ids = [4, 5]", "ids = [1, 2]")))  # the heavy modules moved to the tail
+    app.doc.replace(loads(TYPED.replace("ids = [4, 5]", "ids = [1, 2]")))  # the heavy modules moved to the tail
     app.editor.after_edit()
     app.deployer.on_deploy()
     asked = app.deployer.confirm.asked
