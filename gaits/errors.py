@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 from asm_py.errors import AsmError
 
@@ -36,9 +36,8 @@ class GaitError(AsmError, ValueError):
         self.problems = problems[:MAX_LISTED]
         self.more = more + max(0, len(problems) - MAX_LISTED)
         self._rest = f"and {'at least ' if more_is_lower_bound else ''}{self.more} more" if self.more else ""
-        super().__init__(
-            f"{source}: " + "; ".join([str(p) for p in self.problems] + ([self._rest] if self._rest else []))
-        )
+        said = [str(replace(p, file=None) if p.file == source else p) for p in self.problems]  # named once
+        super().__init__(f"{source}: " + "; ".join(said + ([self._rest] if self._rest else [])))
 
     def lines(self) -> list[str]:
         """One line per listed problem, and a last one counting those not listed."""
