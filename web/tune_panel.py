@@ -162,7 +162,7 @@ class TunePanel:
             self.page.notify("Preview", f"the best candidate so far ({_values(run, snapshot)}); an edit of the gait "
                              "previews the edited gait again")  # fmt: skip
         else:
-            self.page.emit("adopt", snapshot.best, run.provenance_text())
+            self.page.emit("adopt", *run.adoptable())
 
     def _plot_parameters(self, frees: list[Free]) -> None:
         for handle in self.scatters.values():

@@ -18,10 +18,11 @@ import multiprocessing
 import os
 import threading
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 from gaits.model import Gait
 from gaits.params import Free
+from gaits.robot import description
 from gaits.tune import Result, Setup, resolved, source_of, tune, tuned_text
 from gaits.workers import end_workers, start_worker
 
@@ -86,6 +87,11 @@ class TuneRun:
 
     def provenance_text(self) -> str:
         """The best candidate as a gait file, its provenance in comments (as ``gaits tune`` writes it)."""
+        return self.adoptable()[1]
+
+    def adoptable(self) -> tuple[Gait, str]:
+        """The best candidate to make the edited gait: naming the edited gait's robot file again (the workers ran it
+        with the description written in, which tuning does not change), and its file, provenance in comments."""
         with self._lock:
             result = self._result
             s = self._snapshot
@@ -94,8 +100,12 @@ class TuneRun:
         if result is None or result.best is not s.best:  # stopped before tune() returned: say what is known
             result = Result(s.best, s.values, s.value, s.start_value, "", evaluations=s.evaluations,
                             interrupted=True)  # fmt: skip
-        return tuned_text(result, self.frees, self.setup, budget=self.budget, seed=self.seed,
+        best, named = s.best, self.gait.robot
+        if named.file is not None and description(best.robot, inline=True) == description(named, inline=True):
+            best = replace(best, robot=replace(best.robot, file=named.file))
+        text = tuned_text(replace(result, best=best), self.frees, self.setup, budget=self.budget, seed=self.seed,
                           source=source_of(f"the studio's {self.gait.name}", self.gait))  # fmt: skip
+        return best, text
 
     def stop(self, timeout: float = 10.0) -> None:
         """End the search now, keeping the best so far: the workers are killed, the thread joined."""

@@ -187,3 +187,28 @@ def test_the_simulated_robot_is_rebuilt_on_the_previews_ground_at_a_deploy(studi
     args = studio.child.args  # the robot process started (READY) with the preview's ground
     assert args[args.index("--terrain") + 1] == app.loop.terrain.spec
     assert app.page.ensure_robot(gait) is None  # and it stays there
+
+
+def test_adopting_keeps_the_robot_file_the_gait_names(studio, tmp_path):
+    """The tuned gait is the edited gait's robot, so Adopt names its robot file again (issue 30's review, defect 7:
+    the description was written in, and the file no longer named)."""
+    from gaits.model import LIBRARY
+
+    (tmp_path / "robot.toml").write_text("[robot.module]\nmass = 0.25\n", encoding="utf-8")
+    path = tmp_path / "mine.toml"
+    path.write_text((LIBRARY / "caterpillar.toml").read_text(encoding="utf-8").replace(
+        "module_size = 0.05\n", 'module_size = 0.05\nfile = "robot.toml"\n', 1), encoding="utf-8")  # fmt: skip
+    app = studio.app
+    app.editor.open_file(path)
+    panel = app.tuner
+    panel.free["amplitude"].value = True
+    panel.budget.value = 4
+    panel.seconds.value = 0.5
+    run = panel.start(workers=1, popsize=3)
+    assert wait_until(lambda: not run.running, timeout=120)
+    panel._on_best(_click("Adopt"))
+    assert not app.doc.problems and app.doc.gait().robot.file == "robot.toml"
+    text = app.doc.text()
+    assert 'file = "robot.toml"' in text and "[robot.module]" not in text and "mass = 0.25" not in text
+    assert "Tuned by" in text and "(its modules described by the robot file robot.toml)" in text
+    assert app.doc.gait().robot.module.mass == 0.25
