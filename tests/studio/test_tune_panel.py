@@ -4,6 +4,7 @@ a search started from the page runs in worker processes, shows its progress, its
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -114,8 +115,29 @@ def test_a_bad_free_parameter_is_refused_before_anything_starts(studio):
     panel.free["period"].value = True
     for workers in (0, -2):  # (viser rounds a number to its step: no 1.5 reaches the panel)
         panel.workers.value = workers
-        with pytest.raises(ValueError, match=f"Workers is a whole number of processes, at least 1, not {workers:g}"):
+        with pytest.raises(ValueError, match=f"Workers is a whole number of processes, 1 to .*, not {workers:g}"):
             panel.start()
+    assert panel.run is None
+
+
+def test_what_a_field_shows_is_what_runs_or_it_is_refused(studio):
+    """issue 30's review, defect 14: a seed of -1 was shown while the run used cma's random seed, Workers went to 4 ×
+    the cores, and "Other free" separated by commas was refused."""
+    import os
+
+    panel = studio.app.tuner
+    panel.other.value = "modules[2].phase=0:1, period=0.5:1.5"
+    assert [f.name for f in panel.frees()] == ["modules[2].phase", "period"]
+    assert "commas" in panel.other.hint and panel.workers.max == (os.cpu_count() or 1)
+    for field, value, says in ((panel.seed, -1, "Seed is a whole number, 0 to 2.14748e+09, not -1"),
+                               (panel.budget, 100_001, "Budget is a whole number of simulations, 4 to 100000"),
+                               (panel.workers, 4 * (os.cpu_count() or 1), "Workers is a whole number of processes"),
+                               (panel.seconds, 0.1, "Seconds per candidate is 0.5 to 60, not 0.1")):  # fmt: skip
+        before = field.value
+        field.value = value
+        with pytest.raises(ValueError, match=re.escape(says)):
+            panel.start()
+        field.value = before
     assert panel.run is None
 
 
