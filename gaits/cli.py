@@ -16,9 +16,10 @@ import argparse
 import sys
 from typing import TYPE_CHECKING
 
-from asm_py.cli import bounded, output_file, run
+from asm_py.cli import bounded, output_file, reader_gone, run
 
 from .distributed import scheduler_address
+from .metrics import unsigned_zero
 from .model import GaitError, load
 from .params import argument as free_argument
 from .table import format_table
@@ -30,6 +31,13 @@ if TYPE_CHECKING:
 
 
 def main(argv: list[str] | None = None) -> int:
+    try:
+        return _main(argv)
+    except BrokenPipeError:  # `gaits expand FILE | head`
+        return reader_gone()
+
+
+def _main(argv: list[str] | None) -> int:
     cli = argparse.ArgumentParser(prog="gaits", description=(__doc__ or "").splitlines()[0])
     commands = cli.add_subparsers(dest="command", required=True)
     validate = commands.add_parser("validate", help="check gait files")
@@ -180,12 +188,12 @@ def _print_metrics(terrain: Terrain, metrics: Metrics) -> None:
     )
     print(f"mean speed   {metrics.speed:.3f} m/s ({metrics.body_lengths / metrics.seconds * 10:.2f} BL per 10 s)")
     print(
-        f"heading      {metrics.heading:.1f} degrees from +x, drift {metrics.turned:.1f} degrees "
-        f"({metrics.heading_rate:.2f} degrees/s)"
+        f"heading      {unsigned_zero(metrics.heading, 1)} degrees from +x, drift {unsigned_zero(metrics.turned, 1)} "
+        f"degrees ({unsigned_zero(metrics.heading_rate, 2)} degrees/s)"
     )
     print(
-        f"cost         {metrics.cost_text()} cost of transport ({metrics.energy:.1f} J of joint work "
-        f"for {metrics.mass:.2f} kg)"
+        f"cost of transport {metrics.cost_text()}; {metrics.energy:.1f} J of joint work "
+        f"for {metrics.mass:.2f} kg"
     )
     print(f"peak torque  {metrics.peak_torque:.2f} N·m")
     print(f"fell         {'yes' if metrics.fell else 'no'}")

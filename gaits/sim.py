@@ -11,6 +11,7 @@ joint goals MuJoCo sees are therefore exactly what the modules command; nothing 
 
 from __future__ import annotations
 
+import logging
 import math
 import threading
 import time
@@ -36,6 +37,17 @@ from .model import Gait
 from .programs import mode_index
 from .servo import Servo
 from .terrain import FLAT, Terrain
+
+log = logging.getLogger("gaits.sim")
+
+
+def _warned(text: str) -> None:
+    """MuJoCo's warnings go to the log: its own handler printed them and wrote MUJOCO_LOG.TXT into whatever folder
+    the command ran in (a divergence is said anyway, as a FloatingPointError)."""
+    log.warning("MuJoCo: %s", text.strip())
+
+
+mujoco.set_mju_user_warning(_warned)
 
 
 class MujocoJoint(JointDriver):
