@@ -105,9 +105,9 @@ class TunePanel:
 
     def setup(self) -> Setup:
         terrains = GROUNDS[str(self.ground.value)] or (self.page.loop.terrain,)
-        seconds = float(self.seconds.value)
-        if not self.seconds.min <= seconds <= self.seconds.max:
-            raise ValueError(f"Seconds per candidate is {self.seconds.min:g} to {self.seconds.max:g}, not {seconds:g}")
+        seconds, low, high = float(self.seconds.value), float(self.seconds.min or 0.0), float(self.seconds.max or 0.0)
+        if not low <= seconds <= high:
+            raise ValueError(f"Seconds per candidate is {low:g} to {high:g}, not {seconds:g}")
         return Setup(str(self.objective.value), tuple(terrains), seconds=seconds, warmup=1.0)
 
     def _on_control(self, event: Any) -> None:
