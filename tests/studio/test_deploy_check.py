@@ -1,5 +1,6 @@
 """The Deploy tab checks a real robot against the edited gait's before deploying (gaits/compatible.py), in this
-process without a browser."""
+process without a browser. The
+Modules tab shows the types the modules say."""
 
 from __future__ import annotations
 
@@ -107,3 +108,17 @@ def test_a_question_shows_what_a_robot_says_as_written_never_as_markup() -> None
     assert confirm.asked == said and shown.startswith("**") and shown.endswith("**")
     assert not re.search(r"(?<!\\)[<>*\[\]()]", shown[2:-2]), shown  # no markup or tag character unescaped
     assert re.sub(r"\\(.)", r"\1", shown) == f"**{said}**", "each character is still there, escaped"
+
+
+def test_the_modules_tab_shows_each_modules_type(studio):
+    """issue 30's review, gap 16: the roster says what each module reports as its module.type, as written."""
+    from web.modules_panel import roster_markdown
+
+    app = studio.app
+    _typed_robot(studio)
+    app.modules._read()
+    rows = {line.split("|")[1].strip(): line.split("|") for line in app.modules.roster_md.content.splitlines()
+            if line.startswith("| m")}  # fmt: skip
+    assert [rows[f"m{k}"][3].strip() for k in range(1, 9)] == ["light"] * 3 + ["heavy"] * 2 + ["light"] * 3
+    table = roster_markdown(["m1", "m2"], {}, {}, {}, {"m1": "<b>x|y</b>"})
+    assert "| m1 | — | \\<b\\>x\\|y\\</b\\> | — | — |" in table and "| m2 | — | — | — | — |" in table
