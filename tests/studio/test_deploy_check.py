@@ -1,6 +1,5 @@
-"""The Deploy tab checks a real robot against the edited gait's before deploying (gaits/compatible.py), in this
-process without a browser. The
-Modules tab shows the types the modules say."""
+"""The Deploy tab checks a robot against the edited gait's before deploying (gaits/compatible.py, gaits.deploy's own
+type check), in this process without a browser; the Modules tab shows the types the modules say."""
 
 from __future__ import annotations
 
