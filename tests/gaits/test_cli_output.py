@@ -31,7 +31,8 @@ def test_a_reader_that_goes_away_ends_the_command_quietly(command: list[str]) ->
     assert "Traceback" not in err and "BrokenPipe" not in err and "Exception ignored" not in err, err
 
 
-def test_a_free_range_too_wide_for_a_number_is_a_usage_error(capsys) -> None:
+def test_a_free_range_too_wide_for_a_number_is_a_usage_error(capsys, monkeypatch, tmp_path) -> None:
+    monkeypatch.chdir(tmp_path)  # were it taken, the search would write its default file here
     with pytest.raises(SystemExit) as exit_:
         main(["tune", str(LIBRARY / "caterpillar.toml"), "--free", "amplitude=-1e308:1e308"])
     assert exit_.value.code == 2
