@@ -81,6 +81,7 @@ def library() -> ctypes.CDLL:
             lib.asm_host_goal.argtypes = [ctypes.c_void_p]
             lib.asm_host_goal.restype = ctypes.c_float
             lib.asm_module_set_type.argtypes = [ctypes.c_void_p, ctypes.c_char_p]
+            lib.asm_module_set_type.restype = ctypes.c_int
             _library = lib
         return _library
 

@@ -93,6 +93,8 @@ def input_file(text: str) -> Path:
 
 def output_file(text: str) -> Path:
     """A file that can be created: its directory exists."""
+    if not text:
+        raise argparse.ArgumentTypeError("an empty file name")
     path = Path(text)
     if path.is_dir():
         raise argparse.ArgumentTypeError(f"{text} is a directory, not a file name")
@@ -164,6 +166,16 @@ def close_and_exit(close: Callable[[], None], prog: str, grace: float = EXIT_GRA
     os._exit(code)
 
 
+def reader_gone() -> int:
+    """The end of a command whose output's reader went away (``… | head``): quietly, as a Unix filter ends. Standard
+    output is pointed at /dev/null, so the interpreter's last flush at exit finds no closed pipe to complain of
+    (Python's own recipe, "Note on SIGPIPE"); exit 1."""
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, sys.stdout.fileno())
+    os.close(devnull)
+    return 1
+
+
 def run(prog: str, body: Callable[[], int]) -> int:
     """Run a command's body; a failure found while running ends it with ``prog: error: …`` and exit 1."""
     import can
@@ -173,6 +185,8 @@ def run(prog: str, body: Callable[[], int]) -> int:
         return body()
     except KeyboardInterrupt:
         return 130
+    except BrokenPipeError:
+        return reader_gone()
     except (OSError, ValueError, RuntimeError, can.CanError, zenoh.ZError) as exc:
         print(f"{prog}: error: {describe(exc)}", file=sys.stderr)
         return 1

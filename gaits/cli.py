@@ -16,9 +16,10 @@ import argparse
 import sys
 from typing import TYPE_CHECKING
 
-from asm_py.cli import bounded, output_file, run
+from asm_py.cli import bounded, output_file, reader_gone, run
 
 from .distributed import scheduler_address
+from .metrics import unsigned_zero
 from .model import GaitError, load
 from .params import argument as free_argument
 from .table import format_table
@@ -30,6 +31,13 @@ if TYPE_CHECKING:
 
 
 def main(argv: list[str] | None = None) -> int:
+    try:
+        return _main(argv)
+    except BrokenPipeError:  # `gaits expand FILE | head`
+        return reader_gone()
+
+
+def _main(argv: list[str] | None) -> int:
     cli = argparse.ArgumentParser(prog="gaits", description=(__doc__ or "").splitlines()[0])
     commands = cli.add_subparsers(dest="command", required=True)
     validate = commands.add_parser("validate", help="check gait files")
@@ -77,9 +85,10 @@ def main(argv: list[str] | None = None) -> int:
                       help="simulated seconds measured per candidate (default 6)")  # fmt: skip
     tune.add_argument("--warmup", type=bounded(float, 0, 600, what="the warm-up"), default=1.0,
                       help="simulated seconds before measuring (default 1)")  # fmt: skip
-    tune.add_argument("--max-torque", type=bounded(float, above=0, high=100, what="the torque limit"), default=None,
-                      help="peak joint torque allowed, N·m (default 95%% of the gait's own servos' stall "
-                      "torque, [robot.module] stall_torque: 1.425 for the library module)")  # fmt: skip
+    tune.add_argument("--max-torque", type=bounded(float, above=0, high=10_000, what="the torque limit"), default=None,
+                      help="peak joint torque allowed, N·m, at most 10000 as a stall torque (default 95%% of the "
+                      "gait's own servos' stall torque, [robot.module] stall_torque: 1.425 for the library "
+                      "module)")  # fmt: skip
     tune.add_argument(
         "--gait",
         default="forward",
@@ -93,7 +102,8 @@ def main(argv: list[str] | None = None) -> int:
         "--out",
         type=output_file,
         metavar="OUT.toml",
-        help="the tuned gait (default: NAME.tuned.toml in the current folder, NAME the file's stem; never over FILE)",
+        help="the tuned gait (default: NAME.tuned.toml in the current folder, NAME the file's stem; never over FILE "
+        "or its robot file)",
     )
     args = cli.parse_args(argv)
     if args.command == "simulate":
@@ -142,6 +152,7 @@ def _simulate(args: argparse.Namespace) -> int:
     """One run per terrain; each prints its metrics."""
     from pathlib import Path
 
+    from .output import refused
     from .sim import Simulation  # MuJoCo loads only for this command
 
     try:
@@ -150,12 +161,12 @@ def _simulate(args: argparse.Namespace) -> int:
         _report(args.file, exc)
         return 1
     robot = gait.robot
+    why = refused(Path(args.mjcf), args.file, gait) if args.mjcf else None
+    if why is not None:
+        print(f"gaits simulate: error: --mjcf {args.mjcf} {why}", file=sys.stderr)
+        return 2
     timing = f"period {gait.period:g} s" if gait.timed else "timed by events"
     print(f"{gait.name}: {robot.modules}-module {robot.shape}, {timing}, direction {args.direction:+d}")
-    if args.mjcf and Path(args.mjcf).exists() and Path(args.mjcf).samefile(args.file):
-        print(f"gaits simulate: error: --mjcf {args.mjcf} is the gait file itself: it would be overwritten",
-              file=sys.stderr)  # fmt: skip
-        return 2
     for k, terrain in enumerate(args.terrain or [FLAT]):
         with Simulation(gait, direction=args.direction, terrain=terrain) as sim:
             if args.mjcf and k == 0:
@@ -177,13 +188,10 @@ def _print_metrics(terrain: Terrain, metrics: Metrics) -> None:
     )
     print(f"mean speed   {metrics.speed:.3f} m/s ({metrics.body_lengths / metrics.seconds * 10:.2f} BL per 10 s)")
     print(
-        f"heading      {metrics.heading:.1f} degrees from +x, drift {metrics.turned:.1f} degrees "
-        f"({metrics.heading_rate:.2f} degrees/s)"
+        f"heading      {unsigned_zero(metrics.heading, 1)} degrees from +x, drift {unsigned_zero(metrics.turned, 1)} "
+        f"degrees ({unsigned_zero(metrics.heading_rate, 2)} degrees/s)"
     )
-    print(
-        f"cost         {metrics.cost_text()} cost of transport ({metrics.energy:.1f} J of joint work "
-        f"for {metrics.mass:.2f} kg)"
-    )
+    print(f"cost of transport {metrics.cost_text()}; {metrics.energy:.1f} J of joint work for {metrics.mass:.2f} kg")
     print(f"peak torque  {metrics.peak_torque:.2f} N·m")
     print(f"fell         {'yes' if metrics.fell else 'no'}")
     print(f"stuck        {'yes' if metrics.stuck else 'no'}")

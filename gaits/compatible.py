@@ -75,10 +75,9 @@ def mismatches(gait: Gait, present: Iterable[str], limits: Mapping[str, tuple[fl
     for name, module_id in sorted(wanted.items(), key=lambda item: item[1]):
         described, reported = robot.type_name(module_id), (types or {}).get(name, "")
         compared = bool(described and reported)  # both name a type: the names say it, not the range
-        if compared and reported != described:
-            where = f"robot.types.{described}"
-            lines.append(f"{name} is module type {reported}, the gait describes {described} ({where}): another "
-                         "type of module than the one simulated")  # fmt: skip
+        other = type_mismatch(gait, module_id, name, reported)
+        if other is not None:
+            lines.append(other)
         if name not in limits:
             continue
         low, high = limits[name]
@@ -98,6 +97,18 @@ def mismatches(gait: Gait, present: Iterable[str], limits: Mapping[str, tuple[fl
             lines.append(f"{name} holds {info['max_states']} states, the gait gives it {needed[module_id]}: it "
                          "would refuse the table")  # fmt: skip
     return lines
+
+
+def type_mismatch(gait: Gait, module_id: int, name: str, reported: str) -> str | None:
+    """The line that says module ``module_id`` (node ``name``) is another type than the gait describes for it, where
+    both name a type (``reported`` its module.type, "": it says none); None when they agree or cannot be compared.
+    The same words wherever a deploy is checked (the Deploy tab's question, gaits.deploy's own check), so a line a
+    user accepted is recognised."""
+    described = gait.robot.type_name(module_id)
+    if not (described and reported) or reported == described:
+        return None
+    return (f"{name} is module type {reported}, the gait describes {described} (robot.types.{described}): another "
+            "type of module than the one simulated")  # fmt: skip
 
 
 def read_objects(lookup: Any, names: Iterable[str], object_name: str, timeout: float = 2.0) -> dict[str, Any]:

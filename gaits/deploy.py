@@ -2,7 +2,9 @@
 
 A deploy never leaves a robot half running a new gait (docs/protocol.md §9, "Deployment"):
 
-1. **check** — every table fits one message (nothing is sent otherwise);
+1. **check** — every table fits one message, and every module that says its type (``module.type``) is of the type
+   the gait describes for it (gaits/compatible.py), unless the caller accepts the difference (``accept``: the lines
+   a user was shown and said yes to); nothing is sent otherwise (:class:`RobotMismatch` lists what differs);
 2. **lease** — take ``gait.lease`` on every module, in module order, so a second deployer is told who holds the
    robot and changes nothing; a module whose e-stop is latched refuses the lease (ESTOP). The lease is held, and
    renewed, until the deploy ends — through the user's "Start" and any cleanup (gaits/lease.py);
@@ -27,7 +29,7 @@ from __future__ import annotations
 
 import secrets
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Collection, Sequence
 from dataclasses import dataclass, field
 
 from asm_module.names import module_name
@@ -36,15 +38,25 @@ from asm_py import Node
 from asm_py.transport.base import BROADCAST
 
 from .calls import DeployError, ModuleCalls
+from .compatible import type_mismatch
 from .lease import Lease, default_holder
 from .model import Gait
 from .programs import module_program
 
-__all__ = ["DeployError", "DeployReport", "activate", "deploy", "module_name", "module_tables", "release_all",
-           "start_all", "stop_all"]  # fmt: skip
+__all__ = ["DeployError", "DeployReport", "RobotMismatch", "activate", "deploy", "module_name", "module_tables",
+           "release_all", "start_all", "stop_all"]  # fmt: skip
 
 CALL_TIMEOUT = 2.0
 """Seconds one call to a module may take at most (the adaptive timeout is usually far shorter)."""
+
+
+class RobotMismatch(DeployError):
+    """The robot's modules say they are other types than the gait describes: nothing was sent. ``problems`` are the
+    lines to show a user; deploying again with them in ``accept`` goes ahead knowingly."""
+
+    def __init__(self, problems: list[str]) -> None:
+        self.problems = problems
+        super().__init__("check: not the robot this gait was made for: " + "; ".join(problems))
 
 
 @dataclass
@@ -84,13 +96,15 @@ def deploy(
     start: bool = True,
     deadline: float | None = None,
     holder: str | None = None,
+    accept: Collection[str] = (),
 ) -> DeployReport:
     """Stage, verify and (``start``) activate ``gait`` on its modules; see the module docstring.
 
     ``progress(done, total, message)`` is called after each module is staged and after activation. ``direction``
     -1 deploys the gait reversed. ``timeout`` bounds each call, ``attempts`` how often a timed-out call is tried,
     ``deadline`` (seconds, default 2 s + 0.25 s per module) the activation's confirmation. With ``start`` False the
-    gait is staged only, its lease kept: :func:`activate` starts it later.
+    gait is staged only, its lease kept: :func:`activate` starts it later. ``accept``: the lines of a
+    :class:`RobotMismatch` the caller goes ahead despite (any other difference is still refused).
     """
     tables = module_tables(gait)
     deploy_id = secrets.randbits(32) or 1
@@ -102,6 +116,9 @@ def deploy(
             raise DeployError(f"module {a.id} ({name_of(a.id)}), check: {exc}") from None
     calls = ModuleCalls(node, {a.id: name_of(a.id) for a in gait.modules}, timeout, attempts)
     ids = sorted(records)
+    problems = [line for m in ids if (line := type_mismatch(gait, m, calls.names[m], _reported_type(calls, m)))]
+    if any(line not in accept for line in problems):
+        raise RobotMismatch(problems)
     report = DeployReport(gait.name, deploy_id)
     lease = Lease(calls, ids, holder or default_holder(node), deploy_id)
     try:
@@ -128,6 +145,16 @@ def deploy(
     else:
         report.lease = lease
     return report
+
+
+def _reported_type(calls: ModuleCalls, module: int) -> str:
+    """Module ``module``'s module.type; "" when it has none (a module older than the object says nothing)."""
+    try:
+        return str(calls.peek(module, "module.type", "check"))
+    except DeployError as exc:
+        if isinstance(exc.__cause__, LookupError):
+            return ""
+        raise
 
 
 def activate(

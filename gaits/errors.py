@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 from asm_py.errors import AsmError
 
@@ -17,10 +17,13 @@ class Problem:
     message: str
     line: int | None = None
     """1-based line in the file (None only for a document built in memory, which has no lines)."""
+    file: str | None = None
+    """The file the problem is in when it is not the gait file itself: the robot file it names (gaits/robot.py)."""
 
     def __str__(self) -> str:
-        where = f"line {self.line}: " if self.line else ""
-        return f"{where}{self.path}: {self.message}"
+        where = [self.file] if self.file is not None else []
+        where += [f"line {self.line}"] if self.line else []
+        return f"{', '.join(where)}{': ' if where else ''}{self.path}: {self.message}"
 
 
 class GaitError(AsmError, ValueError):
@@ -33,9 +36,8 @@ class GaitError(AsmError, ValueError):
         self.problems = problems[:MAX_LISTED]
         self.more = more + max(0, len(problems) - MAX_LISTED)
         self._rest = f"and {'at least ' if more_is_lower_bound else ''}{self.more} more" if self.more else ""
-        super().__init__(
-            f"{source}: " + "; ".join([str(p) for p in self.problems] + ([self._rest] if self._rest else []))
-        )
+        said = [str(replace(p, file=None) if p.file == source else p) for p in self.problems]  # named once
+        super().__init__(f"{source}: " + "; ".join(said + ([self._rest] if self._rest else [])))
 
     def lines(self) -> list[str]:
         """One line per listed problem, and a last one counting those not listed."""

@@ -93,3 +93,8 @@ class Metrics:
                 f"heading drift {self.turned:.1f}°, cost of transport {self.cost_text()}, "
                 f"fell {'yes' if self.fell else 'no'}, stuck {'yes' if self.stuck else 'no'}, "
                 f"real-time factor {self.real_time_factor:.1f}")  # fmt: skip
+
+
+def unsigned_zero(value: float, digits: int) -> str:
+    """``value`` to ``digits`` decimals, never "-0" (a heading of -0.3° is shown as 0°, not -0°)."""
+    return f"{round(value, digits) + 0.0:.{digits}f}"

@@ -75,8 +75,8 @@ def parse_free(text: str) -> Free:
         low, high = float(low_text), float(high_text)
     except ValueError:
         raise ValueError(f"free parameter {text!r}: LOW and HIGH must be numbers") from None
-    if not (math.isfinite(low) and math.isfinite(high) and low < high):
-        raise ValueError(f"free parameter {text!r}: needs finite LOW < HIGH")
+    if not (math.isfinite(low) and math.isfinite(high) and low < high and math.isfinite(high - low)):
+        raise ValueError(f"free parameter {text!r}: needs finite LOW < HIGH (and HIGH - LOW finite)")
     free = Free(name.strip(), low, high)
     known = _STATE.match(free.name) or _PHASE.match(free.name) or _AMPLITUDE.match(free.name)
     if not known and free.name not in ("period", "wavelength"):

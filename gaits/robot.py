@@ -16,14 +16,12 @@ from __future__ import annotations
 
 import math
 import os
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
 
-from jsonschema import Draft202012Validator
-
-from .errors import GaitError, Problem
-from .validate import SCHEMA, Checker, brief, decode, parse, read
+from .errors import GaitError
+from .validate import SCHEMA, Checker, Validator, brief, decode, parse, read
 
 
 @dataclass
@@ -136,7 +134,7 @@ class Robot:
 # -- reading --------------------------------------------------------------------------------------------------------
 
 _ROBOT = SCHEMA["properties"]["robot"]
-_FILE_VALIDATOR = Draft202012Validator({
+_FILE_VALIDATOR = Validator({
     "$schema": SCHEMA["$schema"], "$defs": SCHEMA["$defs"], "type": "object", "additionalProperties": False,
     "required": ["robot"],
     "properties": {"description": SCHEMA["properties"]["description"],
@@ -177,34 +175,39 @@ def _robot_file(name: str, gait: Checker, path: Path | None) -> tuple[dict[str, 
         gait.bad("robot.file", f"this gait has no folder to find {brief(name)} in (an upload, an edited copy): "
                                "describe the modules in its [robot] instead")  # fmt: skip
         return None
-    folder = path.resolve().parent
+    shown = str(path.parent / name)  # as a person finds it: beside the gait file, as that was named
     try:
+        folder = path.resolve().parent
         if Path(name).is_absolute():
             raise _Refused("must be a path relative to the gait file's folder, not an absolute one")
-        found = (folder / name).resolve()
+        raw = os.path.join(folder, name)  # as the system reads the name: pathlib drops the "/" of "robot.toml/"
+        found = Path(raw).resolve()
         if not found.is_relative_to(folder):
             raise _Refused("lies outside the gait file's folder: a gait may only name files beside or below it")
         if not found.exists():
             raise _Refused("no such file beside the gait file")
-        if not found.is_file():
+        if not os.path.isfile(raw) or name.endswith("/"):
             raise _Refused("is not a regular file")
         if found == path.resolve() or (path.exists() and os.path.samefile(found, path)):
             raise _Refused("names the gait file itself: a robot file holds the [robot] description only")
-        text = decode(read(found), str(found))
+        text = decode(read(found), shown)
+        data = parse(text, shown)
     except _Refused as refused:
         gait.bad("robot.file", f"{brief(name)} {refused}")
         return None
-    except GaitError:  # not UTF-8, or larger than a gait file: said with the robot file's own name
-        raise
-    except (OSError, ValueError) as exc:  # unreadable, a name the system refuses (a NUL byte, too long)
+    except GaitError as exc:  # not UTF-8, larger than a gait file, not TOML: said with the robot file's own name
+        raise GaitError(shown, [replace(p, file=shown) for p in exc.problems], more=exc.more) from None
+    except RuntimeError:  # Path.resolve (before Python 3.13) on symbolic links that name each other
+        gait.bad("robot.file", f"{brief(name)} cannot be read: its symbolic links form a loop")
+        return None
+    except (OSError, ValueError) as exc:  # unreadable, a name the system refuses (a NUL byte, too long), a loop
         gait.bad("robot.file", f"{brief(name)} cannot be read: {type(exc).__name__}")
         return None
-    data = parse(text, str(found))
-    check = Checker(str(found), text)
+    check = Checker(shown, text, file=shown)
     robot = data.get("robot")
     if isinstance(robot, dict) and "file" in robot:
-        raise GaitError(str(found), [Problem("robot.file", "a robot file cannot name another robot file",
-                                             check.line("robot.file"))])  # fmt: skip
+        check.bad("robot.file", "a robot file cannot name another robot file")
+        check.raise_if()
     check.check_structure(data, _FILE_VALIDATOR)
     return data["robot"], check
 
@@ -232,10 +235,13 @@ def _describe(robot: Robot, described: dict[str, Any], check: Checker, gait: Che
         if "module" in described:
             check.bad("robot.type", "give robot.type (the named type of every module no type lists) or robot.module "
                                     "(one unnamed type), not both")  # fmt: skip
-        elif name not in types:
+        if name not in types:
             check.bad("robot.type", f"unknown module type {brief(name)} (described: {', '.join(types) or 'none'})")
         else:
             robot.type, robot.module, default, where = name, robot.types[name], types[name], f"robot.types.{name}"
+            if "ids" in default:
+                check.bad(f"{where}.ids", "the default type (robot.type) is every module no other type lists: it "
+                                          "has no ids of its own")  # fmt: skip
     if "length" in default:
         if not sized:
             robot.module_size = default["length"]  # what measures the default module reads module_size
@@ -243,25 +249,43 @@ def _describe(robot: Robot, described: dict[str, Any], check: Checker, gait: Che
             check.bad(f"{where}.length", f"{default['length']} m differs from robot.module_size {robot.module_size} m:"
                                          " give one of them")  # fmt: skip
     _check_ids(robot, types, check)
+    if ("type" in described or "module" in described) and all(
+        any(k in t.ids for t in robot.types.values() if t is not robot.module) for k in range(1, robot.modules + 1)
+    ):
+        check.bad(where if "module" in described else "robot.type", "no module is of the default type: the named "
+                  "types list every module (leave the default type out, or list fewer modules)")  # fmt: skip
     if robot.shape == "loop" and len({robot.size_of(k)[0] for k in range(1, robot.modules + 1)}) > 1:
         check.bad("robot.types", "a loop's modules must share one length (its polygon closes only with equal sides)")
-    low, high = limits
     tables = {"robot.module": described.get("module", {})} | {f"robot.types.{n}": t for n, t in types.items()}
     for path, table in tables.items():
         if "inertia" in table:
             _check_inertia(robot, path, _module_type(table), check)
-        span = table.get("range")
-        if span is not None and low < high and not -span <= low < high <= span:
-            what = "the module's joint range" if path == "robot.module" else f"the joint range of module type " \
-                   f"{path.rsplit('.', 1)[1]}"  # fmt: skip
-            gait.bad("limits", f"{low}..{high}° exceeds {what} ±{span}° ({path}.range)")
+    _check_range(robot, tables, gait, limits)
+
+
+def _check_range(robot: Robot, tables: dict[str, Any], gait: Checker, limits: tuple[float, float]) -> None:
+    """``[limits]`` within the hinge range of every module's type, said or not (90°): the simulated modules' hardware
+    range is their type's (gaits/sim.py), and a module's soft limits lie within it."""
+    low, high = limits
+    if not low < high:
+        return
+    kinds = {robot.type_name(k) for k in range(1, robot.modules + 1)}
+    for name in sorted(kinds):
+        path = f"robot.types.{name}" if name else "robot.module"
+        span = (robot.types[name] if name else robot.module).range
+        if -span <= low < high <= span:
+            continue
+        what = f"the joint range of module type {name}" if name else "the module's joint range"
+        given = "range" in tables.get(path, {})
+        gait.bad("limits", f"{low}..{high}° exceeds {what} ±{span}° ({path}.range"
+                           + (")" if given else ", 90 unless given: give your modules' range)"))  # fmt: skip
 
 
 def _check_ids(robot: Robot, types: dict[str, Any], check: Checker) -> None:
     """Each module is of one named type at most, IDs exist, and every named type is some module's."""
     seen: dict[int, str] = {}
     for name, table in types.items():
-        for k, module_id in enumerate(table.get("ids", [])):
+        for k, module_id in enumerate(table.get("ids", []) if name != robot.type else []):
             where = f"robot.types.{name}.ids[{k}]"
             if module_id > robot.modules:
                 check.bad(where, f"must be a module ID 1..{robot.modules} (the gait's robot.modules), not {module_id}")

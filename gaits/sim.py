@@ -11,6 +11,7 @@ joint goals MuJoCo sees are therefore exactly what the modules command; nothing 
 
 from __future__ import annotations
 
+import logging
 import math
 import threading
 import time
@@ -36,6 +37,17 @@ from .model import Gait
 from .programs import mode_index
 from .servo import Servo
 from .terrain import FLAT, Terrain
+
+log = logging.getLogger("gaits.sim")
+
+
+def _warned(text: str) -> None:
+    """MuJoCo's warnings go to the log: its own handler printed them and wrote MUJOCO_LOG.TXT into whatever folder
+    the command ran in (a divergence is said anyway, as a FloatingPointError)."""
+    log.warning("MuJoCo: %s", text.strip())
+
+
+mujoco.set_mju_user_warning(_warned)
 
 
 class MujocoJoint(JointDriver):
@@ -200,18 +212,20 @@ class Simulation:
                 hub.watch(assignment.id, lambda state, i=assignment.id: self._states.__setitem__(i, state))
         for assignment in gait.modules:
             driver = MujocoJoint(self, assignment.id)
+            span = gait.robot.module_type(assignment.id).range
+            hardware = (-span, span)  # its type's hinge, as the MJCF's joint: the loader keeps [limits] within it
             if assignment.id in emulated_modules:
                 from asm_module.emulated import EmulatedModule  # Unicorn is loaded only when a board is emulated
 
                 serial, flash = board_flash.board(assignment.id) if board_flash is not None else (None, None)
                 self.modules[assignment.id] = EmulatedModule(module_name(assignment.id), 0 if flash else assignment.id,
-                    driver=driver, clock=self.clock, tick=self.tick, hardware_range=gait.limits, serial=serial,
+                    driver=driver, clock=self.clock, tick=self.tick, hardware_range=hardware, serial=serial,
                     settings=flash, **dict(bus_options or {}))  # fmt: skip
                 continue
             kind = gait.robot.type_name(assignment.id)  # what the module reports as its module.type
             if assignment.id in c_modules:
                 self.modules[assignment.id] = CModule(module_name(assignment.id), assignment.id, driver=driver,
-                                                      clock=self.clock, tick=self.tick, hardware_range=gait.limits,
+                                                      clock=self.clock, tick=self.tick, hardware_range=hardware,
                                                       hub=hub if bus_options is None else None, module_type=kind,
                                                       **dict(bus_options or {}))  # fmt: skip
                 continue
@@ -219,7 +233,8 @@ class Simulation:
             if node is not None:
                 self._nodes.append(node)
             self.modules[assignment.id] = ModuleRuntime(driver, node=node, clock=self.clock, tick=self.tick,
-                                                        limits=gait.limits, ramp=ramp, inline=True,
+                                                        limits=gait.limits, hardware_range=hardware, ramp=ramp,
+                                                        inline=True,
                                                         module_id=assignment.id, neighbours=hub,
                                                         module_type=kind)  # fmt: skip
         mujoco.mj_forward(self.model, self.data)

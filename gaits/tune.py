@@ -24,7 +24,6 @@ from __future__ import annotations
 import itertools
 import math
 import os
-import signal
 import time
 import warnings
 from collections.abc import Callable
@@ -37,6 +36,7 @@ import numpy as np
 from .model import FORWARD, Gait, GaitError, dumps, from_dict, to_dict
 from .params import Free, apply, check, current
 from .terrain import FLAT, Terrain
+from .workers import end_workers, start_worker
 
 OBJECTIVES = {"speed": (1.0, "m/s"), "cost_of_transport": (-1.0, ""), "heading_rate": (1.0, "°/s")}
 """Objective → (+1: maximised, -1: minimised; its unit)."""
@@ -167,11 +167,6 @@ def _evaluate_job(job: tuple[dict[str, Any], Setup]) -> Outcome:
     return outcome
 
 
-def ignore_sigint() -> None:
-    """Workers leave Ctrl-C to the parent, which stops the search and keeps the best so far."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-
-
 @dataclass
 class Result:
     """The search's outcome: the best candidate that met every constraint (None if none did)."""
@@ -243,7 +238,7 @@ def tune(gait: Gait, frees: list[Free], setup: Setup, *, budget: int = 60, seed:
     if len(x0) == 1:  # cma searches 2 or more dimensions: one free parameter gets a dummy one, ignored
         x0 = np.append(x0, 0.5)
     own = executor is None
-    pool = executor or ProcessPoolExecutor(max_workers=workers or os.cpu_count() or 1, initializer=ignore_sigint)
+    pool = executor or ProcessPoolExecutor(max_workers=workers or os.cpu_count() or 1, initializer=start_worker)
     result = Result(None, [], math.nan, math.nan, "", setup=setup)
     result.start_inside = all(f.low <= v <= f.high for f, v in zip(frees, start, strict=True))
     sign = OBJECTIVES[setup.objective][0]
@@ -295,7 +290,7 @@ def tune(gait: Gait, frees: list[Free], setup: Setup, *, budget: int = 60, seed:
             result.history.append(result.value)
             if progress is not None:
                 best = min((o for o in outcomes if o.feasible), key=lambda o: -sign * o.value, default=None)
-                progress(result, _line(result, setup, best, outcomes, float(es.sigma)))
+                progress(result, _line(result, setup, best, outcomes, float(es.sigma), budget))
         _verify(result, leaders, pool, setup, fallback)  # the start checked beside the first leaders
     except KeyboardInterrupt:
         result.interrupted = True
@@ -309,6 +304,8 @@ def tune(gait: Gait, frees: list[Free], setup: Setup, *, budget: int = 60, seed:
     finally:
         if own:
             pool.shutdown(wait=not result.interrupted, cancel_futures=True)
+            if result.interrupted:
+                end_workers(pool)
     return result
 
 
@@ -385,10 +382,11 @@ def _strategy(x0: np.ndarray, seed: int, popsize: int | None, budget: int) -> An
     return cma.CMAEvolutionStrategy(x0.tolist(), 0.3, options)
 
 
-def _line(result: Result, setup: Setup, best: Outcome | None, outcomes: list[Outcome], sigma: float) -> str:
+def _line(result: Result, setup: Setup, best: Outcome | None, outcomes: list[Outcome], sigma: float,
+          budget: int) -> str:  # fmt: skip
     gen = f"{best.value:.4g}" if best is not None else "none valid"
     refused = sum(not o.feasible for o in outcomes)
-    return (f"generation {result.generations}: {result.evaluations} simulations, best {setup.objective} "
+    return (f"generation {result.generations}: {result.evaluations} of {budget} simulations, best {setup.objective} "
             f"{'none yet' if math.isnan(result.value) else amount(result.value, setup)} (this generation {gen}, "
             f"{refused} refused), "
             f"sigma {sigma:.3f}")  # fmt: skip
@@ -412,15 +410,30 @@ def provenance(result: Result, frees: list[Free], setup: Setup, *, budget: int, 
         f"Tuned by `gaits tune` from {source}: objective {setup.objective} ({goal}), seed {seed}, budget {budget} "
         f"({result.evaluations} simulated{', interrupted' if result.interrupted else ''})",
         f"gait {setup.gait}; terrains {', '.join(t.spec for t in setup.terrains)}; {setup.seconds:g} s measured after "
-        f"{setup.warmup:g} s"
-        + (
-            f"; forward = {setup.forward + 0.0:g}° from +x (the start's direction)" if setup.forward is not None else ""
-        ),
+        f"{setup.warmup:g} s" + _forward(setup),
         f"score {setup.objective} {amount(result.value, setup)} (start {start})",
         f"constraints: {limit} (warm-up included), no fall, joint limits (the loader's); {checked}",
         *(f"free {f} = {v:g}" for f, v in zip(frees, result.values, strict=True)),
     ]
     return "".join(f"# {line}\n" for line in lines)
+
+
+def _forward(setup: Setup) -> str:
+    if setup.forward is not None:
+        return f"; forward = {setup.forward + 0.0:g}° from +x (the start's direction)"
+    if setup.objective == "cost_of_transport" or setup.objective == "speed":
+        return f"; forward: none ({STILL})"
+    return ""
+
+
+STILL = "the start moved less than a tenth of a body length, so distance counts whichever way"
+"""Why a search has no forward direction (Setup.forward None): the start hardly moves."""
+
+
+def source_of(name: str, gait: Gait) -> str:
+    """What a tuned file was tuned from, as its provenance says: ``name``, and the robot file that describes its
+    modules (the tuned file carries the description written in)."""
+    return name + (f" (its modules described by the robot file {gait.robot.file})" if gait.robot.file else "")
 
 
 def tuned_text(result: Result, frees: list[Free], setup: Setup, *, budget: int, seed: int, source: str) -> str:

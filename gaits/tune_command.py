@@ -4,29 +4,65 @@ as a scheduler's ``timeout`` sends it — and say how it went in one line per ou
 from __future__ import annotations
 
 import argparse
+import math
 import signal
 import sys
-import threading
 from pathlib import Path
+from typing import TextIO
 
-from .model import GaitError, load
+from tqdm import tqdm
+
+from .model import Gait, GaitError, load
+from .output import refused
 from .params import Free, check, current
 from .terrain import FLAT
-from .tune import Progress, Setup, amount, tune, tuned_text
+from .tune import STILL, Result, Setup, amount, source_of, tune, tuned_text
 
 
-def _terminate_as_interrupt() -> threading.Event:
-    """SIGTERM raises KeyboardInterrupt in the main thread, as Ctrl-C does: the best so far is kept and written, and
-    the worker processes are shut down (killed outright, the parent would leave them orphaned). The event says a
-    SIGTERM came (exit 143, not 130)."""
-    terminated = threading.Event()
+def _interrupt_once() -> list[int]:
+    """Ctrl-C and SIGTERM raise KeyboardInterrupt in the main thread, once: the search stops, its workers end
+    (killed outright, the parent would leave them orphaned) and the best so far is written. From then on both are
+    ignored: a second Ctrl-C interrupted the wrap-up or the interpreter's exit, left a traceback and hung the command
+    on its pool half shut down. The list holds the signal that came (SIGTERM: exit 143, not 130)."""
+    came: list[int] = []
 
-    def interrupt(*_: object) -> None:
-        terminated.set()
+    def interrupt(number: int, _: object) -> None:
+        _ignore_signals()
+        came.append(number)
         raise KeyboardInterrupt
 
+    signal.signal(signal.SIGINT, interrupt)
     signal.signal(signal.SIGTERM, interrupt)
-    return terminated
+    return came
+
+
+def _ignore_signals() -> None:
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+
+
+class Bar:
+    """The search's progress on stderr: a bar of the simulations done out of the budget, with the best so far, on a
+    terminal (tqdm); one line per generation, saying how many of the budget, where stderr is a file or a pipe."""
+
+    def __init__(self, budget: int, setup: Setup, stream: TextIO | None = None) -> None:
+        self.setup = setup
+        self.stream: TextIO = stream or sys.stderr
+        self.bar = tqdm(total=budget, file=self.stream, desc="tuning", dynamic_ncols=True,
+                        disable=not self.stream.isatty(),
+                        bar_format="{desc} {percentage:3.0f}%|{bar}| {n}/{total} simulations "
+                        "[{elapsed}<{remaining}]{postfix}")  # fmt: skip
+
+    def __call__(self, result: Result, line: str) -> None:
+        if self.bar.disable:
+            print(line, file=self.stream, flush=True)
+            return
+        best = "none yet" if math.isnan(result.value) else amount(result.value, self.setup)
+        self.bar.set_postfix_str(f"best {self.setup.objective} {best}", refresh=False)
+        self.bar.update(result.evaluations - self.bar.n)
+
+    def close(self) -> None:
+        self.bar.close()
 
 
 def command(args: argparse.Namespace) -> int:
@@ -41,9 +77,9 @@ def command(args: argparse.Namespace) -> int:
     frees: list[Free] = args.free
     setup = Setup(args.objective, tuple(args.terrain or [FLAT]), args.seconds, args.warmup, args.max_torque, args.gait)
     out = Path(args.out) if args.out else Path(Path(args.file).stem + ".tuned.toml")  # here, not beside the library
-    if out.resolve() == Path(args.file).resolve() or (out.exists() and out.samefile(args.file)):  # a hard link too
-        print(f"gaits tune: error: --out {out} is the gait being tuned: write the tuned gait to another file",
-              file=sys.stderr)  # fmt: skip
+    why = refused(out, args.file, gait)  # before the search: an hour's work must not end unwritable
+    if why is not None:
+        print(f"gaits tune: error: --out {out} {why}: write the tuned gait to another file", file=sys.stderr)
         return 2
     try:  # the free parameters against this gait, before anything starts: a usage error, as a bad one's syntax is
         check(gait, frees)
@@ -52,23 +88,43 @@ def command(args: argparse.Namespace) -> int:
         return 2
     print(f"tuning {gait.name}: {len(frees)} free, {args.objective}, budget {args.budget}, seed {args.seed}",
           file=sys.stderr)  # fmt: skip
-    progress: Progress = lambda _, line: print(line, file=sys.stderr, flush=True)  # noqa: E731
-    terminated = _terminate_as_interrupt()  # a scheduler's SIGTERM or `timeout` ends it as Ctrl-C does
-    if args.scheduler:
-        from .distributed import dask_executor
-
-        try:
-            with dask_executor(args.scheduler) as (executor, width):
-                print(f"evaluating on the Dask scheduler at {args.scheduler}: {width} worker thread(s)",
-                      file=sys.stderr)  # fmt: skip
-                result = tune(gait, frees, setup, budget=args.budget, seed=args.seed, workers=width,
-                              progress=progress, executor=executor)  # fmt: skip
-        except (OSError, RuntimeError) as exc:
-            print(f"gaits tune: error: the Dask scheduler at {args.scheduler}: {exc}", file=sys.stderr)
+    handlers = signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)
+    came = _interrupt_once()  # a scheduler's SIGTERM or `timeout` ends it as Ctrl-C does
+    bar = Bar(args.budget, setup)
+    try:
+        result = _search(args, gait, frees, setup, bar)
+        _ignore_signals()  # the search is over: the file is written whole
+        bar.close()
+        if result is None:
             return 1
-    else:
-        result = tune(gait, frees, setup, budget=args.budget, seed=args.seed, workers=args.workers,
-                      progress=progress)  # fmt: skip
+        return _wrap_up(args, gait, frees, setup, result, out, 143 if signal.SIGTERM in came else 130)
+    finally:
+        bar.close()
+        if not came:  # interrupted, the process is ending: a signal now would only interrupt its exit
+            signal.signal(signal.SIGINT, handlers[0])
+            signal.signal(signal.SIGTERM, handlers[1])
+
+
+def _search(args: argparse.Namespace, gait: Gait, frees: list[Free], setup: Setup, bar: Bar) -> Result | None:
+    """The search, on local workers or a Dask scheduler's (None: the scheduler could not be used)."""
+    if not args.scheduler:
+        return tune(gait, frees, setup, budget=args.budget, seed=args.seed, workers=args.workers, progress=bar)
+    from .distributed import dask_executor
+
+    try:
+        with dask_executor(args.scheduler) as (executor, width):
+            print(f"evaluating on the Dask scheduler at {args.scheduler}: {width} worker thread(s)", file=sys.stderr)
+            return tune(gait, frees, setup, budget=args.budget, seed=args.seed, workers=width, progress=bar,
+                        executor=executor)  # fmt: skip
+    except (OSError, RuntimeError) as exc:
+        bar.close()
+        print(f"gaits tune: error: the Dask scheduler at {args.scheduler}: {exc}", file=sys.stderr)
+        return None
+
+
+def _wrap_up(args: argparse.Namespace, gait: Gait, frees: list[Free], setup: Setup, result: Result, out: Path,
+             stopped: int) -> int:  # fmt: skip
+    """Say how the search went and write the best gait (or say why nothing is written)."""
     if result.failure:
         print(f"gaits tune: error: the Dask scheduler at {args.scheduler} stopped answering ({result.failure}): "
               "keeping the best so far", file=sys.stderr)  # fmt: skip
@@ -77,8 +133,9 @@ def command(args: argparse.Namespace) -> int:
     elif result.verify_refused:
         print(f"{result.verify_refused} leading candidate(s) broke a constraint or did worse than the start when "
               f"run {setup.verify:g} times longer and were passed over", file=sys.stderr)  # fmt: skip
-    signal.signal(signal.SIGTERM, signal.SIG_DFL)
-    stopped = 143 if terminated.is_set() else 130
+    if result.setup is not None and result.setup.forward is None and args.objective != "heading_rate":
+        print(f"warning: {STILL}: can this robot move this gait? (a module's kp must grow with its stall_torque "
+              "and mass: gaits/README.md)", file=sys.stderr)  # fmt: skip
     if result.best is None:
         inside = "" if result.start_inside else " inside the bounds (the start lies outside them)"
         start = f"; the start: {result.start_problem}" if result.start_problem else ""
@@ -89,10 +146,19 @@ def command(args: argparse.Namespace) -> int:
         return stopped if result.interrupted and not result.failure else 1
     if result.start_inside and result.values == [current(gait, f) for f in frees]:
         print("no candidate beat the start inside the bounds: the start is written again", file=sys.stderr)
-    out.write_text(tuned_text(result, frees, setup, budget=args.budget, seed=args.seed, source=Path(args.file).name),
-                   encoding="utf-8")  # fmt: skip
+    text = tuned_text(result, frees, setup, budget=args.budget, seed=args.seed,
+                      source=source_of(Path(args.file).name, gait))  # fmt: skip
     if result.verified:
         print(f"over the {setup.seconds * setup.verify:g} s check run: {args.objective} "
               f"{amount(result.verify_value, setup)}", file=sys.stderr)  # fmt: skip
-    print(f"{args.objective} {amount(result.value, setup)} (start {result.start_value:.4g}); written to {out}")
+    values = ", ".join(f"{f} = {v:g}" for f, v in zip(frees, result.values, strict=True))
+    try:
+        out.write_text(text, encoding="utf-8")
+    except OSError as exc:  # it could be written when the search began: the gait is not lost, it follows here
+        print(f"gaits tune: error: --out {out} cannot be written now ({exc.strerror or exc}); the tuned gait "
+              f"({values}) follows on stdout", file=sys.stderr)  # fmt: skip
+        sys.stdout.write(text)
+        return 1
+    print(f"{args.objective} {amount(result.value, setup)} (start {result.start_value:.4g}) with {values}; "
+          f"written to {out}")  # fmt: skip
     return 1 if result.failure else stopped if result.interrupted else 0

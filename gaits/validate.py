@@ -15,10 +15,11 @@ import math
 import re
 import tomllib
 from collections.abc import Callable, Iterator
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from jsonschema import Draft202012Validator
+from jsonschema import Draft202012Validator, validators
 from jsonschema.exceptions import ValidationError
 
 from .errors import MAX_LISTED, GaitError, Problem
@@ -30,7 +31,11 @@ MAX_COUNTED = 1000
 """Problems counted before validation stops (only the first MAX_LISTED are listed)."""
 
 SCHEMA: dict[str, Any] = json.loads((Path(__file__).resolve().parent / "schema.json").read_text(encoding="utf-8"))
-_VALIDATOR = Draft202012Validator(SCHEMA)
+Validator = validators.extend(Draft202012Validator, type_checker=Draft202012Validator.TYPE_CHECKER.redefine(
+    "integer", lambda _, value: isinstance(value, int) and not isinstance(value, bool)))  # fmt: skip
+"""JSON Schema 2020-12 as TOML needs it: an integer is TOML's integer. JSON counts ``1.0`` as one, so a module ID of
+``1.0`` passed and was written back as ``1.0``."""
+_VALIDATOR = Validator(SCHEMA)
 
 
 def read(path: str | Path) -> bytes:
@@ -134,7 +139,8 @@ def _problems(error: ValidationError) -> Iterator[tuple[list[str | int], str]]:
     elif kind in ("minimum", "maximum", "exclusiveMinimum", "exclusiveMaximum"):
         yield path, f"must be in {_range(schema)}, not {brief(instance)}"
     elif kind in ("minItems", "maxItems"):
-        yield path, f"must have {schema.get('minItems', 0)} to {schema.get('maxItems', '∞')} items, not {len(instance)}"
+        low, high = schema.get("minItems", 0), schema.get("maxItems", "∞")
+        yield path, f"must have {low if low == high else f'{low} to {high}'} items, not {len(instance)}"
     elif kind in ("minProperties", "maxProperties"):
         low, high = schema.get("minProperties", 0), schema.get("maxProperties", "∞")
         yield path, f"must have {low} to {high} entries, not {len(instance)}"
@@ -155,7 +161,7 @@ def _referenced(schema: dict[str, Any]) -> dict[str, Any]:
 
 
 def structure_problems(
-    data: Any, line: Callable[[str], int | None], validator: Draft202012Validator = _VALIDATOR
+    data: Any, line: Callable[[str], int | None], validator: Any = _VALIDATOR
 ) -> tuple[list[Problem], int]:
     """What the schema (``validator``'s: a gait file's unless told) refuses in ``data``: the first MAX_COUNTED
     problems, and how many more were not counted."""
@@ -189,9 +195,11 @@ class Checker:
     """The problems of one document, each with its line: the line index is built once, and only when a problem needs
     it (a document built in memory, without ``text``, has no lines)."""
 
-    def __init__(self, source: str, text: str | None) -> None:
+    def __init__(self, source: str, text: str | None, *, file: str | None = None) -> None:
         self.source = source
         self.text = text
+        self.file = file
+        """The file's name in each problem when it is not the gait file (a robot file)."""
         self.problems: list[Problem] = []
         self._index: LineIndex | None = None
 
@@ -206,9 +214,9 @@ class Checker:
         self.problems.append(Problem(path, message, self.line(path)))
 
     def raise_if(self, *, uncounted: int = 0) -> None:
-        raise_if(self.problems, self.source, uncounted=uncounted)
+        raise_if([replace(p, file=self.file) for p in self.problems], self.source, uncounted=uncounted)
 
-    def check_structure(self, data: Any, validator: Draft202012Validator = _VALIDATOR) -> None:
+    def check_structure(self, data: Any, validator: Any = _VALIDATOR) -> None:
         """GaitError unless ``data`` has the schema's structure and only finite numbers: what every other check
         relies on."""
         self.problems, uncounted = structure_problems(data, self.line, validator)

@@ -180,8 +180,9 @@ class Dashboard:
         self.drive.bind_keys(add)  # the arrow keys drive
 
     def adopt(self, gait: Any, text: str) -> None:
-        """A tuned gait becomes the edited one: one undo step, its file's comments (its provenance) kept."""
-        self.doc.replace(gait, text=text)
+        """A tuned gait becomes the edited one: one undo step, its file's comments (its provenance) kept, and the
+        robot file it names read beside the gait it was tuned from, as before."""
+        self.doc.replace(gait, text=text, path=self.doc.path)
         self.editor.after_edit()
         self.page.notify("Adopted", f"the tuned {gait.name} is the edited gait (Undo gives the previous one back)")
 

@@ -3,17 +3,26 @@
 
 An :class:`InlineConfirm` is hidden until :meth:`ask`; "yes" runs the action, "no" or a new question withdraws the
 old one, and a question nobody answers withdraws itself after ``expires`` seconds (a "Start?" left for tomorrow
-must not start anything). Its callbacks run on viser's thread pool and only take its own lock.
+must not start anything). Its callbacks run on viser's thread pool and only take its own lock. A question is plain
+text: what a robot reports (a module's type, a lease holder's name) is shown as written, never as markup or HTML.
 """
 
 from __future__ import annotations
 
+import re
 import threading
 import time
 from collections.abc import Callable
 from typing import Any
 
 ASK_SECONDS = 60.0
+_MARKUP = re.compile(r"([\\`*_{}\[\]()#+\-.!|<>~&])")
+
+
+def plain(text: str) -> str:
+    """``text`` as markdown that shows it as written: every ASCII punctuation character a markdown or HTML reading
+    could act on is escaped (CommonMark's backslash escapes; viser's markdown renders raw HTML)."""
+    return _MARKUP.sub(r"\\\1", text)
 
 
 class InlineConfirm:
@@ -25,6 +34,8 @@ class InlineConfirm:
         self._cancelled: Callable[[], None] | None = None
         self._asked_at = 0.0
         self._expires = ASK_SECONDS
+        self.asked = ""
+        """The question asked last, as plain text (the markdown shows it as written)."""
         self.question = gui.add_markdown("", visible=False)
         self.buttons = gui.add_button_group("Confirm", ["Yes", "Cancel"], visible=False)
         self.buttons.on_click(safe(self._on_click))
@@ -51,7 +62,8 @@ class InlineConfirm:
             self._expires = expires
         if previous is not None:
             previous()
-        self.question.content = f"**{question}**"
+        self.asked = question
+        self.question.content = f"**{plain(question)}**"
         self.buttons.options = [yes, "Cancel"]
         self.question.visible = self.buttons.visible = True
 

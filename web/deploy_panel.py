@@ -3,21 +3,25 @@ broadcast when the user says Start — all or nothing (gaits/deploy.py) — and 
 
 The deploy lease is held from staging until Start (or Cancel, or the question expiring), so no other deployer can
 stage or start meanwhile; the tab says who holds the robot's lease when it is not this page. On a simulated robot
-the robot first becomes the edited gait's robot; on a real bus the user confirms first, told how the robot differs
-from the gait's (gaits/compatible.py: modules missing or not in the gait, joint limits that would clamp it, a module
-that says it is another type than the gait describes, or whose joint turns like another module type's). Questions
-are rows of the tab, never a dialog over the E-STOP (web/confirm.py)."""
+the studio's own robot first becomes the edited gait's robot; on a real bus the user confirms first, told how the
+robot differs from the gait's (gaits/compatible.py: modules missing or not in the gait, joint limits that would clamp
+it, a module that says it is another type than the gait describes, or whose joint turns like another module type's).
+Whoever started the robot, a deploy to modules that say they are other types than the gait describes is refused
+before anything is sent (gaits.deploy's own check) and asked about: a simulated robot another person started, built
+of another gait's modules, is asked about as a real one is. Questions are rows of the tab, never a dialog over the
+E-STOP (web/confirm.py)."""
 
 from __future__ import annotations
 
 import html
 import threading
 import time
+from collections.abc import Collection
 from typing import TYPE_CHECKING, Any
 
 from asm_module.names import module_name
 from gaits.compatible import mismatches, module_lines, read_limits, read_objects
-from gaits.deploy import DeployReport
+from gaits.deploy import DeployReport, RobotMismatch
 from gaits.model import Gait
 
 from .confirm import InlineConfirm
@@ -80,7 +84,7 @@ class DeployPanel:
             if problems:  # said before anything is sent: the robot is not the one previewed
                 question += " ⚠ Not the robot this gait was made for: " + "; ".join(problems) + "."
                 self.log("robot check: " + "; ".join(problems))
-            self.confirm.ask(question, "Yes, deploy", lambda: self._deploy(gait))
+            self.confirm.ask(question, "Yes, deploy", lambda: self._deploy(gait, accept=problems))
             return
         self._deploy(gait)
 
@@ -92,11 +96,21 @@ class DeployPanel:
                                  'display:flex;flex-direction:column-reverse"><div>'
                                  + "<br>".join(self._lines) + "</div></div>")  # fmt: skip
 
-    def _deploy(self, gait: Gait) -> None:
+    def _deploy(self, gait: Gait, accept: Collection[str] = ()) -> None:
         """Stage and verify (nothing moves, the lease stays held), then ask before starting. A deployment of this
-        page still waiting for its Start is given up first (its lease released): the new one replaces it."""
+        page still waiting for its Start is given up first (its lease released): the new one replaces it. Modules
+        that say they are other types than the gait describes are asked about first, unless ``accept`` holds what
+        the user said yes to."""
         self.confirm.withdraw()
-        report = self.stage(gait)
+        try:
+            report = self.stage(gait, accept)
+        except RobotMismatch as mismatch:  # nothing was sent: the user decides
+            problems = mismatch.problems
+            self.log("robot check: " + "; ".join(problems))
+            self.confirm.ask(f"Deploy {gait.name} to robot {self.page.robot.robot}? ⚠ Not the robot this gait was "
+                             "made for: " + "; ".join(problems) + ".", "Yes, deploy",
+                             lambda: self._deploy(gait, accept=problems))  # fmt: skip
+            return
         with self._staged_lock:
             self._staged = report
         self.confirm.ask(f"{_staged(gait, report)}. Start it now? Every module switches to it at once, from where "
@@ -110,7 +124,7 @@ class DeployPanel:
                 self._staged = None
         self.log(f"{report.gait}: not started ({why}); the lease is released, every module runs what it ran")
 
-    def stage(self, gait: Gait) -> DeployReport:
+    def stage(self, gait: Gait, accept: Collection[str] = ()) -> DeployReport:
         """Deploy steps 1-3 (lease, stage, verify); the DeployReport to start from, still holding the lease."""
         page, robot = self.page, self.page.robot
 
@@ -129,7 +143,7 @@ class DeployPanel:
             page.emit("modules_removed", removed)
             robot.await_modules(wanted, timeout=30.0)
             robot.await_present(timeout=30.0)  # its process too: a deploy right after was refused as "lost"
-        report = robot.stage(gait, progress)
+        report = robot.stage(gait, progress, accept)
         self.log(_staged(gait, report) + "; nothing moves until Start (the deploy lease is held until then)")
         page.notify("Staged", _staged(gait, report))
         return report

@@ -76,6 +76,23 @@ class GaitDocument:
             source = self._source
         return save(to_dict(gait, inline=inline), source)
 
+    @property
+    def path(self) -> Path | None:
+        """The file the gait was opened from (None: it has none); a robot file it names lies beside it."""
+        with self._lock:
+            return self._path
+
+    def sized_by_robot_file(self) -> str | None:
+        """Where the module size is set when the gait's robot file sets its default type's length (the gait's
+        ``module_size`` must then equal it: the page cannot edit another file), e.g. ``robot.types.t.length in
+        robot.toml``; None when the gait's own module size may be edited."""
+        with self._lock:
+            gait = self._valid
+        if gait is None or gait.robot.file is None or gait.robot.module.length is None:
+            return None
+        where = f"robot.types.{gait.robot.type}" if gait.robot.type else "robot.module"
+        return f"{where}.length in {gait.robot.file}"
+
     def problem_at(self, prefix: str) -> list[Problem]:
         return [p for p in self.problems if p.path == prefix or p.path.startswith(prefix + ".")]
 
@@ -92,6 +109,15 @@ class GaitDocument:
         it is not a valid gait."""
         gait = loads(text, source=source, path=path)
         self.replace(gait, text=text.decode("utf-8-sig") if isinstance(text, bytes) else text, path=path)
+
+    def upload(self, content: bytes, name: str) -> Path | None:
+        """Open an uploaded file's bytes. An upload has no folder of its own: it is read as if it lay beside the gait
+        open now (when that one has a file), so a gait downloaded from the page that names its robot file opens
+        again with it; the folder it was read in is returned (None: none, and a robot file it names is refused)."""
+        current = self.path
+        beside = current.parent / (Path(name).name or "upload.toml") if current is not None else None
+        self.load_text(content, source=name[:100], path=beside)
+        return beside.parent if beside is not None else None
 
     def set_state(self, automaton: str, index: int, field: str, value: Any) -> None:
         """Set ``angle``, ``duration`` or ``interpolation`` of one state of an automaton."""
@@ -205,6 +231,9 @@ class GaitDocument:
         elif field == "shape":
             self._apply(lambda d: _reshape(d, value), field=("robot", field))
         elif field == "module_size":
+            fixed = self.sized_by_robot_file()
+            if fixed is not None:
+                raise ValueError(f"the module size is the robot file's ({fixed}): edit it there; nothing changed")
             self._apply(lambda d: _resize_module(d, value), field=("robot", field))
         elif field in ("axes", "legs"):
             self._apply(lambda d: d["robot"].__setitem__(field, value), field=("robot", field))

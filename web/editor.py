@@ -91,7 +91,9 @@ class GaitEditor:
             self.shape = gui.add_dropdown("Shape", SHAPES)
             self.axes = gui.add_dropdown("Axes", AXES)
             self.legs = gui.add_number("Legs", initial_value=4, step=1)
-            self.module_size = gui.add_number("Module size (m)", initial_value=0.05, step=0.005)
+            self.module_size = gui.add_number(
+                "Module size (m)", initial_value=0.05, step=0.005, hint="metres along the chain"
+            )
             self.friction = gui.add_number("Friction", initial_value=1.0, step=0.05, hint="in (0, 10]")
             self.robot_problem = gui.add_markdown("")
         self.table_html = gui.add_html("")
@@ -162,12 +164,14 @@ class GaitEditor:
     def _on_upload(self, event: Any) -> None:
         file = event.target.value
         try:
-            self.doc.load_text(file.content, source=file.name[:100])  # bytes: the loader reports bad UTF-8 itself
+            folder = self.doc.upload(file.content, file.name)  # bytes: the loader reports bad UTF-8 itself
         except GaitError as exc:
             self.page.notify("Invalid gait file", "; ".join(exc.lines()[:5]), error=True)
             return
         self.after_edit()
-        self.page.notify("Opened", file.name)
+        robot_file = self.doc.gait().robot.file
+        self.page.notify("Opened", file.name + (f", its modules described by {robot_file} in {folder}"
+                                                if robot_file and folder else ""))  # fmt: skip
 
     def _on_history(self, event: Any) -> None:
         self.history(event.target.value)
@@ -273,6 +277,9 @@ class GaitEditor:
         self.legs.value = int(robot.get("legs") or 4)
         self.legs.disabled = robot.get("shape") != "legged"
         self.module_size.value = float(robot.get("module_size", 0.05))
+        fixed = self.doc.sized_by_robot_file()
+        self.module_size.disabled = fixed is not None  # the robot file's: the page does not edit that file
+        self.module_size.hint = f"set by {fixed}" if fixed else "metres along the chain"
         self.friction.value = float(data.get("ground", {}).get("friction", 1.0))
         self.robot_problem.content = _problems(self.doc.problem_at("robot") + self.doc.problem_at("modules"))
         self.problems.content = ("**Problems**  \n" + "".join(f"- {page_label(p)}\n" for p in self.doc.problems)
@@ -346,7 +353,10 @@ TABLE_CAPTION = ("Modules 1… top to bottom, one period across; blue −, red +
 
 
 def page_label(problem: Any) -> str:
-    """A problem as the page names things: 1-based states and modules (``wave S4``, ``module 3``), no file line."""
+    """A problem as the page names things: 1-based states and modules (``wave S4``, ``module 3``), no line of the
+    gait's file; one in the robot file the gait names is said to be there, at its line."""
+    if problem.file is not None:
+        return str(problem)
     path = re.sub(r"automata\.([^.\[]+)\.states\[(\d+)\]", lambda m: f"{m[1]} S{int(m[2]) + 1}", problem.path)
     path = re.sub(r"modules\[(\d+)\]", lambda m: f"module {int(m[1]) + 1}", path)
     path = re.sub(r"(S\d+|module \d+)\.", r"\1 ", path)  # "module 1 phase", "wave S4 angle"

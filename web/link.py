@@ -15,7 +15,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Collection, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any
@@ -212,10 +212,13 @@ class RobotLink:
     def release(self, modules: Sequence[str]) -> list[str]:
         return release_all(self.node, modules)
 
-    def stage(self, gait: Gait, progress: Callable[[int, int, str], None]) -> DeployReport:
-        """Deploy steps 1-3 under a lease that stays held (gaits/deploy.py) until :meth:`start` or ``cancel``."""
+    def stage(self, gait: Gait, progress: Callable[[int, int, str], None],
+              accept: Collection[str] = ()) -> DeployReport:  # fmt: skip
+        """Deploy steps 1-3 under a lease that stays held (gaits/deploy.py) until :meth:`start` or ``cancel``;
+        RobotMismatch when a module says it is another type than the gait describes, unless its line is in
+        ``accept`` (the user was asked)."""
         self.require("deploy")
-        return deploy(self.node, gait, progress=progress, start=False)
+        return deploy(self.node, gait, progress=progress, start=False, accept=accept)
 
     def start(self, report: DeployReport) -> DeployReport:
         self.require("start")

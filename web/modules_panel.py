@@ -1,5 +1,7 @@
 """The Modules tab: the robot's modules as a builder sees them — each one's firmware (``module.info``: language,
-version, build, states held) and calibration (``joint.calibration``: zero, direction, soft limits) in a roster, and
+version, build, states held), type (``module.type``: what kind of module it says it is, compared with a gait's
+robot description before a deploy) and calibration (``joint.calibration``: zero, direction, soft limits) in a
+roster, and
 per module the calibration edited and applied, or "Set current pose as zero" (docs/protocol.md §9).
 
 A calibration is the module's own: it checks it (a value out of range or not finite is refused, never clamped, and
@@ -25,6 +27,8 @@ from asm_module.firmware_image import check
 from asm_module.flasher import update_modules
 from gaits.compatible import read_objects
 
+from .confirm import plain
+
 if TYPE_CHECKING:
     from .page import Page
 
@@ -42,10 +46,11 @@ def _version(info: dict[str, Any]) -> str:
 
 
 def roster_markdown(names: list[str], infos: dict[str, Any], calibrations: dict[str, Any],
-                    angles: dict[str, float]) -> str:  # fmt: skip
+                    angles: dict[str, float], types: dict[str, str] | None = None) -> str:  # fmt: skip
     """The roster as a markdown table, one row per module (narrow enough for the side panel); "—" for what a module
-    did not say."""
-    rows = ["| module | firmware | calibration | angle |", "|---" * 4 + "|"]
+    did not say (a type as written: a board's port may set any bytes)."""
+    types = types or {}
+    rows = ["| module | firmware | type | calibration | angle |", "|---" * 5 + "|"]
     for name in names:
         info, c, angle = infos.get(name), calibrations.get(name), angles.get(name)
         firmware = f"{_version(info)} `{int(info['build']):08x}` {info['max_states']} states" if info else "—"
@@ -53,7 +58,8 @@ def roster_markdown(names: list[str], infos: dict[str, Any], calibrations: dict[
             firmware += f", tick {int(info['tick_cycles']):,} cycles, stack {int(info['stack_bytes']):,} B"
         calibration = f"{c['zero']:g}° {int(c['direction']):+d} {c['min']:g}..{c['max']:g}°" if c else "—"
         shown = f"{angle:.1f}°" if angle is not None else "—"
-        rows.append(f"| {name} | {firmware} | {calibration} | {shown} |")
+        kind = plain(types[name]) if types.get(name) else "—"
+        rows.append(f"| {name} | {firmware} | {kind} | {calibration} | {shown} |")
     return "\n".join(rows) + "\n\nCalibration: zero, direction, soft limits."
 
 
@@ -168,12 +174,14 @@ class ModulesPanel:
         names = sorted(robot.alive_modules(), key=lambda n: int(n[1:]))
         self.line.content = f"Reading {len(names)} modules …"
         infos = read_objects(robot.lookup, names, "module.info", TIMEOUT)
+        types = read_objects(robot.lookup, names, "module.type", TIMEOUT)
         calibrations = read_objects(robot.lookup, names, "joint.calibration", TIMEOUT)
         angles = {name: float(value) for name, value in read_objects(robot.lookup, names, "joint.angle",
                                                                       TIMEOUT).items()}  # fmt: skip
         with self._lock:
             self._calibrations = calibrations
-        self.roster_md.content = roster_markdown(names, infos, calibrations, angles) if names else "No module answers."
+        roster = roster_markdown(names, infos, calibrations, angles, types) if names else "No module answers."
+        self.roster_md.content = roster
         with self.page.programmatic():
             chosen = self.module.value
             self.module.options = names or [NONE]

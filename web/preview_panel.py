@@ -6,6 +6,7 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any
 
+from gaits.metrics import unsigned_zero
 from gaits.terrain import parse
 
 from .monitor import empty_plot, seconds_axes
@@ -79,8 +80,9 @@ class PreviewPanel:
         frame = loop.shown()
         if frame is not None and frame.running == 0 and loop.ended_at is not None:
             warning = f" · ■ **ended** at t = {loop.ended_at:.2f} s (no module's gait runs){warning}"
+        heading = unsigned_zero(m.heading, 0)  # never "-0°"
         self.metrics.content = (f"Preview{ground}: t = {m.seconds:.2f} s · distance **{m.distance:.3f} m** "
-                                f"({m.body_lengths:.2f} BL) · speed **{m.speed:.3f} m/s** · heading {m.heading:.0f}° · "
+                                f"({m.body_lengths:.2f} BL) · speed **{m.speed:.3f} m/s** · heading {heading}° · "
                                 f"peak torque {m.peak_torque:.2f} N·m{warning}")  # fmt: skip
         with page.programmatic():
             modules = max(2, loop.gait.robot.modules)

@@ -56,8 +56,8 @@ class TunePanel:
             self.bounds[name] = gui.add_vector2(f"{name} bounds", initial_value=bounds, step=0.01,
                                                 hint=f"lowest and highest {name} ({unit})")  # fmt: skip
         self.other = gui.add_text("Other free", initial_value="",
-                                  hint="NAME=LOW:HIGH, space-separated: modules[2].phase=0:1 "
-                                  "automata.wave.states[0].angle=-30:30")  # fmt: skip
+                                  hint="NAME=LOW:HIGH, separated by spaces, commas or semicolons: "
+                                  "modules[2].phase=0:1, automata.wave.states[0].angle=-30:30")  # fmt: skip
         self.objective = gui.add_dropdown(
             "Objective",
             list(OBJECTIVES),
@@ -68,9 +68,9 @@ class TunePanel:
                                        hint="several grounds: their mean is the objective (robust)")  # fmt: skip
         self.budget = gui.add_number("Budget (simulations)", initial_value=60, min=4, max=100_000, step=1)
         self.seconds = gui.add_number("Seconds per candidate", initial_value=3.0, min=0.5, max=60.0, step=0.5)
-        self.seed = gui.add_number("Seed", initial_value=1, min=0, max=2**31 - 1, step=1)
+        self.seed = gui.add_number("Seed", initial_value=1, min=0, max=2**31 - 2, step=1)
         cores = os.cpu_count() or 1
-        self.workers = gui.add_number("Workers (processes)", initial_value=cores, min=1, max=4 * cores, step=1,
+        self.workers = gui.add_number("Workers (processes)", initial_value=cores, min=1, max=cores, step=1,
                                       hint=f"candidates simulated at once (this machine has {cores} cores): fewer "
                                       "leave a core to the live robot and the page")  # fmt: skip
         self.control = gui.add_button_group("Tuning", ["Start tuning", "Stop tuning"])
@@ -98,14 +98,17 @@ class TunePanel:
             if box.value:
                 low, high = (float(v) for v in self.bounds[name].value)
                 frees.append(parse_free(f"{name}={low}:{high}"))
-        frees += [parse_free(text) for text in re.split(r"[\s;]+", str(self.other.value).strip()) if text]
+        frees += [parse_free(text) for text in re.split(r"[\s;,]+", str(self.other.value).strip()) if text]
         if not frees:
             raise ValueError("choose at least one free parameter (tick one, or write NAME=LOW:HIGH)")
         return frees
 
     def setup(self) -> Setup:
         terrains = GROUNDS[str(self.ground.value)] or (self.page.loop.terrain,)
-        return Setup(str(self.objective.value), tuple(terrains), seconds=float(self.seconds.value), warmup=1.0)
+        seconds, low, high = float(self.seconds.value), float(self.seconds.min or 0.0), float(self.seconds.max or 0.0)
+        if not low <= seconds <= high:
+            raise ValueError(f"Seconds per candidate is {low:g} to {high:g}, not {seconds:g}")
+        return Setup(str(self.objective.value), tuple(terrains), seconds=seconds, warmup=1.0)
 
     def _on_control(self, event: Any) -> None:
         if event.target.value == "Start tuning":
@@ -119,16 +122,14 @@ class TunePanel:
         frees = self.frees()
         check(gait, frees)
         setup = self.setup()
+        budget, seed = _whole(self.budget, "Budget", "simulations"), _whole(self.seed, "Seed", "")
         if workers is None:
-            chosen = float(self.workers.value)
-            if not chosen.is_integer() or chosen < 1:
-                raise ValueError(f"Workers is a whole number of processes, at least 1, not {chosen:g}")
-            workers = int(chosen)
+            workers = _whole(self.workers, "Workers", "processes")
         with self._lock:
             if self.run is not None:
                 self.run.stop(timeout=0.0)
-            self.run = TuneRun(gait, frees, setup, budget=int(self.budget.value), seed=int(self.seed.value),
-                               workers=workers, popsize=popsize)  # fmt: skip
+            self.run = TuneRun(gait, frees, setup, budget=budget, seed=seed, workers=workers,
+                               popsize=popsize)  # fmt: skip
             self._shown = (-1, -1)
             run = self.run
             self._plot_parameters(frees)
@@ -162,7 +163,7 @@ class TunePanel:
             self.page.notify("Preview", f"the best candidate so far ({_values(run, snapshot)}); an edit of the gait "
                              "previews the edited gait again")  # fmt: skip
         else:
-            self.page.emit("adopt", snapshot.best, run.provenance_text())
+            self.page.emit("adopt", *run.adoptable())
 
     def _plot_parameters(self, frees: list[Free]) -> None:
         for handle in self.scatters.values():
@@ -224,6 +225,16 @@ class TunePanel:
             points = sorted((values[k], value) for values, value in valid)
             handle.data = (np.array([x for x, _ in points]), np.array([y for _, y in points]))
             handle.visible = True
+
+
+def _whole(field: Any, name: str, unit: str) -> int:
+    """A number field's value, as the run uses it: a whole number within the field's own bounds, or ValueError
+    (what the field shows is what runs: a seed of -1 ran as cma's random seed)."""
+    value = float(field.value)
+    if not value.is_integer() or not field.min <= value <= field.max:
+        raise ValueError(f"{name} is a whole number{f' of {unit}' if unit else ''}, {field.min:g} to {field.max:g}, "
+                         f"not {value:g}")  # fmt: skip
+    return int(value)
 
 
 def _values(run: TuneRun, snapshot: Snapshot) -> str:

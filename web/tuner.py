@@ -17,13 +17,14 @@ import math
 import multiprocessing
 import os
 import threading
-import time
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 from gaits.model import Gait
 from gaits.params import Free
-from gaits.tune import Result, Setup, ignore_sigint, resolved, tune, tuned_text
+from gaits.robot import description
+from gaits.tune import Result, Setup, resolved, source_of, tune, tuned_text
+from gaits.workers import end_workers, start_worker
 
 
 @dataclass
@@ -64,7 +65,7 @@ class TuneRun:
         self._snapshot = Snapshot(budget=budget)
         self.workers = max(1, workers or os.cpu_count() or 1)
         self._pool = ProcessPoolExecutor(max_workers=self.workers, mp_context=multiprocessing.get_context("spawn"),
-                                         initializer=ignore_sigint)  # fmt: skip
+                                         initializer=start_worker)  # fmt: skip
         self._result: Result | None = None
         self._thread = threading.Thread(target=self._run, args=(popsize,), name="studio-tune", daemon=True)
         self._thread.start()
@@ -86,6 +87,11 @@ class TuneRun:
 
     def provenance_text(self) -> str:
         """The best candidate as a gait file, its provenance in comments (as ``gaits tune`` writes it)."""
+        return self.adoptable()[1]
+
+    def adoptable(self) -> tuple[Gait, str]:
+        """The best candidate to make the edited gait: naming the edited gait's robot file again (the workers ran it
+        with the description written in, which tuning does not change), and its file, provenance in comments."""
         with self._lock:
             result = self._result
             s = self._snapshot
@@ -94,13 +100,17 @@ class TuneRun:
         if result is None or result.best is not s.best:  # stopped before tune() returned: say what is known
             result = Result(s.best, s.values, s.value, s.start_value, "", evaluations=s.evaluations,
                             interrupted=True)  # fmt: skip
-        return tuned_text(result, self.frees, self.setup, budget=self.budget, seed=self.seed,
-                          source=f"the studio's {self.gait.name}")  # fmt: skip
+        best, named = s.best, self.gait.robot
+        if named.file is not None and description(best.robot, inline=True) == description(named, inline=True):
+            best = replace(best, robot=replace(best.robot, file=named.file))
+        text = tuned_text(replace(result, best=best), self.frees, self.setup, budget=self.budget, seed=self.seed,
+                          source=source_of(f"the studio's {self.gait.name}", self.gait))  # fmt: skip
+        return best, text
 
     def stop(self, timeout: float = 10.0) -> None:
         """End the search now, keeping the best so far: the workers are killed, the thread joined."""
         self._stop.set()
-        self._kill_workers()
+        end_workers(self._pool)
         self._thread.join(timeout)
 
     close = stop
@@ -141,7 +151,7 @@ class TuneRun:
                 s.version += 1
         finally:
             self._pool.shutdown(wait=False, cancel_futures=True)
-            self._kill_workers()
+            end_workers(self._pool)
 
     def _progress(self, result: Result, line: str) -> None:
         with self._lock:
@@ -155,15 +165,3 @@ class TuneRun:
             s.version += 1
         if self._stop.is_set():
             raise KeyboardInterrupt  # tune() keeps its best so far and returns
-
-    def _kill_workers(self) -> None:
-        processes = list((getattr(self._pool, "_processes", None) or {}).values())
-        for process in processes:
-            if process.is_alive():
-                process.terminate()
-        deadline = time.monotonic() + 5.0
-        for process in processes:
-            process.join(max(0.0, deadline - time.monotonic()))
-            if process.is_alive():
-                process.kill()
-                process.join(1.0)

@@ -194,13 +194,23 @@ void asm_module_measured(struct asm_module *m, uint32_t tick_cycles, uint32_t st
     put32(m->info_v + 20, stack_bytes);
 }
 
-void asm_module_set_type(struct asm_module *m, const char *type)
+static int type_char(char c, int first)
+{
+    int alnum = (c >= 'A' && c <= 'Z') || (c >= 'a' && c <= 'z') || (c >= '0' && c <= '9');
+    return alnum || (!first && (c == '_' || c == '+' || c == '-'));
+}
+
+int asm_module_set_type(struct asm_module *m, const char *type)
 {
     uint16_t n = 0;
-    while (n < ASM_TYPE_BYTES && type[n] != 0) /* no strlen: a board links no C library string routine for it */
+    while (n <= ASM_TYPE_BYTES && type[n] != 0) { /* no strlen: a board links no C library string routine for it */
+        if (n == ASM_TYPE_BYTES || !type_char(type[n], n == 0))
+            return ASM_S_VALUE_ERROR; /* no type's name: module.type keeps what it said */
         n++;
+    }
     memcpy(m->type_v, type, n);
     m->type.length = n;
+    return ASM_S_OK;
 }
 
 static void info_init(struct asm_module *m)

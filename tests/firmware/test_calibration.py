@@ -93,6 +93,30 @@ def test_the_host_build_reports_the_module_type_it_is_given() -> None:
             CModule("c2", 6, interface="virtual", channel=channel, module_type=hostile)
 
 
+def test_the_c_runtime_refuses_a_type_name_that_is_no_types() -> None:
+    """A port's constant is the module's type: one that is no type's name (markup, a space, a leading '-', too long)
+    is refused by asm_module_set_type itself (ASM_S_VALUE_ERROR), the type left as it was, as the Python side's
+    check_module_type refuses it (issue 30's review, defect 13)."""
+    from asm_module.c_module import library
+
+    channel = fresh_name("c-type")
+    module = CModule("c3", 7, interface="virtual", channel=channel, module_type="servo_v2")
+    tool = Node("tool", CanTransport(100, interface="virtual", channel=channel, heartbeat_period=0.1))
+    try:
+        assert wait_until(lambda: "c3" in tool.discover(), timeout=10)
+        for hostile in (b"<img src=x onerror=alert(1)>", b"a b", b"-lead", b"x" * 33, b"\xc3\xa9", b"**bold**"):
+            with module._call_lock:  # pyright: ignore[reportPrivateUsage]
+                status = library().asm_module_set_type(module._memory, hostile)  # pyright: ignore[reportPrivateUsage]
+            assert status == 4, hostile  # ASM_S_VALUE_ERROR
+            assert attribute(tool, "c3", "module.type").get(timeout=5) == "servo_v2"
+        with module._call_lock:  # pyright: ignore[reportPrivateUsage]
+            assert library().asm_module_set_type(module._memory, b"x" * 32) == 0  # pyright: ignore[reportPrivateUsage]
+        assert attribute(tool, "c3", "module.type").get(timeout=5) == "x" * 32
+    finally:
+        tool.close()
+        module.close()
+
+
 def check_calibration_over_the_bus(tool: Node, node: str, driver, info: dict) -> None:
     """What every module does with joint.calibration, C or Python (tests/module/test_calibration.py); module.info
     holds ``info``'s fields."""

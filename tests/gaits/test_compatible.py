@@ -133,3 +133,25 @@ def test_the_range_heuristic_judges_only_modules_whose_type_cannot_be_compared(r
     assert [line.split(" ")[0] for line in lines] == ["m2", "m3", "m6", "m7", "m8"]  # m4, m5: ±120° heavy modules
     assert "beyond the ±90° hinge of the gait's module (robot.types.light.range)" in lines[0]
     assert len(mismatches(CATERPILLAR, names, limits, types=types)) == 8
+
+
+def test_a_deploy_to_modules_of_other_types_is_refused_unless_accepted(robot):
+    """gaits.deploy checks the types itself, whoever calls it (issue 30's review, defect 1: a simulated robot
+    another person started, built of other module types, was deployed to without a word): nothing is sent until the
+    caller accepts exactly what differs."""
+    from gaits.deploy import RobotMismatch, deploy
+
+    said = {k: "heavy" if k in (1, 2) else "light" for k in range(1, 9)}
+    names, _ = robot(8, types=said | {7: ""})  # m7 says no type: nothing to compare
+    with pytest.raises(RobotMismatch) as refused:
+        deploy(robot.client, TYPED, timeout=1.0)
+    assert [line.split(" ")[0] for line in refused.value.problems] == ["m1", "m2", "m4", "m5"]
+    assert refused.value.problems[0] == ("m1 is module type heavy, the gait describes light (robot.types.light): "
+                                         "another type of module than the one simulated")  # fmt: skip
+    lease = read_objects(robot.client.lookup, names, "gait.lease", timeout=1.0)
+    assert all(not held["holder"] for held in lease.values()), "nothing was sent: no lease taken"
+    with pytest.raises(RobotMismatch):  # accepting some of it is not accepting all of it
+        deploy(robot.client, TYPED, timeout=1.0, accept=refused.value.problems[:3])
+    report = deploy(robot.client, TYPED, timeout=1.0, accept=refused.value.problems)
+    assert report.running == list(range(1, 9))
+    assert deploy(robot.client, CATERPILLAR, timeout=1.0).running == list(range(1, 9)), "a gait naming no type"

@@ -318,7 +318,7 @@ def test_a_hostile_robot_file_is_refused_naming_that_file_and_field(tmp_path: Pa
         ('[robot.types."a b"]\nids = [1]\n', "robot.types.a b", "a module type's name: 1 to 32 letters"),
         (f"[robot.types.{'x' * 33}]\nids = [1]\n", "robot.types." + "x" * 33, "1 to 32 characters long, not 33"),
         ("".join(f"[robot.types.t{k}]\nids = [1]\n" for k in range(33)), "robot.types", "must have 0 to 32 entries"),
-        ("[robot.types.a]\ninertia = [0.001, 0.001]\nids = [1]\n", "robot.types.a.inertia", "must have 3 to 3 items"),
+        ("[robot.types.a]\ninertia = [0.001, 0.001]\nids = [1]\n", "robot.types.a.inertia", "must have 3 items, not 2"),
         (
             "[robot.types.a]\ninertia = [0.001, 0.001, -1.0]\nids = [1]\n",
             "robot.types.a.inertia[2]",

@@ -175,3 +175,18 @@ def test_preview_equals_deployment_over_virtual_can():
             node.close()
     for column, (runtime, record) in enumerate(zip(runtimes, records, strict=True)):
         assert_follows_preview(sim_times, sim_goals, column, record, runtime._ramp_start)
+
+
+def test_a_diverging_simulation_writes_no_log_file_where_it_runs(tmp_path, monkeypatch, caplog):
+    """MuJoCo's own warning handler wrote MUJOCO_LOG.TXT into the current folder (and printed to stdout); the
+    divergence is a FloatingPointError, and MuJoCo's words go to the log (issue 30's review, defect 15)."""
+    from gaits.model import LIBRARY as FOLDER
+    from gaits.model import loads
+
+    text = (FOLDER / "caterpillar.toml").read_text(encoding="utf-8").replace(
+        "module_size = 0.05\n", "[robot.module]\nstall_torque = 10000\nkp = 100000\nmass = 0.001\n", 1)  # fmt: skip
+    monkeypatch.chdir(tmp_path)
+    with Simulation(loads(text)) as sim, pytest.raises(FloatingPointError, match="diverged"):
+        sim.run(1.0, warmup=0.1)
+    assert list(tmp_path.iterdir()) == []
+    assert "Nan, Inf or huge value in QACC" in caplog.text

@@ -5,7 +5,6 @@ candidates of 2 simulated seconds each."""
 from __future__ import annotations
 
 import math
-import os
 import signal
 import subprocess
 import sys
@@ -19,6 +18,8 @@ from gaits.model import LIBRARY, load, loads, to_dict
 from gaits.params import apply, check, current, parse_free
 from gaits.sim import Simulation
 from gaits.tune import VIOLATION, Outcome, Setup, tune
+
+from .searches import interrupt, long_search, workers_of
 
 pytestmark = [pytest.mark.xdist_group("test_tune"), pytest.mark.timeout(300)]
 """The module's tests run on one worker (an xdist group), so its module-scoped fixture is made once."""
@@ -90,26 +91,13 @@ def test_an_interrupted_search_keeps_the_best_so_far():
     assert result.value >= result.start_value
 
 
-def _long_search(out: Path) -> subprocess.Popen[str]:
-    """``gaits tune`` with two workers and a budget far beyond a test's patience: to be stopped by a signal."""
-    command = [sys.executable, "-m", "gaits.cli", "tune", str(CATERPILLAR), "--free", "amplitude=20:85",
-               "--budget", "200", "--seconds", "1", "--warmup", "0.5", "--workers", "2", "--out", str(out)]  # fmt: skip
-    return subprocess.Popen(command, stderr=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
-                            cwd=Path(__file__).resolve().parents[2])  # fmt: skip
-
-
 def test_ctrl_c_writes_the_best_so_far(tmp_path):
     out = tmp_path / "tuned.toml"
-    process = _long_search(out)
-    assert process.stderr is not None
-    lines = []
-    for line in process.stderr:
-        lines.append(line)
-        if line.startswith("generation 1:"):
-            os.kill(process.pid, signal.SIGINT)
-            break
-    _, rest = process.communicate(timeout=120)
-    assert process.returncode == 130, "".join(lines) + rest
+    process = long_search(out)
+    with workers_of(process):
+        interrupt(process, "generation 1:", [signal.SIGINT])
+        _, rest = process.communicate(timeout=120)
+    assert process.returncode == 130, rest
     assert "keeping the best so far" in rest
     text = out.read_text(encoding="utf-8")
     assert "interrupted" in text.splitlines()[0] and "# free amplitude=20:85 = " in text
@@ -124,28 +112,15 @@ def test_sigterm_writes_the_best_so_far_and_leaves_no_worker_behind(tmp_path):
     import psutil
 
     out = tmp_path / "tuned.toml"
-    process = _long_search(out)
-    assert process.stderr is not None
-    workers: list[psutil.Process] = []
-    try:
-        for line in process.stderr:
-            if line.startswith("generation 1:"):
-                workers = psutil.Process(process.pid).children(recursive=True)
-                os.kill(process.pid, signal.SIGTERM)
-                break
+    process = long_search(out)
+    with workers_of(process) as workers:
+        workers += interrupt(process, "generation 1:", [signal.SIGTERM])
         _, rest = process.communicate(timeout=120)
         assert process.returncode == 143, rest
         assert "keeping the best so far" in rest and "interrupted" in out.read_text(encoding="utf-8")
         assert workers, "no worker process was seen"
         _, alive = psutil.wait_procs(workers, timeout=60)
         assert not alive, f"workers left running: {alive}"
-    finally:
-        for child in workers:
-            if child.is_running():
-                child.kill()
-        if process.poll() is None:
-            process.kill()
-            process.wait()
 
 
 def test_a_start_outside_the_bounds_is_never_written_as_the_tuned_gait(tmp_path):
@@ -391,13 +366,13 @@ def test_the_tuned_gait_is_never_written_over_the_gait_being_tuned(tmp_path):
     done = subprocess.run([sys.executable, "-m", "gaits.cli", "tune", str(source), "--free", "amplitude=20:85",
                            "--budget", "2", "--out", str(tmp_path / "." / "mine.toml")], capture_output=True,
                           text=True, timeout=120, cwd=Path(__file__).resolve().parents[2])  # fmt: skip
-    assert done.returncode == 2 and "is the gait being tuned" in done.stderr, done.stderr
+    assert done.returncode == 2 and "is the gait file itself" in done.stderr, done.stderr
     assert source.read_bytes() == before
     (tmp_path / "link.toml").hardlink_to(source)  # the same file under another name (a second review)
     done = subprocess.run([sys.executable, "-m", "gaits.cli", "tune", str(source), "--free", "amplitude=20:85",
                            "--budget", "2", "--out", str(tmp_path / "link.toml")], capture_output=True,
                           text=True, timeout=120, cwd=Path(__file__).resolve().parents[2])  # fmt: skip
-    assert done.returncode == 2 and "is the gait being tuned" in done.stderr, done.stderr
+    assert done.returncode == 2 and "is the gait file itself" in done.stderr, done.stderr
     done = subprocess.run([sys.executable, "-m", "gaits.cli", "simulate", str(source), "--seconds", "0.2",
                            "--mjcf", str(tmp_path / "link.toml")], capture_output=True,
                           text=True, timeout=120, cwd=Path(__file__).resolve().parents[2])  # fmt: skip

@@ -4,6 +4,7 @@ a search started from the page runs in worker processes, shows its progress, its
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -114,8 +115,29 @@ def test_a_bad_free_parameter_is_refused_before_anything_starts(studio):
     panel.free["period"].value = True
     for workers in (0, -2):  # (viser rounds a number to its step: no 1.5 reaches the panel)
         panel.workers.value = workers
-        with pytest.raises(ValueError, match=f"Workers is a whole number of processes, at least 1, not {workers:g}"):
+        with pytest.raises(ValueError, match=f"Workers is a whole number of processes, 1 to .*, not {workers:g}"):
             panel.start()
+    assert panel.run is None
+
+
+def test_what_a_field_shows_is_what_runs_or_it_is_refused(studio):
+    """issue 30's review, defect 14: a seed of -1 was shown while the run used cma's random seed, Workers went to 4 ×
+    the cores, and "Other free" separated by commas was refused."""
+    import os
+
+    panel = studio.app.tuner
+    panel.other.value = "modules[2].phase=0:1, period=0.5:1.5"
+    assert [f.name for f in panel.frees()] == ["modules[2].phase", "period"]
+    assert "commas" in panel.other.hint and panel.workers.max == (os.cpu_count() or 1)
+    for field, value, says in ((panel.seed, -1, "Seed is a whole number, 0 to 2.14748e+09, not -1"),
+                               (panel.budget, 100_001, "Budget is a whole number of simulations, 4 to 100000"),
+                               (panel.workers, 4 * (os.cpu_count() or 1), "Workers is a whole number of processes"),
+                               (panel.seconds, 0.1, "Seconds per candidate is 0.5 to 60, not 0.1")):  # fmt: skip
+        before = field.value
+        field.value = value
+        with pytest.raises(ValueError, match=re.escape(says)):
+            panel.start()
+        field.value = before
     assert panel.run is None
 
 
@@ -187,3 +209,28 @@ def test_the_simulated_robot_is_rebuilt_on_the_previews_ground_at_a_deploy(studi
     args = studio.child.args  # the robot process started (READY) with the preview's ground
     assert args[args.index("--terrain") + 1] == app.loop.terrain.spec
     assert app.page.ensure_robot(gait) is None  # and it stays there
+
+
+def test_adopting_keeps_the_robot_file_the_gait_names(studio, tmp_path):
+    """The tuned gait is the edited gait's robot, so Adopt names its robot file again (issue 30's review, defect 7:
+    the description was written in, and the file no longer named)."""
+    from gaits.model import LIBRARY
+
+    (tmp_path / "robot.toml").write_text("[robot.module]\nmass = 0.25\n", encoding="utf-8")
+    path = tmp_path / "mine.toml"
+    path.write_text((LIBRARY / "caterpillar.toml").read_text(encoding="utf-8").replace(
+        "module_size = 0.05\n", 'module_size = 0.05\nfile = "robot.toml"\n', 1), encoding="utf-8")  # fmt: skip
+    app = studio.app
+    app.editor.open_file(path)
+    panel = app.tuner
+    panel.free["amplitude"].value = True
+    panel.budget.value = 4
+    panel.seconds.value = 0.5
+    run = panel.start(workers=1, popsize=3)
+    assert wait_until(lambda: not run.running, timeout=120)
+    panel._on_best(_click("Adopt"))
+    assert not app.doc.problems and app.doc.gait().robot.file == "robot.toml"
+    text = app.doc.text()
+    assert 'file = "robot.toml"' in text and "[robot.module]" not in text and "mass = 0.25" not in text
+    assert "Tuned by" in text and "(its modules described by the robot file robot.toml)" in text
+    assert app.doc.gait().robot.module.mass == 0.25

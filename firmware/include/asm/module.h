@@ -63,9 +63,10 @@ int asm_module_calibrate(struct asm_module *m, const struct asm_calibration *c);
 void asm_module_set_store(struct asm_module *m, asm_calibration_store store, void *ctx);
 /* What a port measured itself for module.info: the worst control tick in cycles and the stack's high-water mark. */
 void asm_module_measured(struct asm_module *m, uint32_t tick_cycles, uint32_t stack_bytes);
-/* The module type ``module.type`` reports: its first ASM_TYPE_BYTES bytes (a board's port passes its constant after
- * asm_module_init; empty until then: the module does not say). */
-void asm_module_set_type(struct asm_module *m, const char *type);
+/* The module type ``module.type`` reports (a board's port passes its constant after asm_module_init; empty until
+ * then: the module does not say): ASM_S_OK, or ASM_S_VALUE_ERROR, the type unchanged, for a name that is no type's
+ * (1 to ASM_TYPE_BYTES letters, digits, '_', '+' or '-', the first a letter or digit; "" says none). */
+int asm_module_set_type(struct asm_module *m, const char *type);
 /* Command the joint to ``degrees``, clamped to joint.limits (the gait's output, a hold). */
 void asm_module_set_goal(struct asm_module *m, float degrees);
 /* One control tick: read the joint into joint.angle, joint.torque and sensor.contact (published by their policies),
