@@ -195,10 +195,15 @@ class SimBus(can.BusABC):
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
         if not self._open:
             raise can.CanOperationError("the bus is shut down")
-        msg = can.Message(timestamp=time.time(), arbitration_id=msg.arbitration_id, is_extended_id=msg.is_extended_id,
-                          is_remote_frame=msg.is_remote_frame, is_error_frame=msg.is_error_frame, dlc=msg.dlc,
-                          data=bytes(msg.data), is_fd=msg.is_fd, bitrate_switch=msg.bitrate_switch,
-                          error_state_indicator=msg.error_state_indicator, channel=self._channel)  # fmt: skip
+        if getattr(type(msg), "owned_by_bus", False):  # its sender lets it go (asm_py.transport.can_send.Frame)
+            msg.timestamp = time.time()
+            msg.channel = self._channel
+        else:  # the receivers get a copy of their own, as from a wire
+            msg = can.Message(timestamp=time.time(), arbitration_id=msg.arbitration_id,
+                              is_extended_id=msg.is_extended_id, is_remote_frame=msg.is_remote_frame,
+                              is_error_frame=msg.is_error_frame, dlc=msg.dlc, data=bytes(msg.data), is_fd=msg.is_fd,
+                              bitrate_switch=msg.bitrate_switch, error_state_indicator=msg.error_state_indicator,
+                              channel=self._channel)  # fmt: skip
         urgent = msg.is_extended_id and not msg.arbitration_id & URGENT_MASK
         with SimBus._lock:  # one order of frames on the channel, as on a wire
             receivers = SimBus._receivers.get(self._channel)

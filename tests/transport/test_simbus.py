@@ -149,3 +149,33 @@ def test_the_receivers_remembered_for_an_identifier_follow_filter_changes() -> N
     finally:
         sender.shutdown()
         receiver.shutdown()
+
+
+def test_a_transport_frame_is_delivered_itself_and_what_its_sender_records_is_a_copy(tmp_path) -> None:
+    """asm_sim hands a transport's own frame to its receivers instead of a copy (issue 31): the sender lets it go,
+    so recording what it sent must not turn the frame a receiver holds into a transmitted one. A plain python-can
+    message is still copied."""
+    from asm_py.transport.can import CanTransport
+
+    channel = fresh_name("simbus")
+    listener = SimBus(channel=channel)
+    transport = CanTransport(5, interface="asm_sim", channel=channel, heartbeat_period=60.0,
+                             record=tmp_path / "sent.asc")  # fmt: skip
+    try:
+        transport.attach("m5", lambda source, data: None)
+        while listener.recv(timeout=0) is not None:  # the first heartbeat
+            pass
+        transport.publish("x", b"\x20\x00\x01\x02\x03")
+        frame = listener.recv(timeout=5)
+        assert frame is not None and frame.is_rx and frame.channel == channel and frame.timestamp > 0
+        assert bytes(frame.data) == b"\x20\x00\x01\x02\x03"
+        plain = can.Message(arbitration_id=0x123, is_extended_id=False, data=b"\x07")
+        transport.bus.send(plain)
+        copied = listener.recv(timeout=5)
+        assert copied is not None and copied is not plain and plain.channel is None
+        assert bytes(copied.data) == b"\x07" and copied.channel == channel and copied.is_rx
+    finally:
+        transport.close()
+        listener.shutdown()
+    sent = [line for line in (tmp_path / "sent.asc").read_text().splitlines() if "20 00 01 02 03" in line]
+    assert len(sent) == 1 and " Tx " in sent[0]
