@@ -15,7 +15,9 @@ import math
 import threading
 import time
 from collections.abc import Callable, Collection, Mapping
+from contextlib import AbstractContextManager, nullcontext
 from dataclasses import dataclass, field
+from functools import partial
 from typing import Any
 
 import mujoco
@@ -27,6 +29,7 @@ from asm_module.c_module import CModule
 from asm_module.module import Module
 from asm_module.names import module_name
 from asm_py import Event, Node
+from asm_py.canbus.simbus import SimBus
 from asm_py.clock import SimClock
 
 from .deploy import module_tables
@@ -192,6 +195,10 @@ class Simulation:
         self._ends = [mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_BODY, name) for name in ends]
         """A chain's first and last bodies: its heading is the line between them."""
         self._started = False
+        channel = str((bus_options or {}).get("channel", ""))
+        self._burst: Callable[[], AbstractContextManager[None]] = (
+            partial(SimBus.holding, channel) if (bus_options or {}).get("interface") == "asm_sim" else nullcontext
+        )
         hub = LocalNeighbours() if node_of is None else None  # without a bus, neighbours are heard in-process
         self._states = {a.id: 0 for a in gait.modules}
         """Each module's automaton state as it announced it on the in-process hub (Python and C alike)."""
@@ -344,7 +351,8 @@ class Simulation:
     def _control_tick(self) -> None:
         self._sense_contacts()
         self.clock.advance_to(self.data.time)
-        self.tick.set(self.data.time)
+        with self._burst():  # what the modules send in one tick goes on the bus in one hand-off (asm_py.canbus.simbus)
+            self.tick.set(self.data.time)
         if self.trace is not None:
             self.trace.times.append(self.data.time)
             self.trace.goals.append([self.goal(a.id) for a in self.gait.modules])

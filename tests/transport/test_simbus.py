@@ -129,6 +129,40 @@ def test_an_urgent_frame_overtakes_the_frames_queued_for_the_dispatch_thread() -
         sender.shutdown()
 
 
+def test_frames_held_by_a_thread_go_out_together_at_the_end_and_nothing_is_reordered() -> None:
+    """Issue 31: a control tick's frames reach the bridge in one hand-off (``SimBus.holding``). Another thread's
+    frame, or an urgent one, sends what waits before it; the frames of every sender reach each receiver in the order
+    they were sent; a second holder is refused."""
+    channel = fresh_name("simbus-hold")
+    a, b, receiver = SimBus(channel=channel), SimBus(channel=channel), SimBus(channel=channel)
+
+    def frame(k: int) -> can.Message:
+        return can.Message(arbitration_id=0x1C000000 | k, is_extended_id=True, data=bytes([k]))
+
+    try:
+        with SimBus.holding(channel):
+            a.send(frame(1))
+            b.send(frame(2))
+            assert _drain(receiver) == []  # held: nothing delivered yet
+            with pytest.raises(RuntimeError, match="already held"), SimBus.holding(channel):
+                pass
+            other = threading.Thread(target=lambda: b.send(frame(3)))
+            other.start()
+            other.join(5)
+            assert _drain(receiver) == [0x1C000001, 0x1C000002, 0x1C000003]  # the other thread's frame came after
+            a.send(frame(4))
+            a.send(can.Message(arbitration_id=0x00000042, is_extended_id=True, data=b"stop"))  # urgent: at once
+            assert _drain(receiver) == [0x42, 0x1C000004]  # (the urgent FIFO is read first, as a controller's)
+            a.send(frame(5))
+            b.send(frame(6))
+        assert _drain(receiver) == [0x1C000005, 0x1C000006]
+        a.send(frame(7))  # released: at once again
+        assert _drain(receiver) == [0x1C000007]
+    finally:
+        for bus in (a, b, receiver):
+            bus.shutdown()
+
+
 def test_the_receivers_remembered_for_an_identifier_follow_filter_changes() -> None:
     channel = fresh_name("simbus")
     sender, receiver = SimBus(channel=channel), SimBus(channel=channel)
