@@ -403,8 +403,10 @@ class CanTransport(FrameSender, Transport):
             self._on_system(source_id, dest, data)
             return
         self._heard(source_id)
-        source = self.name_of(source_id)
         if len(data) >= 4 and kind_of(data) == Kind.PUBLICATION:
+            if not self._subscriptions:  # a bridge hears every publication of the bus and subscribes to none
+                return
+            source = self.name_of(source_id)
             callbacks = self._subscriptions.get((source, data[3]), ())
             alias = f"{ALIAS_PREFIX}{source_id}"
             if source != alias:  # a subscriber may name a publisher by its ID alone, whatever heartbeats say
@@ -415,7 +417,7 @@ class CanTransport(FrameSender, Transport):
                 except Exception:
                     log.exception("subscriber of %s/%d failed", source, data[3])
             return
-        self._deliver(source, data)
+        self._deliver(self.name_of(source_id), data)
 
     def _on_system(self, source_id: int, code: int, data: bytes) -> None:
         if code == SystemCode.HEARTBEAT:

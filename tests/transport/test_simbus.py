@@ -213,3 +213,23 @@ def test_a_transport_frame_is_delivered_itself_and_what_its_sender_records_is_a_
         listener.shutdown()
     sent = [line for line in (tmp_path / "sent.asc").read_text().splitlines() if "20 00 01 02 03" in line]
     assert len(sent) == 1 and " Tx " in sent[0]
+
+
+def test_recv_reads_the_urgent_fifo_first_and_logs_as_python_can_does(caplog: pytest.LogCaptureFixture) -> None:
+    """``SimBus.recv`` skips python-can's loop (issue 31), not what it does: the urgent FIFO first, a level-9 log
+    line per frame received, None when nothing comes."""
+    channel = fresh_name("simbus-recv")
+    sender, receiver = SimBus(channel=channel), SimBus(channel=channel)
+    try:
+        sender.send(can.Message(arbitration_id=0x1C000001, is_extended_id=True, data=b"a"))
+        sender.send(can.Message(arbitration_id=0x00000042, is_extended_id=True, data=b"stop"))
+        with caplog.at_level(9, logger="can.bus"):
+            first, second = receiver.recv(timeout=1), receiver.recv(timeout=1)
+        assert first is not None and second is not None
+        assert [first.arbitration_id, second.arbitration_id] == [0x42, 0x1C000001]
+        assert [r.getMessage().startswith("Received: ") for r in caplog.records if r.name == "can.bus"] == [True] * 2
+        began = time.monotonic()
+        assert receiver.recv(timeout=0.05) is None and time.monotonic() - began >= 0.04
+    finally:
+        sender.shutdown()
+        receiver.shutdown()
