@@ -196,7 +196,7 @@ def test_a_transport_frame_is_delivered_itself_and_what_its_sender_records_is_a_
     transport = CanTransport(5, interface="asm_sim", channel=channel, heartbeat_period=60.0,
                              record=tmp_path / "sent.asc")  # fmt: skip
     try:
-        transport.attach("m5", lambda source, data: None)
+        transport.attach("m5", lambda source, data, respond: None)
         while listener.recv(timeout=0) is not None:  # the first heartbeat
             pass
         transport.publish("x", b"\x20\x00\x01\x02\x03")
