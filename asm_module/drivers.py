@@ -10,13 +10,16 @@ from __future__ import annotations
 import math
 import threading
 from abc import ABC, abstractmethod
-from dataclasses import dataclass
+from typing import NamedTuple
 
 from asm_py.clock import WALL_CLOCK, Clock
 
 
-@dataclass(frozen=True)
-class JointReading:
+class JointReading(NamedTuple):
+    """A joint's state at one instant. A named tuple, not a frozen dataclass: every module makes two at every control
+    tick (its driver's and the calibrated one), and a frozen dataclass's ``__init__`` sets each field through
+    ``object.__setattr__`` (issue 31)."""
+
     angle: float
     """Measured joint angle, degrees."""
     torque: float = 0.0

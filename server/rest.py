@@ -7,7 +7,10 @@ read the joints as they stand) and a pose frame goes out, so the clock, the publ
 carry on as before. It wakes within ``CHECK`` seconds of anything that can move the robot: a gait
 started, a joint commanded, powered or relaxed, an e-stop's hold, a push.
 
-Only a robot whose modules are all Python module runtimes rests: a C or emulated module keeps its own time.
+A robot of Python and C modules rests: each ticks only when the simulation's tick fires, on the simulation's clock.
+A C module's own timed work — heartbeats, publication refreshes, the deadlines of waits — runs at its ticks, so at
+rest it comes up to REST_TICK late (a Python module's runs on the wall clock's timers). An emulated board keeps its
+own time: a robot with one does not rest.
 """
 
 from __future__ import annotations
@@ -15,6 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 from asm_module import ModuleRuntime
+from asm_module.c_module import CModule
 from gaits.sim import Simulation
 
 REST_SPEED = 1e-3
@@ -30,8 +34,8 @@ class Rest:
 
     def __init__(self, sim: Simulation) -> None:
         self.sim = sim
-        self._runtimes = [m for m in sim.modules.values() if isinstance(m, ModuleRuntime)]
-        self._all_python = len(self._runtimes) == len(sim.modules)
+        self._modules = list(sim.modules.values())
+        self._can_rest = all(isinstance(m, ModuleRuntime | CModule) for m in self._modules)
         self._inputs: np.ndarray | None = None
         self.rests = 0
         """Times the robot came to rest (tests, benches)."""
@@ -39,9 +43,9 @@ class Rest:
     def still(self) -> bool:
         """No gait runs, no push, every joint and body still."""
         sim = self.sim
-        if not self._all_python or sim.pushing:
+        if not self._can_rest or sim.pushing:
             return False
-        if any(runtime.gait.started for runtime in self._runtimes):
+        if any(module.gait_running() for module in self._modules):
             return False
         return float(np.abs(sim.data.qvel).max(initial=0.0)) < REST_SPEED
 
@@ -51,7 +55,7 @@ class Rest:
 
     def disturbed(self) -> bool:
         """Something that can move the robot changed since ``begin``."""
-        if self.sim.pushing or any(runtime.gait.started for runtime in self._runtimes):
+        if self.sim.pushing or any(module.gait_running() for module in self._modules):
             return True
         return self._inputs is None or not np.array_equal(self._inputs, self._read_inputs())
 

@@ -149,6 +149,8 @@ class CanTransport(FrameSender, Transport):
         node (``send``'s and ``wait_reply``'s hot path; cleared when a heartbeat changes what a name means)."""
         self._single_sizes = frozenset(FD_SIZES if fd else range(9))
         """Message lengths that travel as one frame."""
+        self._publication_id: int | None = None
+        """The identifier of this node's one-frame publications, once one was sent."""
         self._timer: TimerHandle | None = None
         self._next_beat = 0.0
         self._pushed = False
@@ -288,6 +290,12 @@ class CanTransport(FrameSender, Transport):
             self.send_message(Dest.GROUP, group_id(group, self.group_table), data, Priority.REQUEST)
 
     def publish(self, object_name: str, data: bytes, json_text: Callable[[], str] | None = None) -> None:
+        if len(data) in self._single_sizes:  # a publication of one frame: its identifier made once (issue 31)
+            ident = self._publication_id
+            if ident is None:
+                ident = self._publication_id = self._single_id(Priority.PUBLICATION, Dest.BROADCAST, 0, self.node_id)
+            self._send_single(ident, data)
+            return
         self.send_message(Dest.BROADCAST, 0, data, Priority.PUBLICATION)
 
     def _send_heartbeat(self) -> None:
@@ -395,8 +403,10 @@ class CanTransport(FrameSender, Transport):
             self._on_system(source_id, dest, data)
             return
         self._heard(source_id)
-        source = self.name_of(source_id)
         if len(data) >= 4 and kind_of(data) == Kind.PUBLICATION:
+            if not self._subscriptions:  # a bridge hears every publication of the bus and subscribes to none
+                return
+            source = self.name_of(source_id)
             callbacks = self._subscriptions.get((source, data[3]), ())
             alias = f"{ALIAS_PREFIX}{source_id}"
             if source != alias:  # a subscriber may name a publisher by its ID alone, whatever heartbeats say
@@ -407,7 +417,7 @@ class CanTransport(FrameSender, Transport):
                 except Exception:
                     log.exception("subscriber of %s/%d failed", source, data[3])
             return
-        self._deliver(source, data)
+        self._deliver(self.name_of(source_id), data)
 
     def _on_system(self, source_id: int, code: int, data: bytes) -> None:
         if code == SystemCode.HEARTBEAT:

@@ -12,7 +12,7 @@ import threading
 import time
 from collections.abc import Iterable
 from copy import deepcopy
-from typing import Any
+from typing import Any, ClassVar
 
 import can
 
@@ -42,6 +42,9 @@ class Frame(can.Message):
     copy is as deep (a new bytearray; an immutable channel is shared, any other deep-copied)."""
 
     __slots__ = ()
+    owned_by_bus: ClassVar[bool] = True
+    """Its sender makes one for each send and never touches it again (what it logs is a copy): a bus may deliver
+    this very object to its receivers instead of a copy of it (``asm_sim`` does; issue 31)."""
 
     def __deepcopy__(self, memo: dict[int, Any] | None) -> Frame:
         channel = self.channel
@@ -69,6 +72,7 @@ class FrameSender:
     _log_lock: threading.Lock
     _logger: can.Listener | None
     _single_ids: dict[tuple[int, int, int, int], int]
+    _bus: can.BusABC | None
 
     @property
     def bus(self) -> can.BusABC:
@@ -89,9 +93,7 @@ class FrameSender:
             raise
         self.frames_sent += 1
         if self._logger is not None:
-            frame.timestamp = time.time()
-            frame.is_rx = False
-            self._log(frame)
+            self._log_sent(frame)
 
     def send_message(self, dest_kind: int, dest: int, data: bytes, priority: int, *, source: int | None = None) -> int:
         """Send one message as its frames (fragmented if long: at BULK priority unless more urgent); the frame count.
@@ -127,7 +129,9 @@ class FrameSender:
         """Send a message of one frame with identifier ``ident``: 1, or 0 when it failed."""
         fd = self.fd
         message = Frame(arbitration_id=ident, is_extended_id=True, data=data, is_fd=fd, bitrate_switch=fd)
-        bus = self.bus
+        bus = self._bus
+        if bus is None:
+            bus = self.bus  # raises: not open
         with self._send_lock:
             try:
                 bus.send(message, timeout=self.send_timeout)
@@ -137,9 +141,7 @@ class FrameSender:
                 return 0
             self.frames_sent += 1
         if self._logger is not None:
-            message.timestamp = time.time()
-            message.is_rx = False
-            self._log(message)
+            self._log_sent(message)
         return 1
 
     def _send_frames(self, frames: Iterable[tuple[int, int, bytes]], base: int, length: int) -> int:
@@ -159,10 +161,15 @@ class FrameSender:
                 self.frames_sent += 1
                 count += 1
                 if self._logger is not None:
-                    message.timestamp = time.time()
-                    message.is_rx = False
-                    self._log(message)
+                    self._log_sent(message)
         return count
+
+    def _log_sent(self, frame: Frame) -> None:
+        """Log a frame just sent, as sent now: a copy (the bus may have handed ``frame`` itself to its receivers)."""
+        sent = deepcopy(frame)
+        sent.timestamp = time.time()
+        sent.is_rx = False
+        self._log(sent)
 
     def _log(self, frame: can.Message) -> None:
         with self._log_lock:

@@ -210,6 +210,37 @@ def test_distance() -> None:
     assert distance(math.nan, math.nan) == 0.0
 
 
+@pytest.mark.parametrize(
+    ("codec", "deadband", "values"),
+    [
+        ("float64", 0.5, [0.0, math.nan, math.nan, 1.0, 1.25, math.inf, math.inf, -math.inf, 5.0, 5.5, 5.75, -0.0]),
+        ("uint16", 0, [0, 0, 3, 3, 4, 65535, 65535, 0]),
+        ("int32", 2, [0, 1, 3, 6, 4, 7, -7]),
+    ],
+)
+def test_a_deadband_publishes_exactly_what_distance_says(codec: str, deadband: float, values: list) -> None:
+    """The publisher's shortcut for two numbers (issue 31) decides as distance() does, NaNs and infinities too."""
+    sent: list = []
+
+    class Recording(MemoryTransport):
+        def publish(self, object_name: str, data: bytes, json_text=None) -> None:
+            sent.append(data)
+
+    node = Node("module", Recording(MemoryNetwork()))
+    try:
+        attr = Attribute("x", codec=codec)
+        node.register(attr)
+        attr.publish(deadband=deadband)
+        expected, last = 0, None
+        for value in values:
+            attr.set(value)
+            if last is None or not distance(last, value) <= deadband:  # (a NaN distance publishes)
+                expected, last = expected + 1, value
+            assert len(sent) == expected, f"after {value!r} (last published {last!r})"
+    finally:
+        node.close()
+
+
 def test_json_view_of_publications() -> None:
     seen: list[str] = []
 

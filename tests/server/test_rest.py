@@ -22,10 +22,12 @@ from .test_robot import Viewer
 pytestmark = pytest.mark.timeout(180)
 
 
-@pytest.fixture
-def robot() -> Iterator[tuple[Robot, Node, Viewer]]:
+@pytest.fixture(params=["python", "c"])
+def robot(request: pytest.FixtureRequest) -> Iterator[tuple[Robot, Node, Viewer]]:
+    """The caterpillar's robot, its modules all Python or all C (the C runtime rests too; issue 31)."""
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    robot = Robot(RobotOptions(sim=LIBRARY / "caterpillar.toml", network=ZenohOptions(listen=(endpoint,))))
+    robot = Robot(RobotOptions(sim=LIBRARY / "caterpillar.toml", network=ZenohOptions(listen=(endpoint,)),
+                               c_modules="all" if request.param == "c" else ()))  # fmt: skip
     client = Node("tool", ZenohTransport(connect=[endpoint]))
     viewer = Viewer(client.transport.session)  # type: ignore[attr-defined]
     try:

@@ -129,6 +129,40 @@ def test_an_urgent_frame_overtakes_the_frames_queued_for_the_dispatch_thread() -
         sender.shutdown()
 
 
+def test_frames_held_by_a_thread_go_out_together_at_the_end_and_nothing_is_reordered() -> None:
+    """Issue 31: a control tick's frames reach the bridge in one hand-off (``SimBus.holding``). Another thread's
+    frame, or an urgent one, sends what waits before it; the frames of every sender reach each receiver in the order
+    they were sent; a second holder is refused."""
+    channel = fresh_name("simbus-hold")
+    a, b, receiver = SimBus(channel=channel), SimBus(channel=channel), SimBus(channel=channel)
+
+    def frame(k: int) -> can.Message:
+        return can.Message(arbitration_id=0x1C000000 | k, is_extended_id=True, data=bytes([k]))
+
+    try:
+        with SimBus.holding(channel):
+            a.send(frame(1))
+            b.send(frame(2))
+            assert _drain(receiver) == []  # held: nothing delivered yet
+            with pytest.raises(RuntimeError, match="already held"), SimBus.holding(channel):
+                pass
+            other = threading.Thread(target=lambda: b.send(frame(3)))
+            other.start()
+            other.join(5)
+            assert _drain(receiver) == [0x1C000001, 0x1C000002, 0x1C000003]  # the other thread's frame came after
+            a.send(frame(4))
+            a.send(can.Message(arbitration_id=0x00000042, is_extended_id=True, data=b"stop"))  # urgent: at once
+            assert _drain(receiver) == [0x42, 0x1C000004]  # (the urgent FIFO is read first, as a controller's)
+            a.send(frame(5))
+            b.send(frame(6))
+        assert _drain(receiver) == [0x1C000005, 0x1C000006]
+        a.send(frame(7))  # released: at once again
+        assert _drain(receiver) == [0x1C000007]
+    finally:
+        for bus in (a, b, receiver):
+            bus.shutdown()
+
+
 def test_the_receivers_remembered_for_an_identifier_follow_filter_changes() -> None:
     channel = fresh_name("simbus")
     sender, receiver = SimBus(channel=channel), SimBus(channel=channel)
@@ -146,6 +180,56 @@ def test_the_receivers_remembered_for_an_identifier_follow_filter_changes() -> N
             sender.send(can.Message(arbitration_id=k, data=b"c"))
         assert _drain(receiver) == list(range(5000))
         assert len(SimBus._receivers[channel]._known) <= 4096
+    finally:
+        sender.shutdown()
+        receiver.shutdown()
+
+
+def test_a_transport_frame_is_delivered_itself_and_what_its_sender_records_is_a_copy(tmp_path) -> None:
+    """asm_sim hands a transport's own frame to its receivers instead of a copy (issue 31): the sender lets it go,
+    so recording what it sent must not turn the frame a receiver holds into a transmitted one. A plain python-can
+    message is still copied."""
+    from asm_py.transport.can import CanTransport
+
+    channel = fresh_name("simbus")
+    listener = SimBus(channel=channel)
+    transport = CanTransport(5, interface="asm_sim", channel=channel, heartbeat_period=60.0,
+                             record=tmp_path / "sent.asc")  # fmt: skip
+    try:
+        transport.attach("m5", lambda source, data, respond: None)
+        while listener.recv(timeout=0) is not None:  # the first heartbeat
+            pass
+        transport.publish("x", b"\x20\x00\x01\x02\x03")
+        frame = listener.recv(timeout=5)
+        assert frame is not None and frame.is_rx and frame.channel == channel and frame.timestamp > 0
+        assert bytes(frame.data) == b"\x20\x00\x01\x02\x03"
+        plain = can.Message(arbitration_id=0x123, is_extended_id=False, data=b"\x07")
+        transport.bus.send(plain)
+        copied = listener.recv(timeout=5)
+        assert copied is not None and copied is not plain and plain.channel is None
+        assert bytes(copied.data) == b"\x07" and copied.channel == channel and copied.is_rx
+    finally:
+        transport.close()
+        listener.shutdown()
+    sent = [line for line in (tmp_path / "sent.asc").read_text().splitlines() if "20 00 01 02 03" in line]
+    assert len(sent) == 1 and " Tx " in sent[0]
+
+
+def test_recv_reads_the_urgent_fifo_first_and_logs_as_python_can_does(caplog: pytest.LogCaptureFixture) -> None:
+    """``SimBus.recv`` skips python-can's loop (issue 31), not what it does: the urgent FIFO first, a level-9 log
+    line per frame received, None when nothing comes."""
+    channel = fresh_name("simbus-recv")
+    sender, receiver = SimBus(channel=channel), SimBus(channel=channel)
+    try:
+        sender.send(can.Message(arbitration_id=0x1C000001, is_extended_id=True, data=b"a"))
+        sender.send(can.Message(arbitration_id=0x00000042, is_extended_id=True, data=b"stop"))
+        with caplog.at_level(9, logger="can.bus"):
+            first, second = receiver.recv(timeout=1), receiver.recv(timeout=1)
+        assert first is not None and second is not None
+        assert [first.arbitration_id, second.arbitration_id] == [0x42, 0x1C000001]
+        assert [r.getMessage().startswith("Received: ") for r in caplog.records if r.name == "can.bus"] == [True] * 2
+        began = time.monotonic()
+        assert receiver.recv(timeout=0.05) is None and time.monotonic() - began >= 0.04
     finally:
         sender.shutdown()
         receiver.shutdown()
