@@ -125,6 +125,9 @@ class Recorder:
         """Samples dropped because the queue was full (counted by the receiving threads)."""
         self._refused = 0
         """Samples that were not what their key says (counted by the writer)."""
+        self.missed = 0
+        """Publications that never reached the recorder: gaps in their objects' sequence numbers (counted by the
+        writer). Not dropped by the recorder, so not in ``dropped``."""
         self._pending: deque[tuple[Any, ...]] = deque()
         """(handler, its arguments…, the arrival time in ns) per sample, or per batch of publications: appended on
         the receiving threads, taken by the writer (a deque's append and popleft are atomic, no lock)."""
@@ -260,6 +263,7 @@ class Recorder:
         except ValueError:
             self._refused += 1  # a payload that is not what its key says: not recorded, counted
             return
+        self.missed += publications.missed(data[1])
         self._put(publications.topic, ATTRIBUTE, view, ns, int(t * 1e9), data[1])
 
     def _new_file(self, ns: int = 0) -> None:
@@ -303,7 +307,14 @@ class Recorder:
         if self.error is not None:
             raise OSError(self.error.errno, f"the recording stopped: cannot write {self.files.paths[-1]}: "
                           f"{self.error.strerror or self.error}")  # fmt: skip
-        self.files.close({**(end or {}), "messages": str(sum(self.counts.values())), "dropped": str(self.dropped)})
+        self.files.close(
+            {
+                **(end or {}),
+                "messages": str(sum(self.counts.values())),
+                "dropped": str(self.dropped),
+                "missed": str(self.missed),
+            }
+        )
 
 
 def byte_size(text: str) -> int:
@@ -377,6 +388,12 @@ def _record(args: argparse.Namespace, network: ZenohOptions, done: threading.Eve
     total = sum(recorder.counts.values())
     print(f"asm-record: {total} messages of robot {args.robot} in {time.monotonic() - started:.1f} s "
           f"({recorder.dropped} dropped) to {', '.join(str(p) for p in files.paths)}", flush=True)  # fmt: skip
+    if recorder.missed:
+        print(
+            f"asm-record: {recorder.missed} publications never arrived (gaps in their objects' sequence numbers: "
+            "lost on the network, not by the recorder)",
+            flush=True,
+        )
     return 0
 
 

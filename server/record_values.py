@@ -49,7 +49,7 @@ PROFILE_CODECS: dict[str, tuple[int, Codec]] = {
 class Publications:
     """One object's publications: its channel, and each one's JSON view."""
 
-    __slots__ = ("class_id", "decode", "json", "object_id", "prefix", "topic")
+    __slots__ = ("class_id", "decode", "json", "last_seq", "object_id", "prefix", "topic")
 
     def __init__(self, node: str, name: str, class_name: str, class_id: int, codec: Codec, object_id: int = -1):
         self.topic = attribute_topic(node, name)
@@ -59,6 +59,16 @@ class Publications:
         """-1: any (an object of a profile class is known by its name, not its ID)."""
         self.decode = codec.decode
         self.json = value_json(codec)
+        self.last_seq = -1
+        """The sequence number of the last publication written (-1: none yet)."""
+
+    def missed(self, seq: int) -> int:
+        """Publications of this object that never arrived before this one, numbered ``seq``: a publisher numbers its
+        publications of an object one by one, modulo 128, and Zenoh delivers them in order, so a gap is a publication
+        lost on the way (dropped by a congested publisher or link: values are put with congestion control DROP).
+        128 in a row lost look like none."""
+        last, self.last_seq = self.last_seq, seq
+        return 0 if last < 0 else (seq - last - 1) % (SEQUENCE + 1)
 
     def view(self, data: bytes, t: float) -> bytes:
         """The JSON view of ``data`` published at ``t``; ValueError if ``data`` is not a publication of this object."""

@@ -80,8 +80,9 @@ class StudioRecording:
         self.recorder = None
         seconds = time.monotonic() - self._started
         recorder.close({"seconds": f"{seconds:.3f}"})
-        return (f"recorded {sum(recorder.counts.values())} messages in {seconds:.1f} s ({recorder.dropped} dropped) "
-                f"to {self.path}")  # fmt: skip
+        missed = f", {recorder.missed} lost on the network" if recorder.missed else ""
+        return (f"recorded {sum(recorder.counts.values())} messages in {seconds:.1f} s ({recorder.dropped} dropped"
+                f"{missed}) to {self.path}")  # fmt: skip
 
     def close(self) -> None:
         """Finish a recording still running, and end the thread."""
