@@ -45,8 +45,8 @@ format: $(STAMP)
 	$(PY) -m ruff format .
 	$(PY) -m ruff check --fix .
 
-# Two workers (pytest-xdist) on two cores: four overloaded them (docs/benchmarks.md, "The suite's time"); the
-# browser tests are two xdist groups, so at most two Chromiums draw at once. TEST_WORKERS=N to choose;
+# Two workers (pytest-xdist) on two cores: four overloaded them (docs/benchmarks.md, "The suite's time"); each
+# browser test module is its own xdist group, so at most one Chromium a worker. TEST_WORKERS=N to choose;
 # `make test-serial` runs the same tests in one process.
 TEST_WORKERS ?= 2
 PYTEST := PLAYWRIGHT_SKIP_BROWSER_DOWNLOAD=1 $(PY) -m pytest -m "not slow"
