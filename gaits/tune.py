@@ -340,7 +340,10 @@ def _verify(result: Result, leaders: list[Leader], pool: Executor, setup: Setup,
     """The final check: leaders run ``setup.verify`` × the search's run, CHECK_ROUND at a time, the start with the
     first round. Of a round's leaders that keep every constraint and, when the start held, do at least as well as
     the start over the longer run (a score a short run found by luck — a tumble end over end that looked fast —
-    does not), the best-scored in the search is the best; none in any round: no best. The search's value stays the
+    does not), the best-scored in the search is the best; none in any round: the start if it held, else no best (the
+    start is only the floor: were it a candidate of the first round, its holding would end the check there with the
+    start as best whenever that round's two leaders failed, and the next rounds' leaders never ran — as it did, from
+    c3e1d78 on: the flat caterpillar's tuned gait was the library's own). The search's value stays the
     result's (its file reproduces it), the longer run's is ``verify_value``. Interrupted, the best is never a leader
     the check already refused."""
     longer = replace(setup, seconds=setup.seconds * setup.verify)
@@ -348,25 +351,39 @@ def _verify(result: Result, leaders: list[Leader], pool: Executor, setup: Setup,
     rest = [leader for leader in leaders if leader is not start]
     batch = rest[:CHECK_ROUND] + ([start] if start is not None else [])
     rest = rest[CHECK_ROUND:]
+    start_held: tuple[float, Leader] | None = None
     while batch:
         outcomes = list(pool.map(_evaluate_job, [(doc, longer) for *_, doc in batch]))
         result.account(outcomes, longer)
         held = [(outcome.value, leader) for leader, outcome in zip(batch, outcomes, strict=True) if outcome.feasible]
         result.verify_refused += len(batch) - len(held)
-        floor = next((value for value, leader in held if leader is start), None)
-        if floor is not None:  # the start held: a leader that does worse than it over the longer run is passed over
+        if start is not None and start in batch:  # the start is the floor, not a leader: the next round may hold
+            start_held = next((h for h in held if h[1] is start), None)
+            held = [h for h in held if h[1] is not start]
+        if (
+            start_held is not None
+        ):  # the start held: a leader that does worse than it over the longer run is passed over
+            floor = start_held[0]
             result.verify_refused += sum(sign * value < sign * floor for value, _ in held)
             held = [(value, leader) for value, leader in held if sign * value >= sign * floor]
-        if held:  # the best search score of those that held (the start is among them: never worse than it)
-            value, (score, _, values, doc) = min(held, key=lambda h: h[1][:2])
-            result.best, result.values, result.verified = from_dict(doc), values, True
-            result.verify_value, result.value = value, -sign * score
+        if held:  # the best search score of those that held
+            _take(result, min(held, key=lambda h: h[1][:2]), sign)
             return
         if rest:  # an interruption from here on keeps the next leader, never one the check refused
             score, _, values, doc = rest[0]
             result.best, result.values, result.value = from_dict(doc), values, -sign * score
         batch, rest = rest[:CHECK_ROUND], rest[CHECK_ROUND:]
+    if start_held is not None:  # no leader held in any round: the start, which did
+        _take(result, start_held, sign)
+        return
     result.best, result.values, result.value = None, [], math.nan
+
+
+def _take(result: Result, held: tuple[float, Leader], sign: float) -> None:
+    """``held``'s leader is the best: its search score stays the result's value, the longer run's is verify_value."""
+    value, (score, _, values, doc) = held
+    result.best, result.values, result.verified = from_dict(doc), values, True
+    result.verify_value, result.value = value, -sign * score
 
 
 def _strategy(x0: np.ndarray, seed: int, popsize: int | None, budget: int) -> Any:

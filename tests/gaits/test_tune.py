@@ -17,7 +17,7 @@ from gaits.generate import WaveSpec, generate
 from gaits.model import LIBRARY, load, loads, to_dict
 from gaits.params import apply, check, current, parse_free
 from gaits.sim import Simulation
-from gaits.tune import VIOLATION, Outcome, Setup, tune
+from gaits.tune import CHECK_ROUND, VIOLATION, Outcome, Setup, tune
 
 from .searches import interrupt, long_search, workers_of
 
@@ -318,6 +318,31 @@ def test_a_score_that_does_not_hold_over_the_check_run_loses_to_the_start():
     assert result.verified and result.best is not None
     assert _largest(result.best) <= 60 and result.verify_value > 0.01, "the best over the check run, not the luckiest"
     assert result.verify_value >= 0.5  # the start's 50° holds 0.5 m/s there: nothing worse is written
+
+
+class _FirstRoundFails(_Lucky):
+    """The search's two best break a constraint over the check run; every other candidate holds its score."""
+
+    def map(self, fn, *iterables, timeout=None, chunksize=1):
+        for document, setup in iterables[0]:
+            amplitude = max(abs(s["angle"]) for s in document["automata"]["wave"]["states"])
+            if setup.seconds > 2.0:
+                self.longer += 1
+                if self.longer <= CHECK_ROUND:
+                    yield Outcome(VIOLATION, amplitude / 100, "peak torque")
+                    continue
+            yield Outcome(-amplitude / 100, amplitude / 100, "")
+
+
+def test_when_the_first_leaders_fail_the_check_the_next_ones_are_checked_not_the_start_taken():
+    """bench/tune.py wrote the library caterpillar itself as the tuned gait: its first check round's two leaders
+    broke the torque limit over 12 s, the start (checked beside them as the floor) held, and the check ended there —
+    the next leaders, 2x faster than the start and within every constraint, never ran."""
+    result = tune(load(CATERPILLAR), [parse_free("amplitude=20:85")], SETUP, budget=30, seed=1,
+                  executor=_FirstRoundFails())  # fmt: skip
+    assert result.verified and result.best is not None and result.verify_refused == CHECK_ROUND
+    assert result.value == sorted((v for _, v in result.samples), reverse=True)[CHECK_ROUND]
+    assert result.value > result.start_value and _largest(result.best) > 50
 
 
 def test_an_interrupted_check_never_keeps_a_leader_it_refused():
