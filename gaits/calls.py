@@ -15,13 +15,18 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 from asm_py import Node
-from asm_py.errors import AsmError, AsmTimeout
+from asm_py.errors import AsmError, AsmTimeout, RemoteError
+from asm_py.protocol import Status
 from asm_py.remote import RemoteObject
 
 MIN_TIMEOUT = 0.05
 """Seconds a call waits at least (a round trip through a bridge on a quiet bus takes about 2 ms)."""
 FIRST_TIMEOUT = 0.5
 """Seconds before any round trip was measured."""
+BUSY_PAUSE = 0.05
+"""Seconds before a call answered BUSY is tried again, doubled at each BUSY (1.55 s over six attempts): a bridge
+answers BUSY while a client has 32 requests in flight, and a request whose reply was lost stays in flight there until
+its own deadline — at 1 % loss a deploy's retries could meet that limit and fail (bench/faults.py, once in two)."""
 BYTES_PER_SECOND = 16_000.0
 """Allowance for a request's size: half of what a 1 Mbit/s bus carries at the bridge's frame rate."""
 
@@ -74,8 +79,8 @@ class ModuleCalls:
         self._objects = _LOOKUPS.setdefault(node, {})
 
     def call(self, module: int, step: str, operation: Callable[[float], Any], size: int = 0) -> Any:
-        """``operation(timeout)`` (repeatable), retried on timeouts; DeployError naming the module and step
-        otherwise."""
+        """``operation(timeout)`` (repeatable), retried on timeouts and BUSY answers; DeployError naming the module
+        and step otherwise."""
         for attempt in range(self.attempts):
             wait = self.trips.timeout(size)
             began = time.monotonic()
@@ -85,6 +90,11 @@ class ModuleCalls:
                 self.trips.timed_out()  # back off, as TCP does
                 if attempt + 1 == self.attempts:
                     raise DeployError(f"module {module} ({self.names[module]}), {step}: {exc}") from exc
+                continue
+            except RemoteError as exc:
+                if exc.status != Status.BUSY or attempt + 1 == self.attempts:
+                    raise DeployError(f"module {module} ({self.names[module]}), {step}: {exc}") from exc
+                time.sleep(BUSY_PAUSE * 2**attempt)  # BUSY: nothing was done, so the call may be made again
                 continue
             except (AsmError, ValueError, LookupError, TypeError, PermissionError) as exc:
                 raise DeployError(f"module {module} ({self.names[module]}), {step}: {exc}") from exc

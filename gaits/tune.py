@@ -356,22 +356,26 @@ def _verify(result: Result, leaders: list[Leader], pool: Executor, setup: Setup,
         outcomes = list(pool.map(_evaluate_job, [(doc, longer) for *_, doc in batch]))
         result.account(outcomes, longer)
         held = [(outcome.value, leader) for leader, outcome in zip(batch, outcomes, strict=True) if outcome.feasible]
-        result.verify_refused += len(batch) - len(held)
         if start is not None and start in batch:  # the start is the floor, not a leader: the next round may hold
             start_held = next((h for h in held if h[1] is start), None)
             held = [h for h in held if h[1] is not start]
-        if (
-            start_held is not None
-        ):  # the start held: a leader that does worse than it over the longer run is passed over
+            batch = [leader for leader in batch if leader is not start]
+        result.verify_refused += len(batch) - len(held)  # leading candidates only: the start is not one
+        if start_held is not None:  # a leader that does worse than the start over the longer run is passed over
             floor = start_held[0]
             result.verify_refused += sum(sign * value < sign * floor for value, _ in held)
             held = [(value, leader) for value, leader in held if sign * value >= sign * floor]
         if held:  # the best search score of those that held
             _take(result, min(held, key=lambda h: h[1][:2]), sign)
             return
-        if rest:  # an interruption from here on keeps the next leader, never one the check refused
+        # What an interruption from here on keeps: the start if it held (a review saw an unchecked leader written,
+        # scored below the start), else the next leader — never one the check refused.
+        if start_held is not None:
+            _take(result, start_held, sign)
+        elif rest:
             score, _, values, doc = rest[0]
             result.best, result.values, result.value = from_dict(doc), values, -sign * score
+            result.verified = False
         batch, rest = rest[:CHECK_ROUND], rest[CHECK_ROUND:]
     if start_held is not None:  # no leader held in any round: the start, which did
         _take(result, start_held, sign)

@@ -44,7 +44,7 @@ from asm_py.protocol import ProtocolError, decode
 from . import foxglove_msgs as fx
 from .bridge_outlets import stamp_seconds
 from .mcap_files import Attachment, McapFiles, RecordingInfo, SchemaDef
-from .record_values import Objects, Publications, values_key
+from .record_values import SEQUENCE, Objects, Publications, values_key
 from .zenoh_args import ZenohOptions, add_zenoh_arguments, zenoh_options
 
 QUEUE_BOUND = 50_000
@@ -126,8 +126,9 @@ class Recorder:
         self._refused = 0
         """Samples that were not what their key says (counted by the writer)."""
         self.missed = 0
-        """Publications that never reached the recorder: gaps in their objects' sequence numbers (counted by the
-        writer). Not dropped by the recorder, so not in ``dropped``."""
+        """Publications missing between those recorded: short gaps in their objects' sequence numbers (counted by
+        the writer; Publications.missed). Lost on the way, or dropped by the recorder's full queue or a lookup's
+        held bound — those are in ``dropped`` too; a refused one is not a gap."""
         self._pending: deque[tuple[Any, ...]] = deque()
         """(handler, its arguments…, the arrival time in ns) per sample, or per batch of publications: appended on
         the receiving threads, taken by the writer (a deque's append and popleft are atomic, no lock)."""
@@ -191,9 +192,14 @@ class Recorder:
             except zenoh.ZError:
                 return
             times = [time_ns()]  # each its own: the replay orders and places a series' values by their log times
-            while (sample := try_recv()) is not None:
-                batch.append(sample)
-                times.append(time_ns())
+            try:
+                while (sample := try_recv()) is not None:
+                    batch.append(sample)
+                    times.append(time_ns())
+            except zenoh.ZError:  # closed while emptying: what was taken is still queued below, then the end
+                closed = True
+            else:
+                closed = False
             room = max(0, QUEUE_BOUND - (self._received - self._taken))
             if len(batch) > room:
                 self._overflow += len(batch) - room
@@ -201,6 +207,8 @@ class Recorder:
             if batch:
                 self._received += len(batch)
                 pending.append((self._write_values, batch, times))
+            if closed:
+                return
             time.sleep(RECEIVE_PERIOD)
 
     def _on_poses(self, sample: zenoh.Sample) -> None:
@@ -262,6 +270,8 @@ class Recorder:
             view = publications.view(data, t)
         except ValueError:
             self._refused += 1  # a payload that is not what its key says: not recorded, counted
+            if len(data) > 1 and data[1] <= SEQUENCE:
+                publications.last_seq = data[1]  # counted as refused, so not as missed too
             return
         self.missed += publications.missed(data[1])
         self._put(publications.topic, ATTRIBUTE, view, ns, int(t * 1e9), data[1])
@@ -390,8 +400,8 @@ def _record(args: argparse.Namespace, network: ZenohOptions, done: threading.Eve
           f"({recorder.dropped} dropped) to {', '.join(str(p) for p in files.paths)}", flush=True)  # fmt: skip
     if recorder.missed:
         print(
-            f"asm-record: {recorder.missed} publications never arrived (gaps in their objects' sequence numbers: "
-            "lost on the network, not by the recorder)",
+            f"asm-record: {recorder.missed} publications missing between those recorded (gaps in their objects' "
+            "sequence numbers: lost on the way, or among those dropped here)",
             flush=True,
         )
     return 0

@@ -38,6 +38,9 @@ SOURCE = segment("asm-record", tool=True)
 LOOKUP_TIMEOUT = 2.0
 LOOKUP_RETRY = 5.0
 """Seconds before an object whose lookup failed is asked again (its publications meanwhile are refused)."""
+GAP_BOUND = 64
+"""A jump in an object's sequence numbers of this many or more is a new start (half the numbers: one behind is 127
+ahead), not publications lost."""
 HELD_BOUND = 1_000
 """Publications of one object held while its lookup runs; beyond it they are dropped and counted."""
 PROFILE_CODECS: dict[str, tuple[int, Codec]] = {
@@ -63,12 +66,16 @@ class Publications:
         """The sequence number of the last publication written (-1: none yet)."""
 
     def missed(self, seq: int) -> int:
-        """Publications of this object that never arrived before this one, numbered ``seq``: a publisher numbers its
-        publications of an object one by one, modulo 128, and Zenoh delivers them in order, so a gap is a publication
-        lost on the way (dropped by a congested publisher or link: values are put with congestion control DROP).
-        128 in a row lost look like none."""
+        """Publications of this object missing before this one, numbered ``seq``: a publisher numbers its
+        publications of an object one by one, modulo 128, and Zenoh delivers one publisher's in order, so a short
+        gap is publications lost on the way (values are put with congestion control DROP) or dropped here. A number
+        at or behind the last (a duplicate, a reordered sample, a publisher that restarted from 0) or GAP_BOUND and
+        more ahead is taken as the sequence starting again, not counted: 64 lost in a row look like none."""
         last, self.last_seq = self.last_seq, seq
-        return 0 if last < 0 else (seq - last - 1) % (SEQUENCE + 1)
+        if last < 0:
+            return 0
+        gap = (seq - last - 1) % (SEQUENCE + 1)
+        return gap if gap < GAP_BOUND else 0
 
     def view(self, data: bytes, t: float) -> bytes:
         """The JSON view of ``data`` published at ``t``; ValueError if ``data`` is not a publication of this object."""

@@ -80,7 +80,7 @@ class StudioRecording:
         self.recorder = None
         seconds = time.monotonic() - self._started
         recorder.close({"seconds": f"{seconds:.3f}"})
-        missed = f", {recorder.missed} lost on the network" if recorder.missed else ""
+        missed = f", {recorder.missed} missing from their sequences" if recorder.missed else ""
         return (f"recorded {sum(recorder.counts.values())} messages in {seconds:.1f} s ({recorder.dropped} dropped"
                 f"{missed}) to {self.path}")  # fmt: skip
 

@@ -345,11 +345,37 @@ def test_when_the_first_leaders_fail_the_check_the_next_ones_are_checked_not_the
     assert result.value > result.start_value and _largest(result.best) > 50
 
 
+class _StartHoldsLeadersFail(_Lucky):
+    """Over the check run the start holds and every leader breaks a constraint; the second round is interrupted."""
+
+    def map(self, fn, *iterables, timeout=None, chunksize=1):
+        for document, setup in iterables[0]:
+            amplitude = max(abs(s["angle"]) for s in document["automata"]["wave"]["states"])
+            if setup.seconds > 2.0:
+                self.longer += 1
+                if self.longer > CHECK_ROUND + 1:
+                    raise KeyboardInterrupt
+                if amplitude != 50:
+                    yield Outcome(VIOLATION, amplitude / 100, "peak torque")
+                    continue
+            yield Outcome(-amplitude / 100, amplitude / 100, "")
+
+
+def test_an_interrupted_check_keeps_the_start_that_held_not_an_unchecked_leader():
+    """A review: interrupted in the check's second round, after the first round's leaders failed and the start held,
+    the tuner wrote the next leader — never checked."""
+    result = tune(load(CATERPILLAR), [parse_free("amplitude=20:85")], SETUP, budget=30, seed=1,
+                  executor=_StartHoldsLeadersFail())  # fmt: skip
+    assert result.interrupted and result.verified and result.best is not None
+    assert _largest(result.best) == pytest.approx(50) and result.value == result.start_value
+    assert result.verify_refused == CHECK_ROUND
+
+
 def test_an_interrupted_check_never_keeps_a_leader_it_refused():
     """A second user review: Ctrl-C during the final check wrote the candidate the check had just refused."""
     lucky = _Lucky(interrupt_at=4, refuse_above=20)  # the first round (2 leaders and the start) all refused
     result = tune(load(CATERPILLAR), [parse_free("amplitude=20:85")], SETUP, budget=30, seed=1, executor=lucky)
-    assert result.interrupted and not result.verified and result.verify_refused == 3
+    assert result.interrupted and not result.verified and result.verify_refused == 2  # the start is no leader
     assert result.best is not None
     refused = sorted(result.samples, key=lambda s: -s[1])[:2]  # the two leaders of the first round
     assert result.values not in [values for values, _ in refused]

@@ -191,30 +191,41 @@ def test_a_publication_that_is_not_what_its_key_says_is_refused_and_counted(sess
 
 
 def test_publications_that_never_arrived_are_counted_from_the_gaps_in_their_sequence(sessions, tmp_path: Path) -> None:
-    """A publisher numbers an object's publications one by one, modulo 128: the recorder counts each skipped number
-    as missed (not dropped: it never had them), across the wrap and per object, and says so in the file's end."""
+    """A publisher numbers an object's publications one by one, modulo 128: the recorder counts each short gap as
+    missed, across the wrap and per object; a duplicate, a restart from 0 or a long jump starts the count again (a
+    review found a duplicate counted as 127 missed, a restart as 124); a refused publication is dropped, not missed."""
     session = sessions[0]
     out = tmp_path / "gaps.mcap"
     recorder = Recorder(session, "robot", McapFiles(out, RecordingInfo({})), None)
     head = first_byte(Kind.PUBLICATION, Method.PUBLISH)
-    sent = {"m1": [5, 6, 8, 9, 12, 126, 127, 0, 2], "m2": [120, 121, 122, 3]}  # m1: 1+2+113+1, m2: 8 (wrapped)
+    sent = {
+        "m1": [5, 6, 8, 9, 12, 40, 126, 127, 0, 2],  # 1 + 2 + 27, then a jump of 85 (a new start), the wrap, 1
+        "m2": [120, 121, 122, 3],  # 8 across the wrap
+        "m3": [10, 11, 11, 12, 0, 1],  # a duplicate, then a restart: none missed
+        "m4": [1, 2, 3, 4],  # 3 of another class: refused and dropped, not missed
+    }
     try:
         for k in range(max(map(len, sent.values()))):  # interleaved: one object's gap is not another's
             for node, numbers in sent.items():
                 if k < len(numbers):
-                    payload = bytes((head, numbers[k], 0x11, 3)) + struct.pack("<f", k)
+                    class_id = 0x10 if (node, numbers[k]) == ("m4", 3) else 0x11
+                    payload = bytes((head, numbers[k], class_id, 3)) + struct.pack("<f", k)
                     session.put(f"asm/robot/{node}/pub/joint.angle", payload)
-        assert wait_until(lambda: recorder.counts["/m1/joint.angle"] + recorder.counts["/m2/joint.angle"] == 13, 20)
+        assert wait_until(lambda: sum(recorder.counts.values()) + recorder.dropped == 24, 20)
     finally:
         recorder.close()
-    assert (recorder.missed, recorder.dropped) == (1 + 2 + 113 + 1 + 8, 0)
+    assert (recorder.missed, recorder.dropped) == (1 + 2 + 27 + 1 + 8, 1)
     with out.open("rb") as stream:
         end = {m.name: m.metadata for m in make_reader(stream).iter_metadata()}["asm.recording.end"]
-    assert (end["missed"], end["dropped"]) == ("125", "0")
-    assert [json.loads(m)["seq"] for m in _messages(out)["/m1/joint.angle"]] == sent["m1"]
+    assert (end["missed"], end["dropped"]) == ("39", "1")
+    written = _messages(out)
+    assert [json.loads(m)["seq"] for m in written["/m1/joint.angle"]] == sent["m1"]
+    assert [json.loads(m)["seq"] for m in written["/m3/joint.angle"]] == sent["m3"]
 
 
 def test_publications_of_one_object_numbered_in_order_miss_nothing() -> None:
     publications = Publications("m2", "thing", "my.class", 0x91, parse_codec("float32"), 4)
     assert [publications.missed(n % 128) for n in range(90, 400)] == [0] * 310
-    assert publications.missed(399 % 128) == 127  # the same number again: a whole lap, as far as it can tell
+    assert publications.missed(399 % 128) == 0  # the same number again: a duplicate, not 127 lost
+    assert publications.missed((399 + 65) % 128) == 0  # 64 skipped, half the numbers: a new start
+    assert publications.missed((399 + 65 + 64) % 128) == 63  # 63 skipped: the most counted as lost
