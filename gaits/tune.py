@@ -348,7 +348,9 @@ def _verify(result: Result, leaders: list[Leader], pool: Executor, setup: Setup,
     the check already refused."""
     longer = replace(setup, seconds=setup.seconds * setup.verify)
     sign = OBJECTIVES[setup.objective][0]
-    rest = [leader for leader in leaders if leader is not start]
+    # only the leaders the search scored above the start are checked: one below it is never written over it
+    ahead = next((k for k, leader in enumerate(leaders) if leader is start), len(leaders))
+    rest = leaders[:ahead]
     batch = rest[:CHECK_ROUND] + ([start] if start is not None else [])
     rest = rest[CHECK_ROUND:]
     start_held: tuple[float, Leader] | None = None
