@@ -68,6 +68,7 @@ def test_a_deploy_to_a_resting_robot_runs_as_on_a_moving_one(robot) -> None:
     report = deploy(client, load(LIBRARY / "caterpillar.toml"), timeout=5.0)
     assert report.running == list(range(1, 9))
     assert wait_until(lambda: not loop.resting, timeout=5)
+    assert wait_until(lambda: viewer.latest() is not None, timeout=10)  # (none had come yet once, in CI's load)
     first = viewer.latest()
     assert first is not None
     assert wait_until(lambda: (latest := viewer.latest()) is not None and latest.time > first.time + 2.0, 15)
