@@ -8,6 +8,7 @@ import math
 import signal
 import subprocess
 import sys
+from collections.abc import Callable
 from concurrent.futures import Executor
 from pathlib import Path
 
@@ -320,15 +321,22 @@ def test_a_score_that_does_not_hold_over_the_check_run_loses_to_the_start():
     assert result.verify_value >= 0.5  # the start's 50° holds 0.5 m/s there: nothing worse is written
 
 
-class _FirstRoundFails(_Lucky):
-    """The search's two best break a constraint over the check run; every other candidate holds its score."""
+class _CheckRuns(_Lucky):
+    """Search runs score the amplitude; over the check run, ``refused(k, amplitude)`` of its k-th run (from 1) says
+    whether it breaks a constraint (else it holds its score), and the run after ``interrupt_after`` is Ctrl-C."""
+
+    def __init__(self, refused: Callable[[int, float], bool], interrupt_after: int = 1_000) -> None:
+        super().__init__()
+        self.refused, self.interrupt_after = refused, interrupt_after
 
     def map(self, fn, *iterables, timeout=None, chunksize=1):
         for document, setup in iterables[0]:
             amplitude = max(abs(s["angle"]) for s in document["automata"]["wave"]["states"])
             if setup.seconds > 2.0:
                 self.longer += 1
-                if self.longer <= CHECK_ROUND:
+                if self.longer > self.interrupt_after:
+                    raise KeyboardInterrupt
+                if self.refused(self.longer, amplitude):
                     yield Outcome(VIOLATION, amplitude / 100, "peak torque")
                     continue
             yield Outcome(-amplitude / 100, amplitude / 100, "")
@@ -339,33 +347,17 @@ def test_when_the_first_leaders_fail_the_check_the_next_ones_are_checked_not_the
     broke the torque limit over 12 s, the start (checked beside them as the floor) held, and the check ended there —
     the next leaders, 2x faster than the start and within every constraint, never ran."""
     result = tune(load(CATERPILLAR), [parse_free("amplitude=20:85")], SETUP, budget=30, seed=1,
-                  executor=_FirstRoundFails())  # fmt: skip
+                  executor=_CheckRuns(lambda k, _: k <= CHECK_ROUND))  # fmt: skip
     assert result.verified and result.best is not None and result.verify_refused == CHECK_ROUND
     assert result.value == sorted((v for _, v in result.samples), reverse=True)[CHECK_ROUND]
     assert result.value > result.start_value and _largest(result.best) > 50
-
-
-class _StartHoldsLeadersFail(_Lucky):
-    """Over the check run the start holds and every leader breaks a constraint; the second round is interrupted."""
-
-    def map(self, fn, *iterables, timeout=None, chunksize=1):
-        for document, setup in iterables[0]:
-            amplitude = max(abs(s["angle"]) for s in document["automata"]["wave"]["states"])
-            if setup.seconds > 2.0:
-                self.longer += 1
-                if self.longer > CHECK_ROUND + 1:
-                    raise KeyboardInterrupt
-                if amplitude != 50:
-                    yield Outcome(VIOLATION, amplitude / 100, "peak torque")
-                    continue
-            yield Outcome(-amplitude / 100, amplitude / 100, "")
 
 
 def test_an_interrupted_check_keeps_the_start_that_held_not_an_unchecked_leader():
     """A review: interrupted in the check's second round, after the first round's leaders failed and the start held,
     the tuner wrote the next leader — never checked."""
     result = tune(load(CATERPILLAR), [parse_free("amplitude=20:85")], SETUP, budget=30, seed=1,
-                  executor=_StartHoldsLeadersFail())  # fmt: skip
+                  executor=_CheckRuns(lambda _, amplitude: amplitude != 50, CHECK_ROUND + 1))  # fmt: skip
     assert result.interrupted and result.verified and result.best is not None
     assert _largest(result.best) == pytest.approx(50) and result.value == result.start_value
     assert result.verify_refused == CHECK_ROUND
