@@ -186,8 +186,10 @@ def _robot_file(name: str, gait: Checker, path: Path | None) -> tuple[dict[str, 
             raise _Refused("lies outside the gait file's folder: a gait may only name files beside or below it")
         if not found.exists():
             raise _Refused("no such file beside the gait file")
-        if not os.path.isfile(raw) or name.endswith("/"):
+        if name.endswith("/") or (os.path.exists(raw) and not os.path.isfile(raw)):
             raise _Refused("is not a regular file")
+        if not os.path.exists(raw):  # resolve() took "sub/.." away: the system, reading the name, does not
+            raise _Refused("cannot be reached: a folder on its path does not exist")
         if found == path.resolve() or (path.exists() and os.path.samefile(found, path)):
             raise _Refused("names the gait file itself: a robot file holds the [robot] description only")
         text = decode(read(found), shown)

@@ -250,6 +250,7 @@ def test_a_gait_read_without_its_folder_cannot_name_a_robot_file() -> None:
         ("same.toml", "names the gait file itself"),  # a hard link to it
         ("folder", "is not a regular file"),
         ("fifo", "is not a regular file"),  # never opened: reading it would wait for ever
+        ("nowhere/../gait.toml", "a folder on its path does not exist"),  # (it said "not a regular file")
         ("bad\0name", "cannot be read"),
     ],
 )
