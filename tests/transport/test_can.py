@@ -23,60 +23,13 @@ from asm_py.transport.can import CanTransport, group_id
 
 from ..helpers import VECTORS, wait_until
 from ..transports import fresh_name
+from .virtual_can import Bus, not_heartbeat
 
 
 class Gait(Service):
     def run(self) -> None:
         while self.sleep(0.01):
             pass
-
-
-class Bus:
-    """A virtual CAN channel with a sniffer that sees every frame, and nodes on it (closed at the end)."""
-
-    def __init__(self, **options) -> None:
-        self.channel = fresh_name("asm-can")
-        self.options = {"heartbeat_period": 0.05, "missed_heartbeats": 4, **options}
-        self.sniffer = can.Bus(interface="virtual", channel=self.channel)
-        self.nodes: list[Node] = []
-
-    def node(self, name: str, node_id: int, **options) -> Node:
-        transport = CanTransport(node_id, interface="virtual", channel=self.channel, **{**self.options, **options})
-        node = Node(name, transport)
-        self.nodes.append(node)
-        return node
-
-    def raw(self) -> can.BusABC:
-        return can.Bus(interface="virtual", channel=self.channel)
-
-    def drain(self, quiet: float = 0.2) -> list[can.Message]:
-        """The frames seen until ``quiet`` seconds pass without any but heartbeats."""
-        frames = []
-        last = time.monotonic()
-        while time.monotonic() - last < quiet:
-            frame = self.sniffer.recv(timeout=0.02)
-            if frame is not None:
-                frames.append(frame)
-                if not_heartbeat(frame):
-                    last = time.monotonic()
-        return frames
-
-    def close(self) -> None:
-        for node in self.nodes:
-            node.close()
-        self.sniffer.shutdown()
-
-
-@pytest.fixture
-def bus() -> Iterator[Bus]:
-    made = Bus()
-    yield made
-    made.close()
-
-
-def not_heartbeat(frame: can.Message) -> bool:
-    cid = CanId.unpack(frame.arbitration_id)
-    return not (cid.dest_kind == Dest.SYSTEM and cid.dest in (SystemCode.HEARTBEAT, SystemCode.LEAVE))
 
 
 # -- identifiers and fragmentation ------------------------------------------------------------------------------
@@ -393,7 +346,6 @@ def test_a_quiet_module_hears_only_what_it_must_act_on() -> None:
     from asm_py.canbus.ids import Priority
 
     from ..helpers import wait_until
-    from ..transports import fresh_name
 
     channel = fresh_name("asm-quiet")
     options = {"interface": "asm_sim", "channel": channel, "heartbeat_period": 0.05}

@@ -5,24 +5,15 @@ messages do. (Split from test_can.py, which keeps the protocol's own tests.)"""
 from __future__ import annotations
 
 import time
-from collections.abc import Iterator
 
 import can
-import pytest
 
 from asm_py.canbus.ids import CanId
 from asm_py.node import Node
 from asm_py.transport.can import CanTransport
 
 from ..helpers import wait_until
-from .test_can import Bus, not_heartbeat
-
-
-@pytest.fixture
-def bus() -> Iterator[Bus]:
-    made = Bus()
-    yield made
-    made.close()
+from .virtual_can import Bus, not_heartbeat
 
 
 class _CountingTransport(CanTransport):
