@@ -271,7 +271,7 @@ class Recorder:
         except ValueError:
             self._refused += 1  # a payload that is not what its key says: not recorded, counted
             if len(data) > 1 and data[1] <= SEQUENCE:
-                publications.last_seq = data[1]  # counted as refused, so not as missed too
+                publications.missed(data[1])  # its number seen: counted as refused, so not as missed too
             return
         self.missed += publications.missed(data[1])
         self._put(publications.topic, ATTRIBUTE, view, ns, int(t * 1e9), data[1])

@@ -63,7 +63,7 @@ class Publications:
         self.decode = codec.decode
         self.json = value_json(codec)
         self.last_seq = -1
-        """The sequence number of the last publication written (-1: none yet)."""
+        """The sequence number of the last publication seen, written or refused (-1: none yet)."""
 
     def missed(self, seq: int) -> int:
         """Publications of this object missing before this one, numbered ``seq``: a publisher numbers its
