@@ -10,6 +10,7 @@ through :func:`run`.
 from __future__ import annotations
 
 import argparse
+import faulthandler
 import logging
 import math
 import os
@@ -113,8 +114,14 @@ def describe(exc: BaseException) -> str:
 
 def stop_requested() -> threading.Event:
     """An event set by SIGTERM or SIGINT: a server command prints its ready line, waits on it, then closes in
-    order (the main thread must call this: Python installs signal handlers there only)."""
+    order (the main thread must call this: Python installs signal handlers there only).
+
+    SIGUSR1 prints every thread's stack to standard error and goes on (faulthandler: it needs no Python thread to
+    run, so it answers even when the interpreter is stuck, e.g. a thread holding the GIL while a native library
+    waits for it): whoever finds a server that does not end on SIGTERM asks it where it is before killing it
+    (server.child does)."""
     done = threading.Event()
+    faulthandler.register(signal.SIGUSR1, file=sys.stderr, all_threads=True)
     signal.signal(signal.SIGTERM, lambda *_: done.set())
     signal.signal(signal.SIGINT, lambda *_: done.set())
     return done
@@ -123,6 +130,9 @@ def stop_requested() -> threading.Event:
 EXIT_GRACE = 4.0
 """Seconds a server command gets to close in order after SIGTERM before it exits anyway: a signal ends the process
 within 5 s whatever the load (a flood of requests, a wedged module, a hung session close)."""
+
+WATCHDOG_EXTRA = 1.0
+"""Seconds after the grace that the native watchdog ends a process whose interpreter is stuck (close_and_exit)."""
 
 
 def close_and_exit(close: Callable[[], None], prog: str, grace: float = EXIT_GRACE) -> NoReturn:
@@ -133,7 +143,12 @@ def close_and_exit(close: Callable[[], None], prog: str, grace: float = EXIT_GRA
     threads can still call into Python then (a late callback), and a thread that wants the GIL during
     finalization is unwound through Rust frames, which aborts the process ("FATAL: exception not rethrown",
     SIGABRT: seen in a fresh-clone CI when a robot process was stopped). Everything that matters was closed in
-    order by ``close``; the kernel closes the rest, and the children started die with this process."""
+    order by ``close``; the kernel closes the rest, and the children started die with this process.
+
+    The grace is kept by this thread, which needs the interpreter: should a thread hold the GIL while a native
+    library waits for it (a stopped robot once hung so under CI's load, killed after 10 s without a word), a
+    native watchdog (faulthandler's) prints every thread's stack and exits 1 a second after the grace."""
+    faulthandler.dump_traceback_later(grace + WATCHDOG_EXTRA, exit=True, file=sys.stderr)
     done = threading.Event()
     failed: list[BaseException] = []
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import logging
 import os
+import signal
 import socket
 import subprocess
 import sys
@@ -17,6 +18,9 @@ import time
 from pathlib import Path
 
 log = logging.getLogger(__name__)
+
+STACKS_SECONDS = 2.0
+"""Seconds a child that did not end on SIGTERM gets to print its threads' stacks before it is killed."""
 
 
 def free_port() -> int:
@@ -105,12 +109,19 @@ class Child:
         self.popen.wait(10)
 
     def stop(self) -> int:
-        """Terminate politely, then kill after ``grace`` seconds; the exit code."""
+        """Terminate politely, then kill after ``grace`` seconds; the exit code. A child still there after the
+        grace is first asked for every thread's stack (SIGUSR1: asm_py.cli.stop_requested), so its output says
+        where it hung."""
         if self.popen.poll() is None:
             self.popen.terminate()
             try:
                 self.popen.wait(self.grace)
             except subprocess.TimeoutExpired:
+                self.popen.send_signal(signal.SIGUSR1)
+                try:
+                    self.popen.wait(STACKS_SECONDS)
+                except subprocess.TimeoutExpired:
+                    pass
                 self.popen.kill()
                 self.popen.wait(10)
         self._reader.join(5)

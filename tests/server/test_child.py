@@ -6,6 +6,8 @@ import pytest
 
 from server.child import Child, ChildError
 
+from ..processes import ROOT
+
 
 def test_the_ready_line_is_returned_and_the_child_stopped() -> None:
     child = Child("-c", "print('noise'); print('READY thing 1', flush=True); import time; time.sleep(60)")
@@ -33,3 +35,29 @@ def test_a_child_that_hangs_fails_the_wait_when_its_time_is_up() -> None:
             child.wait_for_line("READY", timeout=0.5)
     finally:
         child.stop()
+
+
+HANGS_ON_SIGTERM = """
+import time
+
+from tests.processes import ROOT
+from asm_py.cli import stop_requested
+
+def closing_that_never_ends():
+    time.sleep(60)
+
+done = stop_requested()
+print('READY stuck', flush=True)
+done.wait()
+closing_that_never_ends()
+"""
+
+
+def test_a_server_that_does_not_end_on_sigterm_says_where_it_hung_before_it_is_killed() -> None:
+    child = Child("-c", HANGS_ON_SIGTERM, cwd=ROOT, grace=1.0)
+    try:
+        child.wait_for_line("READY stuck", timeout=30)
+    finally:
+        assert child.stop() == -9
+    output = "".join(child.output)
+    assert "closing_that_never_ends" in output and "thread 0x" in output  # the stacks, from faulthandler

@@ -7,6 +7,7 @@ from __future__ import annotations
 import socket
 import subprocess
 import sys
+import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
@@ -242,6 +243,9 @@ def close():
         raise RuntimeError("the session would not close")
     if how == "hangs":
         time.sleep(60)
+    if how == "freezes":  # a native call that keeps the GIL while it waits: no other thread runs Python again
+        import ctypes
+        ctypes.PyDLL(None).sleep(60)
 
 close_and_exit(close, "asm-test", grace=1.0)
 print("never reached")
@@ -249,22 +253,28 @@ print("never reached")
 
 
 ENDINGS = [("closes", 0, ""), ("fails", 1, "asm-test: closing failed: "),
-           ("hangs", 1, "asm-test: closing took longer than 1 s")]  # fmt: skip
+           ("hangs", 1, "asm-test: closing took longer than 1 s"),
+           ("freezes", 1, "most recent call first")]  # fmt: skip
 
 
 @pytest.mark.parametrize(("how", "code", "said"), ENDINGS)
 def test_a_server_command_closes_in_order_then_ends_at_once(how: str, code: int, said: str) -> None:
     """``close_and_exit``: the orderly close runs (what it logs is flushed), then the process ends with 0, or 1
     when closing failed or hung — at once, never through the interpreter's finalization (where a native thread
-    calling into Python aborted a robot process) and never running on past it."""
+    calling into Python aborted a robot process) and never running on past it. A close that freezes the
+    interpreter itself ends a second after the grace, every thread's stack printed (faulthandler's watchdog)."""
     from ..processes import run
 
+    began = time.monotonic()
     done = run("-c", CLOSE_AND_EXIT, how, timeout=30)
+    assert time.monotonic() - began < 20
     assert done.returncode == code, done.stderr
     assert done.stdout.startswith("closing") and "never reached" not in done.stdout
     assert "closed in order" in done.stderr  # the logging handler flushed before the end
     assert said in done.stderr
     assert "Traceback" not in done.stderr or how == "fails"
+    if how == "freezes":
+        assert "in close" in done.stderr and "closing took longer" not in done.stderr
 
 
 def test_the_studios_robot_never_gets_the_studios_own_port() -> None:
