@@ -14,7 +14,7 @@ from asm_py.transport.zenoh import ZenohTransport
 from ..helpers import ARTIFACTS, wait_until
 from ..processes import Process
 from ..transports import free_port
-from .browser import marks, open_page
+from .browser import click_until_shown, deploy_and_start, marks, open_page
 
 pytestmark = marks(__name__)
 
@@ -35,15 +35,6 @@ def _running(client: Node) -> list[bool]:
     return [client.lookup(m, "gait.service", timeout=5).running for m in MODULES]
 
 
-def _deploy_and_start(page) -> None:
-    from playwright.sync_api import expect
-
-    page.get_by_role("tab", name="Deploy").click()
-    page.get_by_role("button", name="Deploy", exact=True).click()
-    expect(page.get_by_text("Start it now?", exact=False)).to_be_visible(timeout=30_000)
-    page.get_by_role("button", name="Start", exact=True).click()
-
-
 def test_estop_by_click_and_by_key_while_a_confirmation_waits_and_a_field_has_focus(studio_urls) -> None:
     from playwright.sync_api import expect, sync_playwright
 
@@ -53,11 +44,12 @@ def test_estop_by_click_and_by_key_while_a_confirmation_waits_and_a_field_has_fo
         with sync_playwright() as pw:
             browser, page = open_page(pw, url)
             try:
-                _deploy_and_start(page)
+                deploy_and_start(page, 8)
                 assert wait_until(lambda: all(_running(client)), timeout=30)
+                asking = page.get_by_text("Start it now?", exact=False)
+                expect(asking).to_be_hidden(timeout=30_000)
                 # Deploy again: the staged gait waits for "Start" while the old one still moves the robot
-                page.get_by_role("button", name="Deploy", exact=True).click()
-                expect(page.get_by_text("Start it now?", exact=False)).to_be_visible(timeout=30_000)
+                click_until_shown(page, page.get_by_role("button", name="Deploy", exact=True), asking, 60_000)
                 page.screenshot(path=str(ARTIFACTS / "estop-while-asking.png"))
                 page.get_by_role("button", name=re.compile(r"^E-STOP")).click()
                 assert wait_until(lambda: all(_latched(client)), timeout=20), "the click stopped every module"
