@@ -10,7 +10,9 @@ nearest ancestor that is (so a problem always has a line), and finally to line 1
 
 from __future__ import annotations
 
+import json
 import re
+import tomllib
 
 _TOKEN = re.compile(
     r'"""(?:[^"\\]|\\.|"(?!""))*"""'  # multi-line basic string
@@ -26,19 +28,26 @@ _TOKEN = re.compile(
 
 
 def _key(token: str) -> str:
+    if token[:1] == '"' and "\\" in token:  # a basic string's escapes, as the loader reads them ("a\u0000b")
+        try:
+            return tomllib.loads(f"k = {token}")["k"]
+        except tomllib.TOMLDecodeError:
+            return token[1:-1]
     if token[:1] in "\"'":
         return token[1:-1]
     return token
 
 
 def format_path(parts: list[str | int]) -> str:
-    """``["modules", 3, "phase"]`` → ``modules[3].phase``."""
+    """``["modules", 3, "phase"]`` → ``modules[3].phase``. A key with a character that does not print (a NUL, a
+    newline) is shown quoted with TOML's escapes, as a file writes it: a message never carries it raw."""
     out = ""
     for part in parts:
         if isinstance(part, int):
             out += f"[{part}]"
         else:
-            out += f".{part}" if out else str(part)
+            shown = part if part.isprintable() else json.dumps(part)
+            out += f".{shown}" if out else shown
     return out
 
 

@@ -313,7 +313,12 @@ def test_a_hostile_robot_file_is_refused_naming_that_file_and_field(tmp_path: Pa
         ("[robot.types.a]\nids = [1.5]\n", "robot.types.a.ids[0]", "must be an integer"),
         ("[robot.types.a]\nmass = 0.3\n", "robot.types.a", "no module is of this type"),
         ('[robot.types.a]\nmass = "heavy"\nids = [1]\n', "robot.types.a.mass", "must be a number, not 'heavy'"),
-        ("[robot.types.a]\nstall_torque = 1e9\nids = [1]\n", "robot.types.a.stall_torque", "must be in (0, 10000]"),
+        ("[robot.types.a]\nstall_torque = 1e9\nids = [1]\n", "robot.types.a.stall_torque", "must be in [0.001, 10000]"),
+        (
+            "[robot.types.a]\nstall_torque = 1e-300\nids = [1]\n",
+            "robot.types.a.stall_torque",
+            "must be in [0.001, 10000]",
+        ),
         ("[robot.types.a]\ntorque = 1.0\nids = [1]\n", "robot.types.a.torque", "unknown field"),
         ("[robot.module]\nids = [1]\n", "robot.module.ids", "unknown field"),
         ('[robot.types."a b"]\nids = [1]\n', "robot.types.a b", "a module type's name: 1 to 32 letters"),
@@ -345,6 +350,17 @@ def test_hostile_descriptions_are_refused_naming_the_field(description: str, pat
         loads(caterpillar(description))
     assert type(caught.value).__name__ == "GaitError"
     assert f"{path}: " in str(caught.value) and words in str(caught.value), caught.value
+
+
+def test_a_type_name_with_an_escape_is_shown_as_written_at_its_own_line() -> None:
+    """A NUL in a quoted key (TOML's \\u0000) was printed raw in the field path, at line 1 (the line index did not
+    read the key's escapes)."""
+    text = caterpillar('[robot.types."a\\u0000b"]\nids = [1]\n')
+    header = text.splitlines().index('[robot.types."a\\u0000b"]') + 1
+    with pytest.raises(Exception) as caught:
+        loads(text)
+    (problem,) = caught.value.problems  # type: ignore[attr-defined]
+    assert problem.path == 'robot.types."a\\u0000b"' and problem.line == header and "\x00" not in str(caught.value)
 
 
 def test_a_loops_modules_share_one_length() -> None:

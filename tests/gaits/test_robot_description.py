@@ -190,7 +190,7 @@ def test_the_servo_numbers_reach_the_actuators() -> None:
         ({"mass": 1e-12}, "robot.module.mass", "must be in [0.001, 1000] kg, not 1e-12"),  # MuJoCo's mjMINVAL
         ({"width": 1e-9}, "robot.module.width", "must be in [0.001, 10] metres, not 1e-09"),
         ({"mass": 0.0}, "robot.module.mass", "not 0.0"),
-        ({"stall_torque": 0}, "robot.module.stall_torque", "must be in (0, 10000] N·m, not 0"),
+        ({"stall_torque": 0}, "robot.module.stall_torque", "must be in [0.001, 10000] N·m, not 0"),
         ({"no_load_speed": -5.0}, "robot.module.no_load_speed", "degrees per second"),
         ({"kp": -1.0}, "robot.module.kp", "must be in [0, 100000]"),
         ({"damping": -0.1}, "robot.module.damping", "must be in [0, 10000]"),
