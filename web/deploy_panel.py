@@ -27,6 +27,7 @@ from gaits.model import Gait
 from .confirm import InlineConfirm
 
 if TYPE_CHECKING:
+    from .link import RobotLink
     from .page import Page
 
 LOG_LINES = 500
@@ -84,7 +85,7 @@ class DeployPanel:
             if problems:  # said before anything is sent: the robot is not the one previewed
                 question += " ⚠ Not the robot this gait was made for: " + "; ".join(problems) + "."
                 self.log("robot check: " + "; ".join(problems))
-            self.confirm.ask(question, "Yes, deploy", lambda: self._deploy(gait, accept=problems))
+            self.confirm.ask(question, "Yes, deploy", lambda: self._deploy(gait, accept=problems, asked=robot))
             return
         self._deploy(gait)
 
@@ -96,11 +97,18 @@ class DeployPanel:
                                  'display:flex;flex-direction:column-reverse"><div>'
                                  + "<br>".join(self._lines) + "</div></div>")  # fmt: skip
 
-    def _deploy(self, gait: Gait, accept: Collection[str] = ()) -> None:
+    def _deploy(self, gait: Gait, accept: Collection[str] = (), asked: RobotLink | None = None) -> None:
         """Stage and verify (nothing moves, the lease stays held), then ask before starting. A deployment of this
         page still waiting for its Start is given up first (its lease released): the new one replaces it. Modules
         that say they are other types than the gait describes are asked about first, unless ``accept`` holds what
-        the user said yes to."""
+        the user said yes to — about the robot link ``asked``: a yes given for one robot never deploys to another
+        the page was switched to meanwhile."""
+        link = self.page.robot
+        if asked is not None and asked is not link:
+            self.log(f"{gait.name}: not deployed: the yes was for robot {asked.robot}, and the page now commands "
+                     f"robot {link.robot}; press Deploy to be asked about this one")  # fmt: skip
+            self.page.notify("Not deployed", f"the yes was for robot {asked.robot}, not {link.robot}", error=True)
+            return
         self.confirm.withdraw()
         try:
             report = self.stage(gait, accept)
@@ -109,7 +117,7 @@ class DeployPanel:
             self.log("robot check: " + "; ".join(problems))
             self.confirm.ask(f"Deploy {gait.name} to robot {self.page.robot.robot}? ⚠ Not the robot this gait was "
                              "made for: " + "; ".join(problems) + ".", "Yes, deploy",
-                             lambda: self._deploy(gait, accept=problems))  # fmt: skip
+                             lambda: self._deploy(gait, accept=problems, asked=link))  # fmt: skip
             return
         with self._staged_lock:
             self._staged = report

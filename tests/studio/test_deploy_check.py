@@ -86,6 +86,24 @@ def test_a_simulated_robot_someone_else_started_is_checked_before_deploy(studio,
     app.deployer.confirm.withdraw()  # Cancel: the lease is released, nothing started
 
 
+def test_a_yes_for_one_robot_never_deploys_to_another_the_page_switched_to(studio, monkeypatch):
+    """issue 30's review (Low): "Yes, deploy" was tied to the question, not to the robot it asked about; the page
+    switched to another robot meanwhile, a late yes deployed there, the mismatches it accepted taken for that one's."""
+    from types import SimpleNamespace
+
+    app = studio.app
+    monkeypatch.setattr(type(studio), "simulated", property(lambda self: False))
+    assert wait_until(lambda: len(app.link.alive_modules()) == 8, timeout=30)
+    app.deployer.on_deploy()
+    assert "REAL robot?" in app.deployer.confirm.asked
+    other = SimpleNamespace(robot="other-robot")  # the page now commands another robot's link
+    monkeypatch.setattr(app.deployer.page, "_link", other)  # swapped (page.relink) before the question is withdrawn
+    app.deployer.confirm._on_click(SimpleNamespace(target=SimpleNamespace(value="Yes, deploy")))
+    log = app.deployer.log_html.content
+    assert "not deployed: the yes was for robot robot, and the page now commands robot other-robot" in log, log
+    assert "staged" not in log and not app.deployer.confirm.pending
+
+
 def test_a_question_shows_what_a_robot_says_as_written_never_as_markup() -> None:
     """A module's type comes from the robot (a board's port sets any bytes): the question is markdown, which viser
     renders with raw HTML, so what it quotes is escaped (issue 30's review, defect 13: an <img> rendered)."""
