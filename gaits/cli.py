@@ -188,13 +188,13 @@ def _print_metrics(terrain: Terrain, metrics: Metrics) -> None:
     )
     print(f"mean speed   {metrics.speed:.3f} m/s ({metrics.body_lengths / metrics.seconds * 10:.2f} BL per 10 s)")
     print(
-        f"heading      {unsigned_zero(metrics.heading, 1)} degrees from +x, drift {unsigned_zero(metrics.turned, 1)} "
+        f"heading      {metrics.heading_text()}, drift {unsigned_zero(metrics.turned, 1)} "
         f"degrees ({unsigned_zero(metrics.heading_rate, 2)} degrees/s)"
     )
     print(f"cost of transport {metrics.cost_text()}; {metrics.energy:.1f} J of joint work for {metrics.mass:.2f} kg")
     print(f"peak torque  {metrics.peak_torque:.2f} N·m")
     print(f"fell         {'yes' if metrics.fell else 'no'}")
-    print(f"stuck        {'yes' if metrics.stuck else 'no'}")
+    print(f"stuck        {'yes' if metrics.stuck else 'no'} (under half a body length per 10 s)")
     print(f"speed-up     {metrics.real_time_factor:.1f}x real time")
 
 

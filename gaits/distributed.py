@@ -11,12 +11,19 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-from collections.abc import Iterator
-from concurrent.futures import Executor
-from typing import cast
+import logging
+import time
+from collections.abc import Callable, Iterator
+from concurrent.futures import Executor, Future, wait
+from typing import Any, cast
 
 CONNECT_SECONDS = 10.0
 """How long to wait for the scheduler to answer before giving up."""
+WORKERLESS_SECONDS = 30.0
+"""How long a search waits on a cluster that has no worker left (they may come back, or an adaptive cluster may
+start some) before it ends with the best so far."""
+POLL_SECONDS = 1.0
+"""How often a waiting search asks the scheduler how many workers it has."""
 
 
 def scheduler_address(text: str) -> str:
@@ -65,11 +72,78 @@ def dask_executor(address: str) -> Iterator[tuple[Executor, int]]:
     except ImportError as exc:  # pragma: no cover - a dependency of the package
         raise RuntimeError("--scheduler needs the dask[distributed] package") from exc
     _probe(address, CONNECT_SECONDS)  # read now: tests shorten it
-    client = Client(address, timeout=CONNECT_SECONDS, set_as_default=False)
+    with _quiet_dask():
+        client = Client(address, timeout=CONNECT_SECONDS, set_as_default=False)
+        try:
+            width = _threads(client)
+            if width == 0:
+                raise RuntimeError("it has no workers")
+            yield WatchedExecutor(client, client.get_executor(pure=False), WORKERLESS_SECONDS), width
+        finally:
+            client.close()
+
+
+def _threads(client: Any) -> int:
+    return sum(cast(dict[str, int], client.nthreads()).values())  # a dict from a synchronous client
+
+
+class _Failed(RuntimeError):
+    """The cluster failed the search; the message completes "the Dask scheduler at ADDRESS …"."""
+
+
+class WatchedExecutor(Executor):
+    """The Dask client's executor, whose ``map`` gives up on a cluster that has had no worker for ``workerless``
+    seconds: Dask keeps such tasks waiting for a worker for ever, and a search whose workers were all killed sat
+    silent (a user review). It raises RuntimeError then, which tune() takes as the executor failing: the best so
+    far is kept and the reason said."""
+
+    def __init__(self, client: Any, inner: Executor, workerless: float) -> None:
+        self._client, self._inner, self._workerless = client, inner, workerless
+
+    def submit(self, fn: Callable[..., Any], /, *args: Any, **kwargs: Any) -> Future[Any]:
+        return self._inner.submit(fn, *args, **kwargs)
+
+    def map(self, fn: Callable[..., Any], *iterables: Any, timeout: float | None = None,
+            chunksize: int = 1) -> Iterator[Any]:  # fmt: skip
+        try:
+            futures = [self._inner.submit(fn, *args) for args in zip(*iterables, strict=True)]
+            alone_since: float | None = None
+            while True:
+                _, pending = wait(futures, timeout=POLL_SECONDS)
+                if not pending:
+                    break
+                if _threads(self._client) > 0:
+                    alone_since = None
+                    continue
+                now = time.monotonic()
+                alone_since = now if alone_since is None else alone_since
+                if now - alone_since >= self._workerless:
+                    for future in pending:
+                        future.cancel()
+                    raise _Failed(f"has had no workers for {self._workerless:g} s")
+            return iter([future.result() for future in futures])
+        except _Failed:
+            raise
+        except Exception as exc:  # the scheduler lost (a cancelled future, a closed client) or a task that failed
+            said = str(exc).strip().splitlines()
+            raise _Failed(f"stopped answering ({type(exc).__name__}{': ' + said[0] if said else ''})") from exc
+
+    def shutdown(self, wait: bool = True, *, cancel_futures: bool = False) -> None:
+        self._inner.shutdown(wait=wait, cancel_futures=cancel_futures)
+
+
+@contextlib.contextmanager
+def _quiet_dask() -> Iterator[None]:
+    """Dask's own loggers silenced while the search uses the cluster: a scheduler lost mid-run printed Dask's error
+    lines and tracebacks before the command's one line saying so (which keeps the best so far)."""
+    loggers = [logging.getLogger(name) for name in list(logging.root.manager.loggerDict)
+               if name == "distributed" or name.startswith("distributed.")]  # fmt: skip
+    loggers.append(logging.getLogger("distributed"))
+    levels = [logger.level for logger in loggers]
+    for logger in loggers:
+        logger.setLevel(logging.CRITICAL + 1)
     try:
-        width = sum(cast(dict[str, int], client.nthreads()).values())  # a dict from a synchronous client
-        if width == 0:
-            raise RuntimeError(f"the Dask scheduler at {address} has no workers")
-        yield client.get_executor(pure=False), width
+        yield
     finally:
-        client.close()
+        for logger, level in zip(loggers, levels, strict=True):
+            logger.setLevel(level)

@@ -56,8 +56,17 @@ class Metrics:
 
     @property
     def stuck(self) -> bool:
-        """Less than half a body length of progress over the run."""
-        return self.body_lengths < 0.5
+        """Less than half a body length of progress per 10 s (the default run): a rate, so that a short run of a
+        gait that crawls is not called stuck, nor a long run of one that hardly moves free (a user review: 0.2 m
+        in 1 s was "stuck")."""
+        return self.seconds <= 0 or self.body_lengths / self.seconds * 10.0 < 0.5
+
+    def heading_text(self) -> str:
+        """The direction of travel for a person: "n/a" for a robot that hardly moved (as ``cost_text``), whose
+        heading is the direction of noise."""
+        if self.body_lengths < 0.01:
+            return "n/a (did not move)"
+        return f"{unsigned_zero(self.heading, 1)} degrees from +x"
 
     @property
     def cost_of_transport(self) -> float:

@@ -85,8 +85,9 @@ def parse_free(text: str) -> Free:
     if free.kind in ("duration", "period") and low <= 0:
         raise ValueError(f"free parameter {text!r}: a {free.kind} must stay above 0 s")
     if free.kind == "wavelength" and low <= 0 < high:
-        raise ValueError(f"free parameter {text!r}: a wavelength range may not include 0 (give -HIGH:-LOW to run "
-                         "the wave the other way)")  # fmt: skip
+        raise ValueError(f"free parameter {text!r}: a wavelength range may not include 0 (its sign is the way the "
+                         "wave runs: -HIGH:-LOW for a gait whose wavelength is negative; speed is measured the way "
+                         "the start goes)")  # fmt: skip
     return free
 
 

@@ -168,6 +168,15 @@ def robot_of(data: dict[str, Any], gait: Checker, limits: tuple[float, float], p
     return robot
 
 
+def _why(name: str, exc: Exception) -> str:
+    """Why a robot file cannot be read, for a person (an exception's class name said nothing: a review)."""
+    if "\0" in name:
+        return "a file name cannot hold a NUL character"
+    if isinstance(exc, OSError):
+        return exc.strerror or type(exc).__name__
+    return str(exc) or type(exc).__name__
+
+
 def _robot_file(name: str, gait: Checker, path: Path | None) -> tuple[dict[str, Any], Checker] | None:
     """The description in robot file ``name`` and a Checker for its problems; None when it cannot be read (said at
     robot.file). Its structure problems are raised at once, as its own file's."""
@@ -198,12 +207,14 @@ def _robot_file(name: str, gait: Checker, path: Path | None) -> tuple[dict[str, 
         gait.bad("robot.file", f"{brief(name)} {refused}")
         return None
     except GaitError as exc:  # not UTF-8, larger than a gait file, not TOML: said with the robot file's own name
-        raise GaitError(shown, [replace(p, file=shown) for p in exc.problems], more=exc.more) from None
+        problems = [replace(p, file=shown, message=p.message.replace("not a gait file", "not a robot file"))
+                    for p in exc.problems]  # fmt: skip
+        raise GaitError(shown, problems, more=exc.more) from None
     except RuntimeError:  # Path.resolve (before Python 3.13) on symbolic links that name each other
         gait.bad("robot.file", f"{brief(name)} cannot be read: its symbolic links form a loop")
         return None
     except (OSError, ValueError) as exc:  # unreadable, a name the system refuses (a NUL byte, too long), a loop
-        gait.bad("robot.file", f"{brief(name)} cannot be read: {type(exc).__name__}")
+        gait.bad("robot.file", f"{brief(name)} cannot be read: {_why(name, exc)}")
         return None
     check = Checker(shown, text, file=shown)
     robot = data.get("robot")

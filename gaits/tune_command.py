@@ -16,7 +16,7 @@ from .model import Gait, GaitError, load
 from .output import refused
 from .params import Free, check, current
 from .terrain import FLAT
-from .tune import STILL, Result, Setup, amount, source_of, tune, tuned_text
+from .tune import OBJECTIVES, STILL, Result, Setup, amount, source_of, tune, tuned_text
 
 
 def _interrupt_once() -> list[int]:
@@ -92,7 +92,12 @@ def command(args: argparse.Namespace) -> int:
     came = _interrupt_once()  # a scheduler's SIGTERM or `timeout` ends it as Ctrl-C does
     bar = Bar(args.budget, setup)
     try:
-        result = _search(args, gait, frees, setup, bar)
+        try:
+            result = _search(args, gait, frees, setup, bar)
+        except FloatingPointError as exc:  # the start's own run, which finds its forward direction, diverged
+            bar.close()
+            print(f"gaits tune: error: {args.file}: the starting gait: {exc}: nothing to tune from", file=sys.stderr)
+            return 1
         _ignore_signals()  # the search is over: the file is written whole
         bar.close()
         if result is None:
@@ -126,8 +131,8 @@ def _wrap_up(args: argparse.Namespace, gait: Gait, frees: list[Free], setup: Set
              stopped: int) -> int:  # fmt: skip
     """Say how the search went and write the best gait (or say why nothing is written)."""
     if result.failure:
-        print(f"gaits tune: error: the Dask scheduler at {args.scheduler} stopped answering ({result.failure}): "
-              "keeping the best so far", file=sys.stderr)  # fmt: skip
+        print(f"gaits tune: error: the Dask scheduler at {args.scheduler} {result.failure}: keeping the best so far",
+              file=sys.stderr)  # fmt: skip
     elif result.interrupted:
         print("interrupted: keeping the best so far", file=sys.stderr)
     elif result.verify_refused:
@@ -146,6 +151,12 @@ def _wrap_up(args: argparse.Namespace, gait: Gait, frees: list[Free], setup: Set
         return stopped if result.interrupted and not result.failure else 1
     if result.start_inside and result.values == [current(gait, f) for f in frees]:
         print("no candidate beat the start inside the bounds: the start is written again", file=sys.stderr)
+    sign = OBJECTIVES[setup.objective][0]
+    if not result.start_inside and not math.isnan(result.start_value) and sign * result.value < sign * (
+            result.start_value):  # fmt: skip
+        print(f"warning: the best inside the bounds ({amount(result.value, setup)}) is worse than the start "
+              f"({amount(result.start_value, setup)}), which lies outside them: it is written, as asked; bounds that "
+              "hold the start keep it unless something beats it", file=sys.stderr)  # fmt: skip
     text = tuned_text(result, frees, setup, budget=args.budget, seed=args.seed,
                       source=source_of(Path(args.file).name, gait))  # fmt: skip
     if result.verified:

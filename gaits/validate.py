@@ -220,10 +220,12 @@ class Checker:
         """GaitError unless ``data`` has the schema's structure and only finite numbers: what every other check
         relies on."""
         self.problems, uncounted = structure_problems(data, self.line, validator)
+        said = {problem.path for problem in self.problems}
+        for parts in non_finite(data, []):  # with the schema's, so that every problem is said at once (a nan
+            path = format_path(parts)  # passes the schema's ranges: it came out only once the others were fixed)
+            if path not in said:
+                self.bad(path, "must be a finite number, not nan or inf")
         self.raise_if(uncounted=uncounted)
-        for parts in non_finite(data, []):
-            self.bad(format_path(parts), "must be a finite number, not nan or inf")
-        self.raise_if()
 
 
 def non_finite(value: Any, path: list[str | int]) -> Iterator[list[str | int]]:

@@ -30,3 +30,19 @@ def test_validate_says_each_problem_once(tmp_path, capsys):
     out = captured.out + captured.err
     for field in ("name", "robot", "automata", "modules"):
         assert out.count(f"{field}: missing") == 1, out
+
+
+def test_stuck_is_a_rate_so_a_short_run_of_a_crawling_gait_is_not_stuck():
+    """A second review: 0.2 m in 1 s (a 0.4 m caterpillar at its usual speed) was "stuck", because stuck was half a
+    body length over the run, however long; it is half a body length per 10 s now, as a 10 s run always had it."""
+    crawl = Metrics(1.0, (0.199, 0.0), 0.4, 1.0, False)
+    assert not crawl.stuck
+    assert Metrics(10.0, (0.199, 0.0), 0.4, 1.0, False).stuck  # the same distance over 10 s: as before
+    assert Metrics(100.0, (1.0, 0.0), 0.4, 1.0, False).stuck  # 1 m in 100 s: a long run no longer hides it
+    assert Metrics(0.0, (0.0, 0.0), 0.4, 1.0, False).stuck
+
+
+def test_the_heading_of_a_robot_that_did_not_move_is_not_a_number_either():
+    """A second review: a robot that did not move said "heading -90.0 degrees" (the direction of noise)."""
+    assert _metrics((0.0, -1e-9), 0.0).heading_text() == "n/a (did not move)"
+    assert _metrics((0.0, 2.0), 0.0).heading_text() == "90.0 degrees from +x"

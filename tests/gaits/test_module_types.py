@@ -401,3 +401,12 @@ def test_a_simulated_robots_modules_report_their_gaits_types() -> None:
     finally:
         sim.close()
         tool.close()
+
+
+def test_a_nan_is_said_with_the_other_problems_at_once() -> None:
+    """A second review: with mass = nan and kp = inf only kp was said; the nan came out once kp was fixed (a nan
+    passes the schema's ranges, and the finite check ran only when the schema had nothing to say)."""
+    with pytest.raises(Exception) as caught:
+        loads(caterpillar("[robot.module]\nmass = nan\nkp = inf\n"))
+    paths = [problem.path for problem in caught.value.problems]  # type: ignore[attr-defined]
+    assert paths == ["robot.module.mass", "robot.module.kp"], caught.value

@@ -34,7 +34,7 @@ BAD_ROBOT = b'[robot]\ntype = "a"\n[robot.types.a]\nmass = 0.3\n[robot.types.b]\
     [
         (BAD_ROBOT, "robot.toml, line 7: robot.types.b.mass: must be in [0.001, 1000] kg, not -1"),
         (b"[robot.module]\nmass = 0.3\n\xff\n", "robot.toml, line 3: (file): not UTF-8 text"),
-        (b"#" * (3 * 1024 * 1024), "robot.toml, line 1: (file): larger than 2 MiB"),
+        (b"#" * (3 * 1024 * 1024), "robot.toml, line 1: (file): larger than 2 MiB: not a robot file"),
     ],
 )
 def test_the_gaits_command_names_the_robot_file_a_problem_is_in(tmp_path, capsys, content: bytes, words: str) -> None:
@@ -101,6 +101,14 @@ def test_a_robot_file_name_ending_in_a_slash_is_no_file(tmp_path) -> None:
     path = gait_file(tmp_path, b"[robot.module]\nmass = 0.3\n")
     path.write_text(path.read_text(encoding="utf-8").replace('"robot.toml"', '"robot.toml/"'), encoding="utf-8")
     with pytest.raises(GaitError, match=r"robot\.file: 'robot\.toml/' is not a regular file"):
+        load(path)
+
+
+def test_a_robot_file_name_with_a_nul_says_why_it_cannot_be_read(tmp_path) -> None:
+    """A second review: 'a\\x00b' "cannot be read: ValueError" (an exception's class name, not a reason)."""
+    path = gait_file(tmp_path, b"[robot.module]\nmass = 0.3\n")
+    path.write_text(path.read_text(encoding="utf-8").replace('"robot.toml"', '"a\\u0000b"'), encoding="utf-8")
+    with pytest.raises(GaitError, match=r"robot\.file: 'a\\x00b' cannot be read: a file name cannot hold a NUL"):
         load(path)
 
 

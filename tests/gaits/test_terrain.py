@@ -94,6 +94,7 @@ def test_rough_ground_is_its_seeds():
         ("slope:5,angle=6", "angle is given twice"),
         ("rough:seed=3,seed=4", "seed is given twice"),
         ("rough:cell=0.01,extent=20", "height-field cells"),
+        ("patches:friction=0", "friction must be in [0.001, 5], not 0"),  # the robot diverged on μ 0 (a review)
     ],
 )
 def test_a_hostile_spec_is_one_clear_error(spec, says, capsys):

@@ -147,3 +147,27 @@ def test_the_workers_end_when_the_command_is_killed(tmp_path) -> None:
         process.wait(timeout=10)
         _, alive = psutil.wait_procs(workers, timeout=20)
         assert workers and not alive, f"workers left running: {alive}"
+
+
+def test_a_start_whose_simulation_diverges_is_one_line_not_a_traceback(tmp_path, capsys) -> None:
+    """A second review: a module too stiff for the timestep (valid, each field in range) made `gaits simulate` say
+    so in a line, and `gaits tune` print a FloatingPointError's traceback (the start's run finding its direction)."""
+    stiff = tmp_path / "stiff.toml"
+    module = "[robot.module]\nmass = 0.001\nkp = 100000\nstall_torque = 10000\ndamping = 0\n"
+    stiff.write_text(CATERPILLAR.replace("module_size = 0.05\n", "module_size = 0.05\n" + module, 1), encoding="utf-8")
+    out = tmp_path / "out.toml"
+    assert main(["tune", str(stiff), "--free", "amplitude=20:85", *QUICK, "--out", str(out)]) == 1
+    err = capsys.readouterr().err
+    assert f"gaits tune: error: {stiff}: the starting gait: the simulation diverged" in err, err
+    assert "Traceback" not in err and not out.exists()
+
+
+def test_a_best_worse_than_a_start_outside_the_bounds_is_written_with_a_warning(tmp_path, capsys) -> None:
+    """A second review: bounds that exclude the start (a negative wavelength for a loop rolling forward) wrote a
+    gait that rolls backwards, worse than the start, with nothing said."""
+    out = tmp_path / "loop.toml"
+    args = ["--budget", "3", "--seconds", "1", "--warmup", "0.5", "--workers", "1", "--out", str(out)]
+    assert main(["tune", str(LIBRARY / "rolling_loop.toml"), "--free", "wavelength=-8:-3", *args]) == 0
+    err = capsys.readouterr().err
+    assert "warning: the best inside the bounds (-0." in err and "is worse than the start (0." in err, err
+    assert out.exists()

@@ -124,3 +124,30 @@ def test_a_scheduler_lost_mid_search_keeps_the_best_so_far():
         lost.close()
     assert result.interrupted and result.failure, result
     assert result.best is not None and result.evaluations < 40
+
+
+def test_a_cluster_that_loses_every_worker_mid_search_ends_it_with_the_best_so_far(monkeypatch, capsys):
+    """A user review: every worker killed after the first generation, the search waited for ever, silent (Dask keeps
+    a task waiting for a worker). Now it waits WORKERLESS_SECONDS for one to come back, then ends as after Ctrl-C,
+    with the best so far and why."""
+    import time
+
+    from distributed import LocalCluster
+
+    monkeypatch.setattr(gaits_distributed, "WORKERLESS_SECONDS", 2.0)
+    monkeypatch.setattr(gaits_distributed, "POLL_SECONDS", 0.2)
+    alone = LocalCluster(n_workers=1, threads_per_worker=1, processes=True, host="127.0.0.1", scheduler_port=0,
+                         dashboard_address="127.0.0.1:0", worker_dashboard_address="127.0.0.1:0",
+                         silence_logs=logging.CRITICAL)  # fmt: skip
+    try:
+        began = time.monotonic()
+        with gaits_distributed.dask_executor(alone.scheduler_address) as (executor, width):
+            result = tune(load(CATERPILLAR), [parse_free("amplitude=20:85")], Setup("speed", seconds=1.0, warmup=0.5),
+                          budget=40, seed=1, workers=width, popsize=4, executor=executor,
+                          progress=lambda r, line: alone.scale(0) if r.generations == 1 else None)  # fmt: skip
+        assert time.monotonic() - began < 60
+    finally:
+        alone.close()
+    assert result.interrupted and result.failure == "has had no workers for 2 s", result.failure
+    assert result.best is not None and result.evaluations < 40
+    assert "distributed" not in capsys.readouterr().err  # Dask's own log lines stay quiet meanwhile
