@@ -26,6 +26,9 @@ from .table import format_table
 from .terrain import FLAT, Terrain
 from .terrain import argument as terrain_argument
 
+TICK = 0.02
+"""Seconds of one control tick at the simulation's 50 Hz: the shortest time a run can measure."""
+
 if TYPE_CHECKING:
     from .sim import Metrics
 
@@ -48,7 +51,7 @@ def _main(argv: list[str] | None) -> int:
                         help="samples per period, 1..1024 (default 16)")  # fmt: skip
     simulate = commands.add_parser("simulate", help="run the gait in MuJoCo and print the metrics")
     simulate.add_argument("file")
-    simulate.add_argument("--seconds", type=bounded(float, above=0, high=3600, what="the measured time"),
+    simulate.add_argument("--seconds", type=bounded(float, TICK, 3600, what="the measured time"),
                           default=10.0, help="measured simulated time, seconds (default 10)")  # fmt: skip
     simulate.add_argument("--warmup", type=bounded(float, 0, 3600, what="the warm-up"), default=2.0,
                           help="simulated seconds before measuring (default 2)")  # fmt: skip
@@ -81,7 +84,7 @@ def _main(argv: list[str] | None) -> int:
     )
     tune.add_argument("--workers", type=bounded(int, 1, 256, what="workers"), default=None,
                       help="worker processes (default: one per CPU core)")  # fmt: skip
-    tune.add_argument("--seconds", type=bounded(float, above=0, high=600, what="the measured time"), default=6.0,
+    tune.add_argument("--seconds", type=bounded(float, TICK, 600, what="the measured time"), default=6.0,
                       help="simulated seconds measured per candidate (default 6)")  # fmt: skip
     tune.add_argument("--warmup", type=bounded(float, 0, 600, what="the warm-up"), default=1.0,
                       help="simulated seconds before measuring (default 1)")  # fmt: skip

@@ -14,7 +14,7 @@ import contextlib
 import logging
 import time
 from collections.abc import Callable, Iterator
-from concurrent.futures import Executor, Future, wait
+from concurrent.futures import CancelledError, Executor, Future, wait
 from typing import Any, cast
 
 CONNECT_SECONDS = 10.0
@@ -24,6 +24,8 @@ WORKERLESS_SECONDS = 30.0
 start some) before it ends with the best so far."""
 POLL_SECONDS = 1.0
 """How often a waiting search asks the scheduler how many workers it has."""
+ASK_SECONDS = 10.0
+"""How long that question may take: a scheduler that does not answer it (hung, or cut off) has stopped answering."""
 
 
 def scheduler_address(text: str) -> str:
@@ -63,10 +65,10 @@ def _probe(address: str, seconds: float) -> None:
 
 
 @contextlib.contextmanager
-def dask_executor(address: str) -> Iterator[tuple[Executor, int]]:
+def dask_executor(address: str, say: Callable[[str], None] | None = None) -> Iterator[tuple[Executor, int]]:
     """An Executor on the Dask scheduler at ``address`` and how many candidates its workers run at once (their
     threads in all); the client is closed at the end. OSError when the scheduler does not answer, RuntimeError
-    when it has no workers."""
+    when it has no workers. ``say`` is told when a search waits for a worker (a cluster that has none left)."""
     try:
         from distributed import Client
     except ImportError as exc:  # pragma: no cover - a dependency of the package
@@ -75,16 +77,19 @@ def dask_executor(address: str) -> Iterator[tuple[Executor, int]]:
     with _quiet_dask():
         client = Client(address, timeout=CONNECT_SECONDS, set_as_default=False)
         try:
-            width = _threads(client)
+            width = _threads(client, CONNECT_SECONDS)
             if width == 0:
                 raise RuntimeError("it has no workers")
-            yield WatchedExecutor(client, client.get_executor(pure=False), WORKERLESS_SECONDS), width
+            yield WatchedExecutor(client, client.get_executor(pure=False), WORKERLESS_SECONDS, say), width
         finally:
             client.close()
 
 
-def _threads(client: Any) -> int:
-    return sum(cast(dict[str, int], client.nthreads()).values())  # a dict from a synchronous client
+def _threads(client: Any, timeout: float | None = None) -> int:
+    """Worker threads the scheduler has; TimeoutError when it does not say within ``timeout`` (a client's own call
+    waits for ever on a scheduler that hangs: a review stopped one with SIGSTOP)."""
+    ncores = client.sync(client.scheduler.ncores, callback_timeout=timeout)
+    return sum(cast(dict[str, int], ncores).values())
 
 
 class _Failed(RuntimeError):
@@ -97,8 +102,9 @@ class WatchedExecutor(Executor):
     silent (a user review). It raises RuntimeError then, which tune() takes as the executor failing: the best so
     far is kept and the reason said."""
 
-    def __init__(self, client: Any, inner: Executor, workerless: float) -> None:
-        self._client, self._inner, self._workerless = client, inner, workerless
+    def __init__(self, client: Any, inner: Executor, workerless: float,
+                 say: Callable[[str], None] | None = None) -> None:  # fmt: skip
+        self._client, self._inner, self._workerless, self._say = client, inner, workerless, say
 
     def submit(self, fn: Callable[..., Any], /, *args: Any, **kwargs: Any) -> Future[Any]:
         return self._inner.submit(fn, *args, **kwargs)
@@ -112,10 +118,16 @@ class WatchedExecutor(Executor):
                 _, pending = wait(futures, timeout=POLL_SECONDS)
                 if not pending:
                     break
-                if _threads(self._client) > 0:
+                try:
+                    threads = _threads(self._client, ASK_SECONDS)
+                except TimeoutError:
+                    raise _Failed(f"stopped answering (no answer within {ASK_SECONDS:g} s)") from None
+                if threads > 0:
                     alone_since = None
                     continue
                 now = time.monotonic()
+                if alone_since is None and self._say is not None:
+                    self._say(f"the Dask cluster has no worker now: waiting up to {self._workerless:g} s for one")
                 alone_since = now if alone_since is None else alone_since
                 if now - alone_since >= self._workerless:
                     for future in pending:
@@ -126,7 +138,11 @@ class WatchedExecutor(Executor):
             raise
         except Exception as exc:  # the scheduler lost (a cancelled future, a closed client) or a task that failed
             said = str(exc).strip().splitlines()
-            raise _Failed(f"stopped answering ({type(exc).__name__}{': ' + said[0] if said else ''})") from exc
+            what = f"{type(exc).__name__}{': ' + said[0] if said else ''}"
+            if isinstance(exc, (CancelledError, TimeoutError, OSError)) or type(exc).__module__.startswith(
+                    "distributed"):  # fmt: skip
+                raise _Failed(f"stopped answering ({what})") from exc
+            raise _Failed(f"ran a simulation that failed ({what})") from exc  # the cluster is not to blame
 
     def shutdown(self, wait: bool = True, *, cancel_futures: bool = False) -> None:
         self._inner.shutdown(wait=wait, cancel_futures=cancel_futures)

@@ -117,7 +117,7 @@ def _search(args: argparse.Namespace, gait: Gait, frees: list[Free], setup: Setu
     from .distributed import dask_executor
 
     try:
-        with dask_executor(args.scheduler) as (executor, width):
+        with dask_executor(args.scheduler, say=lambda line: print(line, file=sys.stderr)) as (executor, width):
             print(f"evaluating on the Dask scheduler at {args.scheduler}: {width} worker thread(s)", file=sys.stderr)
             return tune(gait, frees, setup, budget=args.budget, seed=args.seed, workers=width, progress=bar,
                         executor=executor)  # fmt: skip

@@ -46,3 +46,22 @@ def test_the_heading_of_a_robot_that_did_not_move_is_not_a_number_either():
     """A second review: a robot that did not move said "heading -90.0 degrees" (the direction of noise)."""
     assert _metrics((0.0, -1e-9), 0.0).heading_text() == "n/a (did not move)"
     assert _metrics((0.0, 2.0), 0.0).heading_text() == "90.0 degrees from +x"
+
+
+def test_a_run_shorter_than_a_tick_measures_one_tick_and_the_commands_refuse_it(capsys):
+    """A second review: --seconds 1e-9 ran no tick, measured 0 s and divided by it (a traceback in simulate and
+    tune). The commands refuse less than one 20 ms tick; the library measures at least one."""
+    import pytest
+
+    from gaits.cli import main
+    from gaits.model import LIBRARY, load
+    from gaits.sim import Simulation
+
+    for command in ("simulate", "tune"):
+        with pytest.raises(SystemExit) as refused:
+            main([command, str(LIBRARY / "caterpillar.toml"), "--seconds", "1e-9"])
+        assert refused.value.code == 2
+        assert "the measured time must be >= 0.02" in capsys.readouterr().err
+    with Simulation(load(LIBRARY / "caterpillar.toml")) as sim:
+        metrics = sim.run(1e-9, warmup=0.1)
+    assert metrics.seconds == 0.02 and metrics.speed > 0

@@ -128,3 +128,13 @@ def test_slippery_patches_slide_under_modules_of_a_higher_friction():
     grippy = distance("patches:friction=1.0,fraction=1")  # every tile of the ground's own μ
     assert distance("patches:friction=0.01,fraction=1") < 0.8 * grippy
     assert distance("patches:friction=0.3,fraction=1") != grippy
+
+
+@pytest.mark.parametrize("ground", ["friction = 1e-12", "anisotropic = [1e-300, 1e-300]"])
+def test_a_ground_too_slippery_to_simulate_is_refused(ground: str) -> None:
+    """A second review: a [ground] μ of 1e-4 down to 5e-324 validated, and the robot diverged on flat ground."""
+    from gaits.model import LIBRARY, GaitError, loads
+
+    text = (LIBRARY / "caterpillar.toml").read_text(encoding="utf-8") + f"\n[ground]\n{ground}\n"
+    with pytest.raises(GaitError, match=r"ground\.(friction|anisotropic\[0\]): must be in \[0\.001, 10\]"):
+        loads(text)

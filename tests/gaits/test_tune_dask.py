@@ -151,3 +151,50 @@ def test_a_cluster_that_loses_every_worker_mid_search_ends_it_with_the_best_so_f
     assert result.interrupted and result.failure == "has had no workers for 2 s", result.failure
     assert result.best is not None and result.evaluations < 40
     assert "distributed" not in capsys.readouterr().err  # Dask's own log lines stay quiet meanwhile
+
+
+class _Scheduler:
+    """What WatchedExecutor asks a Dask client: its workers' threads (``sync(scheduler.ncores)``), or no answer."""
+
+    def __init__(self, threads: int, hung: bool = False) -> None:
+        self.threads, self.hung = threads, hung
+        self.scheduler = self
+
+    def ncores(self) -> None:  # only named: sync() answers for it
+        raise AssertionError("called through sync")
+
+    def sync(self, _call: object, callback_timeout: float | None = None) -> dict[str, int]:
+        if self.hung:
+            raise TimeoutError(f"no answer in {callback_timeout}")
+        return {f"w{k}": 1 for k in range(self.threads)}
+
+
+@pytest.mark.parametrize(
+    ("scheduler", "job", "says"),
+    [
+        (_Scheduler(1, hung=True), "wait", "stopped answering (no answer within 0.1 s)"),  # a review's SIGSTOP
+        (_Scheduler(0), "wait", "has had no workers for 0.3 s"),
+        (_Scheduler(1), "divide", "ran a simulation that failed (ZeroDivisionError: division by zero)"),
+    ],
+)
+def test_the_watched_executor_says_what_failed(monkeypatch, scheduler, job: str, says: str) -> None:
+    """A second review: a scheduler that hung (SIGSTOP) was waited on for ever, and a simulation that raised on a
+    worker was blamed on the scheduler ("stopped answering")."""
+    import threading
+    from concurrent.futures import ThreadPoolExecutor
+
+    monkeypatch.setattr(gaits_distributed, "ASK_SECONDS", 0.1)
+    monkeypatch.setattr(gaits_distributed, "POLL_SECONDS", 0.05)
+    release = threading.Event()
+    said: list[str] = []
+    jobs = {"wait": lambda _: release.wait(30), "divide": lambda x: 1 / x}
+    with ThreadPoolExecutor(2) as pool:
+        watched = gaits_distributed.WatchedExecutor(scheduler, pool, 0.3, said.append)
+        try:
+            with pytest.raises(RuntimeError) as failed:
+                list(watched.map(jobs[job], [0, 0]))
+        finally:
+            release.set()
+    assert str(failed.value) == says
+    assert said == (["the Dask cluster has no worker now: waiting up to 0.3 s for one"] if scheduler.threads == 0
+                    else [])  # fmt: skip
