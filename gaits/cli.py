@@ -27,7 +27,9 @@ from .terrain import FLAT, Terrain
 from .terrain import argument as terrain_argument
 
 TICK = 0.02
-"""Seconds of one control tick at the simulation's 50 Hz: the shortest time a run can measure."""
+"""Seconds of one control tick at the simulation's 50 Hz (gaits.sim.Simulation's control_rate, not imported here:
+parsing the flags loads no MuJoCo; tests/gaits/test_metrics.py keeps the two equal): the shortest time a run can
+measure."""
 
 if TYPE_CHECKING:
     from .sim import Metrics
@@ -189,7 +191,7 @@ def _print_metrics(terrain: Terrain, metrics: Metrics) -> None:
     print(
         f"distance     {metrics.distance:.3f} m ({metrics.body_lengths:.2f} body lengths of {metrics.body_length:g} m)"
     )
-    print(f"mean speed   {metrics.speed:.3f} m/s ({metrics.body_lengths / metrics.seconds * 10:.2f} BL per 10 s)")
+    print(f"mean speed   {metrics.speed:.3f} m/s ({metrics.body_lengths_per_10s:.2f} BL per 10 s)")
     print(
         f"heading      {metrics.heading_text()}, drift {unsigned_zero(metrics.turned, 1)} "
         f"degrees ({unsigned_zero(metrics.heading_rate, 2)} degrees/s)"

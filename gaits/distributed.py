@@ -125,11 +125,11 @@ class WatchedExecutor(Executor):
                 if threads > 0:
                     alone_since = None
                     continue
-                now = time.monotonic()
-                if alone_since is None and self._say is not None:
-                    self._say(f"the Dask cluster has no worker now: waiting up to {self._workerless:g} s for one")
-                alone_since = now if alone_since is None else alone_since
-                if now - alone_since >= self._workerless:
+                if alone_since is None:
+                    alone_since = time.monotonic()
+                    if self._say is not None:
+                        self._say(f"the Dask cluster has no worker now: waiting up to {self._workerless:g} s for one")
+                if time.monotonic() - alone_since >= self._workerless:
                     for future in pending:
                         future.cancel()
                     raise _Failed(f"has had no workers for {self._workerless:g} s")
@@ -152,9 +152,8 @@ class WatchedExecutor(Executor):
 def _quiet_dask() -> Iterator[None]:
     """Dask's own loggers silenced while the search uses the cluster: a scheduler lost mid-run printed Dask's error
     lines and tracebacks before the command's one line saying so (which keeps the best so far)."""
-    loggers = [logging.getLogger(name) for name in list(logging.root.manager.loggerDict)
-               if name == "distributed" or name.startswith("distributed.")]  # fmt: skip
-    loggers.append(logging.getLogger("distributed"))
+    names = {name for name in list(logging.root.manager.loggerDict) if name.startswith("distributed.")}
+    loggers = [logging.getLogger(name) for name in sorted(names | {"distributed"})]
     levels = [logger.level for logger in loggers]
     for logger in loggers:
         logger.setLevel(logging.CRITICAL + 1)

@@ -55,16 +55,25 @@ class Metrics:
         return math.degrees(math.atan2(self.displacement[1], self.displacement[0]))
 
     @property
+    def body_lengths_per_10s(self) -> float:
+        """Progress in body lengths per 10 s (the default run); 0 over no time."""
+        return self.body_lengths / self.seconds * 10.0 if self.seconds > 0 else 0.0
+
+    @property
     def stuck(self) -> bool:
-        """Less than half a body length of progress per 10 s (the default run): a rate, so that a short run of a
-        gait that crawls is not called stuck, nor a long run of one that hardly moves free (a user review: 0.2 m
-        in 1 s was "stuck")."""
-        return self.seconds <= 0 or self.body_lengths / self.seconds * 10.0 < 0.5
+        """Less than half a body length of progress per 10 s: a rate, so that a short run of a gait that crawls is
+        not called stuck, nor a long run of one that hardly moves free (a user review: 0.2 m in 1 s was "stuck")."""
+        return self.body_lengths_per_10s < 0.5
+
+    @property
+    def moved(self) -> bool:
+        """At least a hundredth of a body length: below it a heading is the direction of noise and a cost of
+        transport a meaningless huge number (or a misleading 0.00)."""
+        return self.body_lengths >= 0.01
 
     def heading_text(self) -> str:
-        """The direction of travel for a person: "n/a" for a robot that hardly moved (as ``cost_text``), whose
-        heading is the direction of noise."""
-        if self.body_lengths < 0.01:
+        """The direction of travel for a person: "n/a" for a robot that did not move (``moved``)."""
+        if not self.moved:
             return "n/a (did not move)"
         return f"{unsigned_zero(self.heading, 1)} degrees from +x"
 
@@ -77,7 +86,7 @@ class Metrics:
     def cost_text(self) -> str:
         """The cost of transport for a person: "n/a" for a robot that hardly moved (under a hundredth of a body
         length), whose energy over a near-zero distance is a meaningless huge number (or a misleading 0.00)."""
-        if self.body_lengths < 0.01 or not math.isfinite(self.cost_of_transport):
+        if not self.moved or not math.isfinite(self.cost_of_transport):
             return "n/a (did not move)"
         return f"{self.cost_of_transport:.2f}"
 

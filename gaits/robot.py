@@ -201,15 +201,13 @@ def _robot_file(name: str, gait: Checker, path: Path | None) -> tuple[dict[str, 
             raise _Refused("cannot be reached: a folder on its path does not exist")
         if found == path.resolve() or (path.exists() and os.path.samefile(found, path)):
             raise _Refused("names the gait file itself: a robot file holds the [robot] description only")
-        text = decode(read(found), shown)
+        text = decode(read(found), shown, "robot")
         data = parse(text, shown)
     except _Refused as refused:
         gait.bad("robot.file", f"{brief(name)} {refused}")
         return None
     except GaitError as exc:  # not UTF-8, larger than a gait file, not TOML: said with the robot file's own name
-        problems = [replace(p, file=shown, message=p.message.replace("not a gait file", "not a robot file"))
-                    for p in exc.problems]  # fmt: skip
-        raise GaitError(shown, problems, more=exc.more) from None
+        raise GaitError(shown, [replace(p, file=shown) for p in exc.problems], more=exc.more) from None
     except RuntimeError:  # Path.resolve (before Python 3.13) on symbolic links that name each other
         gait.bad("robot.file", f"{brief(name)} cannot be read: its symbolic links form a loop")
         return None

@@ -152,8 +152,8 @@ def _wrap_up(args: argparse.Namespace, gait: Gait, frees: list[Free], setup: Set
     if result.start_inside and result.values == [current(gait, f) for f in frees]:
         print("no candidate beat the start inside the bounds: the start is written again", file=sys.stderr)
     sign = OBJECTIVES[setup.objective][0]
-    if not result.start_inside and not math.isnan(result.start_value) and sign * result.value < sign * (
-            result.start_value):  # fmt: skip
+    worse = sign * result.value < sign * result.start_value  # False when the start has no value (nan)
+    if not result.start_inside and worse:
         print(f"warning: the best inside the bounds ({amount(result.value, setup)}) is worse than the start "
               f"({amount(result.start_value, setup)}), which lies outside them: it is written, as asked; bounds that "
               "hold the start keep it unless something beats it", file=sys.stderr)  # fmt: skip

@@ -45,16 +45,17 @@ def read(path: str | Path) -> bytes:
         return file.read(MAX_FILE_BYTES + 1)
 
 
-def _too_large(source: str) -> GaitError:
+def _too_large(source: str, kind: str) -> GaitError:
     return GaitError(
-        source, [Problem("(file)", f"larger than {MAX_FILE_BYTES // 1024 // 1024} MiB: not a gait file", 1)]
+        source, [Problem("(file)", f"larger than {MAX_FILE_BYTES // 1024 // 1024} MiB: not a {kind} file", 1)]
     )
 
 
-def decode(data: bytes | str, source: str) -> str:
-    """UTF-8 text (a leading byte-order mark is allowed); a bad byte is reported with its line."""
+def decode(data: bytes | str, source: str, kind: str = "gait") -> str:
+    """UTF-8 text (a leading byte-order mark is allowed); a bad byte is reported with its line. ``kind``: what the
+    file should be ("gait", "robot"), as a file too large is said to be none."""
     if len(data) > MAX_FILE_BYTES:  # checked before decoding: bytes never decode to more characters
-        raise _too_large(source)
+        raise _too_large(source, kind)
     if isinstance(data, str):
         return data.removeprefix("\ufeff")
     try:

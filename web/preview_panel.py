@@ -80,7 +80,7 @@ class PreviewPanel:
         frame = loop.shown()
         if frame is not None and frame.running == 0 and loop.ended_at is not None:
             warning = f" · ■ **ended** at t = {loop.ended_at:.2f} s (no module's gait runs){warning}"
-        heading = f"{unsigned_zero(m.heading, 0)}°" if m.body_lengths >= 0.01 else "n/a"  # never "-0°", nor noise
+        heading = f"{unsigned_zero(m.heading, 0)}°" if m.moved else "n/a"  # never "-0°", nor the direction of noise
         self.metrics.content = (f"Preview{ground}: t = {m.seconds:.2f} s · distance **{m.distance:.3f} m** "
                                 f"({m.body_lengths:.2f} BL) · speed **{m.speed:.3f} m/s** · heading {heading} · "
                                 f"peak torque {m.peak_torque:.2f} N·m{warning}")  # fmt: skip

@@ -65,3 +65,9 @@ def test_a_run_shorter_than_a_tick_measures_one_tick_and_the_commands_refuse_it(
     with Simulation(load(LIBRARY / "caterpillar.toml")) as sim:
         metrics = sim.run(1e-9, warmup=0.1)
     assert metrics.seconds == 0.02 and metrics.speed > 0
+    import inspect
+
+    from gaits.cli import TICK
+
+    rate = inspect.signature(Simulation.__init__).parameters["control_rate"].default
+    assert 1 / rate == TICK  # stated twice (the command line does not import MuJoCo to parse its flags)
