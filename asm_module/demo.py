@@ -14,7 +14,7 @@ import sys
 import time
 
 from asm_py import Attribute, Event, PeriodicAutomaton, PhaseState, TimerTrigger
-from asm_py.cli import bounded, rate
+from asm_py.cli import bounded, rate, summary
 
 # One period of a caterpillar joint, as eight states with linear interpolation: a sine sampled at 45° steps.
 CATERPILLAR = [PhaseState(round(60.0 * s, 1), 0.125, "linear") for s in (0.71, 1, 0.71, 0, -0.71, -1, -0.71, 0)]
@@ -28,7 +28,7 @@ def bar(angle: float, width: int = 9) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="asm-demo", description=(__doc__ or "").splitlines()[0])
+    parser = argparse.ArgumentParser(prog="asm-demo", description=summary(__doc__))
     parser.add_argument("--modules", type=bounded(int, 1, 254, what="a module count"), default=6,
                         help="modules in the chain (default 6)")  # fmt: skip
     parser.add_argument("--seconds", type=bounded(float, 0, 86_400, what="a run time"), default=0.0,

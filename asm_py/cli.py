@@ -16,6 +16,7 @@ import math
 import os
 import signal
 import sys
+import textwrap
 import threading
 import traceback
 from collections.abc import Callable
@@ -102,6 +103,12 @@ def output_file(text: str) -> Path:
     if not path.parent.is_dir():
         raise argparse.ArgumentTypeError(f"{text}: the directory {path.parent} does not exist")
     return path
+
+
+def summary(doc: str | None) -> str:
+    """A command's ``--help`` description: its docstring's first paragraph, whole (its first line alone cut
+    sentences such as asm-flash's in the middle)."""
+    return textwrap.fill(" ".join((doc or "").strip().split("\n\n", 1)[0].split()), 78)
 
 
 def describe(exc: BaseException) -> str:

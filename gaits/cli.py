@@ -16,7 +16,7 @@ import argparse
 import sys
 from typing import TYPE_CHECKING
 
-from asm_py.cli import bounded, output_file, reader_gone, run
+from asm_py.cli import bounded, output_file, reader_gone, run, summary
 
 from .distributed import scheduler_address
 from .metrics import unsigned_zero
@@ -43,7 +43,7 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _main(argv: list[str] | None) -> int:
-    cli = argparse.ArgumentParser(prog="gaits", description=(__doc__ or "").splitlines()[0])
+    cli = argparse.ArgumentParser(prog="gaits", description=summary(__doc__))
     commands = cli.add_subparsers(dest="command", required=True)
     validate = commands.add_parser("validate", help="check gait files")
     validate.add_argument("files", nargs="+")

@@ -35,7 +35,7 @@ import zenoh
 
 from asm_py.canbus.fragments import frame_count
 from asm_py.canbus.ids import Dest
-from asm_py.cli import bitrate, can_channel, close_and_exit, name, node_id, run, stop_requested
+from asm_py.cli import bitrate, can_channel, close_and_exit, name, node_id, run, stop_requested, summary
 from asm_py.keys import DEFAULT_ROBOT, RobotKeys, concrete, lab_estop, last, split
 from asm_py.node import Node
 from asm_py.protocol import (
@@ -441,7 +441,7 @@ def add_bus_arguments(cli: argparse.ArgumentParser) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    cli = argparse.ArgumentParser(prog="asm-bridge", description=(__doc__ or "").splitlines()[0])
+    cli = argparse.ArgumentParser(prog="asm-bridge", description=summary(__doc__))
     cli.add_argument("--can", type=can_channel, required=True, metavar="INTERFACE:CHANNEL")
     add_bus_arguments(cli)
     cli.add_argument("--robot-name", type=name, default=DEFAULT_ROBOT,

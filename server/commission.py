@@ -26,7 +26,7 @@ from asm_py.canbus.commission import (
     describe_conflicts,
     parse_serial,
 )
-from asm_py.cli import bitrate, bounded, can_channel, input_file, node_id, positive_seconds, run
+from asm_py.cli import bitrate, bounded, can_channel, input_file, node_id, positive_seconds, run, summary
 
 
 def serial(text: str) -> bytes:
@@ -44,7 +44,7 @@ def read_order(path: Path) -> list[bytes]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    cli = argparse.ArgumentParser(prog="asm-commission", description=(__doc__ or "").splitlines()[0],
+    cli = argparse.ArgumentParser(prog="asm-commission", description=summary(__doc__),
                                   formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
     cli.add_argument("--can", type=can_channel, required=True, metavar="INTERFACE:CHANNEL")
     cli.add_argument("--bitrate", type=bitrate)

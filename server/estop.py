@@ -18,7 +18,7 @@ import time
 import zenoh
 
 from asm_module.feed import RobotStatus, read_statuses
-from asm_py.cli import name, run
+from asm_py.cli import name, run, summary
 from asm_py.keys import TOOL, RobotKeys, lab_estop
 from asm_py.transport.base import short_reason
 
@@ -50,7 +50,7 @@ def describe(statuses: dict[str, RobotStatus]) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    cli = argparse.ArgumentParser(prog="asm-estop", description=__doc__.splitlines()[0] if __doc__ else "")
+    cli = argparse.ArgumentParser(prog="asm-estop", description=summary(__doc__))
     cli.add_argument("--robot", type=name, help="stop this robot only (default: every robot on the network)")
     cli.add_argument("--reason", default="asm-estop", help="a short reason (its first 8 bytes travel)")
     add_zenoh_arguments(cli)

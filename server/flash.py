@@ -21,7 +21,7 @@ from typing import TextIO
 
 from asm_module.firmware_image import check
 from asm_module.flasher import update_modules
-from asm_py.cli import bitrate, can_channel, input_file, module_selection, node_id, positive_seconds, run
+from asm_py.cli import bitrate, can_channel, input_file, module_selection, node_id, positive_seconds, run, summary
 from asm_py.node import Node
 from asm_py.transport.can import CanTransport
 
@@ -60,7 +60,7 @@ def select(transport: CanTransport, selection: tuple[int, ...] | str) -> tuple[l
 
 
 def main(argv: list[str] | None = None) -> int:
-    cli = argparse.ArgumentParser(prog="asm-flash", description=(__doc__ or "").splitlines()[0],
+    cli = argparse.ArgumentParser(prog="asm-flash", description=summary(__doc__),
                                   formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
     cli.add_argument("--robot", type=can_channel, required=True, metavar="INTERFACE:CHANNEL",
                      help="the robot's CAN bus (python-can interface and channel)")  # fmt: skip

@@ -34,6 +34,7 @@ from asm_py.cli import (
     rate,
     run,
     stop_requested,
+    summary,
 )
 from asm_py.node import Node
 from asm_py.transport.can import CanTransport
@@ -45,7 +46,7 @@ HARDWARE_RANGE = (-90.0, 90.0)
 
 def main(argv: list[str] | None = None) -> int:
     """``asm-module --can INTERFACE:CHANNEL --node-id N``: one module on a CAN bus (a Linux-based module)."""
-    cli = argparse.ArgumentParser(prog="asm-module", description=main.__doc__.splitlines()[0] if main.__doc__ else "")
+    cli = argparse.ArgumentParser(prog="asm-module", description=summary(main.__doc__))
     cli.add_argument("--can", type=can_channel, required=True, metavar="INTERFACE:CHANNEL")
     cli.add_argument("--bitrate", type=bitrate)
     identity = cli.add_mutually_exclusive_group(required=True)

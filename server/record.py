@@ -37,7 +37,7 @@ from typing import Any
 import zenoh
 
 from asm_module.feed import RobotStatus, decode_poses, mjcf_key, poses_key, status_key
-from asm_py.cli import input_file, name, run, stop_requested
+from asm_py.cli import input_file, name, run, stop_requested, summary
 from asm_py.keys import RobotKeys, lab_estop, split
 from asm_py.protocol import ProtocolError, decode
 
@@ -352,7 +352,7 @@ def mcap_output(text: str) -> Path:
 
 
 def main(argv: list[str] | None = None) -> int:
-    cli = argparse.ArgumentParser(prog="asm-record", description=__doc__.splitlines()[0] if __doc__ else "")
+    cli = argparse.ArgumentParser(prog="asm-record", description=summary(__doc__))
     cli.add_argument("--robot", type=name, required=True, help="the robot to record (its name on the network)")
     cli.add_argument("--output", "-o", type=mcap_output, default=Path("run.mcap"), metavar="FILE",
                      help="the MCAP file (default run.mcap; numbered run-000.mcap, … with --max-bytes)")  # fmt: skip

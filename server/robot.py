@@ -31,7 +31,7 @@ from typing import Any
 from asm_module.board_batch import BoardBatch
 from asm_module.feed import PoseFrame, RobotStatus, encode_poses
 from asm_module.names import module_name
-from asm_py.cli import can_channel, close_and_exit, input_file, module_selection, name, run, stop_requested
+from asm_py.cli import can_channel, close_and_exit, input_file, module_selection, name, run, stop_requested, summary
 from asm_py.keys import DEFAULT_ROBOT
 from asm_py.node import Node
 from asm_py.transport.can import CanTransport
@@ -324,7 +324,7 @@ def die_with_parent(parent: int) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    cli = argparse.ArgumentParser(prog="asm-robot", description=__doc__.splitlines()[0] if __doc__ else "")
+    cli = argparse.ArgumentParser(prog="asm-robot", description=summary(__doc__))
     where = cli.add_mutually_exclusive_group()
     where.add_argument("--sim", type=input_file, metavar="FILE", help="simulate the robot of this gait file (default: "
                        "the caterpillar)")  # fmt: skip

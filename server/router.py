@@ -14,14 +14,14 @@ from __future__ import annotations
 import argparse
 import logging
 
-from asm_py.cli import close_and_exit, input_file, run, stop_requested, zenoh_endpoint
+from asm_py.cli import close_and_exit, input_file, run, stop_requested, summary, zenoh_endpoint
 
 from .realtime import prefer_latency
 from .zenoh_args import ZenohOptions, zenoh_options
 
 
 def main(argv: list[str] | None = None) -> int:
-    cli = argparse.ArgumentParser(prog="asm-router", description=__doc__.splitlines()[0] if __doc__ else "")
+    cli = argparse.ArgumentParser(prog="asm-router", description=summary(__doc__))
     cli.add_argument("--listen", action="append", type=zenoh_endpoint, required=True, metavar="ENDPOINT",
                      help="where robots and studios connect, e.g. tcp/127.0.0.1:7447 (repeatable)")  # fmt: skip
     cli.add_argument("--connect", action="append", default=[], type=zenoh_endpoint, metavar="ENDPOINT",

@@ -42,6 +42,7 @@ from asm_py.cli import (
     port,
     run,
     stop_requested,
+    summary,
     zenoh_endpoint,
 )
 from asm_py.keys import DEFAULT_ROBOT
@@ -383,7 +384,7 @@ class Studio:
 
 
 def main(argv: list[str] | None = None) -> int:
-    cli = argparse.ArgumentParser(prog="asm-studio", description=__doc__.splitlines()[0] if __doc__ else "")
+    cli = argparse.ArgumentParser(prog="asm-studio", description=summary(__doc__))
     cli.add_argument("--gait", type=input_file, default=StudioOptions.gait,
                      help="gait file to open (default: caterpillar)")  # fmt: skip
     where = cli.add_mutually_exclusive_group()

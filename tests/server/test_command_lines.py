@@ -141,6 +141,18 @@ def test_a_bad_argument_is_a_usage_error(command: str, argv: list[str], mention:
     assert "Traceback" not in err
 
 
+@pytest.mark.parametrize("command", sorted(COMMANDS))
+def test_help_says_what_a_command_does_in_whole_sentences(command: str, capsys) -> None:
+    """asm-flash's and asm-commission's --help stopped mid-sentence ("update the firmware of a robot's"): the
+    description was the docstring's first line."""
+    with pytest.raises(SystemExit) as ended:
+        COMMANDS[command](["--help"])
+    assert ended.value.code == 0
+    out = capsys.readouterr().out
+    description = " ".join(out.split("\n\n")[1].split())  # after the usage lines
+    assert description.endswith((".", ")", ":")), description
+
+
 def test_gaits_reports_bad_files_without_a_traceback(tmp_path: Path, capsys) -> None:
     bad = tmp_path / "bad.toml"
     bad.write_bytes(b"name = \xff\n")
