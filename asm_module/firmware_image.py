@@ -70,11 +70,13 @@ def elf_image(path: Path, *, pad_to: int = 0) -> bytes:
 def check(data: bytes) -> ImageInfo:
     """The header of ``data`` if it is a whole image (what the bootloader and firmware.install check); ImageError
     naming what is wrong otherwise."""
+    if data[:4] == b"\x7fELF":  # the linker's output, not what a module takes: say how to make one
+        raise ImageError("an ELF file, not an update image: make one with python -m asm_module.firmware_image ELF OUT")
     if len(data) < IMAGE_HEADER_SIZE:
-        raise ImageError(f"{len(data)} bytes: shorter than an image header ({IMAGE_HEADER_SIZE})")
+        raise ImageError(f"not an update image: {len(data)} bytes, shorter than an image header ({IMAGE_HEADER_SIZE})")
     magic, crc, header_version, header_size, version, size, load = _FIELDS.unpack_from(data)
     if magic != IMAGE_MAGIC:
-        raise ImageError(f"not an ASM image (magic {magic:#010x})")
+        raise ImageError(f"not an update image (its first bytes are not the image magic: {magic:#010x})")
     if (header_version, header_size, load) != (IMAGE_HEADER_VERSION, IMAGE_HEADER_SIZE, LOAD_ADDRESS):
         raise ImageError(f"header version {header_version}, size {header_size}, load address {load:#x}: not this "
                          f"bootloader's (version {IMAGE_HEADER_VERSION})")  # fmt: skip

@@ -49,9 +49,12 @@ def test_asm_flash_updates_the_selected_modules_and_prints_their_versions(tmp_pa
         assert main(["--robot", f"virtual:{channel}", "--modules", "9", "--discover", "0.5", str(image)]) == 1
         assert "m9: not on the bus" in capsys.readouterr().err
         not_an_image = tmp_path / "junk.bin"
-        not_an_image.write_bytes(b"\x7fELF" + bytes(300))
+        not_an_image.write_bytes(b"\x7fELF" + bytes(300))  # the linked ELF given where its image belongs
         assert main(["--robot", f"virtual:{channel}", str(not_an_image)]) == 1
-        assert "not an ASM image" in capsys.readouterr().err
+        assert "an ELF file, not an update image: make one with python -m asm_module" in capsys.readouterr().err
+        not_an_image.write_bytes(b"junk" * 100)
+        assert main(["--robot", f"virtual:{channel}", str(not_an_image)]) == 1
+        assert "not an update image" in capsys.readouterr().err
         with pytest.raises(SystemExit):
             main(["--robot", f"virtual:{channel}", "--modules", "0,300", str(image)])
         assert [b.firmware_version for b in boards] == [0x000203, 0x000100, 0x000203], "nothing else written"
