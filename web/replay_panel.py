@@ -18,8 +18,9 @@ from typing import TYPE_CHECKING, Any
 
 from viser._messages import GuiSliderMark
 
+from .confirm import plain
 from .monitor import SeriesPlot, format_value
-from .recording import Recording, RecordingError, open_recording, read_bytes
+from .recording import Recording, RecordingError, open_recording, read_bytes, utf8_name, utf8_text
 from .replay import SPEEDS, ReplaySource, last_values, plot_data
 
 if TYPE_CHECKING:
@@ -101,12 +102,12 @@ class ReplayPanel:
 
     def open_path(self, path: Path) -> None:
         """Open ``path`` and replay it (read on the panel's thread; the line says how it went)."""
-        self.line.content = f"Opening {path.name} …"
+        self.line.content = f"Opening {plain(utf8_text(path.name))} …"
         self._opening.put(("path", path))
 
     def _on_upload(self, event: Any) -> None:
         uploaded = event.target.value
-        self.line.content = f"Opening {uploaded.name} …"
+        self.line.content = f"Opening {plain(str(uploaded.name))} …"
         self._opening.put(("bytes", (uploaded.name, uploaded.content)))
 
     def _request(self, kind: str, value: Any = None) -> None:
@@ -145,13 +146,13 @@ class ReplayPanel:
                     continue
                 recording = open_recording(value) if kind == "path" else read_bytes(value[1], value[0])
             except RecordingError as exc:
-                self.line.content = f"⚠ Not opened: {exc}"
-                self.page.notify("Replay", str(exc), error=True)
+                self.line.content = f"⚠ Not opened: {plain(utf8_text(str(exc)))}"
+                self.page.notify("Replay", plain(utf8_text(str(exc))), error=True)
                 log.info("not replayed: %s", exc)
                 continue
             except Exception as exc:  # a bug must not end the thread: said like a refusal
                 log.exception("opening a recording failed")
-                self.line.content = f"⚠ Not opened: {exc}"
+                self.line.content = f"⚠ Not opened: {plain(utf8_text(str(exc)))}"
                 continue
             self.start(recording)
 
@@ -162,7 +163,11 @@ class ReplayPanel:
             files = sorted(folder.glob("*.mcap"), key=lambda p: p.stat().st_mtime, reverse=True)
         except OSError:
             files = []
-        names = [p.name for p in files] or [NO_FILE]
+        names = [p.name for p in files if utf8_name(p.name)]
+        if len(names) < len(files):  # never sent to the page (see utf8_name); said, so the file is not just missing
+            self.line.content = (f"⚠ {len(files) - len(names)} file(s) of the recordings folder have names that are "
+                                 "not UTF-8 and are not listed: rename them to replay them")  # fmt: skip
+        names = names or [NO_FILE]
         with self.page.programmatic():
             if list(self.file.options) != names:
                 self.file.options = names
@@ -185,11 +190,11 @@ class ReplayPanel:
         if old is not None:
             old.close()
         kept = "" if recording.complete else " — its writer did not finish it: replayed up to its last whole chunk"
-        warning = f"  \n⚠ {source.error}" if source.error else ""
-        self.line.content = (f"**{recording.name}**: {recording.duration:.2f} s, {len(recording.frames)} poses, "
+        warning = f"  \n⚠ {plain(source.error)}" if source.error else ""
+        self.line.content = (f"**{plain(recording.name)}**: {recording.duration:.2f} s, {len(recording.frames)} poses, "
                              f"{len(recording.series)} attributes of {len(recording.nodes())} nodes, "
                              f"{len(recording.events)} events{kept}{warning}")  # fmt: skip
-        self.page.notify("Replay", f"{recording.name} opened: Play, or drag the replay time")
+        self.page.notify("Replay", f"{plain(recording.name)} opened: Play, or drag the replay time")
         log.info("replaying %s: %.2f s, %d poses", recording.name, recording.duration, len(recording.frames))
 
     def leave(self) -> None:
@@ -229,13 +234,15 @@ class ReplayPanel:
             labels, data = plot_data(recording, keys, t, PLOT_WINDOW)
             self.plot.show(labels, data, t, PLOT_WINDOW)  # seconds before the replay time, as the live plots
         state = "▶ playing" if source.playing else ("■ ended" if t >= source.clock.duration else "paused")
-        events = "  \n".join(f"{'●' if e.time <= t else '○'} {e.time:7.2f} s · {e.text}" for e in recording.events[:40])
+        events = "  \n".join(f"{'●' if e.time <= t else '○'} {e.time:7.2f} s · {plain(e.text)}"
+                              for e in recording.events[:40])  # fmt: skip
         more = f"  \n… and {len(recording.events) - 40} more" if len(recording.events) > 40 else ""
         self._set(self.events, f"**t = {t:.2f} s** of {source.clock.duration:.2f} s · {state} · "
                   f"{source.clock.speed:g}x  \n**Events** (● passed; on the timeline: E e-stop, G deploy or drive, S "
                   f"e-stop latched or released)  \n{events or 'none'}{more}")  # fmt: skip
         values = last_values(recording, t)
-        rows = [f"`{node}` " + ", ".join(f"{obj} = **{format_value(v)}**" for obj, v in sorted(objs.items())[:4])
+        rows = [plain(node) + " " + ", ".join(f"{plain(obj)} = **{plain(format_value(v))}**"
+                                              for obj, v in sorted(objs.items())[:4])
                 for node, objs in sorted(values.items(), key=lambda kv: (len(kv[0]), kv[0]))]  # fmt: skip
         self._set(self.roster, "**Modules in the recording** (last values at t)  \n" + "  \n".join(rows[:32]))
 

@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING, Any
 
 from asm_module.feed import RobotStatus
 
-from .confirm import InlineConfirm
+from .confirm import InlineConfirm, plain
 from .page_script import ESTOP_KEY
 
 if TYPE_CHECKING:
@@ -124,7 +124,7 @@ class RobotBar:
             kind = "simulated" if self.page.simulated else "real: no poses, angles only"
             shown = f"Showing: **Live** (robot {link.robot}, {kind})"
         elif self.page.view.source == "replay":
-            shown = f"Showing: **Replay** of {self.page.view.replay.recording.name} (Replay tab; Live returns)"
+            shown = f"Showing: **Replay** of {plain(self.page.view.replay.recording.name)} (Replay tab; Live returns)"
         else:
             shown = "Showing: **Preview** (the edited gait, simulated here)"
         content = shown + self._live_line(lost)

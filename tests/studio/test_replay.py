@@ -6,7 +6,9 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import struct
+import time
 from pathlib import Path
 
 import mujoco
@@ -126,7 +128,8 @@ BODIES = mujoco.MjModel.from_xml_string(MJCF).nbody - 1
 START = 1_700_000_000_000_000_000
 
 
-def write_recording(path: Path, frames: int = 120, *, finish: bool = True, mjcf: str | None = MJCF) -> McapFiles:
+def write_recording(path: Path, frames: int = 120, *, finish: bool = True, mjcf: str | None = MJCF,
+                    words: str = "module") -> McapFiles:  # fmt: skip
     """A synthetic run at 60 frames a second: poses, joint.angle of m1-m3 every other frame (and a text value),
     a deploy's group message at 0.5 s, an e-stop at 1.5 s with the status saying so."""
     info = RecordingInfo({"robot": "robot", "modules": "8"}, [Attachment("caterpillar.toml", "application/toml",
@@ -144,7 +147,7 @@ def write_recording(path: Path, frames: int = 120, *, finish: bool = True, mjcf:
             for m in (1, 2, 3):
                 view = {"node": f"m{m}", "object": "joint.angle", "seq": k, "t": k / 60, "value": float(rng.normal())}
                 files.write(f"/m{m}/joint.angle", ATTRIBUTE, json.dumps(view).encode(), ns + m)
-            text = {"node": "m1", "object": "name", "value": f"module {k}"}
+            text = {"node": "m1", "object": "name", "value": f"{words} {k}"}
             files.write("/m1/name", ATTRIBUTE, json.dumps(text).encode(), ns + 9)
         if k == 30:
             group = {"group": "all", "source": "studio", "kind": 1, "method": 2, "class_id": 3, "object_id": 4,
@@ -258,6 +261,40 @@ def test_a_small_file_whose_chunk_would_expand_to_gigabytes_is_refused_unexpande
         open_recording(path)
 
 
+@pytest.mark.parametrize("compression", ["zstd", "lz4"])
+def test_a_chunk_that_expands_past_the_size_it_claims_is_refused_unexpanded(tmp_path: Path, compression: str):
+    """A chunk that claims 1,000 bytes and holds 1 GiB of zeros (a 33 kB file): mcap's reader decompressed it all
+    (1 GB of memory, 100 s) and the page then opened it; it is refused at the claim's 1,001st byte."""
+    import resource
+
+    import lz4.frame
+    import zstandard
+
+    zeros = 2**30
+    if compression == "zstd":
+        data = zstandard.ZstdCompressor(level=1, write_content_size=False).compress(b"\0" * 2**24) * (zeros // 2**24)
+    else:  # one frame of 1 GiB, made a piece at a time
+        maker = lz4.frame.LZ4FrameCompressor()
+        data = maker.begin() + b"".join(maker.compress(b"\0" * 2**24) for _ in range(zeros // 2**24)) + maker.flush()
+    header = _record(0x01, _string("") + _string("bomb"))
+    chunk = _record(0x06, struct.pack("<QQQI", 0, 0, 1000, 0) + _string(compression) + struct.pack("<Q", len(data))
+                    + data)  # fmt: skip
+    path = tmp_path / "bomb.mcap"
+    path.write_bytes(rec.MAGIC + header + chunk)
+    before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    began = time.monotonic()
+    with pytest.raises(RecordingError, match="expands to more than the 1,000 bytes it says"):
+        open_recording(path)
+    assert time.monotonic() - began < 10
+    assert resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - before < 200_000, "kB: nothing near 1 GiB expanded"
+    good = tmp_path / "shrunk.mcap"  # one that expands to less than it says is refused as well
+    small = zstandard.compress(b"\0" * 10)
+    good.write_bytes(rec.MAGIC + header + _record(0x06, struct.pack("<QQQI", 0, 0, 1000, 0) + _string("zstd")
+                                                   + struct.pack("<Q", len(small)) + small))  # fmt: skip
+    with pytest.raises(RecordingError, match="expands to less than"):
+        open_recording(good)
+
+
 def test_many_chunks_expanding_past_the_budget_are_refused(tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
     path = tmp_path / "run.mcap"
     write_recording(path)
@@ -351,7 +388,7 @@ def test_the_replay_tab_shows_a_recording_in_the_3d_view_and_leaves_it_for_the_l
     write_recording(path)
     upload = SimpleNamespace(target=SimpleNamespace(value=SimpleNamespace(name="junk.mcap", content=b"\x00" * 64)))
     panel._on_upload(upload)  # hostile bytes uploaded: refused in a line, nothing shown changes
-    assert wait_until(lambda: "Not opened: junk.mcap is not an MCAP file" in panel.line.content, 20)
+    assert wait_until(lambda: r"Not opened: junk\.mcap is not an MCAP file" in panel.line.content, 20)
     assert view.source == "preview" and panel.source is None
     with pytest.raises(ValueError, match="no recording open"):
         panel._request("play")
@@ -372,12 +409,61 @@ def test_the_replay_tab_shows_a_recording_in_the_3d_view_and_leaves_it_for_the_l
     panel.refresh()
     assert panel.plot.labels == ["m1 joint.angle", "m2 joint.angle", "m3 joint.angle"]
     assert "t = 1.50 s" in panel.events.content and "● " in panel.events.content and "○ " in panel.events.content
-    assert "`m3` joint.angle = **" in panel.roster.content
+    assert r"m3 joint\.angle = **" in panel.roster.content
     with pytest.raises(ValueError, match="not one of"):
         panel._on_speed(SimpleNamespace(target=SimpleNamespace(value="9x")))
     panel._on_play(SimpleNamespace(target=SimpleNamespace(value="Leave replay")))
     assert view.source == "live" and panel.source is None and panel.line.content == "No recording open."
     assert not source._thread.is_alive()
+
+
+HOSTILE = '<a href="http://example.com/x">click</a><img src=x onerror=alert(1)>'
+
+
+def test_the_replay_tab_shows_names_and_values_as_text_and_never_sends_what_is_not_utf8(studio, tmp_path: Path):
+    """A review: a recorded string value and an uploaded file's name were rendered as HTML (a live link, an image
+    fetched); a file of the recordings folder whose name is not UTF-8 ended the page's connection (viser's msgpack
+    refused the surrogates) for every tab and every reconnection, E-STOP included."""
+    import os
+    from types import SimpleNamespace
+
+    app = studio.app
+    panel = app.replay
+    path = tmp_path / "run.mcap"
+    write_recording(path, words=HOSTILE)
+    upload = SimpleNamespace(target=SimpleNamespace(value=SimpleNamespace(name=HOSTILE + ".mcap",
+                                                                          content=path.read_bytes())))  # fmt: skip
+    panel._on_upload(upload)
+    try:
+        assert wait_until(lambda: panel.source is not None and "120 poses" in panel.line.content, 20)
+        panel.timeline.value = 1.9
+        assert wait_until(lambda: panel.source is not None and panel.source.time() == 1.9, 20)
+        panel.refresh()
+        shown = [panel.line.content, panel.roster.content, panel.events.content, app.bar.source_md.content]
+        for text in shown:
+            assert re.search(r"(?<!\\)[<\[]", text) is None, text  # every tag or link opening escaped
+        assert r"\<a href" in panel.roster.content and r"\<img src" in panel.line.content
+    finally:
+        panel.leave()
+    folder = tmp_path / "recordings"
+    folder.mkdir()
+    os.link(path, os.fsencode(folder) + b"/bad\xff\xfename.mcap")
+    os.link(path, folder / "good.mcap")
+    was = studio.options.recordings
+    studio.options.recordings = folder
+    try:
+        panel.list_files()
+        assert list(panel.file.options) == ["good.mcap"]
+        assert "1 file(s) of the recordings folder have names that are not UTF-8" in panel.line.content
+        panel.open_path(folder / os.fsdecode(b"bad\xff\xfename.mcap"))  # asm-studio --replay gives such a name
+        assert wait_until(lambda: panel.source is not None, 20)
+        assert panel.source is not None and panel.source.recording.name == "bad\ufffd\ufffdname.mcap"
+        panel.refresh()
+        for handle in (panel.line, panel.roster, panel.events, app.bar.source_md):
+            handle.content.encode("utf-8")  # what viser sends: never a surrogate
+    finally:
+        studio.options.recordings = was
+        panel.leave()
 
 
 @pytest.mark.parametrize("name", ["../secret.mcap", "/etc/passwd", "sub/run.mcap", "run.txt", "..mcap", ".mcap", ""])
