@@ -73,6 +73,9 @@ def _update_one(node: Node, module: str, image: bytes, crc: int, version: int, p
     old: int | None = None
     try:
         old = _status(node, module, timeout)["running"]
+        if node.lookup(module, "estop", timeout=timeout).get(timeout=timeout):  # pyright: ignore[reportAttributeAccessIssue]
+            return ModuleUpdate(module, "refused", old, old, "its e-stop is latched: an update ends in a reset, which "
+                                "would release it (release the e-stop first)")  # fmt: skip
         for offset in range(0, len(image), IMAGE_CHUNK):
             piece = image[offset : offset + IMAGE_CHUNK]
             target.set(struct.pack("<I", offset) + piece, timeout=timeout)  # pyright: ignore[reportAttributeAccessIssue]
@@ -81,7 +84,7 @@ def _update_one(node: Node, module: str, image: bytes, crc: int, version: int, p
         install = node.lookup(module, "firmware.install", timeout=timeout)
         try:
             install.set(crc, timeout=timeout)  # pyright: ignore[reportAttributeAccessIssue]
-        except ValueError:
+        except ValueError:  # EstopLatched too: latched while the image was written (the board says so, above)
             state = FIRMWARE_STATES[_status(node, module, timeout)["state"]]
             return ModuleUpdate(module, "refused", old, old, f"the module checked the image and refused it ({state})")
     except (AsmError, OSError, ValueError, LookupError) as exc:

@@ -58,8 +58,9 @@ void update_boot(void)
 static int set_image(struct asm_node *node, struct asm_object *o, const uint8_t *data, size_t length)
 {
     uint32_t offset, words[ASM_IMAGE_CHUNK / 4u], errors = 0;
-    (void)node;
     (void)o;
+    if (node->estop)
+        return ASM_S_ESTOP; /* an update ends in a reset, which would release the latch: refused, as any move */
     if (length < 4u || (length - 4u) % 4u || length - 4u > ASM_IMAGE_CHUNK || resetting)
         return ASM_S_VALUE_ERROR;
     memcpy(&offset, data, 4);
@@ -89,6 +90,8 @@ static int set_install(struct asm_node *node, struct asm_object *o, const uint8_
 {
     const struct image_header *h = (const struct image_header *)LAYOUT_SLOT_ADDRESS(other());
     (void)o;
+    if (node->estop)
+        return ASM_S_ESTOP; /* latched after the image was written: no reset into it until released */
     if (length != 4u || resetting)
         return ASM_S_VALUE_ERROR;
     memcpy(&install_crc, data, 4);

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import shutil
 import struct
+import time
 import zlib
 from collections.abc import Iterator
 from pathlib import Path
@@ -144,6 +145,35 @@ def test_a_corrupted_image_is_refused_before_the_swap_and_hostile_pieces_are_ref
             target.set(beyond, timeout=10)  # past the 64 KiB an image may have
         assert board.resets == [] and board.firmware_version == OLD and board.fault is None, "no swap, no reset"
         assert tool.lookup("m1", "joint.goal", timeout=5) is not None
+    finally:
+        board.close()
+
+
+def test_a_latched_module_is_never_updated_so_its_e_stop_stays_latched(bus) -> None:
+    """A review: an update during a latched e-stop was adopted, and the reset into it released the latch on every
+    board. The board refuses both SETs with ESTOP while latched (an image written before the latch is not installed
+    either); the tool says so and sends nothing."""
+    from asm_module.flasher import update_modules
+    from asm_py.errors import EstopLatched
+
+    channel, tool = bus
+    image = _new_image()
+    board = _board(channel, 1, Settings())
+    try:
+        assert wait_until(lambda: "m1" in tool.discover(), timeout=30)
+        _write(tool, "m1", image)  # written before the latch
+        estop = tool.lookup("m1", "estop", timeout=5)
+        estop.set(True, timeout=5)  # pyright: ignore[reportAttributeAccessIssue]
+        assert estop.get(timeout=5)  # pyright: ignore[reportAttributeAccessIssue]
+        with pytest.raises(EstopLatched):
+            tool.lookup("m1", "firmware.install", timeout=5).set(check(image).crc, timeout=10)  # pyright: ignore[reportAttributeAccessIssue]
+        with pytest.raises(EstopLatched):
+            _write(tool, "m1", image, upto=IMAGE_CHUNK)
+        [result] = update_modules(tool, ["m1"], image)
+        assert (result.outcome, result.old_version, result.new_version) == ("refused", OLD, OLD), result
+        assert "e-stop is latched" in result.detail, result
+        time.sleep(0.5)  # a reset would follow an install by 0.1 s
+        assert board.resets == [] and board.firmware_version == OLD and estop.get(timeout=5), "still latched, old image"  # pyright: ignore[reportAttributeAccessIssue]
     finally:
         board.close()
 
