@@ -26,6 +26,7 @@ from asm_py.canbus.commission import (
     describe_conflicts,
     parse_serial,
 )
+from asm_py.canbus.ids import MAX_NODE_ID, MIN_NODE_ID
 from asm_py.cli import bitrate, bounded, can_channel, input_file, node_id, positive_seconds, run, summary
 
 
@@ -59,11 +60,14 @@ def main(argv: list[str] | None = None) -> int:
     number.add_argument("--order", type=input_file, help="a file of serials, one a line: the numbering order")
     one = commands.add_parser("set", help="give one module a node ID")
     one.add_argument("serial", type=serial)
-    one.add_argument("id", type=bounded(int, 1, 254, what="a CAN node ID"))
+    one.add_argument("id", type=bounded(int, MIN_NODE_ID, MAX_NODE_ID - 1, what="a module's node ID"))  # 254: tools
     erase = commands.add_parser("erase", help="make one module unconfigured again")
     erase.add_argument("serial", type=serial)
     args = cli.parse_args(argv)
-    order = read_order(args.order) if getattr(args, "order", None) else None
+    try:
+        order = read_order(args.order) if getattr(args, "order", None) else None
+    except argparse.ArgumentTypeError as exc:  # a line of the file: a usage error naming it, not a traceback
+        cli.error(f"argument --order: {args.order}: {exc}")
     return run(cli.prog, lambda: _command(args, order))
 
 
@@ -85,6 +89,14 @@ def _command(args: argparse.Namespace, order: list[bytes] | None) -> int:
             for module in tool.number(first=args.first, order=order):
                 print(f"{module.serial_hex}  {module.node_id}")
         elif args.command == "set":
+            if args.id == args.node_id:
+                raise RuntimeError(f"node ID {args.id} is this tool's own (--node-id): a module never gets it")
+            holders = [
+                m for m in tool.discover(CommissionScope.EVERY) if m.node_id == args.id and m.serial != args.serial
+            ]
+            if holders:  # the studio's service refuses it too: IDs are never shared
+                raise RuntimeError(f"node ID {args.id} is held by module {holders[0].serial_hex}: IDs are never "
+                                   "shared (erase that one first, or choose another)")  # fmt: skip
             tool.assign(args.serial, args.id)
             print(f"{args.serial.hex()}  {args.id}")
         else:

@@ -221,11 +221,22 @@ def test_the_command_line(tmp_path, channel, capsys) -> None:
         assert commission_main([*bus, "list"]) == 0
         out = capsys.readouterr().out
         assert f"{serials[1].hex()}  1" in out and f"{serials[0].hex()}  -" in out and "1 without a node ID" in out
-        assert commission_main([*bus, "set", serials[1].hex(), "7"]) == 0  # now 7 twice
-        assert commission_main([*bus, "list"]) == 1
-        assert "conflict: node ID 7 is held by 2 modules" in capsys.readouterr().err
-        with pytest.raises(SystemExit):
-            commission_main([*bus, "set", "12ab", "3"])  # not a serial: a usage error
+        # a review: set gave an ID another module holds (a conflict made by the tool itself) and the tools' 254
+        assert commission_main([*bus, "set", serials[1].hex(), "7"]) == 1
+        assert f"node ID 7 is held by module {serials[2].hex()}: IDs are never shared" in capsys.readouterr().err
+        assert commission_main([*bus, "--node-id", "9", "set", serials[1].hex(), "9"]) == 1
+        assert "this tool's own" in capsys.readouterr().err
+        assert commission_main([*bus, "list"]) == 0, "no conflict made"
+        for argv in (["set", "12ab", "3"], ["set", serials[1].hex(), "254"], ["set", serials[1].hex(), "0"]):
+            with pytest.raises(SystemExit) as ended:
+                commission_main([*bus, *argv])  # not a serial, the tools' ID, none: a usage error
+            assert ended.value.code == 2
+        bad = tmp_path / "bad-order.txt"
+        bad.write_text("nothex\n")
+        with pytest.raises(SystemExit) as ended:
+            commission_main([*bus, "number", "--order", str(bad)])
+        err = capsys.readouterr().err
+        assert ended.value.code == 2 and "--order" in err and "Traceback" not in err
     finally:
         fleet.close()
 
