@@ -75,7 +75,9 @@ class NumberingPanel:
         self.assign_button.on_click(self._said(lambda: self._jobs.put(("assign", (self._picked(),
                                                                                   self._id_value())))))  # fmt: skip
         self.guide_button.on_click(self._said(lambda: self._jobs.put(("guide", None))))
-        self.confirm_button.on_click(self._said(lambda: self._jobs.put(("confirm", self._position_value()))))
+        # the answer is to the question shown when it was clicked: the module then asked about goes with it
+        self.confirm_button.on_click(self._said(lambda: self._jobs.put(("confirm", (self._position_value(),
+                                                                                    self._guided)))))  # fmt: skip
         self._thread = threading.Thread(target=self._run, name="studio-numbering", daemon=True)
         self._thread.start()
 
@@ -137,7 +139,7 @@ class NumberingPanel:
                     self._find()
                     self._next()
                 elif kind == "confirm":
-                    self._confirm(argument)
+                    self._confirm(*argument)
             except Exception as exc:  # a refusal, a silent module: said under the buttons, the worker goes on
                 self._say(f"⚠ {exc}")
 
@@ -204,10 +206,19 @@ class NumberingPanel:
                           "position that moved** and **Confirm position** (or **Wiggle** again).")  # fmt: skip
         self.line.content = self._question
 
-    def _confirm(self, position: int) -> None:
+    def _confirm(self, position: int, asked: str | None) -> None:
+        """``position`` for the module ``asked`` about when Confirm was clicked; refused when the question has
+        changed since (a click while the next module was being found, or another tab's answer first): the ID
+        would have gone to a module nobody looked at."""
         serial = self._guided
         if serial is None:
             raise ValueError("start with Number along the chain: it wiggles a module and asks where it sits")
+        if asked != serial:
+            raise ValueError(f"not numbered: that answer was to an earlier question; `{serial}` is the module asked "
+                             "about now (Wiggle it again to see it)")  # fmt: skip
+        count = max(self._chain()[0], 1)
+        if not 1 <= position <= count:  # checked again here: the robot's modules are known once the list is
+            raise ValueError(f"a chain position is a whole number 1..{count} (the robot's modules), not {position}")
         self._ask({"op": "assign", "serial": serial, "id": position})
         self._guided = None  # answered
         self._find()

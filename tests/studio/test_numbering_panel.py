@@ -145,3 +145,23 @@ def test_a_module_numbered_by_hand_while_asked_about_ends_the_question(panel) ->
     assert wait_until(lambda: _line(panel) == f"`{'aa' * 12}` is now m1.", timeout=10)
     controls["Confirm position"].click()
     assert wait_until(lambda: _line(panel).startswith("⚠ start with Number along the chain"), timeout=10)
+
+
+def test_an_answer_to_an_earlier_question_never_numbers_the_next_module(panel) -> None:
+    """A review: two tabs answered the same question (6, then 3) and the second answer numbered the next module,
+    which nobody had looked at; a Confirm clicked while the next module was being found did the same."""
+    controls = panel.page.gui.controls
+    controls["Number along the chain"].click()
+    assert wait_until(lambda: "Which chain position moved?" in _line(panel), timeout=10)
+    first, second = "aa" * 12, "bb" * 12
+    panel.position.value = 6
+    controls["Confirm position"].click()  # tab A answers the question about the first module
+    panel.position.value = 3
+    controls["Confirm position"].click()  # tab B answers the same question, queued behind A's
+    assert wait_until(lambda: "an earlier question" in _line(panel), timeout=10), _line(panel)
+    assert panel.page.robot.ids == {first: 6, second: 0}, "the second module is not numbered by tab B's answer"  # type: ignore[attr-defined]
+    assert f"`{second}` is the module asked about now" in _line(panel)
+    panel.position.value = 1
+    controls["Confirm position"].click()
+    assert wait_until(lambda: _line(panel).startswith("Every module has a node ID"), timeout=10), _line(panel)
+    assert panel.page.robot.ids == {first: 6, second: 1}  # type: ignore[attr-defined]
