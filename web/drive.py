@@ -20,6 +20,9 @@ from gaits.model import FORWARD, Gait
 if TYPE_CHECKING:
     from .page import Page
 
+RELEASE_PENDING = "Robot: **stopped**, E-STOP latched"
+"""How the robot line begins while an e-stop holds it (sync says when it is released)."""
+
 COMMANDS: dict[str, tuple[str, int]] = {
     "▲ Forward": (FORWARD, 1),
     "◀ Left": ("left", 1),
@@ -67,8 +70,10 @@ class DrivePanel:
         status = self.page.robot.status
         latched = status.estop if status is not None else None
         if latched and self.state.content.startswith("Robot:") and "E-STOP" not in self.state.content:
-            self.state.content = (f"Robot: **stopped**, E-STOP latched on {len(latched)} modules — release it and "
+            self.state.content = (f"{RELEASE_PENDING} on {len(latched)} modules — release it and "
                                   "start a gait before driving")  # fmt: skip
+        elif status is not None and not latched and self.state.content.startswith(RELEASE_PENDING):
+            self.state.content = "Robot: **stopped**, e-stop released — start a gait (Gait tab) before driving"
 
     def command(self, label: str) -> None:
         gait, direction = COMMANDS[label]

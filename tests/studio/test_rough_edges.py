@@ -85,6 +85,13 @@ def test_status_lines_follow_the_modules_after_an_estop(studio_process):
             timeout=30_000
         )
         page.screenshot(path=str(ARTIFACTS / "rough-deploy-refusal.png"))
+        # released: Drive no longer says latched (a review found it did, 15 s after "released on 8 of 8")
+        page.get_by_role("button", name="Release e-stop").click()
+        page.get_by_role("button", name="Yes, release").click()
+        expect(page.get_by_text("released on 8 of 8 modules", exact=False).first).to_be_visible(timeout=20_000)
+        page.get_by_role("tab", name="Drive").click()
+        expect(page.get_by_text("Robot: stopped, e-stop released", exact=False)).to_be_visible(timeout=15_000)
+        expect(page.get_by_text("Robot: stopped, E-STOP latched", exact=False)).to_have_count(0)
         browser.close()
     assert not any("Traceback" in line for line in log), "".join(log[-40:])
 
