@@ -101,10 +101,43 @@ SCRIPT = (
   function isNumber(el) {
     return !!el && el.tagName === "INPUT" && el.classList.contains("mantine-NumberInput-input");
   }
-  function commit(el) {
-    if (!pending.has(el)) return;
-    pending.delete(el);
+  // a plain decimal only: the field's formatter dropped what it did not take ("0,1" became 1, "1e400" 1400, "2e-1"
+  // -21) and an emptied field kept its old value; such text is not sent but marked, and said under the field
+  var NUMBER = /^\\s*[+-]?(\\d+(\\.\\d*)?|\\.\\d+)\\s*$/;
+  function withheld(el, said) {  // refused at a commit: the field emptied (its formatter, on the blur that follows,
+    // would send its own reading of the text; an empty field sends nothing) and what was typed said under it
+    Object.getOwnPropertyDescriptor(HTMLInputElement.prototype, "value").set.call(el, "");
+    el.asmTainted = false;
+    refuse(el, said);
+    return false;
+  }
+  function refuse(el, said) {
+    el.setAttribute("aria-invalid", "true");
+    el.style.outline = "2px solid #e03131";
+    var note = el.asmNote;
+    if (!note) {
+      note = el.asmNote = document.createElement("div");
+      note.setAttribute("data-asm-refused", "");
+      note.style.cssText = "color:#e03131;font-size:0.75em;";
+      (el.closest(".mantine-NumberInput-root") || el.parentElement).appendChild(note);
+    }
+    note.textContent = "⚠ " + said;
+  }
+  function accepted(el) {
+    el.removeAttribute("aria-invalid");
+    el.style.outline = "";
+    if (el.asmNote) { el.asmNote.remove(); el.asmNote = null; }
+  }
+  function commit(el) {  // false: refused (the event that asked for it must not reach the field's own handlers)
+    if (!pending.has(el)) return true;
     var text = el.value;
+    if (el.asmTainted)  // a key was refused since the field was last emptied: its text is not what was meant
+      return withheld(el, "not sent: a key typed was not part of a number; type the number again");
+    if (!NUMBER.test(text))  // kept pending: the next commit tries again
+      return withheld(el, "not sent: " + JSON.stringify(text.slice(0, 40)) + " is not a number (digits, one " +
+                      "point, a sign)");
+    pending.delete(el);
+    accepted(el);
     var setter = Object.getOwnPropertyDescriptor(HTMLInputElement.prototype, "value").set;
     passing = true;
     try {  // as if the field were cleared, then the text pasted: the field's formatter takes it whole
@@ -114,17 +147,33 @@ SCRIPT = (
       el.setSelectionRange(text.length, text.length);
       el.dispatchEvent(new Event("input", {bubbles: true}));
     } finally { passing = false; }
+    return true;
   }
   window.addEventListener("input", function (event) {
     if (passing || !isNumber(event.target)) return;
     event.stopImmediatePropagation();
     pending.add(event.target);
+    if (event.target.value === "") event.target.asmTainted = false;
   }, true);
   window.addEventListener("keydown", function (event) {
-    if (isNumber(event.target) && /^(Enter|Tab|ArrowUp|ArrowDown)$/.test(event.key)) commit(event.target);
+    var el = event.target;
+    if (!isNumber(el)) return;
+    if (/^(Enter|Tab|ArrowUp|ArrowDown)$/.test(event.key) && !commit(el)) {
+      event.stopImmediatePropagation();  // the field's formatter would send its own reading of the text
+      return;
+    }
+    if (event.key.length !== 1 || event.ctrlKey || event.metaKey || event.altKey) return;
+    if (el.selectionStart === 0 && el.selectionEnd === el.value.length) el.asmTainted = false;  // typed over all
+    if (!/[0-9.+\\-]/.test(event.key)) {  // a key the formatter would drop without a word ("," or "e")
+      event.preventDefault();
+      event.stopImmediatePropagation();
+      pending.add(el);
+      el.asmTainted = true;  // what the field holds is not what was typed, until it is emptied or typed over
+      refuse(el, JSON.stringify(event.key) + " is not part of a number here (digits, one point, a sign): not typed");
+    }
   }, true);
   window.addEventListener("focusout", function (event) {
-    if (isNumber(event.target)) commit(event.target);
+    if (isNumber(event.target) && !commit(event.target)) event.stopImmediatePropagation();  // its blur sends too
   }, true);
   // a click on a state (a row of the state grid, a cell of the states table) selects it: the page's hidden
   // "CLICKED" field is set to "automaton:index:count" (count: the same state clicked again is still news)

@@ -17,6 +17,17 @@ def _number(page, label: str):
     return page.get_by_label(label, exact=True)
 
 
+def _commit(page, field, text: str, *, over: bool = False) -> None:
+    """``text`` typed into ``field`` (emptied first, or ``over`` what it holds, selected), then Tab."""
+    field.click()
+    field.press("Control+a")
+    if not over:
+        field.press("Backspace")
+    if text:
+        field.press_sequentially(text, delay=50)
+    field.press("Tab")
+
+
 def test_number_fields_refuse_on_commit_never_clamp_and_keep_refusals_out_of_undo(studio_process):
     from playwright.sync_api import expect, sync_playwright
 
@@ -56,6 +67,25 @@ def test_number_fields_refuse_on_commit_never_clamp_and_keep_refusals_out_of_und
         expect(page.get_by_text("module 1 phase", exact=False).first).to_be_visible(timeout=15_000)
         expect(phase).to_have_value("1.5")
         page.screenshot(path=str(ARTIFACTS / "rough-phase-on-commit.png"))
+        _commit(page, phase, "0.25")
+        expect(page.get_by_text("✓ valid", exact=False).first).to_be_visible(timeout=15_000)
+        # a review: text the field's formatter made another number ("0,1" 1, "1e400" 1400, "2e-1" -21), or an
+        # emptied field that kept its old value, is not sent: marked and said under the field
+        _commit(page, duration, "0.08")
+        expect(page.get_by_text("✓ valid", exact=False).first).to_be_visible(timeout=15_000)
+        time.sleep(1.2)  # past the typing window: the next valid value is an undo step of its own
+        refused = page.locator("[data-asm-refused]")
+        for text in ("0,1", "1e400", "2e-1", ""):
+            _commit(page, duration, text)
+            expect(refused).to_have_text(re.compile(r"(is not|was not) (a number|part of a number)"), timeout=5_000)
+            assert duration.get_attribute("aria-invalid") == "true"
+        page.screenshot(path=str(ARTIFACTS / "rough-not-a-number.png"))
+        _commit(page, duration, "0.09", over=True)
+        expect(refused).to_have_count(0, timeout=5_000)
+        expect(page.get_by_text("✓ valid", exact=False).first).to_be_visible(timeout=15_000)
+        time.sleep(1.2)
+        page.get_by_role("button", name="Undo").click()
+        expect(duration).to_have_value(re.compile(r"^0\.08$"), timeout=15_000)  # nothing the refusals sent between
         browser.close()
     assert not any("Traceback" in line for line in log), "".join(log[-40:])
 
