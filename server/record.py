@@ -37,7 +37,7 @@ from typing import Any
 import zenoh
 
 from asm_module.feed import RobotStatus, decode_poses, mjcf_key, poses_key, status_key
-from asm_py.cli import input_file, name, run, stop_requested, summary
+from asm_py.cli import bounded, input_file, name, run, stop_requested, summary
 from asm_py.keys import RobotKeys, lab_estop, split
 from asm_py.protocol import ProtocolError, decode
 
@@ -356,20 +356,25 @@ def main(argv: list[str] | None = None) -> int:
     cli.add_argument("--robot", type=name, required=True, help="the robot to record (its name on the network)")
     cli.add_argument("--output", "-o", type=mcap_output, default=Path("run.mcap"), metavar="FILE",
                      help="the MCAP file (default run.mcap; numbered run-000.mcap, … with --max-bytes)")  # fmt: skip
-    cli.add_argument("--max-seconds", type=float, help="stop after this many seconds (default: on SIGINT/SIGTERM)")
+    cli.add_argument("--max-seconds", type=bounded(float, above=0, high=10 * 365 * 86400, what="seconds"),
+                     help="stop after this many seconds (default: on SIGINT/SIGTERM)")  # fmt: skip
     cli.add_argument("--max-bytes", type=byte_size, help="start the next numbered file when one holds this many "
                      "bytes (50M, 200k)")  # fmt: skip
-    cli.add_argument("--max-files", type=int, default=0, help="with --max-bytes: keep only the newest N files")
+    cli.add_argument("--max-files", type=bounded(int, 1, what="files"), default=0,
+                     help="with --max-bytes: keep only the newest N files (default: all)")  # fmt: skip
     cli.add_argument("--gait", type=input_file, metavar="FILE", help="a gait file to embed (as an attachment)")
-    cli.add_argument("--wait", type=float, default=5.0, help="seconds to wait for the robot to answer (default 5)")
-    cli.add_argument("--flush-seconds", type=float, default=1.0, help="close a chunk at least this often (default 1):"
-                     " what a SIGKILL can lose")  # fmt: skip
+    cli.add_argument(
+        "--wait",
+        type=bounded(float, 0, 3600, what="seconds"),
+        default=5.0,
+        help="seconds to wait for the robot to answer (default 5)",
+    )
+    cli.add_argument("--flush-seconds", type=bounded(float, above=0, high=3600, what="seconds"), default=1.0,
+                     help="close a chunk at least this often (default 1): what a SIGKILL can lose")  # fmt: skip
     add_zenoh_arguments(cli)
     args = cli.parse_args(argv)
     if args.max_files and args.max_bytes is None:
         cli.error("--max-files counts rotated files: use it with --max-bytes")
-    if args.max_files < 0 or (args.max_seconds is not None and args.max_seconds <= 0) or args.flush_seconds <= 0:
-        cli.error("--max-files, --max-seconds and --flush-seconds must be positive")
     network = zenoh_options(cli, args)
     done = stop_requested()
     return run(cli.prog, lambda: _record(args, network, done))
