@@ -323,6 +323,12 @@ def die_with_parent(parent: int) -> None:
     threading.Thread(target=watch, name="parent-watch", daemon=True).start()
 
 
+def ws_url(host: str, port: int) -> str:
+    """The WebSocket URL a Foxglove user pastes: an IPv6 address in brackets (RFC 3986; ``ws://::1:8765`` is not
+    a URL)."""
+    return f"ws://[{host}]:{port}" if ":" in host else f"ws://{host}:{port}"
+
+
 def main(argv: list[str] | None = None) -> int:
     cli = argparse.ArgumentParser(prog="asm-robot", description=summary(__doc__))
     where = cli.add_mutually_exclusive_group()
@@ -410,7 +416,7 @@ def _serve(args: argparse.Namespace, network: ZenohOptions) -> int:
     done = stop_requested()
     robot = Robot(options)  # a bad gait file, a busy port, a taken name: asm-robot: error: … (asm_py.cli.run)
     kind = "simulated" if robot.sim is not None else f"CAN {args.can}"
-    live = f"; foxglove ws://{args.foxglove_host}:{robot.foxglove.port}" if robot.foxglove is not None else ""
+    live = f"; foxglove {ws_url(args.foxglove_host, robot.foxglove.port)}" if robot.foxglove is not None else ""
     print(f"READY robot {args.name} ({kind}, {robot.status.modules} modules){live}", flush=True)
     done.wait()
     close_and_exit(robot.close, "asm-robot")

@@ -305,3 +305,8 @@ def test_the_studios_robot_never_gets_the_studios_own_port() -> None:
     assert free_loopback_port(avoid={port}) != port
     with pytest.raises(OSError, match="no free loopback port"):
         free_loopback_port(avoid=range(1, 65536))
+
+
+def test_the_foxglove_url_of_the_ready_line_is_a_url_for_ipv6_too() -> None:
+    assert robot.ws_url("::1", 8765) == "ws://[::1]:8765"
+    assert robot.ws_url("127.0.0.1", 8765) == "ws://127.0.0.1:8765"
