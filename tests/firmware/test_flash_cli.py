@@ -24,6 +24,7 @@ pytestmark = [
 
 def test_asm_flash_updates_the_selected_modules_and_prints_their_versions(tmp_path: Path, capsys) -> None:
     from asm_module.emulated import EmulatedModule, versioned_image
+    from asm_module.firmware_image import check
     from asm_module.firmware_image import main as make_image
     from server.flash import main
 
@@ -58,6 +59,12 @@ def test_asm_flash_updates_the_selected_modules_and_prints_their_versions(tmp_pa
         with pytest.raises(SystemExit):
             main(["--robot", f"virtual:{channel}", "--modules", "0,300", str(image)])
         assert [b.firmware_version for b in boards] == [0x000203, 0x000100, 0x000203], "nothing else written"
+        assert main(["--robot", f"virtual:{channel}", str(image)]) == 0  # all: the modules, not the watcher tool
+        out, err = capsys.readouterr()
+        assert "updating m1, m2, m3 to" in out and "watcher" not in out, out
+        assert err.rstrip().endswith("3 modules x " + str(check(image.read_bytes()).size) + " bytes"), err
+        assert "100.0%" in err.splitlines()[-1], err
+        assert [b.firmware_version for b in boards] == [0x000203] * 3
     finally:
         watcher.close()
         for board in boards:
