@@ -244,6 +244,9 @@ class CommissionService:
         return {"serial": serial.hex(), "id": UNCONFIGURED, "temporary": temporary, "moved": moved}
 
     def wiggle_id(self, node_id: int, degrees: float) -> dict[str, Any]:
+        if node_id in self.reserved:  # no module has it: refused at once (it waited 30 s for "did not answer")
+            raise Refused(f"node ID {node_id} is reserved on this bus (the bridge's own, or its aliases): no module "
+                          "has it")  # fmt: skip
         return {"id": node_id, "temporary": None, "moved": self._wiggle(node_id, degrees)}
 
     def _joint(self, name: str) -> tuple[RemoteAttribute, RemoteAttribute]:

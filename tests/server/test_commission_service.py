@@ -166,6 +166,7 @@ def test_hostile_requests_are_refused_with_their_cause(bench) -> None:
         ({"op": "wiggle", "serial": serial, "degrees": 90}, "a wiggle moves 1-30°"),
         ({"op": "wiggle", "serial": serial, "degrees": float("nan")}, "a wiggle moves"),
         ({"op": "wiggle", "id": 0}, "node ID is 1..253"),
+        ({"op": "wiggle", "id": 250}, "reserved"),  # at once (a review: 30 s, then "m250 did not answer")
         ({"op": "format"}, '{"op": "list"|"wiggle"|"assign"'),
         ({"op": "list", "pad": "x" * 2000}, "at most 1024 bytes"),
     ]
