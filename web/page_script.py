@@ -103,10 +103,11 @@ SCRIPT = (
   }
   // a plain decimal only: the field's formatter dropped what it did not take ("0,1" became 1, "1e400" 1400, "2e-1"
   // -21) and an emptied field kept its old value; such text is not sent but marked, and said under the field
+  var setValue = Object.getOwnPropertyDescriptor(HTMLInputElement.prototype, "value").set;  // bypassing React
   var NUMBER = /^\\s*[+-]?(\\d+(\\.\\d*)?|\\.\\d+)\\s*$/;
   function withheld(el, said) {  // refused at a commit: the field emptied (its formatter, on the blur that follows,
     // would send its own reading of the text; an empty field sends nothing) and what was typed said under it
-    Object.getOwnPropertyDescriptor(HTMLInputElement.prototype, "value").set.call(el, "");
+    setValue.call(el, "");
     el.asmTainted = false;
     refuse(el, said);
     return false;
@@ -138,12 +139,11 @@ SCRIPT = (
                       "point, a sign)");
     pending.delete(el);
     accepted(el);
-    var setter = Object.getOwnPropertyDescriptor(HTMLInputElement.prototype, "value").set;
     passing = true;
     try {  // as if the field were cleared, then the text pasted: the field's formatter takes it whole
-      setter.call(el, "");
+      setValue.call(el, "");
       el.dispatchEvent(new Event("input", {bubbles: true}));
-      setter.call(el, text);
+      setValue.call(el, text);
       el.setSelectionRange(text.length, text.length);
       el.dispatchEvent(new Event("input", {bubbles: true}));
     } finally { passing = false; }
@@ -203,8 +203,7 @@ SCRIPT = (
     var input = state && field("CLICKED");
     if (!input) return;
     clicks += 1;
-    var setter = Object.getOwnPropertyDescriptor(HTMLInputElement.prototype, "value").set;
-    setter.call(input, state + ":" + clicks);
+    setValue.call(input, state + ":" + clicks);
     input.dispatchEvent(new Event("input", {bubbles: true}));
   }, true);
   var hidden = null;

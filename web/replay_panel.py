@@ -57,6 +57,11 @@ def chosen_file(folder: Path, name: str) -> Path:
     return folder / name
 
 
+def _shown(exc: Exception) -> str:
+    """Why a file was not opened, as page text: it may quote a file name that is not UTF-8, or markup."""
+    return plain(utf8_text(str(exc)))
+
+
 class ReplayPanel:
     """The Replay tab of ``page``; its plot is drawn in the page's plots panel."""
 
@@ -146,13 +151,13 @@ class ReplayPanel:
                     continue
                 recording = open_recording(value) if kind == "path" else read_bytes(value[1], value[0])
             except RecordingError as exc:
-                self.line.content = f"⚠ Not opened: {plain(utf8_text(str(exc)))}"
-                self.page.notify("Replay", plain(utf8_text(str(exc))), error=True)
+                self.line.content = f"⚠ Not opened: {_shown(exc)}"
+                self.page.notify("Replay", _shown(exc), error=True)
                 log.info("not replayed: %s", exc)
                 continue
             except Exception as exc:  # a bug must not end the thread: said like a refusal
                 log.exception("opening a recording failed")
-                self.line.content = f"⚠ Not opened: {plain(utf8_text(str(exc)))}"
+                self.line.content = f"⚠ Not opened: {_shown(exc)}"
                 continue
             self.start(recording)
 
