@@ -8,6 +8,9 @@ every module node, every bridge (which puts it on its bus as one priority-0 fram
 command then asks the robots for their status and prints, on one line, how many modules of each have latched; it
 exits 0 when every module of every robot it reached is latched, 1 otherwise (a robot on a real bus, which does not
 report latches, counts as unconfirmed).
+
+Given ``--zenoh-connect``, it is a Zenoh client of that peer or router unless ``--zenoh-mode peer`` says otherwise:
+it puts the moment it has connected, before a peer would have met the rest of the mesh (docs/protocol.md §6).
 """
 
 from __future__ import annotations
@@ -53,7 +56,7 @@ def main(argv: list[str] | None = None) -> int:
     cli = argparse.ArgumentParser(prog="asm-estop", description=summary(__doc__))
     cli.add_argument("--robot", type=name, help="stop this robot only (default: every robot on the network)")
     cli.add_argument("--reason", default="asm-estop", help="a short reason (its first 8 bytes travel)")
-    add_zenoh_arguments(cli)
+    add_zenoh_arguments(cli, one_shot=True)
     args = cli.parse_args(argv)
     network = zenoh_options(cli, args)
     return run(cli.prog, lambda: _stop(args.robot, args.reason, network))

@@ -65,12 +65,31 @@ class ZenohOptions:
         return out
 
 
+ONE_SHOT_MODE_HELP = (
+    "client (default when it connects somewhere: the peer or router it connects to passes its messages on to every "
+    "session there) or peer (its messages reach only the peers Zenoh's gossip has brought it when it sends)"
+)
+
+
 def add_zenoh_arguments(
-    cli: argparse.ArgumentParser, *, listen_help: str | None = None, modes: Sequence[str] = ("peer", "client")
+    cli: argparse.ArgumentParser,
+    *,
+    listen_help: str | None = None,
+    modes: Sequence[str] = ("peer", "client"),
+    one_shot: bool = False,
 ) -> None:
-    """The Zenoh options of a command (see the module docstring)."""
-    modes_help = "peer (default: sessions meet directly), or client (through a router, asm-router)"
-    cli.add_argument("--zenoh-mode", default=modes[0], choices=list(modes), help=modes_help)
+    """The Zenoh options of a command (see the module docstring).
+
+    ``one_shot``: the command sends the moment it has connected and leaves (asm-estop). As a peer it would be one
+    of a mesh whose other peers it has not met yet — Zenoh's peers do not pass each other's messages on, and its
+    gossip brings the rest only after a while — so its put would miss them (a recorder, a studio, a second robot
+    connected to the first). As a client, the one it connects to routes its put to all of them. Its mode defaults
+    to client when ``--zenoh-connect`` is given, peer otherwise."""
+    if one_shot:
+        cli.add_argument("--zenoh-mode", default=None, choices=list(modes), help=ONE_SHOT_MODE_HELP)
+    else:
+        modes_help = "peer (default: sessions meet directly), or client (through a router, asm-router)"
+        cli.add_argument("--zenoh-mode", default=modes[0], choices=list(modes), help=modes_help)
     cli.add_argument("--zenoh-listen", action="append", default=[], type=zenoh_endpoint, metavar="ENDPOINT",
                      help=listen_help)  # fmt: skip
     cli.add_argument("--zenoh-connect", action="append", default=[], type=zenoh_endpoint, metavar="ENDPOINT",
@@ -84,7 +103,8 @@ def add_zenoh_arguments(
 def zenoh_options(cli: argparse.ArgumentParser, args: argparse.Namespace) -> ZenohOptions:
     """The parsed options, checked: a usage error (exit 2, one line) for endpoints that would be insecure or a
     configuration file that is bad; a client without a router to connect to is one too."""
-    options = ZenohOptions(args.zenoh_mode, tuple(args.zenoh_listen), tuple(args.zenoh_connect),
+    mode = args.zenoh_mode or ("client" if args.zenoh_connect else "peer")  # None: one_shot's default
+    options = ZenohOptions(mode, tuple(args.zenoh_listen), tuple(args.zenoh_connect),
                            str(args.zenoh_config) if args.zenoh_config else None, args.insecure)  # fmt: skip
     if options.mode == "client" and not options.connect:
         cli.error("--zenoh-mode client needs --zenoh-connect ENDPOINT (the router)")

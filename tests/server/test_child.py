@@ -1,5 +1,6 @@
 """server.child: a child that never says READY fails the wait at once when it exits, and in time when it hangs."""
 
+import signal
 import time
 
 import pytest
@@ -61,3 +62,39 @@ def test_a_server_that_does_not_end_on_sigterm_says_where_it_hung_before_it_is_k
         assert child.stop() == -9
     output = "".join(child.output)
     assert "closing_that_never_ends" in output and "thread 0x" in output  # the stacks, from faulthandler
+
+
+BUSY_UNTIL_STOPPED = """
+import threading, time
+from asm_py.cli import stop_requested
+
+def busy():  # what a server's other threads do: take the GIL often
+    while True:
+        time.sleep(0.002)
+        sum(range(2000))
+
+for _ in range(2):
+    threading.Thread(target=busy, daemon=True).start()
+done = stop_requested()
+print('READY busy', flush=True)
+done.wait()
+print('ENDED', flush=True)
+"""
+
+
+def test_a_sigint_and_a_sigterm_at_once_end_a_busy_server_every_time() -> None:
+    # A supervisor's or a test's stop: both signals at once. Before waits were sliced, the main thread stayed in its
+    # one long wait with the handlers never run in 5 of 20 such stops, until a third signal or SIGKILL.
+    children = [Child("-c", BUSY_UNTIL_STOPPED, cwd=ROOT, grace=1.0) for _ in range(12)]
+    try:
+        for child in children:
+            child.wait_for_line("READY busy", timeout=60)
+        time.sleep(0.3)
+        for child in children:
+            child.popen.send_signal(signal.SIGINT)
+            child.popen.send_signal(signal.SIGTERM)
+        for child in children:
+            child.wait_for_line("ENDED", timeout=10)
+    finally:
+        for child in children:
+            child.stop()
