@@ -136,7 +136,8 @@ class EmulatedModule(FirmwareCalls):
         self.core = Cortex(self._image, self.can, joint, config, settings=self.settings, serial=self.serial)
         app = self.core.app
         if app is None:
-            raise RuntimeError(f"{self.name}: the board runs an image the emulator has no ELF for (register_image)")
+            raise RuntimeError(f"{self.name}: the board runs an image the emulator cannot read: no ELF of it, and "
+                               "not laid out as firmware/port/stm32f4.ld lays out an image")  # fmt: skip
         self._probe = struct.unpack("<15I", self.core.uc.mem_read(app.symbol("asm_probe"), 60))
         if self._probe[0] != 3:
             raise RuntimeError(f"the board image's asm_probe is version {self._probe[0]}, not 3")

@@ -157,11 +157,9 @@ class Cortex(Peripherals):
         self._returns: set[int] = set()
         self.clock = Clock(uc, [(FLASH, FLASH + BOOT_SIZE - 1), (LOAD_ADDRESS, LOAD_ADDRESS + MAX_SIZE - 1)])
         self._c: CoreClock = self.clock.state  # the cycle count, SysTick, the watchdog's deadline, the stop reason
+        self._hooked: set[int] = set()
         for known in {id(i): i for i in [*known_images(), image]}.values():  # each image's, while it runs
-            tick = known.symbol("asm_module_tick")
-            uc.hook_add(UC_HOOK_CODE, self._tick_entered, known, begin=tick, end=tick)
-            fault = known.symbol("Default_Handler")
-            uc.hook_add(UC_HOOK_CODE, self._faulted, known, begin=fault, end=fault)
+            self._hook(known)
         boot_fault = bootloader().symbol("Default_Handler")
         uc.hook_add(UC_HOOK_CODE, self._faulted, None, begin=boot_fault, end=boot_fault)
         uc.ctl_exits_enabled(True)
@@ -178,7 +176,20 @@ class Cortex(Peripherals):
         self._fp_free_vectors: dict[int, bool] = {}
         self.vectors = struct.unpack_from("<16I", settings.memory, 0)
         self.run(0)
+        if self.app is not None and id(self.app) not in self._hooked:  # first seen by this boot (no ELF of it)
+            self._hook(self.app)
+            uc.ctl_flush_tb()  # its code translated so far, translated again with the hooks
         self.epoch = self.cycles
+
+    def _hook(self, image: Image) -> None:
+        """Hook ``image``'s control tick (when its symbols say where) and its fault handler: each acts only while
+        that image runs (self.app)."""
+        self._hooked.add(id(image))
+        if "asm_module_tick" in image.symbols:
+            tick = image.symbol("asm_module_tick")
+            self.uc.hook_add(UC_HOOK_CODE, self._tick_entered, image, begin=tick, end=tick)
+        fault = image.symbol("Default_Handler")
+        self.uc.hook_add(UC_HOOK_CODE, self._faulted, image, begin=fault, end=fault)
 
     def release(self) -> None:
         """Stop mirroring the flash into this core (it was reset or powered off; the flash lives on)."""

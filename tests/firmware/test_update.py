@@ -234,3 +234,29 @@ def test_an_image_that_never_confirms_itself_is_rolled_back(bus, tmp_path: Path)
             "the old image, confirmed, feeds the watchdog: no further reset")  # fmt: skip
     finally:
         board.close()
+
+
+def test_an_image_built_elsewhere_without_its_elf_runs_on_the_emulated_board(bus, tmp_path: Path) -> None:
+    # A module builder's own build: the emulator has not its ELF (not registered, not in firmware/build). It found
+    # the image's probe and fault handler in the image itself; before, the board stopped after the update's reset
+    # ("the board runs an image the emulator has no ELF for") until the robot restarted.
+    from asm_module.elf import read_image
+    from asm_module.firmware_build import build_cortex_m4
+    from asm_module.firmware_image import image_bytes
+    from asm_module.flasher import update_modules
+
+    elf = tmp_path / "elsewhere.elf"
+    build_cortex_m4(elf, flags=("-DASM_FW_VERSION=0x000407u",))
+    image = image_bytes(read_image(elf))
+    channel, tool = bus
+    board = _board(channel, 1, Settings())
+    try:
+        assert wait_until(lambda: "m1" in tool.discover(), timeout=30)
+        (result,) = update_modules(tool, ["m1"], image, reboot_timeout=60)
+        assert (result.outcome, result.old_version, result.new_version) == ("updated", OLD, 0x000407), result
+        assert board.fault is None and board.firmware_version == 0x000407
+        assert tool.lookup("m1", "estop", timeout=10).peek() is False  # it answers: the image runs
+        tool.estop("the unknown image hears the e-stop")
+        assert wait_until(lambda: tool.lookup("m1", "estop", timeout=10).peek() is True, timeout=20)
+    finally:
+        board.close()
