@@ -9,7 +9,7 @@ those, :func:`mismatches` finds:
 
 * modules the gait assigns that do not answer, and modules that answer but the gait does not name (the robot has
   another count of modules than the one simulated);
-* a module whose limits cut off angles the gait commands (it would be clamped, and not run as previewed);
+* a module whose limits cut off angles the gait commands (it refuses such a table: gaits.deploy says so too);
 * a module whose type is not the one the gait describes for it (``m3 is module type X, the gait describes Y``),
   where the module says its type and the gait names it;
 * where the types cannot be compared so, a module whose limits reach beyond the hinge range of its type in the gait:
@@ -84,7 +84,7 @@ def mismatches(gait: Gait, present: Iterable[str], limits: Mapping[str, tuple[fl
         want_low, want_high = spans.get(module_id, (0.0, 0.0))
         if low > want_low + 1e-3 or high < want_high - 1e-3:
             lines.append(f"{name} allows {low:g}..{high:g}°, the gait commands {want_low:g}..{want_high:g}°: it "
-                         "would be clamped and not move as previewed")  # fmt: skip
+                         "would refuse the table")  # fmt: skip
         hinge = robot.module_type(module_id).range
         if not compared and (low < -hinge - 1e-3 or high > hinge + 1e-3):
             where = f"robot.types.{described}.range" if described else "robot.module.range"

@@ -38,7 +38,7 @@ from asm_py import Node
 from asm_py.transport.base import BROADCAST
 
 from .calls import DeployError, ModuleCalls
-from .compatible import type_mismatch
+from .compatible import commanded, type_mismatch
 from .lease import Lease, default_holder
 from .model import Gait
 from .programs import module_program
@@ -119,6 +119,13 @@ def deploy(
     problems = [line for m in ids if (line := type_mismatch(gait, m, calls.names[m], _reported_type(calls, m)))]
     if any(line not in accept for line in problems):
         raise RobotMismatch(problems)
+    spans = commanded(gait)
+    beyond = [line for m in ids if (line := _beyond_limits(calls, m, spans.get(m, (0.0, 0.0))))]
+    if beyond:  # a module checks every table against its limits and refuses it: said now, nothing sent
+        raise DeployError(
+            "; ".join(beyond) + ": a module refuses a table beyond its joint limits. Widen its "
+            "soft limits (joint.calibration, the Modules tab) or change the gait; nothing was sent"
+        )
     report = DeployReport(gait.name, deploy_id)
     lease = Lease(calls, ids, holder or default_holder(node), deploy_id)
     try:
@@ -145,6 +152,21 @@ def deploy(
     else:
         report.lease = lease
     return report
+
+
+def _beyond_limits(calls: ModuleCalls, module: int, span: tuple[float, float]) -> str | None:
+    """A line naming module ``module`` when its joint.limits cut off the angles ``span`` the gait commands it;
+    None when they do not, or the module has no joint.limits (it checks nothing then)."""
+    try:
+        low, high = (float(v) for v in calls.peek(module, "joint.limits", "check"))
+    except DeployError as exc:
+        if isinstance(exc.__cause__, LookupError):
+            return None
+        raise
+    if low <= span[0] + 1e-3 and high >= span[1] - 1e-3:
+        return None
+    name = calls.names[module]
+    return f"module {module} ({name}) allows {low:g}..{high:g}°, the gait commands {span[0]:g}..{span[1]:g}°"
 
 
 def _reported_type(calls: ModuleCalls, module: int) -> str:

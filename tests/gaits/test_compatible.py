@@ -64,7 +64,7 @@ def test_extra_modules_are_named(robot):
 def test_limits_that_would_clamp_the_gait_are_reported(robot):
     names, limits = robot(8, odd={3: ((-45.0, 45.0), (-90.0, 90.0))})
     assert mismatches(CATERPILLAR, names, limits) == [
-        "m3 allows -45..45°, the gait commands -50..50°: it would be clamped and not move as previewed"
+        "m3 allows -45..45°, the gait commands -50..50°: it would refuse the table"
     ]
 
 
@@ -155,3 +155,22 @@ def test_a_deploy_to_modules_of_other_types_is_refused_unless_accepted(robot):
     report = deploy(robot.client, TYPED, timeout=1.0, accept=refused.value.problems)
     assert report.running == list(range(1, 9))
     assert deploy(robot.client, CATERPILLAR, timeout=1.0).running == list(range(1, 9)), "a gait naming no type"
+
+
+def test_a_deploy_beyond_a_modules_limits_is_refused_before_anything_is_sent_naming_each_module(robot):
+    """Issue 28's review: a module calibrated with narrower soft limits refused the table at staging with only
+    "value out of its domain", the lease taken and the modules before it staged. Every module's limits are read
+    first and every one that would refuse is named, with the angles."""
+    from gaits.deploy import DeployError, deploy
+
+    names, _ = robot(8, odd={3: ((-45.0, 45.0), (-90.0, 90.0)), 6: ((-30.0, 20.0), (-90.0, 90.0))})
+    with pytest.raises(DeployError) as refused:
+        deploy(robot.client, CATERPILLAR, timeout=1.0)
+    said = str(refused.value)
+    assert "module 3 (m3) allows -45..45°, the gait commands -50..50°" in said, said
+    assert "module 6 (m6) allows -30..20°" in said, said
+    assert "refuse" in said and "soft limits" in said, said
+    lease = read_objects(robot.client.lookup, names, "gait.lease", timeout=1.0)
+    assert all(not held["holder"] for held in lease.values()), "nothing was sent: no lease taken"
+    staged = read_objects(robot.client.lookup, names, "gait.staged_checksum", timeout=1.0)
+    assert len(set(staged.values())) == 1, "no module staged anything"
