@@ -80,8 +80,14 @@ def check(data: bytes) -> ImageInfo:
     if (header_version, header_size, load) != (IMAGE_HEADER_VERSION, IMAGE_HEADER_SIZE, LOAD_ADDRESS):
         raise ImageError(f"header version {header_version}, size {header_size}, load address {load:#x}: not this "
                          f"bootloader's (version {IMAGE_HEADER_VERSION})")  # fmt: skip
-    if size != len(data) or size % 4 or size > MAX_SIZE:
-        raise ImageError(f"the header says {size} bytes, the image has {len(data)} (a multiple of 4, <= {MAX_SIZE})")
+    if len(data) > MAX_SIZE:
+        raise ImageError(f"{len(data):,} bytes: an image is at most {MAX_SIZE:,} bytes (the RAM a module runs it "
+                         "from)")  # fmt: skip
+    if size != len(data):
+        raise ImageError(f"the file has {len(data):,} bytes, its header says the image has {size:,}: cut short "
+                         "or with bytes appended")  # fmt: skip
+    if size % 4:
+        raise ImageError(f"{size:,} bytes: an image is a whole number of 4-byte words")
     if zlib.crc32(data[8:]) != crc:
         raise ImageError(f"CRC-32 {zlib.crc32(data[8:]):#010x}, the header says {crc:#010x}: the image is damaged")
     return ImageInfo(version, size, crc)

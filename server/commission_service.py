@@ -51,6 +51,11 @@ ALIVE_TIMEOUT = 30.0
 """Seconds a board given an ID has to come up under it (it resets; an emulated one on a loaded machine is slow)."""
 MOVE_TIMEOUT = 5.0
 """Seconds a wiggled joint has to get halfway there."""
+ARRIVED = 1.0
+"""Degrees short of the wiggle a joint counts as there (the answer said 8° of a 15° wiggle: it stopped watching
+halfway, the joint still on its way)."""
+SETTLED = 0.4
+"""Seconds without progress after which a joint past halfway counts as stopped short."""
 ASM_TIMEOUT = 5.0
 MAX_MODULE_ID = MAX_NODE_ID - 1
 """The highest ID a module is given: 254 is the tools' (a bridge's, asm-commission's own)."""
@@ -276,10 +281,15 @@ class CommissionService:
         target = home - degrees if home > 0 else home + degrees  # towards the middle of its range
         moved = 0.0
         goal.set(target, wait=True, timeout=ASM_TIMEOUT)
-        try:
+        try:  # until it is there (within ARRIVED), or has got halfway and stopped moving, or the time is up
             deadline = time.monotonic() + MOVE_TIMEOUT
-            while moved < degrees / 2 and time.monotonic() < deadline:
-                moved = max(moved, abs(float(angle.get(timeout=ASM_TIMEOUT)) - start))
+            progressed = time.monotonic()
+            while moved < degrees - ARRIVED and time.monotonic() < deadline:
+                now = abs(float(angle.get(timeout=ASM_TIMEOUT)) - start)
+                if now > moved + 0.1:
+                    moved, progressed = now, time.monotonic()
+                elif moved >= degrees / 2 and time.monotonic() - progressed > SETTLED:
+                    break  # a limit or a load holds it short: what it moved is the answer
                 time.sleep(0.05)
         finally:
             goal.set(home, wait=True, timeout=ASM_TIMEOUT)

@@ -106,6 +106,16 @@ def test_a_good_image_is_adopted_reports_its_version_and_a_python_module_is_skip
         again.close()
 
 
+def test_a_file_of_the_wrong_length_is_refused_saying_what_is_wrong() -> None:
+    image = _new_image()
+    with pytest.raises(ImageError, match=r"^70,000 bytes: an image is at most 65,536 bytes"):
+        check(image + bytes(70_000 - len(image)))  # it said "the header says … (a multiple of 4, <= 65536)"
+    with pytest.raises(ImageError, match=rf"the file has 20,000 bytes, its header says the image has {len(image):,}"):
+        check(image[:20_000])
+    with pytest.raises(ImageError, match="bytes appended"):
+        check(image + bytes(8))
+
+
 def test_a_corrupted_image_is_refused_before_the_swap_and_hostile_pieces_are_refused(bus) -> None:
     from asm_module.flasher import update_modules
 
