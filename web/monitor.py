@@ -26,6 +26,10 @@ PLOT_POINTS = 8000
 """Per series: five minutes at the modules' 25 publications a second."""
 
 
+FORGET_GRACE = 5.0
+"""Seconds after a node is forgotten during which news of it alive is taken as late."""
+
+
 class Roster:
     """Nodes seen by discovery: alive or lost, and when they were last heard."""
 
@@ -33,7 +37,10 @@ class Roster:
         self.node = node
         self._lock = threading.Lock()
         self.entries: dict[str, dict[str, Any]] = {}
-        self._forgotten: set[str] = set()
+        self._forgotten: dict[str, float] = {}
+        """Nodes dropped on purpose, with when: their loss is never shown, and news of them alive is taken only
+        after FORGET_GRACE (discovery's news lags: a board lent an ID to be wiggled was heard alive after the
+        wiggle's answer, then shown LOST)."""
         self._gait_objects: dict[str, tuple[Any, ...]] = {}
         self.tools: set[str] = set()
         """The other tools of the robot now (other studios, scripts), by name."""
@@ -50,9 +57,9 @@ class Roster:
             return
         with self._lock:
             if name in self._forgotten:
-                if not alive:
-                    return  # its loss, reported late
-                self._forgotten.discard(name)
+                if not alive or time.monotonic() - self._forgotten[name] < FORGET_GRACE:
+                    return  # its loss, or news of it from before it went, reported late
+                del self._forgotten[name]
             self.entries[name] = {"alive": alive, "since": time.monotonic()}
 
     def poll_gaits(self, timeout: float = 0.3, stop: threading.Event | None = None) -> None:
@@ -82,7 +89,7 @@ class Roster:
         with self._lock:
             for name in names:
                 self.entries.pop(name, None)
-                self._forgotten.add(name)
+                self._forgotten[name] = time.monotonic()
                 self._gait_objects.pop(name, None)
 
     def gait(self, name: str) -> str:
@@ -176,8 +183,10 @@ class LivePlot:
         up to ``now``), one array per series.
 
         Publications of different attributes arrive at different times, so each series is interpolated linearly
-        between its own samples onto the shared axis, and held at its first and last value outside them. No NaN:
-        uPlot takes only null as a gap, and one NaN leaves its whole scale (and every line on it) undrawn."""
+        between its own samples onto the shared axis, and held at its first and last value outside them. A series
+        with no sample yet is all NaN: it has no value, and SeriesPlot draws no line for it (a line at 0 said it had
+        one); a series' own values are never NaN (uPlot takes only null as a gap, and one NaN leaves its whole scale,
+        and every line on it, undrawn)."""
         with self._lock:
             items = [(f"{m} {a}", list(buf)) for (m, a), buf in sorted(self.series.items())]
         now = self.clock() if now is None else now
@@ -186,13 +195,12 @@ class LivePlot:
         recent = [(label, [(t, v) for t, v in points if horizon <= t <= now]) for label, points in items]
         items_last = {label: float(np.nan_to_num(points[-1][1])) for label, points in items if points}
         times = np.unique(np.array([t for _, points in recent for t, _ in points], dtype=float))
-        if not items or not len(times):  # nothing to draw: one point at now, inside the shown window
-            return [label for label, _ in items], (np.full(1, now), *(np.zeros(1) for _ in items))
+        if not len(times):  # nothing recent: one point at now, inside the shown window
+            times = np.full(1, now)
         columns = []
         for label, points in recent:
-            if not points:  # nothing recent: flat at its last value, or zero
-                last = items_last.get(label, 0.0)
-                columns.append(np.full(len(times), last))
+            if not points:  # nothing recent: flat at its last value, or no value at all (none yet)
+                columns.append(np.full(len(times), items_last.get(label, np.nan)))
                 continue
             t, v = np.array(points, dtype=float).T
             columns.append(np.interp(times, t, np.nan_to_num(v)))
@@ -235,10 +243,13 @@ class SeriesPlot:
         self._gui = gui
         self._container = container
         self._title, self._y_label, self._aspect = title, y_label, aspect
-        self.labels: list[str] = ["-"]
+        self.labels: list[str] = []
+        self.silent: tuple[bool, ...] = (True,)
+        """Per series: no value to draw (no sample yet, or nothing plotted)."""
         self.window = PLOT_SECONDS
         with container:
-            self.handle = gui.add_uplot(data=self._empty(), series=self._series(self.labels), **self._options())
+            self.handle = gui.add_uplot(data=self._empty(), series=self._series(["-"], self.silent),
+                                        **self._options())  # fmt: skip
         self._order = self.handle.order
 
     def _options(self) -> dict[str, Any]:
@@ -248,25 +259,33 @@ class SeriesPlot:
         return (np.array([-self.window, 0.0]), np.zeros(2))
 
     @staticmethod
-    def _series(labels: list[str]) -> tuple[dict[str, Any], ...]:
-        return ({"label": "t"}, *({"label": label, "stroke": stroke(k)} for k, label in enumerate(labels)))
+    def _series(labels: list[str], silent: tuple[bool, ...]) -> tuple[dict[str, Any], ...]:
+        """uPlot's series: a silent one is hidden, with no stroke (uPlot draws no line without one, even if a click
+        on its legend shows it) and no points, so it neither draws nor takes part in the y scale."""
+        return ({"label": "t"}, *({"label": f"{label} (no samples yet)" if label != "-" else label, "show": False,
+                                   "points": {"show": False}} if quiet else {"label": label, "stroke": stroke(k)}
+                                  for k, (label, quiet) in enumerate(zip(labels, silent, strict=True))))  # fmt: skip
 
     def show(self, labels: list[str], data: tuple[np.ndarray, ...], now: float, window: float) -> None:
         """Show ``data`` (times on the plots' clock) as seconds before ``now``, the last ``window`` of them;
-        ``labels`` empty: nothing plotted."""
-        if not labels:
-            labels, data = ["-"], (np.array([now - window, now]), np.zeros(2))
-        shown = (np.asarray(data[0], dtype=float) - now, *data[1:])
-        if labels == self.labels and window == self.window:
+        ``labels`` empty: nothing plotted. A series all NaN has no value (no sample yet): no line is drawn for it,
+        and the page is sent zeros in its place (uPlot takes no NaN)."""
+        if labels:
+            columns = [np.asarray(column, dtype=float) for column in data[1:]]
+            silent = tuple(not np.isfinite(column).any() for column in columns)
+            shown = (np.asarray(data[0], dtype=float) - now, *(np.nan_to_num(column) for column in columns))
+        else:  # nothing plotted: one hidden series, no line (a line at 0 was drawn)
+            silent, shown = (True,), (np.array([-window, 0.0]), np.zeros(2))
+        if labels == self.labels and silent == self.silent and window == self.window:
             self.handle.data = shown
             return
         old = self.handle
         self.window = window
         with self._container:
-            self.handle = self._gui.add_uplot(data=shown, series=self._series(labels), order=self._order,
-                                              **self._options())  # fmt: skip
+            self.handle = self._gui.add_uplot(data=shown, series=self._series(labels or ["-"], silent),
+                                              order=self._order, **self._options())  # fmt: skip
         old.remove()
-        self.labels = labels
+        self.labels, self.silent = labels, silent
 
 
 PALETTE = ("#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2", "#7f7f7f", "#bcbd22",

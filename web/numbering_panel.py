@@ -159,10 +159,25 @@ class NumberingPanel:
     def _wiggle(self, serial: str) -> None:
         self._say(f"Wiggling `{serial}` …")
         answer = self._ask({"op": "wiggle", "serial": serial})
+        if answer.get("temporary"):  # the ID it was lent to move is free again: not a module lost
+            self._gone(f"m{answer['temporary']}")
         self._say(f"`{serial}` wiggled: its joint moved {answer['moved']:g}°.")
 
-    def _assign(self, serial: str, node_id: int) -> None:
+    def _renumbered(self, serial: str, node_id: int) -> None:
+        """Ask the service to give ``serial`` ``node_id``; the name it had before leaves the roster (it shows
+        LOST otherwise: that module is now another name, not lost)."""
+        before = next((int(m["id"]) for m in self._modules if m["serial"] == serial), 0)
         self._ask({"op": "assign", "serial": serial, "id": node_id})
+        if before and before != node_id:
+            self._gone(f"m{before}")
+
+    def _gone(self, name: str) -> None:
+        """``name`` left on purpose (the board now answers under another ID, or none): off the roster, the plots."""
+        self.page.robot.forget([name])
+        self.page.emit("modules_removed", [name])
+
+    def _assign(self, serial: str, node_id: int) -> None:
+        self._renumbered(serial, node_id)
         if serial == self._guided:  # numbered by hand while the guide asked about it: the question is answered
             self._guided = None
         self._find()
@@ -219,7 +234,7 @@ class NumberingPanel:
         count = max(self._chain()[0], 1)
         if not 1 <= position <= count:  # checked again here: the robot's modules are known once the list is
             raise ValueError(f"a chain position is a whole number 1..{count} (the robot's modules), not {position}")
-        self._ask({"op": "assign", "serial": serial, "id": position})
+        self._renumbered(serial, position)
         self._guided = None  # answered
         self._find()
         self._next()

@@ -89,6 +89,11 @@ def test_fresh_boards_are_found_numbered_along_the_chain_and_deployed_to_from_th
             row = page.locator("tr", has=page.locator("td", has_text=re.compile(f"^{name}$")))
             expect(row.locator("td", has_text=re.compile(r"^C 0\.1\.0"))).to_have_count(1, timeout=120_000)
         page.screenshot(path=str(ARTIFACTS / "modules-numbered.png"))
+        page.get_by_role("tab", name="Monitor").click()  # the ID each board was lent to wiggle is not a lost module
+        expect(page.get_by_text(re.compile(r"`?m2`? live"))).to_be_visible(timeout=30_000)
+        time.sleep(6)  # past a heartbeat's loss: a node the roster kept would show LOST by now
+        expect(page.get_by_text(re.compile(r"m199"))).to_have_count(0)
+        page.get_by_role("tab", name="Modules").click()
         deploy_and_start(page, 8)  # the caterpillar onto the numbered boards and the Python modules
         browser.close()
     assert not any("Traceback" in line for line in log), "".join(log[-40:])
