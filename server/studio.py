@@ -106,6 +106,18 @@ class StudioOptions:
     browser without a GPU); None: as many as the robot moves (60)."""
 
 
+def layout_file(text: str) -> Path:
+    """``--layout``: a file's name, not a directory's (the studio writes a file beside it and renames it over it: a
+    directory left a stray ``DIR.tmp`` and kept nothing). A file there that is not a layout is refused later, with
+    the reason, and never written over (web/layout_store.py)."""
+    if not text:
+        raise argparse.ArgumentTypeError("an empty file name")
+    path = Path(text)
+    if path.is_dir():
+        raise argparse.ArgumentTypeError(f"{text} is a directory, not a file name")
+    return path
+
+
 def free_loopback_port(avoid: Collection[int] = ()) -> int:
     """A TCP port free on 127.0.0.1 now (bound and released: the child binds it a moment later), none of
     ``avoid``: the studio's own web port, which it binds only after starting its robot (a port a test had just
@@ -405,7 +417,7 @@ def main(argv: list[str] | None = None) -> int:
                      help="where the page's Record button writes MCAP files (default: recordings)")  # fmt: skip
     cli.add_argument("--replay", type=input_file, metavar="FILE", help="open this MCAP recording in the Replay tab "
                      "at start (the 3D view plays it)")  # fmt: skip
-    cli.add_argument("--layout", type=Path, metavar="FILE", help="where the page keeps its last layout (the "
+    cli.add_argument("--layout", type=layout_file, metavar="FILE", help="where the page keeps its last layout (the "
                      "live plots and their window), restored when the studio starts again (default: "
                      f"RECORDINGS/{LAYOUT_FILE})")  # fmt: skip
     cli.add_argument("--max-fps", type=frame_rate, metavar="N", help="draw the 3D view at most N frames a second, "
@@ -429,6 +441,8 @@ def main(argv: list[str] | None = None) -> int:
         cli.error("--c-modules chooses simulated modules of the studio's own robot: not with --can or --robot")
     if args.emulated_modules and (args.can or args.robot):
         cli.error("--emulated-modules chooses simulated modules of the studio's own robot: not with --can or --robot")
+    if args.layout is None and (args.recordings / LAYOUT_FILE).is_dir():
+        cli.error(f"{args.recordings / LAYOUT_FILE} is a directory: the layout file goes there (or give --layout)")
     return run(cli.prog, lambda: _serve(args, network))
 
 

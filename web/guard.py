@@ -35,6 +35,7 @@ from websockets.datastructures import Headers
 from websockets.exceptions import InvalidMessage
 from websockets.http11 import Request, Response
 
+from . import viser_events
 from .page_script import inject
 
 COOKIE = "asm_studio_token"
@@ -170,7 +171,9 @@ _QUIET = _ClosedBeforeAsking()
 
 
 def guarded_server(guard: AccessGuard, **options: Any) -> viser.ViserServer:
-    """A ViserServer whose every request passes ``guard`` first."""
+    """A ViserServer whose every request passes ``guard`` first (and whose message buffers any thread may push to
+    while a tab closes: web/viser_events.py)."""
+    viser_events.install()
     if _QUIET not in logging.getLogger("websockets.server").filters:
         logging.getLogger("websockets.server").addFilter(_QUIET)
     # viser imports websockets into its _infra module without re-exporting it; the shim swaps that one name

@@ -11,9 +11,11 @@ from typing import TYPE_CHECKING, Any
 
 from asm_module.names import module_name
 
+from .confirm import plain
 from .inputs import ValueInput
-from .layout_store import LayoutStore
+from .layout_store import VERSION, LayoutStore, check_version, read_layout
 from .monitor import PLOT_SECONDS, WINDOWS, LivePlot, SeriesPlot, StudioClock, describe, format_value, plot_csv
+from .recording import utf8_text
 
 if TYPE_CHECKING:
     from gaits.model import Gait
@@ -27,6 +29,20 @@ the last layout while the robot does not answer)."""
 RESTORE_TRIES = 15
 LIVE_PLOTS = {"Live plot 1": "Live 1: module attributes (from the robot)",
               "Live plot 2": "Live 2: module attributes (from the robot)"}  # fmt: skip
+
+
+def check_layout(layout: Any) -> None:
+    """What a layout of this page is, or ValueError saying what it lacks: a JSON object of a version this studio
+    reads, plots among LIVE_PLOTS, each plotted attribute node/attribute, a window of WINDOWS."""
+    if not isinstance(layout, dict):
+        raise ValueError("not a JSON object")
+    check_version(layout)
+    plots, window = layout.get("plots"), layout.get("window", PLOT_SECONDS)
+    if not isinstance(plots, dict) or set(plots) - set(LIVE_PLOTS) or window not in WINDOWS:
+        raise ValueError(f"a layout has plots named among {sorted(LIVE_PLOTS)} and a window of one of "
+                         f"{list(WINDOWS)} s")  # fmt: skip
+    if any(not isinstance(keys, list) or any(len(str(k).split("/", 1)) != 2 for k in keys) for keys in plots.values()):
+        raise ValueError("each plot is a list of node/attribute names")
 
 
 class MonitorPanel:
@@ -58,7 +74,10 @@ class MonitorPanel:
         gui.add_button("Save layout (.json)").on_click(page.safe(lambda e: e.client.send_file_download(
             "asm-layout.json", json.dumps(self.layout(), indent=2).encode(), save_immediately=True)))  # fmt: skip
         load = gui.add_upload_button("Load layout (.json)", mime_type=".json")
-        load.on_upload(page.safe(lambda e: self.apply_layout(json.loads(e.target.value.content))))
+        load.on_upload(page.safe(self._on_load))
+        self.layout_line = gui.add_markdown("")
+        """Why the layout is not kept in its file (the file is not a layout, or cannot be written): said by the
+        layout buttons for as long as it lasts (a toast goes, and no browser may be open when the studio starts)."""
         clear = gui.add_button_group("Clear", list(LIVE_PLOTS))
         clear.on_click(page.safe(lambda e: self.plots[list(LIVE_PLOTS).index(e.target.value)].unwatch_all()))
         # several plots at once, one under the other
@@ -70,10 +89,12 @@ class MonitorPanel:
         """Held by the refresh's own listing (one at a time)."""
         self._listed_at = -LIST_RETRY
         self._restored_at = -LIST_RETRY
-        self.store = LayoutStore(page.layout_file)
+        self.store = LayoutStore(page.layout_file, check=check_layout)
         self._restoring: dict[str, Any] | None = self.store.load()
         """The layout the studio showed when it last ran, plotted again once the robot answers (None: done)."""
         self._restore_tries = 0
+        self._said_store: str | None = None
+        self._say_store()
         page.on("relinked", self.relink)
         page.on("modules_removed", self.forget)
         page.on("deployed", self.watch_angles)
@@ -86,19 +107,27 @@ class MonitorPanel:
 
     def layout(self) -> dict[str, Any]:
         """Which attributes each live plot shows, and the window: what Save layout writes."""
-        return {"version": 1, "window": self.plots[0].window,
+        return {"version": VERSION, "window": self.plots[0].window,
                 "plots": {name: [f"{m}/{a}" for m, a in sorted(plot.series)]
                           for name, plot in zip(LIVE_PLOTS, self.plots, strict=True)}}  # fmt: skip
 
-    def apply_layout(self, layout: Any) -> None:
-        """Plot what a saved layout names (ValueError, nothing changed, for a file that is not one)."""
-        plots = layout.get("plots") if isinstance(layout, dict) else None
-        window = layout.get("window", PLOT_SECONDS) if isinstance(layout, dict) else None
-        if not isinstance(plots, dict) or set(plots) - set(LIVE_PLOTS) or window not in WINDOWS:
-            raise ValueError(f"not a layout: plots named {sorted(LIVE_PLOTS)} and a window of {list(WINDOWS)} s")
-        wanted = {name: [str(k).split("/", 1) for k in keys] for name, keys in plots.items()}
-        if any(len(key) != 2 for keys in wanted.values() for key in keys):
-            raise ValueError("not a layout: each plotted attribute is node/attribute")
+    def _on_load(self, event: Any) -> None:
+        """Load layout: the uploaded file, named in what is said of it (a refusal changes nothing)."""
+        uploaded = event.target.value
+        name = str(uploaded.name)
+        try:
+            self.apply_layout(read_layout(uploaded.content, name, check_layout), name)
+        except ValueError as exc:  # said on the page: the file's name is the user's text
+            raise ValueError(plain(utf8_text(str(exc)))) from None
+
+    def apply_layout(self, layout: Any, source: str = "the layout") -> None:
+        """Plot what a saved layout names (ValueError naming ``source``, nothing changed, for one that is not)."""
+        try:
+            check_layout(layout)
+        except ValueError as exc:
+            raise ValueError(f"{source} is not a layout: {exc}") from None
+        window = layout.get("window", PLOT_SECONDS)
+        wanted = {name: [str(k).split("/", 1) for k in keys] for name, keys in layout["plots"].items()}
         for name, keys in wanted.items():
             plot = self.plots[list(LIVE_PLOTS).index(name)]
             plot.unwatch_all()
@@ -108,13 +137,15 @@ class MonitorPanel:
             plot.window = float(window)
         with self.page.programmatic():
             self.window.value = f"{float(window):g}"
-        self.page.notify("Layout", f"loaded: {sum(len(k) for k in wanted.values())} plotted attributes")
+        self.page.notify("Layout", f"{plain(utf8_text(source))} loaded: {sum(len(k) for k in wanted.values())} "
+                         "plotted attributes")  # fmt: skip
 
     def _keep_layout(self) -> None:
         """Keep the layout in the store whenever it changes; first restore the last one (off the refresh thread,
         a try every LIST_RETRY s while the robot's modules do not answer yet, RESTORE_TRIES at most)."""
         if self._restoring is None:
             self.store.save(self.layout())
+            self._say_store()
             return
         now = time.monotonic()
         if self._listing.locked() or now - self._restored_at < LIST_RETRY or not self.page.robot.roster.alive():
@@ -122,18 +153,31 @@ class MonitorPanel:
         self._restored_at = now
         threading.Thread(target=self._restore, name="studio-restore-layout", daemon=True).start()
 
+    def _say_store(self) -> None:
+        """The store's trouble (a file there that is not a layout, or one that cannot be written) by the layout
+        buttons and as a notice, once; the line goes when the trouble does."""
+        refused = self.store.refused
+        if refused == self._said_store:
+            return
+        self._said_store = refused
+        self.layout_line.content = "" if refused is None else f"⚠ **Layout**: {plain(utf8_text(refused))}"
+        if refused is not None:
+            self.page.notify("Layout", plain(utf8_text(refused)), error=True)
+
     def _restore(self) -> None:
         if self._restoring is None or not self._listing.acquire(blocking=False):
             return
         try:
-            self.apply_layout(self._restoring)
-            self.page.notify("Layout", f"the last one restored (from {self.store.path})")
+            self.apply_layout(self._restoring, str(self.store.path))
+            self.page.notify("Layout", f"the last one restored (from {plain(utf8_text(str(self.store.path)))})")
             self._restoring = None
         except Exception as exc:  # the modules not up yet, or a layout no longer valid: said at the last try
             self._restore_tries += 1
             if self._restore_tries >= RESTORE_TRIES:
                 self._restoring = None
-                self.page.notify("Layout", f"the last one ({self.store.path}) was not restored: {exc}", error=True)
+                where = plain(utf8_text(str(self.store.path)))
+                self.page.notify("Layout", f"the last one ({where}) was not restored: {plain(utf8_text(str(exc)))}",
+                                 error=True)  # fmt: skip
         finally:
             self._listing.release()
 

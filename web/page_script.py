@@ -14,6 +14,8 @@ puts this script and style into the page's ``<head>``:
   ``-0.1`` sent ``-0`` (which the field then showed as ``0``, and the next keys made ``0.1``: a refusal became a
   clamp) and typing ``1.5`` was validated at ``1.``. The field's input events are held back from the page's
   handlers until Enter, Tab, a step arrow or leaving the field, then the field's text is sent once.
+  A slider's number box refuses a number outside the slider's range, and says the range under it: the box clamped
+  it to the nearest end without a word (the Replay tab's time took -5 as 0 and 46 as a 30 s recording's end).
 - **A click on a state selects it** — a row of the state grid (its inputs included) or a cell of the states table:
   viser sends no clicks of its own for these, so the script writes ``automaton:index:count`` into a hidden text
   field of the editor (``CLICKED_FIELD``), whose update the editor takes as a selection.
@@ -25,6 +27,10 @@ puts this script and style into the page's ``<head>``:
   animation frames (``requestAnimationFrame``, which the 3D view, the plots and the panels draw in) are run together
   at most N times a second, all callbacks of one frame in one frame, so the view stays in step with itself and only
   its rate changes.
+- **Text in the panels wraps, even a word longer than the panel**: a recording's name, a node's or a record type's
+  (the Replay tab lists them; the status line and the robot bar repeat a name) has no space to break at: it ran
+  past the panel's edge, and it widened the side panel's scroll area, which scrolled sideways (the area is as wide
+  as its widest unbreakable word). Anywhere, not only at a word's end: that takes the word out of the width.
 - **A browser without a GPU draws the 3D view at a lower resolution**: when WebGL's renderer is a software one
   (SwiftShader, llvmpipe: what viser's own "Software WebGL rendering detected" notice looks for) and the URL does
   not choose a resolution, the page adds viser's ``fixedDpr`` (SOFTWARE_RENDER_SCALE of the screen's pixel ratio) to
@@ -120,7 +126,9 @@ SCRIPT = (
       note = el.asmNote = document.createElement("div");
       note.setAttribute("data-asm-refused", "");
       note.style.cssText = "color:#e03131;font-size:0.75em;";
-      (el.closest(".mantine-NumberInput-root") || el.parentElement).appendChild(note);
+      var box = el.closest(".mantine-NumberInput-root");
+      var row = box && sliderRange(el) ? box.parentElement.parentElement : null;  // a slider's: under it, as wide
+      (row || box || el.parentElement).appendChild(note);
     }
     note.textContent = "⚠ " + said;
   }
@@ -129,14 +137,28 @@ SCRIPT = (
     el.style.outline = "";
     if (el.asmNote) { el.asmNote.remove(); el.asmNote = null; }
   }
+  function sliderRange(el) {  // [min, max, label] of the slider whose number box ``el`` is, else null
+    var box = el.closest(".mantine-NumberInput-root");
+    var thumb = box && box.parentElement && box.parentElement.querySelector('[role="slider"]');
+    if (!thumb) return null;
+    var low = Number(thumb.getAttribute("aria-valuemin")), high = Number(thumb.getAttribute("aria-valuemax"));
+    var root = thumb.closest(".mantine-Slider-root");
+    var label = root && root.id && document.querySelector('label[for="' + root.id + '"]');
+    return isFinite(low) && isFinite(high) ? [low, high, label ? (label.textContent || "").trim() : ""] : null;
+  }
   function commit(el) {  // false: refused (the event that asked for it must not reach the field's own handlers)
     if (!pending.has(el)) return true;
     var text = el.value;
+    if (el.asmNote && !text.trim()) return false;  // refused, and still empty: nothing to send, the reason stays
     if (el.asmTainted)  // a key was refused since the field was last emptied: its text is not what was meant
       return withheld(el, "not sent: a key typed was not part of a number; type the number again");
     if (!NUMBER.test(text))  // kept pending: the next commit tries again
       return withheld(el, "not sent: " + JSON.stringify(text.slice(0, 40)) + " is not a number (digits, one " +
                       "point, a sign)");
+    var range = sliderRange(el);  // a slider's box: out of its range, the field would clamp it without a word
+    if (range && (Number(text) < range[0] || Number(text) > range[1]))
+      return withheld(el, "not sent: " + text.trim() + " is out of range: " + (range[2] || "this slider") +
+                      " goes from " + range[0] + " to " + range[1]);
     pending.delete(el);
     accepted(el);
     passing = true;
@@ -255,6 +277,9 @@ STYLE = """<style>
 button:has(> svg.tabler-icon-adjustments), .mantine-ActionIcon-root:has(svg.tabler-icon-adjustments),
 [aria-label="Collapse panel area"] {
   display: none !important;
+}
+p, li {
+  overflow-wrap: anywhere;
 }
 </style>"""
 

@@ -213,7 +213,8 @@ def plot_data(
 ) -> tuple[list[str], tuple[np.ndarray, ...]]:
     """Labels and uPlot data of ``keys``' recorded values from ``t - window`` up to ``t``: every series' own
     sample times, merged; a series is interpolated between its samples onto the others' times (at its own times
-    its values are exactly the recorded ones) and held at its ends — as LivePlot.data draws live values."""
+    its values are exactly the recorded ones) and held at its ends — as LivePlot.data draws live values. A series
+    with nothing recorded up to ``t`` is all NaN: no value, no line drawn (SeriesPlot)."""
     labels, picked = [], []
     for node, obj in keys:
         series = recording.series.get((node, obj))
@@ -226,9 +227,9 @@ def plot_data(
         labels.append(f"{node} {obj}")
         picked.append((np.array(times, dtype=float), np.array(values, dtype=float)))
     times = np.unique(np.concatenate([t_ for t_, _ in picked])) if picked else np.zeros(0)
-    if not len(times):
-        return labels, (np.zeros(1), *(np.zeros(1) for _ in labels))
-    columns = [np.interp(times, t_, v) if len(t_) else np.zeros(len(times)) for t_, v in picked]
+    if not len(times):  # nothing recorded up to t: one point at t, no value (SeriesPlot draws no line)
+        return labels, (np.full(1, float(t)), *(np.full(1, np.nan) for _ in labels))
+    columns = [np.interp(times, t_, v) if len(t_) else np.full(len(times), np.nan) for t_, v in picked]
     return labels, (times, *columns)
 
 

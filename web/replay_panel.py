@@ -130,8 +130,17 @@ class ReplayPanel:
             self._request("play" if "Play" in action else "pause")
 
     def _on_seek(self, event: Any) -> None:
-        if not self.page.syncing and self.source is not None:  # a user's drag; the refresh moving it is not
-            self._request("seek", float(event.target.value))
+        """A user's drag or typed time (the refresh moving the slider is not one): a time outside the recording is
+        refused and said, never moved to its start or end (the page's own box refuses it first: web/page_script.py);
+        the refresh puts the slider back where the replay is."""
+        source = self.source
+        if self.page.syncing or source is None:
+            return
+        t = float(event.target.value)
+        if not 0.0 <= t <= max(source.clock.duration, float(self.timeline.max)):  # its end mark: rounded up
+            raise ValueError(f"replay time {t:g} s refused: {plain(source.recording.name)} runs from 0 to "
+                             f"{source.clock.duration:.2f} s")  # fmt: skip
+        self._request("seek", t)
 
     def _on_speed(self, event: Any) -> None:
         label = str(event.target.value)

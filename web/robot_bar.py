@@ -124,7 +124,10 @@ class RobotBar:
             kind = "simulated" if self.page.simulated else "real: no poses, angles only"
             shown = f"Showing: **Live** (robot {link.robot}, {kind})"
         elif self.page.view.source == "replay":
-            shown = f"Showing: **Replay** of {plain(self.page.view.replay.recording.name)} (Replay tab; Live returns)"
+            replay = self.page.view.replay
+            shown = f"Showing: **Replay** of {plain(replay.recording.name)} (Replay tab; Live returns)"
+            if replay.model is None:  # the 3D view is empty: why, where one looks for what it shows
+                shown += f"  \n⚠ Nothing drawn: {plain(replay.error or 'the recording has no robot model')}"
         else:
             shown = "Showing: **Preview** (the edited gait, simulated here)"
         content = shown + self._live_line(lost)

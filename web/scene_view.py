@@ -105,12 +105,16 @@ class SceneView:
             return feed.model, (self.source, feed.generation, id(feed))
         return self.loop.sim.model, ("preview", self.loop.generation)
 
-    def _build(self, model: mujoco.MjModel, key: tuple[Any, ...]) -> None:
+    def _remove_robot(self) -> None:
+        """The robot's meshes and module labels out of the scene."""
         for handle, _ in self._batches:
             handle.remove()
         for label in self._labels:
             label.remove()
         self._batches, self._labels = [], []
+
+    def _build(self, model: mujoco.MjModel, key: tuple[Any, ...]) -> None:
+        self._remove_robot()
         names = [mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_JOINT, j) or "" for j in range(model.njnt)]
         hinges = sorted((int(n[1:]), j) for j, n in enumerate(names) if n[:1] == "m" and n[1:].isdigit())
         self._label_joints = np.array([j for _, j in hinges], dtype=int)
@@ -180,10 +184,30 @@ class SceneView:
         mujoco.mj_kinematics(model, data)
         return frame, data.xpos[1:], data.xquat[1:]
 
+    def _clear(self, key: tuple[Any, ...]) -> None:
+        """Nothing to draw for the shown source (a recording with no robot model, a robot whose model has not come):
+        the robot last drawn goes, and the scene's label says why (it stayed drawn, the previous robot passed off as
+        the recording's)."""
+        self._remove_robot()
+        self._model, self._data = None, None
+        self._label_joints = np.zeros(0, dtype=int)
+        self.trail.clear()
+        self._terrain.build(None)
+        self._ground.visible = True
+        self._built, self._drawn = (*key, "nothing drawn"), None
+        if key[0] == "replay":
+            why = getattr(self.replay, "error", None) or "the recording has no robot model"
+            self._label.text = f"REPLAY — {self.replay.recording.name}: {why}"
+        else:
+            self._label.text = f"{key[0].upper()} — no robot model yet: nothing drawn"
+        self.server.flush()
+
     def draw(self) -> bool:
         """Draw the shown source's newest frame; False if there is none yet or it is the one already drawn."""
         model, key = self._wanted()
         if model is None:
+            if self._built != (*key, "nothing drawn"):
+                self._clear(key)
             return False
         if self._built != key:
             self._build(model, key)

@@ -39,6 +39,15 @@ class Trail:
         self._count = 0
         self._time = -1.0
 
+    def clear(self) -> None:
+        """Start again and draw nothing: the view shows no robot (its trail and arrow went on showing where the
+        last one had been)."""
+        self.reset()
+        for handle in (self._line, self._arrow):
+            if handle is not None:
+                handle.remove()
+        self._line = self._arrow = None
+
     def heading(self) -> np.ndarray | None:
         """The unit direction of travel over the last second (x, y), or None while it has not moved."""
         if len(self.points) < 2:

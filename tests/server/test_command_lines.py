@@ -147,6 +147,22 @@ def test_a_bad_argument_is_a_usage_error(command: str, argv: list[str], mention:
     assert "Traceback" not in err
 
 
+def test_a_layout_file_that_is_a_directory_is_a_usage_error(tmp_path: Path, capsys, monkeypatch) -> None:
+    """Issue 29's review: ``asm-studio --layout DIR`` started, and the page's first save left a stray ``DIR.tmp``
+    beside the directory; so did a directory where the default layout file goes (``RECORDINGS/studio-layout.json``).
+    Both are refused before anything starts, in one line, as the other arguments are."""
+    monkeypatch.setattr(studio, "_serve", lambda *_: pytest.fail("the studio started with a directory for a layout"))
+    (tmp_path / "recordings" / studio.LAYOUT_FILE).mkdir(parents=True)
+    for argv in (["--layout", str(tmp_path)], ["--recordings", str(tmp_path / "recordings")]):
+        with pytest.raises(SystemExit) as ended:
+            studio.main(argv)
+        assert ended.value.code == 2
+        err = capsys.readouterr().err
+        last = err.strip().splitlines()[-1]
+        assert "error:" in last and "is a directory" in last and "Traceback" not in err, err
+    assert not list(tmp_path.rglob("*.tmp"))
+
+
 @pytest.mark.parametrize("command", sorted(COMMANDS))
 def test_help_says_what_a_command_does_in_whole_sentences(command: str, capsys) -> None:
     """asm-flash's and asm-commission's --help stopped mid-sentence ("update the firmware of a robot's"): the

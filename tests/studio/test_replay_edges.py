@@ -1,0 +1,66 @@
+"""The Replay tab's edges found by issue 29's review, in the studio of this process (no browser): a replay time
+outside the recording refused and said (it was moved to the start or the end without a word), and a recording with
+no robot model clearing the 3D view and saying why (the robot shown before stayed drawn)."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+from types import SimpleNamespace
+
+import pytest
+
+from ..helpers import wait_until
+from .test_replay import write_recording
+
+pytestmark = pytest.mark.timeout(120)
+
+
+def test_a_replay_time_outside_the_recording_is_refused_and_said(studio, tmp_path: Path):
+    app = studio.app
+    panel = app.replay
+    path = tmp_path / "run.mcap"
+    write_recording(path)  # 120 frames: 0 to 1.98 s
+    panel.open_path(path)
+    assert wait_until(lambda: panel.source is not None and "120 poses" in panel.line.content, 20)
+    source = panel.source
+    assert source is not None
+    try:
+        panel.timeline.value = 1.0  # a user's scrub, inside the recording
+        assert wait_until(lambda: source.time() == 1.0, 20)
+        for typed in (-5.0, 46.0):
+            panel.timeline.value = typed  # typed into the slider's box, as the page would send it
+            said = re.sub(r"\\(.)", r"\1", app.page.status.content)
+            assert f"replay time {typed:g} s refused: run.mcap runs from 0 to 1.98 s" in said, said
+            with pytest.raises(ValueError, match=r"runs from 0 to 1\.98 s"):
+                panel._on_seek(SimpleNamespace(target=SimpleNamespace(value=typed)))
+            time_now = source.time()
+            assert time_now == 1.0, time_now  # not moved to the start or the end
+            panel.refresh()
+            assert panel.timeline.value == 1.0  # the slider back where the replay is
+        panel.timeline.value = panel.timeline.max  # the end mark: the recording's end, to the hundredth
+        assert wait_until(lambda: source.time() == min(panel.timeline.max, source.clock.duration), 20)
+    finally:
+        panel.leave()
+
+
+def test_a_recording_without_a_model_clears_the_3d_view_and_says_so(studio, tmp_path: Path):
+    app = studio.app
+    panel, view = app.replay, app.view
+    write_recording(tmp_path / "with-model.mcap")
+    write_recording(tmp_path / "no-model.mcap", mjcf=None)
+    panel.open_path(tmp_path / "with-model.mcap")
+    assert wait_until(lambda: panel.source is not None and view._drawn is panel.source.recording.frames[0], 20)
+    assert view._batches  # the recording's robot drawn
+    try:
+        panel.open_path(tmp_path / "no-model.mcap")
+        assert wait_until(lambda: panel.source is not None and panel.source.recording.name == "no-model.mcap", 20)
+        assert wait_until(lambda: not view._batches, 20), "the robot of the recording before is still drawn"
+        assert not view._labels and view.trail._line is None  # its module labels and trail went with it
+        assert "no-model.mcap" in view._label.text and "no robot model" in view._label.text
+        app.bar.tick()
+        assert "Nothing drawn" in app.bar.source_md.content and "no robot model" in app.bar.source_md.content
+        assert "no robot model" in panel.line.content
+    finally:
+        panel.leave()
+    assert wait_until(lambda: view._batches != [], 20)  # the live robot drawn again
