@@ -25,6 +25,15 @@ def plain(text: str) -> str:
     return _MARKUP.sub(r"\\\1", text)
 
 
+_ESCAPED = re.compile(r"\\([\\`*_{}\[\]()#+\-.!|<>~&])")
+
+
+def unplain(text: str) -> str:
+    """``plain``'s escapes taken out again: the text for a toast, which shows its body as written, not as
+    markdown (the status line's ``run\\.mcap opened`` showed there with its backslash)."""
+    return _ESCAPED.sub(r"\1", text)
+
+
 class InlineConfirm:
     """A hidden question row; see the module docstring."""
 

@@ -28,6 +28,7 @@ from asm_module.feed import RobotStatus
 from gaits.model import Gait
 from gaits.terrain import FLAT, Terrain
 
+from .confirm import unplain
 from .document import GaitDocument
 from .link import RobotLink
 from .preview import PreviewLoop
@@ -205,7 +206,8 @@ class Page:
         self._last_toast = ((title, body), now)
         self.toasts += 1
         for client in self.server.get_clients().values():
-            client.add_notification(title, body, color="red" if error else "blue", auto_close_seconds=TOAST_SECONDS)
+            client.add_notification(unplain(title), unplain(body), color="red" if error else "blue",
+                                    auto_close_seconds=TOAST_SECONDS)  # fmt: skip
 
     def edited(self, what: str) -> None:
         """The gait was edited (``what``) by the tab acting now: when another tab edited it last, the other tabs
