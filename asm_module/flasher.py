@@ -51,10 +51,31 @@ def update_modules(node: Node, modules: Sequence[str], image: bytes, *, progress
     info = check(image)
     if not modules:
         return []
+    walking = _gait_running(node, modules, timeout)
+    if walking:  # all or nothing: not one module reset under a robot that walks on the others
+        raise GaitRunning(f"not sent: a gait runs on {', '.join(walking)}; an update resets each module it reaches, "
+                          "mid-step (the robot falls where it stands): stop the gait first")  # fmt: skip
     with ThreadPoolExecutor(max_workers=len(modules), thread_name_prefix="asm-flash") as pool:
         futures = [pool.submit(_update_one, node, name, image, info.crc, info.version, progress, timeout,
                                reboot_timeout) for name in modules]  # fmt: skip
         return [future.result() for future in futures]
+
+
+class GaitRunning(ValueError):
+    """An update asked for while a gait runs on some of the modules: nothing was sent."""
+
+
+def _gait_running(node: Node, modules: Sequence[str], timeout: float) -> list[str]:
+    """The ``modules`` whose gait service runs now; one without a gait service, or silent, is not counted (the
+    update itself then says what became of it)."""
+    running = []
+    for module in modules:
+        try:
+            if node.lookup(module, "gait.service", timeout=timeout).running:  # pyright: ignore[reportAttributeAccessIssue]
+                running.append(module)
+        except (AsmError, OSError, LookupError, AttributeError):
+            continue
+    return running
 
 
 def _status(node: Node, module: str, timeout: float) -> dict[str, int]:

@@ -57,6 +57,8 @@ halfway, the joint still on its way)."""
 SETTLED = 0.4
 """Seconds without progress after which a joint past halfway counts as stopped short."""
 ASM_TIMEOUT = 5.0
+LATCH_TIMEOUT = 1.0
+"""Seconds each module has to say whether its e-stop is latched before a commissioning operation."""
 MAX_MODULE_ID = MAX_NODE_ID - 1
 """The highest ID a module is given: 254 is the tools' (a bridge's, asm-commission's own)."""
 
@@ -162,12 +164,15 @@ class CommissionService:
         if op == "list":
             return self.list()
         if op == "assign":
-            return self.assign(_serial(request), _node_id(request, erase=True))
+            serial, node_id = _serial(request), _node_id(request, erase=True)
+            self._refuse_while_stopped("an ID given or erased resets the board")
+            return self.assign(serial, node_id)
         if op == "wiggle":
             degrees = request.get("degrees", 15.0)
             if not isinstance(degrees, (int, float)) or isinstance(degrees, bool) or not math.isfinite(degrees) \
                     or not WIGGLE_DEGREES[0] <= degrees <= WIGGLE_DEGREES[1]:  # fmt: skip
                 raise Refused(f"a wiggle moves {WIGGLE_DEGREES[0]:g}-{WIGGLE_DEGREES[1]:g}°, not {degrees!r}")
+            self._refuse_while_stopped("a wiggle moves a joint and may lend the board an ID (a reset)")
             if "serial" in request:
                 return self.wiggle_serial(_serial(request), float(degrees))
             return self.wiggle_id(_node_id(request, erase=False), float(degrees))
@@ -181,6 +186,24 @@ class CommissionService:
         self._known = {m.node_id for m in found} - {UNCONFIGURED}
         return {"modules": [{"serial": m.serial_hex, "id": m.node_id} for m in found],
                 "conflicts": {str(k): [s.hex() for s in v] for k, v in conflicts(found).items()}}  # fmt: skip
+
+    def _refuse_while_stopped(self, why: str) -> None:
+        """Refused while any module alive on the bus has its e-stop latched: ``why`` says what the operation would
+        do (a board reset releases its latch; a wiggle moves a joint). Asked of the modules themselves, as a
+        firmware update's pre-check does: a robot on a real bus has no other record of its latches."""
+        latched = []
+        for node_id in sorted(self._alive_ids()):
+            name = f"m{node_id}"
+            try:
+                estop = self.node.lookup(name, "estop", timeout=LATCH_TIMEOUT)
+                if isinstance(estop, RemoteAttribute) and estop.peek():
+                    latched.append(name)
+            except Exception:  # not a module with an e-stop, or gone meanwhile: nothing latched to keep
+                log.debug("%s: no e-stop read", name, exc_info=True)
+        if latched:
+            shown = ", ".join(latched[:8]) + (f" and {len(latched) - 8} more" if len(latched) > 8 else "")
+            raise Refused(f"refused: the robot's e-stop is latched ({shown}); {why}, which the e-stop forbids: "
+                          "release it first")  # fmt: skip
 
     def _alive_ids(self) -> set[int]:
         """The node IDs alive on the bus now (heard by the bridge's node): modules of every kind."""

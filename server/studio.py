@@ -321,8 +321,8 @@ class Studio:
                     self.child = None
                     self._notice("Robot lost", f"the simulated robot could not be restarted: {exc}", True)
                     return
-            self._notice("Robot restarted", "the simulated robot is back, its modules holding 0°: deploy a gait "
-                         "to run one")  # fmt: skip
+            self._notice("Robot restarted", "the simulated robot is back, its modules at rest (no gait runs): "
+                         "deploy a gait to run one")  # fmt: skip
 
     def ensure_robot(self, gait: Gait, terrain: Terrain = FLAT) -> str | None:
         """Make the simulated robot the one ``gait`` describes, on ``terrain`` (the preview's ground: a new child

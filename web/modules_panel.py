@@ -23,8 +23,9 @@ import queue
 import threading
 from typing import TYPE_CHECKING, Any
 
+from asm_module._profile import FIRMWARE_STATES
 from asm_module.firmware_image import check
-from asm_module.flasher import update_modules
+from asm_module.flasher import GaitRunning, update_modules
 from gaits.compatible import read_objects
 
 from .confirm import plain
@@ -45,17 +46,34 @@ def _version(info: dict[str, Any]) -> str:
     return f"{language} {v >> 16 & 0xFF}.{v >> 8 & 0xFF}.{v & 0xFF}"
 
 
+UPDATE_OUTCOMES = {"interrupted": "interrupted (the image was not all written)", "refused": "refused the image",
+                   "rolled_back": "rolled back (the new image did not confirm itself)",
+                   "flash_error": "failed: flash error"}  # fmt: skip
+"""firmware.status states that say the last update did not happen, as the roster words them."""
+
+
+def update_note(status: dict[str, Any] | None) -> str:
+    """What a module's firmware.status says of its last update when it did not happen (after a tool killed mid-update,
+    the tab otherwise only said "not reachable"); "" otherwise."""
+    if not status or not 0 <= int(status.get("state", -1)) < len(FIRMWARE_STATES):
+        return ""
+    said = UPDATE_OUTCOMES.get(FIRMWARE_STATES[int(status["state"])])
+    return f", last update {said}" if said else ""
+
+
 def roster_markdown(names: list[str], infos: dict[str, Any], calibrations: dict[str, Any],
-                    angles: dict[str, float], types: dict[str, str] | None = None) -> str:  # fmt: skip
+                    angles: dict[str, float], types: dict[str, str] | None = None,
+                    statuses: dict[str, Any] | None = None) -> str:  # fmt: skip
     """The roster as a markdown table, one row per module (narrow enough for the side panel); "—" for what a module
     did not say (a type as written: a board's port may set any bytes)."""
-    types = types or {}
+    types, statuses = types or {}, statuses or {}
     rows = ["| module | firmware | type | calibration | angle |", "|---" * 5 + "|"]
     for name in names:
         info, c, angle = infos.get(name), calibrations.get(name), angles.get(name)
         firmware = f"{_version(info)} `{int(info['build']):08x}` {info['max_states']} states" if info else "—"
         if info and int(info.get("tick_cycles", 0)) > 0:  # a board that times its own tick: its CPU budget in use
             firmware += f", tick {int(info['tick_cycles']):,} cycles, stack {int(info['stack_bytes']):,} B"
+        firmware += update_note(statuses.get(name))
         calibration = f"{c['zero']:g}° {int(c['direction']):+d} {c['min']:g}..{c['max']:g}°" if c else "—"
         shown = f"{angle:.1f}°" if angle is not None else "—"
         kind = plain(types[name]) if types.get(name) else "—"
@@ -102,6 +120,8 @@ class ModulesPanel:
         self._lock = threading.Lock()
         self._calibrations: dict[str, dict[str, Any]] = {}
         """The calibrations last read, by module (the worker writes, the module picker reads)."""
+        self._pending_update: str | None = None
+        """The update queued or running (said to whoever sends another meanwhile); None when there is none."""
         self._jobs: queue.Queue[tuple[str, Any] | None] = queue.Queue()
         self.read_button.on_click(page.safe(lambda _: self._jobs.put(("read", None))))
         self.apply_button.on_click(page.safe(lambda _: self._queue_apply()))
@@ -137,7 +157,13 @@ class ModulesPanel:
         except ValueError as exc:
             self.update_md.content = f"⚠ not sent: {exc}"
             return
-        self.update_md.content = f"Queued a {len(image):,}-byte image …"
+        with self._lock:  # one update at a time, from whichever tab: a second one would silently follow the first
+            if self._pending_update is not None:
+                self.update_md.content = (f"⚠ not sent: an update ({self._pending_update}) is still queued or "
+                                          "running; wait for its result, then send this one")  # fmt: skip
+                return
+            self._pending_update = f"a {len(image):,}-byte image of version {check(image).version_text}"
+        self.update_md.content = f"Queued {self._pending_update} …"
         self._jobs.put(("update", image))
 
     def _show_selected(self) -> None:
@@ -165,7 +191,13 @@ class ModulesPanel:
                 elif kind == "zero":
                     self._zero_here(argument)
                 elif kind == "update":
-                    self._update(argument)
+                    try:
+                        self._update(argument)
+                    finally:
+                        with self._lock:
+                            self._pending_update = None
+            except GaitRunning as exc:  # under the update's own button, where the user looks for its result
+                self.update_md.content = f"⚠ {exc}"
             except Exception as exc:  # a refusal, a silent module: said under the buttons, the worker goes on
                 self.line.content = f"⚠ {exc}"
 
@@ -180,7 +212,8 @@ class ModulesPanel:
                                                                       TIMEOUT).items()}  # fmt: skip
         with self._lock:
             self._calibrations = calibrations
-        roster = roster_markdown(names, infos, calibrations, angles, types) if names else "No module answers."
+        statuses = read_objects(robot.lookup, names, "firmware.status", TIMEOUT)  # Python modules have none
+        roster = roster_markdown(names, infos, calibrations, angles, types, statuses) if names else "No module answers."
         self.roster_md.content = roster
         with self.page.programmatic():
             chosen = self.module.value

@@ -270,3 +270,32 @@ def test_an_image_built_elsewhere_without_its_elf_runs_on_the_emulated_board(bus
         assert wait_until(lambda: tool.lookup("m1", "estop", timeout=10).peek() is True, timeout=20)
     finally:
         board.close()
+
+
+def test_an_update_while_a_gait_runs_is_refused_before_anything_is_sent() -> None:
+    # Issue 28's second review: the Modules tab updated all 8 boards of a walking caterpillar, each reset mid-step
+    # and the robot fell where it stood. All or nothing: not one module is written to while any walks.
+    from asm_module import FakeDriver, ModuleRuntime
+    from asm_module.flasher import GaitRunning, update_modules
+    from asm_py.transport.memory import MemoryNetwork, MemoryTransport
+    from gaits.deploy import deploy, stop_all
+    from gaits.model import LIBRARY, load
+
+    network = MemoryNetwork()
+    nodes = [Node(f"m{k}", MemoryTransport(network)) for k in range(1, 9)]
+    runtimes = [ModuleRuntime(FakeDriver(), node=node) for node in nodes]
+    tool = Node("tool", MemoryTransport(network))
+    try:
+        deploy(tool, load(LIBRARY / "caterpillar.toml"), timeout=1.0)
+        names = [f"m{k}" for k in range(1, 9)]
+        with pytest.raises(GaitRunning, match=r"not sent: a gait runs on m1, m2, .*m8; .*stop the gait first"):
+            update_modules(tool, names, _new_image())
+        stop_all(tool)
+        assert wait_until(lambda: not any(r.gait.started for r in runtimes), timeout=10)
+        results = update_modules(tool, names, _new_image())  # stopped: it goes ahead (Python modules: skipped)
+        assert [r.outcome for r in results] == ["skipped"] * 8
+    finally:
+        for runtime in runtimes:
+            runtime.close()
+        for node in [*nodes, tool]:
+            node.close()

@@ -197,6 +197,25 @@ def test_hostile_requests_are_refused_with_their_cause(bench) -> None:
     assert isinstance(results[0], dict) and "modules" in results[0]
 
 
+def test_while_the_robot_is_e_stopped_nothing_is_renumbered_erased_or_wiggled(bench) -> None:
+    """Issue 28's second review (High): an ID given or erased resets the board, which released its latch, and a
+    wiggle then moved the joint, during an e-stop. Refused, as a firmware update is, until the e-stop is released."""
+    from asm_module.commission_link import CommissionError
+
+    listed = bench.ask({"op": "list"})
+    serial = listed["modules"][0]["serial"]
+    assert wait_until(lambda: "m5" in bench.client.discover(), timeout=60)
+    bench.client.estop("commissioning test")
+    assert wait_until(lambda: bench.client.lookup("m5", "estop", timeout=5).peek() is True, timeout=30)
+    before = [bench.angle(p) for p in BOARDS]
+    wiggles = [{"op": "wiggle", "serial": serial}, {"op": "wiggle", "id": 5}]
+    for request in [*wiggles, {"op": "assign", "serial": serial, "id": 1}, {"op": "assign", "serial": serial, "id": 0}]:
+        with pytest.raises(CommissionError, match=r"e-stop is latched \(m\d.*release it first"):
+            bench.ask(request)
+    assert [bench.angle(p) for p in BOARDS] == pytest.approx(before, abs=0.5)
+    assert all(m["id"] == 0 for m in bench.ask({"op": "list"})["modules"]), "no board was given an ID"
+
+
 def test_a_board_batch_keeps_serials_and_refuses_a_damaged_one(tmp_path) -> None:
     batch = BoardBatch(tmp_path / "b")
     first = batch.serial(3)

@@ -70,3 +70,22 @@ def test_the_roster_shows_a_boards_own_tick_and_stack_and_nothing_for_a_python_m
     rows = {line.split("|")[1].strip(): line for line in table.splitlines() if line.startswith("| m")}
     assert "C 0.1.0 `deadbeef` 64 states, tick 5,916 cycles, stack 572 B" in rows["m2"]
     assert "Python 0.1.0" in rows["m1"] and "tick" not in rows["m1"] and "1.5°" in rows["m1"]
+
+
+def test_the_roster_says_when_a_modules_last_update_did_not_happen() -> None:
+    # Issue 28's second review: after the robot was killed mid-update, the board came back on its old image saying
+    # "interrupted" over the bus, and the Modules tab never showed it.
+    from asm_module._profile import FIRMWARE_STATES
+    from web.modules_panel import roster_markdown
+
+    board = {"version": 0x000305, "build": 1, "language": 1, "max_states": 64, "max_modes": 16, "max_message": 640,
+             "tick_cycles": 0, "stack_bytes": 0}  # fmt: skip
+    state = {name: {"state": FIRMWARE_STATES.index(name), "running": 0x000305, "other": 0, "received": 0}
+             for name in ("interrupted", "confirmed", "rolled_back")}  # fmt: skip
+    table = roster_markdown(["m1", "m2", "m3", "m4"], dict.fromkeys(["m1", "m2", "m3", "m4"], board), {}, {}, {},
+                            {"m1": state["interrupted"], "m2": state["confirmed"], "m3": state["rolled_back"],
+                             "m4": {"state": 99}})  # fmt: skip
+    rows = {line.split("|")[1].strip(): line for line in table.splitlines() if line.startswith("| m")}
+    assert "C 0.3.5 `00000001` 64 states, last update interrupted (the image was not all written)" in rows["m1"]
+    assert "last update" not in rows["m2"] and "last update" not in rows["m4"]
+    assert "last update rolled back" in rows["m3"]
