@@ -186,12 +186,16 @@ def test_an_estop_overtakes_a_long_message_being_sent() -> None:
 # -- 5 and 6. deploy as a transaction ------------------------------------------------------------------------------
 
 
-def test_a_deploy_failing_at_one_module_changes_no_module(robot: Robot) -> None:
+def test_a_deploy_failing_at_one_module_changes_no_module(robot: Robot, monkeypatch) -> None:
     tool = robot.tool()
     first = deploy(tool, CATERPILLAR)
     assert robot.running() == [first.deploy_id] * 8 and first.running == list(range(1, 9))
     tables = [r.table.peek() for r in robot.runtimes]
     robot.runtimes[4].limits.set((-10.0, 10.0))  # module 5 can no longer take the gait's ±50°
+    with pytest.raises(DeployError, match=r"module 5 \(m5\) allows -10..10°.*nothing was sent"):
+        deploy(tool, CATERPILLAR, direction=-1)  # said by the check before anything is sent
+    # limits changed between that check and the staging: the module's own refusal, at stage, is the last guard
+    monkeypatch.setattr("gaits.deploy._beyond_limits", lambda *_: None)
     with pytest.raises(DeployError, match=r"module 5 \(m5\), stage"):
         deploy(tool, CATERPILLAR, direction=-1)
     assert robot.running() == [first.deploy_id] * 8  # every module still runs the first deployment

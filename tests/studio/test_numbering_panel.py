@@ -64,6 +64,10 @@ class Robot:
 
     def __init__(self) -> None:
         self.ids = dict.fromkeys(SERIALS, 0)
+        self.forgotten: list[str] = []
+
+    def forget(self, names: list[str]) -> None:
+        self.forgotten += names
 
     def alive_modules(self) -> list[str]:
         return [f"m{k}" for k in range(3, 9)] + [f"m{i}" for i in self.ids.values() if i]
@@ -81,6 +85,10 @@ class Page:
     def __init__(self) -> None:
         self.gui = Gui()
         self.robot = Robot()
+        self.emitted: list[tuple[str, tuple[Any, ...]]] = []
+
+    def emit(self, event: str, *args: Any) -> None:
+        self.emitted.append((event, args))
 
     @contextlib.contextmanager
     def programmatic(self) -> Iterator[None]:
@@ -165,3 +173,6 @@ def test_an_answer_to_an_earlier_question_never_numbers_the_next_module(panel) -
     controls["Confirm position"].click()
     assert wait_until(lambda: _line(panel).startswith("Every module has a node ID"), timeout=10), _line(panel)
     assert panel.page.robot.ids == {first: 6, second: 1}  # type: ignore[attr-defined]
+    # the ID each board was lent to be wiggled left the roster and the plots, not shown as a lost module
+    assert panel.page.robot.forgotten == ["m199", "m199"]  # type: ignore[attr-defined]
+    assert panel.page.emitted == [("modules_removed", (["m199"],))] * 2  # type: ignore[attr-defined]
