@@ -19,6 +19,7 @@ gait file, the robot's MJCF model).
 from __future__ import annotations
 
 import json
+import re
 import struct
 import time
 from collections.abc import Callable, Iterator
@@ -78,7 +79,7 @@ class _Unbuffered:
     mcap's Writer would wrap one in a BufferedWriter."""
 
     def __init__(self, path: Path) -> None:
-        self._file = open(path, "wb", buffering=0)  # noqa: SIM115  # closed by close()
+        self._file = open(path, "xb", buffering=0)  # noqa: SIM115  # closed by close(); never over a file
         self._position = 0
         """Bytes written: the file is only appended to, so this is its tell() without a system call (asked after
         every message, to see whether a chunk was written)."""
@@ -166,6 +167,21 @@ class FastWriter(Writer):
             _FINALIZE_CHUNK(self)
 
 
+def rotated(output: Path, index: int) -> Path:
+    """The ``index``-th file of a rotated recording named ``output``."""
+    return output.with_name(f"{output.stem}-{index:03d}{output.suffix or '.mcap'}")
+
+
+def existing_files(output: Path, rotating: bool) -> list[Path]:
+    """The files a recording named ``output`` would write that are there already (``rotating``: any
+    ``<stem>-NNN<suffix>``, whatever its number: a rotation runs through them all). A recording is never written over
+    (asm-record overwrote a run, and a rotated one numbered from 000 again over an earlier one's files)."""
+    if not rotating:
+        return [output] if output.exists() else []
+    pattern = re.compile(re.escape(output.stem) + r"-\d{3,}" + re.escape(output.suffix or ".mcap"))
+    return sorted(p for p in output.parent.iterdir() if pattern.fullmatch(p.name))
+
+
 class McapFiles:
     """Writes messages to ``output`` (numbered ``<stem>-NNN<suffix>`` when ``max_bytes`` rotates); one thread only."""
 
@@ -206,7 +222,7 @@ class McapFiles:
     def path(self, index: int) -> Path:
         if self.max_bytes is None:
             return self.output
-        return self.output.with_name(f"{self.output.stem}-{index:03d}{self.output.suffix or '.mcap'}")
+        return rotated(self.output, index)
 
     def _open(self) -> None:
         path = self.path(self._index)

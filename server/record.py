@@ -43,7 +43,7 @@ from asm_py.protocol import ProtocolError, decode
 
 from . import foxglove_msgs as fx
 from .bridge_outlets import stamp_seconds
-from .mcap_files import Attachment, McapFiles, RecordingInfo, SchemaDef
+from .mcap_files import Attachment, McapFiles, RecordingInfo, SchemaDef, existing_files
 from .record_values import SEQUENCE, Objects, Publications, values_key
 from .zenoh_args import ZenohOptions, add_zenoh_arguments, zenoh_options
 
@@ -375,6 +375,11 @@ def main(argv: list[str] | None = None) -> int:
     args = cli.parse_args(argv)
     if args.max_files and args.max_bytes is None:
         cli.error("--max-files counts rotated files: use it with --max-bytes")
+    there = existing_files(args.output, args.max_bytes is not None)
+    if there:
+        shown = ", ".join(str(p) for p in there[:3]) + (f" and {len(there) - 3} more" if len(there) > 3 else "")
+        cli.error(f"{shown} already there: a recording is never written over (give another --output, or move "
+                  "them)")  # fmt: skip
     network = zenoh_options(cli, args)
     done = stop_requested()
     return run(cli.prog, lambda: _record(args, network, done))

@@ -23,6 +23,17 @@ Said = Callable[[str, bool], None]
 """What a request ended with: (one line for the page, whether it is an error)."""
 
 
+def recording_path(folder: Path, robot: str, when: float | None = None) -> Path:
+    """``<robot>-<date>-<time>.mcap`` in ``folder``, to the second; ``-2``, ``-3``… when that name is taken (a Stop
+    and a Record within one second): a recording is never written over."""
+    stamp = f"{robot}-{time.strftime('%Y%m%d-%H%M%S', time.localtime(when))}"
+    for k in range(1, 10_000):
+        path = folder / (f"{stamp}.mcap" if k == 1 else f"{stamp}-{k}.mcap")
+        if not path.exists():
+            return path
+    raise FileExistsError(f"{folder}: every name of {stamp}.mcap is taken")
+
+
 class StudioRecording:
     """Start and stop recordings of a robot into ``folder`` (one file each, named by the time it started)."""
 
@@ -61,7 +72,7 @@ class StudioRecording:
             return f"already recording to {self.path}"
         status, mjcf = find_robot(self.session, robot, self.wait)
         self.folder.mkdir(parents=True, exist_ok=True)
-        path = self.folder / f"{robot}-{time.strftime('%Y%m%d-%H%M%S')}.mcap"
+        path = recording_path(self.folder, robot)
         info = RecordingInfo({"robot": robot, "mode": status.mode, "modules": str(status.modules),
                               "recorder": "asm-studio", "started": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
                               "gait": f"{gait_name}.toml"})  # fmt: skip

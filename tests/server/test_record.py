@@ -358,6 +358,35 @@ def test_an_output_that_cannot_be_written_is_a_usage_error(tmp_path: Path, where
     assert done.returncode == 2 and "asm-record: error: argument --output" in done.stderr, done.stderr
 
 
+@pytest.mark.parametrize("there", ["run.mcap", "run-002.mcap"], ids=["the file", "a rotated file"])
+def test_a_recording_is_never_written_over(tmp_path: Path, there: str) -> None:
+    # Issue 29's second review (High): asm-record replaced an earlier 410 kB run with a new 21 kB one, and a rotated
+    # run numbered from 000 again over an earlier one's files, then pruned them.
+    earlier = tmp_path / there
+    earlier.write_bytes(b"an earlier run")
+    rotating = ("--max-bytes", "20k") if "-" in there else ()
+    done = run("-m", "server.record", "--robot", "robot", "--output", str(tmp_path / "run.mcap"), *rotating,
+               timeout=30)  # fmt: skip
+    last = done.stderr.strip().splitlines()[-1]
+    assert done.returncode == 2 and last.startswith(f"asm-record: error: {earlier} already there: a recording is "
+                                                    "never written over"), done.stderr  # fmt: skip
+    assert earlier.read_bytes() == b"an earlier run"
+
+
+def test_the_files_refuse_to_open_over_an_existing_one_and_the_studio_takes_a_second_name(tmp_path: Path) -> None:
+    from server.mcap_files import McapFiles, RecordingInfo
+    from server.studio_record import recording_path
+
+    (tmp_path / "run.mcap").write_bytes(b"kept")
+    with pytest.raises(OSError, match=r"cannot write .*run\.mcap: File exists"):
+        McapFiles(tmp_path / "run.mcap", RecordingInfo({}))  # whoever writes (a race past a check): refused
+    assert (tmp_path / "run.mcap").read_bytes() == b"kept"
+    first = recording_path(tmp_path, "a", when=1_800_000_000)
+    first.write_bytes(b"a Record stopped within the second")
+    second = recording_path(tmp_path, "a", when=1_800_000_000)
+    assert second.name == first.stem + "-2.mcap" and not second.exists()
+
+
 def test_an_output_the_system_refuses_is_one_line_and_exit_1(robot: Robot) -> None:
     """/proc accepts no new file, whoever asks (root too): the error comes from the open, after the robot answered."""
     done = run("-m", "server.record", "--robot", "robot", "--zenoh-connect", robot.endpoint, "--output",
