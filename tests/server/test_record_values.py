@@ -229,3 +229,9 @@ def test_publications_of_one_object_numbered_in_order_miss_nothing() -> None:
     assert publications.missed(399 % 128) == 0  # the same number again: a duplicate, not 127 lost
     assert publications.missed((399 + 65) % 128) == 0  # 64 skipped, half the numbers: a new start
     assert publications.missed((399 + 65 + 64) % 128) == 63  # 63 skipped: the most counted as lost
+    # a robot restarted (issue 29's second review counted 209 missed across one): its publishers count from 0 again
+    publications.missed(100)
+    assert publications.missed(0) == 0  # 27 numbers "skipped": a fresh start
+    publications.missed(100)
+    assert publications.missed(1) == 0  # its first not heard: still a fresh start
+    assert publications.missed(4) == 2  # and a gap after it counted again
