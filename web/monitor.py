@@ -7,6 +7,7 @@ Publications arrive on transport threads and only append to bounded buffers; the
 from __future__ import annotations
 
 import json
+import math
 import threading
 import time
 from collections import deque
@@ -221,6 +222,43 @@ def plot_csv(labels: list[str], data: tuple[np.ndarray, ...]) -> str:
     times, *columns = data
     for k, t in enumerate(times):
         writer.writerow([f"{t:.6f}", *(repr(float(c[k])) for c in columns)])
+    return out.getvalue()
+
+
+PLOT_SAMPLE_SCHEMA = {
+    "title": "asm.PlotSample",
+    "description": "A value a studio plot showed: its series (node and attribute) at t seconds of the plot's clock",
+    "type": "object",
+    "properties": {"node": {"type": "string"}, "object": {"type": "string"}, "t": {"type": "number"},
+                   "value": {"type": "number"}},
+    "required": ["node", "object", "t", "value"],
+}  # fmt: skip
+
+
+def plot_mcap(labels: list[str], data: tuple[np.ndarray, ...]) -> bytes:
+    """What a plot shows as MCAP, for Foxglove or PlotJuggler: one channel per series (``/m1/joint.angle``, as the
+    recordings name them), a JSON message per shown sample, its ``t`` as the plot shows it and its log time the
+    nanoseconds since the window's first time (MCAP's times are unsigned; a plot's run up to 0, now); a series'
+    points without a value (no sample yet) are left out."""
+    import io
+
+    from mcap.writer import Writer
+
+    out = io.BytesIO()
+    writer = Writer(out)
+    writer.start(profile="", library="asm-studio plot export")
+    schema = writer.register_schema("asm.PlotSample", "jsonschema", json.dumps(PLOT_SAMPLE_SCHEMA).encode())
+    times, *columns = data
+    start = float(times[0]) if len(times) else 0.0
+    for label, column in zip(labels, columns, strict=True):
+        node, _, attribute = label.partition(" ")
+        channel = writer.register_channel(f"/{node}/{attribute}", "json", schema)
+        for seq, (t, value) in enumerate(zip(times, column, strict=True)):
+            if math.isfinite(value):
+                stamp = round((float(t) - start) * 1e9)
+                sample = {"node": node, "object": attribute, "t": float(t), "value": float(value)}
+                writer.add_message(channel, stamp, json.dumps(sample).encode(), stamp, seq)
+    writer.finish()
     return out.getvalue()
 
 

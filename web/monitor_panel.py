@@ -14,7 +14,17 @@ from asm_module.names import module_name
 from .confirm import plain
 from .inputs import ValueInput
 from .layout_store import VERSION, LayoutStore, check_version, read_layout
-from .monitor import PLOT_SECONDS, WINDOWS, LivePlot, SeriesPlot, StudioClock, describe, format_value, plot_csv
+from .monitor import (
+    PLOT_SECONDS,
+    WINDOWS,
+    LivePlot,
+    SeriesPlot,
+    StudioClock,
+    describe,
+    format_value,
+    plot_csv,
+    plot_mcap,
+)
 from .recording import utf8_text
 
 if TYPE_CHECKING:
@@ -70,7 +80,9 @@ class MonitorPanel:
         self.freeze = gui.add_checkbox("Pause the live plots", initial_value=False,
                                        hint="hold the plots still to read them; the samples keep arriving")  # fmt: skip
         export = gui.add_button_group("Export CSV", list(LIVE_PLOTS), hint="download what the plot shows")
-        export.on_click(page.safe(self._export))
+        export.on_click(page.safe(lambda e: self._export(e, "csv")))
+        export_mcap = gui.add_button_group("Export MCAP", list(LIVE_PLOTS), hint="the same, for Foxglove")
+        export_mcap.on_click(page.safe(lambda e: self._export(e, "mcap")))
         gui.add_button("Save layout (.json)").on_click(page.safe(lambda e: e.client.send_file_download(
             "asm-layout.json", json.dumps(self.layout(), indent=2).encode(), save_immediately=True)))  # fmt: skip
         load = gui.add_upload_button("Load layout (.json)", mime_type=".json")
@@ -181,14 +193,14 @@ class MonitorPanel:
         finally:
             self._listing.release()
 
-    def _export(self, event: Any) -> None:
-        """Download what a live plot shows now (its window) as CSV, to the tab that asked."""
+    def _export(self, event: Any, kind: str) -> None:
+        """Download what a live plot shows now (its window) as CSV or MCAP, to the tab that asked."""
         index = list(LIVE_PLOTS).index(event.target.value)
         labels, data = self.plots[index].data()
         if not labels:
             raise ValueError(f"{event.target.value} plots nothing yet: Plot an attribute into it first")
-        event.client.send_file_download(f"live-plot-{index + 1}.csv", plot_csv(labels, data).encode(),
-                                        save_immediately=True)  # fmt: skip
+        content = plot_csv(labels, data).encode() if kind == "csv" else plot_mcap(labels, data)
+        event.client.send_file_download(f"live-plot-{index + 1}.{kind}", content, save_immediately=True)
 
     def watch_angles(self, gait: Gait) -> None:
         """A gait was deployed: plot its first modules' joint.angle."""
