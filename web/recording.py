@@ -82,6 +82,8 @@ class Recording:
     events: list[Event] = field(default_factory=list)
     complete: bool = False
     """The file ended with its summary and footer; False: its writer was killed, read up to its last whole chunk."""
+    damaged: int = 0
+    """Chunks whose bytes do not decompress (a damaged file): skipped, the chunks after them read."""
     _frame_times: list[float] = field(default_factory=list, repr=False)
 
     @property
@@ -182,7 +184,16 @@ def read_recording(stream: IO[bytes], name: str) -> Recording:
                 if record.uncompressed_size > MAX_CHUNK or expanded > MAX_EXPANDED:
                     raise RecordingError(f"{name} expands to more than the {MAX_EXPANDED / 2**20:.0f} MB a replay "
                                          f"holds (or has a chunk over {MAX_CHUNK / 2**20:.0f} MB)")  # fmt: skip
-                yield from breakup_chunk(_expanded(record, name))
+                try:
+                    inner = list(breakup_chunk(_expanded(record, name)))
+                except RecordingError:
+                    raise
+                except (McapError, EOFError, ValueError, struct.error):
+                    # its record was whole (the reader is past it), its contents are not: the next chunk stands.
+                    # A torn last chunk of a killed writer ends here too, the file then ending without a footer.
+                    recording.damaged += 1
+                    continue
+                yield from inner
             else:
                 yield record
 

@@ -204,6 +204,9 @@ class ReplayPanel:
         if old is not None:
             old.close()
         kept = "" if recording.complete else " — its writer did not finish it: replayed up to its last whole chunk"
+        if recording.damaged and recording.complete:  # a torn last chunk of an unfinished file is said above
+            kept += (f" — ⚠ {recording.damaged} damaged chunk{'s' if recording.damaged > 1 else ''} skipped: the "
+                     "file is corrupt, their messages are missing")  # fmt: skip
         warning = f"  \n⚠ {plain(source.error)}" if source.error else ""
         self.line.content = (f"**{plain(recording.name)}**: {recording.duration:.2f} s, {len(recording.frames)} poses, "
                              f"{len(recording.series)} attributes of {len(recording.nodes())} nodes, "

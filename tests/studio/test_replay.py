@@ -209,6 +209,29 @@ def test_a_file_whose_writer_was_killed_replays_up_to_its_last_whole_chunk(tmp_p
     assert all(np.array_equal(a.positions, b.positions) for a, b in zip(cut.frames, recording.frames, strict=False))
 
 
+def test_a_damaged_chunk_is_skipped_and_said_and_the_chunks_after_it_replay(tmp_path: Path) -> None:
+    # Issue 29's second review: bytes scrambled inside one chunk of a finished file lost every chunk after it (the
+    # e-stops too), and the page said its writer had not finished it.
+    from mcap.reader import make_reader
+
+    path = tmp_path / "damaged.mcap"
+    write_recording(path)
+    whole = open_recording(path)
+    with path.open("rb") as stream:
+        chunks = make_reader(stream).get_summary().chunk_indexes  # type: ignore[union-attr]
+    assert len(chunks) > 6
+    bad = chunks[2]
+    data = bytearray(path.read_bytes())
+    middle = bad.chunk_start_offset + bad.chunk_length // 2
+    data[middle : middle + 64] = bytes(64)  # inside its compressed bytes: the record's frame stays whole
+    path.write_bytes(bytes(data))
+    damaged = open_recording(path)
+    assert damaged.complete and damaged.damaged == 1
+    assert len(whole.frames) - 40 < len(damaged.frames) < len(whole.frames), "one chunk's poses missing, no more"
+    assert [e.kind for e in damaged.events] == [e.kind for e in whole.events], "the events after it are there"
+    assert damaged.frames[-1].time == whole.frames[-1].time
+
+
 @pytest.mark.parametrize(
     ("content", "why"),
     [

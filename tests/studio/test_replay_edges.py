@@ -64,3 +64,24 @@ def test_a_recording_without_a_model_clears_the_3d_view_and_says_so(studio, tmp_
     finally:
         panel.leave()
     assert wait_until(lambda: view._batches != [], 20)  # the live robot drawn again
+
+
+def test_a_damaged_chunk_is_said_on_the_replay_tab(studio, tmp_path: Path):
+    from mcap.reader import make_reader
+
+    panel = studio.app.replay
+    path = tmp_path / "damaged.mcap"
+    write_recording(path)
+    with path.open("rb") as stream:
+        bad = make_reader(stream).get_summary().chunk_indexes[2]  # type: ignore[union-attr]
+    data = bytearray(path.read_bytes())
+    middle = bad.chunk_start_offset + bad.chunk_length // 2
+    data[middle : middle + 64] = bytes(64)
+    path.write_bytes(bytes(data))
+    panel.open_path(path)
+    try:
+        assert wait_until(lambda: panel.source is not None and "poses" in panel.line.content, 20)
+        said = re.sub(r"\\(.)", r"\1", panel.line.content)
+        assert "⚠ 1 damaged chunk skipped: the file is corrupt" in said and "did not finish" not in said, said
+    finally:
+        panel.leave()
