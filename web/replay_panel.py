@@ -169,6 +169,7 @@ class ReplayPanel:
                 self.line.content = f"⚠ Not opened: {_shown(exc)}"
                 continue
             self.start(recording)
+            del recording  # this loop's frame waits for the next request: it must not keep the last one alive
 
     def list_files(self) -> None:
         """The recordings folder's MCAP files, newest first."""
@@ -220,6 +221,8 @@ class ReplayPanel:
         self.page.emit("show", "live")
         if source is not None:
             source.close()
+            if self.page.view.replay is source:  # the scene held it: the recording (GBs for hours) stayed in memory
+                self.page.view.replay = None
         self.line.content = "No recording open."
         self.events.content = self.roster.content = ""
         self.plot.show([], (), 0.0, PLOT_WINDOW)

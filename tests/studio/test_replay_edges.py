@@ -85,3 +85,21 @@ def test_a_damaged_chunk_is_said_on_the_replay_tab(studio, tmp_path: Path):
         assert "⚠ 1 damaged chunk skipped: the file is corrupt" in said and "did not finish" not in said, said
     finally:
         panel.leave()
+
+
+def test_leaving_a_replay_lets_its_recording_go(studio, tmp_path: Path):
+    # Issue 29's second review: a 204 MB recording took the studio from 148 MB to 2.3 GB, which stayed after Leave
+    # replay (the 3D scene still held it) and grew to 3.2 GB when it was opened again.
+    import gc
+    import weakref
+
+    panel = studio.app.replay
+    path = tmp_path / "run.mcap"
+    write_recording(path)
+    panel.open_path(path)
+    assert wait_until(lambda: panel.source is not None and "120 poses" in panel.line.content, 20)
+    assert panel.source is not None
+    gone = weakref.ref(panel.source.recording)
+    panel.leave()
+    # held before: by the 3D scene's replay, and by the opening thread's last local while it waited
+    assert wait_until(lambda: gc.collect() >= 0 and gone() is None, 20), "the recording is still held"
