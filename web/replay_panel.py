@@ -212,7 +212,9 @@ class ReplayPanel:
         self.line.content = (f"**{plain(recording.name)}**: {recording.duration:.2f} s, {len(recording.frames)} poses, "
                              f"{len(recording.series)} attributes of {len(recording.nodes())} nodes, "
                              f"{len(recording.events)} events{kept}{warning}")  # fmt: skip
-        self.page.notify("Replay", f"{plain(recording.name)} opened: Play, or drag the replay time")
+        replaced = "" if old is None else (f" (it replaces {plain(old.recording.name)}: a studio has one replay, "
+                                           "every tab shows it)")  # fmt: skip
+        self.page.notify("Replay", f"{plain(recording.name)} opened: Play, or drag the replay time{replaced}")
         log.info("replaying %s: %.2f s, %d poses", recording.name, recording.duration, len(recording.frames))
 
     def leave(self) -> None:

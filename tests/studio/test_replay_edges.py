@@ -103,3 +103,20 @@ def test_leaving_a_replay_lets_its_recording_go(studio, tmp_path: Path):
     panel.leave()
     # held before: by the 3D scene's replay, and by the opening thread's last local while it waited
     assert wait_until(lambda: gc.collect() >= 0 and gone() is None, 20), "the recording is still held"
+
+
+def test_a_replay_opened_over_another_says_it_replaces_it_in_every_tab(studio, tmp_path: Path):
+    # Issue 29's second review: tab B's replay took over tab A's without a word (one replay per studio).
+    panel = studio.app.replay
+    first, second = tmp_path / "first.mcap", tmp_path / "second.mcap"
+    write_recording(first)
+    write_recording(second, frames=60)
+    panel.open_path(first)
+    assert wait_until(lambda: panel.source is not None and "120 poses" in panel.line.content, 20)
+    panel.open_path(second)
+    try:
+        assert wait_until(lambda: panel.source is not None and "60 poses" in panel.line.content, 20)
+        said = re.sub(r"\\(.)", r"\1", studio.app.page.status.content)
+        assert "second.mcap opened" in said and "it replaces first.mcap: a studio has one replay, every tab" in said
+    finally:
+        panel.leave()
