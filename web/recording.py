@@ -82,6 +82,9 @@ class Recording:
     events: list[Event] = field(default_factory=list)
     complete: bool = False
     """The file ended with its summary and footer; False: its writer was killed, read up to its last whole chunk."""
+    jumps: list[tuple[float, float]] = field(default_factory=list)
+    """(where, by how many seconds) the recording's log times jump forward by more than JUMP_SECONDS: its clock
+    stepped (log times are the recorder's wall clock) or a message carries a wrong time; the timeline spans them."""
     damaged: int = 0
     """Chunks whose bytes do not decompress (a damaged file): skipped, the chunks after them read."""
     _frame_times: list[float] = field(default_factory=list, repr=False)
@@ -112,6 +115,11 @@ class Recording:
     def objects(self) -> list[str]:
         """The objects with numeric values (what a plot can show), sorted."""
         return sorted({obj for (_, obj), s in self.series.items() if s.values and all(map(_numeric, s.values))})
+
+
+JUMP_SECONDS = 600.0
+"""A gap between two consecutive messages of a recording longer than this is said (a robot's recorder writes many a
+second): a wall clock stepped, or one message's time is wrong, and the timeline stretches over it."""
 
 
 def _numeric(value: Any) -> bool:
@@ -224,6 +232,9 @@ def read_recording(stream: IO[bytes], name: str) -> Recording:
         raise RecordingError(f"{name} holds no messages: nothing to replay")
     recording.start_ns = first or 0
     raw.sort(key=lambda m: m[0])  # chunks are in file order; a replay is in time order
+    for before, after in zip(raw, raw[1:]):
+        if after[0] - before[0] > JUMP_SECONDS * 1e9:
+            recording.jumps.append(((before[0] - recording.start_ns) / 1e9, (after[0] - before[0]) / 1e9))
     for log_ns, topic, data, seq in raw:
         _add(recording, (log_ns - recording.start_ns) / 1e9, topic, data, seq)
     if not recording.frames and not recording.series:

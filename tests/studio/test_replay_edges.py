@@ -120,3 +120,27 @@ def test_a_replay_opened_over_another_says_it_replaces_it_in_every_tab(studio, t
         assert "second.mcap opened" in said and "it replaces first.mcap: a studio has one replay, every tab" in said
     finally:
         panel.leave()
+
+
+def test_a_jump_in_a_recordings_log_times_is_said(studio, tmp_path: Path):
+    # Issue 29's second review: one message with a far-future log time made a replay 1,000,000,001.67 s long,
+    # its slider running to 1e9, without a word.
+    import json
+
+    from server.record import ATTRIBUTE
+
+    from .test_replay import START
+
+    panel = studio.app.replay
+    path = tmp_path / "jump.mcap"
+    files = write_recording(path, finish=False)
+    late = {"node": "m1", "object": "joint.angle", "value": 1.0}
+    files.write("/m1/joint.angle", ATTRIBUTE, json.dumps(late).encode(), START + 10**18)
+    files.close()
+    panel.open_path(path)
+    try:
+        assert wait_until(lambda: panel.source is not None and "poses" in panel.line.content, 20)
+        said = re.sub(r"\\(.)", r"\1", panel.line.content)
+        assert "⚠ its log times jump by 999,999,998 s at 1.98 s" in said, said
+    finally:
+        panel.leave()
