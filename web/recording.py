@@ -14,6 +14,7 @@ Hostile input is refused with :class:`RecordingError`, one sentence the page sho
 from __future__ import annotations
 
 import io
+import itertools
 import json
 import struct
 from bisect import bisect_right
@@ -232,7 +233,7 @@ def read_recording(stream: IO[bytes], name: str) -> Recording:
         raise RecordingError(f"{name} holds no messages: nothing to replay")
     recording.start_ns = first or 0
     raw.sort(key=lambda m: m[0])  # chunks are in file order; a replay is in time order
-    for before, after in zip(raw, raw[1:]):
+    for before, after in itertools.pairwise(raw):
         if after[0] - before[0] > JUMP_SECONDS * 1e9:
             recording.jumps.append(((before[0] - recording.start_ns) / 1e9, (after[0] - before[0]) / 1e9))
     for log_ns, topic, data, seq in raw:

@@ -207,9 +207,9 @@ class ReplayPanel:
         kept = "" if recording.complete else " — its writer did not finish it: replayed up to its last whole chunk"
         if recording.jumps:
             where, by = recording.jumps[0]
-            kept += (f" — ⚠ its log times jump by {by:,.0f} s at {where:.2f} s"
-                     + (f" (and {len(recording.jumps) - 1} more times)" if len(recording.jumps) > 1 else "")
-                     + ": a recorder's clock stepped, or a message's time is wrong; the timeline spans the gap")  # fmt: skip
+            more = f" (and {len(recording.jumps) - 1} more times)" if len(recording.jumps) > 1 else ""
+            kept += (f" — ⚠ its log times jump by {by:,.0f} s at {where:.2f} s{more}: a recorder's clock stepped, or "
+                     "a message's time is wrong; the timeline spans the gap")  # fmt: skip
         if recording.damaged and recording.complete:  # a torn last chunk of an unfinished file is said above
             kept += (f" — ⚠ {recording.damaged} damaged chunk{'s' if recording.damaged > 1 else ''} skipped: the "
                      "file is corrupt, their messages are missing")  # fmt: skip
