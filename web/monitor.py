@@ -113,6 +113,10 @@ class Roster:
     def alive(self) -> list[str]:
         return [name for name, alive, _ in self.rows() if alive]
 
+    def lost(self) -> list[str]:
+        """The nodes shown LOST: heard once, not now."""
+        return [name for name, alive, _ in self.rows() if not alive]
+
     def close(self) -> None:
         self._unlisten()
 

@@ -65,6 +65,9 @@ class MonitorPanel:
         """The live plots' one time base (the studio's, not a robot's: a restarted robot starts again at 0)."""
         self.plots = [LivePlot(page.robot.lookup, self.clock) for _ in LIVE_PLOTS]
         self.roster_md = gui.add_markdown("")
+        forget = gui.add_button("Forget lost nodes", hint="drop the nodes shown LOST from this list and the plots (a "
+                                "module renumbered by another tool, a board unplugged on purpose)")  # fmt: skip
+        forget.on_click(page.safe(lambda _: self.forget_lost()))
         with gui.add_folder("Attribute browser"):
             self.browse_module = gui.add_dropdown("Node", ["-"])
             self.browse_object = gui.add_dropdown("Object", ["-"])
@@ -206,6 +209,15 @@ class MonitorPanel:
         """A gait was deployed: plot its first modules' joint.angle."""
         for assignment in gait.modules[:4]:
             self.plot.watch(module_name(assignment.id), "joint.angle")
+
+    def forget_lost(self) -> list[str]:
+        """Every node shown LOST leaves the roster and the plots (the robot can tell a node gone on purpose from one
+        lost only when the page made it go: another tool's renumbering looks like a loss); the names forgotten."""
+        lost = self.page.robot.roster.lost()
+        if lost:
+            self.page.robot.forget(lost)
+            self.page.emit("modules_removed", lost)
+        return lost
 
     def forget(self, modules: list[str]) -> None:
         """Modules gone for good (the robot was rebuilt smaller): no longer plotted."""
