@@ -38,13 +38,19 @@ def test_record_the_robot_from_the_page_and_read_the_file_back(start_studio, tmp
             page.get_by_role("button", name="Live plot 1").first.click()
         rows = list(csv.reader(Path(download.value.path()).read_text().splitlines()))
         filename = download.value.suggested_filename
+        with page.expect_download() as exported:  # and as MCAP, one channel per series (the next group's button)
+            page.get_by_role("button", name="Live plot 1").nth(1).click()
+        assert exported.value.suggested_filename == "live-plot-1.mcap"
+        with Path(exported.value.path()).open("rb") as stream:
+            plotted = {channel.topic for _, channel, _ in make_reader(stream).iter_messages()}
+        assert "/m1/joint.angle" in plotted, plotted
         # the layout: saved, the plot cleared, loaded again: the same attributes plotted
         with page.expect_download() as saved:
             page.get_by_role("button", name="Save layout (.json)").click()
         layout_file = tmp_path / "layout.json"
         saved.value.save_as(str(layout_file))
         layout = json.loads(layout_file.read_text())
-        page.get_by_role("button", name="Live plot 1").nth(1).click()  # Clear
+        page.get_by_role("button", name="Live plot 1").nth(2).click()  # Clear (after Export CSV and Export MCAP)
         live1 = page.locator(".uplot", has_text="Live 1")
         expect(live1).not_to_contain_text("joint.angle", timeout=15_000)
         with page.expect_file_chooser() as chooser:
