@@ -10,6 +10,7 @@ is skipped and said so; one that refuses the image keeps running the old one, wh
 
 from __future__ import annotations
 
+import re
 import struct
 import time
 from collections.abc import Callable, Sequence
@@ -51,7 +52,8 @@ def update_modules(node: Node, modules: Sequence[str], image: bytes, *, progress
     info = check(image)
     if not modules:
         return []
-    walking = _gait_running(node, modules, timeout)
+    others = [n for n in node.discover() if _MODULE.fullmatch(n) and n not in modules]
+    walking = _gait_running(node, [*modules, *others], timeout)  # the whole robot: one reset under it fells it
     if walking:  # all or nothing: not one module reset under a robot that walks on the others
         raise GaitRunning(f"not sent: a gait runs on {', '.join(walking)}; an update resets each module it reaches, "
                           "mid-step (the robot falls where it stands): stop the gait first")  # fmt: skip
@@ -59,6 +61,10 @@ def update_modules(node: Node, modules: Sequence[str], image: bytes, *, progress
         futures = [pool.submit(_update_one, node, name, image, info.crc, info.version, progress, timeout,
                                reboot_timeout) for name in modules]  # fmt: skip
         return [future.result() for future in futures]
+
+
+_MODULE = re.compile(r"m\d+")
+"""A module's node name (asm_module.names): the robot's other modules are checked too."""
 
 
 class GaitRunning(ValueError):

@@ -42,7 +42,7 @@ from asm_py.canbus.ids import MAX_NODE_ID, MIN_NODE_ID
 from asm_py.errors import AsmError
 from asm_py.keys import RobotKeys
 from asm_py.node import Node
-from asm_py.remote import RemoteAttribute
+from asm_py.remote import RemoteAttribute, RemoteService
 
 log = logging.getLogger("asm_robot.commission")
 WIGGLE_DEGREES = (1.0, 30.0)
@@ -191,15 +191,21 @@ class CommissionService:
         """Refused while any module alive on the bus has its e-stop latched: ``why`` says what the operation would
         do (a board reset releases its latch; a wiggle moves a joint). Asked of the modules themselves, as a
         firmware update's pre-check does: a robot on a real bus has no other record of its latches."""
-        latched = []
+        latched, walking = [], []
         for node_id in sorted(self._alive_ids()):
             name = f"m{node_id}"
             try:
                 estop = self.node.lookup(name, "estop", timeout=LATCH_TIMEOUT)
                 if isinstance(estop, RemoteAttribute) and estop.peek():
                     latched.append(name)
-            except Exception:  # not a module with an e-stop, or gone meanwhile: nothing latched to keep
-                log.debug("%s: no e-stop read", name, exc_info=True)
+                service = self.node.lookup(name, "gait.service", timeout=LATCH_TIMEOUT)
+                if isinstance(service, RemoteService) and service.running:
+                    walking.append(name)
+            except Exception:  # not a module with an e-stop or a gait, or gone meanwhile: nothing to keep
+                log.debug("%s: no e-stop or gait read", name, exc_info=True)
+        if walking and not latched:
+            raise Refused(f"refused: a gait runs on {', '.join(walking[:8])}{' …' if len(walking) > 8 else ''}; "
+                          f"{why}, mid-step: stop the gait first")  # fmt: skip
         if latched:
             shown = ", ".join(latched[:8]) + (f" and {len(latched) - 8} more" if len(latched) > 8 else "")
             raise Refused(f"refused: the robot's e-stop is latched ({shown}); {why}, which the e-stop forbids: "

@@ -290,6 +290,10 @@ def test_an_update_while_a_gait_runs_is_refused_before_anything_is_sent() -> Non
         names = [f"m{k}" for k in range(1, 9)]
         with pytest.raises(GaitRunning, match=r"not sent: a gait runs on m1, m2, .*m8; .*stop the gait first"):
             update_modules(tool, names, _new_image())
+        tool.lookup("m1", "gait.service", timeout=5).stop()  # pyright: ignore[reportAttributeAccessIssue]
+        assert wait_until(lambda: not runtimes[0].gait.started, timeout=10)
+        with pytest.raises(GaitRunning, match=r"a gait runs on m2, .*m8"):  # m1 alone, the robot walking: refused
+            update_modules(tool, ["m1"], _new_image())
         stop_all(tool)
         assert wait_until(lambda: not any(r.gait.started for r in runtimes), timeout=10)
         results = update_modules(tool, names, _new_image())  # stopped: it goes ahead (Python modules: skipped)

@@ -214,6 +214,14 @@ def test_while_the_robot_is_e_stopped_nothing_is_renumbered_erased_or_wiggled(be
             bench.ask(request)
     assert [bench.angle(p) for p in BOARDS] == pytest.approx(before, abs=0.5)
     assert all(m["id"] == 0 for m in bench.ask({"op": "list"})["modules"]), "no board was given an ID"
+    for k in range(4, 9):  # released; then a gait runs on m5: a board's reset or a wiggle would come mid-step
+        bench.client.lookup(f"m{k}", "estop", timeout=5).set(False)  # type: ignore[attr-defined]
+    bench.client.lookup("m5", "gait.service", timeout=5).start()  # type: ignore[attr-defined]
+    assert wait_until(lambda: bench.client.lookup("m5", "gait.service", timeout=5).running, timeout=10)  # type: ignore[attr-defined]
+    for request in [*wiggles, {"op": "assign", "serial": serial, "id": 1}]:
+        with pytest.raises(CommissionError, match=r"a gait runs on m5; .*stop the gait first"):
+            bench.ask(request)
+    assert all(m["id"] == 0 for m in bench.ask({"op": "list"})["modules"])
 
 
 def test_a_board_batch_keeps_serials_and_refuses_a_damaged_one(tmp_path) -> None:
