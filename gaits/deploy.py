@@ -32,6 +32,7 @@ import time
 from collections.abc import Callable, Collection, Sequence
 from dataclasses import dataclass, field
 
+from asm_module._profile import FIRMWARE_STATES
 from asm_module.names import module_name
 from asm_module.wire import Staged, checksum, encode_program, encode_staged
 from asm_py import Node
@@ -119,6 +120,10 @@ def deploy(
     problems = [line for m in ids if (line := type_mismatch(gait, m, calls.names[m], _reported_type(calls, m)))]
     if any(line not in accept for line in problems):
         raise RobotMismatch(problems)
+    updating = [f"module {m} ({calls.names[m]})" for m in ids if _being_updated(calls, m)]
+    if updating:  # it resets when the image is whole: a gait started on it now would stop there, the others walking
+        raise DeployError(f"{', '.join(updating)}: a firmware update is being written; deploy when it has ended "
+                          "(nothing was sent)")  # fmt: skip
     spans = commanded(gait)
     beyond = [line for m in ids if (line := _beyond_limits(calls, m, spans.get(m, (0.0, 0.0))))]
     if beyond:  # a module checks every table against its limits and refuses it: said now, nothing sent
@@ -152,6 +157,21 @@ def deploy(
     else:
         report.lease = lease
     return report
+
+
+def _being_updated(calls: ModuleCalls, module: int) -> bool:
+    """Module ``module`` is receiving a firmware image (firmware.status ``receiving``); a module without the
+    object (a Python module) is not."""
+    try:
+        status = calls.peek(module, "firmware.status", "check")
+    except DeployError as exc:
+        cause: BaseException | None = exc
+        while cause is not None and not isinstance(cause, LookupError):
+            cause = cause.__cause__
+        if cause is not None:  # no such object, however deep the retries wrapped it
+            return False
+        raise
+    return int(status.get("state", 0)) == FIRMWARE_STATES.index("receiving")
 
 
 def _beyond_limits(calls: ModuleCalls, module: int, span: tuple[float, float]) -> str | None:

@@ -53,6 +53,10 @@ def _warned(text: str) -> None:
 mujoco.set_mju_user_warning(_warned)
 
 
+EMULATED_SERIAL = b"ASM-EMU\0"
+"""The first 8 bytes of the serial of an emulated board kept for one run only; its chain position the last 4."""
+
+
 class MujocoJoint(JointDriver):
     """A module's joint as a MuJoCo position actuator (degrees in, radians to MuJoCo)."""
 
@@ -228,6 +232,9 @@ class Simulation:
                 from asm_module.emulated import EmulatedModule  # Unicorn is loaded only when a board is emulated
 
                 serial, flash = board_flash.board(assignment.id) if board_flash is not None else (None, None)
+                # boards flashed for this run only: each its own serial too (all zeros, two boards answered the
+                # commissioning scan as one, and an ID given to that serial went to both)
+                serial = serial if serial is not None else EMULATED_SERIAL + assignment.id.to_bytes(4, "big")
                 self.modules[assignment.id] = EmulatedModule(module_name(assignment.id), 0 if flash else assignment.id,
                     driver=driver, clock=self.clock, tick=self.tick, hardware_range=hardware, serial=serial,
                     settings=flash, **dict(bus_options or {}))  # fmt: skip

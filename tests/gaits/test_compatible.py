@@ -174,3 +174,27 @@ def test_a_deploy_beyond_a_modules_limits_is_refused_before_anything_is_sent_nam
     assert all(not held["holder"] for held in lease.values()), "nothing was sent: no lease taken"
     staged = read_objects(robot.client.lookup, names, "gait.staged_checksum", timeout=1.0)
     assert len(set(staged.values())) == 1, "no module staged anything"
+
+
+def test_a_deploy_while_a_firmware_update_is_written_is_refused(robot, monkeypatch):
+    """Issue 28's third review: a deploy during an update was accepted; the updated boards then reset and stopped,
+    the others walked on. A module receiving an image (firmware.status) refuses the deploy, nothing sent."""
+    from asm_module._profile import FIRMWARE_STATES
+    from gaits.calls import ModuleCalls
+    from gaits.deploy import DeployError, deploy
+
+    names, _ = robot(8)
+    peek = ModuleCalls.peek
+
+    def receiving_on_m3(self, module, name, step):
+        if name == "firmware.status" and module == 3:
+            return {"state": FIRMWARE_STATES.index("receiving"), "running": 0x100, "other": 0, "received": 512}
+        return peek(self, module, name, step)
+
+    monkeypatch.setattr(ModuleCalls, "peek", receiving_on_m3)
+    with pytest.raises(DeployError, match=r"^module 3 \(m3\): a firmware update is being written"):
+        deploy(robot.client, CATERPILLAR, timeout=1.0)
+    lease = read_objects(robot.client.lookup, names, "gait.lease", timeout=1.0)
+    assert all(not held["holder"] for held in lease.values()), "nothing was sent: no lease taken"
+    monkeypatch.setattr(ModuleCalls, "peek", peek)
+    assert deploy(robot.client, CATERPILLAR, timeout=1.0).running == list(range(1, 9))

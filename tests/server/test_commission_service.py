@@ -234,3 +234,23 @@ def test_a_board_batch_keeps_serials_and_refuses_a_damaged_one(tmp_path) -> None
     for position in (0, 254, -1, "1", True):
         with pytest.raises(ValueError, match=r"chain position is 1\.\.253"):
             batch.serial(position)  # type: ignore[arg-type]
+
+
+def test_boards_emulated_for_one_run_have_serials_of_their_own() -> None:
+    # Issue 28's third review: without --board-flash every emulated board's serial was all zeros: the scan found
+    # one module for two, and an ID given to that serial went to both.
+    bench = Bench.__new__(Bench)
+    bench.endpoint = f"tcp/127.0.0.1:{free_port()}"
+    bench.robot = Robot(RobotOptions(sim=LIBRARY / "caterpillar.toml", emulated_modules=(1, 3),
+                                     network=ZenohOptions(listen=(bench.endpoint,))))  # fmt: skip
+    try:
+        bench.client = Node("commission-test", ZenohTransport(connect=[bench.endpoint]))
+    except BaseException:
+        bench.robot.close()
+        raise
+    try:
+        listed = bench.ask({"op": "list"})["modules"]
+        assert sorted(m["id"] for m in listed) == [1, 3], listed
+        assert len({m["serial"] for m in listed}) == 2 and "0" * 24 not in {m["serial"] for m in listed}, listed
+    finally:
+        bench.close()
