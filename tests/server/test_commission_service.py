@@ -38,9 +38,9 @@ BOARDS = (1, 2, 3)
 class Bench:
     """A robot process on ``folder`` and a tool's Zenoh node beside it."""
 
-    def __init__(self, folder: Path) -> None:
+    def __init__(self, folder: Path | None, emulated: tuple[int, ...] = BOARDS) -> None:
         self.endpoint = f"tcp/127.0.0.1:{free_port()}"
-        self.robot = Robot(RobotOptions(sim=LIBRARY / "caterpillar.toml", emulated_modules=BOARDS, board_flash=folder,
+        self.robot = Robot(RobotOptions(sim=LIBRARY / "caterpillar.toml", emulated_modules=emulated, board_flash=folder,
                                         network=ZenohOptions(listen=(self.endpoint,))))  # fmt: skip
         try:
             self.client = Node("commission-test", ZenohTransport(connect=[self.endpoint]))
@@ -239,15 +239,7 @@ def test_a_board_batch_keeps_serials_and_refuses_a_damaged_one(tmp_path) -> None
 def test_boards_emulated_for_one_run_have_serials_of_their_own() -> None:
     # Issue 28's third review: without --board-flash every emulated board's serial was all zeros: the scan found
     # one module for two, and an ID given to that serial went to both.
-    bench = Bench.__new__(Bench)
-    bench.endpoint = f"tcp/127.0.0.1:{free_port()}"
-    bench.robot = Robot(RobotOptions(sim=LIBRARY / "caterpillar.toml", emulated_modules=(1, 3),
-                                     network=ZenohOptions(listen=(bench.endpoint,))))  # fmt: skip
-    try:
-        bench.client = Node("commission-test", ZenohTransport(connect=[bench.endpoint]))
-    except BaseException:
-        bench.robot.close()
-        raise
+    bench = Bench(None, (1, 3))  # no --board-flash: boards for this run only
     try:
         listed = bench.ask({"op": "list"})["modules"]
         assert sorted(m["id"] for m in listed) == [1, 3], listed
