@@ -79,7 +79,9 @@ class _Unbuffered:
     mcap's Writer would wrap one in a BufferedWriter."""
 
     def __init__(self, path: Path) -> None:
-        self._file = open(path, "xb", buffering=0)  # noqa: SIM115  # closed by close(); never over a file
+        # never over a file ("x"); a device or a pipe that is there is what was asked for (/dev/full, a FIFO)
+        mode = "wb" if path.exists() and not path.is_file() else "xb"
+        self._file = open(path, mode, buffering=0)  # noqa: SIM115  # closed by close()
         self._position = 0
         """Bytes written: the file is only appended to, so this is its tell() without a system call (asked after
         every message, to see whether a chunk was written)."""
@@ -177,9 +179,9 @@ def existing_files(output: Path, rotating: bool) -> list[Path]:
     ``<stem>-NNN<suffix>``, whatever its number: a rotation runs through them all). A recording is never written over
     (asm-record overwrote a run, and a rotated one numbered from 000 again over an earlier one's files)."""
     if not rotating:
-        return [output] if output.exists() else []
+        return [output] if output.is_file() else []  # a device or a pipe (/dev/full, a FIFO) is written to
     pattern = re.compile(re.escape(output.stem) + r"-\d{3,}" + re.escape(output.suffix or ".mcap"))
-    return sorted(p for p in output.parent.iterdir() if pattern.fullmatch(p.name))
+    return sorted(p for p in output.parent.iterdir() if pattern.fullmatch(p.name) and p.is_file())
 
 
 class McapFiles:
