@@ -207,6 +207,8 @@ def test_upload_grid_history_robot_size_and_attribute_browser(studio_process, tm
             # the plot is drawn anew with its new series: wait for that before scrolling to it (the canvas found
             # before was detached under the scroll once)
             expect(page.locator(".uplot", has_text="Live 2")).to_contain_text("m2 joint.torque", timeout=15_000)
+            # and drawn again once its first sample is in (a series without one is shown "(no samples yet)")
+            expect(page.locator(".uplot", has_text="Live 2")).not_to_contain_text("no samples yet", timeout=15_000)
             second = page.locator(".uplot", has_text="Live 2").locator("canvas").first
             second.scroll_into_view_if_needed()
             assert wait_until(lambda: pixels(second.screenshot(), LINE_COLOR) > 50, timeout=15), "no torque line"
