@@ -31,6 +31,7 @@ import secrets
 import time
 from collections.abc import Callable, Collection, Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 from asm_module._profile import FIRMWARE_STATES
 from asm_module.names import module_name
@@ -159,30 +160,35 @@ def deploy(
     return report
 
 
-def _being_updated(calls: ModuleCalls, module: int) -> bool:
-    """Module ``module`` is receiving a firmware image (firmware.status ``receiving``); a module without the
-    object (a Python module) is not."""
+def _peek_present(calls: ModuleCalls, module: int, name: str) -> Any | None:
+    """Module ``module``'s ``name`` read in the check step; None when the module has no such object (a Python
+    module has no firmware.status, an older one no module.type), however deep ModuleCalls' retries wrapped that
+    LookupError. Every other failure is raised."""
     try:
-        status = calls.peek(module, "firmware.status", "check")
+        return calls.peek(module, name, "check")
     except DeployError as exc:
         cause: BaseException | None = exc
         while cause is not None and not isinstance(cause, LookupError):
             cause = cause.__cause__
-        if cause is not None:  # no such object, however deep the retries wrapped it
-            return False
+        if cause is not None:
+            return None
         raise
-    return int(status.get("state", 0)) == FIRMWARE_STATES.index("receiving")
+
+
+def _being_updated(calls: ModuleCalls, module: int) -> bool:
+    """Module ``module`` is receiving a firmware image (firmware.status ``receiving``); a module without the
+    object (a Python module) is not."""
+    status = _peek_present(calls, module, "firmware.status")
+    return status is not None and int(status.get("state", 0)) == FIRMWARE_STATES.index("receiving")
 
 
 def _beyond_limits(calls: ModuleCalls, module: int, span: tuple[float, float]) -> str | None:
     """A line naming module ``module`` when its joint.limits cut off the angles ``span`` the gait commands it;
     None when they do not, or the module has no joint.limits (it checks nothing then)."""
-    try:
-        low, high = (float(v) for v in calls.peek(module, "joint.limits", "check"))
-    except DeployError as exc:
-        if isinstance(exc.__cause__, LookupError):
-            return None
-        raise
+    limits = _peek_present(calls, module, "joint.limits")
+    if limits is None:
+        return None
+    low, high = (float(v) for v in limits)
     if low <= span[0] + 1e-3 and high >= span[1] - 1e-3:
         return None
     name = calls.names[module]
@@ -191,12 +197,8 @@ def _beyond_limits(calls: ModuleCalls, module: int, span: tuple[float, float]) -
 
 def _reported_type(calls: ModuleCalls, module: int) -> str:
     """Module ``module``'s module.type; "" when it has none (a module older than the object says nothing)."""
-    try:
-        return str(calls.peek(module, "module.type", "check"))
-    except DeployError as exc:
-        if isinstance(exc.__cause__, LookupError):
-            return ""
-        raise
+    kind = _peek_present(calls, module, "module.type")
+    return "" if kind is None else str(kind)
 
 
 def activate(
