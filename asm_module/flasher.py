@@ -17,7 +17,7 @@ from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
-from asm_py.errors import AsmError
+from asm_py.errors import AsmError, Locked
 from asm_py.node import Node
 
 from ._profile import FIRMWARE_STATES, IMAGE_CHUNK
@@ -114,6 +114,9 @@ def _update_one(node: Node, module: str, image: bytes, crc: int, version: int, p
         except ValueError:  # EstopLatched too: latched while the image was written (the board says so, above)
             state = FIRMWARE_STATES[_status(node, module, timeout)["state"]]
             return ModuleUpdate(module, "refused", old, old, f"the module checked the image and refused it ({state})")
+    except Locked:  # the board's own guard: a gait started on it (by a group Start) while the image streamed
+        return ModuleUpdate(module, "refused", old, old, "a gait was started on it during the update: a module takes "
+                            "no part of an update while its gait runs (stop the gait, update again)")  # fmt: skip
     except (AsmError, OSError, ValueError, LookupError) as exc:
         return ModuleUpdate(module, "failed", old, None, f"while writing: {exc}")
     return _come_back(node, module, old, version, timeout, reboot_timeout)

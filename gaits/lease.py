@@ -31,9 +31,24 @@ MAX_HOLD = 300.0
 good (the studio withdraws its question after a minute)."""
 
 
-def default_holder(node: Node) -> str:
-    """Who a lease names: the deploying node, its host and process, so a second deployer knows whom to ask."""
-    return f"{node.name}@{socket.gethostname()}:{os.getpid()}"[:64]
+HOLDER_BYTES = 32
+"""Bytes of UTF-8 of a holder's name a board keeps (firmware/include/asm/gait.h ASM_LEASE_HOLDER): it refuses a
+longer one as VALUE_ERROR, so every lease is cut to this (a host name of 25 characters made every deploy to a board
+fail with "value out of its domain")."""
+
+
+def fit_holder(text: str) -> str:
+    """``text`` cut to HOLDER_BYTES of UTF-8 at a character's end."""
+    return text.encode("utf-8")[:HOLDER_BYTES].decode("utf-8", errors="ignore")
+
+
+def default_holder(node: Node, role: str = "") -> str:
+    """Who a lease names: ``role``, the deploying node, its host and process, so a second deployer knows whom to ask;
+    within HOLDER_BYTES, the host shortened first (the node and the process say the most)."""
+    head, tail = f"{role}{node.name}@", f":{os.getpid()}"
+    room = HOLDER_BYTES - len(head.encode("utf-8")) - len(tail.encode("utf-8"))
+    host = socket.gethostname().encode("utf-8")[: max(0, room)].decode("utf-8", errors="ignore")
+    return fit_holder(f"{head}{host}{tail}")
 
 
 class Lease:
@@ -42,7 +57,7 @@ class Lease:
     def __init__(self, calls: ModuleCalls, modules: Sequence[int], holder: str, token: int) -> None:
         self.calls = calls
         self.modules = list(modules)
-        self.holder = holder
+        self.holder = fit_holder(holder)
         self.token = token
         self.held: list[int] = []
         self._renewed_at = 0.0
@@ -64,6 +79,8 @@ class Lease:
             except DeployError as exc:
                 if isinstance(exc.__cause__, EstopLatched):
                     self._refuse_latched(module)
+                if isinstance(exc.__cause__, Locked) and str(exc.__cause__).endswith(": "):  # the reply said nothing
+                    self._refuse_held(module, exc)
                 raise
             self.held.append(module)
         self._renewed_at = time.monotonic()
@@ -79,6 +96,18 @@ class Lease:
             latched = [first]
         listed = ", ".join(f"module {m} ({self.calls.names[m]})" for m in sorted(latched))
         raise DeployError(f"lease: the emergency stop is latched on {listed}; release it first") from None
+
+    def _refuse_held(self, module: int, refusal: DeployError) -> None:
+        """DeployError naming who holds ``module``'s lease, read from the lease itself: a board's LOCKED reply
+        carries no text (a Python module's does), and "locked" alone does not say whom to ask."""
+        try:
+            current = self.calls.get(module, "gait.lease", "lease")
+            holder, seconds = current["holder"], float(current["seconds"])
+        except (DeployError, KeyError, TypeError, ValueError):
+            raise refusal from None
+        name = self.calls.names[module]
+        raise DeployError(f"module {module} ({name}), lease: the robot is held by {holder!r} (deploying or updating "
+                          f"it; lease for another {seconds:.1f} s at most)") from refusal.__cause__  # fmt: skip
 
     def renew(self) -> None:
         """Renew the lease on every module now; DeployError if another deployer holds a module's lease, or if the

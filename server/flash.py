@@ -20,10 +20,10 @@ from pathlib import Path
 from typing import TextIO
 
 from asm_module.firmware_image import check
-from asm_module.flasher import update_modules
 from asm_py.cli import bitrate, can_channel, input_file, module_selection, node_id, positive_seconds, run, summary
 from asm_py.node import Node
 from asm_py.transport.can import CanTransport
+from gaits.update import update_robot
 
 
 class ProgressBar:
@@ -106,7 +106,7 @@ def _flash(args: argparse.Namespace) -> int:
             raise RuntimeError("no module to update on the bus")
         print(f"updating {', '.join(modules)} to {info.version_text} ({info.size} bytes, CRC-32 {info.crc:08x})")
         bar = ProgressBar(modules, info.size, sys.stderr)
-        results = update_modules(node, modules, image, progress=bar, timeout=args.timeout,
+        results = update_robot(node, modules, image, progress=bar, timeout=args.timeout,
                                  reboot_timeout=args.reboot_timeout)  # fmt: skip
         bar.finish({m for m, done in bar.done.items() if done})
         print(file=sys.stderr)

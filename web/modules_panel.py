@@ -25,8 +25,9 @@ from typing import TYPE_CHECKING, Any
 
 from asm_module._profile import FIRMWARE_STATES
 from asm_module.firmware_image import check
-from asm_module.flasher import GaitRunning, update_modules
+from asm_module.flasher import GaitRunning
 from gaits.compatible import read_objects
+from gaits.update import RobotHeld, update_robot
 
 from .confirm import plain
 
@@ -196,7 +197,10 @@ class ModulesPanel:
                     finally:
                         with self._lock:
                             self._pending_update = None
-            except GaitRunning as exc:  # under the update's own button, where the user looks for its result
+            except (
+                GaitRunning,
+                RobotHeld,
+            ) as exc:  # under the update's own button, where the user looks for its result
                 self.update_md.content = f"⚠ {exc}"
             except Exception as exc:  # a refusal, a silent module: said under the buttons, the worker goes on
                 self.line.content = f"⚠ {exc}"
@@ -257,7 +261,8 @@ class ModulesPanel:
         self.line.content = f"{name}: its pose now is its zero (raw {raw:.2f}°; it was at {angle:.2f}°)"
 
     def _update(self, image: bytes) -> None:
-        """Every answering module to ``image`` at once (asm_module.flasher), the bar following the bytes written."""
+        """Every answering module to ``image`` at once, the robot held against deploys (gaits.update), the bar
+        following the bytes written."""
         check(image)  # not an update image: said before anything is sent
         robot = self.page.robot
         names = sorted(robot.alive_modules(), key=lambda n: int(n[1:]))
@@ -272,7 +277,7 @@ class ModulesPanel:
         self.progress.value = 0.0
         self.update_md.content = f"Updating {len(names)} modules with a {len(image):,}-byte image …"
         # patient: a module behind a busy bus or a slow host answers late, and a failed update is redone by hand
-        results = update_modules(robot.node, names, image, progress=progress, timeout=30.0, reboot_timeout=120.0)
+        results = update_robot(robot.node, names, image, progress=progress, timeout=30.0, reboot_timeout=120.0)
         self.progress.value = 100.0
         self.update_md.content = "  \n".join(str(result) for result in results)
         self._read()

@@ -5,6 +5,7 @@
 
 #include <string.h>
 
+#include "asm/module.h"
 #include "asm/profile.h"
 #include "asm/version.h"
 #include "asm/wire.h"
@@ -25,6 +26,12 @@ static uint32_t slot, generation, trial, confirmed, received, install_crc, reset
 static uint8_t status_v[13]; /* record{state:uint8,running:uint32,other:uint32,received:uint32} */
 
 static uint32_t other(void) { return slot ^ 1u; }
+
+/* While the module's gait runs nothing of an update is taken: erasing the slot stalls the control loop (one flash
+ * bank: instruction fetches wait for the erase), and the install's reset would drop the joint mid-step. The update
+ * tool checks this first and holds every module's gait.lease against deploys; this is the guard against a gait
+ * started without a lease (a group start) while the update streams. */
+static int gait_runs(struct asm_node *node) { return asm_module_of(node)->gait.service.running != 0; }
 
 static void report(uint32_t state)
 {
@@ -61,6 +68,8 @@ static int set_image(struct asm_node *node, struct asm_object *o, const uint8_t 
     (void)o;
     if (node->estop)
         return ASM_S_ESTOP; /* an update ends in a reset, which would release the latch: refused, as any move */
+    if (gait_runs(node))
+        return ASM_S_LOCKED;
     if (length < 4u || (length - 4u) % 4u || length - 4u > ASM_IMAGE_CHUNK || resetting)
         return ASM_S_VALUE_ERROR;
     memcpy(&offset, data, 4);
@@ -92,6 +101,8 @@ static int set_install(struct asm_node *node, struct asm_object *o, const uint8_
     (void)o;
     if (node->estop)
         return ASM_S_ESTOP; /* latched after the image was written: no reset into it until released */
+    if (gait_runs(node))
+        return ASM_S_LOCKED; /* a gait started after the image was written: no reset under it */
     if (length != 4u || resetting)
         return ASM_S_VALUE_ERROR;
     memcpy(&install_crc, data, 4);

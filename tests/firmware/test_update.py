@@ -5,6 +5,7 @@ failed update reported; an image that never confirms itself is rolled back by th
 
 from __future__ import annotations
 
+import os
 import shutil
 import struct
 import time
@@ -303,3 +304,143 @@ def test_an_update_while_a_gait_runs_is_refused_before_anything_is_sent() -> Non
             runtime.close()
         for node in [*nodes, tool]:
             node.close()
+
+
+def _two_module_caterpillar():
+    from gaits.model import LIBRARY, load
+    from web.document import GaitDocument
+
+    doc = GaitDocument(load(LIBRARY / "caterpillar.toml"))
+    doc.set_robot("modules", 2)
+    return doc.gait()
+
+
+def test_a_board_takes_no_part_of_an_update_while_its_gait_runs_even_one_started_mid_update(bus) -> None:
+    """Issue 28's third review: only the tool checked that no gait runs, so a gait started after that check (a
+    group Start needs no lease) was under the update's reset. The board refuses image pieces and the install with
+    LOCKED while its gait runs: the erase would stall its control loop, the reset drop its joint mid-step."""
+    from asm_module.drivers import FakeDriver
+    from asm_module.runtime import ModuleRuntime
+    from asm_py.errors import Locked
+    from gaits.deploy import BROADCAST, deploy, stop_all
+    from gaits.update import update_robot
+
+    channel, tool = bus
+    image = _new_image()
+    board = _board(channel, 1, Settings())
+    python_node = Node("m2", CanTransport(2, interface="virtual", channel=channel, watch_bus=False))
+    runtime = ModuleRuntime(FakeDriver(), node=python_node, module_id=2)
+    try:
+        assert wait_until(lambda: {"m1", "m2"} <= set(tool.discover()), timeout=30)
+        service = tool.lookup("m1", "gait.service", timeout=5)
+        deploy(tool, _two_module_caterpillar(), timeout=3.0)
+        assert service.running  # pyright: ignore[reportAttributeAccessIssue]
+        with pytest.raises(Locked):
+            _write(tool, "m1", image, upto=IMAGE_CHUNK)
+        stop_all(tool)
+        assert wait_until(lambda: not service.running, timeout=10)  # pyright: ignore[reportAttributeAccessIssue]
+        _write(tool, "m1", image)  # written whole while nothing ran, then a gait started
+        tool.group(BROADCAST).service("gait.service").start()
+        assert wait_until(lambda: service.running, timeout=10)  # pyright: ignore[reportAttributeAccessIssue]
+        with pytest.raises(Locked):
+            tool.lookup("m1", "firmware.install", timeout=5).set(check(image).crc, timeout=10)  # pyright: ignore[reportAttributeAccessIssue]
+        stop_all(tool)
+        assert wait_until(lambda: not service.running, timeout=10)  # pyright: ignore[reportAttributeAccessIssue]
+        started: list[bool] = []
+
+        def start_once(module: str, done: int, total: int) -> None:
+            if not started:  # a group Start from another tool, after the update's own check
+                started.append(True)
+                tool.group(BROADCAST).service("gait.service").start()
+
+        by_name = {r.module: r for r in update_robot(tool, ["m1"], image, progress=start_once)}
+        assert (by_name["m1"].outcome, by_name["m1"].new_version) == ("refused", OLD), by_name
+        assert "gait was started on it during the update" in by_name["m1"].detail
+        time.sleep(0.5)  # a reset would follow an install by 0.1 s
+        assert board.resets == [] and board.firmware_version == OLD
+        assert tool.lookup("m1", "gait.service", timeout=5).running, "it walks on"  # pyright: ignore[reportAttributeAccessIssue]
+    finally:
+        runtime.close()
+        python_node.close()
+        board.close()
+
+
+def test_a_deploy_and_an_update_at_once_the_second_is_refused_naming_the_first(bus, monkeypatch) -> None:
+    """Issue 28's third review: a deploy and an update started at the same instant both passed their checks and the
+    update's resets felled the walking robot. The update holds every module's gait.lease as a deployer does, so the
+    second of the two is refused, told who holds the robot, and nothing of it is sent."""
+    from asm_module import flasher
+    from asm_module.drivers import FakeDriver
+    from asm_module.runtime import ModuleRuntime
+    from gaits.calls import DeployError
+    from gaits.deploy import deploy
+    from gaits.update import RobotHeld, update_robot
+
+    channel, tool = bus
+    image = _new_image()
+    gait = _two_module_caterpillar()
+    board = _board(channel, 1, Settings())
+    python_node = Node("m2", CanTransport(2, interface="virtual", channel=channel, watch_bus=False))
+    runtime = ModuleRuntime(FakeDriver(), node=python_node, module_id=2)
+    refusals: list[str] = []
+
+    checked = flasher._gait_running
+
+    def deploy_right_after_the_check(node: Node, modules, timeout: float) -> list[str]:
+        walking = checked(node, modules, timeout)  # "no gait runs": the instant a deploy came in before
+        try:
+            deploy(tool, gait, timeout=3.0)
+            refusals.append("deployed")
+        except DeployError as exc:
+            refusals.append(str(exc))
+        return walking
+
+    monkeypatch.setattr(flasher, "_gait_running", deploy_right_after_the_check)
+    try:
+        assert wait_until(lambda: {"m1", "m2"} <= set(tool.discover()), timeout=30)
+        by_name = {r.module: r for r in update_robot(tool, ["m1", "m2"], image)}
+        monkeypatch.undo()
+        assert "held by 'update by tool@" in refusals[0], refusals  # the deploy was refused, the holder named
+        assert (by_name["m1"].outcome, by_name["m1"].new_version) == ("updated", NEW), by_name
+        assert not runtime.gait.started, "nothing of the deploy started"
+        staged = deploy(tool, gait, start=False, timeout=3.0)  # a deploy holding the robot (waiting for Start)
+        try:
+            with pytest.raises(RobotHeld, match=r"not sent: .*lease"):
+                update_robot(tool, ["m1"], _new_image(pad_to=20 * 1024))
+            assert _status(tool, "m1")["received"] == 0, "not one piece sent"
+        finally:
+            staged.cancel()
+        assert deploy(tool, gait, timeout=3.0).running, "the robot is free again after both"
+    finally:
+        runtime.close()
+        python_node.close()
+        board.close()
+
+
+def test_a_long_host_name_does_not_stop_deploys_to_boards(bus, monkeypatch) -> None:
+    """Found while reviewing the update's lease: a board keeps 32 bytes of a lease holder's name and refuses a longer
+    one (VALUE_ERROR), and the holder was node@host:pid cut to 64, so on a host with a long name every deploy to a
+    board failed with "value out of its domain". Every lease's holder fits the board's limit, host cut first."""
+    from asm_module.drivers import FakeDriver
+    from asm_module.runtime import ModuleRuntime
+    from gaits import lease
+    from gaits.deploy import deploy
+
+    header = (Path(__file__).parents[2] / "firmware/include/asm/gait.h").read_text()
+    assert f"#define ASM_LEASE_HOLDER {lease.HOLDER_BYTES}u" in header, "the Python limit is the board's"
+    monkeypatch.setattr(lease.socket, "gethostname", lambda: "lab-workstation-03.robotics.example.org")
+    channel, tool = bus
+    board = _board(channel, 1, Settings())
+    python_node = Node("m2", CanTransport(2, interface="virtual", channel=channel, watch_bus=False))
+    runtime = ModuleRuntime(FakeDriver(), node=python_node, module_id=2)
+    try:
+        assert wait_until(lambda: {"m1", "m2"} <= set(tool.discover()), timeout=30)
+        holder = lease.default_holder(tool)
+        assert len(holder.encode()) <= lease.HOLDER_BYTES and holder.startswith("tool@lab-") and holder.endswith(
+            f":{os.getpid()}"), holder  # fmt: skip
+        assert lease.fit_holder("é" * 20) == "é" * 16, "cut at a character's end"
+        assert set(deploy(tool, _two_module_caterpillar(), timeout=3.0).running) == {1, 2}
+    finally:
+        runtime.close()
+        python_node.close()
+        board.close()
