@@ -9,6 +9,8 @@ request, and gets one JSON reply (docs/protocol.md §10):
   moves that far and back, ``{"id": N, "temporary": T|null, "moved": DEGREES}``; a module without an ID is given a
   free temporary one for the wiggle and has none again after it;
 - ``{"op": "assign", "serial": HEX, "id": N}`` (N 1..253; 0 erases) → ``{"serial": HEX, "id": N}``.
+- ``{"op": "release"}`` → ``{"released": BOOL}``: the service latches on every e-stop of the bus (a module without
+  an ID cannot: it runs no node) and refuses wiggles and IDs until this (the studio's E-STOP Release sends it).
 
 A refusal is ``{"error": TEXT}``: an unknown serial, an ID out of range or held by another module, a module that
 stops answering, or another commissioning request still running (one at a time: the bus has one scan).

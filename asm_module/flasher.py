@@ -22,6 +22,7 @@ from asm_py.node import Node
 
 from ._profile import FIRMWARE_STATES, IMAGE_CHUNK
 from .firmware_image import check, version_text
+from .halts import read_halts
 
 Progress = Callable[[str, int, int], None]
 """``progress(module, bytes_written, image_bytes)``, called from the module's update thread after every chunk."""
@@ -72,16 +73,9 @@ class GaitRunning(ValueError):
 
 
 def _gait_running(node: Node, modules: Sequence[str], timeout: float) -> list[str]:
-    """The ``modules`` whose gait service runs now; one without a gait service, or silent, is not counted (the
-    update itself then says what became of it)."""
-    running = []
-    for module in modules:
-        try:
-            if node.lookup(module, "gait.service", timeout=timeout).running:  # pyright: ignore[reportAttributeAccessIssue]
-                running.append(module)
-        except (AsmError, OSError, LookupError, AttributeError):
-            continue
-    return running
+    """The ``modules`` whose gait service runs now (asm_module.halts); latches are refused module by module below,
+    as the board itself refuses a latched update."""
+    return read_halts(node, modules, timeout).walking
 
 
 def _status(node: Node, module: str, timeout: float) -> dict[str, int]:

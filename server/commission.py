@@ -8,16 +8,22 @@ give them node IDs (docs/protocol.md §7, "Commissioning").
     asm-commission --can socketcan:can0 erase 0123456789abcdef01234567
 
 The IDs are stored in each module (flash on a board, its ID file on a Linux module) and kept across resets.
+``number``, ``set`` and ``erase`` are refused (exit 1, nothing changed) while any numbered module on the bus has its
+e-stop latched or runs a gait: an ID given or erased resets a board, which releases its latch or drops its joint.
 """
 
 from __future__ import annotations
 
 import argparse
 import sys
+import time
+from collections.abc import Iterable
 from pathlib import Path
+from typing import Any
 
 import can
 
+from asm_module.halts import read_halts
 from asm_py.canbus.commission import (
     UNCONFIGURED,
     Commissioner,
@@ -28,6 +34,13 @@ from asm_py.canbus.commission import (
 )
 from asm_py.canbus.ids import MAX_NODE_ID, MIN_NODE_ID
 from asm_py.cli import bitrate, bounded, can_channel, input_file, node_id, positive_seconds, run, summary
+from asm_py.node import Node
+from asm_py.transport.can import ALIAS_PREFIX, CanTransport
+
+LATCH_TIMEOUT = 1.0
+"""Seconds each numbered module has to say whether it is latched or walks before IDs change."""
+HEARD_TIMEOUT = 2.0
+"""Seconds to hear the numbered modules' heartbeats (every 0.5 s by default) before asking them."""
 
 
 def serial(text: str) -> bytes:
@@ -71,11 +84,35 @@ def main(argv: list[str] | None = None) -> int:
     return run(cli.prog, lambda: _command(args, order))
 
 
+def refuse_while_stopped(options: dict[str, Any], tool_id: int, ids: Iterable[int], why: str) -> None:
+    """RuntimeError while any module of ``ids`` (node IDs the scan found) has its e-stop latched or runs a gait
+    (asm_module.halts: the robot's commissioning service and a firmware update refuse alike). Asked over ASM from a
+    node of the tool's own ID on a bus handle of its own, once each module's heartbeat named it (a reply comes
+    under the module's name; a module not heard within HEARD_TIMEOUT is silent, and not counted)."""
+    ids = sorted(ids)
+    if not ids:
+        return
+    transport = CanTransport(tool_id, **options)
+    node = Node("asm-commission", transport)
+    try:
+        deadline = time.monotonic() + HEARD_TIMEOUT
+        while any(transport.name_of(i).startswith(ALIAS_PREFIX) for i in ids) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        refusal = read_halts(node, [transport.name_of(i) for i in ids], LATCH_TIMEOUT).refusal(why)
+    finally:
+        node.close()
+    if refusal is not None:
+        raise RuntimeError(refusal)
+
+
 def _command(args: argparse.Namespace, order: list[bytes] | None) -> int:
     options = {**args.can, **({"bitrate": args.bitrate} if args.bitrate else {}), **({"fd": True} if args.fd else {})}
     bus = can.Bus(**options)
     try:
         tool = Commissioner(bus, tool_id=args.node_id, window=args.window)
+        if args.command in ("number", "set", "erase"):  # each ID given or erased resets a board: its latch released
+            numbered = {m.node_id for m in tool.discover(CommissionScope.EVERY)} - {UNCONFIGURED}
+            refuse_while_stopped(options, args.node_id, numbered, "an ID given or erased resets the board")
         if args.command == "list":
             roster = tool.discover(CommissionScope.EVERY)
             for module in sorted(roster, key=lambda m: (m.node_id == UNCONFIGURED, m.node_id, m.serial)):

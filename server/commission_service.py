@@ -28,6 +28,7 @@ import can
 import zenoh
 
 from asm_module.commission_link import MAX_REQUEST
+from asm_module.halts import read_halts
 from asm_py.canbus.commission import (
     SERIAL_BYTES,
     UNCONFIGURED,
@@ -42,7 +43,7 @@ from asm_py.canbus.ids import MAX_NODE_ID, MIN_NODE_ID
 from asm_py.errors import AsmError
 from asm_py.keys import RobotKeys
 from asm_py.node import Node
-from asm_py.remote import RemoteAttribute, RemoteService
+from asm_py.remote import RemoteAttribute
 
 log = logging.getLogger("asm_robot.commission")
 WIGGLE_DEGREES = (1.0, 30.0)
@@ -102,6 +103,9 @@ class CommissionService:
         self._running: str | None = None
         self._known: set[int] = set()
         """The IDs the last list found and those given since (the worker's)."""
+        self._heard: tuple[float, str, str] | None = None
+        """The last e-stop heard and not released: (time, source, reason)."""
+        self._unlisten = node.on_estop(self._on_estop)
         self._jobs: queue.Queue[tuple[zenoh.Query, dict[str, Any]] | None] = queue.Queue()
         self._thread = threading.Thread(target=self._work, name="asm-robot-commission", daemon=True)
         self._thread.start()
@@ -131,8 +135,11 @@ class CommissionService:
                 request = json.loads(raw)
             except (ValueError, UnicodeDecodeError) as exc:
                 raise Refused(f"a commissioning request is JSON: {exc}") from None
-            if not isinstance(request, dict) or request.get("op") not in ("list", "wiggle", "assign"):
-                raise Refused('a commissioning request is {"op": "list"|"wiggle"|"assign", …}')
+            if not isinstance(request, dict) or request.get("op") not in ("list", "wiggle", "assign", "release"):
+                raise Refused('a commissioning request is {"op": "list"|"wiggle"|"assign"|"release", …}')
+            if request["op"] == "release":  # at once, even while another request runs: it only clears a record
+                self._reply(query, self.release())
+                return
             with self._lock:
                 if self._running is not None:
                     raise Refused(f"busy: another commissioning request ({self._running}) is still running")
@@ -163,6 +170,8 @@ class CommissionService:
         op = request.get("op")
         if op == "list":
             return self.list()
+        if op == "release":
+            return self.release()
         if op == "assign":
             serial, node_id = _serial(request), _node_id(request, erase=True)
             self._refuse_while_stopped("an ID given or erased resets the board")
@@ -188,28 +197,31 @@ class CommissionService:
                 "conflicts": {str(k): [s.hex() for s in v] for k, v in conflicts(found).items()}}  # fmt: skip
 
     def _refuse_while_stopped(self, why: str) -> None:
-        """Refused while any module alive on the bus has its e-stop latched: ``why`` says what the operation would
-        do (a board reset releases its latch; a wiggle moves a joint). Asked of the modules themselves, as a
-        firmware update's pre-check does: a robot on a real bus has no other record of its latches."""
-        latched, walking = [], []
-        for node_id in sorted(self._alive_ids()):
-            name = f"m{node_id}"
-            try:
-                estop = self.node.lookup(name, "estop", timeout=LATCH_TIMEOUT)
-                if isinstance(estop, RemoteAttribute) and estop.peek():
-                    latched.append(name)
-                service = self.node.lookup(name, "gait.service", timeout=LATCH_TIMEOUT)
-                if isinstance(service, RemoteService) and service.running:
-                    walking.append(name)
-            except Exception:  # not a module with an e-stop or a gait, or gone meanwhile: nothing to keep
-                log.debug("%s: no e-stop or gait read", name, exc_info=True)
-        if walking and not latched:
-            raise Refused(f"refused: a gait runs on {', '.join(walking[:8])}{' …' if len(walking) > 8 else ''}; "
-                          f"{why}, mid-step: stop the gait first")  # fmt: skip
-        if latched:
-            shown = ", ".join(latched[:8]) + (f" and {len(latched) - 8} more" if len(latched) > 8 else "")
-            raise Refused(f"refused: the robot's e-stop is latched ({shown}); {why}, which the e-stop forbids: "
-                          "release it first")  # fmt: skip
+        """Refused while an e-stop heard on the bus is not released (a module without an ID does not latch: the
+        service does, for it), or any module alive on the bus has its e-stop latched or runs a gait (asm_module.halts);
+        ``why`` says what the operation would do (a board reset releases its latch; a wiggle moves a joint)."""
+        refusal = read_halts(self.node, [f"m{i}" for i in sorted(self._alive_ids())], LATCH_TIMEOUT).refusal(why)
+        if refusal is not None:  # the modules that hold a latch, named first: what the user releases
+            raise Refused(refusal)
+        heard = self._heard
+        if heard is not None:
+            at, source, reason = heard
+            raise Refused(f"refused: an e-stop was heard at {time.strftime('%H:%M:%S', time.localtime(at))} from "
+                          f"{source}{': ' + reason if reason else ''} and commissioning was not released since; "
+                          f"{why}, which the e-stop forbids: release it first (the studio's E-STOP Release, or "
+                          '{"op": "release"})')  # fmt: skip
+
+    def _on_estop(self, source: str, reason: str) -> None:
+        """Every e-stop the bus carries (the bridge's node hears its own and those it forwards from Zenoh): latched
+        here until released, as a module latches (on the receive thread: a tuple assigned, nothing else)."""
+        self._heard = (time.time(), source, reason)
+
+    def release(self) -> dict[str, Any]:
+        """Release the service's own latch (the modules' latches are each module's: released over ASM)."""
+        heard, self._heard = self._heard, None
+        if heard is not None:
+            log.info("commissioning released after the e-stop from %s", heard[1])
+        return {"released": heard is not None}
 
     def _alive_ids(self) -> set[int]:
         """The node IDs alive on the bus now (heard by the bridge's node): modules of every kind."""
@@ -314,6 +326,9 @@ class CommissionService:
             deadline = time.monotonic() + MOVE_TIMEOUT
             progressed = time.monotonic()
             while moved < degrees - ARRIVED and time.monotonic() < deadline:
+                if self._heard is not None:  # the module latched and holds: nothing more is asked of it
+                    raise Refused(f"stopped: an e-stop was heard during the wiggle of {name} (it moved {moved:.1f}°"
+                                  " and holds there)")  # fmt: skip
                 now = abs(float(angle.get(timeout=ASM_TIMEOUT)) - start)
                 if now > moved + 0.1:
                     moved, progressed = now, time.monotonic()
@@ -321,7 +336,8 @@ class CommissionService:
                     break  # a limit or a load holds it short: what it moved is the answer
                 time.sleep(0.05)
         finally:
-            goal.set(home, wait=True, timeout=ASM_TIMEOUT)
+            if self._heard is None:  # after an e-stop the goal stays where the latch holds it
+                goal.set(home, wait=True, timeout=ASM_TIMEOUT)
         deadline = time.monotonic() + MOVE_TIMEOUT  # back before the answer: the next wiggle starts from rest
         while abs(float(angle.get(timeout=ASM_TIMEOUT)) - start) > 1.0 and time.monotonic() < deadline:
             time.sleep(0.05)
@@ -331,6 +347,7 @@ class CommissionService:
         return round(moved, 2)
 
     def close(self) -> None:
+        self._unlisten()
         queryable = getattr(self, "_queryable", None)
         if queryable is not None:
             try:

@@ -22,6 +22,7 @@ from typing import Any
 
 import zenoh
 
+from asm_module.commission_link import CommissionError, commission
 from asm_module.feed import RobotStatus
 from asm_module.names import module_name
 from asm_py import Node
@@ -42,6 +43,8 @@ STATUS_STALE = 3.0
 ESTOP_ROUNDS = 3
 """Times the E-STOP is sent to modules that have not confirmed it."""
 ESTOP_READ_TIMEOUT = 0.3
+COMMISSION_RELEASE_TIMEOUT = 3.0
+"""Seconds the robot's commissioning service has to answer a release (it answers at once, even while busy)."""
 
 
 class RobotLost(RuntimeError):
@@ -211,6 +214,16 @@ class RobotLink:
 
     def release(self, modules: Sequence[str]) -> list[str]:
         return release_all(self.node, modules)
+
+    def release_commissioning(self) -> bool:
+        """Release the latch of the robot's commissioning service (it latches on every e-stop: a module without an
+        ID cannot); False when it held none, or the robot has no such service."""
+        try:
+            answer = commission(self.session, self.robot, {"op": "release"}, timeout=COMMISSION_RELEASE_TIMEOUT)
+        except (TimeoutError, CommissionError, zenoh.ZError) as exc:
+            log.debug("no commissioning latch released: %s", exc)
+            return False
+        return bool(answer.get("released"))
 
     def stage(self, gait: Gait, progress: Callable[[int, int, str], None],
               accept: Collection[str] = ()) -> DeployReport:  # fmt: skip

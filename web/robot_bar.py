@@ -75,8 +75,10 @@ class RobotBar:
                          lambda: self._release(modules))  # fmt: skip
 
     def _release(self, modules: list[str]) -> None:
+        commissioning = self.page.robot.release_commissioning()  # the modules' own latches next
         released = self.page.robot.release(modules)
-        self.page.notify("E-STOP released", f"released on {len(released)} of {len(modules)} modules")
+        self.page.notify("E-STOP released", f"released on {len(released)} of {len(modules)} modules"
+                         + (" and the robot's commissioning (wiggles, node IDs)" if commissioning else ""))  # fmt: skip
 
     # -- the robots of the network --------------------------------------------------------------------------------
 

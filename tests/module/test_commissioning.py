@@ -241,6 +241,39 @@ def test_the_command_line(tmp_path, channel, capsys) -> None:
         fleet.close()
 
 
+def test_the_command_line_changes_no_id_while_a_module_is_latched_or_walks(tmp_path, channel, capsys) -> None:
+    """Issue 28's third review: asm-commission set/erase reset a latched board (its latch released) or a walking one
+    (its joint dropped mid-step), as the robot's commissioning service and a firmware update no longer do."""
+    serials = write_ids(tmp_path, [0, 7], random.Random(12))
+    fleet = Fleet(tmp_path, 2, channel)
+    bus = ["--can", f"asm_sim:{channel}"]
+    tool = Node("latcher", CanTransport(100, interface="asm_sim", channel=channel))
+    try:
+        assert wait_until(lambda: "m7" in tool.discover(), timeout=20)
+        estop = tool.lookup("m7", "estop", timeout=5)
+        estop.set(True, timeout=5)  # type: ignore[attr-defined]
+        for argv in (["set", serials[1].hex(), "3"], ["erase", serials[1].hex()], ["number"]):
+            assert commission_main([*bus, *argv]) == 1, argv
+            err = capsys.readouterr().err
+            assert "refused: the robot's e-stop is latched (m7); an ID given or erased resets the board" in err, err
+        estop.set(False, timeout=5)  # type: ignore[attr-defined]
+        service = tool.lookup("m7", "gait.service", timeout=5)
+        service.start()  # type: ignore[attr-defined]
+        assert wait_until(lambda: service.running, timeout=10)  # type: ignore[attr-defined]
+        assert commission_main([*bus, "erase", serials[1].hex()]) == 1
+        assert "refused: a gait runs on m7; " in capsys.readouterr().err
+        capsys.readouterr()
+        assert commission_main([*bus, "list"]) == 0
+        out = capsys.readouterr().out
+        assert f"{serials[1].hex()}  7" in out and f"{serials[0].hex()}  -" in out, "nothing changed"
+        service.stop()  # type: ignore[attr-defined]
+        assert wait_until(lambda: not service.running, timeout=10)  # type: ignore[attr-defined]
+        assert commission_main([*bus, "number", "--first", "1"]) == 0, "stopped and released: it goes ahead"
+    finally:
+        tool.close()
+        fleet.close()
+
+
 def test_asm_module_with_an_id_file_boots_unconfigured_and_keeps_its_serial(tmp_path) -> None:
     """``asm-module --id-file``: the file is made with a random serial and no ID, the module says so when ready,
     and a second start reads the same serial (and the ID the file holds)."""

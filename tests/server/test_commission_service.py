@@ -214,14 +214,53 @@ def test_while_the_robot_is_e_stopped_nothing_is_renumbered_erased_or_wiggled(be
             bench.ask(request)
     assert [bench.angle(p) for p in BOARDS] == pytest.approx(before, abs=0.5)
     assert all(m["id"] == 0 for m in bench.ask({"op": "list"})["modules"]), "no board was given an ID"
-    for k in range(4, 9):  # released; then a gait runs on m5: a board's reset or a wiggle would come mid-step
+    for k in range(4, 9):  # the modules released; the service itself is not yet
         bench.client.lookup(f"m{k}", "estop", timeout=5).set(False)  # type: ignore[attr-defined]
-    bench.client.lookup("m5", "gait.service", timeout=5).start()  # type: ignore[attr-defined]
+    # issue 28's third review: a board without an ID runs no node and never latches, so on a batch of such boards
+    # a lab-wide e-stop left nothing to refuse by; the service latches for them, until released
+    for request in [*wiggles, {"op": "assign", "serial": serial, "id": 1}]:
+        with pytest.raises(
+            CommissionError,
+            match=r"an e-stop was heard at \d\d:\d\d:\d\d from \S+: "
+            r"commissi\S* and commissioning was not released since; .*release it first",
+        ):
+            bench.ask(request)
+    assert bench.ask({"op": "release"}) == {"released": True}
+    assert bench.ask({"op": "release"}) == {"released": False}
+    bench.client.lookup("m5", "gait.service", timeout=5).start()  # type: ignore[attr-defined]  # a gait runs on m5
     assert wait_until(lambda: bench.client.lookup("m5", "gait.service", timeout=5).running, timeout=10)  # type: ignore[attr-defined]
     for request in [*wiggles, {"op": "assign", "serial": serial, "id": 1}]:
         with pytest.raises(CommissionError, match=r"a gait runs on m5; .*stop the gait first"):
             bench.ask(request)
     assert all(m["id"] == 0 for m in bench.ask({"op": "list"})["modules"])
+    bench.client.lookup("m5", "gait.service", timeout=5).stop()  # type: ignore[attr-defined]
+    assert wait_until(lambda: not bench.client.lookup("m5", "gait.service", timeout=5).running, timeout=10)  # type: ignore[attr-defined]
+    outcome: list[object] = []  # an e-stop during a wiggle ends it: the board latched where it was, not moved back
+    wiggling = threading.Thread(target=lambda: outcome.append(_asked(bench, {"op": "wiggle", "serial": serial})))
+    start = [bench.angle(p) for p in BOARDS]
+    wiggling.start()
+    try:
+        assert wait_until(lambda: max(abs(bench.angle(p) - a) for p, a in zip(BOARDS, start, strict=True)) > 3,
+                          timeout=120), "the wiggle began"  # fmt: skip
+        bench.client.estop("during a wiggle")
+    finally:
+        wiggling.join(120)
+    assert isinstance(outcome[0], CommissionError) and "stopped: an e-stop was heard during the wiggle" in str(
+        outcome[0]), outcome  # fmt: skip
+    from web.link import RobotLink
+
+    link = RobotLink(bench.client)  # the studio's E-STOP Release releases the service too
+    try:
+        assert link.release_commissioning() is True and link.release_commissioning() is False
+    finally:
+        link.close()
+
+
+def _asked(bench: Bench, request: dict) -> object:
+    try:
+        return bench.ask(request)
+    except Exception as exc:
+        return exc
 
 
 def test_a_board_batch_keeps_serials_and_refuses_a_damaged_one(tmp_path) -> None:
