@@ -17,8 +17,9 @@ import io
 import itertools
 import json
 import struct
+from array import array
 from bisect import bisect_right
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator, MutableSequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import IO, Any
@@ -50,15 +51,44 @@ class Event:
     text: str
 
 
-@dataclass
 class Series:
-    """One publishing object's recorded values, in file order."""
+    """One publishing object's recorded values, in file order, held compactly: a replay keeps every value of a run
+    in memory, and a list of Python floats and (seq, t) tuples took about 180 bytes a value — ten times the file's
+    bytes for it. Times, stamps and float values are machine arrays (8 bytes each); any other value (an int, a
+    bool, text, a list) turns ``values`` into a list, kept so (Python's small ints and booleans are shared)."""
 
-    times: list[float] = field(default_factory=list)
-    values: list[Any] = field(default_factory=list)
-    """As the file holds them (JSON-decoded): numbers, booleans, lists, text."""
-    stamps: list[tuple[int, float]] = field(default_factory=list)
-    """Each value's (seq, t) as its publisher stamped it (the JSON view's ``seq`` and ``t``; 0 when absent)."""
+    __slots__ = ("_seqs", "_stamp_times", "times", "values")
+
+    def __init__(self, times: Iterable[float] = (), values: Iterable[Any] = (),
+                 stamps: Iterable[tuple[int, float]] = ()) -> None:  # fmt: skip
+        self.times = array("d", times)
+        self.values: MutableSequence[Any] = array("d")
+        """As the file holds them (JSON-decoded): numbers, booleans, lists, text."""
+        for value in values:
+            self._append_value(value)
+        pairs = list(stamps)
+        self._seqs = array("q", (seq for seq, _ in pairs))
+        self._stamp_times = array("d", (t for _, t in pairs))
+
+    def append(self, t: float, value: Any, seq: int, stamp: float) -> None:
+        """One value; OverflowError, nothing kept, for a ``seq`` beyond 64 bits (a hostile file's)."""
+        self._seqs.append(seq)  # first: the one that can fail
+        self.times.append(t)
+        self._append_value(value)
+        self._stamp_times.append(stamp)
+
+    def _append_value(self, value: Any) -> None:
+        if isinstance(self.values, array):
+            if type(value) is float:
+                self.values.append(value)
+                return
+            self.values = list(self.values)
+        self.values.append(value)
+
+    @property
+    def stamps(self) -> list[tuple[int, float]]:
+        """Each value's (seq, t) as its publisher stamped it (the JSON view's ``seq`` and ``t``; 0 when absent)."""
+        return list(zip(self._seqs, self._stamp_times, strict=True))
 
     def until(self, t: float) -> int:
         """How many values were published at or before ``t``."""
@@ -288,11 +318,9 @@ def _add(recording: Recording, t: float, topic: str, data: bytes, seq: int) -> N
         elif (attribute := attribute_of(topic)) is not None:
             view = json.loads(data)
             if isinstance(view, dict) and "value" in view:
-                series = recording.series.setdefault(attribute, Series())
-                series.times.append(t)
-                series.values.append(view["value"])
-                series.stamps.append((int(view.get("seq", 0)), float(view.get("t", 0.0))))
-    except (ValueError, TypeError, IndexError, AttributeError, struct.error):
+                seq, stamp = int(view.get("seq", 0)), float(view.get("t", 0.0))
+                recording.series.setdefault(attribute, Series()).append(t, view["value"], seq, stamp)
+    except (ValueError, TypeError, IndexError, AttributeError, OverflowError, struct.error):
         return
 
 

@@ -170,7 +170,7 @@ def test_the_replay_serves_the_recorded_poses_and_values_exactly(running, tmp_pa
         key = (f"m{m}", "joint.angle")
         series = recording.series[key]
         assert len(series.values) > 5 * seconds, (key, len(series.values))
-        assert [v["value"] for v in file_values[key]] == series.values
+        assert [v["value"] for v in file_values[key]] == list(series.values)
         assert [(v["seq"], v["t"]) for v in file_values[key]] == series.stamps
         sent_views = {(v["seq"], v["t"]): v["value"] for v in views[key]}
         for stamp, value in zip(series.stamps, series.values, strict=True):
