@@ -14,6 +14,7 @@ import logging
 import random
 import re
 from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
 
 from asm_module.firmware_image import check
 from asm_module.flasher import ModuleUpdate, Progress, update_modules
@@ -26,6 +27,8 @@ from .lease import LEASE_SECONDS, Lease, default_holder
 log = logging.getLogger("gaits.update")
 
 _MODULE = re.compile(r"m(\d+)")
+LEASE_CALL_TIMEOUT = 1.0
+"""Seconds each take or renewal of a module's lease waits at most (twice: attempts=2)."""
 
 
 class RobotHeld(DeployError, RuntimeError):
@@ -34,20 +37,37 @@ class RobotHeld(DeployError, RuntimeError):
 
 class UpdateLease(Lease):
     """The lease an update holds. A module resets into its new image and is silent for its reboot (on a loaded
-    machine, tens of seconds); a deploy's lease would lapse then and be given up, this one renews what answers and
-    takes the lease again on a module that comes back without it. Only another holder (LOCKED) ends it."""
+    machine, tens of seconds); a deploy's lease would lapse then and be given up, this one renews what answers —
+    every module at once, so the silent ones do not hold up the others past their lease — and takes the lease
+    again on a module that comes back without it."""
+
+    def take(self) -> None:
+        self._pool = ThreadPoolExecutor(max_workers=max(1, min(16, len(self.modules))), thread_name_prefix="asm-lease")
+        super().take()
 
     def renew(self) -> None:
         with self._lock:
-            for module in self.held:
-                try:
-                    self.calls.set(module, "gait.lease", self._record(LEASE_SECONDS), "lease")
-                except DeployError as exc:
-                    if isinstance(exc.__cause__, Locked):
-                        self.lost = str(exc)
-                        log.warning("the update's lease was taken: %s", exc)
-                        return
-                    log.debug("renewing the update's lease: %s", exc)  # rebooting: taken again when it is back
+            for error in self._pool.map(self._renew_one, list(self.held)):
+                if isinstance(error, DeployError) and isinstance(error.__cause__, Locked):
+                    # a deployer took a module that came back from its reset without a lease, and gives it up when
+                    # the next module refuses it: asked again at the next renewal, never given up (the update
+                    # cannot be undone halfway; what it holds keeps every other deployer out)
+                    log.warning("a module of the update's lease is held by another: %s", error)
+                elif error is not None:
+                    log.debug("renewing the update's lease: %s", error)  # rebooting: taken again when it is back
+
+    def _renew_one(self, module: int) -> DeployError | None:
+        try:
+            self.calls.set(module, "gait.lease", self._record(LEASE_SECONDS), "lease")
+        except DeployError as exc:
+            return exc
+        return None
+
+    def release(self) -> None:
+        super().release()
+        pool = getattr(self, "_pool", None)
+        if pool is not None:
+            pool.shutdown(wait=True)
 
 
 def update_robot(node: Node, modules: Sequence[str], image: bytes, *, progress: Progress | None = None,
@@ -61,7 +81,9 @@ def update_robot(node: Node, modules: Sequence[str], image: bytes, *, progress: 
         return []
     alive = {n for n in node.discover() if _MODULE.fullmatch(n)}
     robot = sorted(alive | set(modules), key=lambda n: int(n[1:]) if _MODULE.fullmatch(n) else 0)
-    calls = ModuleCalls(node, dict(enumerate(robot, start=1)), timeout, attempts=2)
+    # each lease call short, whatever the update's own timeout: one module silent for its reboot must not hold up
+    # the renewal of the others past their lease (5 s)
+    calls = ModuleCalls(node, dict(enumerate(robot, start=1)), min(timeout, LEASE_CALL_TIMEOUT), attempts=2)
     holding = [index for index, name in calls.names.items() if _has_lease(node, name, timeout)]
     lease = UpdateLease(calls, holding, default_holder(node, "update by "), random.getrandbits(31) | 1)
     try:
