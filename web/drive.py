@@ -17,6 +17,8 @@ from asm_module.names import module_name
 from gaits.drive import STOP
 from gaits.model import FORWARD, Gait
 
+from .inputs import number, whole
+
 if TYPE_CHECKING:
     from .page import Page
 
@@ -49,9 +51,10 @@ class DrivePanel:
         self.gaits = gui.add_dropdown("Program gait", [FORWARD])
         go = gui.add_button_group("Run gait", ["Run forwards", "Run backwards"])
         go.on_click(page.safe(lambda e: self.run(self.gaits.value, -1 if "back" in e.target.value else 1)))
-        self.signal = gui.add_number("Signal", initial_value=1, step=1,
+        self.signal = number(gui, "Signal", initial_value=1, step=1,
                                      hint="broadcast 1..255, for states that wait on it (until = signal)")  # fmt: skip
-        gui.add_button("Send signal").on_click(page.safe(lambda _: self.send_signal(int(self.signal.value))))
+        send = gui.add_button("Send signal")
+        send.on_click(page.safe(lambda _: self.send_signal(whole(self.signal.value, "Signal"))))
         self.state = gui.add_markdown("")
         self.deployed: Gait | None = None
         """The gait last deployed to the robot (the one its modules' programs come from)."""

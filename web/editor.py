@@ -29,6 +29,7 @@ from .control_table import control_table
 from .document import assignments
 from .generator import GaitTools
 from .grid import StateGrid
+from .inputs import number, whole
 from .monitor import empty_plot, seconds_axes, stroke
 from .page_script import CLICKED_FIELD
 from .program_editor import EventControls, ProgramPanel
@@ -68,10 +69,10 @@ class GaitEditor:
         with gui.add_folder("Selected state"):
             self.automaton = gui.add_dropdown("Automaton", ["-"])
             self.state_index = gui.add_slider("State", min=1, max=2, step=1, initial_value=1)
-            self.angle = gui.add_number("Angle (deg)", initial_value=0.0, step=0.5)
+            self.angle = number(gui, "Angle (deg)", initial_value=0.0, step=0.5)
             # no min/max on the number inputs: the browser would clamp a value out of range (phase 1.5 became
             # 0.999999); the document takes what was typed and the loader's problem shows at the field instead
-            self.duration = gui.add_number("Duration (s)", initial_value=0.1, step=0.005)
+            self.duration = number(gui, "Duration (s)", initial_value=0.1, step=0.005)
             self.interp = gui.add_dropdown("Interpolation", ["linear", "step"])
             selected = lambda: (self.automaton.value, int(self.state_index.value) - 1)  # noqa: E731  (a one-line reader)
             self.events = EventControls(gui, self.doc, edited=self.after_edit, safe=safe, syncing=lambda: page.syncing,
@@ -80,21 +81,21 @@ class GaitEditor:
             states = gui.add_button_group("Edit states", ["Insert after", "Remove"])
         with gui.add_folder("Module"):
             self.module_index = gui.add_slider("Module", min=1, max=2, step=1, initial_value=1)
-            self.phase = gui.add_number("Phase", initial_value=0.0, step=0.01, hint="phase delay in [0, 1)")
+            self.phase = number(gui, "Phase", initial_value=0.0, step=0.01, hint="phase delay in [0, 1)")
             self.direction = gui.add_dropdown("Direction", ["1", "-1"])
             self.module_automaton = gui.add_dropdown("Runs", ["-"])
             self.module_problem = gui.add_markdown("")
         with gui.add_folder("Program", expand_by_default=False):
             self.program = ProgramPanel(gui, self.doc, edited=self.after_edit, safe=safe, syncing=lambda: page.syncing)
         with gui.add_folder("Robot"):
-            self.modules = gui.add_number("Modules", initial_value=8, step=1, hint=f"1..{MODULE_IDS[-1]}")
+            self.modules = number(gui, "Modules", initial_value=8, step=1, hint=f"1..{MODULE_IDS[-1]}")
             self.shape = gui.add_dropdown("Shape", SHAPES)
             self.axes = gui.add_dropdown("Axes", AXES)
-            self.legs = gui.add_number("Legs", initial_value=4, step=1)
-            self.module_size = gui.add_number(
-                "Module size (m)", initial_value=0.05, step=0.005, hint="metres along the chain"
+            self.legs = number(gui, "Legs", initial_value=4, step=1)
+            self.module_size = number(
+                gui, "Module size (m)", initial_value=0.05, step=0.005, hint="metres along the chain"
             )
-            self.friction = gui.add_number("Friction", initial_value=1.0, step=0.05, hint="in (0, 10]")
+            self.friction = number(gui, "Friction", initial_value=1.0, step=0.05, hint="in (0, 10]")
             self.robot_problem = gui.add_markdown("")
         self.table_html = gui.add_html("")
         with table_tab:  # beside the 3D view, in the page's own panel, not in the side panel
@@ -130,9 +131,9 @@ class GaitEditor:
         self.phase.on_update(module_field("phase", float))
         self.direction.on_update(module_field("direction", int))
         self.module_automaton.on_update(module_field("automaton", str))
-        robot_fields = ((self.modules, "modules", int), (self.shape, "shape", str), (self.axes, "axes", str),
-                        (self.legs, "legs", int), (self.module_size, "module_size", float),
-                        (self.friction, "friction", float))  # fmt: skip
+        robot_fields = ((self.modules, "modules", lambda v: whole(v, "Modules")), (self.shape, "shape", str),
+                        (self.axes, "axes", str), (self.legs, "legs", lambda v: whole(v, "Legs")),
+                        (self.module_size, "module_size", float), (self.friction, "friction", float))  # fmt: skip
         for control, name, convert in robot_fields:
             control.on_update(field(lambda v, name=name, convert=convert: self.doc.set_robot(name, convert(v))))
         for control in (self.automaton, self.state_index, self.module_index):
@@ -271,10 +272,10 @@ class GaitEditor:
         where = "modules" if editing == FORWARD else f"gaits.{editing}.modules"
         self.module_problem.content = _problems(self.doc.problem_at(f"{where}[{m_index}]"))
         robot = data["robot"]
-        self.modules.value = int(robot.get("modules", 1))
+        self.modules.value = float(robot.get("modules", 1))  # floats: see inputs.number
         self.shape.value = robot.get("shape", "chain")
         self.axes.value = robot.get("axes", "pitch")
-        self.legs.value = int(robot.get("legs") or 4)
+        self.legs.value = float(robot.get("legs") or 4)
         self.legs.disabled = robot.get("shape") != "legged"
         self.module_size.value = float(robot.get("module_size", 0.05))
         fixed = self.doc.sized_by_robot_file()

@@ -15,6 +15,7 @@ import viser
 from gaits.generate import FAMILIES, WaveSpec, generate
 
 from .document import GaitDocument
+from .inputs import number, whole
 
 Safe = Callable[[Callable[[Any], None]], Callable[[Any], None]]
 """The dashboard's wrapper that shows a callback's failure instead of losing it in viser's thread pool."""
@@ -41,18 +42,18 @@ class GaitTools:
                 lambda: doc.set_meta(field, e.target.value))))  # fmt: skip
         with gui.add_folder("Make a gait", expand_by_default=False):
             self.family = gui.add_dropdown("Family", [LABELS[f] for f in FAMILIES])
-            self.modules = gui.add_number("Module count", initial_value=12, step=1, hint="2..254 (a loop: 4 or more)")
-            self.amplitude = gui.add_number("Amplitude (deg)", initial_value=45.0, step=1.0)
-            self.wavelength = gui.add_number("Wavelength (modules)", initial_value=6.0, step=0.5,
-                                             hint="modules per wave; negative: it runs the other way")  # fmt: skip
-            self.period = gui.add_number("Period (s)", initial_value=1.0, step=0.1)
-            self.states = gui.add_number("States per period", initial_value=16, step=1)
+            self.modules = number(gui, "Module count", initial_value=12, step=1, hint="2..254 (a loop: 4 or more)")
+            self.amplitude = number(gui, "Amplitude (deg)", initial_value=45.0, step=1.0)
+            self.wavelength = number(gui, "Wavelength (modules)", initial_value=6.0, step=0.5,
+                                     hint="modules per wave; negative: it runs the other way")  # fmt: skip
+            self.period = number(gui, "Period (s)", initial_value=1.0, step=0.1)
+            self.states = number(gui, "States per period", initial_value=16, step=1)
             self.axes = gui.add_dropdown("Joint axes", ["pitch", "yaw", "alternating"],
                                          hint="travelling wave: pitch (caterpillar) or yaw (undulation)")  # fmt: skip
             self.make = gui.add_button("Generate")
         with gui.add_folder("Whole gait", expand_by_default=False):
-            self.amount = gui.add_number("Amount", initial_value=0.1, step=0.05,
-                                         hint="Shift: cycles added to every phase. Scale: the factor.")  # fmt: skip
+            self.amount = number(gui, "Amount", initial_value=0.1, step=0.05,
+                                 hint="Shift: cycles added to every phase. Scale: the factor.")  # fmt: skip
             self.whole = gui.add_button_group("Apply", ["Spread phases", "Shift phases", "Scale amplitude"])
         self.family.on_update(safe(lambda _: None if syncing() else self._family_chosen()))
         self.make.on_click(safe(lambda _: self._edit(lambda: self.doc.replace(generate(self.spec())))))
@@ -60,9 +61,9 @@ class GaitTools:
 
     def spec(self) -> WaveSpec:
         """The generator's fields as a WaveSpec (generate() checks every number)."""
-        return WaveSpec(family=self._family(), modules=_whole(self.modules.value, "modules"),
+        return WaveSpec(family=self._family(), modules=whole(self.modules.value, "Module count"),
                         amplitude=float(self.amplitude.value), wavelength=float(self.wavelength.value),
-                        period=float(self.period.value), states=_whole(self.states.value, "states per period"),
+                        period=float(self.period.value), states=whole(self.states.value, "States per period"),
                         axes=self.axes.value)  # fmt: skip
 
     def sync(self, data: dict[str, Any]) -> None:
@@ -90,9 +91,3 @@ class GaitTools:
     def _edit(self, change: Callable[[], None]) -> None:
         change()
         self._edited()
-
-
-def _whole(value: Any, what: str) -> int:
-    if float(value) != int(value):
-        raise ValueError(f"{what} must be a whole number, not {value!r}")
-    return int(value)

@@ -17,9 +17,15 @@ from typing import Any
 
 import viser
 
-PRECISION = 4
-"""Decimal places shown (0.0625 s survives; a change smaller than half a unit of the last place is no change)."""
-STEP = 10.0**-PRECISION
+from .inputs import DIGITS, precise
+
+PRECISION = DIGITS
+"""Decimal places shown and taken, as every number field of the page (0.0625 s survives; more decimals typed are
+refused by the page's script, so a change smaller than half a unit of the last place is none a user made)."""
+STEP = 1e-4
+"""What a step arrow adds."""
+UNCHANGED = 10.0**-PRECISION / 2
+"""A component of a row within this of the value shown is the value shown: not changed."""
 
 
 class StateGrid:
@@ -78,9 +84,9 @@ class StateGrid:
                 with folder:
                     for k, state in enumerate(automaton["states"]):
                         value = _row_value(state)
-                        row = gui.add_vector2(_label(name, k, state), value, step=STEP,
-                                              hint="target angle in degrees, duration in seconds (with an event: "
-                                                   "its timeout, 0 for none)")  # fmt: skip
+                        row = precise(gui.add_vector2(_label(name, k, state), value, step=STEP,
+                                                      hint="target angle in degrees, duration in seconds (with an "
+                                                           "event: its timeout, 0 for none)"))  # fmt: skip
                         row.on_update(self._safe(self._callback(name, k)))
                         self.rows[(name, k)] = row
                         self._shown[(name, k)] = value
@@ -92,9 +98,9 @@ class StateGrid:
             angle, duration = (float(v) for v in event.target.value)
             shown_angle, shown_duration = self._shown.get((name, index), (None, None))
             changes: dict[str, float] = {}
-            if shown_angle is None or abs(angle - shown_angle) >= STEP / 2:
+            if shown_angle is None or abs(angle - shown_angle) >= UNCHANGED:
                 changes["angle"] = angle
-            if shown_duration is None or abs(duration - shown_duration) >= STEP / 2:
+            if shown_duration is None or abs(duration - shown_duration) >= UNCHANGED:
                 changes["duration"] = duration
             self._shown[(name, index)] = (angle, duration)
             if changes:

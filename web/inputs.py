@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import json
 import math
-from typing import Any
+from typing import Any, TypeVar
 
 import viser
 
@@ -20,6 +20,42 @@ from .monitor import format_value, parse_value
 
 JS_SAFE = 2**53 - 1
 """Largest integer a browser's number input holds exactly; wider ranges are left unbounded in the page."""
+DIGITS = 6
+"""Decimal places every number field of the page takes and shows (no trailing zeros: 8 shows as 8). viser derives a
+field's precision from its step, and the field's formatter rounds typed text to it: 2.5 typed into a field of step 1
+was sent as 2, 12.25 into one of step 0.5 as 12.2. Text with more decimals than this is refused by the page's script
+(web/page_script.py), never rounded; a whole-number field refuses a fraction itself (:func:`whole`)."""
+
+Precise = TypeVar("Precise", viser.GuiNumberHandle[Any], viser.GuiVector2Handle, viser.GuiVector3Handle)
+
+
+def precise(handle: Precise) -> Precise:
+    """``handle`` (a number or vector input) made to take and show DIGITS decimal places, whatever its step. (Its
+    value must be a float too: see :func:`number`.)"""
+    handle.precision = DIGITS
+    return handle
+
+
+def number(gui: viser.GuiApi, label: str, initial_value: float, **kwargs: Any) -> viser.GuiNumberHandle[Any]:
+    """``gui.add_number`` for the page: the field keeps what was typed (:func:`precise`). Every number field of the
+    page is made here.
+
+    Its value is a float, a whole-number field's too, and whatever sets it later sets a float: viser casts what the
+    page sends to the type of the value the handle holds, so a field holding an int took 2.5 as int(2.5) = 2 (the
+    same as the 2 it held: no callback at all, or a 2 the user never typed). A whole-number field's reader refuses
+    a fraction itself (:func:`whole`)."""
+    return precise(gui.add_number(label, float(initial_value), **kwargs))
+
+
+def whole(value: Any, field: str) -> int:
+    """A whole-number field's value as an int; ValueError naming ``field`` for a fraction (never rounded, never
+    truncated: 2.5 is not 2), or for something that is no number at all."""
+    if isinstance(value, int) and not isinstance(value, bool):
+        return value  # exact, however wide (a float holds integers to 2**53 only)
+    as_float = float(value)
+    if not as_float.is_integer():
+        raise ValueError(f"{field} must be a whole number, not {as_float:g}")
+    return int(as_float)
 
 
 class ValueInput:
@@ -45,15 +81,17 @@ class ValueInput:
             # no min/max on the input: the browser would clamp (an int8 of 300 became 127 and was written to the
             # module); read() refuses a value outside the codec's range instead, and nothing is sent
             low, high = info.get("min"), info.get("max")
-            self.handle = gui.add_number(label, initial_value=int(value), step=1, hint=f"{low}..{high}")
+            self.handle = number(gui, label, initial_value=int(value), step=1, hint=f"{low}..{high}")
+            if abs(value) > JS_SAFE:  # wider than a float holds: kept exact (the page cannot show it exactly anyway)
+                self.handle.value = int(value)
         elif self.kind == "float" and math.isfinite(float(value)):
-            self.handle = gui.add_number(label, initial_value=float(value), step=0.001)
+            self.handle = number(gui, label, initial_value=float(value), step=0.001)
         elif self.kind == "float_array" and info.get("length") in (2, 3) and all(map(math.isfinite, value)):
             v = [float(x) for x in value]
             if len(v) == 2:
-                self.handle = gui.add_vector2(label, (v[0], v[1]), step=0.001)
+                self.handle = precise(gui.add_vector2(label, (v[0], v[1]), step=0.001))
             else:
-                self.handle = gui.add_vector3(label, (v[0], v[1], v[2]), step=0.001)
+                self.handle = precise(gui.add_vector3(label, (v[0], v[1], v[2]), step=0.001))
         else:
             self.kind = "text"
             self.handle = gui.add_text(label, initial_value=_as_text(value))
@@ -89,6 +127,8 @@ class ValueInput:
             return parse_value(self._attribute(), value)
         if self.kind == "float_array":
             value = tuple(float(v) for v in value)
+        if self.kind == "int":  # a fraction refused by name (never written as 2); a whole float (2.0) as the int
+            value = whole(value, self.obj.name)
         if isinstance(self.obj, RemoteAttribute):
             self.obj.codec.normalize(value)  # out of the type's range: ValueError here, before anything is sent
         return value
@@ -100,6 +140,8 @@ class ValueInput:
             self.handle.value = tuple(float(v) for v in value)
         elif self.kind == "float" and not math.isfinite(value):
             return  # a number input cannot show NaN; the markdown line above it does
+        elif self.kind == "int" and abs(value) <= JS_SAFE:
+            self.handle.value = float(value)  # a float, so that a fraction typed comes as one (see number())
         else:
             self.handle.value = value
 

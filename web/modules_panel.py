@@ -30,6 +30,7 @@ from gaits.compatible import read_objects
 from gaits.update import RobotHeld, update_robot
 
 from .confirm import plain
+from .inputs import number
 
 if TYPE_CHECKING:
     from .page import Page
@@ -105,10 +106,10 @@ class ModulesPanel:
         self.read_button = gui.add_button("Read modules")
         self.roster_md = gui.add_markdown("Not read yet: **Read modules** asks every module that answers.")
         self.module = gui.add_dropdown("Calibrate module", [NONE])
-        self.zero = gui.add_number("Zero (raw °)", 0.0, step=0.1)
+        self.zero = number(gui, "Zero (raw °)", 0.0, step=0.1)
         self.direction = gui.add_dropdown("Joint direction", ["+1", "-1"])
-        self.low = gui.add_number("Soft min (°)", -90.0, step=0.1)
-        self.high = gui.add_number("Soft max (°)", 90.0, step=0.1)
+        self.low = number(gui, "Soft min (°)", -90.0, step=0.1)
+        self.high = number(gui, "Soft max (°)", 90.0, step=0.1)
         self.apply_button = gui.add_button("Apply calibration")
         self.zero_button = gui.add_button("Set current pose as zero")
         self.line = gui.add_markdown("")

@@ -24,6 +24,8 @@ from typing import TYPE_CHECKING, Any
 
 from asm_module.commission_link import commission
 
+from .inputs import number
+
 if TYPE_CHECKING:
     from .page import Page
 
@@ -58,10 +60,10 @@ class NumberingPanel:
         self.serial = gui.add_dropdown("Module (serial)", [NONE])
         self.wiggle_button = gui.add_button("Wiggle")
         # no min/max: the browser would clamp a typed -1 to 0 (erase!) or 300 to 253; _id_value refuses instead
-        self.node_id = gui.add_number("Node ID", 1, step=1)
+        self.node_id = number(gui, "Node ID", 1, step=1)
         self.assign_button = gui.add_button("Assign ID")
         self.guide_button = gui.add_button("Number along the chain")
-        self.position = gui.add_number("Chain position that moved", 1, step=1)
+        self.position = number(gui, "Chain position that moved", 1, step=1)
         self.confirm_button = gui.add_button("Confirm position")
         self.line = gui.add_markdown("")
         self._modules: list[dict[str, Any]] = []
@@ -72,8 +74,7 @@ class NumberingPanel:
         self._jobs: queue.Queue[tuple[str, Any] | None] = queue.Queue()
         self.find_button.on_click(self._said(lambda: self._jobs.put(("find", None))))
         self.wiggle_button.on_click(self._said(lambda: self._jobs.put(("wiggle", self._picked()))))
-        self.assign_button.on_click(self._said(lambda: self._jobs.put(("assign", (self._picked(),
-                                                                                  self._id_value())))))  # fmt: skip
+        self.assign_button.on_click(self._said(lambda: self._jobs.put(("assign", self._assignment()))))
         self.guide_button.on_click(self._said(lambda: self._jobs.put(("guide", None))))
         # the answer is to the question shown when it was clicked: the module then asked about goes with it
         self.confirm_button.on_click(self._said(lambda: self._jobs.put(("confirm", (self._position_value(),
@@ -105,6 +106,12 @@ class NumberingPanel:
         if serial == NONE:
             raise ValueError("find the modules first (Find modules lists them)")
         return serial
+
+    def _assignment(self) -> tuple[str, int]:
+        """(the picked serial, the typed ID): the ID checked first, so a refused one is said even before a module
+        is found (2.5 is refused, never taken as 2)."""
+        node_id = self._id_value()
+        return self._picked(), node_id
 
     def _id_value(self) -> int:
         value = float(self.node_id.value)
@@ -214,7 +221,7 @@ class NumberingPanel:
         self._guided = None  # a question is asked once its module has moved
         with self.page.programmatic():
             self.serial.value = serial
-            self.position.value = self._guess()
+            self.position.value = float(self._guess())  # a float: see inputs.number
         self._wiggle(serial)
         self._guided = serial
         self._question = (f"Which chain position moved? `{serial}` was wiggled ({len(todo)} left): set **Chain "

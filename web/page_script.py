@@ -16,6 +16,8 @@ puts this script and style into the page's ``<head>``:
   handlers until Enter, Tab, a step arrow or leaving the field, then the field's text is sent once.
   A slider's number box refuses a number outside the slider's range, and says the range under it: the box clamped
   it to the nearest end without a word (the Replay tab's time took -5 as 0 and 46 as a 30 s recording's end).
+  Every other number field takes web.inputs.DIGITS decimal places (its formatter rounds to the field's precision,
+  which viser derived from the step: 2.5 in a field of step 1 was sent as 2); a number with more is refused.
 - **A click on a state selects it** — a row of the state grid (its inputs included) or a cell of the states table:
   viser sends no clicks of its own for these, so the script writes ``automaton:index:count`` into a hidden text
   field of the editor (``CLICKED_FIELD``), whose update the editor takes as a selection.
@@ -41,6 +43,8 @@ puts this script and style into the page's ``<head>``:
 from __future__ import annotations
 
 import gzip
+
+from .inputs import DIGITS
 
 SOFTWARE_RENDER_SCALE = 0.5
 """The 3D view's resolution, as a fraction of the screen's, in a browser that draws WebGL in software."""
@@ -159,6 +163,10 @@ SCRIPT = (
     if (range && (Number(text) < range[0] || Number(text) > range[1]))
       return withheld(el, "not sent: " + text.trim() + " is out of range: " + (range[2] || "this slider") +
                       " goes from " + range[0] + " to " + range[1]);
+    var decimals = /\\.(\\d*?)0*\\s*$/.exec(text);  // the field's formatter would round what is past its precision
+    if (!range && decimals && decimals[1].length > DECIMALS)
+      return withheld(el, "not sent: " + text.trim() + " has more than DECIMALS decimal places (the field would " +
+                      "round it)");
     pending.delete(el);
     accepted(el);
     passing = true;
@@ -271,6 +279,7 @@ SCRIPT = (
 </script>""".replace("ESTOP_KEY", ESTOP_KEY)
     .replace("CLICKED", CLICKED_FIELD)
     .replace("SOFTWARE_RENDER_SCALE", repr(SOFTWARE_RENDER_SCALE))
+    .replace("DECIMALS", str(DIGITS))
 )
 
 STYLE = """<style>

@@ -15,6 +15,7 @@ from typing import Any
 from gaits.model import EVENTS, FORWARD
 
 from .document import GaitDocument
+from .inputs import number, whole
 
 TIME = "time (its duration)"
 """The Ends-on choice of a state without an event."""
@@ -55,16 +56,16 @@ class EventControls:
         self._selected = selected
         self.until = gui.add_dropdown("Ends on", [TIME, *EVENTS],
                                       hint="an event ends the state early; its duration is then a timeout")  # fmt: skip
-        self.value = gui.add_number("Tolerance / threshold", initial_value=2.0, step=0.5,
-                                    hint="at_goal: degrees; torque: N·m")  # fmt: skip
-        self.neighbour = gui.add_number("Neighbour (± IDs)", initial_value=-1, step=1,
-                                        hint="neighbour: which module, relative to this one")  # fmt: skip
+        self.value = number(gui, "Tolerance / threshold", initial_value=2.0, step=0.5,
+                            hint="at_goal: degrees; torque: N·m")  # fmt: skip
+        self.neighbour = number(gui, "Neighbour (± IDs)", initial_value=-1, step=1,
+                                hint="neighbour: which module, relative to this one")  # fmt: skip
         self.state = gui.add_text("Neighbour state", initial_value="",
                                   hint="neighbour: the state it waits for, by name or 1-based number")  # fmt: skip
-        self.signal = gui.add_number("Signal", initial_value=1, step=1,
-                                     hint="signal: the broadcast (1..255) that ends the state")  # fmt: skip
-        self.emit = gui.add_number("Emits signal", initial_value=0, step=1,
-                                   hint="sent to every module on entering the state (1..255; 0: none)")  # fmt: skip
+        self.signal = number(gui, "Signal", initial_value=1, step=1,
+                             hint="signal: the broadcast (1..255) that ends the state")  # fmt: skip
+        self.emit = number(gui, "Emits signal", initial_value=0, step=1,
+                           hint="sent to every module on entering the state (1..255; 0: none)")  # fmt: skip
         self.on_timeout = gui.add_dropdown("On timeout", ["next", "stop"],
                                            hint="with an event and a duration: go on, or end the gait")  # fmt: skip
         self.one_shot = gui.add_checkbox("One-shot automaton", initial_value=False,
@@ -81,7 +82,7 @@ class EventControls:
         def emit(event: Any) -> None:
             if not syncing():
                 automaton, index = self._selected()
-                self.doc.set_emit(automaton, index, int(event.target.value))
+                self.doc.set_emit(automaton, index, whole(event.target.value, "Emits signal"))
                 edited()
 
         self.emit.on_update(safe(emit))
@@ -102,10 +103,10 @@ class EventControls:
         elif until == "torque":
             fields["threshold"] = float(self.value.value)
         elif until == "signal":
-            fields["signal"] = int(self.signal.value)
+            fields["signal"] = whole(self.signal.value, "Signal")
         elif until == "neighbour":
             text = self.state.value.strip()
-            fields["neighbour"] = int(self.neighbour.value)
+            fields["neighbour"] = whole(self.neighbour.value, "Neighbour")
             fields["state"] = int(text) if text.isdigit() else text
         state = self.doc.data()["automata"][automaton]["states"][index]
         if until is not None and "duration" in state and self.on_timeout.value == "stop":
@@ -122,14 +123,14 @@ class EventControls:
         self.value.value = float(value) if isinstance(value, int | float) else (2.0 if until != "torque" else 1.0)
         self.value.disabled = until not in ("at_goal", "torque")
         neighbour = state.get("neighbour", -1)
-        self.neighbour.value = int(neighbour) if isinstance(neighbour, int) else -1
+        self.neighbour.value = float(neighbour) if isinstance(neighbour, int) else -1.0  # floats: see inputs.number
         self.state.value = str(state.get("state", ""))
         self.neighbour.disabled = self.state.disabled = until != "neighbour"
         signal = state.get("signal", 1)
-        self.signal.value = int(signal) if isinstance(signal, int) else 1
+        self.signal.value = float(signal) if isinstance(signal, int) else 1.0
         self.signal.disabled = until != "signal"
         emit = state.get("emit", 0)
-        self.emit.value = int(emit) if isinstance(emit, int) else 0
+        self.emit.value = float(emit) if isinstance(emit, int) else 0.0
         self.on_timeout.value = (
             state.get("on_timeout", "next") if state.get("on_timeout") in ("next", "stop") else "next"
         )

@@ -20,6 +20,7 @@ from gaits.params import Free, check, parse_free
 from gaits.terrain import FLAT, parse
 from gaits.tune import OBJECTIVES, Setup
 
+from .inputs import number, precise
 from .monitor import empty_plot
 from .tuner import Snapshot, TuneRun
 
@@ -53,8 +54,8 @@ class TunePanel:
         self.bounds: dict[str, Any] = {}
         for name, (bounds, unit) in GENERATOR.items():
             self.free[name] = gui.add_checkbox(f"Free: {name}", initial_value=False, hint=f"search the {name} ({unit})")
-            self.bounds[name] = gui.add_vector2(f"{name} bounds", initial_value=bounds, step=0.01,
-                                                hint=f"lowest and highest {name} ({unit})")  # fmt: skip
+            self.bounds[name] = precise(gui.add_vector2(f"{name} bounds", initial_value=bounds, step=0.01,
+                                                        hint=f"lowest and highest {name} ({unit})"))  # fmt: skip
         self.other = gui.add_text("Other free", initial_value="",
                                   hint="NAME=LOW:HIGH, separated by spaces, commas or semicolons: "
                                   "modules[2].phase=0:1, automata.wave.states[0].angle=-30:30")  # fmt: skip
@@ -66,11 +67,11 @@ class TunePanel:
         )
         self.ground = gui.add_dropdown("Tune on", list(GROUNDS), initial_value="flat",
                                        hint="several grounds: their mean is the objective (robust)")  # fmt: skip
-        self.budget = gui.add_number("Budget (simulations)", initial_value=60, min=4, max=100_000, step=1)
-        self.seconds = gui.add_number("Seconds per candidate", initial_value=3.0, min=0.5, max=60.0, step=0.5)
-        self.seed = gui.add_number("Seed", initial_value=1, min=0, max=2**31 - 2, step=1)
+        self.budget = number(gui, "Budget (simulations)", initial_value=60, min=4, max=100_000, step=1)
+        self.seconds = number(gui, "Seconds per candidate", initial_value=3.0, min=0.5, max=60.0, step=0.5)
+        self.seed = number(gui, "Seed", initial_value=1, min=0, max=2**31 - 2, step=1)
         cores = os.cpu_count() or 1
-        self.workers = gui.add_number("Workers (processes)", initial_value=cores, min=1, max=cores, step=1,
+        self.workers = number(gui, "Workers (processes)", initial_value=cores, min=1, max=cores, step=1,
                                       hint=f"candidates simulated at once (this machine has {cores} cores): fewer "
                                       "leave a core to the live robot and the page")  # fmt: skip
         self.control = gui.add_button_group("Tuning", ["Start tuning", "Stop tuning"])

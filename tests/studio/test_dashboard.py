@@ -72,11 +72,11 @@ def test_a_users_edit_is_not_lost_while_the_server_is_setting_controls_elsewhere
 
 def test_a_row_never_rounds_what_it_did_not_change(studio):
     app = studio.app
-    app.doc.update_state("wave", 0, {"duration": 1 / 12})  # shown as 0.0833 in the page
+    app.doc.update_state("wave", 0, {"duration": 1 / 12})  # shown as 0.083333 in the page (6 decimal places)
     app.editor.after_edit()
     row = app.editor.grid.rows[("wave", 0)]
-    assert tuple(row.value) == (19.134, 0.0833)
-    row.value = (20.0, 0.0833)
+    assert tuple(row.value) == (19.134, 0.083333)
+    row.value = (20.0, 0.083333)
     state = app.doc.gait().automata["wave"].states[0]
     assert state.angle == 20.0 and state.duration == 1 / 12
 
