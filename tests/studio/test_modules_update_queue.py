@@ -51,12 +51,12 @@ def _image(version: int) -> bytes:
 def panel(monkeypatch) -> Iterator[tuple[ModulesPanel, threading.Event, list[bytes]]]:
     release, sent = threading.Event(), []
 
-    def update_modules(node: Any, names: list[str], image: bytes, **_: Any) -> list[str]:
+    def update_robot(node: Any, names: list[str], image: bytes, **_: Any) -> list[str]:
         sent.append(image)
         release.wait(30)  # the update runs until the test says
         return []
 
-    monkeypatch.setattr(modules_panel, "update_modules", update_modules)
+    monkeypatch.setattr(modules_panel, "update_robot", update_robot)
     robot = SimpleNamespace(alive_modules=lambda: [], node=None, lookup=None)
     page = SimpleNamespace(gui=Gui(), robot=robot, safe=lambda f: f, syncing=False,
                            programmatic=contextlib.nullcontext)  # fmt: skip
