@@ -22,12 +22,13 @@ pytestmark = [
 
 def test_the_studio_robot_runs_the_chosen_modules_from_the_board_image_and_updates_them(start_studio) -> None:
     """Three boards (m2, m3, m4) among Python modules; what they report, then the Modules tab's "Update firmware"
-    as the panel runs it (asm_module.flasher over the studio's Zenoh network, through the robot's bridge): a user
-    review found all three failing ("set on mN/firmware.image timed out" a second or so in, the boards gone from the
-    bridge while the robot process spent itself emulating them, before the emulator's per-frame cost came down)."""
+    as the panel runs it (gaits.update, holding the robot's lease, and asm_module.flasher over the studio's Zenoh
+    network, through the robot's bridge): a user review found all three failing ("set on mN/firmware.image timed
+    out" a second or so in, the boards gone from the bridge while the robot process spent itself emulating them,
+    before the emulator's per-frame cost came down)."""
     from asm_module.emulated import versioned_image
     from asm_module.firmware_image import image_bytes
-    from asm_module.flasher import update_modules
+    from gaits.update import update_robot
 
     image = image_bytes(versioned_image(0x000200))  # built where the robot's emulator finds it (firmware/build)
     _, endpoint, _ = start_studio("--emulated-modules", "2,3,4", "--board-flash", "none")  # flashed as m2..m4
@@ -52,7 +53,7 @@ def test_the_studio_robot_runs_the_chosen_modules_from_the_board_image_and_updat
         board, python = info("m2"), info("m1")
         assert board["language"] == 1 and board["tick_cycles"] > 0 and board["stack_bytes"] > 0, board
         assert python["language"] == 0 and python["tick_cycles"] == 0, python
-        results = update_modules(client, boards, image, timeout=30.0, reboot_timeout=120.0)  # as the panel calls it
+        results = update_robot(client, boards, image, timeout=30.0, reboot_timeout=120.0)  # as the panel calls it
         assert [(r.outcome, r.old_version, r.new_version) for r in results] == [("updated", 0x100, 0x200)] * 3, (
             [str(r) for r in results])  # fmt: skip
         assert {info(name)["version"] for name in boards} == {0x000200}
