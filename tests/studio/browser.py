@@ -11,6 +11,9 @@ from __future__ import annotations
 
 import os
 import re
+import time
+from collections.abc import Callable
+from typing import Any
 
 import pytest
 
@@ -215,3 +218,21 @@ def click_until_shown(page, button, shown, timeout_ms: float = 30_000) -> None:
         print(f"click_until_shown: nothing came of the first click; clicking again ({deploy_log(page)[-3:]})")
         button.click()
         expect(shown).to_be_visible(timeout=timeout_ms / 2)
+
+
+def fresh_screenshot(find: Callable[[], Any], timeout: float = 30.0) -> bytes:
+    """A screenshot of the element ``find()`` locates, found anew at each try: the page re-creates some elements
+    between a test finding one and shooting it (a plot drawn anew with new series; under a fresh clone's suite, the
+    canvas of an empty plot was detached mid-screenshot in 2 of 4 runs)."""
+    from playwright.sync_api import Error as PlaywrightError
+
+    deadline = time.monotonic() + timeout
+    while True:
+        try:
+            element = find()
+            element.scroll_into_view_if_needed(timeout=3_000)
+            return element.screenshot(timeout=3_000)
+        except PlaywrightError:
+            if time.monotonic() > deadline:
+                raise
+            time.sleep(0.2)

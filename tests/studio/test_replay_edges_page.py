@@ -10,7 +10,7 @@ import re
 from pathlib import Path
 
 from ..helpers import ARTIFACTS, wait_until
-from .browser import LINE_COLOR, marks, number, open_page, pixels
+from .browser import LINE_COLOR, fresh_screenshot, marks, number, open_page, pixels
 from .test_replay_page import VIEW, _slider_box, simulated_recording, violet
 
 pytestmark = marks(__name__)
@@ -65,9 +65,9 @@ def test_the_replay_tab_refuses_a_time_out_of_range_and_clears_a_robot_it_has_no
     with sync_playwright() as pw:
         browser, page = open_page(pw, url)
         for title in ("Live 1", "Live 2"):  # nothing plotted yet: no line
-            canvas = page.locator(".uplot", has_text=title).locator("canvas").first
-            expect(canvas).to_be_attached(timeout=15_000)
-            assert pixels(canvas.screenshot(), LINE_COLOR) == 0, f"{title} draws a line with nothing plotted"
+            expect(page.locator(".uplot", has_text=title).locator("canvas").first).to_be_attached(timeout=15_000)
+            shot = fresh_screenshot(lambda title=title: page.locator(".uplot", has_text=title).locator("canvas").first)
+            assert pixels(shot, LINE_COLOR) == 0, f"{title} draws a line with nothing plotted"
         page.get_by_role("tab", name="Replay").click()
         open_recording(page, "run.mcap")
         expect(page.get_by_text(re.compile(r"run\.mcap: 2\.98 s")).first).to_be_visible(timeout=30_000)

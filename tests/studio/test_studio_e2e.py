@@ -16,6 +16,7 @@ from .browser import (
     FOCUS_3D,
     LINE_COLOR,
     PoseWatch,
+    fresh_screenshot,
     marks,
     number,
     open_page,
@@ -212,14 +213,8 @@ def test_upload_grid_history_robot_size_and_attribute_browser(studio_process, tm
 
             def torque_drawn() -> bool:  # found anew each try: under the suite's load the plot was re-drawn (its
                 # canvas detached) between finding it and scrolling to it, in 1 of 3 fresh-clone runs
-                from playwright.sync_api import Error as PlaywrightError
-
-                canvas = page.locator(".uplot", has_text="Live 2").locator("canvas").first
-                try:
-                    canvas.scroll_into_view_if_needed(timeout=3_000)
-                    return pixels(canvas.screenshot(timeout=3_000), LINE_COLOR) > 50
-                except PlaywrightError:
-                    return False
+                shot = fresh_screenshot(lambda: page.locator(".uplot", has_text="Live 2").locator("canvas").first)
+                return pixels(shot, LINE_COLOR) > 50
 
             assert wait_until(torque_drawn, timeout=30), "no torque line"
             first = page.locator(".uplot", has_text="Live 1")
