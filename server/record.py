@@ -332,11 +332,26 @@ def byte_size(text: str) -> int:
     scale = {"k": 1 << 10, "m": 1 << 20, "g": 1 << 30}.get(text[-1:].lower(), 1)
     try:
         value = int(float(text[:-1] if scale > 1 else text) * scale)
-    except ValueError:
+    except (ValueError, OverflowError):  # inf, 1e400: no number of bytes (it was a traceback)
         raise argparse.ArgumentTypeError(f"a size in bytes such as 50M or 200k, not {text!r}") from None
     if value < 16 * 1024:
         raise argparse.ArgumentTypeError(f"{text}: at least 16k (a file holds its schemas and attachments too)")
     return value
+
+
+def gait_file(text: str) -> Path:
+    """An existing gait file that reads as a gait: what a recording attaches is shared and replayed as the run's
+    gait (any file was embedded: /etc/shadow, a binary named .toml)."""
+    from gaits.errors import GaitError
+    from gaits.model import load
+
+    path = input_file(text)
+    try:
+        load(path)
+    except GaitError as exc:
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else "not a gait"
+        raise argparse.ArgumentTypeError(f"{text} is not a gait file: {first[:200]}") from None
+    return path
 
 
 def mcap_output(text: str) -> Path:
@@ -362,7 +377,7 @@ def main(argv: list[str] | None = None) -> int:
                      "bytes (50M, 200k)")  # fmt: skip
     cli.add_argument("--max-files", type=bounded(int, 1, what="files"), default=0,
                      help="with --max-bytes: keep only the newest N files (default: all)")  # fmt: skip
-    cli.add_argument("--gait", type=input_file, metavar="FILE", help="a gait file to embed (as an attachment)")
+    cli.add_argument("--gait", type=gait_file, metavar="FILE", help="a gait file to embed (as an attachment)")
     cli.add_argument(
         "--wait",
         type=bounded(float, 0, 3600, what="seconds"),

@@ -101,6 +101,11 @@ class LayoutStore:
             log.warning("%s", why)
         self.refused = why
 
+    def spare(self, layout: dict[str, Any]) -> None:
+        """Write nothing for ``layout`` (what the page shows after the file's layout could not be restored: its
+        modules never answered): the file keeps the user's layout until the plots are changed."""
+        self._saved = layout
+
     def save(self, layout: dict[str, Any]) -> bool:
         """Write ``layout`` if it differs from what the file holds; whether it wrote. Nothing is written over a file
         that was not a layout; a failure is ``refused`` and logged (once while it is the same), never raised (the

@@ -11,7 +11,7 @@ import math
 import threading
 import time
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
@@ -140,6 +140,10 @@ class StudioClock:
         return self._now() - self.t0
 
 
+PLOTTABLE = ("bool", "int", "float")
+"""The codec kinds whose values a plot draws (a bool as 0 or 1)."""
+
+
 class LivePlot:
     """Bounded time series of remote attributes, filled by their publications (looked up with ``lookup``, which
     the page swaps for the new robot's), timed by ``clock`` (shared by the page's plots)."""
@@ -154,11 +158,22 @@ class LivePlot:
         self.window = PLOT_SECONDS
         """Seconds shown, up to the newest sample."""
 
+    def resolve(self, module: str, attribute: str, timeout: float = 2.0) -> Any:
+        """The remote attribute ``module/attribute`` if a plot can show it: a lookup error, or ValueError for one
+        whose values are not numbers (text, records: it showed "(no samples yet)" for good)."""
+        remote = self.lookup(module, attribute, timeout=timeout)
+        codec = getattr(remote, "codec", None)
+        info = codec.describe() if codec is not None else {}
+        if info.get("kind") not in PLOTTABLE:
+            raise ValueError(f"{module}/{attribute} holds {info.get('spec', 'no value')}: not a number, nothing to "
+                             "plot (the Monitor's value box shows it)")  # fmt: skip
+        return remote
+
     def watch(self, module: str, attribute: str, timeout: float = 2.0) -> None:
         key = (module, attribute)
         if key in self._unsubscribe:
             return
-        remote = self.lookup(module, attribute, timeout=timeout)
+        remote = self.resolve(module, attribute, timeout)
         buffer: deque[tuple[float, float]] = deque(maxlen=PLOT_POINTS)
         with self._lock:
             self.series[key] = buffer
@@ -211,39 +226,79 @@ class LivePlot:
             columns.append(np.interp(times, t, np.nan_to_num(v)))
         return [label for label, _ in items], (times, *columns)
 
+    def samples(self, now: float | None = None) -> tuple[list[str], list[PlotSamples]]:
+        """Labels and each series' samples in the window (the last ``window`` seconds up to ``now``, as ``data``), as
+        received: its own times on the clock and its values, nothing interpolated or held — what the exports write
+        (``data`` is the drawing). A series with no sample in the window has none."""
+        with self._lock:
+            items = [(f"{m} {a}", list(buf)) for (m, a), buf in sorted(self.series.items())]
+        now = self.clock() if now is None else now
+        horizon = now - self.window
+        out: list[PlotSamples] = []
+        for _, points in items:
+            kept = [(t, v) for t, v in points if horizon <= t <= now]
+            out.append(([t for t, _ in kept], [v for _, v in kept]))
+        return [label for label, _ in items], out
+
     def close(self) -> None:
         self.unwatch_all()
 
 
-def plot_csv(labels: list[str], data: tuple[np.ndarray, ...]) -> str:
-    """What a plot shows (``LivePlot.data``'s labels and arrays) as CSV: seconds, then one column per series."""
+PlotSamples = tuple[Sequence[float], Sequence[float | int]]
+"""One series of a plot as published or recorded: its sample times (s) and their values, in time order."""
+
+
+def _exact(value: float | int) -> float | int:
+    """A sample's value as exported: an int stays an int (a bool: 0 or 1), any other number is a float."""
+    return int(value) if isinstance(value, bool | int | np.integer) else float(value)
+
+
+def _cell(value: float | int) -> str:
+    value = _exact(value)
+    return str(value) if isinstance(value, int) else repr(value)  # repr: the float exactly ("nan", "inf" as such)
+
+
+def plot_csv(labels: list[str], samples: Sequence[PlotSamples]) -> str:
+    """A plot's samples (``LivePlot.samples``, ``replay.plot_samples``: each series' own) as CSV, as PlotJuggler and
+    pandas read it: a ``t (s)`` column, then one column per series; a row per distinct sample time, in time order,
+    and a cell left empty where that series has no sample at that time — nothing interpolated, nothing held before
+    a series' first sample or after its last. Times and values are written exactly (a float's repr round-trips);
+    a series with two samples at one time gives that time two rows."""
     import csv
     import io
 
+    rows: dict[tuple[float, int], list[str]] = {}
+    for k, (times, values) in enumerate(samples):
+        seen: dict[float, int] = {}
+        for t, value in zip(times, values, strict=True):
+            t = float(t)
+            repeat = seen[t] = seen.get(t, -1) + 1
+            rows.setdefault((t, repeat), [""] * len(labels))[k] = _cell(value)
     out = io.StringIO()
     writer = csv.writer(out, lineterminator="\n")
     writer.writerow(["t (s)", *labels])
-    times, *columns = data
-    for k, t in enumerate(times):
-        writer.writerow([f"{t:.6f}", *(repr(float(c[k])) for c in columns)])
+    for (t, _), row in sorted(rows.items()):
+        writer.writerow([repr(t), *row])
     return out.getvalue()
 
 
 PLOT_SAMPLE_SCHEMA = {
     "title": "asm.PlotSample",
-    "description": "A value a studio plot showed: its series (node and attribute) at t seconds of the plot's clock",
+    "description": "A sample a studio plot showed, as published or recorded: its series (node and attribute) at t "
+                   "seconds of the plot's clock; value null when it was not a finite number",
     "type": "object",
     "properties": {"node": {"type": "string"}, "object": {"type": "string"}, "t": {"type": "number"},
-                   "value": {"type": "number"}},
+                   "value": {"type": ["number", "null"]}},
     "required": ["node", "object", "t", "value"],
 }  # fmt: skip
 
 
-def plot_mcap(labels: list[str], data: tuple[np.ndarray, ...]) -> bytes:
-    """What a plot shows as MCAP, for Foxglove or PlotJuggler: one channel per series (``/m1/joint.angle``, as the
-    recordings name them), a JSON message per shown sample, its ``t`` as the plot shows it and its log time the
-    nanoseconds since the window's first time (MCAP's times are unsigned; a plot's run up to 0, now); a series'
-    points without a value (no sample yet) are left out."""
+def plot_mcap(labels: list[str], samples: Sequence[PlotSamples]) -> bytes:
+    """A plot's samples (as ``plot_csv`` takes them) as MCAP, for Foxglove or PlotJuggler: one channel per series
+    (``/m1/joint.angle``, as the recordings name them) holding exactly that series' samples, a JSON message each,
+    its ``t`` on the plot's clock and its log time the nanoseconds since the plot's first sample (MCAP's times are
+    unsigned; a live plot's clock runs up to now); written in time order, each channel's sequence counting its
+    samples from 0. A value that is not a finite number (JSON has none) is null."""
     import io
 
     from mcap.writer import Writer
@@ -252,16 +307,20 @@ def plot_mcap(labels: list[str], data: tuple[np.ndarray, ...]) -> bytes:
     writer = Writer(out)
     writer.start(profile="", library="asm-studio plot export")
     schema = writer.register_schema("asm.PlotSample", "jsonschema", json.dumps(PLOT_SAMPLE_SCHEMA).encode())
-    times, *columns = data
-    start = float(times[0]) if len(times) else 0.0
-    for label, column in zip(labels, columns, strict=True):
+    messages: list[tuple[float, int, int, float | int]] = []
+    channels: list[tuple[int, str, str]] = []
+    for k, (label, (times, values)) in enumerate(zip(labels, samples, strict=True)):
         node, _, attribute = label.partition(" ")
-        channel = writer.register_channel(f"/{node}/{attribute}", "json", schema)
-        for seq, (t, value) in enumerate(zip(times, column, strict=True)):
-            if math.isfinite(value):
-                stamp = round((float(t) - start) * 1e9)
-                sample = {"node": node, "object": attribute, "t": float(t), "value": float(value)}
-                writer.add_message(channel, stamp, json.dumps(sample).encode(), stamp, seq)
+        channels.append((writer.register_channel(f"/{node}/{attribute}", "json", schema), node, attribute))
+        messages += [(float(t), k, seq, value) for seq, (t, value) in enumerate(zip(times, values, strict=True))]
+    messages.sort(key=lambda m: m[:3])
+    start = messages[0][0] if messages else 0.0
+    for t, k, seq, value in messages:
+        channel, node, attribute = channels[k]
+        value = _exact(value)
+        sample = {"node": node, "object": attribute, "t": t, "value": value if math.isfinite(value) else None}
+        stamp = round((t - start) * 1e9)
+        writer.add_message(channel, stamp, json.dumps(sample).encode(), stamp, seq)
     writer.finish()
     return out.getvalue()
 
@@ -315,7 +374,7 @@ class SeriesPlot:
         if labels:
             columns = [np.asarray(column, dtype=float) for column in data[1:]]
             silent = tuple(not np.isfinite(column).any() for column in columns)
-            shown = (np.asarray(data[0], dtype=float) - now, *(np.nan_to_num(column) for column in columns))
+            shown = (np.asarray(data[0], dtype=float) - now, *(drawable(column) for column in columns))
         else:  # nothing plotted: one hidden series, no line (a line at 0 was drawn)
             silent, shown = (True,), (np.array([-window, 0.0]), np.zeros(2))
         if labels == self.labels and silent == self.silent and window == self.window:
@@ -328,6 +387,23 @@ class SeriesPlot:
                                               order=self._order, **self._options())  # fmt: skip
         old.remove()
         self.labels, self.silent = labels, silent
+
+
+def drawable(column: np.ndarray) -> np.ndarray:
+    """``column`` with every value that is not finite (±inf, NaN: a float attribute may publish them, a recording
+    holds them) replaced by the last finite one before it (the first finite one at the start): one infinite value
+    sent as 1.8e308 left uPlot's scale, and every line of the plot, undrawn. All not finite: zeros (the series is
+    silent, not drawn)."""
+    finite = np.isfinite(column)
+    if finite.all():
+        return column
+    if not finite.any():
+        return np.zeros_like(column)
+    last = np.maximum.accumulate(np.where(finite, np.arange(len(column)), 0))
+    filled = column[last]
+    first = int(np.argmax(finite))
+    filled[:first] = column[first]
+    return filled
 
 
 PALETTE = ("#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2", "#7f7f7f", "#bcbd22",

@@ -143,6 +143,13 @@ class MonitorPanel:
             raise ValueError(f"{source} is not a layout: {exc}") from None
         window = layout.get("window", PLOT_SECONDS)
         wanted = {name: [str(k).split("/", 1) for k in keys] for name, keys in layout["plots"].items()}
+        for name, keys in wanted.items():  # every attribute found and plottable first: a refusal changes nothing
+            for module, attribute in keys:  # (the plots were emptied, half refilled and the half saved)
+                try:
+                    self.plots[list(LIVE_PLOTS).index(name)].resolve(module, attribute)
+                except Exception as exc:  # a lookup's error, a module not there, text: said, nothing changed
+                    raise ValueError(f"{source}: {module}/{attribute} cannot be plotted ({exc}); nothing was "
+                                     "changed") from None  # fmt: skip
         for name, keys in wanted.items():
             plot = self.plots[list(LIVE_PLOTS).index(name)]
             plot.unwatch_all()
@@ -190,6 +197,7 @@ class MonitorPanel:
             self._restore_tries += 1
             if self._restore_tries >= RESTORE_TRIES:
                 self._restoring = None
+                self.store.spare(self.layout())  # the file keeps the layout not restored (it was written over)
                 where = plain(utf8_text(str(self.store.path)))
                 self.page.notify("Layout", f"the last one ({where}) was not restored: {plain(utf8_text(str(exc)))}",
                                  error=True)  # fmt: skip
@@ -197,12 +205,13 @@ class MonitorPanel:
             self._listing.release()
 
     def _export(self, event: Any, kind: str) -> None:
-        """Download what a live plot shows now (its window) as CSV or MCAP, to the tab that asked."""
+        """Download what a live plot shows now (its window) as CSV or MCAP, to the tab that asked: each series'
+        samples as received, never the drawing's interpolated or held values."""
         index = list(LIVE_PLOTS).index(event.target.value)
-        labels, data = self.plots[index].data()
+        labels, samples = self.plots[index].samples()
         if not labels:
             raise ValueError(f"{event.target.value} plots nothing yet: Plot an attribute into it first")
-        content = plot_csv(labels, data).encode() if kind == "csv" else plot_mcap(labels, data)
+        content = plot_csv(labels, samples).encode() if kind == "csv" else plot_mcap(labels, samples)
         event.client.send_file_download(f"live-plot-{index + 1}.{kind}", content, save_immediately=True)
 
     def watch_angles(self, gait: Gait) -> None:

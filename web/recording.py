@@ -135,9 +135,12 @@ class Recording:
         return self._frame_times
 
     def frame_at(self, t: float) -> PoseFrame | None:
-        """The pose frame shown at ``t``: the last one recorded at or before it (None before the first)."""
-        index = bisect_right(self.frame_times, t) - 1
-        return self.frames[index] if index >= 0 else None
+        """The pose frame shown at ``t``: the last one recorded at or before it; before the first, the first (a
+        recording's first message is its scene, a few ms before its first pose: at t = 0 the robot was not drawn,
+        its bodies piled at the origin); None without frames."""
+        if not self.frames:
+            return None
+        return self.frames[max(0, bisect_right(self.frame_times, t) - 1)]
 
     def nodes(self) -> list[str]:
         """The nodes that published, m2 before m10."""
@@ -307,11 +310,14 @@ def _add(recording: Recording, t: float, topic: str, data: bytes, seq: int) -> N
             recording.frames.append(PoseFrame(seq, t, positions, quaternions, simulated=True))
         elif topic == TOPIC_ESTOP:
             view = json.loads(data)
-            recording.events.append(Event(t, "e-stop", f"E-STOP ({view.get('scope', '?')}) by "
-                                          f"{view.get('source', '?')}: {view.get('reason', '')}"))  # fmt: skip
+            scope, source, reason = (
+                _short(view.get(k, d)) for k, d in (("scope", "?"), ("source", "?"), ("reason", ""))
+            )
+            recording.events.append(Event(t, "e-stop", f"E-STOP ({scope}) by {source}: {reason}"))
         elif topic == TOPIC_GROUP:
             view = json.loads(data)
-            text = f"group message to {view.get('group', '?')} from {view.get('source', '?')} (a deploy, a drive)"
+            text = (f"group message to {_short(view.get('group', '?'))} from {_short(view.get('source', '?'))} (a "
+                    "deploy, a drive)")  # fmt: skip
             recording.events.append(Event(t, "group", text))
         elif topic == TOPIC_STATUS:
             _status(recording, t, json.loads(data))
@@ -322,6 +328,16 @@ def _add(recording: Recording, t: float, topic: str, data: bytes, seq: int) -> N
                 recording.series.setdefault(attribute, Series()).append(t, view["value"], seq, stamp)
     except (ValueError, TypeError, IndexError, AttributeError, OverflowError, struct.error):
         return
+
+
+EVENT_FIELD = 80
+"""Characters of a name or a reason an event's text shows (an e-stop's reason is 64 bytes on the wire; a file is
+anyone's: a 3 MB source filled the Replay tab with X)."""
+
+
+def _short(value: Any) -> str:
+    text = str(value)
+    return text if len(text) <= EVENT_FIELD else text[: EVENT_FIELD - 1] + "…"
 
 
 def _status(recording: Recording, t: float, status: Any) -> None:

@@ -208,13 +208,12 @@ class ReplaySource:
         self._thread.join(5)
 
 
-def plot_data(
+def plot_samples(
     recording: Recording, keys: list[tuple[str, str]], t: float, window: float
-) -> tuple[list[str], tuple[np.ndarray, ...]]:
-    """Labels and uPlot data of ``keys``' recorded values from ``t - window`` up to ``t``: every series' own
-    sample times, merged; a series is interpolated between its samples onto the others' times (at its own times
-    its values are exactly the recorded ones) and held at its ends — as LivePlot.data draws live values. A series
-    with nothing recorded up to ``t`` is all NaN: no value, no line drawn (SeriesPlot)."""
+) -> tuple[list[str], list[tuple[list[float], list[Any]]]]:
+    """Labels and the recorded samples of ``keys`` from ``t - window`` up to ``t``: each series' own times and its
+    values exactly as the file holds them (what the replay plot's exports write; :func:`plot_data` draws them).
+    An attribute whose values are not all numbers (text, lists) is left out: it is not plotted."""
     labels, picked = [], []
     for node, obj in keys:
         series = recording.series.get((node, obj))
@@ -222,10 +221,21 @@ def plot_data(
             continue
         end = series.until(t)
         start = series.until(t - window) if window > 0 else 0
-        times = series.times[start:end]
-        values = [float(v) for v in series.values[start:end]]
         labels.append(f"{node} {obj}")
-        picked.append((np.array(times, dtype=float), np.array(values, dtype=float)))
+        picked.append((list(series.times[start:end]), list(series.values[start:end])))
+    return labels, picked
+
+
+def plot_data(
+    recording: Recording, keys: list[tuple[str, str]], t: float, window: float
+) -> tuple[list[str], tuple[np.ndarray, ...]]:
+    """Labels and uPlot data of ``keys``' recorded values from ``t - window`` up to ``t`` (:func:`plot_samples`):
+    every series' own sample times, merged; a series is interpolated between its samples onto the others' times (at
+    its own times its values are exactly the recorded ones) and held at its ends — as LivePlot.data draws live
+    values. A series with nothing recorded up to ``t`` is all NaN: no value, no line drawn (SeriesPlot)."""
+    labels, samples = plot_samples(recording, keys, t, window)
+    picked = [(np.array(times, dtype=float), np.array([float(v) for v in values], dtype=float))
+              for times, values in samples]  # fmt: skip
     times = np.unique(np.concatenate([t_ for t_, _ in picked])) if picked else np.zeros(0)
     if not len(times):  # nothing recorded up to t: one point at t, no value (SeriesPlot draws no line)
         return labels, (np.full(1, float(t)), *(np.full(1, np.nan) for _ in labels))

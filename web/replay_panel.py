@@ -19,9 +19,9 @@ from typing import TYPE_CHECKING, Any
 from viser._messages import GuiSliderMark
 
 from .confirm import plain
-from .monitor import SeriesPlot, format_value
+from .monitor import SeriesPlot, format_value, plot_csv, plot_mcap
 from .recording import Recording, RecordingError, open_recording, read_bytes, utf8_name, utf8_text
-from .replay import SPEEDS, ReplaySource, last_values, plot_data
+from .replay import SPEEDS, ReplaySource, last_values, plot_data, plot_samples
 
 if TYPE_CHECKING:
     from .page import Page
@@ -88,6 +88,9 @@ class ReplayPanel:
         self.speed = gui.add_dropdown("Replay speed", SPEED_LABELS, initial_value="1x")
         self.speed.on_update(page.safe(self._on_speed))
         self.attribute = gui.add_dropdown("Replay plot", [NO_FILE], hint="the recorded attribute plotted, per module")
+        export = gui.add_button_group("Export the replay plot", ["Export CSV", "Export MCAP"],
+                                      hint="download the recorded values the replay plot shows")  # fmt: skip
+        export.on_click(page.safe(self._export))
         self.events = gui.add_markdown("")
         self.roster = gui.add_markdown("")
         self.plot = SeriesPlot(gui, plots_tab, title="Replay: recorded values", y_label="value", aspect=3.0)
@@ -148,6 +151,20 @@ class ReplayPanel:
             raise ValueError(f"replay speed {label!r} is not one of {', '.join(SPEED_LABELS)}")
         if self.source is not None:
             self._request("speed", SPEEDS[SPEED_LABELS.index(label)])
+
+    def _export(self, event: Any) -> None:
+        """Download the recorded samples the replay plot shows (its window up to the replay time) as CSV or MCAP, to
+        the tab that asked: each series' own times and the file's values, exactly (nothing interpolated or held)."""
+        source = self.source
+        if source is None:
+            raise ValueError("no recording open: open one, then export its plot")
+        labels, samples = plot_samples(source.recording, self.keys(), source.time(), PLOT_WINDOW)
+        if not labels:
+            raise ValueError(f"the replay plot shows nothing: {plain(str(self.attribute.value))} has no numbers "
+                             "recorded")  # fmt: skip
+        kind = "csv" if event.target.value == "Export CSV" else "mcap"
+        content = plot_csv(labels, samples).encode() if kind == "csv" else plot_mcap(labels, samples)
+        event.client.send_file_download(f"replay-plot.{kind}", content, save_immediately=True)
 
     # -- the panel's thread ---------------------------------------------------------------------------------------
 

@@ -131,6 +131,11 @@ USAGE_ERRORS = [  # (command, arguments, what the one-line error must mention)
     ("asm-record", ["--robot", "r", "--max-bytes", "1M", "--max-files", "0"], "--max-files"),
     ("asm-record", ["--robot", "r", "--flush-seconds", "0"], "--flush-seconds"),
     ("asm-record", ["--robot", "r", "--wait", "-1"], "--wait"),
+    # issue 29's third review: inf bytes was a traceback; any file was embedded as the run's gait (/etc/shadow)
+    ("asm-record", ["--robot", "r", "--max-bytes", "inf"], "--max-bytes"),
+    ("asm-record", ["--robot", "r", "--max-bytes", "1e400"], "--max-bytes"),
+    ("asm-record", ["--robot", "r", "--gait", "/etc/passwd"], "is not a gait file"),
+    ("asm-record", ["--robot", "r", "--gait", "/bin/true"], "is not a gait file"),
 ]
 
 

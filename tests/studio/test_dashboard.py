@@ -376,6 +376,16 @@ def test_a_layout_round_trips_and_a_file_that_is_not_one_changes_nothing(studio)
         with pytest.raises(ValueError, match="not a layout"):
             monitor.apply_layout(wrong)
         assert monitor.layout() == saved  # nothing changed
+    # issue 29's third review: a layout naming an attribute that is not there (or not a number) emptied a plot,
+    # half refilled it and saved the half; it changes nothing now, and says which one
+    for missing, why in (("m99/nothing", "m99/nothing cannot be plotted"), ("m1/x0", "m1/x0 cannot be plotted"),
+                         ("m1/module.type", "not a number, nothing to plot")):  # fmt: skip
+        with pytest.raises(ValueError, match=why):
+            plots = {"Live plot 1": ["m2/joint.angle"], "Live plot 2": ["m3/joint.angle", missing]}
+            monitor.apply_layout({"version": 1, "window": 30.0, "plots": plots})
+        assert monitor.layout() == saved, "nothing changed"
+    with pytest.raises(ValueError, match="not a number"):
+        monitor.plots[0].watch("m1", "module.type")  # the attribute browser's Plot refuses it too
     monitor.apply_layout({"plots": {"Live plot 2": []}, "window": 10.0})
     assert monitor.layout()["plots"]["Live plot 2"] == []
 

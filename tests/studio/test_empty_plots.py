@@ -85,3 +85,20 @@ def test_the_replay_plot_draws_no_line_before_the_first_recorded_value():
     for t, lines in ((0.5, {}), (1.0, {"m1 joint.angle": [10.0]}), (2.0, both)):  # m2 from 1.5 s on
         plot.show(*plot_data(recording, keys, t, 30.0), t, 30.0)
         assert drawn(plot) == lines, t
+
+
+def test_an_infinite_value_does_not_blank_the_plot():
+    """Issue 29's third review: one /m1/joint.angle of Infinity in a recording (a float attribute may publish it)
+    blanked the replay plot of every module: it was sent as 1.8e308, and uPlot's scale drew nothing. A value that
+    is not finite is drawn as the last finite one before it; the other series are untouched."""
+    from web.recording import Recording, Series
+
+    recording = Recording("run.mcap")
+    recording.series[("m1", "joint.angle")] = Series([1.0, 2.0, 3.0, 4.0], [10.0, float("inf"), -float("inf"), 40.0])
+    recording.series[("m2", "joint.angle")] = Series([1.0, 2.0, 3.0, 4.0], [1.0, 2.0, 3.0, 4.0])
+    plot = SeriesPlot(_Gui(), contextlib.nullcontext(), title="Replay", y_label="value", aspect=3.0)
+    keys = [("m1", "joint.angle"), ("m2", "joint.angle")]
+    plot.show(*plot_data(recording, keys, 4.0, 30.0), 4.0, 30.0)
+    lines = drawn(plot)
+    assert lines["m2 joint.angle"] == [1.0, 2.0, 3.0, 4.0]
+    assert max(abs(v) for v in lines["m1 joint.angle"]) <= 40.0 and lines["m1 joint.angle"][-1] == 40.0, lines

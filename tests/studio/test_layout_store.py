@@ -134,3 +134,18 @@ def test_the_page_says_the_layout_file_is_not_one_and_refuses_an_upload_of_anoth
         assert monitor.plots[0].window == 30.0  # nothing changed
     finally:
         studio.close()
+
+
+def test_a_layout_not_restored_is_kept_in_its_file_until_the_plots_change(tmp_path):
+    """Issue 29's third review: a saved layout naming a module not up at the studio's start was written over with
+    the empty plots the page showed once its restore gave up; the page spares the file until the user changes
+    something."""
+    path = tmp_path / "studio-layout.json"
+    LayoutStore(path).save(LAYOUT)
+    store = LayoutStore(path)
+    assert store.load() == LAYOUT
+    empty = {"version": 1, "window": 10.0, "plots": {"Live plot 1": [], "Live plot 2": []}}
+    store.spare(empty)  # the restore gave up: what the page shows now
+    assert not store.save(empty) and json.loads(path.read_text()) == LAYOUT
+    changed = {**empty, "plots": {"Live plot 1": ["m1/joint.angle"], "Live plot 2": []}}
+    assert store.save(changed) and json.loads(path.read_text()) == changed

@@ -546,3 +546,31 @@ def test_a_chosen_file_that_is_not_a_recording_of_the_folder_is_refused(tmp_path
     with pytest.raises(ValueError, match="not an MCAP file of the recordings folder"):
         chosen_file(tmp_path, name)
     assert chosen_file(tmp_path, "robot-20261124.mcap") == tmp_path / "robot-20261124.mcap"
+
+
+def test_at_time_zero_the_replay_shows_the_first_pose_recorded_after_it() -> None:
+    """Issue 29's third review: a recording's first message is its scene, a few ms before its first pose, so at
+    t = 0 (where a replay opens, and where a scrub back to the start lands) nothing was drawn: the robot's bodies
+    piled at the origin until a step forward."""
+    recording = rec.Recording("run.mcap")
+    assert recording.frame_at(0.0) is None
+    first = PoseFrame(1, 0.0078, np.zeros((BODIES, 3)), np.tile([1.0, 0, 0, 0], (BODIES, 1)))
+    second = PoseFrame(2, 0.0245, np.ones((BODIES, 3)), np.tile([1.0, 0, 0, 0], (BODIES, 1)))
+    recording.frames += [first, second]
+    assert recording.frame_at(0.0) is first and recording.frame_at(0.01) is first
+    assert recording.frame_at(0.03) is second
+
+
+def test_an_event_with_a_huge_name_is_shown_short(tmp_path: Path) -> None:
+    """Issue 29's third review: a group message whose source was 3 MB filled the Replay tab's events with X."""
+    path = tmp_path / "big.mcap"
+    files = McapFiles(path, RecordingInfo({"robot": "robot"}))
+    files.write("/m1/x", ATTRIBUTE, json.dumps({"node": "m1", "object": "x", "value": 1.0}).encode(), START)
+    group = {"group": "all", "source": "X" * 3_000_000, "kind": 1, "method": 2, "class_id": 3, "object_id": 4}
+    files.write(fx.TOPIC_GROUP, GROUP, json.dumps(group).encode(), START + 5)
+    files.write(fx.TOPIC_ESTOP, ESTOP, json.dumps({"scope": "lab", "source": "s", "reason": "R" * 1000}).encode(),
+                START + 6)  # fmt: skip
+    files.close()
+    group_event, estop_event = open_recording(path).events
+    assert len(group_event.text) < 200 and "X" * 79 + "…" in group_event.text
+    assert len(estop_event.text) < 200 and estop_event.text.startswith("E-STOP (lab) by s: RRR")

@@ -258,58 +258,97 @@ def test_a_held_preview_waits_where_it_is_and_goes_on_from_there():
         loop.close()
 
 
-def test_a_plot_exported_as_csv_reads_back_as_what_it_shows():
-    import csv
+def _two_series_plot():
+    """A live plot filled by hand (no subscriptions): gait.state, integer states published from 5 s into the
+    window, and joint.angle from the start at other times; one sample of each is older than the window."""
     from collections import deque
 
-    import numpy as np
-
-    from web.monitor import LivePlot, plot_csv
-
-    plot = LivePlot(lookup=_no_lookup)  # filled by hand: no subscriptions
-    now = plot.clock()
-    rng = np.random.default_rng(7)
-    plot.series[("m1", "joint.angle")] = deque(
-        (now - 2.0 + k * 0.1, float(v)) for k, v in enumerate(rng.normal(size=20))
-    )
-    plot.series[("m2", "joint.goal")] = deque(
-        (now - 1.95 + k * 0.1, float(v)) for k, v in enumerate(rng.normal(size=20))
-    )
-    labels, data = plot.data()
-    rows = list(csv.reader(plot_csv(labels, data).splitlines()))
-    assert rows[0] == ["t (s)", *labels]
-    table = np.array([[float(x) for x in row] for row in rows[1:]])
-    assert np.allclose(table[:, 0], data[0], atol=1e-6)
-    for k, column in enumerate(data[1:], start=1):
-        assert np.array_equal(table[:, k], column)  # the values exactly (repr round-trips a float)
-
-
-def test_a_plot_exported_as_mcap_reads_back_as_what_it_shows():
-    # Issue 29 asks for CSV/MCAP export of what a plot shows; its second review found only CSV.
-    import io
-    import json
-    from collections import deque
-
-    import numpy as np
-    from mcap.reader import make_reader
-
-    from web.monitor import LivePlot, plot_mcap
+    from web.monitor import LivePlot
 
     plot = LivePlot(lookup=_no_lookup)
     now = plot.clock()
-    plot.series[("m1", "joint.angle")] = deque((now - 2.0 + k * 0.1, float(k) / 3) for k in range(20))
-    plot.series[("m2", "joint.goal")] = deque()  # watched, no sample yet: no value to export
-    labels, data = plot.data()
-    reader = make_reader(io.BytesIO(plot_mcap(labels, data)))
+    states = [(now - 30.0, 9.0), *((now - 5.0 + k * 0.7, float(k % 4 * 5)) for k in range(7))]
+    angles = [(now - 30.0, 1.0), *((now - 9.0 + k * 0.4, (k - 10) / 3) for k in range(22))]
+    plot.series[("m1", "gait.state")] = deque(states)
+    plot.series[("m1", "joint.angle")] = deque(angles)
+    plot.series[("m2", "joint.goal")] = deque()  # watched, no sample yet
+    return plot, now, {"m1 gait.state": states[1:], "m1 joint.angle": angles[1:], "m2 joint.goal": []}
+
+
+def test_a_live_plot_exported_as_csv_holds_each_series_samples_as_received():
+    # Issue 29's review: the export wrote the drawing's grid — gait.state interpolated to 14.92, held at its first
+    # value before its first sample; each series' own samples are written, a cell empty where it has none.
+    import csv
+
+    from web.monitor import plot_csv
+
+    plot, now, published = _two_series_plot()
+    labels, samples = plot.samples(now)
+    rows = list(csv.reader(plot_csv(labels, samples).splitlines()))
+    assert rows[0] == ["t (s)", "m1 gait.state", "m1 joint.angle", "m2 joint.goal"]
+    times = [float(row[0]) for row in rows[1:]]
+    assert times == sorted({t for points in published.values() for t, _ in points})  # a row per sample time
+    for k, label in enumerate(rows[0][1:], start=1):
+        written = [(float(row[0]), float(row[k])) for row in rows[1:] if row[k] != ""]
+        assert written == published[label], label  # exactly what was published, at its times, nothing else
+    first_state = published["m1 gait.state"][0][0]
+    assert all(row[1] == "" for row in rows[1:] if float(row[0]) < first_state)  # nothing held before it
+    assert all(float(row[1]).is_integer() for row in rows[1:] if row[1])  # no state between states
+
+
+def test_a_live_plot_exported_as_mcap_holds_each_series_samples_as_received():
+    import io
+    import json
+
+    from mcap.reader import make_reader
+
+    from web.monitor import plot_mcap
+
+    plot, now, published = _two_series_plot()
+    labels, samples = plot.samples(now)
+    reader = make_reader(io.BytesIO(plot_mcap(labels, samples)))
+    start = min(t for points in published.values() for t, _ in points)
     got: dict[str, list[tuple[float, float]]] = {}
     for schema, channel, message in reader.iter_messages():
         assert schema is not None and schema.name == "asm.PlotSample" and channel.message_encoding == "json"
         sample = json.loads(message.data)
-        assert message.log_time == round((sample["t"] - data[0][0]) * 1e9)
+        assert message.log_time == round((sample["t"] - start) * 1e9)
+        assert message.sequence == len(got.get(channel.topic, []))
         got.setdefault(channel.topic, []).append((sample["t"], sample["value"]))
-    assert list(got) == ["/m1/joint.angle"]
-    times, values = np.array(got["/m1/joint.angle"]).T
-    assert np.array_equal(times, data[0]) and np.array_equal(values, data[labels.index("m1 joint.angle") + 1])
+    assert got == {"/m1/gait.state": published["m1 gait.state"], "/m1/joint.angle": published["m1 joint.angle"]}
+
+
+def test_the_replay_plot_exported_holds_the_recorded_samples_exactly():
+    # Issue 29's review: the Replay tab's plot had no export; it writes the file's values (an int stays an int)
+    # of what the plot shows: its window up to the replay time.
+    import csv
+    import io
+    import json
+
+    from mcap.reader import make_reader
+
+    from web.monitor import plot_csv, plot_mcap
+    from web.recording import Recording, Series
+    from web.replay import plot_samples
+    from web.replay_panel import PLOT_WINDOW
+
+    recording = Recording("run.mcap")
+    recording.series[("m1", "gait.state")] = Series([10.0, 40.5, 41.25, 42.0, 50.0], [0, 3, 1, 2, 3])  # a list
+    recording.series[("m2", "joint.angle")] = Series([5.0, 40.1, 41.0, 41.7, 45.0], [0.5, 1.0, -2.25, 1 / 3, 9.0])
+    recording.series[("m2", "note")] = Series([41.0], ["text"])  # not a number: not plotted, not exported
+    keys = [("m1", "gait.state"), ("m2", "joint.angle"), ("m2", "note")]
+    labels, samples = plot_samples(recording, keys, 42.0, PLOT_WINDOW)  # the window: (12 s, 42 s]
+    assert labels == ["m1 gait.state", "m2 joint.angle"]
+    rows = list(csv.reader(plot_csv(labels, samples).splitlines()))
+    assert rows == [["t (s)", *labels], ["40.1", "", "1.0"], ["40.5", "3", ""], ["41.0", "", "-2.25"],
+                    ["41.25", "1", ""], ["41.7", "", repr(1 / 3)], ["42.0", "2", ""]]  # fmt: skip
+    got: dict[str, list[tuple[float, object]]] = {}
+    for _, channel, message in make_reader(io.BytesIO(plot_mcap(labels, samples))).iter_messages():
+        sample = json.loads(message.data)
+        got.setdefault(channel.topic, []).append((sample["t"], sample["value"]))
+    assert got == {"/m1/gait.state": [(40.5, 3), (41.25, 1), (42.0, 2)],
+                   "/m2/joint.angle": [(40.1, 1.0), (41.0, -2.25), (41.7, 1 / 3)]}  # fmt: skip
+    assert all(type(v) is int for _, v in got["/m1/gait.state"])  # the file's ints, not floats
 
 
 def test_the_trail_keeps_where_the_robot_went_and_points_the_way_it_goes():
