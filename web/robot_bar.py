@@ -13,6 +13,7 @@ import threading
 from typing import TYPE_CHECKING, Any
 
 from asm_module.feed import RobotStatus
+from gaits.calls import DeployError
 
 from .confirm import InlineConfirm, plain
 from .page_script import ESTOP_KEY
@@ -76,9 +77,12 @@ class RobotBar:
 
     def _release(self, modules: list[str]) -> None:
         commissioning = self.page.robot.release_commissioning()  # the modules' own latches next
-        released = self.page.robot.release(modules)
-        self.page.notify("E-STOP released", f"released on {len(released)} of {len(modules)} modules"
-                         + (" and the robot's commissioning (wiggles, node IDs)" if commissioning else ""))  # fmt: skip
+        also = " and the robot's commissioning (wiggles, node IDs)" if commissioning else ""
+        try:
+            released = self.page.robot.release(modules)
+        except DeployError as exc:  # some module not released (gone, silent): said, with what was released
+            raise ValueError(f"{exc}{'; released' + also if also else ''}") from None
+        self.page.notify("E-STOP released", f"released on {len(released)} of {len(modules)} modules{also}")
 
     # -- the robots of the network --------------------------------------------------------------------------------
 

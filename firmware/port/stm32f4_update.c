@@ -116,6 +116,7 @@ static int set_install(struct asm_node *node, struct asm_object *o, const uint8_
     }
     report(ASM_FW_INSTALLED);
     resetting = 1;
+    asm_module_of(node)->reset_pending = 1; /* and from now no gait starts (gait.c): none runs into the reset */
     reset_at = node->now_ms + ASM_RESET_DELAY_MS;
     return ASM_S_OK;
 }

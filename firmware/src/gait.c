@@ -66,6 +66,8 @@ static int control(struct asm_node *node, struct asm_object *o, uint8_t method)
     struct asm_module *m = asm_module_of(node);
     switch (method) {
     case ASM_START:
+        if (m->reset_pending)
+            return ASM_S_LOCKED; /* an update's reset is 0.1 s away: it would drop the joint mid-step */
         if (o->started)
             return ASM_S_SERVICE_ERROR;
         asm_program_start(m, node->now_ms);
@@ -79,6 +81,8 @@ static int control(struct asm_node *node, struct asm_object *o, uint8_t method)
         o->running = 0;
         return ASM_S_OK;
     case ASM_RESUME:
+        if (m->reset_pending)
+            return ASM_S_LOCKED;
         if (o->started && !o->running) {
             asm_program_resume(m, node->now_ms); /* the program goes on from where it paused */
             o->running = 1;
@@ -220,6 +224,8 @@ static int set_activate(struct asm_node *node, struct asm_object *o, const uint8
         return ASM_S_OK; /* a resent activation: done once, never a restart (an e-stop may have stopped it) */
     if (!g->staged_ok || asm_get_u32(g->staged_v + 3) != id)
         return ASM_S_VALUE_ERROR;
+    if (m->reset_pending)
+        return ASM_S_LOCKED; /* an update's reset follows: not started, to stop mid-step */
     size_t table = g->staged.length - 12u;
     if (check(m, g->staged_v + 12, table) != ASM_S_OK)
         return ASM_S_VALUE_ERROR; /* the joint limits changed since it was staged */

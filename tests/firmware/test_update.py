@@ -454,3 +454,31 @@ def test_a_long_host_name_does_not_stop_deploys_to_boards(bus, monkeypatch) -> N
         runtime.close()
         python_node.close()
         board.close()
+
+
+def test_no_gait_starts_between_the_install_and_its_reset(bus) -> None:
+    """Issue 28's fourth review (High): a group Start that came in the 0.1 s between an accepted install and its
+    reset started the gait, and the reset dropped every such module mid-step (4 of 13 timed attempts). From the
+    install on, the board refuses to start, resume or activate a gait (LOCKED; a group message: ignored)."""
+    from asm_py.errors import Locked
+    from gaits.deploy import BROADCAST
+
+    channel, tool = bus
+    image = _new_image()
+    board = _board(channel, 1, Settings())
+    try:
+        assert wait_until(lambda: "m1" in tool.discover(), timeout=30)
+        service = tool.lookup("m1", "gait.service", timeout=5)
+        install = tool.lookup("m1", "firmware.install", timeout=5)
+        _write(tool, "m1", image)
+        install.set(check(image).crc, timeout=10)  # pyright: ignore[reportAttributeAccessIssue]
+        tool.group(BROADCAST).service("gait.service").start()  # at once: the reset is 0.1 s away
+        with pytest.raises(Locked):
+            service.start(wait=True)  # pyright: ignore[reportAttributeAccessIssue]
+        assert not service.running  # pyright: ignore[reportAttributeAccessIssue]  # nor did the group's start it
+        assert wait_until(lambda: board.resets != [], timeout=30)
+        assert board.firmware_version == NEW
+        assert wait_until(lambda: "m1" in tool.discover(), timeout=30)
+        assert not tool.lookup("m1", "gait.service", timeout=10).running, "it came back standing, as it went"  # pyright: ignore[reportAttributeAccessIssue]
+    finally:
+        board.close()

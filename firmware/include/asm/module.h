@@ -45,6 +45,7 @@ struct asm_module {
     void *store_ctx;
     struct asm_object type; /* module.type: what the module is, as a gait's robot description names its type */
     uint8_t type_v[ASM_TYPE_BYTES];
+    uint8_t reset_pending; /* a firmware install's reset follows (the port's update): no gait starts, LOCKED */
 };
 
 /* The module a node belongs to (the node is its first member): what an object's set or control function needs. */
