@@ -79,6 +79,10 @@ class NumberingPanel:
         # the answer is to the question shown when it was clicked: the module then asked about goes with it
         self.confirm_button.on_click(self._said(lambda: self._jobs.put(("confirm", (self._position_value(),
                                                                                     self._guided)))))  # fmt: skip
+        # a typed value is checked when it is committed, not only when its button is clicked (issue 28's fourth
+        # review: 2.5 stayed in the field without a word until Assign ID)
+        self.node_id.on_update(self._said(lambda: self._id_value()))
+        self.position.on_update(self._said(lambda: self._position_value()))
         self._thread = threading.Thread(target=self._run, name="studio-numbering", daemon=True)
         self._thread.start()
 

@@ -27,9 +27,18 @@ class Control:
         self.value = value
         self.options: list[str] = []
         self.clicked: Callable[[Any], None] = lambda _: None
+        self.updated: Callable[[Any], None] = lambda _: None
 
     def on_click(self, callback: Callable[[Any], None]) -> None:
         self.clicked = callback
+
+    def on_update(self, callback: Callable[[Any], None]) -> None:
+        self.updated = callback
+
+    def commit(self, value: Any) -> None:
+        """A value typed and committed in the page (Enter, Tab)."""
+        self.value = value
+        self.updated(None)
 
     def click(self) -> None:
         self.clicked(None)
@@ -176,3 +185,12 @@ def test_an_answer_to_an_earlier_question_never_numbers_the_next_module(panel) -
     # the ID each board was lent to be wiggled left the roster and the plots, not shown as a lost module
     assert panel.page.robot.forgotten == ["m199", "m199"]  # type: ignore[attr-defined]
     assert panel.page.emitted == [("modules_removed", (["m199"],))] * 2  # type: ignore[attr-defined]
+
+
+def test_a_fraction_typed_into_node_id_or_chain_position_is_refused_when_committed(panel) -> None:
+    """Issue 28's fourth review: 2.5 stayed in Node ID without a word until Assign ID was clicked."""
+    controls = panel.page.gui.controls
+    controls["Node ID"].commit(2.5)
+    assert "a node ID is a whole number 1..253 (0 erases), not 2.5" in _line(panel)
+    controls["Chain position that moved"].commit(7.5)
+    assert "a chain position is a whole number 1.." in _line(panel) and "not 7.5" in _line(panel)
