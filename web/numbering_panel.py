@@ -88,7 +88,7 @@ class NumberingPanel:
 
     # -- the callbacks: they only read the fields and queue work --------------------------------------------------
 
-    def _said(self, queue_it: Callable[[], None]) -> Callable[[Any], None]:
+    def _said(self, queue_it: Callable[[], object]) -> Callable[[Any], None]:
         """A button's callback: a refused field is said on the panel's own line, which the next step overwrites
         (said on the page's status line, an error stayed there after every later success)."""
 
