@@ -98,6 +98,9 @@ class RobotStatus:
     time: float = 0.0
     unread_tables: list[str] = field(default_factory=list)
     """Modules whose object table the bridge has not read yet: their publications do not reach Zenoh yet."""
+    commissioning_stopped: bool = False
+    """The robot's commissioning service latched on an e-stop and was not released since (a board without an ID
+    cannot latch: nothing else says the e-stop holds for it)."""
     traffic: dict[str, int] = field(default_factory=dict)
     """The bridge's counters: messages from Zenoh put on the bus (``to_can``), replies and publications put on
     Zenoh, refusals, e-stops from Zenoh (``estops``) — what reached this robot."""

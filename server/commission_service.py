@@ -211,6 +211,10 @@ class CommissionService:
                           f"{why}, which the e-stop forbids: release it first (the studio's E-STOP Release, or "
                           '{"op": "release"})')  # fmt: skip
 
+    def stopped(self) -> bool:
+        """Latched on an e-stop and not released since (the robot's status says it)."""
+        return self._heard is not None
+
     def _on_estop(self, source: str, reason: str) -> None:
         """Every e-stop the bus carries (the bridge's node hears its own and those it forwards from Zenoh): latched
         here until released, as a module latches (on the receive thread: a tuple assigned, nothing else)."""

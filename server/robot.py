@@ -223,6 +223,8 @@ class Robot:
                 status.traffic = dict(bridge.forwarded)
                 if sim is not None:
                     status.estop = sim.latched()
+                commission = getattr(self, "commission", None)  # made just after the feed
+                status.commissioning_stopped = commission is not None and commission.stopped()
 
             self.feed = RobotFeed(self.bridge.session, self.status, sim.mjcf if sim else None, refresh)
             self.feed.publish_status()

@@ -26,6 +26,11 @@ LIST_EVERY = 2.0
 """Seconds between two listings of the robots on the network."""
 
 
+COMMISSIONING_STOPPED = " · **commissioning stopped by an e-stop** (Release e-stop goes on)"
+"""Said while the robot's commissioning latched on an e-stop: boards without an ID cannot latch, so the modules'
+e-stop reads clear on an unnumbered batch while wiggles and IDs are refused."""
+
+
 def describe_robot(status: RobotStatus) -> str:
     """One line about a robot, as the list shows it."""
     rtf = "" if status.real_time_factor is None else f" · real-time factor {status.real_time_factor:.2f}"
@@ -33,6 +38,8 @@ def describe_robot(status: RobotStatus) -> str:
         estop = ""
     else:
         estop = f" · **E-STOP latched on {len(status.estop)}**" if status.estop else " · e-stop clear"
+    if status.commissioning_stopped:
+        estop += COMMISSIONING_STOPPED
     return f"**{status.robot}**: {status.mode}, {status.modules} modules{rtf}{estop}"
 
 
@@ -122,6 +129,8 @@ class RobotBar:
             label = "E-STOP — robot LOST"
         elif latched:
             label = f"E-STOP — LATCHED on {len(latched)} modules"
+        elif status is not None and status.commissioning_stopped:
+            label = "E-STOP — LATCHED (commissioning)"
         else:
             label = "E-STOP"
         if self.estop.label != label:
@@ -151,6 +160,8 @@ class RobotBar:
         moved, speed = link.feed.speed()
         rtf = "" if status.real_time_factor is None else f" · real-time factor {status.real_time_factor:.2f}"
         latched = f" · **E-STOP latched** on {len(status.estop)} modules" if status.estop else ""
+        if status.commissioning_stopped:
+            latched += COMMISSIONING_STOPPED
         behind = " · ⚠ the simulation cannot keep up with real time" if status.behind else ""
         unread = (f" · ⚠ tables not read yet (publications pending): {', '.join(status.unread_tables)}"
                   if status.unread_tables else "")  # fmt: skip

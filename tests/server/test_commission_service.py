@@ -225,8 +225,13 @@ def test_while_the_robot_is_e_stopped_nothing_is_renumbered_erased_or_wiggled(be
             r"commissi\S* and commissioning was not released since; .*release it first",
         ):
             bench.ask(request)
+    assert wait_until(lambda: bench.robot.status.commissioning_stopped, timeout=10), "the robot's status says it"
+    from web.robot_bar import describe_robot
+
+    assert "commissioning stopped by an e-stop" in describe_robot(bench.robot.status)
     assert bench.ask({"op": "release"}) == {"released": True}
     assert bench.ask({"op": "release"}) == {"released": False}
+    assert wait_until(lambda: not bench.robot.status.commissioning_stopped, timeout=10)
     bench.client.lookup("m5", "gait.service", timeout=5).start()  # type: ignore[attr-defined]  # a gait runs on m5
     assert wait_until(lambda: bench.client.lookup("m5", "gait.service", timeout=5).running, timeout=10)  # type: ignore[attr-defined]
     for request in [*wiggles, {"op": "assign", "serial": serial, "id": 1}]:
