@@ -71,15 +71,15 @@ class DeployPanel:
     def on_deploy(self) -> None:
         gait = self.page.doc.gait()  # GaitError (shown) if the edited gait is invalid
         self.page.robot.require("deploy")
+        robot = self.page.robot
+        alive = robot.alive_modules()
+        wanted = {module_name(a.id) for a in gait.modules} & set(alive)
+        infos = read_objects(robot.lookup, sorted(wanted), "module.info")
+        types = read_objects(robot.lookup, sorted(wanted), "module.type")  # none from a module that says none
+        calibrations = read_objects(robot.lookup, sorted(wanted), "joint.calibration")
+        for line in module_lines(infos, calibrations, types):  # a simulated robot's too: its modules may be boards
+            self.log(line)  # what each module runs, is and how it is calibrated, before anything is sent
         if not self.page.simulated:
-            robot = self.page.robot
-            alive = robot.alive_modules()
-            wanted = {module_name(a.id) for a in gait.modules} & set(alive)
-            infos = read_objects(robot.lookup, sorted(wanted), "module.info")
-            types = read_objects(robot.lookup, sorted(wanted), "module.type")  # none from a module that says none
-            calibrations = read_objects(robot.lookup, sorted(wanted), "joint.calibration")
-            for line in module_lines(infos, calibrations, types):
-                self.log(line)  # what each module runs, is and how it is calibrated, before anything is sent
             problems = mismatches(gait, alive, read_limits(robot.lookup, sorted(wanted)), infos, types)
             question = f"Deploy {gait.name} to the {gait.robot.modules} modules of the REAL robot?"
             if problems:  # said before anything is sent: the robot is not the one previewed

@@ -354,6 +354,9 @@ def test_a_second_deploy_while_start_waits_replaces_the_first_instead_of_blaming
 
     app = studio.app
     app.deployer.on_deploy()
+    # issue 28's fourth review: a simulated robot's deploy said nothing of its modules (they may be emulated boards
+    # whose calibration the deploy depends on): each one's firmware, type and calibration, as for a real robot
+    assert "m1: Python 0." in app.deployer.log_html.content and "soft limits" in app.deployer.log_html.content
     assert app.deployer.confirm.pending and "held by this page" in (
         app.deployer.poll_lease() or app.deployer.lease_md.content
     )
