@@ -29,7 +29,7 @@ from .control_table import control_table
 from .document import assignments
 from .generator import GaitTools
 from .grid import StateGrid
-from .inputs import number, whole
+from .inputs import number, slider, whole
 from .monitor import empty_plot, seconds_axes, stroke
 from .page_script import CLICKED_FIELD
 from .program_editor import EventControls, ProgramPanel
@@ -68,7 +68,7 @@ class GaitEditor:
         self.clicked.on_update(safe(lambda e: None if page.syncing else self.select_clicked(str(e.target.value))))
         with gui.add_folder("Selected state"):
             self.automaton = gui.add_dropdown("Automaton", ["-"])
-            self.state_index = gui.add_slider("State", min=1, max=2, step=1, initial_value=1)
+            self.state_index = slider(gui, "State", min=1, max=2, initial_value=1)
             self.angle = number(gui, "Angle (deg)", initial_value=0.0, step=0.5)
             # no min/max on the number inputs: the browser would clamp a value out of range (phase 1.5 became
             # 0.999999); the document takes what was typed and the loader's problem shows at the field instead
@@ -80,7 +80,7 @@ class GaitEditor:
             self.state_problem = gui.add_markdown("")
             states = gui.add_button_group("Edit states", ["Insert after", "Remove"])
         with gui.add_folder("Module"):
-            self.module_index = gui.add_slider("Module", min=1, max=2, step=1, initial_value=1)
+            self.module_index = slider(gui, "Module", min=1, max=2, initial_value=1)
             self.phase = number(gui, "Phase", initial_value=0.0, step=0.01, hint="phase delay in [0, 1)")
             self.direction = gui.add_dropdown("Direction", ["1", "-1"])
             self.module_automaton = gui.add_dropdown("Runs", ["-"])

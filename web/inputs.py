@@ -26,6 +26,21 @@ field's precision from its step, and the field's formatter rounds typed text to 
 was sent as 2, 12.25 into one of step 0.5 as 12.2. Text with more decimals than this is refused by the page's script
 (web/page_script.py), never rounded; a whole-number field refuses a fraction itself (:func:`whole`)."""
 
+SLIDER_DECIMALS = {"State": 0, "Module": 0, "Plot module": 0, "Preview timeline (frame)": 0, "Speed": 1,
+                   "Replay time (s)": 2}  # fmt: skip
+"""Every slider of the page by its label, and the decimal places it takes (its step is 10**-decimals). A slider's
+number box rounds typed text to its precision (2.5 into State picked state 2, 0.25 into Speed ran at 0.3, without a
+word): the page's script refuses text with more decimals than its slider takes (web/page_script.py)."""
+
+
+def slider(gui: viser.GuiApi, label: str, *, min: float, max: float,
+           initial_value: float) -> viser.GuiSliderHandle[Any]:  # fmt: skip
+    """``gui.add_slider`` for the page, its step from SLIDER_DECIMALS (every slider of the page is made here)."""
+    decimals = SLIDER_DECIMALS[label]
+    step: float = 1 if decimals == 0 else 10.0**-decimals
+    return gui.add_slider(label, min=min, max=max, step=step, initial_value=initial_value)
+
+
 Precise = TypeVar("Precise", viser.GuiNumberHandle[Any], viser.GuiVector2Handle, viser.GuiVector3Handle)
 
 

@@ -15,7 +15,8 @@ puts this script and style into the page's ``<head>``:
   clamp) and typing ``1.5`` was validated at ``1.``. The field's input events are held back from the page's
   handlers until Enter, Tab, a step arrow or leaving the field, then the field's text is sent once.
   A slider's number box refuses a number outside the slider's range, and says the range under it: the box clamped
-  it to the nearest end without a word (the Replay tab's time took -5 as 0 and 46 as a 30 s recording's end).
+  it to the nearest end without a word (the Replay tab's time took -5 as 0 and 46 as a 30 s recording's end); and a
+  number with more decimals than its slider takes (web.inputs.SLIDER_DECIMALS: 2.5 into State picked state 2).
   Every other number field takes web.inputs.DIGITS decimal places (its formatter rounds to the field's precision,
   which viser derived from the step: 2.5 in a field of step 1 was sent as 2); a number with more is refused.
 - **A click on a state selects it** — a row of the state grid (its inputs included) or a cell of the states table:
@@ -43,8 +44,9 @@ puts this script and style into the page's ``<head>``:
 from __future__ import annotations
 
 import gzip
+import json
 
-from .inputs import DIGITS
+from .inputs import DIGITS, SLIDER_DECIMALS
 
 SOFTWARE_RENDER_SCALE = 0.5
 """The 3D view's resolution, as a fraction of the screen's, in a browser that draws WebGL in software."""
@@ -164,6 +166,11 @@ SCRIPT = (
       return withheld(el, "not sent: " + text.trim() + " is out of range: " + (range[2] || "this slider") +
                       " goes from " + range[0] + " to " + range[1]);
     var decimals = /\\.(\\d*?)0*\\s*$/.exec(text);  // the field's formatter would round what is past its precision
+    var takes = range ? SLIDER_DECIMALS[range[2]] : undefined;  // a slider's: what its step allows
+    if (takes !== undefined && decimals && decimals[1].length > takes)
+      return withheld(el, "not sent: " + text.trim() + (takes === 0 ? " is not a whole number: " + range[2] +
+                      " takes whole numbers" : " has more decimal places than " + range[2] + " takes (" + takes +
+                      ")") + " (the box would round it)");
     if (!range && decimals && decimals[1].length > DECIMALS)
       return withheld(el, "not sent: " + text.trim() + " has more than DECIMALS decimal places (the field would " +
                       "round it)");
@@ -279,6 +286,7 @@ SCRIPT = (
 </script>""".replace("ESTOP_KEY", ESTOP_KEY)
     .replace("CLICKED", CLICKED_FIELD)
     .replace("SOFTWARE_RENDER_SCALE", repr(SOFTWARE_RENDER_SCALE))
+    .replace("SLIDER_DECIMALS", json.dumps(SLIDER_DECIMALS))
     .replace("DECIMALS", str(DIGITS))
 )
 

@@ -9,6 +9,7 @@ from typing import TYPE_CHECKING, Any
 from gaits.metrics import unsigned_zero
 from gaits.terrain import parse
 
+from .inputs import slider
 from .monitor import empty_plot, seconds_axes
 
 GROUNDS = ("flat", "slope:5", "slope:-5", "step:0.03", "rough:seed=1,roughness=0.02", "patches:friction=0.3")
@@ -27,9 +28,9 @@ class PreviewPanel:
         loop, view = page.loop, page.view
         self.play = gui.add_button_group("Playback", ["Play", "Pause", "Reset"])
         self.play.on_click(page.safe(self._on_play))
-        self.speed = gui.add_slider("Speed", min=0.1, max=4.0, step=0.1, initial_value=1.0)
+        self.speed = slider(gui, "Speed", min=0.1, max=4.0, initial_value=1.0)
         self.speed.on_update(page.safe(lambda e: loop.request("speed", e.target.value)))
-        self.timeline = gui.add_slider("Preview timeline (frame)", min=0, max=1, step=1, initial_value=0)
+        self.timeline = slider(gui, "Preview timeline (frame)", min=0, max=1, initial_value=0)
         self.timeline.on_update(page.safe(self._on_seek))
         self.ground = gui.add_dropdown("Ground", GROUNDS, initial_value="flat",
                                        hint="what the preview runs on: a slope (degrees uphill), a step (m), rough "
@@ -47,8 +48,7 @@ class PreviewPanel:
         labels.on_update(page.safe(lambda e: view.set_labels(bool(e.target.value))))
         self.metrics = gui.add_markdown("")
         page.on("pick", self.pick)
-        self.plot_module = gui.add_slider("Plot module", min=1, max=max(2, page.doc.gait().robot.modules), step=1,
-                                          initial_value=1)  # fmt: skip
+        self.plot_module = slider(gui, "Plot module", min=1, max=max(2, page.doc.gait().robot.modules), initial_value=1)
         with plots_tab:
             self.angles = gui.add_uplot(data=empty_plot(3),
                                         series=({"label": "t"}, {"label": "commanded", "stroke": "orange"},

@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING, Any
 from viser._messages import GuiSliderMark
 
 from .confirm import plain
+from .inputs import slider
 from .monitor import SeriesPlot, format_value, plot_csv, plot_mcap
 from .recording import Recording, RecordingError, open_recording, read_bytes, utf8_name, utf8_text
 from .replay import SPEEDS, ReplaySource, last_values, plot_data, plot_samples
@@ -81,7 +82,7 @@ class ReplayPanel:
         self.line = gui.add_markdown("No recording open.")
         self.play = gui.add_button_group("Replay", ["▶ Play", "Pause", "Leave replay"])
         self.play.on_click(page.safe(self._on_play))
-        self.timeline = gui.add_slider("Replay time (s)", min=0.0, max=1.0, step=0.01, initial_value=0.0)
+        self.timeline = slider(gui, "Replay time (s)", min=0.0, max=1.0, initial_value=0.0)
         self.timeline.on_update(page.safe(self._on_seek))
         steps = gui.add_button_group("Replay step", ["◀ frame", "frame ▶"])
         steps.on_click(page.safe(lambda e: self._request("step", -1 if "◀" in e.target.value else 1)))
