@@ -10,7 +10,6 @@ is skipped and said so; one that refuses the image keeps running the old one, wh
 
 from __future__ import annotations
 
-import re
 import struct
 import time
 from collections.abc import Callable, Sequence
@@ -23,6 +22,7 @@ from asm_py.node import Node
 from ._profile import FIRMWARE_STATES, IMAGE_CHUNK
 from .firmware_image import check, version_text
 from .halts import read_halts
+from .names import is_module
 
 Progress = Callable[[str, int, int], None]
 """``progress(module, bytes_written, image_bytes)``, called from the module's update thread after every chunk."""
@@ -53,7 +53,7 @@ def update_modules(node: Node, modules: Sequence[str], image: bytes, *, progress
     info = check(image)
     if not modules:
         return []
-    others = [n for n in node.discover() if _MODULE.fullmatch(n) and n not in modules]
+    others = [n for n in node.discover() if is_module(n) and n not in modules]  # the robot's other modules too
     walking = _gait_running(node, [*modules, *others], timeout)  # the whole robot: one reset under it fells it
     if walking:  # all or nothing: not one module reset under a robot that walks on the others
         raise GaitRunning(f"not sent: a gait runs on {', '.join(walking)}; an update resets each module it reaches, "
@@ -62,10 +62,6 @@ def update_modules(node: Node, modules: Sequence[str], image: bytes, *, progress
         futures = [pool.submit(_update_one, node, name, image, info.crc, info.version, progress, timeout,
                                reboot_timeout) for name in modules]  # fmt: skip
         return [future.result() for future in futures]
-
-
-_MODULE = re.compile(r"m\d+")
-"""A module's node name (asm_module.names): the robot's other modules are checked too."""
 
 
 class GaitRunning(ValueError):

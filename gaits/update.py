@@ -12,12 +12,12 @@ from __future__ import annotations
 
 import logging
 import random
-import re
 from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
 
 from asm_module.firmware_image import check
 from asm_module.flasher import ModuleUpdate, Progress, update_modules
+from asm_module.names import is_module, module_id
 from asm_py import Node
 from asm_py.errors import AsmError, Locked
 
@@ -26,7 +26,6 @@ from .lease import LEASE_SECONDS, Lease, default_holder
 
 log = logging.getLogger("gaits.update")
 
-_MODULE = re.compile(r"m(\d+)")
 LEASE_CALL_TIMEOUT = 1.0
 """Seconds each take or renewal of a module's lease waits at most (twice: attempts=2)."""
 
@@ -79,8 +78,8 @@ def update_robot(node: Node, modules: Sequence[str], image: bytes, *, progress: 
     check(image)
     if not modules:
         return []
-    alive = {n for n in node.discover() if _MODULE.fullmatch(n)}
-    robot = sorted(alive | set(modules), key=lambda n: int(n[1:]) if _MODULE.fullmatch(n) else 0)
+    alive = {n for n in node.discover() if is_module(n)}
+    robot = sorted(alive | set(modules), key=lambda n: module_id(n) or 0)
     # each lease call short, whatever the update's own timeout: one module silent for its reboot must not hold up
     # the renewal of the others past their lease (5 s)
     calls = ModuleCalls(node, dict(enumerate(robot, start=1)), min(timeout, LEASE_CALL_TIMEOUT), attempts=2)

@@ -29,6 +29,7 @@ import zenoh
 
 from asm_module.commission_link import MAX_REQUEST
 from asm_module.halts import read_halts
+from asm_module.names import module_id
 from asm_py.canbus.commission import (
     SERIAL_BYTES,
     UNCONFIGURED,
@@ -230,7 +231,7 @@ class CommissionService:
     def _alive_ids(self) -> set[int]:
         """The node IDs alive on the bus now (heard by the bridge's node): modules of every kind."""
         names = self.node.transport.peers()
-        return {int(n[1:]) for n in names if n.startswith("m") and n[1:].isdigit()}
+        return {i for i in map(module_id, names) if i is not None}
 
     def _current_id(self, serial: bytes) -> int:
         node_id = self.tool.select(serial)
