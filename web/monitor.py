@@ -140,6 +140,8 @@ class StudioClock:
         return self._now() - self.t0
 
 
+Labelled = list[tuple[str, list[tuple[float, float]]]]
+"""A plot's series by label, each its (time, value) samples."""
 PLOTTABLE = ("bool", "int", "float")
 """The codec kinds whose values a plot draws (a bool as 0 or 1)."""
 
@@ -207,12 +209,7 @@ class LivePlot:
         with no sample yet is all NaN: it has no value, and SeriesPlot draws no line for it (a line at 0 said it had
         one); a series' own values are never NaN (uPlot takes only null as a gap, and one NaN leaves its whole scale,
         and every line on it, undrawn)."""
-        with self._lock:
-            items = [(f"{m} {a}", list(buf)) for (m, a), buf in sorted(self.series.items())]
-        now = self.clock() if now is None else now
-        horizon = now - self.window
-        # up to now: a sample that arrived since waits for the next refresh (past now it would be off the plot)
-        recent = [(label, [(t, v) for t, v in points if horizon <= t <= now]) for label, points in items]
+        now, items, recent = self._window(now)
         items_last = {label: float(np.nan_to_num(points[-1][1])) for label, points in items if points}
         times = np.unique(np.array([t for _, points in recent for t, _ in points], dtype=float))
         if not len(times):  # nothing recent: one point at now, inside the shown window
@@ -230,15 +227,19 @@ class LivePlot:
         """Labels and each series' samples in the window (the last ``window`` seconds up to ``now``, as ``data``), as
         received: its own times on the clock and its values, nothing interpolated or held — what the exports write
         (``data`` is the drawing). A series with no sample in the window has none."""
+        _, _, recent = self._window(now)
+        return [label for label, _ in recent], [([t for t, _ in kept], [v for _, v in kept]) for _, kept in recent]
+
+    def _window(self, now: float | None) -> tuple[float, Labelled, Labelled]:
+        """``now`` (the clock's, if None), every series' samples, labelled, and those in the window (the last
+        ``window`` seconds up to ``now``): what both the drawing (:meth:`data`) and the exports (:meth:`samples`)
+        start from."""
         with self._lock:
             items = [(f"{m} {a}", list(buf)) for (m, a), buf in sorted(self.series.items())]
         now = self.clock() if now is None else now
         horizon = now - self.window
-        out: list[PlotSamples] = []
-        for _, points in items:
-            kept = [(t, v) for t, v in points if horizon <= t <= now]
-            out.append(([t for t, _ in kept], [v for _, v in kept]))
-        return [label for label, _ in items], out
+        # up to now: a sample that arrived since waits for the next refresh (past now it would be off the plot)
+        return now, items, [(label, [(t, v) for t, v in points if horizon <= t <= now]) for label, points in items]
 
     def close(self) -> None:
         self.unwatch_all()
@@ -280,6 +281,12 @@ def plot_csv(labels: list[str], samples: Sequence[PlotSamples]) -> str:
     for (t, _), row in sorted(rows.items()):
         writer.writerow([repr(t), *row])
     return out.getvalue()
+
+
+def plot_file(kind: str, labels: list[str], samples: Sequence[PlotSamples]) -> bytes:
+    """A plot's samples as the file a page's Export button downloads: ``kind`` "csv" (:func:`plot_csv`) or "mcap"
+    (:func:`plot_mcap`)."""
+    return plot_csv(labels, samples).encode() if kind == "csv" else plot_mcap(labels, samples)
 
 
 PLOT_SAMPLE_SCHEMA = {

@@ -22,8 +22,7 @@ from .monitor import (
     StudioClock,
     describe,
     format_value,
-    plot_csv,
-    plot_mcap,
+    plot_file,
 )
 from .recording import utf8_text
 
@@ -211,7 +210,7 @@ class MonitorPanel:
         labels, samples = self.plots[index].samples()
         if not labels:
             raise ValueError(f"{event.target.value} plots nothing yet: Plot an attribute into it first")
-        content = plot_csv(labels, samples).encode() if kind == "csv" else plot_mcap(labels, samples)
+        content = plot_file(kind, labels, samples)
         event.client.send_file_download(f"live-plot-{index + 1}.{kind}", content, save_immediately=True)
 
     def watch_angles(self, gait: Gait) -> None:

@@ -20,7 +20,7 @@ from viser._messages import GuiSliderMark
 
 from .confirm import plain
 from .inputs import slider
-from .monitor import SeriesPlot, format_value, plot_csv, plot_mcap
+from .monitor import SeriesPlot, format_value, plot_file
 from .recording import Recording, RecordingError, open_recording, read_bytes, utf8_name, utf8_text
 from .replay import SPEEDS, ReplaySource, last_values, plot_data, plot_samples
 
@@ -164,7 +164,7 @@ class ReplayPanel:
             raise ValueError(f"the replay plot shows nothing: {plain(str(self.attribute.value))} has no numbers "
                              "recorded")  # fmt: skip
         kind = "csv" if event.target.value == "Export CSV" else "mcap"
-        content = plot_csv(labels, samples).encode() if kind == "csv" else plot_mcap(labels, samples)
+        content = plot_file(kind, labels, samples)
         event.client.send_file_download(f"replay-plot.{kind}", content, save_immediately=True)
 
     # -- the panel's thread ---------------------------------------------------------------------------------------
