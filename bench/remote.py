@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import socket
 import struct
 import subprocess
 import sys
@@ -26,6 +25,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from asm_py import Attribute, Node, Service
 from asm_py.transport.zenoh import ZenohTransport
+from server.child import free_port
 
 ROUNDS = 10
 GETS = 500
@@ -72,12 +72,6 @@ def serve(endpoint: str) -> None:
     sys.stdin.read()  # until the benchmark closes our stdin
     queryable.undeclare()
     node.close()
-
-
-def free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return sock.getsockname()[1]
 
 
 def timed_gets(get) -> float:

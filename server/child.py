@@ -7,8 +7,10 @@ child. One implementation for the suite and the benches (python-can keeps one ``
 
 from __future__ import annotations
 
+import collections
 import logging
 import os
+import random
 import signal
 import socket
 import subprocess
@@ -23,11 +25,40 @@ STACKS_SECONDS = 2.0
 """Seconds a child that did not end on SIGTERM gets to print its threads' stacks before it is killed."""
 
 
+_LOWEST_PORT = 20000
+_recent: collections.deque[int] = collections.deque(maxlen=1000)
+_random = random.SystemRandom()
+
+
+def _ephemeral_low() -> int | None:
+    try:
+        return int(Path("/proc/sys/net/ipv4/ip_local_port_range").read_text().split()[0])
+    except (OSError, ValueError, IndexError):
+        return None
+
+
 def free_port() -> int:
-    """A TCP port free on loopback right now (bind and release): tests and benches never use a fixed port."""
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return sock.getsockname()[1]
+    """A TCP port free on loopback right now (bind and release): tests and benches never use a fixed port.
+
+    Picked at random below the kernel's ephemeral range: a port from a port-0 bind is one the kernel hands out
+    again to the next outgoing connection or port-0 bind of any process, and on a busy machine one did before the
+    child bound it ("port … is in use"). Below the range only another free_port() can pick it, at random."""
+    low = _ephemeral_low()
+    if low is None or low - _LOWEST_PORT < 1000:
+        with socket.socket() as sock:
+            sock.bind(("127.0.0.1", 0))
+            return sock.getsockname()[1]
+    while True:
+        port = _random.randrange(_LOWEST_PORT, low)
+        if port in _recent:
+            continue
+        with socket.socket() as sock:
+            try:
+                sock.bind(("127.0.0.1", port))
+            except OSError:
+                continue
+        _recent.append(port)
+        return port
 
 
 class ChildError(AssertionError):

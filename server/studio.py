@@ -19,7 +19,6 @@ from __future__ import annotations
 import argparse
 import logging
 import os
-import socket
 import tempfile
 import threading
 from collections.abc import Callable, Collection
@@ -51,7 +50,7 @@ from gaits.model import LIBRARY, Gait, dumps, loads
 from gaits.terrain import FLAT, Terrain
 from gaits.validate import read
 
-from .child import Child, ChildError
+from .child import Child, ChildError, free_port
 from .realtime import prefer_latency
 from .studio_record import StudioRecording
 from .zenoh_args import ZenohOptions, add_zenoh_arguments, zenoh_options
@@ -123,9 +122,7 @@ def free_loopback_port(avoid: Collection[int] = ()) -> int:
     ``avoid``: the studio's own web port, which it binds only after starting its robot (a port a test had just
     bound and released to pass as --port came back here, the robot took it, and the page could not start)."""
     for _ in range(16):
-        with socket.socket() as sock:
-            sock.bind(("127.0.0.1", 0))
-            port = sock.getsockname()[1]
+        port = free_port()
         if port not in avoid:
             return port
     raise OSError("no free loopback port apart from the studio's own")

@@ -98,3 +98,18 @@ def test_a_sigint_and_a_sigterm_at_once_end_a_busy_server_every_time() -> None:
     finally:
         for child in children:
             child.stop()
+
+
+def test_free_ports_lie_below_the_range_the_kernel_hands_out_itself() -> None:
+    """A port bound and released by free_port() was taken by the kernel for another process's outgoing connection
+    (or its port-0 bind) before the studio bound it ("port 57655 is in use", a browser test of the suite): free
+    ports are picked below the ephemeral range, which the kernel never hands out by itself, and differ call to
+    call."""
+    from pathlib import Path
+
+    from server.child import free_port
+
+    low = int(Path("/proc/sys/net/ipv4/ip_local_port_range").read_text().split()[0])
+    ports = [free_port() for _ in range(50)]
+    assert all(1024 <= port < low for port in ports), ports
+    assert len(set(ports)) == len(ports)  # not a counter every worker starts at the same value
