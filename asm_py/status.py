@@ -81,12 +81,23 @@ def raise_for_status(reply: Message, what: object) -> None:
     """Raise a failed reply's status as its local exception (``what`` names the call in the message)."""
     if reply.status == Status.OK:
         return
-    text = f"{what}: {reply.data.decode('utf-8', errors='replace')}"
+    said = reply.data.decode("utf-8", errors="replace")
+    text = f"{what}: {said}"
     error = _RAISED.get(reply.status)
     if error is not None:
-        raise error(text)
-    name = Status(reply.status).name if reply.status in Status._value2member_map_ else str(reply.status)
-    raise RemoteError(f"{text} (status {name})", reply.status)
+        exc: Exception = error(text)
+    else:
+        name = Status(reply.status).name if reply.status in Status._value2member_map_ else str(reply.status)
+        exc = RemoteError(f"{text} (status {name})", reply.status)
+    exc.asm_reply_text = said  # pyright: ignore[reportAttributeAccessIssue]  (kept apart from the call's name)
+    raise exc
+
+
+def reply_text(exc: BaseException) -> str | None:
+    """What the failed reply behind ``exc`` said itself, without the call's name raise_for_status puts before it;
+    None for an exception not raised from a reply. A board's refusal carries no text (C keeps no strings), a Python
+    node's does: a caller that explains an empty one (the lease's holder) must tell the two apart."""
+    return getattr(exc, "asm_reply_text", None)
 
 
 class What:

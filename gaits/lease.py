@@ -17,6 +17,7 @@ from collections.abc import Sequence
 
 from asm_py import Node
 from asm_py.errors import EstopLatched, Locked
+from asm_py.status import reply_text
 
 from .calls import DeployError, ModuleCalls
 
@@ -79,7 +80,7 @@ class Lease:
             except DeployError as exc:
                 if isinstance(exc.__cause__, EstopLatched):
                     self._refuse_latched(module)
-                if isinstance(exc.__cause__, Locked) and str(exc.__cause__).endswith(": "):  # the reply said nothing
+                if isinstance(exc.__cause__, Locked) and reply_text(exc.__cause__) == "":  # a board's: no text
                     self._refuse_held(module, exc)
                 raise
             self.held.append(module)
