@@ -221,6 +221,28 @@ def click_until_shown(page, button, shown, timeout_ms: float = 30_000) -> None:
         expect(shown).to_be_visible(timeout=timeout_ms / 2)
 
 
+def choose(page, label: str, name: str, timeout_ms: float = 20_000) -> None:
+    """Pick option ``name`` of the select labelled ``label`` and wait until the select shows it. Under a fresh
+    clone's suite a click on an option was lost while the page re-drew the select's options (List files answered
+    just then): the list stayed open over the buttons below and the next click hit it. A user picks again; so does
+    this, once, saying so."""
+    from playwright.sync_api import expect
+
+    select = page.get_by_label(label, exact=True)
+    option = page.get_by_role("option", name=name, exact=True)
+    for attempt in (1, 2):
+        if not option.is_visible():
+            select.click()
+        option.click()
+        try:
+            expect(select).to_have_value(name, timeout=timeout_ms / 2)
+            return
+        except AssertionError:
+            if attempt == 2:
+                raise
+            print(f"choose: {label!r} does not show {name!r} after a click on it; choosing again")
+
+
 def fresh_screenshot(find: Callable[[], Any], timeout: float = 30.0) -> bytes:
     """A screenshot of the element ``find()`` locates, found anew at each try: the page re-creates some elements
     between a test finding one and shooting it (a plot drawn anew with new series; under a fresh clone's suite, the

@@ -10,7 +10,7 @@ import re
 from pathlib import Path
 
 from ..helpers import ARTIFACTS, wait_until
-from .browser import LINE_COLOR, fresh_screenshot, marks, number, open_page, pixels
+from .browser import LINE_COLOR, choose, fresh_screenshot, marks, number, open_page, pixels
 from .test_replay_page import VIEW, _slider_box, simulated_recording, violet
 
 pytestmark = marks(__name__)
@@ -58,8 +58,7 @@ def test_the_replay_tab_refuses_a_time_out_of_range_and_clears_a_robot_it_has_no
 
     def open_recording(page, name: str) -> None:
         page.get_by_role("button", name="List files").click()
-        page.get_by_label("Recording", exact=True).click()
-        page.get_by_role("option", name=name, exact=True).click()
+        choose(page, "Recording", name)
         page.get_by_role("button", name="Open", exact=True).click()
 
     with sync_playwright() as pw:

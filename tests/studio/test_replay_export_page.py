@@ -14,7 +14,7 @@ from pathlib import Path
 from mcap.reader import make_reader
 
 from ..helpers import ARTIFACTS, wait_until
-from .browser import marks, number, open_page
+from .browser import choose, marks, number, open_page
 from .test_replay_page import _slider_box, simulated_recording
 
 pytestmark = marks(__name__)
@@ -40,8 +40,7 @@ def test_the_replay_plot_exports_the_recorded_samples_it_shows(start_studio, tmp
             timeout=15_000
         )
         page.get_by_role("button", name="List files").click()
-        page.get_by_label("Recording", exact=True).click()
-        page.get_by_role("option", name="run.mcap", exact=True).click()
+        choose(page, "Recording", "run.mcap")
         page.get_by_role("button", name="Open", exact=True).click()
         expect(page.get_by_text(re.compile(r"run\.mcap: 2\.98 s")).first).to_be_visible(timeout=30_000)
         box = _slider_box(page, "Replay time (s)")

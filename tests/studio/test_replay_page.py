@@ -15,7 +15,7 @@ import time
 from pathlib import Path
 
 from ..helpers import ARTIFACTS, wait_until
-from .browser import marks, number, open_page, pixels
+from .browser import choose, marks, number, open_page, pixels
 
 pytestmark = marks(__name__)
 
@@ -109,8 +109,7 @@ def test_open_a_recording_play_pause_scrub_and_leave(start_studio, tmp_path):
         page.get_by_role("tab", name="Replay").click()
         page.get_by_role("button", name="List files").click()
         # hostile first: a file that is not MCAP is refused with a line, nothing else changes
-        page.get_by_label("Recording", exact=True).click()
-        page.get_by_role("option", name="not-a-recording.mcap", exact=True).click()
+        choose(page, "Recording", "not-a-recording.mcap")
         page.get_by_role("button", name="Open", exact=True).click()
         refused = page.get_by_text("Not opened: not-a-recording.mcap is not an MCAP file", exact=False)
         expect(refused.first).to_be_visible(timeout=20_000)
@@ -119,8 +118,7 @@ def test_open_a_recording_play_pause_scrub_and_leave(start_studio, tmp_path):
         chooser.value.set_files(str(upload))
         expect(page.get_by_text("replayed up to its last whole chunk", exact=False).first).to_be_visible(timeout=30_000)
         expect(page.get_by_text("Showing: Replay of killed.mcap", exact=False).first).to_be_visible(timeout=15_000)
-        page.get_by_label("Recording", exact=True).click()
-        page.get_by_role("option", name="caterpillar-run.mcap", exact=True).click()
+        choose(page, "Recording", "caterpillar-run.mcap")
         page.get_by_role("button", name="Open", exact=True).click()
         expect(page.get_by_text(re.compile(r"caterpillar-run\.mcap: 7\.\d\d s, 480 poses")).first).to_be_visible(
             timeout=30_000
