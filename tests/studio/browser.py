@@ -38,11 +38,10 @@ software here, and a full-resolution canvas took most of a core of the two the s
 would lower it on its own on a slow machine; fixing it keeps the screenshots the same from run to run."""
 
 
-MAX_FPS = 10
-"""The page's frames capped at 10 a second (web/page_script.py's ``?maxFps``; the studios the tests start draw no
+MAX_FPS = 20
+"""The page's frames capped at 20 a second (web/page_script.py's ``?maxFps``; the studios the tests start draw no
 more, ``--max-fps``): a moving robot kept Chromium drawing at 60 frames a second in software, about a core of the
-suite's two, whatever the test looked at; at 20 a second, an open page (Chromium, its studio and robot) still took
-1.1 cores, Chromium 0.6 of them (docs/benchmarks.md, "The suite's time")."""
+suite's two, whatever the test looked at."""
 PAGE_QUERY = f"?fixedDpr={VIEW_DPR}&maxFps={MAX_FPS}"
 """What every browser test opens the page with (after the studio's URL)."""
 
