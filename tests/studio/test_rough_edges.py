@@ -8,7 +8,7 @@ import re
 import time
 
 from ..helpers import ARTIFACTS, wait_until
-from .browser import deploy_and_start, marks, open_page
+from .browser import choose, deploy_and_start, marks, open_page
 
 pytestmark = marks(__name__)
 
@@ -143,8 +143,7 @@ def test_the_state_slider_follows_the_gait_and_an_error_line_goes_when_the_gait_
         state.press("Tab")
         expect(_number(page, "Duration (s)")).to_have_value(re.compile(r"^0\.06"), timeout=15_000)
         expect(state).to_have_value("8", timeout=15_000)
-        page.get_by_label("Library").click()
-        page.get_by_role("option", name="curl_into_loop", exact=True).click()
+        choose(page, "Library", "curl_into_loop")
         page.get_by_role("button", name="Open from library").click()
         expect(page.get_by_text("✓ valid (curl_into_loop)", exact=False)).to_be_visible(timeout=15_000)
         expect(state).to_have_value("4", timeout=15_000)  # its last state, the nearest to the one selected
@@ -229,8 +228,7 @@ def test_a_one_shot_gait_says_it_ended(start_studio):
         expect(ended).to_be_visible(timeout=60_000)
         page.screenshot(path=str(ARTIFACTS / "rough-one-shot-ended.png"))
         page.get_by_role("tab", name="Gait").click()
-        page.get_by_label("Library").click()
-        page.get_by_role("option", name="caterpillar", exact=True).click()
+        choose(page, "Library", "caterpillar")
         page.get_by_role("button", name="Open from library").click()  # a periodic gait: it never ends
         page.get_by_role("tab", name="Preview").click()
         expect(page.get_by_text("Preview: t = ", exact=False).first).to_be_visible(timeout=15_000)
