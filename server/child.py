@@ -44,12 +44,8 @@ def free_port() -> int:
     again to the next outgoing connection or port-0 bind of any process, and on a busy machine one did before the
     child bound it ("port … is in use"). Below the range only another free_port() can pick it, at random."""
     low = _ephemeral_low()
-    if low is None or low - _LOWEST_PORT < 1000:
-        with socket.socket() as sock:
-            sock.bind(("127.0.0.1", 0))
-            return sock.getsockname()[1]
-    while True:
-        port = _random.randrange(_LOWEST_PORT, low)
+    for _ in range(1000 if low is not None and low - _LOWEST_PORT >= 2000 else 0):
+        port = _random.randrange(_LOWEST_PORT, low or _LOWEST_PORT + 2000)
         if port in _recent:
             continue
         with socket.socket() as sock:
@@ -59,6 +55,9 @@ def free_port() -> int:
                 continue
         _recent.append(port)
         return port
+    with socket.socket() as sock:  # no room below the range (or none free): the kernel's choice
+        sock.bind(("127.0.0.1", 0))
+        return sock.getsockname()[1]
 
 
 class ChildError(AssertionError):

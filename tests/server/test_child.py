@@ -113,3 +113,20 @@ def test_free_ports_lie_below_the_range_the_kernel_hands_out_itself() -> None:
     ports = [free_port() for _ in range(50)]
     assert all(1024 <= port < low for port in ports), ports
     assert len(set(ports)) == len(ports)  # not a counter every worker starts at the same value
+
+
+def test_free_port_falls_back_to_the_kernel_s_choice_when_nothing_below_the_range_is_free(monkeypatch) -> None:
+    """It tried ports below the range for ever when none could be bound."""
+    import socket
+
+    from server import child
+
+    real_bind = socket.socket.bind
+
+    def bind(sock, address):
+        if address[1] != 0:
+            raise OSError("in use")
+        return real_bind(sock, address)
+
+    monkeypatch.setattr(socket.socket, "bind", bind)
+    assert child.free_port() > 0
