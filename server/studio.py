@@ -213,10 +213,9 @@ class Studio:
             if options.bitrate:
                 args += ["--bitrate", str(options.bitrate)]
         else:
-            if self._gait_file is None:
-                handle, path = tempfile.mkstemp(prefix="asm-studio-robot-", suffix=".toml")
-                os.close(handle)
-                self._gait_file = Path(path)
+            handle, path = tempfile.mkstemp(prefix="asm-studio-robot-", suffix=".toml")
+            os.close(handle)
+            self._gait_file = Path(path)
             self._gait_file.write_text(dumps(gait, inline=True))  # a temporary file: no robot file beside it
             args += ["--sim", str(self._gait_file)]
             if options.c_modules:
@@ -234,6 +233,17 @@ class Studio:
             network = network.with_(listen=(self._child_endpoint, *network.listen))
         return args + network.args()
 
+    def _spawn_robot(self, gait: Gait) -> RobotChild:
+        """The robot child for ``gait``, up. It reads its gait file once, at start: the file goes as soon as the
+        child is up (or failed), so a studio killed outright leaves nothing in the temporary folder; a restart writes
+        a new one."""
+        try:
+            return RobotChild(self._robot_args(gait))
+        finally:
+            if self._gait_file is not None:
+                self._gait_file.unlink(missing_ok=True)
+                self._gait_file = None
+
     def _start_robot(self, gait: Gait) -> ZenohOptions:
         """Start the studio's own robot; the Zenoh options that reach it."""
         self.own_robot = self.options.robot_name or DEFAULT_ROBOT
@@ -245,7 +255,7 @@ class Studio:
             }
             self._child_endpoint = f"tcp/127.0.0.1:{free_loopback_port(avoid=ours)}"
             network = network.with_(listen=(), connect=(self._child_endpoint, *network.connect))
-        self.child = RobotChild(self._robot_args(gait))
+        self.child = self._spawn_robot(gait)
         return network
 
     def robots(self, timeout: float = 1.0) -> list[RobotStatus]:
@@ -313,7 +323,8 @@ class Studio:
                 self._notice("Robot lost", f"the simulated robot process ended (exit code {code}); restarting it"
                              + (f" — its last words: {tail[-200:]}" if tail else ""), True)  # fmt: skip
                 try:
-                    self.child = RobotChild(child.args)
+                    gait = self.robot_gait  # a simulated robot's gait file went once it was up: written anew
+                    self.child = self._spawn_robot(gait) if gait is not None else RobotChild(child.args)
                 except Exception as exc:
                     self.child = None
                     self._notice("Robot lost", f"the simulated robot could not be restarted: {exc}", True)
@@ -340,7 +351,7 @@ class Studio:
             assert self.child is not None
             self.child.stop()
             self.robot_terrain = terrain
-            self.child = RobotChild(self._robot_args(gait))
+            self.child = self._spawn_robot(gait)
         if same:
             return f"simulated robot rebuilt on {terrain.spec} (was {ground.spec})"
         return f"simulated robot rebuilt: {before} → {gait.robot.modules} modules on {terrain.spec}"

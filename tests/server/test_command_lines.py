@@ -233,6 +233,16 @@ def test_a_failure_at_run_time_is_one_line_and_exit_1(module_name: str, argv: li
     assert "READY" not in result.stdout
 
 
+def _robot_args(studio: type, owner: object, gait: object) -> list[str]:
+    """The studio's arguments for its robot, without the gait file they name (the studio removes it once its robot
+    is up)."""
+    args = studio._robot_args(owner, gait)
+    gait_file = Path(args[args.index("--sim") + 1])
+    assert gait_file.is_file()
+    gait_file.unlink()
+    return args
+
+
 def test_the_studio_passes_its_c_module_choice_to_its_robot(tmp_path) -> None:
     from types import SimpleNamespace
 
@@ -240,9 +250,9 @@ def test_the_studio_passes_its_c_module_choice_to_its_robot(tmp_path) -> None:
     from gaits.terrain import FLAT
     from server.studio import Studio, StudioOptions
 
-    owner = SimpleNamespace(options=StudioOptions(c_modules="1,3"), _gait_file=tmp_path / "robot.toml",
+    owner = SimpleNamespace(options=StudioOptions(c_modules="1,3"), _gait_file=None,
                             own_robot="robot", _child_endpoint="tcp/127.0.0.1:1", robot_terrain=FLAT)  # fmt: skip
-    args = Studio._robot_args(owner, load(LIBRARY / "caterpillar.toml"))  # type: ignore[arg-type]
+    args = _robot_args(Studio, owner, load(LIBRARY / "caterpillar.toml"))
     assert args[args.index("--c-modules") + 1] == "1,3" and "--sim" in args
 
 
@@ -253,13 +263,13 @@ def test_the_studio_passes_its_emulated_module_choice_to_its_robot_only(tmp_path
     from gaits.terrain import FLAT
     from server.studio import Studio, StudioOptions
 
-    owner = SimpleNamespace(options=StudioOptions(emulated_modules="odd"), _gait_file=tmp_path / "robot.toml",
+    owner = SimpleNamespace(options=StudioOptions(emulated_modules="odd"), _gait_file=None,
                             own_robot="robot", _child_endpoint="tcp/127.0.0.1:1", robot_terrain=FLAT)  # fmt: skip
-    args = Studio._robot_args(owner, load(LIBRARY / "caterpillar.toml"))  # type: ignore[arg-type]
+    args = _robot_args(Studio, owner, load(LIBRARY / "caterpillar.toml"))
     assert args[args.index("--emulated-modules") + 1] == "odd" and "--sim" in args and "--c-modules" not in args
     assert "--board-flash" not in args  # no folder: boards flashed with their chain positions as IDs
     owner.options = StudioOptions(emulated_modules="odd", board_flash=tmp_path / "boards")
-    args = Studio._robot_args(owner, load(LIBRARY / "caterpillar.toml"))  # type: ignore[arg-type]
+    args = _robot_args(Studio, owner, load(LIBRARY / "caterpillar.toml"))
     assert args[args.index("--board-flash") + 1] == str(tmp_path / "boards")  # a fresh batch, kept there
 
 

@@ -167,9 +167,13 @@ def test_the_studio_runs_its_robot_as_a_child_that_dies_with_it_even_on_sigkill(
         studio.wait_for_line("READY studio", timeout=90)
         children = _children(studio.popen.pid)
         assert len(children) == 1 and "server.robot" in Path(f"/proc/{children[0]}/cmdline").read_text()
+        command = Path(f"/proc/{children[0]}/cmdline").read_text().split("\0")
+        gait_file = Path(command[command.index("--sim") + 1])
+        assert not gait_file.exists(), "the gait file the robot read at start is gone once it is up"
         os.kill(studio.popen.pid, signal.SIGKILL)
         studio.popen.wait(10)
         assert wait_until(lambda: not os.path.exists(f"/proc/{children[0]}") or _zombie(children[0]), 15)
+        assert not gait_file.exists(), "a studio killed outright leaves no file behind"
     finally:
         studio.stop()
 
