@@ -1,11 +1,12 @@
 """What the browser tests share: Debian's Chromium (never one a tool downloads), the page opened the way a user
 opens it, and readers of what it shows (pixels of a drawn line, the robot in the 3D view, a number in a text).
 
-Each browser test module is an xdist group of its own: its tests run on one worker one after another, so the
-studios its fixtures start are started once, and the modules spread over the workers with the rest of the suite (as
-two groups, one of them held 520 s of scenarios one after another: the suite's tail). At most as many Chromiums
-as workers run at once, each drawing at most MAX_FPS frames a second.
-"""
+All browser test modules are one xdist group, ``browser``: one worker runs them one after another from the start of
+`make test` (a group is scheduled before single tests), at most one Chromium at a time, while the other workers run
+the rest of the suite beside it. Spread over the workers (a group per module; or no group at all, as under pytest
+9.2, whose test IDs pytest-xdist 3.8's groups cannot rename), the browser tests ran last, all workers on Chromiums
+at once and CPU-bound, after the rest of the suite had left a core idle waiting on processes (docs/benchmarks.md,
+"The suite's time")."""
 
 from __future__ import annotations
 
@@ -23,11 +24,11 @@ CHROMIUM = "/usr/bin/chromium"
 
 
 def marks(module: str) -> list[pytest.MarkDecorator]:
-    """What every browser test module sets as ``pytestmark`` (``marks(__name__)``): the module's own xdist group, a
-    generous timeout."""
+    """What every browser test module sets as ``pytestmark`` (``marks(__name__)``): the browser tests' one xdist
+    group, a generous timeout. (``module`` names the caller; the group no longer depends on it.)"""
     return [
         pytest.mark.timeout(240),
-        pytest.mark.xdist_group(f"browser-{module.rsplit('.', 1)[-1]}"),
+        pytest.mark.xdist_group("browser"),
         pytest.mark.skipif(not os.path.exists(CHROMIUM), reason="needs Debian's chromium (make test installs it)"),
     ]
 

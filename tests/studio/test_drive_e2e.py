@@ -12,7 +12,7 @@ from asm_py.transport.zenoh import ZenohTransport
 from gaits.model import loads
 
 from ..helpers import ARTIFACTS, wait_until
-from .browser import CHROMIUM, FOCUS_3D, PAGE_QUERY, marks, number, open_page, text_input
+from .browser import CHROMIUM, FOCUS_3D, PAGE_QUERY, choose, marks, number, open_page, text_input
 
 pytestmark = marks(__name__)
 
@@ -88,8 +88,7 @@ def test_a_user_makes_a_state_event_driven_and_a_program_in_the_page(steerable_s
     url, _, log = steerable_studio
     with sync_playwright() as pw:
         browser, page = open_page(pw, url)
-        page.get_by_label("Ends on").click()
-        page.get_by_role("option", name="at_goal", exact=True).click()
+        choose(page, "Ends on", "at_goal")
         tolerance = page.get_by_label("Tolerance / threshold")
         expect(tolerance).to_be_enabled(timeout=15_000)
         tolerance.fill("3")

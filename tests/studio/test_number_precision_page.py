@@ -13,7 +13,7 @@ from asm_py import Node
 from asm_py.transport.zenoh import ZenohTransport
 
 from ..helpers import ARTIFACTS, wait_until
-from .browser import marks, open_page
+from .browser import choose, marks, open_page
 
 pytestmark = marks(__name__)
 
@@ -106,10 +106,8 @@ def test_the_attribute_browser_refuses_a_fraction_for_an_integer_attribute(studi
             browser, page = open_page(pw, url)
             before = client.lookup("m2", "gait.signal", timeout=5).get()
             page.get_by_role("tab", name="Monitor").click()
-            page.get_by_label("Node", exact=True).click()
-            page.get_by_role("option", name="m2", exact=True).click()
-            page.get_by_label("Object").click()
-            page.get_by_role("option", name="gait.signal", exact=True).click()
+            choose(page, "Node", "m2")
+            choose(page, "Object", "gait.signal")
             signal = page.get_by_label("gait.signal (uint8)", exact=True)
             expect(signal).to_be_visible(timeout=15_000)
             _commit(signal, "2.5")

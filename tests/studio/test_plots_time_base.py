@@ -6,7 +6,7 @@ from __future__ import annotations
 import time
 
 from ..helpers import ARTIFACTS
-from .browser import LINE_COLOR, deploy_and_start, marks, open_page, pixels
+from .browser import LINE_COLOR, choose, deploy_and_start, marks, open_page, pixels
 
 pytestmark = marks(__name__)
 
@@ -21,13 +21,10 @@ def _live(page) -> dict[str, dict]:
 
 
 def _plot_into(page, module: str, target: str) -> None:
-    page.get_by_label("Node").click()
-    page.get_by_role("option", name=module, exact=True).click()
+    choose(page, "Node", module)
     page.get_by_role("button", name="List").click()
-    page.get_by_label("Object").click()
-    page.get_by_role("option", name="joint.angle", exact=True).click()
-    page.get_by_label("Plot into").click()
-    page.get_by_role("option", name=target, exact=True).click()
+    choose(page, "Object", "joint.angle")
+    choose(page, "Plot into", target)
     page.get_by_role("button", name="Plot", exact=True).click()
 
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import os
+import random
 import re
 import struct
 import time
@@ -238,9 +239,10 @@ def test_a_damaged_chunk_is_skipped_and_said_and_the_chunks_after_it_replay(tmp_
         (b"", "not an MCAP file"),
         (b"hello, this is text\n" * 10, "not an MCAP file"),
         (b"\x89MCAP0\r\n", "holds no messages"),
-        (b"\x89MCAP0\r\n" + os.urandom(4096), "holds no messages"),
+        (b"\x89MCAP0\r\n" + random.Random(4096).randbytes(4096), "holds no messages"),  # the same garbage each run
         (b"\x89MCAP0\r\n\x01" + (2**62).to_bytes(8, "little") + b"x" * 100, "holds no messages"),  # a huge length
     ],
+    ids=["empty", "text", "magic-only", "magic-then-garbage", "huge-length"],  # the same on every xdist worker
 )
 def test_a_file_that_is_not_a_recording_is_refused_with_one_sentence(tmp_path: Path, content: bytes, why: str) -> None:
     path = tmp_path / "bad.mcap"
@@ -497,7 +499,6 @@ def test_the_replay_tab_shows_names_and_values_as_text_and_never_sends_what_is_n
     """A review: a recorded string value and an uploaded file's name were rendered as HTML (a live link, an image
     fetched); a file of the recordings folder whose name is not UTF-8 ended the page's connection (viser's msgpack
     refused the surrogates) for every tab and every reconnection, E-STOP included."""
-    import os
     from types import SimpleNamespace
 
     app = studio.app

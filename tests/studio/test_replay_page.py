@@ -172,15 +172,13 @@ def test_open_a_recording_play_pause_scrub_and_leave(start_studio, tmp_path):
         assert wait_until(lambda: page.screenshot(clip=VIEW) != moved, 20, 0.5), "the scrub did not move the robot"
         assert wait_until(lambda: plot.locator("canvas").first.screenshot() != plot_before, 20, 0.5)
         # play on from the scrubbed point (not from the end) at 0.25x, then at 4x to the end
-        page.get_by_label("Replay speed").click()
-        page.get_by_role("option", name="0.25x", exact=True).click()
+        choose(page, "Replay speed", "0.25x")
         expect(page.get_by_text("· 0.25x", exact=False).first).to_be_visible(timeout=10_000)
         page.get_by_role("button", name="▶ Play").click()
         assert wait_until(lambda: replay_time(page) > target + 0.05, 20, 0.2), replay_time(page)
         slow = replay_time(page)
         assert slow < target + 3.0, slow  # a quarter of the wall clock's pace, from the scrubbed point
-        page.get_by_label("Replay speed").click()
-        page.get_by_role("option", name="4x", exact=True).click()
+        choose(page, "Replay speed", "4x")
         expect(page.get_by_text("■ ended", exact=False).first).to_be_visible(timeout=30_000)
         assert replay_time(page) > 7.0
         page.screenshot(path=str(ARTIFACTS / "replay-ended.png"))

@@ -11,7 +11,7 @@ import re
 import numpy as np
 
 from ..helpers import ARTIFACTS, wait_until
-from .browser import marks, open_page
+from .browser import choose, marks, open_page
 
 pytestmark = marks(__name__)
 
@@ -121,8 +121,7 @@ def test_the_monitor_lists_a_module_s_objects_by_itself(studio_process):
         objects = page.get_by_label("Object")
         expect(objects).to_have_value("joint.goal", timeout=60_000)  # m1's first object, no List pressed
         expect(page.get_by_text("gait.state", exact=False).first).to_be_visible()
-        page.get_by_label("Node").click()
-        page.get_by_role("option", name="m3", exact=True).click()
+        choose(page, "Node", "m3")
         expect(page.get_by_label("joint.goal (float32)")).to_be_visible(timeout=30_000)  # m3's, its input shown
         deploy_and_start(page, 8)
         page.get_by_role("tab", name="Monitor").click()
@@ -144,8 +143,7 @@ def test_a_refused_set_s_error_goes_when_a_set_succeeds_and_stays_gone_after_a_r
     with sync_playwright() as pw:
         browser, page = open_page(pw, url)
         page.get_by_role("tab", name="Monitor").click()
-        page.get_by_label("Node").click()
-        page.get_by_role("option", name="m2", exact=True).click()
+        choose(page, "Node", "m2")
         type_and_set(page, "joint.limits", "joint.limits (float32[2])", "-200")
         error = page.get_by_text("joint limits must satisfy", exact=False)
         expect(error.first).to_be_visible(timeout=15_000)
@@ -190,15 +188,11 @@ def test_the_layout_comes_back_after_the_studio_restarts(tmp_path):
             url = start()
             browser, page = open_page(pw, url)
             page.get_by_role("tab", name="Monitor").click()
-            page.get_by_label("Node").click()
-            page.get_by_role("option", name="m3", exact=True).click()
-            page.get_by_label("Object").click()
-            page.get_by_role("option", name="joint.angle", exact=True).click()
-            page.get_by_label("Plot into").click()
-            page.get_by_role("option", name="Live plot 2", exact=True).click()
+            choose(page, "Node", "m3")
+            choose(page, "Object", "joint.angle")
+            choose(page, "Plot into", "Live plot 2")
             page.get_by_role("button", name="Plot", exact=True).click()
-            page.get_by_label("Window (s)").click()
-            page.get_by_role("option", name="60", exact=True).click()
+            choose(page, "Window (s)", "60")
             expected = {"Live plot 1": [], "Live plot 2": ["m3/joint.angle"]}
 
             def kept() -> bool:

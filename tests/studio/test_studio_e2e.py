@@ -16,6 +16,7 @@ from .browser import (
     FOCUS_3D,
     LINE_COLOR,
     PoseWatch,
+    choose,
     fresh_screenshot,
     marks,
     number,
@@ -101,8 +102,7 @@ def test_edit_preview_deploy_watch_and_estop(studio_process):
             before = plot.screenshot()
             time.sleep(1.0)
             assert plot.screenshot() != before, "the live plot did not change"
-            page.get_by_label("Window (s)").click()
-            page.get_by_role("option", name="60", exact=True).click()
+            choose(page, "Window (s)", "60")
             expect(page.get_by_label("Window (s)")).to_have_value("60", timeout=15_000)
             page.screenshot(path=str(ARTIFACTS / "studio-monitor.png"))
             # e-stop: every module stops
@@ -191,18 +191,15 @@ def test_upload_grid_history_robot_size_and_attribute_browser(studio_process, tm
             assert abs(decode_table(table)[2].target + 33.0) < 1e-4  # state 3's angle, as deployed
             # the attribute browser: m2's joint.limits as a pair of numbers, set from the page
             page.get_by_role("tab", name="Monitor").click()
-            page.get_by_label("Node").click()
-            page.get_by_role("option", name="m2", exact=True).click()
+            choose(page, "Node", "m2")
             page.get_by_role("button", name="List").click()
             type_and_set(page, "joint.limits", "joint.limits (float32[2])", "-45")
             assert wait_until(lambda: client.lookup("m2", "joint.limits", timeout=2).peek() == (-45.0, 90.0), 15)
             expect(page.get_by_text("set to", exact=False).first).to_be_visible(timeout=15_000)
             page.screenshot(path=str(ARTIFACTS / "studio-browser.png"))
             # several plots at once: m2's joint.torque into the second live plot, beside the first one's angles
-            page.get_by_label("Object").click()
-            page.get_by_role("option", name="joint.torque", exact=True).click()
-            page.get_by_label("Plot into").click()
-            page.get_by_role("option", name="Live plot 2", exact=True).click()
+            choose(page, "Object", "joint.torque")
+            choose(page, "Plot into", "Live plot 2")
             page.get_by_role("button", name="Plot", exact=True).click()
             page.get_by_role("tab", name="Plots").click()
             # the plot is drawn anew with its new series: wait for that before scrolling to it (the canvas found

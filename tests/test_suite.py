@@ -1,0 +1,45 @@
+"""The suite's own machinery: what `make test` relies on from pytest-xdist.
+
+`make test` runs with ``--dist loadgroup`` so that the tests of one ``xdist_group`` run on one worker, one after
+another (the browser tests, the tuner's, the firmware build's). pytest 9.2 moved a test's ID to ``Node._id`` while
+pytest-xdist 3.8 still renamed ``Node._nodeid``: every group was ignored, silently, and the grouped tests spread
+over the workers like any others. This test runs a small suite the way `make test` does and fails when that happens.
+"""
+
+from __future__ import annotations
+
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+GROUPED = """
+import pytest
+
+pytestmark = pytest.mark.xdist_group("together")
+
+{tests}
+"""
+
+
+def test_tests_of_one_xdist_group_run_on_one_worker(tmp_path: Path) -> None:
+    (tmp_path / "pytest.ini").write_text("[pytest]\n", encoding="utf-8")  # the rootdir: none of our conftests
+    tests = "\n".join(f"def test_grouped_{k}(): pass\n" for k in range(6))
+    (tmp_path / "test_grouped.py").write_text(GROUPED.format(tests=tests), encoding="utf-8")
+    (tmp_path / "test_alone.py").write_text("\n".join(f"def test_alone_{k}(): pass\n" for k in range(6)))
+    run = subprocess.run(
+        [sys.executable, "-m", "pytest", "-n", "2", "--dist", "loadgroup", "-v", "-p", "no:cacheprovider"],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert run.returncode == 0, run.stdout + run.stderr
+    ran = re.findall(r"\[(gw\d)\].*PASSED (\S+)", run.stdout)
+    grouped = {worker for worker, test in ran if "test_grouped_" in test}
+    named = [test for _, test in ran if "test_grouped_" in test]
+    assert len(named) == 6 and all(test.endswith("@together") for test in named), (
+        "the grouped tests do not carry their group: pytest-xdist's loadgroup is not applied\n" + run.stdout
+    )
+    assert len(grouped) == 1, f"one group's tests ran on {sorted(grouped)}\n{run.stdout}"
+    assert len(ran) == 12
