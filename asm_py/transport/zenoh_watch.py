@@ -10,6 +10,7 @@ callback.
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable
 from typing import Any
 
@@ -46,5 +47,22 @@ class WatchedPublisher:
         self.publisher.put(payload)
 
     def close(self) -> None:
-        self._listener.undeclare()
-        self.publisher.undeclare()
+        """Undeclare both. Another thread may be in ``put`` (the bridge's reader, as a module leaves): zenoh-python
+        then refuses the undeclare ("Already borrowed"), so it is tried again until that put is done; should it
+        never be, the publisher is dropped and Zenoh undeclares it with its last reference."""
+        _undeclare(self._listener)
+        _undeclare(self.publisher)
+
+
+def _undeclare(entity: Any, seconds: float = 1.0) -> None:
+    deadline = time.monotonic() + seconds
+    while True:
+        try:
+            entity.undeclare()
+            return
+        except RuntimeError as exc:
+            if "borrow" not in str(exc) or time.monotonic() > deadline:
+                if "borrow" in str(exc):
+                    return  # still in use: dropped, not undeclared
+                raise
+            time.sleep(0.001)

@@ -71,3 +71,30 @@ def test_the_transport_formats_a_view_only_while_it_is_watched() -> None:
     finally:
         watcher.close()
         node.close()
+
+
+def test_closing_a_watched_publisher_while_another_thread_puts_on_it_never_raises() -> None:
+    """A fresh clone's suite: the bridge closed a module's outlet while its reader thread was putting on it, and
+    zenoh-python refused the undeclare ("Already borrowed"), which left the bridge's threads running."""
+    session = zenoh.open(make_config(listen=[f"tcp/127.0.0.1:{free_port()}"]))
+    try:
+        for round_ in range(3):
+            view = WatchedPublisher(session.declare_publisher(f"asm/test/watch/close/{round_}"))
+            stop = threading.Event()
+
+            def put_on(view: WatchedPublisher = view, stop: threading.Event = stop) -> None:
+                while not stop.is_set():  # puts back to back: the undeclare finds one under way
+                    try:
+                        view.put(b"x" * 64)
+                    except zenoh.ZError:
+                        return  # undeclared under it: the put is refused, which the bridge's reader logs
+
+            putter = threading.Thread(target=put_on)
+            putter.start()
+            try:
+                view.close()
+            finally:
+                stop.set()
+                putter.join(5)
+    finally:
+        session.close()
