@@ -61,8 +61,8 @@ def _undeclare(entity: Any, seconds: float = 1.0) -> None:
             entity.undeclare()
             return
         except RuntimeError as exc:
-            if "borrow" not in str(exc) or time.monotonic() > deadline:
-                if "borrow" in str(exc):
-                    return  # still in use: dropped, not undeclared
+            if "borrow" not in str(exc):
                 raise
+            if time.monotonic() > deadline:
+                return  # still in use: dropped, not undeclared
             time.sleep(0.001)
