@@ -45,10 +45,14 @@ def zenoh_transports() -> Iterator[Callable[[], Transport]]:
 @contextmanager
 def can_transports(interface: str = "virtual", **options) -> Iterator[Callable[[], Transport]]:
     """Transports with node IDs 1, 2, … on a fresh in-process channel (fast heartbeats for the tests): python-can's
-    ``virtual`` bus, or ``asm_sim``, which filters like a CAN controller."""
+    ``virtual`` bus, or ``asm_sim``, which filters like a CAN controller.
+
+    A peer is lost after 2 s of silence (40 beats), not 0.2 s: a loaded machine starves a process that long, and the
+    lost "server" failed the calls in flight to it (``node 'server' left``, reproduced with a GIL switch interval of
+    0.1 s and a busy thread). A closing peer says it leaves, so the tests of a leaving peer do not wait for it."""
     channel = fresh_name("asm-test")
     ids = itertools.count(1)
-    settings = {"heartbeat_period": 0.05, "missed_heartbeats": 4, **options}
+    settings = {"heartbeat_period": 0.05, "missed_heartbeats": 40, **options}
     yield lambda: CanTransport(next(ids), interface=interface, channel=channel, **settings)
 
 
