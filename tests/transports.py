@@ -20,6 +20,11 @@ def fresh_name(prefix: str) -> str:
     return f"{prefix}-{os.getpid()}-{next(_names)}"
 
 
+FAST_BEATS = {"heartbeat_period": 0.05, "missed_heartbeats": 40}
+"""A CAN transport's heartbeats for the tests' in-process peers: found within 0.05 s, lost after 2 s of silence (not
+0.2 s: a loaded machine starves a process that long, and a lost peer fails every call in flight to it)."""
+
+
 @contextmanager
 def memory_transports() -> Iterator[Callable[[], Transport]]:
     network = MemoryNetwork()
@@ -46,13 +51,11 @@ def zenoh_transports() -> Iterator[Callable[[], Transport]]:
 def can_transports(interface: str = "virtual", **options) -> Iterator[Callable[[], Transport]]:
     """Transports with node IDs 1, 2, … on a fresh in-process channel (fast heartbeats for the tests): python-can's
     ``virtual`` bus, or ``asm_sim``, which filters like a CAN controller.
-
-    A peer is lost after 2 s of silence (40 beats), not 0.2 s: a loaded machine starves a process that long, and the
-    lost "server" failed the calls in flight to it (``node 'server' left``, reproduced with a GIL switch interval of
-    0.1 s and a busy thread). A closing peer says it leaves, so the tests of a leaving peer do not wait for it."""
+    (FAST_BEATS: with 4 beats, 0.2 s, a starved process lost its "server" and failed the call in flight, ``node
+    'server' left``, reproduced with a GIL switch interval of 0.1 s and a busy thread.)"""
     channel = fresh_name("asm-test")
     ids = itertools.count(1)
-    settings = {"heartbeat_period": 0.05, "missed_heartbeats": 40, **options}
+    settings = {**FAST_BEATS, **options}
     yield lambda: CanTransport(next(ids), interface=interface, channel=channel, **settings)
 
 

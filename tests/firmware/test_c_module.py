@@ -20,7 +20,7 @@ from asm_py.node import Node
 from asm_py.transport.can import CanTransport
 
 from ..helpers import wait_until
-from ..transports import fresh_name
+from ..transports import FAST_BEATS, fresh_name
 
 pytestmark = [pytest.mark.timeout(120), pytest.mark.skipif(shutil.which("gcc") is None, reason="needs gcc")]
 
@@ -251,13 +251,13 @@ def test_preview_equals_deployment_for_c_and_python_modules_alike() -> None:
                 c_modules[a.id] = CModule(f"m{a.id}", a.id, driver=driver, interface="virtual", channel=channel)
                 records[a.id] = driver.commands
             else:
-                node = Node(f"m{a.id}", CanTransport(a.id, interface="virtual", channel=channel, heartbeat_period=0.05))
+                node = Node(f"m{a.id}", CanTransport(a.id, interface="virtual", channel=channel, **FAST_BEATS))
                 nodes.append(node)
                 runtimes[a.id] = ModuleRuntime(FakeDriver(), node=node, control_rate=50.0, module_id=a.id)
                 record: list[tuple[float, float]] = []
                 runtimes[a.id].goal.on_change(lambda v, record=record: record.append((time.monotonic(), v)))
                 records[a.id] = record
-        tool = Node("tool", CanTransport(200, interface="virtual", channel=channel, heartbeat_period=0.05))
+        tool = Node("tool", CanTransport(200, interface="virtual", channel=channel, **FAST_BEATS))
         nodes.append(tool)
         assert wait_until(lambda: {f"m{a.id}" for a in gait.modules} <= set(tool.discover()), timeout=10)
         report = deploy(tool, gait, start=False)

@@ -17,7 +17,7 @@ from asm_py.node import Node
 from asm_py.transport.can import CanTransport
 
 from ..helpers import wait_until
-from ..transports import fresh_name
+from ..transports import FAST_BEATS, fresh_name
 
 needs_arm_gcc = pytest.mark.skipif(
     shutil.which("arm-none-eabi-gcc") is None, reason="the board image needs arm-none-eabi-gcc (make test installs it)"
@@ -336,7 +336,7 @@ def test_a_simulated_robot_with_emulated_boards_moves_as_the_all_python_preview(
     nodes: list[Node] = []
 
     def node_of(module_id: int) -> Node:
-        transport = CanTransport(module_id, interface="virtual", channel=channel, heartbeat_period=0.05,
+        transport = CanTransport(module_id, interface="virtual", channel=channel, **FAST_BEATS,
                                  watch_bus=False)  # fmt: skip
         nodes.append(Node(f"m{module_id}", transport))
         return nodes[-1]

@@ -12,7 +12,7 @@ from asm_py import Node
 from asm_py.transport.can import CanTransport
 from gaits.model import LIBRARY, load
 from gaits.sim import Simulation
-from tests.transports import fresh_name
+from tests.transports import FAST_BEATS, fresh_name
 
 from .preview import SIGNALLED
 
@@ -26,7 +26,7 @@ def _trace(gait, seconds: float, *, bus: bool, drive_at: float | None = None,
     channel = fresh_name("asm-program")
 
     def node_of(module_id: int) -> Node:
-        transport = CanTransport(module_id, interface="virtual", channel=channel, heartbeat_period=0.05,
+        transport = CanTransport(module_id, interface="virtual", channel=channel, **FAST_BEATS,
                                  watch_bus=False)  # fmt: skip
         nodes.append(Node(f"m{module_id}", transport))
         return nodes[-1]

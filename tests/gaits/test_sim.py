@@ -18,7 +18,7 @@ from gaits.model import Robot, load
 from gaits.serpenoid import sine, wave_gait
 from gaits.sim import Simulation
 from tests.helpers import wait_until
-from tests.transports import fresh_name
+from tests.transports import FAST_BEATS, fresh_name
 
 from .preview import assert_follows_preview
 
@@ -151,14 +151,14 @@ def test_preview_equals_deployment_over_virtual_can():
     records: list[list[tuple[float, float]]] = []
     try:
         for a in gait.modules:
-            node = Node(f"m{a.id}", CanTransport(a.id, interface="virtual", channel=channel, heartbeat_period=0.05))
+            node = Node(f"m{a.id}", CanTransport(a.id, interface="virtual", channel=channel, **FAST_BEATS))
             nodes.append(node)
             runtime = ModuleRuntime(FakeDriver(), node=node, control_rate=50.0)
             runtimes.append(runtime)
             record: list[tuple[float, float]] = []
             runtime.goal.on_change(lambda v, record=record: record.append((time.monotonic(), v)))
             records.append(record)
-        tool = Node("tool", CanTransport(200, interface="virtual", channel=channel, heartbeat_period=0.05))
+        tool = Node("tool", CanTransport(200, interface="virtual", channel=channel, **FAST_BEATS))
         nodes.append(tool)
         report = deploy(tool, gait, start=False)
         for record in records:

@@ -19,7 +19,7 @@ from asm_py.transport.can import CanTransport
 from gaits.deploy import DeployError, activate, deploy, stop_all
 from gaits.model import load
 from tests.helpers import wait_until
-from tests.transports import fresh_name
+from tests.transports import FAST_BEATS, fresh_name
 
 pytestmark = pytest.mark.timeout(60)
 LIBRARY = "gaits/library"
@@ -187,10 +187,10 @@ def test_deploy_over_can_verifies_checksums_and_starts_all_with_one_broadcast():
     runtimes, nodes = [], []
     try:
         for a in gait.modules:
-            node = Node(f"m{a.id}", CanTransport(a.id, interface="virtual", channel=channel, heartbeat_period=0.05))
+            node = Node(f"m{a.id}", CanTransport(a.id, interface="virtual", channel=channel, **FAST_BEATS))
             nodes.append(node)
             runtimes.append(ModuleRuntime(FakeDriver(), node=node))
-        tool = Node("tool", CanTransport(200, interface="virtual", channel=channel, heartbeat_period=0.05))
+        tool = Node("tool", CanTransport(200, interface="virtual", channel=channel, **FAST_BEATS))
         nodes.append(tool)
         steps: list[tuple[int, int]] = []
         report = deploy(tool, gait, start=False, progress=lambda done, total, _: steps.append((done, total)))

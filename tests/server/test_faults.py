@@ -38,7 +38,7 @@ from server.zenoh_args import ZenohOptions
 
 from ..helpers import wait_until
 from ..processes import Process, run
-from ..transports import free_port, fresh_name
+from ..transports import FAST_BEATS, free_port, fresh_name
 
 CATERPILLAR_FILE = LIBRARY / "caterpillar.toml"
 CATERPILLAR = load(CATERPILLAR_FILE)
@@ -82,7 +82,7 @@ def test_a_module_whose_gait_handler_is_wedged_still_latches_its_estop_at_once()
     (before, the e-stop handler waited for that very handler to return, on the bus's receive thread: the module
     answered nothing, not even its e-stop)."""
     channel = fresh_name("wedged")
-    options = {"interface": "virtual", "channel": channel, "heartbeat_period": 0.05}
+    options = {"interface": "virtual", "channel": channel, **FAST_BEATS}
     clock_tick = Event("gait.tick", codec=FLOAT64)
     node = Node("m1", CanTransport(1, watch_bus=False, **options))
     tool = Node("tool", CanTransport(200, **options))
@@ -284,7 +284,7 @@ def test_infinite_goals_start_parameters_and_a_clear_under_anothers_lease_are_re
 def test_a_c_module_refuses_the_same_invalid_input() -> None:
     channel = fresh_name("c-invalid")
     c_module = CModule("m1", 1, interface="virtual", channel=channel)
-    tool = Node("tool", CanTransport(200, interface="virtual", channel=channel, heartbeat_period=0.05))
+    tool = Node("tool", CanTransport(200, interface="virtual", channel=channel, **FAST_BEATS))
     try:
         goal = tool.lookup("m1", "joint.goal", timeout=5)
         for bad in (float("inf"), float("-inf"), float("nan")):
@@ -294,7 +294,7 @@ def test_a_c_module_refuses_the_same_invalid_input() -> None:
             tool.lookup("m1", "gait.service", timeout=5).start(0.1, True, wait=True)
         gait = load(CATERPILLAR_FILE)
         staged = deploy(tool, gait.__class__(**{**gait.__dict__, "modules": gait.modules[:1]}), start=False)
-        other = Node("other", CanTransport(201, interface="virtual", channel=channel, heartbeat_period=0.05))
+        other = Node("other", CanTransport(201, interface="virtual", channel=channel, **FAST_BEATS))
         try:
             with pytest.raises(Locked):
                 other.lookup("m1", "gait.staged", timeout=5).set(b"", wait=True)
@@ -389,8 +389,8 @@ def test_lease_and_staged_resets_and_a_nan_lease_are_refused_python_and_c(robot:
 
     channel = fresh_name("c-resets")
     c_module = CModule("m1", 1, interface="virtual", channel=channel)
-    c_tool = Node("holder", CanTransport(200, interface="virtual", channel=channel, heartbeat_period=0.05))
-    c_other = Node("other", CanTransport(201, interface="virtual", channel=channel, heartbeat_period=0.05))
+    c_tool = Node("holder", CanTransport(200, interface="virtual", channel=channel, **FAST_BEATS))
+    c_other = Node("other", CanTransport(201, interface="virtual", channel=channel, **FAST_BEATS))
     try:
         for holder, other, module in ((robot.tool("holder", 201), robot.tool("other", 202), "m1"),
                                       (c_tool, c_other, "m1")):  # fmt: skip
@@ -417,7 +417,7 @@ def test_lease_and_staged_resets_and_a_nan_lease_are_refused_python_and_c(robot:
 def test_a_reset_of_estop_is_refused_and_the_module_stays_latched_python_and_c(robot: Robot) -> None:
     channel = fresh_name("c-estop-reset")
     c_module = CModule("m1", 1, interface="virtual", channel=channel)
-    c_tool = Node("tool", CanTransport(200, interface="virtual", channel=channel, heartbeat_period=0.05))
+    c_tool = Node("tool", CanTransport(200, interface="virtual", channel=channel, **FAST_BEATS))
     try:
         for tool in (robot.tool(), c_tool):
             estop = tool.lookup("m1", "estop", timeout=5)
@@ -437,7 +437,7 @@ def test_a_reset_of_estop_is_refused_and_the_module_stays_latched_python_and_c(r
 def test_a_refused_stage_leaves_what_was_staged_on_a_c_module() -> None:
     channel = fresh_name("c-refused-stage")
     c_module = CModule("m1", 1, interface="virtual", channel=channel)
-    tool = Node("tool", CanTransport(200, interface="virtual", channel=channel, heartbeat_period=0.05))
+    tool = Node("tool", CanTransport(200, interface="virtual", channel=channel, **FAST_BEATS))
     try:
         one = load(CATERPILLAR_FILE)
         one = one.__class__(**{**one.__dict__, "modules": one.modules[:1]})

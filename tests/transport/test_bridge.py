@@ -19,7 +19,7 @@ from server.zenoh_args import ZenohOptions
 
 from ..helpers import wait_until
 from ..processes import Process
-from ..transports import free_port, fresh_name
+from ..transports import FAST_BEATS, free_port, fresh_name
 
 
 class Gait(Service):
@@ -33,7 +33,7 @@ class Gait(Service):
 def can_world() -> Iterator[tuple[Node, Node, CanZenohBridge, dict]]:
     """Two modules on a virtual CAN bus, a bridge, and a Zenoh client node connected to the bridge."""
     channel = fresh_name("asm-bridge")
-    can_options = {"interface": "virtual", "channel": channel, "heartbeat_period": 0.05, "missed_heartbeats": 4}
+    can_options = {"interface": "virtual", "channel": channel, **FAST_BEATS}
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     modules = [Node(f"m{i}", CanTransport(i, **can_options)) for i in (1, 2)]
     objects: dict = {}

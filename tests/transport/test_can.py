@@ -22,7 +22,7 @@ from asm_py.node import Node
 from asm_py.transport.can import CanTransport, group_id
 
 from ..helpers import VECTORS, wait_until
-from ..transports import fresh_name
+from ..transports import FAST_BEATS, fresh_name
 from .virtual_can import Bus, not_heartbeat
 
 
@@ -205,7 +205,7 @@ def test_heartbeats_report_a_silent_node_lost_and_back(bus: Bus) -> None:
     from asm_py.canbus.faults import FaultyBus
 
     faulty = FaultyBus(can.Bus(interface="virtual", channel=bus.channel))
-    a = bus.node("a", 1)
+    a = bus.node("a", 1, missed_heartbeats=4)  # the loss this test is about: 0.2 s, not FAST_BEATS' 2 s
     b = Node("b", CanTransport(2, bus=faulty, heartbeat_period=0.05, missed_heartbeats=4))
     events: list[tuple[str, bool]] = []
     a.on_discovery(lambda name, alive: events.append((name, alive)))
@@ -348,7 +348,7 @@ def test_a_quiet_module_hears_only_what_it_must_act_on() -> None:
     from ..helpers import wait_until
 
     channel = fresh_name("asm-quiet")
-    options = {"interface": "asm_sim", "channel": channel, "heartbeat_period": 0.05}
+    options = {"interface": "asm_sim", "channel": channel, **FAST_BEATS}
     talker = Node("talker", CanTransport(1, **options))
     quiet = Node("quiet", CanTransport(2, watch_bus=False, **options))
     tool = Node("tool", CanTransport(3, **options))

@@ -18,9 +18,7 @@ from asm_py.protocol import Kind, Method, first_byte
 from asm_py.transport.can import CanTransport
 
 from ..helpers import run_in_thread, wait_until
-from ..transports import fresh_name
-
-FAST = {"heartbeat_period": 0.05, "missed_heartbeats": 4}
+from ..transports import FAST_BEATS, fresh_name
 
 
 class Pair:
@@ -28,7 +26,7 @@ class Pair:
 
     def __init__(self, **options: float) -> None:
         self.channel = fresh_name("asm-reader")
-        settings = {**FAST, **options}
+        settings = {**FAST_BEATS, **options}
         self.module = Node("m1", CanTransport(1, interface="virtual", channel=self.channel, **settings))
         self.tool = Node("tool", CanTransport(2, interface="virtual", channel=self.channel, **settings))
         self.raw = can.Bus(interface="virtual", channel=self.channel)

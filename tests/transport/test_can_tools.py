@@ -22,14 +22,14 @@ from asm_py.node import Node
 from asm_py.transport.can import CanTransport
 
 from ..helpers import wait_until
-from ..transports import fresh_name
+from ..transports import FAST_BEATS, fresh_name
 
 
 def record_session(path: Path) -> list[float]:
     """A module (ID 1) publishing its angle, a tool (ID 2) setting and reading it; the tool records the bus."""
     channel = fresh_name("asm-rec")
-    module = Node("m1", CanTransport(1, interface="virtual", channel=channel, heartbeat_period=0.05))
-    tool = Node("tool", CanTransport(254, interface="virtual", channel=channel, heartbeat_period=0.05, record=path))
+    module = Node("m1", CanTransport(1, interface="virtual", channel=channel, **FAST_BEATS))
+    tool = Node("tool", CanTransport(254, interface="virtual", channel=channel, **FAST_BEATS, record=path))
     values = [0.25, 0.5, 1.0]
     try:
         angle = Attribute("joint.angle", 0.0, codec="float32")
@@ -109,9 +109,9 @@ def record_module_session(path: Path) -> None:
     recorded by the tool: lookups, gets and sets, a gait table (a fragmented request), publications of the angle and
     the gait state, an e-stop, then both leave."""
     channel = fresh_name("asm-dbc")
-    module = Node("m1", CanTransport(1, interface="virtual", channel=channel, heartbeat_period=0.05))
+    module = Node("m1", CanTransport(1, interface="virtual", channel=channel, **FAST_BEATS))
     runtime = ModuleRuntime(FakeDriver(), node=module)
-    tool = Node("a-long-tool-name", CanTransport(254, interface="virtual", channel=channel, heartbeat_period=0.05,
+    tool = Node("a-long-tool-name", CanTransport(254, interface="virtual", channel=channel, **FAST_BEATS,
                                                  record=path))  # fmt: skip
     try:
         goal = tool.lookup("m1", "joint.goal", timeout=5)

@@ -11,7 +11,7 @@ from asm_py.canbus.ids import CanId, Dest, SystemCode
 from asm_py.node import Node
 from asm_py.transport.can import CanTransport
 
-from ..transports import fresh_name
+from ..transports import FAST_BEATS, fresh_name
 
 
 class Bus:
@@ -19,7 +19,7 @@ class Bus:
 
     def __init__(self, **options) -> None:
         self.channel = fresh_name("asm-can")
-        self.options = {"heartbeat_period": 0.05, "missed_heartbeats": 4, **options}
+        self.options = {**FAST_BEATS, **options}
         self.sniffer = can.Bus(interface="virtual", channel=self.channel)
         self.nodes: list[Node] = []
 
