@@ -258,14 +258,16 @@ def test_deploys_over_a_lossy_bus_return_in_time_and_leave_one_gait_running(depl
     soak (``-m slow``); nine in ten succeed, and none leaves two gaits running."""
     lossy = Robot(8, faults={"drop": 0.01, "duplicate": 0.01})
     try:
-        tool = lossy.tool(call_timeout=0.1)
+        # Calls of 0.25 s and the default activation deadline for 8 modules (4 s): with 0.1 s and 2 s, a fresh clone's
+        # suite on three workers failed 3 of 24 deploys for the machine's load, not the bus's losses.
+        tool = lossy.tool(call_timeout=0.25)
         gaits = [CATERPILLAR, _gait_with_states(6)]
         outcomes = {"ok": 0, "failed": 0}
         before = [0] * 8
         for k in range(deploys):
             started = time.monotonic()
             try:
-                report = deploy(tool, gaits[k % 2], timeout=0.1, attempts=5, deadline=2.0)
+                report = deploy(tool, gaits[k % 2], timeout=0.25, attempts=5, deadline=4.0)
             except DeployError:
                 outcomes["failed"] += 1
                 now = lossy.running()
