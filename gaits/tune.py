@@ -303,9 +303,15 @@ def tune(gait: Gait, frees: list[Free], setup: Setup, *, budget: int = 60, seed:
         result.failure = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
     finally:
         if own:
+            manager = getattr(pool, "_executor_manager_thread", None)  # shutdown forgets it
             pool.shutdown(wait=not result.interrupted, cancel_futures=True)
             if result.interrupted:
                 end_workers(pool)
+                if manager is not None:
+                    # Once its workers are gone the pool's thread closes its wake-up pipe, which CPython 3.11's exit
+                    # handler writes to unless closed, unlocked: they raced at exit ("OSError: [Errno 9] Bad file
+                    # descriptor" under an interrupted `gaits tune`, a fresh clone's run). The exit joined it anyway.
+                    manager.join(60.0)
     return result
 
 
