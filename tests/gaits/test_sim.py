@@ -5,13 +5,16 @@ from __future__ import annotations
 
 import subprocess
 import sys
+import threading
 import time
+from typing import Any
 
 import mujoco
 import pytest
 
 from asm_module import FakeDriver, ModuleRuntime
 from asm_py import Node
+from asm_py.clock import WALL_CLOCK, Clock
 from asm_py.transport.can import CanTransport
 from gaits.deploy import activate, deploy, stop_all
 from gaits.model import Robot, load
@@ -138,6 +141,28 @@ def test_a_128_module_chain_simulates_headless_and_moves():
     # here at 0.37 with the two cores loaded)
 
 
+class _Told(threading.local):
+    now = float("nan")
+
+
+class StampingClock:
+    """A clock that remembers, per thread, the time it last told. A module's tick reads the time, then sets its goal:
+    the goal is stamped with the time it was computed for, not with when a loaded machine let the goal's callback
+    run (stamped by ``time.monotonic()`` in the callback, a fresh clone's suite on three workers put a goal of 39.9°
+    at a time the preview says 5-17°)."""
+
+    def __init__(self, clock: Clock) -> None:
+        self._clock = clock
+        self.told = _Told()
+
+    def now(self) -> float:
+        self.told.now = now = self._clock.now()
+        return now
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._clock, name)
+
+
 def test_preview_equals_deployment_over_virtual_can():
     """The same gait on module runtimes talking over a virtual CAN bus in real time commands, at every tick, what
     the simulation commanded at that time since the start, within one control tick."""
@@ -147,16 +172,17 @@ def test_preview_equals_deployment_over_virtual_can():
         sim.advance(2.5)
         sim_times, sim_goals = sim.trace.times, sim.trace.goals
     channel = fresh_name("asm-preview")
+    stamps = StampingClock(WALL_CLOCK)
     runtimes, nodes = [], []
     records: list[list[tuple[float, float]]] = []
     try:
         for a in gait.modules:
             node = Node(f"m{a.id}", CanTransport(a.id, interface="virtual", channel=channel, **FAST_BEATS))
             nodes.append(node)
-            runtime = ModuleRuntime(FakeDriver(), node=node, control_rate=50.0)
+            runtime = ModuleRuntime(FakeDriver(), node=node, control_rate=50.0, clock=stamps)  # type: ignore[arg-type]
             runtimes.append(runtime)
             record: list[tuple[float, float]] = []
-            runtime.goal.on_change(lambda v, record=record: record.append((time.monotonic(), v)))
+            runtime.goal.on_change(lambda v, record=record: record.append((stamps.told.now, v)))
             records.append(record)
         tool = Node("tool", CanTransport(200, interface="virtual", channel=channel, **FAST_BEATS))
         nodes.append(tool)
