@@ -47,7 +47,7 @@ format: $(STAMP)
 
 # Three workers (pytest-xdist) on two cores: the browser tests are one xdist group (tests/studio/browser.py), run by one
 # worker from the start, one Chromium at a time, while the other two run the rest; the workers wait on processes and
-# timeouts much of the time, so two left the cores idle: 539-566 s against two workers' 758-821 s (docs/benchmarks.md,
+# timeouts much of the time, so two left the cores idle: 539-586 s against two workers' 758-821 s (docs/benchmarks.md,
 # "The suite's time"). TEST_WORKERS=N to choose; `make test-serial` runs the same tests in one process.
 TEST_WORKERS ?= 3
 PYTEST := PLAYWRIGHT_SKIP_BROWSER_DOWNLOAD=1 $(PY) -m pytest -m "not slow"
