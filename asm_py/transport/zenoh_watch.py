@@ -44,7 +44,14 @@ class WatchedPublisher:
         self.watched = status.matching
 
     def put(self, payload: bytes | str) -> None:
-        self.publisher.put(payload)
+        """Put ``payload``; a put that meets ``close`` in another thread is refused as one after it would be (a
+        ``zenoh.ZError``): zenoh-python says "Already mutably borrowed" while the undeclare holds the publisher."""
+        try:
+            self.publisher.put(payload)
+        except RuntimeError as exc:
+            if "borrow" not in str(exc):
+                raise
+            raise zenoh.ZError(f"publisher being undeclared: {exc}") from exc
 
     def close(self) -> None:
         """Undeclare both. Another thread may be in ``put`` (the bridge's reader, as a module leaves): zenoh-python

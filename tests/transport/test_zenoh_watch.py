@@ -75,7 +75,9 @@ def test_the_transport_formats_a_view_only_while_it_is_watched() -> None:
 
 def test_closing_a_watched_publisher_while_another_thread_puts_on_it_never_raises() -> None:
     """A fresh clone's suite: the bridge closed a module's outlet while its reader thread was putting on it, and
-    zenoh-python refused the undeclare ("Already borrowed"), which left the bridge's threads running."""
+    zenoh-python refused the undeclare ("Already borrowed"), which left the bridge's threads running; and the other
+    way round (stop 41's last run), the put refused with "Already mutably borrowed" while the undeclare held it, a
+    RuntimeError the reader did not expect: now a ``zenoh.ZError``, as for a put after the close."""
     session = zenoh.open(make_config(listen=[f"tcp/127.0.0.1:{free_port()}"]))
     try:
         for round_ in range(3):
