@@ -49,7 +49,7 @@ class WatchedPublisher:
         try:
             self.publisher.put(payload)
         except RuntimeError as exc:
-            if "borrow" not in str(exc):
+            if not _in_use(exc):
                 raise
             raise zenoh.ZError(f"publisher being undeclared: {exc}") from exc
 
@@ -68,8 +68,14 @@ def _undeclare(entity: Any, seconds: float = 1.0) -> None:
             entity.undeclare()
             return
         except RuntimeError as exc:
-            if "borrow" not in str(exc):
+            if not _in_use(exc):
                 raise
             if time.monotonic() > deadline:
                 return  # still in use: dropped, not undeclared
             time.sleep(0.001)
+
+
+def _in_use(exc: RuntimeError) -> bool:
+    """Whether zenoh-python refused a call because another thread holds the entity ("Already borrowed", "Already
+    mutably borrowed"): a put and an undeclare that met, not a failure."""
+    return "borrow" in str(exc)
