@@ -7,14 +7,13 @@ import subprocess
 import sys
 import threading
 import time
-from typing import Any
 
 import mujoco
 import pytest
 
 from asm_module import FakeDriver, ModuleRuntime
 from asm_py import Node
-from asm_py.clock import WALL_CLOCK, Clock
+from asm_py.clock import WallClock
 from asm_py.transport.can import CanTransport
 from gaits.deploy import activate, deploy, stop_all
 from gaits.model import Robot, load
@@ -145,22 +144,18 @@ class _Told(threading.local):
     now = float("nan")
 
 
-class StampingClock:
-    """A clock that remembers, per thread, the time it last told. A module's tick reads the time, then sets its goal:
-    the goal is stamped with the time it was computed for, not with when a loaded machine let the goal's callback
-    run (stamped by ``time.monotonic()`` in the callback, a fresh clone's suite on three workers put a goal of 39.9°
-    at a time the preview says 5-17°)."""
+class StampingClock(WallClock):
+    """The wall clock, remembering per thread the time it last told. A module's tick reads the time, then sets its
+    goal: the goal is stamped with the time it was computed for, not with when a loaded machine let the goal's
+    callback run (stamped by ``time.monotonic()`` in the callback, a fresh clone's suite on three workers put a goal
+    of 39.9° at a time the preview says 5-17°)."""
 
-    def __init__(self, clock: Clock) -> None:
-        self._clock = clock
+    def __init__(self) -> None:
         self.told = _Told()
 
     def now(self) -> float:
-        self.told.now = now = self._clock.now()
+        self.told.now = now = super().now()
         return now
-
-    def __getattr__(self, name: str) -> Any:
-        return getattr(self._clock, name)
 
 
 def test_preview_equals_deployment_over_virtual_can():
@@ -172,14 +167,14 @@ def test_preview_equals_deployment_over_virtual_can():
         sim.advance(2.5)
         sim_times, sim_goals = sim.trace.times, sim.trace.goals
     channel = fresh_name("asm-preview")
-    stamps = StampingClock(WALL_CLOCK)
+    stamps = StampingClock()
     runtimes, nodes = [], []
     records: list[list[tuple[float, float]]] = []
     try:
         for a in gait.modules:
             node = Node(f"m{a.id}", CanTransport(a.id, interface="virtual", channel=channel, **FAST_BEATS))
             nodes.append(node)
-            runtime = ModuleRuntime(FakeDriver(), node=node, control_rate=50.0, clock=stamps)  # type: ignore[arg-type]
+            runtime = ModuleRuntime(FakeDriver(), node=node, control_rate=50.0, clock=stamps)
             runtimes.append(runtime)
             record: list[tuple[float, float]] = []
             runtime.goal.on_change(lambda v, record=record: record.append((stamps.told.now, v)))
