@@ -206,19 +206,29 @@ def deploy_and_start(page, modules: int, start_timeout_ms: float = 60_000) -> No
     expect(page.get_by_text(f"{modules} modules confirmed running", exact=False).first).to_be_visible(timeout=60_000)
 
 
+def once_more(act: Callable[[], None], check: Callable[[], None], say: Callable[[], str]) -> None:
+    """``act``, then ``check``; should the check fail (an AssertionError), say why (``say()``), then ``act`` and
+    ``check`` once more. Under a fresh clone's load a click or a key was now and then lost on its way to the page;
+    a user tries again, and so do the tests that use this — once, saying so, never more."""
+    act()
+    try:
+        check()
+    except AssertionError:
+        print(say())
+        act()
+        check()
+
+
 def click_until_shown(page, button, shown, timeout_ms: float = 30_000) -> None:
     """Click ``button`` until ``shown`` is visible (at most twice). Under CI's load a click was once lost: the
     layout moved between Playwright's stability check and the mouse events (the page rewrites the rows above as
     the robot reports), and nothing reached the server; a user clicks again, and so does this (saying so)."""
     from playwright.sync_api import expect
 
-    button.click()
-    try:
-        expect(shown).to_be_visible(timeout=timeout_ms / 2)
-    except AssertionError:
-        print(f"click_until_shown: nothing came of the first click; clicking again ({deploy_log(page)[-3:]})")
-        button.click()
-        expect(shown).to_be_visible(timeout=timeout_ms / 2)
+    def say() -> str:
+        return f"click_until_shown: nothing came of the first click; clicking again ({deploy_log(page)[-3:]})"
+
+    once_more(button.click, lambda: expect(shown).to_be_visible(timeout=timeout_ms / 2), say)
 
 
 def choose(page, label: str, name: str, timeout_ms: float = 20_000) -> None:
@@ -230,17 +240,14 @@ def choose(page, label: str, name: str, timeout_ms: float = 20_000) -> None:
 
     select = page.get_by_label(label, exact=True)
     option = page.get_by_role("option", name=name, exact=True)
-    for attempt in (1, 2):
+
+    def pick() -> None:
         if not option.is_visible():
             select.click()
         option.click()
-        try:
-            expect(select).to_have_value(name, timeout=timeout_ms / 2)
-            return
-        except AssertionError:
-            if attempt == 2:
-                raise
-            print(f"choose: {label!r} does not show {name!r} after a click on it; choosing again")
+
+    once_more(pick, lambda: expect(select).to_have_value(name, timeout=timeout_ms / 2),
+              lambda: f"choose: {label!r} does not show {name!r} after a click on it; choosing again")  # fmt: skip
 
 
 def fresh_screenshot(find: Callable[[], Any], timeout: float = 30.0) -> bytes:

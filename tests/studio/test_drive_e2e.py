@@ -12,7 +12,7 @@ from asm_py.transport.zenoh import ZenohTransport
 from gaits.model import loads
 
 from ..helpers import ARTIFACTS, wait_until
-from .browser import CHROMIUM, FOCUS_3D, PAGE_QUERY, choose, marks, number, open_page, text_input
+from .browser import CHROMIUM, FOCUS_3D, PAGE_QUERY, choose, marks, number, once_more, open_page, text_input
 
 pytestmark = marks(__name__)
 
@@ -66,16 +66,13 @@ def test_a_user_steers_the_preview_and_the_deployed_robot_with_the_arrow_keys(st
             # right" in 30 s, the key lost on its way to the 3D view; a user presses again, and so does this, once
             page.get_by_role("tab", name="Drive").click()
             confirmed = page.get_by_text(re.compile(r"Robot: right, confirmed by 12 of 12"))
-            for attempt in (1, 2):
+
+            def press_right() -> None:
                 page.mouse.click(*FOCUS_3D)
                 page.keyboard.press("ArrowRight")
-                try:
-                    expect(confirmed).to_be_visible(timeout=30_000)
-                    break
-                except AssertionError:
-                    if attempt == 2:
-                        raise
-                    print("the robot was not steered right after ArrowRight; pressing it again")
+
+            once_more(press_right, lambda: expect(confirmed).to_be_visible(timeout=30_000),
+                      lambda: "the robot was not steered right after ArrowRight; pressing it again")  # fmt: skip
             assert client.lookup("m2", "gait.mode", timeout=5).get(timeout=5) == 2  # program gait 2: right
             goal = client.lookup("m2", "joint.goal", timeout=5)
             assert wait_until(lambda: goal.get(timeout=5) < -19, timeout=10)  # its yaw joint bends right, blended
