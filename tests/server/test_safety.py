@@ -258,8 +258,10 @@ def test_deploys_over_a_lossy_bus_return_in_time_and_leave_one_gait_running(depl
     soak (``-m slow``); nine in ten succeed, and none leaves two gaits running."""
     lossy = Robot(8, faults={"drop": 0.01, "duplicate": 0.01})
     try:
-        # Calls of 0.25 s and the default activation deadline for 8 modules (4 s): with 0.1 s and 2 s, a fresh clone's
-        # suite on three workers failed 3 of 24 deploys for the machine's load, not the bus's losses.
+        # Calls of at most 0.25 s and the default activation deadline for 8 modules (4 s), since a fresh clone's suite
+        # on three workers failed 3 of 24 deploys with 0.1 s and 2 s. It did not cure it: 3 of 24 failed again on two
+        # workers, and 3 of 72 on a quiet machine, each after ~0.9 s of the calls' retries (0.05 s doubling to the
+        # limit) with no reply; why those retries all go unanswered is not known yet.
         tool = lossy.tool(call_timeout=0.25)
         gaits = [CATERPILLAR, _gait_with_states(6)]
         outcomes = {"ok": 0, "failed": 0}
