@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import logging
 import threading
-import time
 from collections.abc import Callable
 from typing import Any
 
@@ -22,7 +21,7 @@ import zenoh
 
 from asm_module.feed import RobotStatus
 from asm_py.keys import RobotKeys, last
-from asm_py.transport.zenoh import CLAIM_SETTLE
+from asm_py.transport.zenoh_claim import CLAIM_QUERY_TIMEOUT, refuse_if_claimed, settle_claim
 
 log = logging.getLogger("asm_robot.feed")
 
@@ -52,11 +51,10 @@ class RobotFeed:
         self._publishers: dict[str, zenoh.Publisher] = {}
         self._keep: list[Any] = []
         zid = str(session.info.zid())
-        self._refuse_if_taken(zid, lambda others: bool(others))
+        refuse_if_claimed(zid, self._claimants, self._name_taken)
         self._keep.append(session.liveliness().declare_token(self.keys.robot_alive(zid)))
-        time.sleep(CLAIM_SETTLE)  # two robots named alike at the same moment see each other's token by then:
-        try:  # the one with the greater session ID gives way
-            self._refuse_if_taken(zid, lambda others: min(others) < zid)
+        try:  # two robots named alike at the same moment: at most one keeps the name (asm_py.transport.zenoh_claim)
+            settle_claim(zid, self._claimants, self._name_taken)
         except RobotNameTaken:
             self.close()
             raise
@@ -64,12 +62,14 @@ class RobotFeed:
         if mjcf is not None:
             self._keep.append(session.declare_queryable(self.keys.robot_key("mjcf"), self._answer_mjcf))
 
-    def _refuse_if_taken(self, zid: str, taken: Callable[[list[str]], bool]) -> None:
-        others = [last(r.ok.key_expr) for r in self.session.liveliness().get(self.keys.robot_alive(), timeout=2.0)
-                  if r.ok is not None and last(r.ok.key_expr) != zid]  # fmt: skip
-        if others and taken(others):
-            raise RobotNameTaken(f"a robot named {self.status.robot!r} is already on this Zenoh network (session "
-                                 f"{min(others)}): give this one another --name")  # fmt: skip
+    def _claimants(self) -> set[str]:
+        """The sessions whose robot token claims this robot's name now (a query of the network)."""
+        replies = self.session.liveliness().get(self.keys.robot_alive(), timeout=CLAIM_QUERY_TIMEOUT)
+        return {last(reply.ok.key_expr) for reply in replies if reply.ok is not None}
+
+    def _name_taken(self, rival: str) -> RobotNameTaken:
+        return RobotNameTaken(f"a robot named {self.status.robot!r} is already on this Zenoh network (session "
+                              f"{rival}): give this one another --name")  # fmt: skip
 
     def _put(self, what: str, payload: bytes | str) -> None:
         key = self.keys.robot_key(what)

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import logging
 import threading
-import time
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -37,6 +36,7 @@ from ..keys import (
 )
 from ..protocol import HEADER_SIZE, Kind, decode_timeout, has_timeout, kind_of
 from .base import ESTOP_REASON_MAX, PublicationHandler, Transport
+from .zenoh_claim import CLAIM_QUERY_TIMEOUT, refuse_if_claimed, settle_claim
 from .zenoh_config import (  # noqa: F401  (re-exported: the configuration is part of this transport's interface)
     MAX_LINK_MESSAGE,
     InsecureEndpoint,
@@ -52,11 +52,6 @@ log = logging.getLogger("asm_py.transport.zenoh")
 FOREVER_QUERY = 86_400.0
 """Seconds a query for a request that may block forever stays open on the client (Zenoh needs a number)."""
 QUERY_MARGIN = 5.0
-CLAIM_QUERY_TIMEOUT = 2.0
-"""Seconds a session waits for the network to say whether its name is taken."""
-CLAIM_SETTLE = 0.05
-"""Seconds a session lets its own token travel before it asks again (two sessions claiming one name at the same
-moment each see the other's token by then, and the one with the greater session ID gives way)."""
 ROLES = ("module", "tool")
 
 
@@ -146,7 +141,7 @@ class ZenohTransport(Transport):
         self._zid = str(session.info.zid())
         self._attachment = self._zid.encode()
         try:
-            self._refuse_if_taken()
+            refuse_if_claimed(self._zid, self._claimants_of_mine, self._name_taken)
             keys = self.keys
             self._keep += [
                 session.declare_queryable(keys.requests(self.segment), self._on_query),
@@ -157,8 +152,7 @@ class ZenohTransport(Transport):
                 session.declare_subscriber(keys.estop(), self._on_estop, allowed_origin=zenoh.Locality.REMOTE),
                 session.declare_subscriber(lab_estop(), self._on_estop, allowed_origin=zenoh.Locality.REMOTE),
             ]
-            time.sleep(CLAIM_SETTLE)
-            self._refuse_if_taken(after_claim=True)
+            settle_claim(self._zid, self._claimants_of_mine, self._name_taken)
         except BaseException:
             self._close()
             raise
@@ -171,15 +165,13 @@ class ZenohTransport(Transport):
                 found.add(last(reply.ok.key_expr))
         return found
 
-    def _refuse_if_taken(self, *, after_claim: bool = False) -> None:
-        """NameTaken if another session claims this node's name. Two sessions that claimed it at the same moment
-        both see each other once their tokens have met: the one with the greater session ID gives way."""
-        others = self.claimants(self.segment) - {self._zid}
-        if not others or (after_claim and min(others) > self._zid):
-            return
+    def _claimants_of_mine(self) -> set[str]:
+        return self.claimants(self.segment)
+
+    def _name_taken(self, rival: str) -> NameTaken:
         role = "tool" if self.role == "tool" else "module"
-        raise NameTaken(f"a {role} named {self.segment.lstrip('~')!r} is already alive in robot {self.robot!r} "
-                        f"(session {min(others)}): choose another name")  # fmt: skip
+        return NameTaken(f"a {role} named {self.segment.lstrip('~')!r} is already alive in robot {self.robot!r} "
+                         f"(session {rival}): choose another name")  # fmt: skip
 
     def _join(self, group: str) -> None:
         self._keep.append(self.session.declare_subscriber(self.keys.group(group), self._on_sample))

@@ -30,17 +30,6 @@ class Idle(Service):
             pass
 
 
-@pytest.fixture
-def router() -> Iterator[str]:
-    """A Zenoh router (a plain Python session in router mode) on a free loopback port; yields its endpoint."""
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
-    session = zenoh.open(make_config(mode="router", listen=[endpoint]))
-    try:
-        yield endpoint
-    finally:
-        session.close()
-
-
 def test_client_mode_nodes_talk_through_a_router(router: str) -> None:
     module = Node("module", ZenohTransport(mode="client", connect=[router], role="module"))
     tool = Node("tool", ZenohTransport(mode="client", connect=[router]))

@@ -1,0 +1,57 @@
+"""Claiming a name on a Zenoh network with a liveliness token and no coordinator (docs/protocol.md §6).
+
+A session first asks for the tokens already claiming the name and refuses if there is one. Two sessions that ask
+at nearly the same moment both find none, so each then declares its token, lets it travel (:data:`CLAIM_SETTLE`)
+and asks again. What each then sees depends on how the race fell, and each must decide alone:
+
+- a rival with a lesser session ID: this session gives way at once (the rival keeps the name, or gives way itself
+  only to a yet lesser one);
+- only rivals with greater IDs: either they saw this session and are giving way, or one of them asked before this
+  session's token reached it and has already kept the name. This session cannot tell which, so it waits for them to
+  withdraw their tokens and keeps the name only when they have; a rival still there after :data:`CLAIM_WAIT` has
+  kept it, and this session gives way.
+
+So two sessions never both keep a name; under a stall longer than :data:`CLAIM_WAIT` both may give way, the safe
+failure (each says the name is taken, and a second try succeeds). An earlier rule had the greater ID give way and
+the lesser keep the name whatever it saw: a slow session whose token arrived after its rival's second look kept the
+name beside it (seen once in the suite under load; tests/transport/test_name_claims.py reproduces it).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+
+CLAIM_QUERY_TIMEOUT = 2.0
+"""Seconds a session waits for the network to say whether its name is taken."""
+CLAIM_SETTLE = 0.05
+"""Seconds a session lets its own token travel before it asks again, and between later looks."""
+CLAIM_WAIT = 3.0
+"""Seconds a session whose rivals all have greater IDs waits for them to give way before it gives way itself."""
+
+
+def refuse_if_claimed(own: str, claimants: Callable[[], set[str]], refused: Callable[[str], Exception]) -> None:
+    """Before declaring a token: raise ``refused(rival)`` if any other session already claims the name."""
+    others = claimants() - {own}
+    if others:
+        raise refused(min(others))
+
+
+def settle_claim(
+    own: str,
+    claimants: Callable[[], set[str]],
+    refused: Callable[[str], Exception],
+    *,
+    wait: float = CLAIM_WAIT,
+) -> None:
+    """After declaring this session's token: return once the name is this session's, or raise ``refused(rival)``
+    when it must give way (the caller then withdraws its token). See the module docstring for the rule."""
+    deadline = time.monotonic() + wait
+    while True:
+        time.sleep(CLAIM_SETTLE)
+        others = claimants() - {own}
+        if not others:
+            return
+        rival = min(others)
+        if rival < own or time.monotonic() >= deadline:
+            raise refused(rival)
