@@ -55,6 +55,7 @@ from asm_py.protocol import (
 )
 from asm_py.remote import RemoteObject, make_client
 from asm_py.transport.can import CanTransport, group_id, message_priority
+from asm_py.transport.zenoh_claim import CLAIM_QUERY_TIMEOUT, CLAIM_SETTLE, CLAIM_WAIT, Verdict, verdict
 
 from .bridge_clients import DEFAULT_FRAME_RATE, ClientTable, Pacer, Refusal
 from .bridge_outlets import Outlet, direct
@@ -100,6 +101,10 @@ class _Mirror:
         self.next_attempt = 0.0
         self.backoff = TABLE_BACKOFF[0]
         self.attempts = 0
+        self.claim_settled = False
+        """Whether the name is now the bridge's; if not, it looks again at ``claim_due`` (zenoh_claim's rule)."""
+        self.claim_due = time.monotonic() + CLAIM_SETTLE
+        self.claim_deadline = time.monotonic() + CLAIM_WAIT
 
 
 class CanZenohBridge:
@@ -185,6 +190,7 @@ class CanZenohBridge:
             if item is None:
                 return
             self._retry_taken()
+            self._settle_claims()
             for _ in range(64):  # back to back, but never long without looking at nodes that came or went
                 if not self._read_a_table() or not self._work.empty():
                     break
@@ -201,23 +207,40 @@ class CanZenohBridge:
         except Exception:
             log.exception("bridging %s failed", item)
 
-    def _claimed_elsewhere(self, name: str) -> str | None:
-        """The session of another process that answers for ``name`` in this robot, if any."""
-        for reply in self.session.liveliness().get(self.keys.alive(name), timeout=2.0):
-            if reply.ok is not None and last(reply.ok.key_expr) != self._zid:
-                return last(reply.ok.key_expr)
-        return None
+    def _claimants(self, name: str) -> set[str]:
+        """The sessions whose liveliness token claims ``name`` in this robot now, this bridge's own among them."""
+        replies = self.session.liveliness().get(self.keys.alive(name), timeout=CLAIM_QUERY_TIMEOUT)
+        return {last(reply.ok.key_expr) for reply in replies if reply.ok is not None}
+
+    def _refuse(self, name: str, other: str) -> None:
+        if name not in self._taken:
+            log.error("not bridging CAN node %s: a node named %s is already alive in robot %r (session %s)",
+                      name, name, self.robot, other)  # fmt: skip
+        self._taken[name] = time.monotonic() + TAKEN_RETRY
+
+    def _settle_claims(self) -> None:
+        """The bridge's mirrors claim their names as any session does, without blocking the work loop: each due
+        mirror looks once; one that must give way is withdrawn (and tried again every TAKEN_RETRY seconds)."""
+        now = time.monotonic()
+        for mirror in [m for m in list(self._mirrors.values()) if not m.claim_settled and m.claim_due <= now]:
+            decided, rival = verdict(
+                self._zid, self._claimants(mirror.name), waited_enough=now >= mirror.claim_deadline
+            )
+            if decided is Verdict.KEEP:
+                mirror.claim_settled = True
+            elif decided is Verdict.YIELD:
+                self._unmirror(mirror.name)
+                self._refuse(mirror.name, rival)
+            else:
+                mirror.claim_due = time.monotonic() + CLAIM_SETTLE
 
     def _mirror(self, name: str) -> None:
         node_id = self.can.resolve(name)
         if node_id is None or name in self._mirrors:
             return
-        other = self._claimed_elsewhere(name)
-        if other is not None:
-            if name not in self._taken:
-                log.error("not bridging CAN node %s: a node named %s is already alive in robot %r (session %s)",
-                          name, name, self.robot, other)  # fmt: skip
-            self._taken[name] = time.monotonic() + TAKEN_RETRY
+        others = self._claimants(name) - {self._zid}
+        if others:
+            self._refuse(name, min(others))
             return
         self._taken.pop(name, None)
         mirror = _Mirror(name, node_id)
@@ -259,7 +282,9 @@ class CanZenohBridge:
 
     def _table_wait(self) -> float:
         """Seconds until a table read is due (0: now), at most the housekeeping period."""
-        attempts = [m.next_attempt for m in list(self._mirrors.values()) if not m.table_read]
+        mirrors = list(self._mirrors.values())
+        attempts = [m.next_attempt for m in mirrors if not m.table_read]
+        attempts += [m.claim_due for m in mirrors if not m.claim_settled]
         return min(0.2, max(0.0, min(attempts, default=math.inf) - time.monotonic()))
 
     def _read_a_table(self) -> bool:

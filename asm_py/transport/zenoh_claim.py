@@ -19,6 +19,7 @@ name beside it (seen once in the suite under load; tests/transport/test_name_cla
 
 from __future__ import annotations
 
+import enum
 import time
 from collections.abc import Callable
 
@@ -37,6 +38,25 @@ def refuse_if_claimed(own: str, claimants: Callable[[], set[str]], refused: Call
         raise refused(min(others))
 
 
+class Verdict(enum.Enum):
+    """What a session that declared its token does after one look at the claimants of its name."""
+
+    KEEP = "keep"
+    YIELD = "yield"
+    WAIT = "wait"
+
+
+def verdict(own: str, claimants: set[str], *, waited_enough: bool) -> tuple[Verdict, str]:
+    """The rule of the module docstring for one look: the verdict, and the rival that decides it ("" if none)."""
+    others = claimants - {own}
+    if not others:
+        return Verdict.KEEP, ""
+    rival = min(others)
+    if rival < own or waited_enough:
+        return Verdict.YIELD, rival
+    return Verdict.WAIT, rival
+
+
 def settle_claim(
     own: str,
     claimants: Callable[[], set[str]],
@@ -45,13 +65,12 @@ def settle_claim(
     wait: float = CLAIM_WAIT,
 ) -> None:
     """After declaring this session's token: return once the name is this session's, or raise ``refused(rival)``
-    when it must give way (the caller then withdraws its token). See the module docstring for the rule."""
+    when it must give way (the caller then withdraws its token)."""
     deadline = time.monotonic() + wait
     while True:
         time.sleep(CLAIM_SETTLE)
-        others = claimants() - {own}
-        if not others:
+        decided, rival = verdict(own, claimants(), waited_enough=time.monotonic() >= deadline)
+        if decided is Verdict.KEEP:
             return
-        rival = min(others)
-        if rival < own or time.monotonic() >= deadline:
+        if decided is Verdict.YIELD:
             raise refused(rival)

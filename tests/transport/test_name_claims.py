@@ -131,3 +131,42 @@ def test_a_late_robot_meets_a_robot_of_its_name_and_gives_way(
     finally:
         for session in sessions.values():
             session.close()
+
+
+def test_a_bridge_mirror_that_claimed_late_beside_a_kept_name_is_withdrawn(
+    router: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A CAN module m1 behind a bridge, and a Zenoh module m1 that already kept the name: the bridge, whose first
+    look missed the Zenoh module's token, withdraws its mirror (and the Zenoh module alone answers for m1)."""
+    from asm_py import Attribute
+    from asm_py.transport.can import CanTransport
+    from server.bridge import CanZenohBridge
+    from server.zenoh_args import ZenohOptions
+
+    from ..helpers import wait_until
+    from ..transports import FAST_BEATS, fresh_name
+
+    can_options = {"interface": "virtual", "channel": fresh_name("asm-claims"), **FAST_BEATS}
+    blind_first_look(monkeypatch, CanZenohBridge, "_claimants", lambda b: getattr(b, "_zid", "") == LESSER)
+    network = ZenohOptions(mode="client", connect=(router,), config_file=config_with_id(tmp_path, LESSER))
+    closing: list[Node | CanZenohBridge] = []
+    try:
+        zenoh_m1 = Node("m1", ZenohTransport(role="module", mode="client", connect=[router],
+                                             config_file=config_with_id(tmp_path, GREATER)))  # fmt: skip
+        closing.append(zenoh_m1)
+        zenoh_m1.register(Attribute("where", "zenoh", codec="str"))
+        can_m1 = Node("m1", CanTransport(1, **can_options))
+        closing.append(can_m1)
+        can_m1.register(Attribute("where", "can", codec="str"))
+        bridge = CanZenohBridge(can_options, network=network)
+        closing.append(bridge)
+        tool = Node("tester", ZenohTransport(mode="client", connect=[router]))
+        closing.append(tool)
+        assert wait_until(lambda: "m1" in bridge.bridged, timeout=10)  # mirrored on the blind look
+        assert wait_until(lambda: "m1" not in bridge.bridged, timeout=CLAIM_WAIT + 10)
+        assert tool.lookup("m1", "where", timeout=5).get() == "zenoh"
+        time.sleep(1)  # and it stays withdrawn while the Zenoh module lives
+        assert "m1" not in bridge.bridged
+    finally:
+        for made in reversed(closing):
+            made.close()
