@@ -7,7 +7,7 @@ import time
 
 import pytest
 
-from asm_py.errors import RemoteError
+from asm_py.errors import AsmTimeout, RemoteError
 from asm_py.protocol import Status
 from gaits import calls
 from gaits.calls import DeployError, ModuleCalls
@@ -53,3 +53,28 @@ def test_another_refusal_is_not_tried_again() -> None:
     with pytest.raises(DeployError, match="malformed"):
         ModuleCalls(_Node(), {3: "m3"}).call(3, "stage", operation)  # type: ignore[arg-type]
     assert len(made) == 1
+
+
+def test_a_request_of_many_frames_gets_more_attempts_on_timeouts_but_not_on_busy(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """A gait table of 22 CAN frames is lost whenever any of its frames is: it is tried 5 + 2 times, not 5."""
+    lost = AsmTimeout("no reply")
+    operation, made = _answering(*[lost] * 6, "staged")
+    calls_ = ModuleCalls(_Node(), {3: "m3"}, timeout=0.01, attempts=5)  # type: ignore[arg-type]
+    assert calls_.call(3, "stage", operation, size=165) == "staged"
+    assert len(made) == 7
+    operation, made = _answering(*[lost] * 8)
+    with pytest.raises(DeployError, match="no reply"):
+        calls_.call(3, "stage", operation, size=165)
+    assert len(made) == 7
+    operation, made = _answering(*[lost] * 5, "never")  # one frame: the attempts asked for
+    with pytest.raises(DeployError):
+        calls_.call(3, "stage", operation, size=4)
+    assert len(made) == 5
+    monkeypatch.setattr(calls, "BUSY_PAUSE", 0.001)
+    busy = RemoteError("busy", Status.BUSY)
+    operation, made = _answering(*[busy] * 7)
+    with pytest.raises(DeployError, match="busy"):
+        calls_.call(3, "stage", operation, size=165)
+    assert len(made) == 5
