@@ -36,7 +36,7 @@ import numpy as np
 from .model import FORWARD, Gait, GaitError, dumps, from_dict, to_dict
 from .params import Free, apply, check, current
 from .terrain import FLAT, Terrain
-from .workers import end_workers, start_worker
+from .workers import start_worker, stop_pool
 
 OBJECTIVES = {"speed": (1.0, "m/s"), "cost_of_transport": (-1.0, ""), "heading_rate": (1.0, "°/s")}
 """Objective → (+1: maximised, -1: minimised; its unit)."""
@@ -303,15 +303,10 @@ def tune(gait: Gait, frees: list[Free], setup: Setup, *, budget: int = 60, seed:
         result.failure = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
     finally:
         if own:
-            manager = getattr(pool, "_executor_manager_thread", None)  # shutdown forgets it
-            pool.shutdown(wait=not result.interrupted, cancel_futures=True)
-            if result.interrupted:
-                end_workers(pool)
-                if manager is not None:
-                    # Once its workers are gone the pool's thread closes its wake-up pipe, which CPython 3.11's exit
-                    # handler writes to unless closed, unlocked: they raced at exit ("OSError: [Errno 9] Bad file
-                    # descriptor" under an interrupted `gaits tune`, a fresh clone's run). The exit joined it anyway.
-                    manager.join(60.0)
+            if result.interrupted:  # its running simulations killed, not waited for
+                stop_pool(pool)
+            else:
+                pool.shutdown(wait=True, cancel_futures=True)
     return result
 
 

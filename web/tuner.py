@@ -24,7 +24,7 @@ from gaits.model import Gait
 from gaits.params import Free
 from gaits.robot import description
 from gaits.tune import Result, Setup, resolved, source_of, tune, tuned_text
-from gaits.workers import end_workers, start_worker
+from gaits.workers import start_worker, stop_pool
 
 
 @dataclass
@@ -110,7 +110,7 @@ class TuneRun:
     def stop(self, timeout: float = 10.0) -> None:
         """End the search now, keeping the best so far: the workers are killed, the thread joined."""
         self._stop.set()
-        end_workers(self._pool)
+        stop_pool(self._pool)
         self._thread.join(timeout)
 
     close = stop
@@ -150,8 +150,7 @@ class TuneRun:
                     s.line = "no candidate met the constraints"
                 s.version += 1
         finally:
-            self._pool.shutdown(wait=False, cancel_futures=True)
-            end_workers(self._pool)
+            stop_pool(self._pool)
 
     def _progress(self, result: Result, line: str) -> None:
         with self._lock:
