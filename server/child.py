@@ -17,6 +17,7 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Sequence
 from pathlib import Path
 
 log = logging.getLogger(__name__)
@@ -70,7 +71,8 @@ class Child:
     """``python *args``, its stdout and stderr collected line by line by a reader thread.
 
     ``prefix`` goes before python (``ip netns exec NS`` execs it); ``label`` names the child in errors; ``keep``
-    bounds the lines kept in ``output`` (a studio's robot runs for days; a test keeps all for its failure message).
+    bounds the lines kept in ``output`` (a studio's robot runs for days; a test keeps all for its failure message);
+    ``pass_fds`` are file descriptors the child inherits (under the same numbers).
     """
 
     def __init__(
@@ -81,12 +83,13 @@ class Child:
         label: str = "",
         keep: int | None = None,
         grace: float = 10.0,
+        pass_fds: Sequence[int] = (),
     ) -> None:
         self.label = label or " ".join(args[:2])
         self.keep, self.grace = keep, grace
         env = {**os.environ, "PYTHONUNBUFFERED": "1"}
         self.popen = subprocess.Popen([*prefix, sys.executable, *args], cwd=cwd, env=env, stdout=subprocess.PIPE,
-                                      stderr=subprocess.STDOUT, text=True)  # fmt: skip
+                                      stderr=subprocess.STDOUT, text=True, pass_fds=pass_fds)  # fmt: skip
         self.output: list[str] = []
         self._changed = threading.Condition()
         self._read_lines = 0  # every line read so far; output holds the last len(output) of them

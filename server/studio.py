@@ -131,10 +131,10 @@ def free_loopback_port(avoid: Collection[int] = ()) -> int:
 class RobotChild(Child):
     """An ``asm-robot`` child process; it dies with this process (``--parent-pid``)."""
 
-    def __init__(self, args: list[str]) -> None:
+    def __init__(self, args: list[str], pass_fds: tuple[int, ...] = ()) -> None:
         self.args = args
         super().__init__("-m", "server.robot", "--parent-pid", str(os.getpid()), *args, label="the robot process",
-                         keep=200, grace=6.0)  # fmt: skip
+                         keep=200, grace=6.0, pass_fds=pass_fds)  # fmt: skip
         try:
             self.wait_for_line("READY robot", timeout=ROBOT_START_TIMEOUT)
         except ChildError:
@@ -167,6 +167,8 @@ class Studio:
         self.app: Any = None
         self.token: str | None = None
         self._gait_file: Path | None = None
+        self._gait_fd: int | None = None
+        """The robot child's gait while it starts (``_gait_for_child``): a file, or a file in memory."""
         self._child_endpoint: str | None = None
         self._notices: list[Callable[[str, str, bool], None]] = []
         self._stop = threading.Event()
@@ -213,11 +215,7 @@ class Studio:
             if options.bitrate:
                 args += ["--bitrate", str(options.bitrate)]
         else:
-            handle, path = tempfile.mkstemp(prefix="asm-studio-robot-", suffix=".toml")
-            os.close(handle)
-            self._gait_file = Path(path)
-            self._gait_file.write_text(dumps(gait, inline=True))  # a temporary file: no robot file beside it
-            args += ["--sim", str(self._gait_file)]
+            args += ["--sim", self._gait_for_child(gait)]
             if options.c_modules:
                 args += ["--c-modules", options.c_modules]
             if options.emulated_modules:
@@ -233,16 +231,36 @@ class Studio:
             network = network.with_(listen=(self._child_endpoint, *network.listen))
         return args + network.args()
 
+    def _gait_for_child(self, gait: Gait) -> str:
+        """Where the robot child reads ``gait`` (its robot inline: no robot file beside it). On Linux, a file in
+        memory (memfd) that the child inherits: nothing on disk, so a studio killed at any moment, even while its
+        robot starts, leaves nothing behind. Elsewhere a temporary file, removed once the child is up."""
+        text = dumps(gait, inline=True).encode("utf-8")
+        if hasattr(os, "memfd_create"):
+            self._gait_fd = os.memfd_create("asm-studio-robot.toml", 0)  # not close-on-exec: the child inherits it
+            os.write(self._gait_fd, text)
+            return f"/dev/fd/{self._gait_fd}"
+        handle, path = tempfile.mkstemp(prefix="asm-studio-robot-", suffix=".toml")
+        os.close(handle)
+        self._gait_file = Path(path)
+        self._gait_file.write_bytes(text)
+        return path
+
+    def _forget_gait_for_child(self) -> None:
+        if self._gait_fd is not None:
+            os.close(self._gait_fd)
+            self._gait_fd = None
+        if self._gait_file is not None:
+            self._gait_file.unlink(missing_ok=True)
+            self._gait_file = None
+
     def _spawn_robot(self, gait: Gait) -> RobotChild:
-        """The robot child for ``gait``, up. It reads its gait file once, at start: the file goes as soon as the
-        child is up (or failed), so a studio killed outright leaves nothing in the temporary folder; a restart writes
-        a new one."""
+        """The robot child for ``gait``, up. It reads its gait once, at start; a restart writes it anew."""
         try:
-            return RobotChild(self._robot_args(gait))
+            args = self._robot_args(gait)
+            return RobotChild(args, pass_fds=() if self._gait_fd is None else (self._gait_fd,))
         finally:
-            if self._gait_file is not None:
-                self._gait_file.unlink(missing_ok=True)
-                self._gait_file = None
+            self._forget_gait_for_child()
 
     def _start_robot(self, gait: Gait) -> ZenohOptions:
         """Start the studio's own robot; the Zenoh options that reach it."""
@@ -398,9 +416,7 @@ class Studio:
             if self.child is not None:
                 self.child.stop()
                 self.child = None
-        if self._gait_file is not None:
-            self._gait_file.unlink(missing_ok=True)
-            self._gait_file = None
+        self._forget_gait_for_child()
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -10,6 +10,7 @@ import sys
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -233,13 +234,17 @@ def test_a_failure_at_run_time_is_one_line_and_exit_1(module_name: str, argv: li
     assert "READY" not in result.stdout
 
 
-def _robot_args(studio: type, owner: object, gait: object) -> list[str]:
-    """The studio's arguments for its robot, without the gait file they name (the studio removes it once its robot
-    is up)."""
+def _robot_args(studio: type, owner: Any, gait: object) -> list[str]:
+    """The studio's arguments for its robot; the gait they hand over (a file in memory here, on Linux) is read back
+    as the gait and released, as the studio releases it once its robot is up."""
+    from gaits.model import load
+
+    owner._gait_for_child = lambda g: studio._gait_for_child(owner, g)
     args = studio._robot_args(owner, gait)
-    gait_file = Path(args[args.index("--sim") + 1])
-    assert gait_file.is_file()
-    gait_file.unlink()
+    handed = Path(args[args.index("--sim") + 1])
+    assert str(handed).startswith("/dev/fd/") and load(handed) == gait
+    studio._forget_gait_for_child(owner)
+    assert not handed.exists()
     return args
 
 
@@ -250,7 +255,7 @@ def test_the_studio_passes_its_c_module_choice_to_its_robot(tmp_path) -> None:
     from gaits.terrain import FLAT
     from server.studio import Studio, StudioOptions
 
-    owner = SimpleNamespace(options=StudioOptions(c_modules="1,3"), _gait_file=None,
+    owner = SimpleNamespace(options=StudioOptions(c_modules="1,3"), _gait_file=None, _gait_fd=None,
                             own_robot="robot", _child_endpoint="tcp/127.0.0.1:1", robot_terrain=FLAT)  # fmt: skip
     args = _robot_args(Studio, owner, load(LIBRARY / "caterpillar.toml"))
     assert args[args.index("--c-modules") + 1] == "1,3" and "--sim" in args
@@ -263,7 +268,7 @@ def test_the_studio_passes_its_emulated_module_choice_to_its_robot_only(tmp_path
     from gaits.terrain import FLAT
     from server.studio import Studio, StudioOptions
 
-    owner = SimpleNamespace(options=StudioOptions(emulated_modules="odd"), _gait_file=None,
+    owner = SimpleNamespace(options=StudioOptions(emulated_modules="odd"), _gait_file=None, _gait_fd=None,
                             own_robot="robot", _child_endpoint="tcp/127.0.0.1:1", robot_terrain=FLAT)  # fmt: skip
     args = _robot_args(Studio, owner, load(LIBRARY / "caterpillar.toml"))
     assert args[args.index("--emulated-modules") + 1] == "odd" and "--sim" in args and "--c-modules" not in args
