@@ -8,6 +8,14 @@ import time
 import pytest
 
 
+def pytest_configure(config: pytest.Config) -> None:
+    """The folder the browser tests write their screenshots to (tests/helpers.py ARTIFACTS), there before any test:
+    a test run alone on a fresh clone found it missing when an earlier test had not made it."""
+    from .helpers import ARTIFACTS
+
+    ARTIFACTS.mkdir(exist_ok=True)
+
+
 def _asm_threads() -> set[threading.Thread]:
     return {t for t in threading.enumerate() if t.name.startswith(("asm:", "asm-"))}
 

@@ -40,7 +40,6 @@ def test_the_modules_tab_reads_calibrates_refuses_and_zeros_by_clicks(studio_pro
     from playwright.sync_api import expect, sync_playwright
 
     url, endpoint, _ = studio_process
-    ARTIFACTS.mkdir(exist_ok=True)
     client = Node("modules-check", ZenohTransport(connect=[endpoint]))
     try:
         with sync_playwright() as pw:

@@ -32,7 +32,6 @@ def test_float_fields_take_the_digits_typed(studio_process):
     from playwright.sync_api import expect, sync_playwright
 
     url, _, log = studio_process
-    ARTIFACTS.mkdir(exist_ok=True)
     with sync_playwright() as pw:
         browser, page = open_page(pw, url)
         page.get_by_role("tab", name="Gait").click()
@@ -68,7 +67,6 @@ def test_whole_number_fields_refuse_a_fraction_by_name(studio_process):
     from playwright.sync_api import expect, sync_playwright
 
     url, _, log = studio_process
-    ARTIFACTS.mkdir(exist_ok=True)
     with sync_playwright() as pw:
         browser, page = open_page(pw, url)
         page.get_by_role("tab", name="Gait").click()
@@ -99,7 +97,6 @@ def test_the_attribute_browser_refuses_a_fraction_for_an_integer_attribute(studi
     from playwright.sync_api import expect, sync_playwright
 
     url, endpoint, log = studio_process
-    ARTIFACTS.mkdir(exist_ok=True)
     client = Node("precision-client", ZenohTransport(connect=[endpoint]))
     try:
         with sync_playwright() as pw:
@@ -137,7 +134,6 @@ def test_a_sliders_box_refuses_more_decimals_than_its_slider_takes(studio_proces
     from .test_replay_page import _slider_box
 
     url, _, log = studio_process
-    ARTIFACTS.mkdir(exist_ok=True)
     with sync_playwright() as pw:
         browser, page = open_page(pw, url)
         page.get_by_role("tab", name="Gait").click()

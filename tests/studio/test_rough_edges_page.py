@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import io
 import re
+import time
 
 import numpy as np
 
@@ -44,10 +45,17 @@ def test_a_one_shot_gait_shows_its_states_over_time_and_where_it_ended(start_stu
         expect(caption).to_contain_text(re.compile(r"ended\*{0,2} at t = 5\.\d\d s"), timeout=90_000)
         picture = page.locator("img").filter(has_not=page.locator("svg")).last
         expect(picture).to_be_visible()
-        shot = picture.screenshot()
+        # the grey after the end grows as the preview runs on: the caption says "ended" as soon as it has (a picture
+        # taken at once, at t = 5.6 s, held 4 grey pixels), so the picture is taken again until it shows some
+        deadline = time.monotonic() + 30
+        while True:
+            shot = picture.screenshot()
+            image = _image(shot)
+            if _count(image, STOPPED) > 100 or time.monotonic() > deadline:
+                break
+            time.sleep(0.5)
         (ARTIFACTS / "rough-states-over-time.png").write_bytes(shot)
         page.screenshot(path=str(ARTIFACTS / "rough-states-over-time-page.png"))
-        image = _image(shot)
         colours = [state_colour(k) for k in range(4)]
         counts = [_count(image, c) for c in colours]
         assert all(n > 100 for n in counts), counts  # all four states drawn

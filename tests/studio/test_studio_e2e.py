@@ -35,7 +35,6 @@ def test_edit_preview_deploy_watch_and_estop(studio_process):
     from playwright.sync_api import expect, sync_playwright
 
     url, endpoint, log = studio_process
-    ARTIFACTS.mkdir(exist_ok=True)
     client = Node("e2e-client", ZenohTransport(connect=[endpoint]))
     try:
         with sync_playwright() as pw:
@@ -147,7 +146,6 @@ def test_upload_grid_history_robot_size_and_attribute_browser(studio_process, tm
     from gaits.model import dumps, load
 
     url, endpoint, log = studio_process
-    ARTIFACTS.mkdir(exist_ok=True)
     worm = load("gaits/library/inchworm.toml")
     worm.name = "uploaded_worm"
     upload = tmp_path / "uploaded_worm.toml"

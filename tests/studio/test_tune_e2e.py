@@ -26,7 +26,6 @@ def test_a_user_tunes_the_gait_previews_the_best_adopts_it_and_undoes(studio_pro
     from playwright.sync_api import expect, sync_playwright
 
     url, _, log = studio_process
-    ARTIFACTS.mkdir(exist_ok=True)
     with sync_playwright() as pw:
         browser, page = open_page(pw, url)
         first_state = page.get_by_label("wave S1 (°, s)")
