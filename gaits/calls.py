@@ -33,7 +33,9 @@ FRAMES_PER_EXTRA_ATTEMPT = 8
 and it is only answered when all arrive. At 1 % loss at each end (the fault suite) a gait table of 22 frames arrives
 whole 64 % of the time, so 5 attempts left 0.6 % of modules unstaged (tests/server/test_safety.py's lossy deploys
 failed 3-5 % of deploys, each module's five requests all missing a frame, frame traces in docs/benchmarks.md); two
-more bring that to 0.08 %."""
+more bring that to 0.08 %. At most MAX_EXTRA_ATTEMPTS more, so a call to a module that never answers stays bounded
+whatever its size (a 4 kB request would otherwise be tried 68 times)."""
+MAX_EXTRA_ATTEMPTS = 2
 BYTES_PER_SECOND = 16_000.0
 """Allowance for a request's size: half of what a 1 Mbit/s bus carries at the bridge's frame rate."""
 
@@ -88,7 +90,9 @@ class ModuleCalls:
     def call(self, module: int, step: str, operation: Callable[[float], Any], size: int = 0) -> Any:
         """``operation(timeout)`` (repeatable), retried on timeouts and BUSY answers; DeployError naming the module
         and step otherwise. ``size``: the request's data bytes (a longer wait, and more attempts on timeouts)."""
-        tries = self.attempts + (frame_count(size + HEADER_SIZE) - 1) // FRAMES_PER_EXTRA_ATTEMPT
+        extra = (frame_count(size + HEADER_SIZE) - 1) // FRAMES_PER_EXTRA_ATTEMPT
+        tries = self.attempts + min(MAX_EXTRA_ATTEMPTS, extra)
+        busy = 0  # BUSY answers so far: they count towards the call's tries, and only they double the pause
         for attempt in range(tries):
             wait = self.trips.timeout(size)
             began = time.monotonic()
@@ -99,10 +103,11 @@ class ModuleCalls:
                 if attempt + 1 == tries:
                     raise DeployError(f"module {module} ({self.names[module]}), {step}: {exc}") from exc
                 continue
-            except RemoteError as exc:  # BUSY loses no frame: it gets the attempts a one-frame call gets
-                if exc.status != Status.BUSY or attempt + 1 >= self.attempts:
+            except RemoteError as exc:  # BUSY: nothing was done, so the call may be made again
+                busy += 1
+                if exc.status != Status.BUSY or attempt + 1 == tries or busy == self.attempts:
                     raise DeployError(f"module {module} ({self.names[module]}), {step}: {exc}") from exc
-                time.sleep(BUSY_PAUSE * 2**attempt)  # BUSY: nothing was done, so the call may be made again
+                time.sleep(BUSY_PAUSE * 2 ** (busy - 1))
                 continue
             except (AsmError, ValueError, LookupError, TypeError, PermissionError) as exc:
                 raise DeployError(f"module {module} ({self.names[module]}), {step}: {exc}") from exc

@@ -159,3 +159,25 @@ class Child:
                 self.popen.wait(10)
         self._reader.join(5)
         return self.popen.returncode
+
+
+ROBOT_START_TIMEOUT = 60.0
+"""Seconds a robot child may take to say READY (its imports and its modules, on a loaded machine)."""
+
+
+class RobotChild(Child):
+    """An ``asm-robot`` child process; it dies with this process (``--parent-pid``)."""
+
+    def __init__(self, args: list[str], pass_fds: tuple[int, ...] = ()) -> None:
+        self.args = args
+        super().__init__("-m", "server.robot", "--parent-pid", str(os.getpid()), *args, label="the robot process",
+                         keep=200, grace=6.0, pass_fds=pass_fds)  # fmt: skip
+        try:
+            self.wait_for_line("READY robot", timeout=ROBOT_START_TIMEOUT)
+        except ChildError:
+            self.stop()
+            raise RuntimeError("the robot process did not start: " + "".join(self.output[-5:]).strip()) from None
+
+    def exit_code(self) -> int | None:
+        """The child's exit code once it has ended, else None."""
+        return self.popen.poll()

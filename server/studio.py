@@ -50,7 +50,7 @@ from gaits.model import LIBRARY, Gait, dumps, loads
 from gaits.terrain import FLAT, Terrain
 from gaits.validate import read
 
-from .child import Child, ChildError, free_port
+from .child import RobotChild, free_port
 from .realtime import prefer_latency
 from .studio_record import StudioRecording
 from .zenoh_args import ZenohOptions, add_zenoh_arguments, zenoh_options
@@ -60,7 +60,6 @@ LAYOUT_FILE = "studio-layout.json"
 it; the backend names the path)."""
 
 log = logging.getLogger("asm_studio")
-ROBOT_START_TIMEOUT = 60.0
 STUDIO_NAME = "studio"
 FIND_ROBOT_TIMEOUT = 10.0
 
@@ -126,24 +125,6 @@ def free_loopback_port(avoid: Collection[int] = ()) -> int:
         if port not in avoid:
             return port
     raise OSError("no free loopback port apart from the studio's own")
-
-
-class RobotChild(Child):
-    """An ``asm-robot`` child process; it dies with this process (``--parent-pid``)."""
-
-    def __init__(self, args: list[str], pass_fds: tuple[int, ...] = ()) -> None:
-        self.args = args
-        super().__init__("-m", "server.robot", "--parent-pid", str(os.getpid()), *args, label="the robot process",
-                         keep=200, grace=6.0, pass_fds=pass_fds)  # fmt: skip
-        try:
-            self.wait_for_line("READY robot", timeout=ROBOT_START_TIMEOUT)
-        except ChildError:
-            self.stop()
-            raise RuntimeError("the robot process did not start: " + "".join(self.output[-5:]).strip()) from None
-
-    def exit_code(self) -> int | None:
-        """The child's exit code once it has ended, else None."""
-        return self.popen.poll()
 
 
 class Studio:
@@ -234,12 +215,15 @@ class Studio:
     def _gait_for_child(self, gait: Gait) -> str:
         """Where the robot child reads ``gait`` (its robot inline: no robot file beside it). On Linux, a file in
         memory (memfd) that the child inherits: nothing on disk, so a studio killed at any moment, even while its
-        robot starts, leaves nothing behind. Elsewhere a temporary file, removed once the child is up."""
+        robot starts, leaves nothing behind. Elsewhere, or where the call is refused, a temporary file, removed once
+        the child is up."""
         text = dumps(gait, inline=True).encode("utf-8")
-        if hasattr(os, "memfd_create"):
-            self._gait_fd = os.memfd_create("asm-studio-robot.toml", 0)  # not close-on-exec: the child inherits it
+        try:  # close-on-exec (the default): only the robot child is given it (pass_fds), no other child inherits it
+            self._gait_fd = os.memfd_create("asm-studio-robot.toml")
             os.write(self._gait_fd, text)
             return f"/dev/fd/{self._gait_fd}"
+        except (AttributeError, OSError):  # no memfd here (not Linux, or a sandbox refusing the call: ENOSYS, EPERM)
+            self._forget_gait_for_child()
         handle, path = tempfile.mkstemp(prefix="asm-studio-robot-", suffix=".toml")
         os.close(handle)
         self._gait_file = Path(path)

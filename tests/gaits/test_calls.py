@@ -78,3 +78,18 @@ def test_a_request_of_many_frames_gets_more_attempts_on_timeouts_but_not_on_busy
     with pytest.raises(DeployError, match="busy"):
         calls_.call(3, "stage", operation, size=165)
     assert len(made) == 5
+
+
+def test_the_extra_attempts_are_capped_and_a_busy_after_timeouts_keeps_them(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A module that never answers a 4 kB request is tried 6 + 2 times, not 68; a BUSY answer after timeouts (the
+    bridge still holds the lost requests) does not end a call that has tries left."""
+    lost = AsmTimeout("no reply")
+    calls_ = ModuleCalls(_Node(), {3: "m3"}, timeout=0.01, attempts=6)  # type: ignore[arg-type]
+    operation, made = _answering(*[lost] * 70)
+    with pytest.raises(DeployError):
+        calls_.call(3, "stage", operation, size=4000)
+    assert len(made) == 8
+    monkeypatch.setattr(calls, "BUSY_PAUSE", 0.001)
+    operation, made = _answering(*[lost] * 5, RemoteError("busy", Status.BUSY), "staged")
+    assert calls_.call(3, "stage", operation, size=165) == "staged"
+    assert len(made) == 7

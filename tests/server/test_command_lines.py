@@ -4,6 +4,7 @@ when running (a busy port, a bus that cannot open) in real processes, with a dea
 
 from __future__ import annotations
 
+import os
 import socket
 import subprocess
 import sys
@@ -346,3 +347,23 @@ def test_the_studios_robot_never_gets_the_studios_own_port() -> None:
 def test_the_foxglove_url_of_the_ready_line_is_a_url_for_ipv6_too() -> None:
     assert robot.ws_url("::1", 8765) == "ws://[::1]:8765"
     assert robot.ws_url("127.0.0.1", 8765) == "ws://127.0.0.1:8765"
+
+
+def test_where_memfd_is_refused_the_studio_hands_its_robot_a_temporary_file_and_removes_it(monkeypatch) -> None:
+    import errno
+    from types import SimpleNamespace
+
+    from gaits.model import LIBRARY, load
+    from server.studio import Studio
+
+    def refused(*_: object) -> int:
+        raise OSError(errno.ENOSYS, "Function not implemented")  # as a sandbox's seccomp answers
+
+    monkeypatch.setattr(os, "memfd_create", refused)
+    owner: Any = SimpleNamespace(_gait_fd=None, _gait_file=None)
+    owner._forget_gait_for_child = lambda: Studio._forget_gait_for_child(owner)
+    gait = load(LIBRARY / "caterpillar.toml")
+    handed = Path(Studio._gait_for_child(owner, gait))
+    assert handed.is_file() and handed.name.startswith("asm-studio-robot-") and load(handed) == gait
+    owner._forget_gait_for_child()
+    assert not handed.exists() and owner._gait_fd is None
