@@ -55,7 +55,7 @@ from asm_py.protocol import (
 )
 from asm_py.remote import RemoteObject, make_client
 from asm_py.transport.can import CanTransport, group_id, message_priority
-from asm_py.transport.zenoh_claim import CLAIM_QUERY_TIMEOUT, CLAIM_SETTLE, CLAIM_WAIT, Verdict, verdict
+from asm_py.transport.zenoh_claim import CLAIM_QUERY_TIMEOUT, CLAIM_SETTLE, CLAIM_WAIT, Holding, Verdict, verdict
 
 from .bridge_clients import DEFAULT_FRAME_RATE, ClientTable, Pacer, Refusal
 from .bridge_outlets import Outlet, direct
@@ -103,6 +103,8 @@ class _Mirror:
         self.attempts = 0
         self.claim_settled = False
         """Whether the name is now the bridge's; if not, it looks again at ``claim_due`` (zenoh_claim's rule)."""
+        self.holding = Holding()
+        """Requests and messages for the node while its claim is unsettled: answered only if the bridge keeps it."""
         self.claim_due = time.monotonic() + CLAIM_SETTLE
         self.claim_deadline = time.monotonic() + CLAIM_WAIT
 
@@ -228,7 +230,9 @@ class CanZenohBridge:
             )
             if decided is Verdict.KEEP:
                 mirror.claim_settled = True
+                mirror.holding.keep()
             elif decided is Verdict.YIELD:
+                mirror.holding.give_up()
                 self._unmirror(mirror.name)
                 self._refuse(mirror.name, rival)
             else:
@@ -265,6 +269,7 @@ class CanZenohBridge:
         with self._lock:
             mirror = self._mirrors.pop(name, None)
         if mirror is not None:
+            mirror.holding.give_up()
             for entity in reversed(mirror.entities):
                 entity.undeclare()
             for outlet in mirror.outlets.values():
@@ -325,6 +330,8 @@ class CanZenohBridge:
         return last(key_expr), (attachment.to_bytes()[:64] if attachment is not None else b"")
 
     def _query_from_zenoh(self, mirror: _Mirror, query: zenoh.Query) -> None:
+        if not mirror.holding.kept and mirror.holding.hold(lambda: self._query_from_zenoh(mirror, query), query.drop):
+            return
         data = query.payload.to_bytes() if query.payload is not None else b""
         wants_reply = len(data) >= HEADER_SIZE and kind_of(data) == Kind.REQUEST_REPLY and version_of(data) == VERSION
         try:
@@ -354,6 +361,8 @@ class CanZenohBridge:
         return self.keys.requests(mirror.name, concrete(last(query.key_expr)))
 
     def _put_from_zenoh(self, mirror: _Mirror, sample: zenoh.Sample) -> None:
+        if not mirror.holding.kept and mirror.holding.hold(lambda: self._put_from_zenoh(mirror, sample), None):
+            return
         self._forward_put(sample, Dest.NODE, mirror.node_id)
 
     def _group_from_zenoh(self, sample: zenoh.Sample) -> None:

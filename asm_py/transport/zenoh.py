@@ -36,7 +36,7 @@ from ..keys import (
 )
 from ..protocol import HEADER_SIZE, Kind, decode_timeout, has_timeout, kind_of
 from .base import ESTOP_REASON_MAX, PublicationHandler, Transport
-from .zenoh_claim import CLAIM_QUERY_TIMEOUT, refuse_if_claimed, settle_claim
+from .zenoh_claim import CLAIM_QUERY_TIMEOUT, Holding, refuse_if_claimed, settle_claim
 from .zenoh_config import (  # noqa: F401  (re-exported: the configuration is part of this transport's interface)
     MAX_LINK_MESSAGE,
     InsecureEndpoint,
@@ -117,6 +117,7 @@ class ZenohTransport(Transport):
         self._claims: dict[str, set[str]] = {}  # segment -> sessions whose liveliness token claims it
         self._pub_lock = threading.Lock()
         self._reply_keys: dict[str, zenoh.KeyExpr] = {}  # request source -> the key its replies carry
+        self._holding = Holding()
 
     @property
     def session(self) -> zenoh.Session:
@@ -138,6 +139,7 @@ class ZenohTransport(Transport):
     def _open(self, name: str) -> None:
         self.segment = segment(name, tool=self.role == "tool")
         session = self._session = zenoh.open(self._config)
+        self._holding = Holding()  # requests and messages for the name, held until it is this session's
         self._zid = str(session.info.zid())
         self._attachment = self._zid.encode()
         try:
@@ -154,8 +156,10 @@ class ZenohTransport(Transport):
             ]
             settle_claim(self._zid, self._claimants_of_mine, self._name_taken)
         except BaseException:
+            self._holding.give_up()
             self._close()
             raise
+        self._holding.keep()
 
     def claimants(self, seg: str) -> set[str]:
         """The sessions whose liveliness token claims segment ``seg`` in this robot now (a query of the network)."""
@@ -179,6 +183,8 @@ class ZenohTransport(Transport):
     # -- receiving ------------------------------------------------------------------------------------------------
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
+        if not self._holding.kept and self._holding.hold(lambda: self._on_sample(sample), None):
+            return
         source = last(sample.key_expr)
         if source != self.segment:
             self._deliver(source, sample.payload.to_bytes())
@@ -187,6 +193,8 @@ class ZenohTransport(Transport):
         """On zenoh-python's Python thread for this queryable, not on Zenoh's own: a handler may block (a set's
         change callback calling another node) without holding Zenoh's network thread. Running it there instead
         (zenoh-python's direct callback) was measured no faster (issue 31, docs/benchmarks.md)."""
+        if not self._holding.kept and self._holding.hold(lambda: self._on_query(query), query.drop):
+            return
         source = last(query.key_expr)
         key = self._reply_keys.get(source)
         if key is None:  # a reply carries the replier's own, concrete key

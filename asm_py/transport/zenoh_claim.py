@@ -11,6 +11,10 @@ and asks again. What each then sees depends on how the race fell, and each must 
   withdraw their tokens and keeps the name only when they have; a rival still there after :data:`CLAIM_WAIT` has
   kept it, and this session gives way.
 
+A session answers for the name only once it has kept it: what arrives for it while the claim is unsettled is held
+(:class:`Holding`) and handled once the name is kept, or dropped unanswered if the session gives way — a session
+about to give way answered for the name for up to CLAIM_WAIT before (a review measured 3,123 wrong answers in 3 s).
+
 So two sessions never both keep a name; under a stall longer than :data:`CLAIM_WAIT` both may give way, the safe
 failure (each says the name is taken, and a second try succeeds). An earlier rule had the greater ID give way and
 the lesser keep the name whatever it saw: a slow session whose token arrived after its rival's second look kept the
@@ -20,6 +24,7 @@ name beside it (seen once in the suite under load; tests/transport/test_name_cla
 from __future__ import annotations
 
 import enum
+import threading
 import time
 from collections.abc import Callable
 
@@ -74,3 +79,49 @@ def settle_claim(
             return
         if decided is Verdict.YIELD:
             raise refused(rival)
+
+
+class Holding:
+    """What arrives for a name while its claim is unsettled: held, then handled once the name is kept (:meth:`keep`)
+    or dropped if it is given up (:meth:`give_up`); bounded (beyond ``limit``, dropped at once)."""
+
+    def __init__(self, limit: int = 1024) -> None:
+        self.limit = limit
+        self._lock = threading.Lock()
+        self._held: list[tuple[Callable[[], None], Callable[[], None] | None]] = []
+        self._state = Verdict.WAIT
+        self.kept = False
+        """True once the name is kept, for ever after: a hot path reads it (without the lock) before calling hold."""
+
+    def hold(self, handle: Callable[[], None], drop: Callable[[], None] | None) -> bool:
+        """True when the caller must not handle the arrival now: it was held, or dropped (``drop()`` called, if any:
+        a query is dropped unanswered, a message simply forgotten)."""
+        with self._lock:
+            if self._state is Verdict.KEEP:
+                return False
+            if self._state is Verdict.WAIT and len(self._held) < self.limit:
+                self._held.append((handle, drop))
+                return True
+        if drop is not None:
+            drop()
+        return True
+
+    def keep(self) -> None:
+        """The name is kept: handle what was held, in order, and everything after at once."""
+        self._settle(Verdict.KEEP)
+
+    def give_up(self) -> None:
+        """The name is given up: drop what was held, and everything after."""
+        self._settle(Verdict.YIELD)
+
+    def _settle(self, state: Verdict) -> None:
+        with self._lock:
+            if self._state is not Verdict.WAIT:
+                return
+            self._state, held, self._held = state, self._held, []
+            self.kept = state is Verdict.KEEP
+        for handle, drop in held:
+            if state is Verdict.KEEP:
+                handle()
+            elif drop is not None:
+                drop()

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import itertools
 import json
+import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -14,9 +15,9 @@ from pathlib import Path
 import pytest
 import zenoh
 
-from asm_py import Node
+from asm_py import Attribute, Node
 from asm_py.transport.zenoh import NameTaken, ZenohTransport
-from asm_py.transport.zenoh_claim import CLAIM_WAIT, refuse_if_claimed, settle_claim
+from asm_py.transport.zenoh_claim import CLAIM_WAIT, Holding, refuse_if_claimed, settle_claim
 from asm_py.transport.zenoh_config import make_config
 
 pytestmark = pytest.mark.timeout(60)
@@ -100,15 +101,35 @@ def test_a_late_claim_meets_a_session_that_kept_the_name_and_gives_way(
 
     blind_first_look(monkeypatch, ZenohTransport, "claimants", lambda t: getattr(t, "zid", "") == LESSER)
     first = Node("m7", transport(GREATER))
-    second: Node | None = None
+    first.register(Attribute("where", "first", codec="str"))
+    tool = Node("tester", ZenohTransport(robot="a", mode="client", connect=[router]))
+    second: list[Node | BaseException] = []
+    claiming = threading.Thread(target=lambda: second.append(_made(lambda: Node("m7", transport(LESSER)))))
     try:
-        with pytest.raises(NameTaken, match=f"module named 'm7' is already alive in robot 'a' \\(session {GREATER}"):
-            second = Node("m7", transport(LESSER))
+        claiming.start()
+        answers: list[object] = []
+        while claiming.is_alive():  # the second claims for up to CLAIM_WAIT: it must answer nothing meanwhile
+            answers.append(_made(lambda: tool.lookup("m7", "where", timeout=2).get()))
+        claiming.join()
+        assert len(second) == 1 and isinstance(second[0], NameTaken), second
+        assert f"module named 'm7' is already alive in robot 'a' (session {GREATER}" in str(second[0])
         assert first.transport.claimants("m7") == {GREATER}  # type: ignore[attr-defined]  # (the refused token gone)
+        assert len(answers) >= 10 and set(map(str, answers)) == {"first"}, set(map(repr, answers))
     finally:
-        for node in (first, second):
-            if node is not None:  # (a second kept in spite of the rule is closed too: no session outlives the test)
+        claiming.join(30)
+        for node in (first, tool, *second):
+            if isinstance(
+                node, Node
+            ):  # (a second kept in spite of the rule is closed too: no session outlives the test)
                 node.close()
+
+
+def _made(make: Callable[[], object]) -> object:
+    """What ``make()`` returned, or the exception it raised."""
+    try:
+        return make()
+    except Exception as exc:
+        return exc
 
 
 def test_a_late_robot_meets_a_robot_of_its_name_and_gives_way(
@@ -163,10 +184,34 @@ def test_a_bridge_mirror_that_claimed_late_beside_a_kept_name_is_withdrawn(
         tool = Node("tester", ZenohTransport(mode="client", connect=[router]))
         closing.append(tool)
         assert wait_until(lambda: "m1" in bridge.bridged, timeout=10)  # mirrored on the blind look
-        assert wait_until(lambda: "m1" not in bridge.bridged, timeout=CLAIM_WAIT + 10)
+        answers: list[object] = []
+        deadline = time.monotonic() + CLAIM_WAIT + 10
+        while "m1" in bridge.bridged and time.monotonic() < deadline:  # the mirror answers nothing meanwhile
+            answers.append(_made(lambda: tool.lookup("m1", "where", timeout=2).get()))
+        assert "m1" not in bridge.bridged
+        assert answers and set(map(str, answers)) == {"zenoh"}, set(map(repr, answers))
         assert tool.lookup("m1", "where", timeout=5).get() == "zenoh"
         time.sleep(1)  # and it stays withdrawn while the Zenoh module lives
         assert "m1" not in bridge.bridged
     finally:
         for made in reversed(closing):
             made.close()
+
+
+def test_what_arrives_while_a_claim_is_unsettled_is_held_then_handled_or_dropped() -> None:
+    handled: list[int] = []
+    dropped: list[int] = []
+    kept = Holding(limit=3)
+    for k in range(4):  # the fourth is beyond the limit: dropped at once
+        assert kept.hold(lambda k=k: handled.append(k), lambda k=k: dropped.append(k))
+    assert handled == [] and dropped == [3] and not kept.kept
+    kept.keep()
+    assert handled == [0, 1, 2] and kept.kept
+    assert not kept.hold(lambda: handled.append(9), None)  # after: the caller handles it at once
+    given_up = Holding()
+    assert given_up.hold(lambda: handled.append(5), lambda: dropped.append(5))
+    assert given_up.hold(lambda: handled.append(6), None)  # a message: simply forgotten
+    given_up.give_up()
+    given_up.keep()  # (settled once: no change)
+    assert given_up.hold(lambda: handled.append(7), lambda: dropped.append(7))  # after: dropped at once
+    assert handled == [0, 1, 2] and dropped == [3, 5, 7] and not given_up.kept
