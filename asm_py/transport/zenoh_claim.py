@@ -15,8 +15,13 @@ A session answers for the name only once it has kept it: what arrives for it whi
 (:class:`Holding`) and handled once the name is kept, or dropped unanswered if the session gives way — a session
 about to give way answered for the name for up to CLAIM_WAIT before (a review measured 3,123 wrong answers in 3 s).
 
-So two sessions never both keep a name; under a stall longer than :data:`CLAIM_WAIT` both may give way, the safe
-failure (each says the name is taken, and a second try succeeds). An earlier rule had the greater ID give way and
+So two sessions never both keep a name, provided each one's token reaches the other within CLAIM_SETTLE; under a
+stall longer than :data:`CLAIM_WAIT` both may give way, the safe failure (each says the name is taken, and a second
+try succeeds). **Known limit:** a liveliness look is answered from what the session (or its router) has heard so far,
+so over a link slower than CLAIM_SETTLE both sessions' looks can miss the other's token and both keep the name (a
+review's delay proxy: at 60 ms between peers, 40 ms to a router); each then logs an error and both answer. Handling it
+needs a rule after the claim that does not let a newcomer displace an established holder (a separate token while
+claiming, or the claim's time in the token); not done yet. An earlier rule had the greater ID give way and
 the lesser keep the name whatever it saw: a slow session whose token arrived after its rival's second look kept the
 name beside it (seen once in the suite under load; tests/transport/test_name_claims.py reproduces it).
 """
