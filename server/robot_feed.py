@@ -55,7 +55,7 @@ class RobotFeed:
         self._keep.append(session.liveliness().declare_token(self.keys.robot_alive(zid)))
         try:  # two robots named alike at the same moment: at most one keeps the name (asm_py.transport.zenoh_claim)
             settle_claim(zid, self._claimants, self._name_taken)
-        except RobotNameTaken:
+        except BaseException:  # given way, or the network failed: the token is withdrawn either way
             self.close()
             raise
         self._keep.append(session.declare_queryable(self.keys.robot_key("status"), self._answer_status))
