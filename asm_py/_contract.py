@@ -297,6 +297,7 @@ ZENOH_KEYS: dict[str, str] = {
     "publication": "asm/{robot}/{node}/pub/{object}",
     "json_view": "asm/{robot}/{node}/json/{object}",
     "alive": "asm/{robot}/@alive/{node}/{session}",
+    "claim": "asm/{robot}/@claim/{node}/{session}",
     "estop": "asm/{robot}/@estop/{source}",
     "lab_estop": "asm/@lab/estop/{source}",
     "robot_key": "asm/{robot}/@robot/{what}",

@@ -9,7 +9,8 @@ modules have the same names share one Zenoh network without a message ever reach
     asm/<robot>/<node>/pub/<object>          publications of <node>'s <object>
     asm/<robot>/<node>/json/<object>         the same publication as JSON
     asm/<robot>/@group/<group>/msg/<source>  one-to-many requests inside the robot ("all": every node of it)
-    asm/<robot>/@alive/<node>/<session>      liveliness token of <node>, one per Zenoh session claiming the name
+    asm/<robot>/@alive/<node>/<session>      liveliness token of <node>, one per Zenoh session that kept the name
+    asm/<robot>/@claim/<node>/<session>      liveliness token of a session still claiming <node>
     asm/<robot>/@estop/<source>              the robot's emergency stop: every node of that robot, no other
     asm/@lab/estop/<source>                  the lab-wide emergency stop: every node of every robot
     asm/<robot>/@robot/status|poses|mjcf     the robot process's feed for viewers (asm_module.feed)
@@ -120,6 +121,10 @@ class RobotKeys:
     def alive(self, node: str = "*", session: str = "*") -> str:
         """The liveliness token of ``node`` held by ``session`` (``*``: any)."""
         return self._patterns["alive"].format(node=node, session=session)
+
+    def claim(self, node: str = "*", session: str = "*") -> str:
+        """The liveliness token of ``session`` while it claims ``node`` (``*``: any): asm_py.transport.zenoh_claim."""
+        return self._patterns["claim"].format(node=node, session=session)
 
     def estop(self, source: str = "*") -> str:
         return self._patterns["estop"].format(source=source)

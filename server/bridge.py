@@ -53,11 +53,12 @@ from asm_py.protocol import (
     version_of,
     with_txn,
 )
-from asm_py.remote import RemoteObject, make_client
+from asm_py.remote import make_client
 from asm_py.transport.can import CanTransport, group_id, message_priority
-from asm_py.transport.zenoh_claim import CLAIM_QUERY_TIMEOUT, CLAIM_SETTLE, CLAIM_WAIT, Holding, Verdict, verdict
+from asm_py.transport.zenoh_claim import CLAIM_QUERY_TIMEOUT, CLAIM_SETTLE, Verdict, verdict
 
 from .bridge_clients import DEFAULT_FRAME_RATE, ClientTable, Pacer, Refusal
+from .bridge_mirror import TABLE_BACKOFF, Mirror
 from .bridge_outlets import Outlet, direct
 from .heap import HeapTrimmer
 from .realtime import prefer_latency
@@ -67,8 +68,6 @@ log = logging.getLogger("server.bridge")
 
 TABLE_LOOKUP_TIMEOUT = 0.3
 """Seconds one lookup of a CAN node's table may take before it is tried again (a lookup is a round trip of ~1 ms)."""
-TABLE_BACKOFF = (0.05, 2.0)
-"""First and longest pause between attempts to read a table (doubling)."""
 TAKEN_RETRY = 5.0
 """Seconds before the bridge looks again at a name that another process answered for."""
 
@@ -85,28 +84,6 @@ class _GatewayTransport(CanTransport):
         if dest_kind == Dest.BROADCAST and len(data) >= 4 and kind_of(data) == Kind.PUBLICATION:
             self.bridge._publication_from_can(source_id, data)
         super().on_message(source_id, dest_kind, dest, data)
-
-
-class _Mirror:
-    """What the bridge declared on Zenoh for one CAN node, and how far it has read the node's object table."""
-
-    def __init__(self, name: str, node_id: int) -> None:
-        self.name = name
-        self.node_id = node_id
-        self.entities: list[Any] = []
-        self.objects: dict[int, RemoteObject] = {}
-        self.outlets: dict[int, Outlet] = {}
-        """Each published object's declared publishers (made at its first publication)."""
-        self.table_read = False
-        self.next_attempt = 0.0
-        self.backoff = TABLE_BACKOFF[0]
-        self.attempts = 0
-        self.claim_settled = False
-        """Whether the name is now the bridge's; if not, it looks again at ``claim_due`` (zenoh_claim's rule)."""
-        self.holding = Holding()
-        """Requests and messages for the node while its claim is unsettled: answered only if the bridge keeps it."""
-        self.claim_due = time.monotonic() + CLAIM_SETTLE
-        self.claim_deadline = time.monotonic() + CLAIM_WAIT
 
 
 class CanZenohBridge:
@@ -128,7 +105,7 @@ class CanZenohBridge:
     ) -> None:
         self.keys = RobotKeys(robot)
         self.robot = self.keys.robot
-        self._mirrors: dict[str, _Mirror] = {}
+        self._mirrors: dict[str, Mirror] = {}
         self._taken: dict[str, float] = {}  # name -> when to look again (another process answers for it)
         self.clients = ClientTable([a for a in aliases if a != node_id], max_pending=max_pending,
                                    max_pending_per_client=max_pending_per_client,
@@ -209,10 +186,14 @@ class CanZenohBridge:
         except Exception:
             log.exception("bridging %s failed", item)
 
-    def _claimants(self, name: str) -> set[str]:
-        """The sessions whose liveliness token claims ``name`` in this robot now, this bridge's own among them."""
-        replies = self.session.liveliness().get(self.keys.alive(name), timeout=CLAIM_QUERY_TIMEOUT)
-        return {last(reply.ok.key_expr) for reply in replies if reply.ok is not None}
+    def _claimants(self, name: str, *, claiming: bool = True) -> set[str]:
+        """The sessions that kept ``name`` in this robot (``@alive``) and, if ``claiming``, those claiming it now
+        (``@claim``), this bridge's own among them."""
+        found = set()
+        for key in (self.keys.alive(name), self.keys.claim(name)) if claiming else (self.keys.alive(name),):
+            replies = self.session.liveliness().get(key, timeout=CLAIM_QUERY_TIMEOUT)
+            found |= {last(reply.ok.key_expr) for reply in replies if reply.ok is not None}
+        return found
 
     def _refuse(self, name: str, other: str) -> None:
         if name not in self._taken:
@@ -230,6 +211,9 @@ class CanZenohBridge:
             )
             if decided is Verdict.KEEP:
                 mirror.claim_settled = True
+                claim = mirror.entities.pop()
+                mirror.entities.append(self.session.liveliness().declare_token(self.keys.alive(mirror.name, self._zid)))
+                claim.undeclare()
                 mirror.holding.keep()
             elif decided is Verdict.YIELD:
                 mirror.holding.give_up()
@@ -242,12 +226,12 @@ class CanZenohBridge:
         node_id = self.can.resolve(name)
         if node_id is None or name in self._mirrors:
             return
-        others = self._claimants(name) - {self._zid}
+        others = self._claimants(name, claiming=False) - {self._zid}
         if others:
             self._refuse(name, min(others))
             return
         self._taken.pop(name, None)
-        mirror = _Mirror(name, node_id)
+        mirror = Mirror(name, node_id)
         session, keys = self.session, self.keys
         # direct callbacks (indirect=False: on Zenoh's own threads): both only queue a frame under a short lock, and
         # zenoh-python's default runs each callback on a Python thread of its own — two per module (issue 31)
@@ -258,7 +242,7 @@ class CanZenohBridge:
                 direct(lambda s, m=mirror: self._put_from_zenoh(m, s)),
                 allowed_origin=zenoh.Locality.REMOTE,
             ),
-            session.liveliness().declare_token(keys.alive(name, self._zid)),
+            session.liveliness().declare_token(keys.claim(name, self._zid)),  # the last: replaced once kept
         ]
         with self._lock:
             self._mirrors[name] = mirror
@@ -329,7 +313,7 @@ class CanZenohBridge:
     def _sender(key_expr: Any, attachment: Any) -> tuple[str, bytes]:
         return last(key_expr), (attachment.to_bytes()[:64] if attachment is not None else b"")
 
-    def _query_from_zenoh(self, mirror: _Mirror, query: zenoh.Query) -> None:
+    def _query_from_zenoh(self, mirror: Mirror, query: zenoh.Query) -> None:
         if not mirror.holding.kept and mirror.holding.hold(lambda: self._query_from_zenoh(mirror, query), query.drop):
             return
         data = query.payload.to_bytes() if query.payload is not None else b""
@@ -356,11 +340,11 @@ class CanZenohBridge:
         if not wants_reply:
             query.drop()
 
-    def _reply_key(self, mirror: _Mirror, query: zenoh.Query) -> str:
+    def _reply_key(self, mirror: Mirror, query: zenoh.Query) -> str:
         """The replier's own concrete key, whatever wildcard the query used."""
         return self.keys.requests(mirror.name, concrete(last(query.key_expr)))
 
-    def _put_from_zenoh(self, mirror: _Mirror, sample: zenoh.Sample) -> None:
+    def _put_from_zenoh(self, mirror: Mirror, sample: zenoh.Sample) -> None:
         if not mirror.holding.kept and mirror.holding.hold(lambda: self._put_from_zenoh(mirror, sample), None):
             return
         self._forward_put(sample, Dest.NODE, mirror.node_id)

@@ -118,6 +118,9 @@ class ZenohTransport(Transport):
         self._pub_lock = threading.Lock()
         self._reply_keys: dict[str, zenoh.KeyExpr] = {}  # request source -> the key its replies carry
         self._holding = Holding()
+        self._token: Any = None
+        self.name_lost = ""
+        """The session this one gave its name to after keeping it ("" while it keeps it): see _rival_kept."""
 
     @property
     def session(self) -> zenoh.Session:
@@ -143,18 +146,24 @@ class ZenohTransport(Transport):
         self._zid = str(session.info.zid())
         self._attachment = self._zid.encode()
         try:
-            refuse_if_claimed(self._zid, self._claimants_of_mine, self._name_taken)
+            refuse_if_claimed(self._zid, lambda: self.claimants(self.segment), self._name_taken)
             keys = self.keys
+            claiming = session.liveliness().declare_token(keys.claim(self.segment, self._zid))
             self._keep += [
+                claiming,
                 session.declare_queryable(keys.requests(self.segment), self._on_query),
                 session.declare_subscriber(keys.messages(self.segment), self._on_sample),
-                session.liveliness().declare_token(keys.alive(self.segment, self._zid)),
                 session.liveliness().declare_subscriber(keys.alive(), self._on_alive, history=True),
                 # every e-stop from elsewhere, whatever its sender's name (this node's own runs its handlers directly)
                 session.declare_subscriber(keys.estop(), self._on_estop, allowed_origin=zenoh.Locality.REMOTE),
                 session.declare_subscriber(lab_estop(), self._on_estop, allowed_origin=zenoh.Locality.REMOTE),
             ]
-            settle_claim(self._zid, self._claimants_of_mine, self._name_taken)
+            settle_claim(self._zid, self._rivals, self._name_taken)
+            # kept: the node's @alive token (discovery sees it from now on), then the claim withdrawn
+            self._token = session.liveliness().declare_token(keys.alive(self.segment, self._zid))
+            self._keep.append(self._token)
+            self._keep.remove(claiming)
+            claiming.undeclare()
         except BaseException:
             self._holding.give_up()
             self._close()
@@ -162,15 +171,20 @@ class ZenohTransport(Transport):
         self._holding.keep()
 
     def claimants(self, seg: str) -> set[str]:
-        """The sessions whose liveliness token claims segment ``seg`` in this robot now (a query of the network)."""
+        """The sessions that kept segment ``seg`` in this robot (their ``@alive`` tokens; a query of the network)."""
         found = set()
         for reply in self.session.liveliness().get(self.keys.alive(seg), timeout=CLAIM_QUERY_TIMEOUT):
             if reply.ok is not None:
                 found.add(last(reply.ok.key_expr))
         return found
 
-    def _claimants_of_mine(self) -> set[str]:
-        return self.claimants(self.segment)
+    def _rivals(self) -> set[str]:
+        """The sessions that kept this node's name or claim it now: what settle_claim looks at."""
+        found = self.claimants(self.segment)
+        for reply in self.session.liveliness().get(self.keys.claim(self.segment), timeout=CLAIM_QUERY_TIMEOUT):
+            if reply.ok is not None:
+                found.add(last(reply.ok.key_expr))
+        return found
 
     def _name_taken(self, rival: str) -> NameTaken:
         role = "tool" if self.role == "tool" else "module"
@@ -239,10 +253,28 @@ class ZenohTransport(Transport):
             now = bool(claims)
         if seg == self.segment:
             if alive and zid != self._zid:
-                log.error("another session (%s) claims this node's name %r in robot %r", zid, seg, self.robot)
+                self._rival_kept(zid)
             return
         if before != now:
             self._peer_changed(seg, now)
+
+    def _rival_kept(self, rival: str) -> None:
+        """Another session kept this node's name too: their claims missed each other's tokens (a link slower than
+        the settle). Of two sessions that both kept it, the lesser ID keeps it: the greater gives way at once (it
+        answers nothing more for the name and withdraws its token). A session still claiming never triggers this:
+        a newcomer does not displace a holder (asm_py.transport.zenoh_claim)."""
+        if rival > self._zid or not self._holding.kept:
+            log.error("another session (%s) kept this node's name %r in robot %r too: it gives way (the lesser ID "
+                      "keeps the name)", rival, self.segment, self.robot)  # fmt: skip
+            return
+        if self._holding.lose():
+            self.name_lost = rival
+            log.error("another session (%s) kept this node's name %r in robot %r too (their tokens met late): this "
+                      "session gives way and no longer answers for it", rival, self.segment, self.robot)  # fmt: skip
+            try:
+                self._token.undeclare()
+            except Exception:  # closing meanwhile
+                log.debug("the token was gone already", exc_info=True)
 
     # -- addresses ------------------------------------------------------------------------------------------------
 

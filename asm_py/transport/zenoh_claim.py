@@ -15,15 +15,20 @@ A session answers for the name only once it has kept it: what arrives for it whi
 (:class:`Holding`) and handled once the name is kept, or dropped unanswered if the session gives way — a session
 about to give way answered for the name for up to CLAIM_WAIT before (a review measured 3,123 wrong answers in 3 s).
 
-So two sessions never both keep a name, provided each one's token reaches the other within CLAIM_SETTLE; under a
-stall longer than :data:`CLAIM_WAIT` both may give way, the safe failure (each says the name is taken, and a second
-try succeeds). **Known limit:** a liveliness look is answered from what the session (or its router) has heard so far,
-so over a link slower than CLAIM_SETTLE both sessions' looks can miss the other's token and both keep the name (a
-review's delay proxy: at 60 ms between peers, 40 ms to a router); each then logs an error and both answer. Handling it
-needs a rule after the claim that does not let a newcomer displace an established holder (a separate token while
-claiming, or the claim's time in the token); not done yet. An earlier rule had the greater ID give way and
-the lesser keep the name whatever it saw: a slow session whose token arrived after its rival's second look kept the
-name beside it (seen once in the suite under load; tests/transport/test_name_claims.py reproduces it).
+A session claims with a ``@claim`` token and declares its ``@alive`` token (what discovery sees) only once it has
+kept the name. Tokens can take longer than CLAIM_SETTLE to travel (a look answers from what the session or its router
+has heard: a review's delay proxy made both sessions keep a name at 60 ms between peers, 40 ms to a router), so the
+rule goes on after the claim: a session that kept the name and then sees another ``@alive`` token for it — a rival
+that kept it too — gives way at once if its ID is the greater (:meth:`Holding.lose`: it answers nothing more for
+the name and withdraws its token). A rival still claiming never triggers that, so a newcomer whose looks missed a
+holder waits and gives way; it never displaces the holder.
+
+So two sessions never both keep a name for longer than their tokens take to meet; under a stall longer than
+:data:`CLAIM_WAIT` both may give way, the safe failure (each says the name is taken, and a second try succeeds).
+An earlier rule had the greater ID give way and the lesser keep the name whatever it saw: a slow session whose token
+arrived after its rival's second look kept the name beside it (seen once in the suite under load;
+tests/transport/test_name_claims.py reproduces it). The bridge's mirrors claim by the same rule but do not watch
+for a rival that kept the name too (a Zenoh node does, and gives way if its ID is the greater).
 """
 
 from __future__ import annotations
@@ -118,6 +123,19 @@ class Holding:
     def give_up(self) -> None:
         """The name is given up: drop what was held, and everything after."""
         self._settle(Verdict.YIELD)
+
+    def lose(self) -> bool:
+        """The name is given up now, kept or not (a rival that kept it too has a lesser ID): drop what was held and
+        everything after. False if it was given up already."""
+        with self._lock:
+            if self._state is Verdict.YIELD:
+                return False
+            self._state, held, self._held = Verdict.YIELD, self._held, []
+            self.kept = False
+        for _, drop in held:
+            if drop is not None:
+                drop()
+        return True
 
     def _settle(self, state: Verdict) -> None:
         with self._lock:

@@ -20,7 +20,15 @@ import zenoh
 from ..protocol import MAX_MESSAGE
 
 log = logging.getLogger("asm_py.transport.zenoh")
-BOUNDED_KEYS = ("**", "asm/*/@group/**", "asm/*/@estop/**", "asm/*/@alive/**", "asm/*/@robot/**", "asm/@lab/**")
+BOUNDED_KEYS = (
+    "**",
+    "asm/*/@group/**",
+    "asm/*/@estop/**",
+    "asm/*/@alive/**",
+    "asm/*/@claim/**",
+    "asm/*/@robot/**",
+    "asm/@lab/**",
+)
 """Key expressions whose messages are held to MAX_LINK_MESSAGE at every session's ingress."""
 
 MAX_LINK_MESSAGE = 16 * MAX_MESSAGE

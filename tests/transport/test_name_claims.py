@@ -20,6 +20,8 @@ from asm_py.transport.zenoh import NameTaken, ZenohTransport
 from asm_py.transport.zenoh_claim import CLAIM_WAIT, Holding, refuse_if_claimed, settle_claim
 from asm_py.transport.zenoh_config import make_config
 
+from ..helpers import wait_until
+
 pytestmark = pytest.mark.timeout(60)
 GREATER, LESSER = "f0f0", "1f1f"
 
@@ -80,11 +82,11 @@ def blind_first_look(monkeypatch: pytest.MonkeyPatch, cls: type, method: str, vi
     real = getattr(cls, method)
     blinded: set[int] = set()
 
-    def look(self: object, *args: object) -> set[str]:
+    def look(self: object, *args: object, **options: object) -> set[str]:
         if victim(self) and id(self) not in blinded:
             blinded.add(id(self))
             return set()
-        return real(self, *args)
+        return real(self, *args, **options)
 
     monkeypatch.setattr(cls, method, look)
 
@@ -124,6 +126,56 @@ def test_a_late_claim_meets_a_session_that_kept_the_name_and_gives_way(
                 node.close()
 
 
+def test_two_sessions_that_both_kept_a_name_settle_it_once_their_tokens_meet(
+    router: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Tokens slower than the claim's looks (every look blind here, as over a slow link): both keep the name; once
+    each sees the other's token the greater ID gives way — answers nothing more, withdraws its token — and only the
+    lesser answers."""
+    real_claimants = ZenohTransport.claimants
+    monkeypatch.setattr(ZenohTransport, "_rivals", lambda self: {self.zid})  # every look blind
+    monkeypatch.setattr(ZenohTransport, "claimants", lambda self, seg: {self.zid})
+
+    def module(zid: str, where: str) -> Node:
+        node = Node("m7", ZenohTransport(robot="a", role="module", mode="client", connect=[router],
+                                         config_file=config_with_id(tmp_path, zid)))  # fmt: skip
+        node.register(Attribute("where", where, codec="str"))
+        return node
+
+    made: list[Node] = []
+    try:
+        made.append(module(GREATER, "greater"))
+        made.append(module(LESSER, "lesser"))  # kept too: its looks saw nothing
+        made.append(Node("tester", ZenohTransport(robot="a", mode="client", connect=[router])))
+        greater, lesser, tool = made
+        assert wait_until(lambda: greater.transport.name_lost == LESSER, timeout=10)  # type: ignore[attr-defined]
+        assert lesser.transport.name_lost == ""  # type: ignore[attr-defined]
+        assert wait_until(lambda: real_claimants(tool.transport, "m7") == {LESSER}, timeout=10)  # type: ignore[arg-type]
+        answers = [_made(lambda: tool.lookup("m7", "where", timeout=2).get()) for _ in range(50)]
+        assert set(map(str, answers)) == {"lesser"}, set(map(repr, answers))
+    finally:
+        for node in made:
+            node.close()
+
+
+def test_a_newcomer_that_claims_beside_a_holder_never_displaces_it(
+    router: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A holder with the greater ID, and a newcomer (lesser ID) whose first look missed it: the holder ignores the
+    newcomer's claim, the newcomer gives way after its wait; the holder answers throughout."""
+    blind_first_look(monkeypatch, ZenohTransport, "claimants", lambda t: getattr(t, "zid", "") == LESSER)
+    holder = Node("m7", ZenohTransport(robot="a", role="module", mode="client", connect=[router],
+                                       config_file=config_with_id(tmp_path, GREATER)))  # fmt: skip
+    try:
+        with pytest.raises(NameTaken):
+            Node("m7", ZenohTransport(robot="a", role="module", mode="client", connect=[router],
+                                      config_file=config_with_id(tmp_path, LESSER)))  # fmt: skip
+        assert holder.transport.name_lost == ""  # type: ignore[attr-defined]
+        assert holder.transport.claimants("m7") == {GREATER}  # type: ignore[attr-defined]
+    finally:
+        holder.close()
+
+
 def _made(make: Callable[[], object]) -> object:
     """What ``make()`` returned, or the exception it raised."""
     try:
@@ -159,12 +211,10 @@ def test_a_bridge_mirror_that_claimed_late_beside_a_kept_name_is_withdrawn(
 ) -> None:
     """A CAN module m1 behind a bridge, and a Zenoh module m1 that already kept the name: the bridge, whose first
     look missed the Zenoh module's token, withdraws its mirror (and the Zenoh module alone answers for m1)."""
-    from asm_py import Attribute
     from asm_py.transport.can import CanTransport
     from server.bridge import CanZenohBridge
     from server.zenoh_args import ZenohOptions
 
-    from ..helpers import wait_until
     from ..transports import FAST_BEATS, fresh_name
 
     can_options = {"interface": "virtual", "channel": fresh_name("asm-claims"), **FAST_BEATS}
