@@ -55,10 +55,10 @@ from asm_py.protocol import (
 )
 from asm_py.remote import make_client
 from asm_py.transport.can import CanTransport, group_id, message_priority
-from asm_py.transport.zenoh_claim import CLAIM_QUERY_TIMEOUT, CLAIM_SETTLE, Verdict, verdict
+from asm_py.transport.zenoh_claim import CLAIM_SETTLE, Verdict, verdict
 
 from .bridge_clients import DEFAULT_FRAME_RATE, ClientTable, Pacer, Refusal
-from .bridge_mirror import TABLE_BACKOFF, Mirror
+from .bridge_mirror import TABLE_BACKOFF, Mirror, claimants
 from .bridge_outlets import Outlet, direct
 from .heap import HeapTrimmer
 from .realtime import prefer_latency
@@ -130,6 +130,7 @@ class CanZenohBridge:
             self.session.declare_subscriber(self.keys.group("*"), self._group_from_zenoh, allowed_origin=remote),
             self.session.declare_subscriber(self.keys.estop(), self._estop_from_zenoh, allowed_origin=remote),
             self.session.declare_subscriber(lab_estop(), self._estop_from_zenoh, allowed_origin=remote),
+            self.session.liveliness().declare_subscriber(self.keys.alive(), self._alive_from_zenoh),
         ]
         for alias in self.clients.alias_pool:
             self.can.accept_node_id(alias)
@@ -177,9 +178,26 @@ class CanZenohBridge:
                 query.drop()
             self.heap.tick()
 
+    def _alive_from_zenoh(self, sample: zenoh.Sample) -> None:
+        """Another session kept the name of a node mirrored here (their claims missed each other's tokens): the
+        lesser ID keeps it, as for any session (asm_py.transport.zenoh_claim); the work loop withdraws the mirror."""
+        chunks = split(sample.key_expr)  # asm/<robot>/@alive/<node>/<session>
+        mirror = self._mirrors.get(chunks[3]) if len(chunks) == 5 else None
+        if (
+            sample.kind == zenoh.SampleKind.PUT
+            and mirror is not None
+            and mirror.claim_settled
+            and chunks[4] < self._zid
+        ):
+            self._work.put(f"!{chunks[3]}/{chunks[4]}")
+
     def _handle(self, item: str) -> None:
         try:
-            if item.startswith("-"):
+            if item.startswith("!"):
+                name, rival = item[1:].split("/")
+                self._unmirror(name)
+                self._refuse(name, rival)
+            elif item.startswith("-"):
                 self._unmirror(item[1:])
             elif item:
                 self._mirror(item)
@@ -187,13 +205,7 @@ class CanZenohBridge:
             log.exception("bridging %s failed", item)
 
     def _claimants(self, name: str, *, claiming: bool = True) -> set[str]:
-        """The sessions that kept ``name`` in this robot (``@alive``) and, if ``claiming``, those claiming it now
-        (``@claim``), this bridge's own among them."""
-        found = set()
-        for key in (self.keys.alive(name), self.keys.claim(name)) if claiming else (self.keys.alive(name),):
-            replies = self.session.liveliness().get(key, timeout=CLAIM_QUERY_TIMEOUT)
-            found |= {last(reply.ok.key_expr) for reply in replies if reply.ok is not None}
-        return found
+        return claimants(self.session, self.keys, name, claiming=claiming)
 
     def _refuse(self, name: str, other: str) -> None:
         if name not in self._taken:
@@ -253,7 +265,7 @@ class CanZenohBridge:
         with self._lock:
             mirror = self._mirrors.pop(name, None)
         if mirror is not None:
-            mirror.holding.give_up()
+            mirror.holding.lose()  # (what is held, or arrives in the meantime, is dropped)
             for entity in reversed(mirror.entities):
                 entity.undeclare()
             for outlet in mirror.outlets.values():

@@ -6,8 +6,11 @@ from __future__ import annotations
 import time
 from typing import Any
 
+import zenoh
+
+from asm_py.keys import RobotKeys, last
 from asm_py.remote import RemoteObject
-from asm_py.transport.zenoh_claim import CLAIM_SETTLE, CLAIM_WAIT, Holding
+from asm_py.transport.zenoh_claim import CLAIM_QUERY_TIMEOUT, CLAIM_SETTLE, CLAIM_WAIT, Holding
 
 from .bridge_outlets import Outlet
 
@@ -35,3 +38,13 @@ class Mirror:
         """Requests and messages for the node while its claim is unsettled: answered only if the bridge keeps it."""
         self.claim_due = time.monotonic() + CLAIM_SETTLE
         self.claim_deadline = time.monotonic() + CLAIM_WAIT
+
+
+def claimants(session: zenoh.Session, keys: RobotKeys, name: str, *, claiming: bool = True) -> set[str]:
+    """The sessions that kept ``name`` in this robot (``@alive``) and, if ``claiming``, those claiming it now
+    (``@claim``), the bridge's own among them (a query of the network)."""
+    found = set()
+    for key in (keys.alive(name), keys.claim(name)) if claiming else (keys.alive(name),):
+        replies = session.liveliness().get(key, timeout=CLAIM_QUERY_TIMEOUT)
+        found |= {last(reply.ok.key_expr) for reply in replies if reply.ok is not None}
+    return found

@@ -27,8 +27,8 @@ So two sessions never both keep a name for longer than their tokens take to meet
 :data:`CLAIM_WAIT` both may give way, the safe failure (each says the name is taken, and a second try succeeds).
 An earlier rule had the greater ID give way and the lesser keep the name whatever it saw: a slow session whose token
 arrived after its rival's second look kept the name beside it (seen once in the suite under load;
-tests/transport/test_name_claims.py reproduces it). The bridge's mirrors claim by the same rule but do not watch
-for a rival that kept the name too (a Zenoh node does, and gives way if its ID is the greater).
+tests/transport/test_name_claims.py reproduces it). The bridge's mirrors claim, and watch, by the same rule; a robot
+process's feed (server/robot_feed.py) claims by it but does not watch after its claim.
 """
 
 from __future__ import annotations

@@ -211,7 +211,6 @@ def test_a_bridge_mirror_that_claimed_late_beside_a_kept_name_is_withdrawn(
 ) -> None:
     """A CAN module m1 behind a bridge, and a Zenoh module m1 that already kept the name: the bridge, whose first
     look missed the Zenoh module's token, withdraws its mirror (and the Zenoh module alone answers for m1)."""
-    from asm_py.transport.can import CanTransport
     from server.bridge import CanZenohBridge
     from server.zenoh_args import ZenohOptions
 
@@ -226,13 +225,7 @@ def test_a_bridge_mirror_that_claimed_late_beside_a_kept_name_is_withdrawn(
                                              config_file=config_with_id(tmp_path, GREATER)))  # fmt: skip
         closing.append(zenoh_m1)
         zenoh_m1.register(Attribute("where", "zenoh", codec="str"))
-        can_m1 = Node("m1", CanTransport(1, **can_options))
-        closing.append(can_m1)
-        can_m1.register(Attribute("where", "can", codec="str"))
-        bridge = CanZenohBridge(can_options, network=network)
-        closing.append(bridge)
-        tool = Node("tester", ZenohTransport(mode="client", connect=[router]))
-        closing.append(tool)
+        bridge, tool = _bridged_can_module(closing, can_options, network, router)
         assert wait_until(lambda: "m1" in bridge.bridged, timeout=10)  # mirrored on the blind look
         answers: list[object] = []
         deadline = time.monotonic() + CLAIM_WAIT + 10
@@ -265,3 +258,51 @@ def test_what_arrives_while_a_claim_is_unsettled_is_held_then_handled_or_dropped
     given_up.keep()  # (settled once: no change)
     assert given_up.hold(lambda: handled.append(7), lambda: dropped.append(7))  # after: dropped at once
     assert handled == [0, 1, 2] and dropped == [3, 5, 7] and not given_up.kept
+
+
+def test_a_bridge_mirror_gives_way_to_a_lesser_session_that_kept_the_name_too(
+    router: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The bridge (greater ID) kept m1 for its CAN module; a Zenoh module m1 (lesser ID) whose looks all missed the
+    mirror's token kept it too: once the bridge sees its token, it withdraws the mirror, and only the Zenoh module
+    answers for m1."""
+    from server.bridge import CanZenohBridge
+    from server.zenoh_args import ZenohOptions
+
+    from ..transports import FAST_BEATS, fresh_name
+
+    can_options = {"interface": "virtual", "channel": fresh_name("asm-claims"), **FAST_BEATS}
+    network = ZenohOptions(mode="client", connect=(router,), config_file=config_with_id(tmp_path, GREATER))
+    closing: list[Node | CanZenohBridge] = []
+    try:
+        bridge, tool = _bridged_can_module(closing, can_options, network, router)
+        assert wait_until(lambda: tool.lookup("m1", "where", timeout=2).get() == "can", timeout=15)  # kept
+        monkeypatch.setattr(ZenohTransport, "_rivals", lambda self: {self.zid})  # the Zenoh module's looks: blind
+        monkeypatch.setattr(ZenohTransport, "claimants", lambda self, seg: {self.zid})
+        zenoh_m1 = Node("m1", ZenohTransport(role="module", mode="client", connect=[router],
+                                             config_file=config_with_id(tmp_path, LESSER)))  # fmt: skip
+        closing.append(zenoh_m1)
+        zenoh_m1.register(Attribute("where", "zenoh", codec="str"))
+        assert wait_until(lambda: "m1" not in bridge.bridged, timeout=10)
+        assert zenoh_m1.transport.name_lost == ""  # type: ignore[attr-defined]
+        answers = [_made(lambda: tool.lookup("m1", "where", timeout=2).get()) for _ in range(30)]
+        assert set(map(str, answers)) == {"zenoh"}, set(map(repr, answers))
+    finally:
+        for made in reversed(closing):
+            made.close()
+
+
+def _bridged_can_module(closing: list, can_options: dict, network: object, router: str) -> tuple:
+    """A CAN module m1 (its ``where`` says "can"), a bridge for its bus, and a tool on the router; each added to
+    ``closing`` as it is made."""
+    from asm_py.transport.can import CanTransport
+    from server.bridge import CanZenohBridge
+
+    can_m1 = Node("m1", CanTransport(1, **can_options))
+    closing.append(can_m1)
+    can_m1.register(Attribute("where", "can", codec="str"))
+    bridge = CanZenohBridge(can_options, network=network)  # type: ignore[arg-type]
+    closing.append(bridge)
+    tool = Node("tester", ZenohTransport(mode="client", connect=[router]))
+    closing.append(tool)
+    return bridge, tool
