@@ -24,7 +24,7 @@ from gaits.terrain import parse
 from gaits.tune import Setup, default_max_torque, evaluate
 from gaits.validate import SCHEMA
 from tests.helpers import wait_until
-from tests.transports import fresh_name
+from tests.transports import FAST_BEATS, fresh_name
 
 pytestmark = pytest.mark.timeout(120)
 CATERPILLAR = (LIBRARY / "caterpillar.toml").read_text(encoding="utf-8")
@@ -391,8 +391,11 @@ def test_a_simulated_robots_modules_report_their_gaits_types() -> None:
         "mass = 0.6\nids = [2, 5]\n", 1)  # fmt: skip
     channel = fresh_name("sim-types")
     bus = {"interface": "virtual", "channel": channel}
-    tool = Node("tool", CanTransport(100, heartbeat_period=0.1, **bus))
-    sim = Simulation(loads(text), node_of=lambda i: Node(f"m{i}", CanTransport(i, **bus)), c_modules=[4, 5],
+    # FAST_BEATS: a peer counts as lost after 2 s of silence, not the default's fraction of a second (a fresh
+    # clone's run on a loaded machine saw fewer than 8 modules for 20 s)
+    tool = Node("tool", CanTransport(100, **FAST_BEATS, **bus))
+    beats = {**FAST_BEATS, **bus}
+    sim = Simulation(loads(text), node_of=lambda i: Node(f"m{i}", CanTransport(i, **beats)), c_modules=[4, 5],
                      bus_options=bus)  # fmt: skip
     try:
         assert wait_until(lambda: len(tool.discover()) >= 8, timeout=20)
