@@ -183,12 +183,7 @@ class CanZenohBridge:
         lesser ID keeps it, as for any session (asm_py.transport.zenoh_claim); the work loop withdraws the mirror."""
         chunks = split(sample.key_expr)  # asm/<robot>/@alive/<node>/<session>
         mirror = self._mirrors.get(chunks[3]) if len(chunks) == 5 else None
-        if (
-            sample.kind == zenoh.SampleKind.PUT
-            and mirror is not None
-            and mirror.claim_settled
-            and chunks[4] < self._zid
-        ):
+        if sample.kind == zenoh.SampleKind.PUT and mirror is not None and mirror.holding.kept and chunks[4] < self._zid:
             self._work.put(f"!{chunks[3]}/{chunks[4]}")
 
     def _handle(self, item: str) -> None:
@@ -217,19 +212,17 @@ class CanZenohBridge:
         """The bridge's mirrors claim their names as any session does, without blocking the work loop: each due
         mirror looks once; one that must give way is withdrawn (and tried again every TAKEN_RETRY seconds)."""
         now = time.monotonic()
-        for mirror in [m for m in list(self._mirrors.values()) if not m.claim_settled and m.claim_due <= now]:
+        for mirror in [m for m in list(self._mirrors.values()) if not m.holding.kept and m.claim_due <= now]:
             decided, rival = verdict(
                 self._zid, self._claimants(mirror.name), waited_enough=now >= mirror.claim_deadline
             )
             if decided is Verdict.KEEP:
-                mirror.claim_settled = True
                 claim = mirror.entities.pop()
                 mirror.entities.append(self.session.liveliness().declare_token(self.keys.alive(mirror.name, self._zid)))
                 claim.undeclare()
                 mirror.holding.keep()
             elif decided is Verdict.YIELD:
-                mirror.holding.give_up()
-                self._unmirror(mirror.name)
+                self._unmirror(mirror.name)  # (its held requests dropped unanswered)
                 self._refuse(mirror.name, rival)
             else:
                 mirror.claim_due = time.monotonic() + CLAIM_SETTLE
@@ -265,7 +258,7 @@ class CanZenohBridge:
         with self._lock:
             mirror = self._mirrors.pop(name, None)
         if mirror is not None:
-            mirror.holding.lose()  # (what is held, or arrives in the meantime, is dropped)
+            mirror.holding.give_up()  # (what is held, or arrives in the meantime, is dropped)
             for entity in reversed(mirror.entities):
                 entity.undeclare()
             for outlet in mirror.outlets.values():
@@ -285,7 +278,7 @@ class CanZenohBridge:
         """Seconds until a table read is due (0: now), at most the housekeeping period."""
         mirrors = list(self._mirrors.values())
         attempts = [m.next_attempt for m in mirrors if not m.table_read]
-        attempts += [m.claim_due for m in mirrors if not m.claim_settled]
+        attempts += [m.claim_due for m in mirrors if not m.holding.kept]
         return min(0.2, max(0.0, min(attempts, default=math.inf) - time.monotonic()))
 
     def _read_a_table(self) -> bool:

@@ -8,9 +8,9 @@ from typing import Any
 
 import zenoh
 
-from asm_py.keys import RobotKeys, last
+from asm_py.keys import RobotKeys
 from asm_py.remote import RemoteObject
-from asm_py.transport.zenoh_claim import CLAIM_QUERY_TIMEOUT, CLAIM_SETTLE, CLAIM_WAIT, Holding
+from asm_py.transport.zenoh_claim import CLAIM_SETTLE, CLAIM_WAIT, Holding, sessions_holding
 
 from .bridge_outlets import Outlet
 
@@ -32,10 +32,9 @@ class Mirror:
         self.next_attempt = 0.0
         self.backoff = TABLE_BACKOFF[0]
         self.attempts = 0
-        self.claim_settled = False
-        """Whether the name is now the bridge's; if not, it looks again at ``claim_due`` (zenoh_claim's rule)."""
         self.holding = Holding()
-        """Requests and messages for the node while its claim is unsettled: answered only if the bridge keeps it."""
+        """Requests and messages for the node while its claim is unsettled: answered only if the bridge keeps it
+        (``holding.kept``: the name is the bridge's; until then it looks again at ``claim_due``)."""
         self.claim_due = time.monotonic() + CLAIM_SETTLE
         self.claim_deadline = time.monotonic() + CLAIM_WAIT
 
@@ -43,8 +42,5 @@ class Mirror:
 def claimants(session: zenoh.Session, keys: RobotKeys, name: str, *, claiming: bool = True) -> set[str]:
     """The sessions that kept ``name`` in this robot (``@alive``) and, if ``claiming``, those claiming it now
     (``@claim``), the bridge's own among them (a query of the network)."""
-    found = set()
-    for key in (keys.alive(name), keys.claim(name)) if claiming else (keys.alive(name),):
-        replies = session.liveliness().get(key, timeout=CLAIM_QUERY_TIMEOUT)
-        found |= {last(reply.ok.key_expr) for reply in replies if reply.ok is not None}
-    return found
+    found = sessions_holding(session, keys.alive(name))
+    return found | sessions_holding(session, keys.claim(name)) if claiming else found

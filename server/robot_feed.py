@@ -20,8 +20,8 @@ from typing import Any
 import zenoh
 
 from asm_module.feed import RobotStatus
-from asm_py.keys import RobotKeys, last
-from asm_py.transport.zenoh_claim import CLAIM_QUERY_TIMEOUT, refuse_if_claimed, settle_claim
+from asm_py.keys import RobotKeys
+from asm_py.transport.zenoh_claim import refuse_if_claimed, sessions_holding, settle_claim
 
 log = logging.getLogger("asm_robot.feed")
 
@@ -64,8 +64,7 @@ class RobotFeed:
 
     def _claimants(self) -> set[str]:
         """The sessions whose robot token claims this robot's name now (a query of the network)."""
-        replies = self.session.liveliness().get(self.keys.robot_alive(), timeout=CLAIM_QUERY_TIMEOUT)
-        return {last(reply.ok.key_expr) for reply in replies if reply.ok is not None}
+        return sessions_holding(self.session, self.keys.robot_alive())
 
     def _name_taken(self, rival: str) -> RobotNameTaken:
         return RobotNameTaken(f"a robot named {self.status.robot!r} is already on this Zenoh network (session "

@@ -36,7 +36,7 @@ from ..keys import (
 )
 from ..protocol import HEADER_SIZE, Kind, decode_timeout, has_timeout, kind_of
 from .base import ESTOP_REASON_MAX, PublicationHandler, Transport
-from .zenoh_claim import CLAIM_QUERY_TIMEOUT, Holding, refuse_if_claimed, settle_claim
+from .zenoh_claim import Holding, refuse_if_claimed, sessions_holding, settle_claim
 from .zenoh_config import (  # noqa: F401  (re-exported: the configuration is part of this transport's interface)
     MAX_LINK_MESSAGE,
     InsecureEndpoint,
@@ -172,19 +172,11 @@ class ZenohTransport(Transport):
 
     def claimants(self, seg: str) -> set[str]:
         """The sessions that kept segment ``seg`` in this robot (their ``@alive`` tokens; a query of the network)."""
-        found = set()
-        for reply in self.session.liveliness().get(self.keys.alive(seg), timeout=CLAIM_QUERY_TIMEOUT):
-            if reply.ok is not None:
-                found.add(last(reply.ok.key_expr))
-        return found
+        return sessions_holding(self.session, self.keys.alive(seg))
 
     def _rivals(self) -> set[str]:
         """The sessions that kept this node's name or claim it now: what settle_claim looks at."""
-        found = self.claimants(self.segment)
-        for reply in self.session.liveliness().get(self.keys.claim(self.segment), timeout=CLAIM_QUERY_TIMEOUT):
-            if reply.ok is not None:
-                found.add(last(reply.ok.key_expr))
-        return found
+        return self.claimants(self.segment) | sessions_holding(self.session, self.keys.claim(self.segment))
 
     def _name_taken(self, rival: str) -> NameTaken:
         role = "tool" if self.role == "tool" else "module"
@@ -263,11 +255,13 @@ class ZenohTransport(Transport):
         the settle). Of two sessions that both kept it, the lesser ID keeps it: the greater gives way at once (it
         answers nothing more for the name and withdraws its token). A session still claiming never triggers this:
         a newcomer does not displace a holder (asm_py.transport.zenoh_claim)."""
-        if rival > self._zid or not self._holding.kept:
+        if not self._holding.kept:  # still claiming (settle_claim decides) or given way already
+            return
+        if rival > self._zid:
             log.error("another session (%s) kept this node's name %r in robot %r too: it gives way (the lesser ID "
                       "keeps the name)", rival, self.segment, self.robot)  # fmt: skip
             return
-        if self._holding.lose():
+        if self._holding.give_up():
             self.name_lost = rival
             log.error("another session (%s) kept this node's name %r in robot %r too (their tokens met late): this "
                       "session gives way and no longer answers for it", rival, self.segment, self.robot)  # fmt: skip

@@ -19,7 +19,7 @@ A session claims with a ``@claim`` token and declares its ``@alive`` token (what
 kept the name. Tokens can take longer than CLAIM_SETTLE to travel (a look answers from what the session or its router
 has heard: a review's delay proxy made both sessions keep a name at 60 ms between peers, 40 ms to a router), so the
 rule goes on after the claim: a session that kept the name and then sees another ``@alive`` token for it — a rival
-that kept it too — gives way at once if its ID is the greater (:meth:`Holding.lose`: it answers nothing more for
+that kept it too — gives way at once if its ID is the greater (:meth:`Holding.give_up`: it answers nothing more for
 the name and withdraws its token). A rival still claiming never triggers that, so a newcomer whose looks missed a
 holder waits and gives way; it never displaces the holder.
 
@@ -38,12 +38,22 @@ import threading
 import time
 from collections.abc import Callable
 
+import zenoh
+
+from ..keys import last
+
 CLAIM_QUERY_TIMEOUT = 2.0
 """Seconds a session waits for the network to say whether its name is taken."""
 CLAIM_SETTLE = 0.05
 """Seconds a session lets its own token travel before it asks again, and between later looks."""
 CLAIM_WAIT = 3.0
 """Seconds a session whose rivals all have greater IDs waits for them to give way before it gives way itself."""
+
+
+def sessions_holding(session: zenoh.Session, key: str) -> set[str]:
+    """The session IDs (the last chunk) of the liveliness tokens matching ``key`` now: a query of the network."""
+    replies = session.liveliness().get(key, timeout=CLAIM_QUERY_TIMEOUT)
+    return {last(reply.ok.key_expr) for reply in replies if reply.ok is not None}
 
 
 def refuse_if_claimed(own: str, claimants: Callable[[], set[str]], refused: Callable[[str], Exception]) -> None:
@@ -116,17 +126,9 @@ class Holding:
             drop()
         return True
 
-    def keep(self) -> None:
-        """The name is kept: handle what was held, in order, and everything after at once."""
-        self._settle(Verdict.KEEP)
-
-    def give_up(self) -> None:
-        """The name is given up: drop what was held, and everything after."""
-        self._settle(Verdict.YIELD)
-
-    def lose(self) -> bool:
-        """The name is given up now, kept or not (a rival that kept it too has a lesser ID): drop what was held and
-        everything after. False if it was given up already."""
+    def give_up(self) -> bool:
+        """The name is given up, whether or not it was kept (a rival that kept it too may have a lesser ID): drop
+        what was held and everything after. False if it was given up already."""
         with self._lock:
             if self._state is Verdict.YIELD:
                 return False
@@ -137,14 +139,12 @@ class Holding:
                 drop()
         return True
 
-    def _settle(self, state: Verdict) -> None:
+    def keep(self) -> None:
+        """The name is kept: handle what was held, in order, and everything after at once (once, while unsettled)."""
         with self._lock:
             if self._state is not Verdict.WAIT:
                 return
-            self._state, held, self._held = state, self._held, []
-            self.kept = state is Verdict.KEEP
-        for handle, drop in held:
-            if state is Verdict.KEEP:
-                handle()
-            elif drop is not None:
-                drop()
+            self._state, held, self._held = Verdict.KEEP, self._held, []
+            self.kept = True
+        for handle, _ in held:
+            handle()

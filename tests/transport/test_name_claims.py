@@ -254,8 +254,8 @@ def test_what_arrives_while_a_claim_is_unsettled_is_held_then_handled_or_dropped
     given_up = Holding()
     assert given_up.hold(lambda: handled.append(5), lambda: dropped.append(5))
     assert given_up.hold(lambda: handled.append(6), None)  # a message: simply forgotten
-    given_up.give_up()
-    given_up.keep()  # (settled once: no change)
+    assert given_up.give_up() and not given_up.give_up()  # (given up once)
+    given_up.keep()  # (settled: no change)
     assert given_up.hold(lambda: handled.append(7), lambda: dropped.append(7))  # after: dropped at once
     assert handled == [0, 1, 2] and dropped == [3, 5, 7] and not given_up.kept
 
