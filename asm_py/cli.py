@@ -120,26 +120,43 @@ def describe(exc: BaseException) -> str:
     return text
 
 
-SIGNAL_CHECK = 0.2
-"""Seconds the main thread waits at a time for a stop (_StopEvent)."""
+SIGNAL_CHECK = 0.05
+"""Seconds the main thread waits at a time for a stop (_StopEvent): the most a signal's stop waits to be seen."""
 
 
 class _StopEvent(threading.Event):
-    """An Event whose wait returns to the interpreter every ``SIGNAL_CHECK`` seconds.
+    """An Event a signal handler can set without a lock, whose wait returns to the interpreter every
+    ``SIGNAL_CHECK`` seconds.
 
-    Python runs a signal's handler on the main thread between two bytecodes; a main thread blocked in one long lock
-    wait depends on the signal interrupting that wait. A SIGINT followed at once by a SIGTERM (a test's or a
-    supervisor's stop) left asm-record waiting in 3 of 12 runs, handlers never run, until a third signal: waiting
-    in slices, the main thread looks for pending handlers at least that often."""
+    Python runs a signal's handler on the main thread between two bytecodes, also while that thread holds this
+    event's lock: inside ``Event.wait``, or inside the first handler's ``set()`` when SIGINT and SIGTERM come
+    together. A handler calling ``set()`` then waited for itself for ever (one of 12 busy servers in a fresh
+    clone's run never ended). So a handler only raises a flag (``request``); ``wait`` and ``is_set`` read it, and
+    the main thread's sliced wait sees it within a slice. The slices also serve the old cause: a main thread blocked
+    in one long lock wait depends on the signal interrupting that wait, and a signal taken by another thread does
+    not."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self._requested = False
+
+    def request(self, *_: object) -> None:
+        """A signal handler: no lock taken (see the class)."""
+        self._requested = True
+
+    def is_set(self) -> bool:
+        return self._requested or super().is_set()
 
     def wait(self, timeout: float | None = None) -> bool:
         deadline = None if timeout is None else time.monotonic() + timeout
         while True:
+            if self._requested:
+                return True
             left = SIGNAL_CHECK if deadline is None else min(SIGNAL_CHECK, deadline - time.monotonic())
             if super().wait(max(0.0, left)):
                 return True
             if deadline is not None and time.monotonic() >= deadline:
-                return False
+                return self._requested
 
 
 def stop_requested() -> threading.Event:
@@ -152,8 +169,8 @@ def stop_requested() -> threading.Event:
     (server.child does)."""
     done = _StopEvent()
     faulthandler.register(signal.SIGUSR1, file=sys.stderr, all_threads=True)
-    signal.signal(signal.SIGTERM, lambda *_: done.set())
-    signal.signal(signal.SIGINT, lambda *_: done.set())
+    signal.signal(signal.SIGTERM, done.request)
+    signal.signal(signal.SIGINT, done.request)
     return done
 
 

@@ -100,6 +100,32 @@ def test_a_sigint_and_a_sigterm_at_once_end_a_busy_server_every_time() -> None:
             child.stop()
 
 
+HANDLER_WHILE_ITS_THREAD_HOLDS_THE_LOCK = """
+import signal
+
+from asm_py.cli import stop_requested
+
+done = stop_requested()
+with done._cond:  # where a handler can run: inside Event.wait, or inside the first handler's set()
+    signal.raise_signal(signal.SIGTERM)  # its handler runs here, on this thread, before raise_signal returns
+print('HANDLED', flush=True)
+assert done.wait(5), "the stop was lost"
+print('ENDED', flush=True)
+"""
+
+
+def test_a_stop_signal_handled_while_its_thread_holds_the_events_lock_does_not_deadlock() -> None:
+    # The cause of a fresh clone's failure of the test above (one of 12 busy servers never printed ENDED): Python
+    # runs a handler between two bytecodes of the main thread, also while that thread holds the stop event's lock:
+    # inside Event.wait, or inside the first handler's set() when SIGINT and SIGTERM come together. A handler that
+    # took the lock waited for itself for ever.
+    child = Child("-c", HANDLER_WHILE_ITS_THREAD_HOLDS_THE_LOCK, cwd=ROOT, grace=1.0)
+    try:
+        child.wait_for_line("ENDED", timeout=20)
+    finally:
+        child.stop()
+
+
 def test_free_ports_lie_below_the_range_the_kernel_hands_out_itself() -> None:
     """A port bound and released by free_port() was taken by the kernel for another process's outgoing connection
     (or its port-0 bind) before the studio bound it ("port 57655 is in use", a browser test of the suite): free
