@@ -116,7 +116,7 @@ class Attribute:
             value = self._codec.normalize(value)
         self._put(value, timeout)
 
-    def _put(self, value: Any, timeout: float | None, *, block: bool = True) -> None:
+    def _put(self, value: Any, timeout: float | None, block: bool = True) -> None:
         """Store a normalized value under the lock — first, with ``block`` and sync_set, waiting until the last one
         was consumed — wake the waiters, then call the listeners: ``set`` and a publication's delivery, in one
         function (a 128-module robot sets 30,000 attributes a second; issue 31)."""
@@ -203,8 +203,15 @@ class Attribute:
         if self._codec is not None and remote_codec is not None and remote_codec != self._codec:
             raise TypeError(f"attribute {self._name!r} ({self._codec.spec}) cannot subscribe to {remote_codec.spec}")
         self.unsubscribe()
-        codec = source.codec if remote_codec == self._codec else None
-        self._subscription = source._subscribe(lambda value: self._deliver(value, decoded_by=codec))
+        if self._codec is None or remote_codec is not None:  # the source's codec is this one's: canonical values
+            put = self._put
+
+            def deliver(value: Any) -> None:  # one frame fewer than _deliver's, on every publication (issue 31)
+                put(value, None, False)
+
+        else:
+            deliver = self._deliver
+        self._subscription = source._subscribe(deliver)
 
     def unsubscribe(self) -> None:
         """End the subscription, if any."""

@@ -75,6 +75,11 @@ class Codec(ABC):
             raise ValueError(f"{self.spec}: {len(view) - end} trailing byte(s) after the value")
         return value
 
+    def plain_struct(self) -> struct.Struct | None:
+        """The one ``struct`` whose unpacking of exactly its size is the decoded value, if this codec has one (a
+        number): a publication's receiver unpacks it in place, with no call of :meth:`decode` (issue 31)."""
+        return None
+
     def __repr__(self) -> str:
         return f"<codec {self.spec}>"
 
@@ -113,6 +118,9 @@ class _Fixed(Codec):
 
     def encode(self, value: Any) -> bytes:
         return self._struct.pack(self.normalize(value))
+
+    def plain_struct(self) -> struct.Struct | None:
+        return self._struct if self._plain else None
 
     def decode(self, data: Buffer) -> Any:
         if self._plain and len(data) == self.size:  # every get and publication of a number: one unpack (issue 31)
