@@ -302,5 +302,6 @@ ZENOH_KEYS: dict[str, str] = {
     "lab_estop": "asm/@lab/estop/{source}",
     "robot_key": "asm/{robot}/@robot/{what}",
     "robot_alive": "asm/{robot}/@robot/alive/{session}",
+    "robot_claim": "asm/{robot}/@robot/claim/{session}",
 }
 """The key patterns of docs/protocol.md §6 (asm_py.keys builds them)."""

@@ -182,9 +182,9 @@ WATCHDOG_EXTRA = 1.0
 """Seconds after the grace that the native watchdog ends a process whose interpreter is stuck (close_and_exit)."""
 
 
-def close_and_exit(close: Callable[[], None], prog: str, grace: float = EXIT_GRACE) -> NoReturn:
+def close_and_exit(close: Callable[[], None], prog: str, grace: float = EXIT_GRACE, *, code: int = 0) -> NoReturn:
     """Run ``close`` (a server command's orderly shutdown) for at most ``grace`` seconds, then end the process
-    (exit 0, or 1 if closing failed or took too long: said, with where it was).
+    (exit ``code``, or 1 if closing failed or took too long: said, with where it was).
 
     The end is ``os._exit`` after flushing, not the interpreter's finalization: Zenoh's and foxglove-sdk's native
     threads can still call into Python then (a late callback), and a thread that wants the GIL during
@@ -209,7 +209,6 @@ def close_and_exit(close: Callable[[], None], prog: str, grace: float = EXIT_GRA
 
     closer = threading.Thread(target=closing, name=f"{prog}-close", daemon=True)
     closer.start()
-    code = 0
     if not done.wait(grace):
         frame = sys._current_frames().get(closer.ident or 0)
         where = "".join(traceback.format_stack(frame)[-6:]) if frame is not None else ""

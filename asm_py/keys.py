@@ -142,6 +142,10 @@ class RobotKeys:
     def robot_alive(self, session: str = "*") -> str:
         return self._patterns["robot_alive"].format(session=session)
 
+    def robot_claim(self, session: str = "*") -> str:
+        """The robot process's token while it claims the robot's name (server.robot_feed)."""
+        return self._patterns["robot_claim"].format(session=session)
+
 
 def lab_estop(source: str = "*") -> str:
     """``asm/@lab/estop/<source>``: the e-stop of every robot on the network."""

@@ -22,8 +22,10 @@ import ipaddress
 import logging
 import os
 import signal
+import sys
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -182,7 +184,9 @@ class RealTimeLoop:
 class Robot:
     """The robot process's parts; see the module docstring. ``close`` stops all of them."""
 
-    def __init__(self, options: RobotOptions) -> None:
+    def __init__(self, options: RobotOptions, on_name_lost: Callable[[str], None] | None = None) -> None:
+        """``on_name_lost(session)``: another robot process of this name kept it too and this one gave way (its feed
+        withdrawn: server.robot_feed); asm-robot then ends."""
         self.options = options
         self.sim: Simulation | None = None
         self.bridge: CanZenohBridge | None = None
@@ -226,7 +230,8 @@ class Robot:
                 commission = getattr(self, "commission", None)  # made just after the feed
                 status.commissioning_stopped = commission is not None and commission.stopped()
 
-            self.feed = RobotFeed(self.bridge.session, self.status, sim.mjcf if sim else None, refresh)
+            self.feed = RobotFeed(self.bridge.session, self.status, sim.mjcf if sim else None, refresh,
+                                  on_lost=on_name_lost)  # fmt: skip
             self.feed.publish_status()
             self.commission = CommissionService(self.bridge.session, options.name, can_options, self.bridge.node,
                                                 tool_id=options.node_id,
@@ -416,12 +421,20 @@ def _serve(args: argparse.Namespace, network: ZenohOptions) -> int:
                            terrain=args.terrain, emulated_modules=args.emulated_modules,
                            board_flash=args.board_flash)  # fmt: skip
     done = stop_requested()
-    robot = Robot(options)  # a bad gait file, a busy port, a taken name: asm-robot: error: … (asm_py.cli.run)
+    lost: list[str] = []
+
+    def name_lost(rival: str) -> None:  # on the feed's Zenoh thread: only say it and ask for the stop
+        lost.append(rival)
+        print(f"asm-robot: another robot process named {args.name!r} kept the name too (session {rival}; their "
+              "tokens met late): this one gives way and ends", file=sys.stderr, flush=True)  # fmt: skip
+        done.set()
+
+    robot = Robot(options, on_name_lost=name_lost)  # a bad gait file, a busy port, a taken name: asm-robot: error: …
     kind = "simulated" if robot.sim is not None else f"CAN {args.can}"
     live = f"; foxglove {ws_url(args.foxglove_host, robot.foxglove.port)}" if robot.foxglove is not None else ""
     print(f"READY robot {args.name} ({kind}, {robot.status.modules} modules){live}", flush=True)
     done.wait()
-    close_and_exit(robot.close, "asm-robot")
+    close_and_exit(robot.close, "asm-robot", code=1 if lost else 0)
 
 
 if __name__ == "__main__":

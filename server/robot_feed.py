@@ -7,7 +7,11 @@ a network without waiting for a publication), publishes the simulated robot's po
 Every reply carries the replier's own key, never the wildcard a query asked with.
 
 A robot's name is unique on its network: :class:`RobotFeed` refuses to start (:class:`RobotNameTaken`) when another
-process already holds a robot token of that name.
+process already holds a robot token of that name, claims it by the rule of asm_py.transport.zenoh_claim (a ``claim``
+token first, the ``alive`` token once kept), and after that gives way — withdraws its token, answers and publishes
+nothing more, and says so through ``on_lost`` — should another process of the name with a lesser session ID turn out
+to have kept it too (their tokens met late). The robot process then ends: two robots answering to one name would
+let a studio's deploy or e-stop reach the wrong one.
 """
 
 from __future__ import annotations
@@ -20,7 +24,7 @@ from typing import Any
 import zenoh
 
 from asm_module.feed import RobotStatus
-from asm_py.keys import RobotKeys
+from asm_py.keys import RobotKeys, last
 from asm_py.transport.zenoh_claim import refuse_if_claimed, sessions_holding, settle_claim
 
 log = logging.getLogger("asm_robot.feed")
@@ -39,6 +43,7 @@ class RobotFeed:
         status: RobotStatus,
         mjcf: str | None = None,
         refresh: Callable[[RobotStatus], None] | None = None,
+        on_lost: Callable[[str], None] | None = None,
     ) -> None:
         self.session = session
         self.status = status
@@ -49,12 +54,22 @@ class RobotFeed:
         self.mjcf = mjcf
         self._lock = threading.Lock()
         self._publishers: dict[str, zenoh.Publisher] = {}
+        self._watch: Any = None
+        self.on_lost = on_lost
+        self.lost: str | None = None
+        """The session that kept this robot's name when this feed gave it up after its claim (None: still kept)."""
         self._keep: list[Any] = []
-        zid = str(session.info.zid())
+        self._zid = zid = str(session.info.zid())
         refuse_if_claimed(zid, self._claimants, self._name_taken)
-        self._keep.append(session.liveliness().declare_token(self.keys.robot_alive(zid)))
+        claiming = session.liveliness().declare_token(self.keys.robot_claim(zid))
+        self._keep.append(claiming)
         try:  # two robots named alike at the same moment: at most one keeps the name (asm_py.transport.zenoh_claim)
-            settle_claim(zid, self._claimants, self._name_taken)
+            settle_claim(zid, self._rivals, self._name_taken)
+            self._keep.append(session.liveliness().declare_token(self.keys.robot_alive(zid)))
+            self._keep.remove(claiming)
+            claiming.undeclare()
+            # kept: from now on, another process that kept the name too (tokens that met late) is watched for
+            self._watch = session.liveliness().declare_subscriber(self.keys.robot_alive(), self._on_alive, history=True)
         except BaseException:  # given way, or the network failed: the token is withdrawn either way
             self.close()
             raise
@@ -63,14 +78,40 @@ class RobotFeed:
             self._keep.append(session.declare_queryable(self.keys.robot_key("mjcf"), self._answer_mjcf))
 
     def _claimants(self) -> set[str]:
-        """The sessions whose robot token claims this robot's name now (a query of the network)."""
+        """The sessions that kept this robot's name (their ``alive`` tokens; a query of the network)."""
         return sessions_holding(self.session, self.keys.robot_alive())
+
+    def _rivals(self) -> set[str]:
+        """The sessions that kept this robot's name or claim it now: what settle_claim looks at."""
+        return self._claimants() | sessions_holding(self.session, self.keys.robot_claim())
+
+    def _on_alive(self, sample: zenoh.Sample) -> None:
+        """Another ``alive`` token of this name after the claim: the lesser session ID keeps the name (the rule of
+        asm_py.transport.zenoh_claim); this feed gives way if its own ID is the greater."""
+        rival = last(sample.key_expr)
+        if sample.kind != zenoh.SampleKind.PUT or rival == self._zid:
+            return
+        if rival > self._zid:
+            log.error("another robot process (session %s) kept the name %r too: it gives way (the lesser ID keeps "
+                      "the name)", rival, self.status.robot)  # fmt: skip
+            return
+        with self._lock:
+            if self.lost is not None:
+                return
+            self.lost = rival
+        log.error("another robot process (session %s) kept the name %r too (their tokens met late): this one gives "
+                  "way and withdraws", rival, self.status.robot)  # fmt: skip
+        self._withdraw()
+        if self.on_lost is not None:
+            self.on_lost(rival)
 
     def _name_taken(self, rival: str) -> RobotNameTaken:
         return RobotNameTaken(f"a robot named {self.status.robot!r} is already on this Zenoh network (session "
                               f"{rival}): give this one another --name")  # fmt: skip
 
     def _put(self, what: str, payload: bytes | str) -> None:
+        if self.lost is not None:  # given way: another process answers to this name now
+            return
         key = self.keys.robot_key(what)
         try:
             with self._lock:
@@ -104,14 +145,24 @@ class RobotFeed:
             query.drop()
 
     def close(self) -> None:
-        for entity in reversed(self._keep):
+        watch, self._watch = self._watch, None
+        if watch is not None:
+            try:
+                watch.undeclare()
+            except zenoh.ZError:
+                log.debug("already undeclared", exc_info=True)
+        self._withdraw()
+
+    def _withdraw(self) -> None:
+        """The token, the queryables and the publishers undeclared: nothing more answers to this name here."""
+        with self._lock:  # once: the watch's thread and close may both get here
+            keep, self._keep = self._keep, []
+            publishers, self._publishers = list(self._publishers.values()), {}
+        for entity in reversed(keep):
             try:
                 entity.undeclare()
             except zenoh.ZError:
                 log.debug("already undeclared", exc_info=True)
-        self._keep.clear()
-        with self._lock:
-            publishers, self._publishers = list(self._publishers.values()), {}
         for publisher in publishers:
             try:
                 publisher.undeclare()

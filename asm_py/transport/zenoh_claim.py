@@ -28,7 +28,7 @@ So two sessions never both keep a name for longer than their tokens take to meet
 An earlier rule had the greater ID give way and the lesser keep the name whatever it saw: a slow session whose token
 arrived after its rival's second look kept the name beside it (seen once in the suite under load;
 tests/transport/test_name_claims.py reproduces it). The bridge's mirrors claim, and watch, by the same rule; a robot
-process's feed (server/robot_feed.py) claims by it but does not watch after its claim.
+process's feed (server/robot_feed.py) claims and watches by it too, on its own two keys.
 """
 
 from __future__ import annotations

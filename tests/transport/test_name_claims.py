@@ -16,8 +16,9 @@ import pytest
 import zenoh
 
 from asm_py import Attribute, Node
+from asm_py.keys import RobotKeys
 from asm_py.transport.zenoh import NameTaken, ZenohTransport
-from asm_py.transport.zenoh_claim import CLAIM_WAIT, Holding, refuse_if_claimed, settle_claim
+from asm_py.transport.zenoh_claim import CLAIM_WAIT, Holding, refuse_if_claimed, sessions_holding, settle_claim
 from asm_py.transport.zenoh_config import make_config
 
 from ..helpers import wait_until
@@ -194,16 +195,86 @@ def test_a_late_robot_meets_a_robot_of_its_name_and_gives_way(
                 for zid in (GREATER, LESSER)}  # fmt: skip
     try:
         blind_first_look(monkeypatch, RobotFeed, "_claimants", lambda f: f.session is sessions[LESSER])  # type: ignore[attr-defined]
-        feeds = [RobotFeed(sessions[GREATER], RobotStatus("z", "real", 0))]
+        lost: list[str] = []
+        feeds = [RobotFeed(sessions[GREATER], RobotStatus("z", "real", 0), on_lost=lost.append)]
         try:
             with pytest.raises(RobotNameTaken, match=f"session {GREATER}"):
                 feeds.append(RobotFeed(sessions[LESSER], RobotStatus("z", "real", 0)))
+            # the newcomer's claim never made the holder give way, though the newcomer's ID is the lesser
+            assert feeds[0].lost is None and lost == []
+            assert sessions_holding(sessions[GREATER], RobotKeys("z").robot_alive()) == {GREATER}
         finally:
             for feed in feeds:
                 feed.close()
     finally:
         for session in sessions.values():
             session.close()
+
+
+def test_two_robot_processes_that_both_kept_a_name_settle_it_once_their_tokens_meet(
+    router: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Every look blind (as over a link slower than the claim's looks): both robot feeds keep the name; once each
+    sees the other's token the greater ID gives way — says so, withdraws its token, answers and publishes nothing
+    more — and only the lesser's robot answers to the name. (Before, both stayed: a studio's status query had two
+    robots answer as one.)"""
+    from asm_module.feed import RobotStatus
+    from server import robot_feed
+    from server.robot_feed import RobotFeed
+
+    monkeypatch.setattr(robot_feed, "sessions_holding", lambda session, key: {str(session.info.zid())})
+    sessions = {zid: zenoh.open(make_config(mode="client", connect=[router], config_file=config_with_id(tmp_path, zid)))
+                for zid in (GREATER, LESSER, "7007")}  # fmt: skip
+    lost: dict[str, list[str]] = {GREATER: [], LESSER: []}
+    feeds: list[RobotFeed] = []
+    try:
+        for zid in (GREATER, LESSER):
+            feeds.append(RobotFeed(sessions[zid], RobotStatus("z", "real", 0), on_lost=lost[zid].append))
+        greater, lesser = feeds
+        assert wait_until(lambda: greater.lost == LESSER, timeout=10)
+        assert lost == {GREATER: [LESSER], LESSER: []} and lesser.lost is None
+        tool, keys = sessions["7007"], RobotKeys("z")
+        assert wait_until(lambda: sessions_holding(tool, keys.robot_alive()) == {LESSER}, timeout=10)
+        heard: list[bytes] = []
+        watcher = tool.declare_subscriber(
+            keys.robot_key("status"), lambda sample: heard.append(sample.payload.to_bytes())
+        )
+        try:
+            for _ in range(5):  # one robot answers the status, and only the lesser publishes it
+                replies = [r for r in tool.get(keys.robot_key("status"), timeout=2) if r.ok is not None]
+                assert len(replies) == 1
+                greater.publish_status()
+            assert heard == []
+            lesser.publish_status()
+            assert wait_until(lambda: len(heard) == 1, timeout=10)
+        finally:
+            watcher.undeclare()
+    finally:
+        for feed in feeds:
+            feed.close()
+        for session in sessions.values():
+            session.close()
+
+
+def test_asm_robot_that_finds_its_name_kept_by_a_lesser_session_ends_with_exit_1(router: str, tmp_path: Path) -> None:
+    """The process behind a feed that gave way: it closes in order and exits 1, saying which session kept the name."""
+    from server.child import Child
+
+    from ..processes import ROOT
+
+    robot = Child("-m", "server.robot", "--name", "z", "--zenoh-mode", "client", "--zenoh-connect", router,
+                  "--zenoh-config", config_with_id(tmp_path, GREATER), cwd=ROOT)  # fmt: skip
+    rival = zenoh.open(make_config(mode="client", connect=[router], config_file=config_with_id(tmp_path, LESSER)))
+    try:
+        robot.wait_for_line("READY robot z", timeout=60)
+        token = rival.liveliness().declare_token(RobotKeys("z").robot_alive(LESSER))  # tokens that met late
+        robot.popen.wait(timeout=30)
+        assert robot.popen.returncode == 1, "".join(robot.output)
+        assert f"kept the name too (session {LESSER}" in "".join(robot.output)
+        token.undeclare()
+    finally:
+        robot.stop()
+        rival.close()
 
 
 def test_a_bridge_mirror_that_claimed_late_beside_a_kept_name_is_withdrawn(
