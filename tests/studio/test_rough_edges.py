@@ -202,6 +202,14 @@ def test_the_preview_plays_on_from_a_scrubbed_point_and_stepping_moves_the_frame
         frame.press_sequentially("60")  # back to t = 1 s
         expect(frame).to_have_value("60", timeout=10_000)  # typed (a loaded machine lags), then committed
         frame.press("Enter")
+        if not wait_until(lambda: abs(seconds(page) - 1.0) < 0.1, 15, 0.2):
+            # once, in a fresh clone's run, the typed frame was not taken in 30 s (the preview stayed where it was
+            # paused; not reproduced in 5 runs beside two busy cores): committed again, as stop 40 did for a lost
+            # key press. A seek to the same frame is idempotent, so this hides nothing but the lost press.
+            frame.click()
+            frame.press("Control+a")
+            frame.press_sequentially("60")
+            frame.press("Enter")
         assert wait_until(lambda: abs(seconds(page) - 1.0) < 0.1, 30, 0.2), seconds(page)
         page.get_by_role("button", name="Play", exact=True).click()
         time.sleep(1.0)
