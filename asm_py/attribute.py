@@ -203,7 +203,8 @@ class Attribute:
         if self._codec is not None and remote_codec is not None and remote_codec != self._codec:
             raise TypeError(f"attribute {self._name!r} ({self._codec.spec}) cannot subscribe to {remote_codec.spec}")
         self.unsubscribe()
-        if self._codec is None or remote_codec is not None:  # the source's codec is this one's: canonical values
+        if type(self)._deliver is Attribute._deliver and (self._codec is None or remote_codec is not None):
+            # the source's codec is this one's (canonical values) and no subclass checks what arrives
             put = self._put
 
             def deliver(value: Any) -> None:  # one frame fewer than _deliver's, on every publication (issue 31)
@@ -296,4 +297,7 @@ class CheckedAttribute(Attribute):
         self._put(checked if checked is value else codec.normalize(checked), timeout)  # the value itself: normalized
 
     def _deliver(self, value: Any, *, decoded_by: Codec | None = None) -> None:
-        self.set(value)
+        try:
+            self.set(value)
+        except Exception as exc:  # refused by the check: the publication is dropped, the next one still arrives
+            log.info("a publication for attribute %r was refused: %s", self._name, exc)

@@ -147,6 +147,10 @@ class _StopEvent(threading.Event):
     def is_set(self) -> bool:
         return self._requested or super().is_set()
 
+    def clear(self) -> None:
+        self._requested = False
+        super().clear()
+
     def wait(self, timeout: float | None = None) -> bool:
         deadline = None if timeout is None else time.monotonic() + timeout
         while True:

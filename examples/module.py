@@ -6,13 +6,12 @@ Prints "READY <name>" once it is reachable; Ctrl-C (or SIGTERM) stops it.
 
 from __future__ import annotations
 
-import signal
 import sys
-import threading
 
 from _common import open_node, parser
 
 from asm_py import Attribute, Event, Node, Service, TimerTrigger
+from asm_py.cli import stop_requested
 
 
 class Servo(Service):
@@ -50,13 +49,9 @@ def populate(node: Node) -> list[Service]:
 
 def serve(name: str, node: Node, services: list[Service], *closing: object) -> None:
     """Print the ready line, run until SIGTERM or Ctrl-C, then stop everything in order."""
-    done = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: done.set())
+    done = stop_requested()  # SIGTERM and Ctrl-C; its handlers take no lock (two signals at once once deadlocked)
     print(f"READY {name}", flush=True)
-    try:
-        done.wait()
-    except KeyboardInterrupt:
-        pass
+    done.wait()
     for service in services:
         service.stop(timeout=5)
     node.close()

@@ -47,7 +47,7 @@ from .commission_service import CommissionService
 from .foxglove_live import FoxgloveLive
 from .realtime import prefer_latency
 from .rest import CHECK, REST_TICK, Rest
-from .robot_feed import RobotFeed
+from .robot_feed import RobotFeed, RobotNameTaken
 from .zenoh_args import ZenohOptions, add_zenoh_arguments, zenoh_options
 
 log = logging.getLogger("asm_robot")
@@ -233,6 +233,7 @@ class Robot:
             self.feed = RobotFeed(self.bridge.session, self.status, sim.mjcf if sim else None, refresh,
                                   on_lost=on_name_lost)  # fmt: skip
             self.feed.publish_status()
+            self._check_name()
             self.commission = CommissionService(self.bridge.session, options.name, can_options, self.bridge.node,
                                                 tool_id=options.node_id,
                                                 reserved=self.bridge.clients.alias_pool)  # fmt: skip
@@ -246,9 +247,16 @@ class Robot:
             if self.sim is not None:  # boards without an ID yet are not on the bus as modules: not waited for
                 unnumbered = sum(1 for m in self.sim.modules.values() if getattr(m, "configured", True) is False)
                 self._await_bridged(modules - unnumbered)
+            self._check_name()  # not READY under a name another process kept meanwhile
         except BaseException:
             self.close()
             raise
+
+    def _check_name(self) -> None:
+        """RobotNameTaken if the feed gave the robot's name way (another process of the name kept it too)."""
+        if self.feed is not None and self.feed.lost is not None:
+            raise RobotNameTaken(f"another robot process named {self.options.name!r} kept the name too (session "
+                                 f"{self.feed.lost}): this one gives way")  # fmt: skip
 
     def _await_bridged(self, modules: int, timeout: float = 15.0) -> None:
         """Wait until the simulated modules are on Zenoh (so "READY" means a tool can reach every one); a robot

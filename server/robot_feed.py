@@ -55,6 +55,7 @@ class RobotFeed:
         self._lock = threading.Lock()
         self._publishers: dict[str, zenoh.Publisher] = {}
         self._watch: Any = None
+        self._closed = False
         self.on_lost = on_lost
         self.lost: str | None = None
         """The session that kept this robot's name when this feed gave it up after its claim (None: still kept)."""
@@ -68,14 +69,15 @@ class RobotFeed:
             self._keep.append(session.liveliness().declare_token(self.keys.robot_alive(zid)))
             self._keep.remove(claiming)
             claiming.undeclare()
-            # kept: from now on, another process that kept the name too (tokens that met late) is watched for
+            self._keep.append(session.declare_queryable(self.keys.robot_key("status"), self._answer_status))
+            if mjcf is not None:
+                self._keep.append(session.declare_queryable(self.keys.robot_key("mjcf"), self._answer_mjcf))
+            # kept, everything declared (the watch's first call may come at once, on Zenoh's thread, and withdraws
+            # all of it): from now on, another process that kept the name too (tokens that met late) is watched for
             self._watch = session.liveliness().declare_subscriber(self.keys.robot_alive(), self._on_alive, history=True)
         except BaseException:  # given way, or the network failed: the token is withdrawn either way
             self.close()
             raise
-        self._keep.append(session.declare_queryable(self.keys.robot_key("status"), self._answer_status))
-        if mjcf is not None:
-            self._keep.append(session.declare_queryable(self.keys.robot_key("mjcf"), self._answer_mjcf))
 
     def _claimants(self) -> set[str]:
         """The sessions that kept this robot's name (their ``alive`` tokens; a query of the network)."""
@@ -96,25 +98,28 @@ class RobotFeed:
                       "the name)", rival, self.status.robot)  # fmt: skip
             return
         with self._lock:
-            if self.lost is not None:
+            if self.lost is not None or self._closed:
                 return
             self.lost = rival
         log.error("another robot process (session %s) kept the name %r too (their tokens met late): this one gives "
                   "way and withdraws", rival, self.status.robot)  # fmt: skip
         self._withdraw()
         if self.on_lost is not None:
-            self.on_lost(rival)
+            try:
+                self.on_lost(rival)
+            except Exception:  # on Zenoh's thread: said here, never raised into it
+                log.exception("on_lost of the robot feed failed")
 
     def _name_taken(self, rival: str) -> RobotNameTaken:
         return RobotNameTaken(f"a robot named {self.status.robot!r} is already on this Zenoh network (session "
                               f"{rival}): give this one another --name")  # fmt: skip
 
     def _put(self, what: str, payload: bytes | str) -> None:
-        if self.lost is not None:  # given way: another process answers to this name now
-            return
         key = self.keys.robot_key(what)
         try:
             with self._lock:
+                if self.lost is not None or self._closed:  # given way: another process answers to this name now
+                    return
                 publisher = self._publishers.get(key)
                 if publisher is None:
                     publisher = self._publishers[key] = self.session.declare_publisher(key, express=True)
@@ -132,6 +137,8 @@ class RobotFeed:
 
     def _answer_status(self, query: zenoh.Query) -> None:
         try:
+            if self.lost is not None:  # given way: answered by the process that kept the name
+                return
             if self.refresh is not None:
                 self.refresh(self.status)
             query.reply(self.keys.robot_key("status"), self.status.to_json())
@@ -140,11 +147,15 @@ class RobotFeed:
 
     def _answer_mjcf(self, query: zenoh.Query) -> None:
         try:
+            if self.lost is not None:
+                return
             query.reply(self.keys.robot_key("mjcf"), self.mjcf or "")
         finally:
             query.drop()
 
     def close(self) -> None:
+        with self._lock:
+            self._closed = True
         watch, self._watch = self._watch, None
         if watch is not None:
             try:

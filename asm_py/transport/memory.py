@@ -6,11 +6,14 @@ thread (a node can call itself without deadlock) and messages between two nodes 
 
 from __future__ import annotations
 
+import logging
 import threading
 from collections import defaultdict, deque
 from collections.abc import Callable
 
 from .base import BROADCAST, PublicationHandler, Transport
+
+log = logging.getLogger("asm_py.transport.memory")
 
 
 class MemoryNetwork:
@@ -70,7 +73,10 @@ class MemoryTransport(Transport):
                 if self._closed and not self._queue:
                     return
                 work = self._queue.popleft()
-            work()
+            try:
+                work()
+            except Exception:  # a subscriber's failure (a refused publication) must not end this node's delivery
+                log.exception("delivery to %s failed", self.name)
 
     def send(self, dest: str, data: bytes) -> None:
         source = self.name

@@ -295,3 +295,34 @@ def test_an_untyped_attribute_subscribes_to_a_typed_one(pair) -> None:
     attr.set(0.1)  # float32's 0.1, as the source holds it
     assert wait_until(lambda: len(received) == 1)
     assert received == [attr.peek()] != [0.1]
+
+
+def test_a_checked_attribute_checks_what_a_publication_brings(pair) -> None:
+    """CheckedAttribute's promise (every value, however it arrives, passes its check) holds for publications: the
+    delivery's fast path (issue 31) once stored a published 5.0 past a clamp to 1.0 and past a refusal."""
+    from asm_py.attribute import CheckedAttribute
+
+    clock, server, client = pair
+    source = Attribute("goal", 0.0, codec="float32")
+    server.register(source)
+    remote = client.lookup("module", "goal", timeout=5)
+
+    def refuse(value: float) -> float:
+        if value > 1.0:
+            raise ValueError("too far")
+        return value
+
+    clamped = CheckedAttribute("clamped", 0.0, codec="float32", check=lambda v: min(v, 1.0))
+    refusing = CheckedAttribute("refusing", 0.0, codec="float32", check=refuse)
+    seen: list = []
+    for copy in (clamped, refusing):
+        copy.on_change(seen.append)
+        copy.subscribe(remote)
+    source.publish()
+    source.set(0.5)
+    assert wait_until(lambda: seen.count(0.5) == 2)
+    source.set(5.0)
+    assert wait_until(lambda: clamped.peek() == 1.0, timeout=5), clamped.peek()
+    assert refusing.peek() == 0.5
+    source.set(0.25)  # a refusal ends nothing: the next publication arrives
+    assert wait_until(lambda: refusing.peek() == 0.25 and clamped.peek() == 0.25, timeout=5)

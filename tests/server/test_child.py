@@ -156,3 +156,19 @@ def test_free_port_falls_back_to_the_kernel_s_choice_when_nothing_below_the_rang
 
     monkeypatch.setattr(socket.socket, "bind", bind)
     assert child.free_port() > 0
+
+
+def test_a_stop_requested_by_a_signal_is_seen_by_every_thread_and_cleared_by_clear() -> None:
+    import threading
+
+    from asm_py.cli import _StopEvent  # pyright: ignore[reportPrivateUsage]  # the handlers' target, without signals
+
+    done = _StopEvent()
+    seen = threading.Event()
+    waiter = threading.Thread(target=lambda: done.wait() and seen.set())
+    waiter.start()
+    done.request()  # what SIGTERM's handler does
+    waiter.join(timeout=5)
+    assert seen.is_set() and done.is_set() and done.wait(0)
+    done.clear()
+    assert not done.is_set() and not done.wait(0.1)
