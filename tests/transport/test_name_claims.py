@@ -9,7 +9,7 @@ import itertools
 import json
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
@@ -75,6 +75,26 @@ def config_with_id(tmp_path: Path, zid: str) -> str:
     path = tmp_path / f"{zid}.json5"
     path.write_text(json.dumps({"id": zid}))
     return str(path)
+
+
+@pytest.fixture
+def session_with_id(router: str, tmp_path: Path) -> Iterator[Callable[[str], zenoh.Session]]:
+    """Open client sessions of the router with the Zenoh IDs given; every one is closed at the end."""
+    opened: list[zenoh.Session] = []
+
+    def open_session(zid: str) -> zenoh.Session:
+        opened.append(zenoh.open(make_config(mode="client", connect=[router],
+                                             config_file=config_with_id(tmp_path, zid))))  # fmt: skip
+        return opened[-1]
+
+    yield open_session
+    for session in opened:
+        session.close()
+
+
+def replies(session: zenoh.Session, key: str, timeout: float = 1.0) -> list[zenoh.Reply]:
+    """The good replies to one query of ``key``."""
+    return [reply for reply in session.get(key, timeout=timeout) if reply.ok is not None]
 
 
 def blind_first_look(monkeypatch: pytest.MonkeyPatch, cls: type, method: str, victim: Callable[[object], bool]) -> None:
@@ -186,33 +206,28 @@ def _made(make: Callable[[], object]) -> object:
 
 
 def test_a_late_robot_meets_a_robot_of_its_name_and_gives_way(
-    router: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+    session_with_id: Callable[[str], zenoh.Session], monkeypatch: pytest.MonkeyPatch
 ) -> None:
     from asm_module.feed import RobotStatus
     from server.robot_feed import RobotFeed, RobotNameTaken
 
-    sessions = {zid: zenoh.open(make_config(mode="client", connect=[router], config_file=config_with_id(tmp_path, zid)))
-                for zid in (GREATER, LESSER)}  # fmt: skip
+    sessions = {zid: session_with_id(zid) for zid in (GREATER, LESSER)}
+    blind_first_look(monkeypatch, RobotFeed, "_claimants", lambda f: f.session is sessions[LESSER])  # type: ignore[attr-defined]
+    lost: list[str] = []
+    feeds = [RobotFeed(sessions[GREATER], RobotStatus("z", "real", 0), on_lost=lost.append)]
     try:
-        blind_first_look(monkeypatch, RobotFeed, "_claimants", lambda f: f.session is sessions[LESSER])  # type: ignore[attr-defined]
-        lost: list[str] = []
-        feeds = [RobotFeed(sessions[GREATER], RobotStatus("z", "real", 0), on_lost=lost.append)]
-        try:
-            with pytest.raises(RobotNameTaken, match=f"session {GREATER}"):
-                feeds.append(RobotFeed(sessions[LESSER], RobotStatus("z", "real", 0)))
-            # the newcomer's claim never made the holder give way, though the newcomer's ID is the lesser
-            assert feeds[0].lost is None and lost == []
-            assert sessions_holding(sessions[GREATER], RobotKeys("z").robot_alive()) == {GREATER}
-        finally:
-            for feed in feeds:
-                feed.close()
+        with pytest.raises(RobotNameTaken, match=f"session {GREATER}"):
+            feeds.append(RobotFeed(sessions[LESSER], RobotStatus("z", "real", 0)))
+        # the newcomer's claim never made the holder give way, though the newcomer's ID is the lesser
+        assert feeds[0].lost is None and lost == []
+        assert sessions_holding(sessions[GREATER], RobotKeys("z").robot_alive()) == {GREATER}
     finally:
-        for session in sessions.values():
-            session.close()
+        for feed in feeds:
+            feed.close()
 
 
 def test_two_robot_processes_that_both_kept_a_name_settle_it_once_their_tokens_meet(
-    router: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+    session_with_id: Callable[[str], zenoh.Session], monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """Every look blind (as over a link slower than the claim's looks): both robot feeds keep the name; once each
     sees the other's token the greater ID gives way — says so, withdraws its token, answers and publishes nothing
@@ -223,15 +238,15 @@ def test_two_robot_processes_that_both_kept_a_name_settle_it_once_their_tokens_m
     from server.robot_feed import RobotFeed
 
     monkeypatch.setattr(robot_feed, "sessions_holding", lambda session, key: {str(session.info.zid())})
-    sessions = {zid: zenoh.open(make_config(mode="client", connect=[router], config_file=config_with_id(tmp_path, zid)))
-                for zid in (GREATER, LESSER, "7007")}  # fmt: skip
+    sessions = {zid: session_with_id(zid) for zid in (GREATER, LESSER, "7007")}
     lost: dict[str, list[str]] = {GREATER: [], LESSER: []}
     feeds: list[RobotFeed] = []
     try:
         for zid in (GREATER, LESSER):
             feeds.append(RobotFeed(sessions[zid], RobotStatus("z", "real", 0), on_lost=lost[zid].append))
         greater, lesser = feeds
-        assert wait_until(lambda: greater.lost == LESSER, timeout=10)
+        # (lost is set before on_lost is called, on Zenoh's thread: wait for both)
+        assert wait_until(lambda: greater.lost == LESSER and lost[GREATER] != [], timeout=10)
         assert lost == {GREATER: [LESSER], LESSER: []} and lesser.lost is None
         tool, keys = sessions["7007"], RobotKeys("z")
         assert wait_until(lambda: sessions_holding(tool, keys.robot_alive()) == {LESSER}, timeout=10)
@@ -241,8 +256,7 @@ def test_two_robot_processes_that_both_kept_a_name_settle_it_once_their_tokens_m
         )
         try:
             for _ in range(5):  # one robot answers the status, and only the lesser publishes it
-                replies = [r for r in tool.get(keys.robot_key("status"), timeout=2) if r.ok is not None]
-                assert len(replies) == 1
+                assert len(replies(tool, keys.robot_key("status"), timeout=2)) == 1
                 greater.publish_status()
             assert heard == []
             lesser.publish_status()
@@ -252,12 +266,10 @@ def test_two_robot_processes_that_both_kept_a_name_settle_it_once_their_tokens_m
     finally:
         for feed in feeds:
             feed.close()
-        for session in sessions.values():
-            session.close()
 
 
 def test_a_feed_that_gives_way_while_it_starts_answers_nothing(
-    router: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+    session_with_id: Callable[[str], zenoh.Session], monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """The watch's first call can come at once, on Zenoh's thread, while the feed is still being made: what it
     withdraws must be everything the feed declared (a review saw the status queryable answer on after the feed gave
@@ -267,8 +279,7 @@ def test_a_feed_that_gives_way_while_it_starts_answers_nothing(
     from server.robot_feed import RobotFeed
 
     monkeypatch.setattr(robot_feed, "sessions_holding", lambda session, key: {str(session.info.zid())})
-    sessions = {zid: zenoh.open(make_config(mode="client", connect=[router], config_file=config_with_id(tmp_path, zid)))
-                for zid in (GREATER, LESSER, "7007")}  # fmt: skip
+    sessions = {zid: session_with_id(zid) for zid in (GREATER, LESSER, "7007")}
     keys, tool = RobotKeys("z"), sessions["7007"]
     token = sessions[LESSER].liveliness().declare_token(keys.robot_alive(LESSER))
     try:
@@ -277,18 +288,18 @@ def test_a_feed_that_gives_way_while_it_starts_answers_nothing(
             try:
                 assert wait_until(lambda feed=feed: feed.lost == LESSER, timeout=10)
                 for what in ("status", "mjcf"):
-                    assert [r for r in tool.get(keys.robot_key(what), timeout=1) if r.ok is not None] == []
+                    assert replies(tool, keys.robot_key(what)) == []
             finally:
                 feed.close()
             for what in ("status", "mjcf"):
-                assert [r for r in tool.get(keys.robot_key(what), timeout=1) if r.ok is not None] == []
+                assert replies(tool, keys.robot_key(what)) == []
     finally:
         token.undeclare()
-        for session in sessions.values():
-            session.close()
 
 
-def test_asm_robot_that_finds_its_name_kept_by_a_lesser_session_ends_with_exit_1(router: str, tmp_path: Path) -> None:
+def test_asm_robot_that_finds_its_name_kept_by_a_lesser_session_ends_with_exit_1(
+    router: str, tmp_path: Path, session_with_id: Callable[[str], zenoh.Session]
+) -> None:
     """The process behind a feed that gave way: it closes in order and exits 1, saying which session kept the name."""
     from server.child import Child
 
@@ -296,7 +307,7 @@ def test_asm_robot_that_finds_its_name_kept_by_a_lesser_session_ends_with_exit_1
 
     robot = Child("-m", "server.robot", "--name", "z", "--zenoh-mode", "client", "--zenoh-connect", router,
                   "--zenoh-config", config_with_id(tmp_path, GREATER), cwd=ROOT)  # fmt: skip
-    rival = zenoh.open(make_config(mode="client", connect=[router], config_file=config_with_id(tmp_path, LESSER)))
+    rival = session_with_id(LESSER)
     try:
         robot.wait_for_line("READY robot z", timeout=60)
         token = rival.liveliness().declare_token(RobotKeys("z").robot_alive(LESSER))  # tokens that met late
@@ -306,7 +317,6 @@ def test_asm_robot_that_finds_its_name_kept_by_a_lesser_session_ends_with_exit_1
         token.undeclare()
     finally:
         robot.stop()
-        rival.close()
 
 
 def test_a_bridge_mirror_that_claimed_late_beside_a_kept_name_is_withdrawn(
