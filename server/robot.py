@@ -31,6 +31,7 @@ from pathlib import Path
 from typing import Any
 
 from asm_module.board_batch import BoardBatch
+from asm_module.emulated import EmulatedModule
 from asm_module.feed import PoseFrame, RobotStatus, encode_poses
 from asm_module.names import module_name
 from asm_py.cli import can_channel, close_and_exit, input_file, module_selection, name, run, stop_requested, summary
@@ -244,9 +245,8 @@ class Robot:
                 self.loop = RealTimeLoop(self.sim, self.feed, options.pose_rate)
             self._status_timer = threading.Thread(target=self._report, name="asm-robot-status", daemon=True)
             self._status_timer.start()
-            if self.sim is not None:  # boards without an ID yet are not on the bus as modules: not waited for
-                unnumbered = sum(1 for m in self.sim.modules.values() if getattr(m, "configured", True) is False)
-                self._await_bridged(modules - unnumbered)
+            if self.sim is not None:
+                self._await_bridged(len(self._node_ids()))
             self._check_name()  # not READY under a name another process kept meanwhile
         except BaseException:
             self.close()
@@ -257,6 +257,19 @@ class Robot:
         if self.feed is not None and self.feed.lost is not None:
             raise RobotNameTaken(f"another robot process named {self.options.name!r} kept the name too (session "
                                  f"{self.feed.lost}): this one gives way")  # fmt: skip
+
+    def _node_ids(self) -> set[int]:
+        """The node IDs the simulated modules run under, each once: a board without an ID yet is not on the bus as a
+        module, and two boards flashed with one ID are one node to the bridge (the commissioning service reports the
+        clash). Counting modules instead, a robot with such a pair waited the whole timeout, then warned."""
+        assert self.sim is not None
+        ids: set[int] = set()
+        for position, module in self.sim.modules.items():
+            if not isinstance(module, EmulatedModule):
+                ids.add(position)
+            elif module.configured:
+                ids.add(module.commissioned_id())
+        return ids
 
     def _await_bridged(self, modules: int, timeout: float = 15.0) -> None:
         """Wait until the simulated modules are on Zenoh (so "READY" means a tool can reach every one); a robot

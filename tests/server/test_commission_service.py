@@ -6,6 +6,7 @@ on the same flash folder; two boards with one ID reported; and every hostile req
 from __future__ import annotations
 
 import json
+import logging
 import shutil
 import threading
 import time
@@ -103,7 +104,9 @@ def _info(client: Node, name: str) -> dict | None:
         return None
 
 
-def test_fresh_boards_are_found_wiggled_numbered_along_the_chain_and_kept_across_a_restart(tmp_path) -> None:
+def test_fresh_boards_are_found_wiggled_numbered_along_the_chain_and_kept_across_a_restart(
+    tmp_path, caplog: pytest.LogCaptureFixture
+) -> None:
     folder = tmp_path / "boards"
     bench = Bench(folder)
     try:
@@ -139,8 +142,12 @@ def test_fresh_boards_are_found_wiggled_numbered_along_the_chain_and_kept_across
     finally:
         bench.close()
     shutil.copyfile(folder / "board-2.flash", folder / "board-3.flash")  # two boards flashed alike: both ID 2
-    bench = Bench(folder)
+    caplog.set_level(logging.WARNING, logger="asm_robot")
+    caplog.clear()
+    bench = Bench(folder)  # ready once m1..m8 but m3 are bridged: the pair is one node (it waited 15 s, then warned)
     try:
+        assert not [r for r in caplog.records if "bridged after" in r.getMessage()]
+        assert sorted(bench.robot.bridge.bridged) == sorted(f"m{p}" for p in range(1, 9) if p != 3)
         clash = bench.ask({"op": "list"})["conflicts"]
         by_position = {p: BoardBatch(folder).serial(p).hex() for p in BOARDS}
         assert list(clash) == ["2"] and sorted(clash["2"]) == sorted([by_position[2], by_position[3]])
