@@ -55,10 +55,10 @@ from asm_py.protocol import (
 )
 from asm_py.remote import make_client
 from asm_py.transport.can import CanTransport, group_id, message_priority
-from asm_py.transport.zenoh_claim import CLAIM_SETTLE, Verdict, verdict
+from asm_py.transport.zenoh_claim import CLAIM_SETTLE, Verdict, claimants, gives_way, verdict
 
 from .bridge_clients import DEFAULT_FRAME_RATE, ClientTable, Pacer, Refusal
-from .bridge_mirror import TABLE_BACKOFF, Mirror, claimants
+from .bridge_mirror import TABLE_BACKOFF, Mirror
 from .bridge_outlets import Outlet, direct
 from .heap import HeapTrimmer
 from .realtime import prefer_latency
@@ -183,7 +183,8 @@ class CanZenohBridge:
         lesser ID keeps it, as for any session (asm_py.transport.zenoh_claim); the work loop withdraws the mirror."""
         chunks = split(sample.key_expr)  # asm/<robot>/@alive/<node>/<session>
         mirror = self._mirrors.get(chunks[3]) if len(chunks) == 5 else None
-        if sample.kind == zenoh.SampleKind.PUT and mirror is not None and mirror.holding.kept and chunks[4] < self._zid:
+        kept = mirror is not None and mirror.holding.kept
+        if sample.kind == zenoh.SampleKind.PUT and kept and gives_way(self._zid, chunks[4]):
             self._work.put(f"!{chunks[3]}/{chunks[4]}")
 
     def _handle(self, item: str) -> None:
@@ -200,7 +201,7 @@ class CanZenohBridge:
             log.exception("bridging %s failed", item)
 
     def _claimants(self, name: str, *, claiming: bool = True) -> set[str]:
-        return claimants(self.session, self.keys, name, claiming=claiming)
+        return claimants(self.session, self.keys.alive(name), self.keys.claim(name) if claiming else None)
 
     def _refuse(self, name: str, other: str) -> None:
         if name not in self._taken:

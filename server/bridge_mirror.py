@@ -6,11 +6,8 @@ from __future__ import annotations
 import time
 from typing import Any
 
-import zenoh
-
-from asm_py.keys import RobotKeys
 from asm_py.remote import RemoteObject
-from asm_py.transport.zenoh_claim import CLAIM_SETTLE, CLAIM_WAIT, Holding, sessions_holding
+from asm_py.transport.zenoh_claim import CLAIM_SETTLE, CLAIM_WAIT, Holding
 
 from .bridge_outlets import Outlet
 
@@ -37,10 +34,3 @@ class Mirror:
         (``holding.kept``: the name is the bridge's; until then it looks again at ``claim_due``)."""
         self.claim_due = time.monotonic() + CLAIM_SETTLE
         self.claim_deadline = time.monotonic() + CLAIM_WAIT
-
-
-def claimants(session: zenoh.Session, keys: RobotKeys, name: str, *, claiming: bool = True) -> set[str]:
-    """The sessions that kept ``name`` in this robot (``@alive``) and, if ``claiming``, those claiming it now
-    (``@claim``), the bridge's own among them (a query of the network)."""
-    found = sessions_holding(session, keys.alive(name))
-    return found | sessions_holding(session, keys.claim(name)) if claiming else found

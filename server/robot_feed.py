@@ -25,7 +25,7 @@ import zenoh
 
 from asm_module.feed import RobotStatus
 from asm_py.keys import RobotKeys, last
-from asm_py.transport.zenoh_claim import refuse_if_claimed, sessions_holding, settle_claim
+from asm_py.transport.zenoh_claim import claimants, gives_way, refuse_if_claimed, settle_claim
 
 log = logging.getLogger("asm_robot.feed")
 
@@ -81,11 +81,11 @@ class RobotFeed:
 
     def _claimants(self) -> set[str]:
         """The sessions that kept this robot's name (their ``alive`` tokens; a query of the network)."""
-        return sessions_holding(self.session, self.keys.robot_alive())
+        return claimants(self.session, self.keys.robot_alive())
 
     def _rivals(self) -> set[str]:
         """The sessions that kept this robot's name or claim it now: what settle_claim looks at."""
-        return self._claimants() | sessions_holding(self.session, self.keys.robot_claim())
+        return claimants(self.session, self.keys.robot_alive(), self.keys.robot_claim())
 
     def _on_alive(self, sample: zenoh.Sample) -> None:
         """Another ``alive`` token of this name after the claim: the lesser session ID keeps the name (the rule of
@@ -93,7 +93,7 @@ class RobotFeed:
         rival = last(sample.key_expr)
         if sample.kind != zenoh.SampleKind.PUT or rival == self._zid:
             return
-        if rival > self._zid:
+        if not gives_way(self._zid, rival):
             log.error("another robot process (session %s) kept the name %r too: it gives way (the lesser ID keeps "
                       "the name)", rival, self.status.robot)  # fmt: skip
             return

@@ -36,7 +36,7 @@ from ..keys import (
 )
 from ..protocol import HEADER_SIZE, Kind, decode_timeout, has_timeout, kind_of
 from .base import ESTOP_REASON_MAX, PublicationHandler, Transport
-from .zenoh_claim import Holding, refuse_if_claimed, sessions_holding, settle_claim
+from .zenoh_claim import Holding, claimants, gives_way, refuse_if_claimed, settle_claim
 from .zenoh_config import (  # noqa: F401  (re-exported: the configuration is part of this transport's interface)
     MAX_LINK_MESSAGE,
     InsecureEndpoint,
@@ -172,11 +172,11 @@ class ZenohTransport(Transport):
 
     def claimants(self, seg: str) -> set[str]:
         """The sessions that kept segment ``seg`` in this robot (their ``@alive`` tokens; a query of the network)."""
-        return sessions_holding(self.session, self.keys.alive(seg))
+        return claimants(self.session, self.keys.alive(seg))
 
     def _rivals(self) -> set[str]:
         """The sessions that kept this node's name or claim it now: what settle_claim looks at."""
-        return self.claimants(self.segment) | sessions_holding(self.session, self.keys.claim(self.segment))
+        return claimants(self.session, self.keys.alive(self.segment), self.keys.claim(self.segment))
 
     def _name_taken(self, rival: str) -> NameTaken:
         role = "tool" if self.role == "tool" else "module"
@@ -257,7 +257,7 @@ class ZenohTransport(Transport):
         a newcomer does not displace a holder (asm_py.transport.zenoh_claim)."""
         if not self._holding.kept:  # still claiming (settle_claim decides) or given way already
             return
-        if rival > self._zid:
+        if not gives_way(self._zid, rival):
             log.error("another session (%s) kept this node's name %r in robot %r too: it gives way (the lesser ID "
                       "keeps the name)", rival, self.segment, self.robot)  # fmt: skip
             return

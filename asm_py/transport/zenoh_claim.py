@@ -56,6 +56,19 @@ def sessions_holding(session: zenoh.Session, key: str) -> set[str]:
     return {last(reply.ok.key_expr) for reply in replies if reply.ok is not None}
 
 
+def claimants(session: zenoh.Session, alive: str, claim: str | None = None) -> set[str]:
+    """The sessions that kept a name (the ``@alive`` tokens matching ``alive``) and, given ``claim``, those claiming
+    it now (the ``@claim`` tokens matching it): what :func:`settle_claim` looks at. One query per key."""
+    kept = sessions_holding(session, alive)
+    return kept if claim is None else kept | sessions_holding(session, claim)
+
+
+def gives_way(own: str, rival: str) -> bool:
+    """After its claim: this session, which kept its name, must give it up on seeing ``rival``'s ``@alive`` token
+    for it too (their tokens met late) — the lesser session ID keeps the name; a session's own token is no rival."""
+    return rival != own and rival < own
+
+
 def refuse_if_claimed(own: str, claimants: Callable[[], set[str]], refused: Callable[[str], Exception]) -> None:
     """Before declaring a token: raise ``refused(rival)`` if any other session already claims the name."""
     others = claimants() - {own}

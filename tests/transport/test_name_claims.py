@@ -17,8 +17,16 @@ import zenoh
 
 from asm_py import Attribute, Node
 from asm_py.keys import RobotKeys
+from asm_py.transport import zenoh_claim
 from asm_py.transport.zenoh import NameTaken, ZenohTransport
-from asm_py.transport.zenoh_claim import CLAIM_WAIT, Holding, refuse_if_claimed, sessions_holding, settle_claim
+from asm_py.transport.zenoh_claim import (
+    CLAIM_WAIT,
+    Holding,
+    gives_way,
+    refuse_if_claimed,
+    sessions_holding,
+    settle_claim,
+)
 from asm_py.transport.zenoh_config import make_config
 
 from ..helpers import wait_until
@@ -56,6 +64,12 @@ def test_the_rule_after_a_claim(answers: tuple[set[str], ...], kept: bool) -> No
     else:
         assert kept
     assert time.monotonic() - began < 5
+
+
+def test_once_kept_a_name_is_given_up_only_to_a_lesser_session_that_kept_it_too() -> None:
+    """The rule every holder applies (a node's transport, a bridge mirror, a robot feed) to another ``@alive`` token
+    of its name: one function, so the three cannot disagree."""
+    assert gives_way("me", "a") and not gives_way("me", "z") and not gives_way("me", "me")
 
 
 def test_the_first_look_refuses_any_rival_and_names_the_least() -> None:
@@ -234,10 +248,9 @@ def test_two_robot_processes_that_both_kept_a_name_settle_it_once_their_tokens_m
     more — and only the lesser's robot answers to the name. (Before, both stayed: a studio's status query had two
     robots answer as one.)"""
     from asm_module.feed import RobotStatus
-    from server import robot_feed
     from server.robot_feed import RobotFeed
 
-    monkeypatch.setattr(robot_feed, "sessions_holding", lambda session, key: {str(session.info.zid())})
+    monkeypatch.setattr(zenoh_claim, "sessions_holding", lambda session, key: {str(session.info.zid())})
     sessions = {zid: session_with_id(zid) for zid in (GREATER, LESSER, "7007")}
     lost: dict[str, list[str]] = {GREATER: [], LESSER: []}
     feeds: list[RobotFeed] = []
@@ -275,10 +288,9 @@ def test_a_feed_that_gives_way_while_it_starts_answers_nothing(
     withdraws must be everything the feed declared (a review saw the status queryable answer on after the feed gave
     way in 6 of 8 runs, and after close() in 5)."""
     from asm_module.feed import RobotStatus
-    from server import robot_feed
     from server.robot_feed import RobotFeed
 
-    monkeypatch.setattr(robot_feed, "sessions_holding", lambda session, key: {str(session.info.zid())})
+    monkeypatch.setattr(zenoh_claim, "sessions_holding", lambda session, key: {str(session.info.zid())})
     sessions = {zid: session_with_id(zid) for zid in (GREATER, LESSER, "7007")}
     keys, tool = RobotKeys("z"), sessions["7007"]
     token = sessions[LESSER].liveliness().declare_token(keys.robot_alive(LESSER))
