@@ -51,3 +51,13 @@ def mutations(valid: list[bytes], max_index: int = 63, max_flips: int = 4):
 
     flips = st.lists(st.tuples(st.integers(0, max_index), st.integers(0, 255)), max_size=max_flips)
     return st.builds(mutate, st.sampled_from(valid), flips, st.integers(0, 3))
+
+
+class FakeTime:
+    """A wall clock the test moves."""
+
+    def __init__(self) -> None:
+        self.now = 100.0
+
+    def __call__(self) -> float:
+        return self.now

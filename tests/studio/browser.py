@@ -18,7 +18,7 @@ from typing import Any
 
 import pytest
 
-from ..helpers import ARTIFACTS
+from ..helpers import ARTIFACTS, wait_until
 
 CHROMIUM = "/usr/bin/chromium"
 
@@ -45,6 +45,18 @@ more, ``--max-fps``): a moving robot kept Chromium drawing at 60 frames a second
 suite's two, whatever the test looked at."""
 PAGE_QUERY = f"?fixedDpr={VIEW_DPR}&maxFps={MAX_FPS}"
 """What every browser test opens the page with (after the studio's URL)."""
+
+
+PAGE_POLL = 0.05
+"""Seconds between two looks of :func:`page_until`. Each look that reads the page is a round trip from the test
+through Playwright's driver to Chromium's renderer; wait_until's 2 ms kept all three busy: test_drive_e2e's renderer
+took 14.9 CPU-s at 2 ms, 5.4-9.2 at 50 ms, in runs of ~29 s (docs/benchmarks.md, "The suite's time")."""
+
+
+def page_until(predicate: Callable[[], object], timeout: float = 5.0, interval: float = PAGE_POLL) -> bool:
+    """wait_until for the browser tests: the same generous deadline, a look every PAGE_POLL seconds unless told (a
+    person reading the page sees nothing faster than that)."""
+    return wait_until(predicate, timeout, interval=interval)
 
 
 def open_page(pw, url: str):

@@ -11,8 +11,8 @@ from asm_py import Node
 from asm_py.transport.zenoh import ZenohTransport
 from gaits.model import loads
 
-from ..helpers import ARTIFACTS, wait_until
-from .browser import CHROMIUM, FOCUS_3D, PAGE_QUERY, choose, marks, number, once_more, open_page, text_input
+from ..helpers import ARTIFACTS
+from .browser import CHROMIUM, FOCUS_3D, PAGE_QUERY, choose, marks, number, once_more, open_page, page_until, text_input
 
 pytestmark = marks(__name__)
 
@@ -44,8 +44,8 @@ def test_a_user_steers_the_preview_and_the_deployed_robot_with_the_arrow_keys(st
             # the heading is the travel since the (re)start: a run that went straight for long (a slow page load)
             # swings it only slowly, so restart the preview and take the straight heading after a short run
             page.get_by_role("button", name="Reset", exact=True).click()
-            assert wait_until(lambda: _preview_seconds(page) < 2.0, timeout=60)
-            assert wait_until(lambda: _preview_seconds(page) > 3.0, timeout=60)
+            assert page_until(lambda: _preview_seconds(page) < 2.0, timeout=60)
+            assert page_until(lambda: _preview_seconds(page) > 3.0, timeout=60)
             straight = _heading(page)
             assert abs(straight) < 10  # forward: it crawls straight
             page.mouse.click(*FOCUS_3D)  # the 3D view has the focus, not a field
@@ -53,7 +53,7 @@ def test_a_user_steers_the_preview_and_the_deployed_robot_with_the_arrow_keys(st
             page.get_by_role("tab", name="Drive").click()
             expect(page.get_by_text("Preview: left", exact=False)).to_be_visible(timeout=10_000)
             # the heading is the travel since the start: turning left swings it counter-clockwise
-            assert wait_until(lambda: _heading(page) > straight + 20, timeout=60), _heading(page)
+            assert page_until(lambda: _heading(page) > straight + 20, timeout=60), _heading(page)
             page.screenshot(path=str(ARTIFACTS / "drive_preview_left.png"))
             page.mouse.click(*FOCUS_3D)
             page.keyboard.press("ArrowUp")
@@ -75,12 +75,12 @@ def test_a_user_steers_the_preview_and_the_deployed_robot_with_the_arrow_keys(st
                       lambda: "the robot was not steered right after ArrowRight; pressing it again")  # fmt: skip
             assert client.lookup("m2", "gait.mode", timeout=5).get(timeout=5) == 2  # program gait 2: right
             goal = client.lookup("m2", "joint.goal", timeout=5)
-            assert wait_until(lambda: goal.get(timeout=5) < -19, timeout=10)  # its yaw joint bends right, blended
+            assert page_until(lambda: goal.get(timeout=5) < -19, timeout=10)  # its yaw joint bends right, blended
             page.screenshot(path=str(ARTIFACTS / "drive_robot_right.png"))
             page.mouse.click(*FOCUS_3D)
             page.keyboard.press("S")
             expect(page.get_by_text("Robot: stop", exact=False)).to_be_visible(timeout=30_000)
-            assert wait_until(lambda: not client.lookup("m1", "gait.service", timeout=5).running, timeout=10)
+            assert page_until(lambda: not client.lookup("m1", "gait.service", timeout=5).running, timeout=10)
             browser.close()
     finally:
         client.close()

@@ -11,10 +11,10 @@ import pytest
 from asm_py import Node
 from asm_py.transport.zenoh import ZenohTransport
 
-from ..helpers import ARTIFACTS, wait_until
+from ..helpers import ARTIFACTS
 from ..processes import Process
 from ..transports import free_port
-from .browser import click_until_shown, deploy_and_start, marks, open_page
+from .browser import click_until_shown, deploy_and_start, marks, open_page, page_until
 
 pytestmark = marks(__name__)
 
@@ -45,24 +45,24 @@ def test_estop_by_click_and_by_key_while_a_confirmation_waits_and_a_field_has_fo
             browser, page = open_page(pw, url)
             try:
                 deploy_and_start(page, 8)
-                assert wait_until(lambda: all(_running(client)), timeout=30)
+                assert page_until(lambda: all(_running(client)), timeout=30)
                 asking = page.get_by_text("Start it now?", exact=False)
                 expect(asking).to_be_hidden(timeout=30_000)
                 # Deploy again: the staged gait waits for "Start" while the old one still moves the robot
                 click_until_shown(page, page.get_by_role("button", name="Deploy", exact=True), asking, 60_000)
                 page.screenshot(path=str(ARTIFACTS / "estop-while-asking.png"))
                 page.get_by_role("button", name=re.compile(r"^E-STOP")).click()
-                assert wait_until(lambda: all(_latched(client)), timeout=20), "the click stopped every module"
+                assert page_until(lambda: all(_latched(client)), timeout=20), "the click stopped every module"
                 # a latched module holds its joint at once; its gait service ends on its own thread just after (the
                 # e-stop path waits for nothing: issue 26), so "not running" may trail "latched" under load
-                assert wait_until(lambda: not any(_running(client)), timeout=20)
+                assert page_until(lambda: not any(_running(client)), timeout=20)
                 expect(page.get_by_text("latched on 8 of 8 modules (read back)", exact=False).first).to_be_visible(
                     timeout=30_000  # CI (two workers on 2 cores, the other one running a browser test too) took >10 s
                 )
                 # release (an inline question, answered), then the key with the focus in a text field
                 page.get_by_role("button", name="Release e-stop").click()
                 page.get_by_role("button", name="Yes, release").click()
-                assert wait_until(lambda: not any(_latched(client)), timeout=20)
+                assert page_until(lambda: not any(_latched(client)), timeout=20)
                 page.get_by_role("tab", name="Gait").click()
                 name = page.locator("xpath=//label[normalize-space()='Name']/ancestor::*[.//input][1]").locator("input")
                 name.first.click()
@@ -70,7 +70,7 @@ def test_estop_by_click_and_by_key_while_a_confirmation_waits_and_a_field_has_fo
                 time.sleep(0.5)
                 assert not any(_latched(client))
                 page.keyboard.press("Escape")  # … the Escape key does, focus in the field or not
-                assert wait_until(lambda: all(_latched(client)), timeout=20), "Escape stopped every module"
+                assert page_until(lambda: all(_latched(client)), timeout=20), "Escape stopped every module"
                 page.screenshot(path=str(ARTIFACTS / "estop-by-key.png"))
             finally:
                 browser.close()

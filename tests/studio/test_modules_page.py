@@ -13,8 +13,8 @@ from asm_py.node import Node
 from asm_py.remote import RemoteAttribute
 from asm_py.transport.zenoh import ZenohTransport
 
-from ..helpers import ARTIFACTS, wait_until
-from .browser import marks, open_page
+from ..helpers import ARTIFACTS
+from .browser import marks, open_page, page_until
 
 pytestmark = marks(__name__)
 
@@ -84,7 +84,7 @@ def test_the_modules_tab_reads_calibrates_refuses_and_zeros_by_clicks(studio_pro
             # m5, turned to 20° by a tool: that pose becomes its zero
             attribute(client, "m5", "joint.goal").set(20.0, wait=True)
             m5_angle = attribute(client, "m5", "joint.angle")
-            assert wait_until(lambda: abs(m5_angle.get(timeout=5) - 20.0) < 3.0, timeout=20)
+            assert page_until(lambda: abs(m5_angle.get(timeout=5) - 20.0) < 3.0, timeout=20)
             _pick(page, "Calibrate module", "m5")
             page.get_by_role("button", name="Set current pose as zero").click()
             expect(page.get_by_text("m5: its pose now is its zero", exact=False)).to_be_visible(timeout=30_000)

@@ -12,8 +12,8 @@ import tomllib
 from asm_py import Node
 from asm_py.transport.zenoh import ZenohTransport
 
-from ..helpers import ARTIFACTS, wait_until
-from .browser import choose, marks, open_page
+from ..helpers import ARTIFACTS
+from .browser import choose, marks, open_page, page_until
 
 pytestmark = marks(__name__)
 
@@ -115,11 +115,11 @@ def test_the_attribute_browser_refuses_a_fraction_for_an_integer_attribute(studi
             expect(refusal.first).to_be_visible(timeout=15_000)
             expect(signal).to_have_value("2.5")
             page.screenshot(path=str(ARTIFACTS / "precision-attribute.png"))
-            assert not wait_until(lambda: client.lookup("m2", "gait.signal", timeout=5).get() != before, 2, 0.2)
+            assert not page_until(lambda: client.lookup("m2", "gait.signal", timeout=5).get() != before, 2, 0.2)
             _commit(signal, "7")  # a whole number is written, as typed
             page.get_by_role("button", name="Set").click()
             expect(page.get_by_text("set to", exact=False).first).to_be_visible(timeout=15_000)
-            assert wait_until(lambda: client.lookup("m2", "gait.signal", timeout=5).get() == 7, 15, 0.2)
+            assert page_until(lambda: client.lookup("m2", "gait.signal", timeout=5).get() == 7, 15, 0.2)
             browser.close()
     finally:
         client.close()

@@ -9,8 +9,8 @@ import json
 import re
 from pathlib import Path
 
-from ..helpers import ARTIFACTS, wait_until
-from .browser import LINE_COLOR, choose, fresh_screenshot, marks, number, open_page, pixels
+from ..helpers import ARTIFACTS
+from .browser import LINE_COLOR, choose, fresh_screenshot, marks, number, open_page, page_until, pixels
 from .test_replay_page import VIEW, _slider_box, simulated_recording, violet
 
 pytestmark = marks(__name__)
@@ -70,14 +70,14 @@ def test_the_replay_tab_refuses_a_time_out_of_range_and_clears_a_robot_it_has_no
         page.get_by_role("tab", name="Replay").click()
         open_recording(page, "run.mcap")
         expect(page.get_by_text(re.compile(r"run\.mcap: 2\.98 s")).first).to_be_visible(timeout=30_000)
-        assert wait_until(lambda: violet(page.screenshot(clip=VIEW)) > 500, 60, 0.5), "no robot drawn"
+        assert page_until(lambda: violet(page.screenshot(clip=VIEW)) > 500, 60, 0.5), "no robot drawn"
         box = _slider_box(page, "Replay time (s)")
         for _ in range(3):  # a loaded page can lose the typed number before Enter commits it: type it again
             box.click()
             box.press("Control+a")
             box.press_sequentially("1")
             box.press("Enter")
-            if wait_until(lambda: replay_time(page) == 1.0, 15, 0.2):
+            if page_until(lambda: replay_time(page) == 1.0, 15, 0.2):
                 break
         assert replay_time(page) == 1.0
         refusal = page.locator("[data-asm-refused]")
@@ -97,7 +97,7 @@ def test_the_replay_tab_refuses_a_time_out_of_range_and_clears_a_robot_it_has_no
         expect(page.get_by_text("Nothing drawn: the recording has no robot model", exact=False).first).to_be_visible(
             timeout=30_000
         )
-        if not wait_until(lambda: violet(page.screenshot(clip=VIEW)) < 50, 30, 0.5):
+        if not page_until(lambda: violet(page.screenshot(clip=VIEW)) < 50, 30, 0.5):
             page.screenshot(path=str(ARTIFACTS / "replay-no-model-robot-left.png"))
             raise AssertionError("the robot of the recording before is still drawn")
         page.get_by_role("button", name="▶ Play").click()  # the long node's values listed as the replay runs

@@ -13,8 +13,8 @@ from pathlib import Path
 
 from mcap.reader import make_reader
 
-from ..helpers import ARTIFACTS, wait_until
-from .browser import choose, marks, number, open_page
+from ..helpers import ARTIFACTS
+from .browser import choose, marks, number, open_page, page_until
 from .test_replay_page import _slider_box, simulated_recording
 
 pytestmark = marks(__name__)
@@ -49,7 +49,7 @@ def test_the_replay_plot_exports_the_recorded_samples_it_shows(start_studio, tmp
             box.press("Control+a")
             box.press_sequentially(f"{target:g}")
             box.press("Enter")
-            if wait_until(lambda: replay_time(page) == target, 15, 0.2):
+            if page_until(lambda: replay_time(page) == target, 15, 0.2):
                 break
         assert replay_time(page) == target
         with page.expect_download() as csv_download:

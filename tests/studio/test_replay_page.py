@@ -14,8 +14,8 @@ import re
 import time
 from pathlib import Path
 
-from ..helpers import ARTIFACTS, wait_until
-from .browser import choose, marks, number, open_page, pixels
+from ..helpers import ARTIFACTS
+from .browser import choose, marks, number, open_page, page_until, pixels
 
 pytestmark = marks(__name__)
 
@@ -132,13 +132,13 @@ def test_open_a_recording_play_pause_scrub_and_leave(start_studio, tmp_path):
         expect(marks.filter(has_text=re.compile(r"^E$"))).to_have_count(1, timeout=15_000)
         expect(marks.filter(has_text=re.compile(r"^G$"))).to_have_count(1)
         # the robot is drawn (violet), at t = 0, paused
-        if not wait_until(lambda: violet(page.screenshot(clip=VIEW)) > 500, 60, 0.5):
+        if not page_until(lambda: violet(page.screenshot(clip=VIEW)) > 500, 60, 0.5):
             page.screenshot(path=str(ARTIFACTS / "replay-no-robot.png"))
             raise AssertionError("no robot drawn")
         assert replay_time(page) == 0.0
         still = page.screenshot(clip=VIEW)
         page.get_by_role("button", name="▶ Play").click()
-        assert wait_until(lambda: replay_time(page) > 2.0, 30, 0.2), replay_time(page)
+        assert page_until(lambda: replay_time(page) > 2.0, 30, 0.2), replay_time(page)
         page.get_by_role("button", name="Pause", exact=True).click()
         expect(page.get_by_text("· paused ·", exact=False).first).to_be_visible(timeout=10_000)
         paused = replay_time(page)
@@ -149,7 +149,7 @@ def test_open_a_recording_play_pause_scrub_and_leave(start_studio, tmp_path):
         assert moved != still, "the replayed robot did not move"
         plot = page.locator(".uplot", has_text="Replay: recorded values")
         expect(plot).to_contain_text("m1 joint.angle", timeout=15_000)
-        if not wait_until(lambda: lines(plot.locator("canvas").first.screenshot()) > 200, 20, 0.5):
+        if not page_until(lambda: lines(plot.locator("canvas").first.screenshot()) > 200, 20, 0.5):
             page.screenshot(path=str(ARTIFACTS / "replay-no-line.png"))
             plot.screenshot(path=str(ARTIFACTS / "replay-no-line-plot.png"))
             raise AssertionError("no line in the replay plot")
@@ -166,16 +166,16 @@ def test_open_a_recording_play_pause_scrub_and_leave(start_studio, tmp_path):
             box.press_sequentially(f"{target:g}")
             expect(box).to_have_value(f"{target:g}", timeout=10_000)
             box.press("Enter")
-            if wait_until(lambda: abs(replay_time(page) - target) < 0.02, 15, 0.2):
+            if page_until(lambda: abs(replay_time(page) - target) < 0.02, 15, 0.2):
                 break
         assert abs(replay_time(page) - target) < 0.02, replay_time(page)
-        assert wait_until(lambda: page.screenshot(clip=VIEW) != moved, 20, 0.5), "the scrub did not move the robot"
-        assert wait_until(lambda: plot.locator("canvas").first.screenshot() != plot_before, 20, 0.5)
+        assert page_until(lambda: page.screenshot(clip=VIEW) != moved, 20, 0.5), "the scrub did not move the robot"
+        assert page_until(lambda: plot.locator("canvas").first.screenshot() != plot_before, 20, 0.5)
         # play on from the scrubbed point (not from the end) at 0.25x, then at 4x to the end
         choose(page, "Replay speed", "0.25x")
         expect(page.get_by_text("· 0.25x", exact=False).first).to_be_visible(timeout=10_000)
         page.get_by_role("button", name="▶ Play").click()
-        assert wait_until(lambda: replay_time(page) > target + 0.05, 20, 0.2), replay_time(page)
+        assert page_until(lambda: replay_time(page) > target + 0.05, 20, 0.2), replay_time(page)
         slow = replay_time(page)
         assert slow < target + 3.0, slow  # a quarter of the wall clock's pace, from the scrubbed point
         choose(page, "Replay speed", "4x")
@@ -185,7 +185,7 @@ def test_open_a_recording_play_pause_scrub_and_leave(start_studio, tmp_path):
         page.get_by_role("button", name="Leave replay").click()
         expect(page.get_by_text("Showing: Live", exact=False).first).to_be_visible(timeout=15_000)
         expect(page.get_by_text("No recording open.").first).to_be_visible()
-        assert wait_until(lambda: violet(page.screenshot(clip=VIEW)) < 50, 30, 0.5)  # no violet robot
+        assert page_until(lambda: violet(page.screenshot(clip=VIEW)) < 50, 30, 0.5)  # no violet robot
         browser.close()
     assert not any("Traceback" in line for line in log), "".join(log[-40:])
 
@@ -197,10 +197,10 @@ def test_asm_studio_replay_opens_a_recording_at_start_and_refuses_a_bad_one(star
 
     simulated_recording(tmp_path / "run.mcap", seconds=2.0)
     _, _, log = start_studio("--replay", str(tmp_path / "run.mcap"))
-    assert wait_until(lambda: any("replaying run.mcap: 1.98 s, 120 poses" in line for line in log), 60, 0.2), log
+    assert page_until(lambda: any("replaying run.mcap: 1.98 s, 120 poses" in line for line in log), 60, 0.2), log
     (tmp_path / "bad.mcap").write_bytes(b"PK\x03\x04 a zip file")
     _, _, bad = start_studio("--replay", str(tmp_path / "bad.mcap"))
-    assert wait_until(lambda: any("not replayed: bad.mcap is not an MCAP file" in line for line in bad), 60, 0.2)
+    assert page_until(lambda: any("not replayed: bad.mcap is not an MCAP file" in line for line in bad), 60, 0.2)
     missing = run("-m", "server.studio", "--replay", str(tmp_path / "none.mcap"), timeout=60)
     assert missing.returncode == 2 and "none.mcap" in missing.stderr, missing
     assert not any("Traceback" in line for line in log + bad)

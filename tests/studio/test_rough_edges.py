@@ -7,8 +7,8 @@ from __future__ import annotations
 import re
 import time
 
-from ..helpers import ARTIFACTS, wait_until
-from .browser import choose, deploy_and_start, marks, open_page
+from ..helpers import ARTIFACTS
+from .browser import choose, deploy_and_start, marks, open_page, page_until
 
 pytestmark = marks(__name__)
 
@@ -190,7 +190,7 @@ def test_the_preview_plays_on_from_a_scrubbed_point_and_stepping_moves_the_frame
         page.get_by_role("tab", name="Preview").click()
         frame = _slider_box(page, "Preview timeline (frame)")
         expect(frame).to_be_visible(timeout=15_000)
-        assert wait_until(lambda: seconds(page) > 6.0, 60, 0.2)
+        assert page_until(lambda: seconds(page) > 6.0, 60, 0.2)
         page.get_by_role("button", name="Pause", exact=True).click()
         time.sleep(0.5)
         paused = int(frame.input_value())
@@ -202,7 +202,7 @@ def test_the_preview_plays_on_from_a_scrubbed_point_and_stepping_moves_the_frame
         frame.press_sequentially("60")  # back to t = 1 s
         expect(frame).to_have_value("60", timeout=10_000)  # typed (a loaded machine lags), then committed
         frame.press("Enter")
-        if not wait_until(lambda: abs(seconds(page) - 1.0) < 0.1, 15, 0.2):
+        if not page_until(lambda: abs(seconds(page) - 1.0) < 0.1, 15, 0.2):
             # once, in a fresh clone's run, the typed frame was not taken in 30 s (the preview stayed where it was
             # paused; not reproduced in 5 runs beside two busy cores): committed again, as stop 40 did for a lost
             # key press. A seek to the same frame is idempotent, so this hides nothing but the lost press.
@@ -210,7 +210,7 @@ def test_the_preview_plays_on_from_a_scrubbed_point_and_stepping_moves_the_frame
             frame.press("Control+a")
             frame.press_sequentially("60")
             frame.press("Enter")
-        assert wait_until(lambda: abs(seconds(page) - 1.0) < 0.1, 30, 0.2), seconds(page)
+        assert page_until(lambda: abs(seconds(page) - 1.0) < 0.1, 30, 0.2), seconds(page)
         page.get_by_role("button", name="Play", exact=True).click()
         time.sleep(1.0)
         played = seconds(page)
@@ -290,15 +290,15 @@ def test_the_robot_leaves_a_trail_and_shows_its_heading(studio_process):
         page.get_by_role("tab", name="Preview").click()
         page.get_by_role("button", name="Reset", exact=True).click()
         view = {"x": 0, "y": 0, "width": 1000, "height": 540}  # the 3D view above the plots panel
-        assert wait_until(lambda: _hue(page.screenshot(clip=view), "green") > 20, 60, 0.5)
-        assert wait_until(lambda: _hue(page.screenshot(clip=view), "magenta") > 10, 30, 0.5)
+        assert page_until(lambda: _hue(page.screenshot(clip=view), "green") > 20, 60, 0.5)
+        assert page_until(lambda: _hue(page.screenshot(clip=view), "magenta") > 10, 30, 0.5)
         page.screenshot(path=str(ARTIFACTS / "rough-trail-preview.png"))
         page.get_by_role("tab", name="Deploy").click()
         page.get_by_role("button", name="Deploy", exact=True).click()
         page.get_by_role("button", name="Start", exact=True).click()
-        assert wait_until(lambda: _hue(page.screenshot(clip=view), "blue") > 200, 60, 0.5)  # Live
-        assert wait_until(lambda: _hue(page.screenshot(clip=view), "green") > 20, 60, 0.5)
-        assert wait_until(lambda: _hue(page.screenshot(clip=view), "magenta") > 10, 30, 0.5)
+        assert page_until(lambda: _hue(page.screenshot(clip=view), "blue") > 200, 60, 0.5)  # Live
+        assert page_until(lambda: _hue(page.screenshot(clip=view), "green") > 20, 60, 0.5)
+        assert page_until(lambda: _hue(page.screenshot(clip=view), "magenta") > 10, 30, 0.5)
         page.screenshot(path=str(ARTIFACTS / "rough-trail-live.png"))
         browser.close()
     assert not any("Traceback" in line for line in log), "".join(log[-40:])

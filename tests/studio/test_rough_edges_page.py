@@ -11,8 +11,8 @@ import time
 
 import numpy as np
 
-from ..helpers import ARTIFACTS, wait_until
-from .browser import choose, marks, open_page
+from ..helpers import ARTIFACTS
+from .browser import choose, marks, open_page, page_until
 
 pytestmark = marks(__name__)
 
@@ -210,7 +210,7 @@ def test_the_layout_comes_back_after_the_studio_restarts(tmp_path):
                     return False
                 return saved["plots"] == expected and saved["window"] == 60.0
 
-            assert wait_until(kept, timeout=30), layout_file.read_text() if layout_file.exists() else "no file"
+            assert page_until(kept, timeout=30), layout_file.read_text() if layout_file.exists() else "no file"
             browser.close()
             first = started.pop()
             first.stop()

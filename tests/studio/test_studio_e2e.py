@@ -9,7 +9,6 @@ import time
 
 from asm_py import Node
 from asm_py.transport.zenoh import ZenohTransport
-from tests.helpers import wait_until
 
 from ..helpers import ARTIFACTS
 from .browser import (
@@ -21,6 +20,7 @@ from .browser import (
     marks,
     number,
     open_page,
+    page_until,
     pixels,
     press_start,
     robot_point,
@@ -84,8 +84,8 @@ def test_edit_preview_deploy_watch_and_estop(studio_process):
             # the view shows the live robot, and the robot's own pose feed says it crawls
             expect(page.get_by_text("Showing: Live", exact=False)).to_be_visible(timeout=15_000)
             feed = PoseWatch(client)
-            assert wait_until(lambda: feed.spread() > 0.01, timeout=15), "the live robot did not move"
-            assert wait_until(lambda: all(client.lookup(f"m{i}", "gait.service", timeout=2).running
+            assert page_until(lambda: feed.spread() > 0.01, timeout=15), "the live robot did not move"
+            assert page_until(lambda: all(client.lookup(f"m{i}", "gait.service", timeout=2).running
                                           for i in range(1, 9)), timeout=15)  # fmt: skip
             # the deployed (edited) table is what module 1 holds: its first state is 42°
             table = client.lookup("m1", "gait.table", timeout=2).peek()
@@ -95,7 +95,7 @@ def test_edit_preview_deploy_watch_and_estop(studio_process):
             expect(page.get_by_text(re.compile(r"m8\s*live")).first).to_be_visible(timeout=15_000)
             expect(page.get_by_text("gait running", exact=False).first).to_be_visible(timeout=15_000)
             plot = page.locator(".uplot", has_text="Live 1").locator("canvas").first  # the first live plot
-            if not wait_until(lambda: pixels(plot.screenshot(), LINE_COLOR) > 50, timeout=15):
+            if not page_until(lambda: pixels(plot.screenshot(), LINE_COLOR) > 50, timeout=15):
                 page.screenshot(path=str(ARTIFACTS / "studio-monitor-no-line.png"))
                 raise AssertionError("no line drawn in the live plot:\n" + "".join(log[-30:]))
             before = plot.screenshot()
@@ -106,12 +106,12 @@ def test_edit_preview_deploy_watch_and_estop(studio_process):
             page.screenshot(path=str(ARTIFACTS / "studio-monitor.png"))
             # e-stop: every module stops
             page.get_by_role("button", name=re.compile(r"^E-STOP")).click()
-            assert wait_until(lambda: not any(client.lookup(f"m{i}", "gait.service", timeout=2).started
+            assert page_until(lambda: not any(client.lookup(f"m{i}", "gait.service", timeout=2).started
                                               for i in range(1, 9)), timeout=15)  # fmt: skip
             expect(page.get_by_text("gait stopped", exact=False).first).to_be_visible(timeout=15_000)
             page.screenshot(path=str(ARTIFACTS / "studio-estop.png"))
             feed.clear()  # the live robot holds: it settles within seconds, then its bodies stand still for 1 s
-            assert wait_until(lambda: feed.seconds() >= 1.0 and feed.spread() < 0.005, timeout=15), feed.spread()
+            assert page_until(lambda: feed.seconds() >= 1.0 and feed.spread() < 0.005, timeout=15), feed.spread()
             expect(page.get_by_text("E-STOP latched", exact=False).first).to_be_visible(timeout=15_000)
             expect(page.get_by_role("button", name="E-STOP — LATCHED on 8 modules")).to_be_visible(timeout=15_000)
             feed.close()
@@ -184,7 +184,7 @@ def test_upload_grid_history_robot_size_and_attribute_browser(studio_process, tm
             # ten modules: the studio restarts its robot first, which took over 30 s under the suite's load (CI)
             press_start(page, 120_000)
             expect(page.get_by_text("10 modules confirmed running", exact=False).first).to_be_visible(timeout=60_000)
-            assert wait_until(lambda: client.lookup("m10", "gait.service", timeout=2).running, timeout=15)
+            assert page_until(lambda: client.lookup("m10", "gait.service", timeout=2).running, timeout=15)
             table = client.lookup("m1", "gait.table", timeout=2).peek()
             assert abs(decode_table(table)[2].target + 33.0) < 1e-4  # state 3's angle, as deployed
             # the attribute browser: m2's joint.limits as a pair of numbers, set from the page
@@ -192,7 +192,7 @@ def test_upload_grid_history_robot_size_and_attribute_browser(studio_process, tm
             choose(page, "Node", "m2")
             page.get_by_role("button", name="List").click()
             type_and_set(page, "joint.limits", "joint.limits (float32[2])", "-45")
-            assert wait_until(lambda: client.lookup("m2", "joint.limits", timeout=2).peek() == (-45.0, 90.0), 15)
+            assert page_until(lambda: client.lookup("m2", "joint.limits", timeout=2).peek() == (-45.0, 90.0), 15)
             expect(page.get_by_text("set to", exact=False).first).to_be_visible(timeout=15_000)
             page.screenshot(path=str(ARTIFACTS / "studio-browser.png"))
             # several plots at once: m2's joint.torque into the second live plot, beside the first one's angles
@@ -211,7 +211,7 @@ def test_upload_grid_history_robot_size_and_attribute_browser(studio_process, tm
                 shot = fresh_screenshot(lambda: page.locator(".uplot", has_text="Live 2").locator("canvas").first)
                 return pixels(shot, LINE_COLOR) > 50
 
-            assert wait_until(torque_drawn, timeout=30), "no torque line"
+            assert page_until(torque_drawn, timeout=30), "no torque line"
             first = page.locator(".uplot", has_text="Live 1")
             expect(first).to_contain_text("joint.angle", timeout=15_000)  # the first still plots the angles
             page.screenshot(path=str(ARTIFACTS / "studio-two-plots.png"))
@@ -294,7 +294,7 @@ def test_make_a_12_module_wave_preview_rename_download_and_deploy_it_in_a_minute
             elapsed = time.monotonic() - started
             print(f"made, previewed, renamed, downloaded and deployed a 12-module wave in {elapsed:.0f} s")
             assert elapsed < 120  # the issue's minute of clicking, with room for this machine's load
-            assert wait_until(lambda: client.lookup("m12", "gait.service", timeout=2).running, timeout=15)
+            assert page_until(lambda: client.lookup("m12", "gait.service", timeout=2).running, timeout=15)
             # keyboard: Space pauses and resumes the preview, Shift+arrows step it, Ctrl+Z / Ctrl+Shift+Z undo and redo
             page.get_by_role("button", name="Preview", exact=True).click()  # the preview plays while it is shown
             page.get_by_role("tab", name="Preview").click()
@@ -307,7 +307,7 @@ def test_make_a_12_module_wave_preview_rename_download_and_deploy_it_in_a_minute
                 time.sleep(0.5)
                 return number(metrics.inner_text(), r"t = ([\d.]+) s") == before
 
-            assert wait_until(still, timeout=15)
+            assert page_until(still, timeout=15)
             paused = number(metrics.inner_text(), r"t = ([\d.]+) s")
             time.sleep(1.0)
             assert number(metrics.inner_text(), r"t = ([\d.]+) s") == paused
@@ -316,7 +316,7 @@ def test_make_a_12_module_wave_preview_rename_download_and_deploy_it_in_a_minute
             assert number(metrics.inner_text(), r"t = ([\d.]+) s") < paused
             page.keyboard.press("Space")
             expect(metrics).not_to_contain_text(f"t = {paused:.2f} s", timeout=15_000)
-            assert wait_until(lambda: number(metrics.inner_text(), r"t = ([\d.]+) s") > paused + 0.5, timeout=15)
+            assert page_until(lambda: number(metrics.inner_text(), r"t = ([\d.]+) s") > paused + 0.5, timeout=15)
             page.get_by_role("tab", name="Gait").click()
             page.mouse.click(*FOCUS_3D)
             page.keyboard.press("Control+z")  # undoes the rename

@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import re
 
-from ..helpers import ARTIFACTS, wait_until
-from .browser import LINE_COLOR, marks, open_page, pixels
+from ..helpers import ARTIFACTS
+from .browser import LINE_COLOR, marks, open_page, page_until, pixels
 
 pytestmark = marks(__name__)
 
@@ -63,7 +63,7 @@ def test_a_user_tunes_the_gait_previews_the_best_adopts_it_and_undoes(studio_pro
         curve.scroll_into_view_if_needed()
         # the best-so-far line is drawn: the chart holds the search's points (read through viser's test point) and
         # its line shows (how many pixels depends on the curve's shape: a thin, mostly flat line is ~45)
-        assert wait_until(lambda: _best_points(page) >= 2, timeout=30, interval=1.0), _best_points(page)
+        assert page_until(lambda: _best_points(page) >= 2, timeout=30, interval=1.0), _best_points(page)
         assert pixels(curve.screenshot(), LINE_COLOR) > 25
         page.screenshot(path=str(ARTIFACTS / "tune_done.png"))
         # the best plays in the preview, then becomes the edited gait; Undo gives the library gait back
@@ -74,7 +74,7 @@ def test_a_user_tunes_the_gait_previews_the_best_adopts_it_and_undoes(studio_pro
         page.get_by_role("tab", name="Gait").click()
         assert "# Tuned by `gaits tune`" in _download(page)  # its provenance, whichever candidate won
         page.get_by_role("button", name="Undo").click()
-        assert wait_until(lambda: "Tuned by" not in _download(page), timeout=15)
+        assert page_until(lambda: "Tuned by" not in _download(page), timeout=15)
         expect(first_state).to_have_value(library_angle, timeout=15_000)
         page.screenshot(path=str(ARTIFACTS / "tune_undone.png"))
         browser.close()
