@@ -29,7 +29,7 @@ from web.replay import ReplaySource, last_values, plot_data
 from ..helpers import wait_until
 from ..processes import Process
 from ..transports import free_port
-from .test_record import transforms
+from .protobuf import transforms
 
 pytestmark = pytest.mark.timeout(300)
 GAIT = LIBRARY / "caterpillar.toml"
