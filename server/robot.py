@@ -31,7 +31,6 @@ from pathlib import Path
 from typing import Any
 
 from asm_module.board_batch import BoardBatch
-from asm_module.emulated import EmulatedModule
 from asm_module.feed import PoseFrame, RobotStatus, encode_poses
 from asm_module.names import module_name
 from asm_py.cli import can_channel, close_and_exit, input_file, module_selection, name, run, stop_requested, summary
@@ -262,6 +261,8 @@ class Robot:
         """The node IDs the simulated modules run under, each once: a board without an ID yet is not on the bus as a
         module, and two boards flashed with one ID are one node to the bridge (the commissioning service reports the
         clash). Counting modules instead, a robot with such a pair waited the whole timeout, then warned."""
+        from asm_module.emulated import EmulatedModule  # here: Unicorn is loaded only when a board is emulated
+
         assert self.sim is not None
         ids: set[int] = set()
         for position, module in self.sim.modules.items():

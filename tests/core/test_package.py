@@ -19,6 +19,15 @@ def test_asm_py_imports_neither_viser_nor_mujoco() -> None:
     assert out.stdout.strip() == "[]"
 
 
+def test_the_robot_process_loads_unicorn_only_to_emulate_a_board() -> None:
+    """asm-robot on real modules or simulated Python ones never emulates a board: Unicorn and its native library
+    (~26 MB) stay unloaded until gaits.sim makes an emulated board (a review found server.robot importing it)."""
+    code = "import sys, server.robot; print('unicorn' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=60,
+                         cwd=ROOT)  # fmt: skip
+    assert out.stdout.strip() == "False"
+
+
 def test_exception_tree() -> None:
     assert issubclass(AsmTimeout, TimeoutError) and issubclass(AsmTimeout, AsmError)
     assert issubclass(SimulationStalled, AsmTimeout)
