@@ -94,8 +94,9 @@ class RobotFeed:
         if sample.kind != zenoh.SampleKind.PUT or rival == self._zid:
             return
         if not gives_way(self._zid, rival):
-            log.error("another robot process (session %s) kept the name %r too: it gives way (the lesser ID keeps "
-                      "the name)", rival, self.status.robot)  # fmt: skip
+            # resolved in this process's favour: a warning (the one that gives way logs the error)
+            log.warning("another robot process (session %s) kept the name %r too: it gives way (the lesser ID "
+                        "keeps the name)", rival, self.status.robot)  # fmt: skip
             return
         with self._lock:
             if self.lost is not None or self._closed:

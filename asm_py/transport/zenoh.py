@@ -258,8 +258,9 @@ class ZenohTransport(Transport):
         if not self._holding.kept:  # still claiming (settle_claim decides) or given way already
             return
         if not gives_way(self._zid, rival):
-            log.error("another session (%s) kept this node's name %r in robot %r too: it gives way (the lesser ID "
-                      "keeps the name)", rival, self.segment, self.robot)  # fmt: skip
+            # resolved in this session's favour: a warning (the one that gives way logs the error)
+            log.warning("another session (%s) kept this node's name %r in robot %r too: it gives way (the lesser ID "
+                        "keeps the name)", rival, self.segment, self.robot)  # fmt: skip
             return
         if self._holding.give_up():
             self.name_lost = rival

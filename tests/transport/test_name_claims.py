@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import itertools
 import json
+import logging
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -431,3 +432,34 @@ def _bridged_can_module(closing: list, can_options: dict, network: object, route
     tool = Node("tester", ZenohTransport(mode="client", connect=[router]))
     closing.append(tool)
     return bridge, tool
+
+
+def test_the_session_that_keeps_a_name_warns_and_only_the_one_that_gives_way_logs_an_error(
+    router: str, session_with_id: Callable[[str], zenoh.Session], caplog: pytest.LogCaptureFixture
+) -> None:
+    """Two holders of one name whose tokens met late: the race is resolved correctly, so the holder that keeps the
+    name warns (it was told of a rival); only the one that gives way — it no longer answers — says so as an error.
+    (Before, the keeper logged an ERROR too, for a state it had just resolved.)"""
+    from types import SimpleNamespace
+
+    from asm_module.feed import RobotStatus
+    from server.robot_feed import RobotFeed
+
+    caplog.set_level(logging.WARNING)
+    node = Node("m7", ZenohTransport(robot="a", role="module", mode="client", connect=[router]))
+    try:
+        node.transport._rival_kept("f" * 32)  # type: ignore[attr-defined]  # a greater rival: this node keeps m7
+        assert node.transport.name_lost == ""  # type: ignore[attr-defined]
+    finally:
+        node.close()
+    feed = RobotFeed(session_with_id(LESSER), RobotStatus("z", "real", 0))
+    try:
+        feed._on_alive(SimpleNamespace(key_expr=RobotKeys("z").robot_alive(GREATER), kind=zenoh.SampleKind.PUT))  # type: ignore[arg-type]
+        assert feed.lost is None
+    finally:
+        feed.close()
+    kept = [r for r in caplog.records if "the lesser ID keeps the name" in r.getMessage()]
+    assert len(kept) == 2 and {r.levelno for r in kept} == {logging.WARNING}, [
+        (r.levelname, r.getMessage()) for r in kept
+    ]
+    assert not [r for r in caplog.records if r.levelno >= logging.ERROR]
