@@ -214,9 +214,10 @@ class CanZenohBridge:
         mirror looks once; one that must give way is withdrawn (and tried again every TAKEN_RETRY seconds)."""
         now = time.monotonic()
         for mirror in [m for m in list(self._mirrors.values()) if not m.holding.kept and m.claim_due <= now]:
-            decided, rival = verdict(
-                self._zid, self._claimants(mirror.name), waited_enough=now >= mirror.claim_deadline
-            )
+            seen = self._claimants(mirror.name)
+            decided, rival = verdict(self._zid, seen, waited_enough=now >= mirror.claim_deadline,
+                                     previous=mirror.last_look)  # fmt: skip
+            mirror.last_look = seen
             if decided is Verdict.KEEP:
                 claim = mirror.entities.pop()
                 mirror.entities.append(self.session.liveliness().declare_token(self.keys.alive(mirror.name, self._zid)))

@@ -34,3 +34,5 @@ class Mirror:
         (``holding.kept``: the name is the bridge's; until then it looks again at ``claim_due``)."""
         self.claim_due = time.monotonic() + CLAIM_SETTLE
         self.claim_deadline = time.monotonic() + CLAIM_WAIT
+        self.last_look: set[str] = set()
+        """The claimants its last look saw (a rival it saw and the next look misses is looked for again)."""
