@@ -35,6 +35,7 @@ from ..keys import (
     split,
 )
 from ..protocol import HEADER_SIZE, Kind, decode_timeout, has_timeout, kind_of
+from . import zenoh_claim
 from .base import ESTOP_REASON_MAX, PublicationHandler, Transport
 from .zenoh_claim import Holding, claimants, gives_way, refuse_if_claimed, settle_claim
 from .zenoh_config import (  # noqa: F401  (re-exported: the configuration is part of this transport's interface)
@@ -153,7 +154,6 @@ class ZenohTransport(Transport):
                 claiming,
                 session.declare_queryable(keys.requests(self.segment), self._on_query),
                 session.declare_subscriber(keys.messages(self.segment), self._on_sample),
-                session.liveliness().declare_subscriber(keys.alive(), self._on_alive, history=True),
                 # every e-stop from elsewhere, whatever its sender's name (this node's own runs its handlers directly)
                 session.declare_subscriber(keys.estop(), self._on_estop, allowed_origin=zenoh.Locality.REMOTE),
                 session.declare_subscriber(lab_estop(), self._on_estop, allowed_origin=zenoh.Locality.REMOTE),
@@ -169,14 +169,29 @@ class ZenohTransport(Transport):
             self._close()
             raise
         self._holding.keep()
+        # The watch of every node's token, only now the name is kept: beside a liveliness subscriber with history on
+        # keys it overlaps, Zenoh 1.10.2's liveliness get answered without tokens that were there (under load: the
+        # claim's looks missed the holder and a newcomer kept its name; bench/liveliness_looks.py). Its history
+        # brings any rival that kept the name too to _rival_kept, as a later token would.
+        try:
+            self._keep.append(session.liveliness().declare_subscriber(keys.alive(), self._on_alive, history=True))
+        except BaseException:
+            self._close()
+            raise
 
     def claimants(self, seg: str) -> set[str]:
-        """The sessions that kept segment ``seg`` in this robot (their ``@alive`` tokens; a query of the network)."""
-        return claimants(self.session, self.keys.alive(seg))
+        """The sessions that kept segment ``seg`` in this robot: their ``@alive`` tokens, from a query of the network
+        and from this node's watch (a query beside the watch can miss tokens that are there: see _open)."""
+        return claimants(self.session, self.keys.alive(seg)) | self._watched(seg)
 
     def _rivals(self) -> set[str]:
         """The sessions that kept this node's name or claim it now: what settle_claim looks at."""
         return claimants(self.session, self.keys.alive(self.segment), self.keys.claim(self.segment))
+
+    def _watched(self, seg: str) -> set[str]:
+        """The sessions whose ``@alive`` token for ``seg`` this node's watch has seen and not seen withdrawn."""
+        with self._lock:
+            return set(self._claims.get(seg, ()))
 
     def _name_taken(self, rival: str) -> NameTaken:
         role = "tool" if self.role == "tool" else "module"
@@ -421,12 +436,12 @@ class ZenohTransport(Transport):
         return remove
 
     def peers(self) -> list[str]:
-        names = {self.segment}
-        for reply in self.session.liveliness().get(self.keys.alive(), timeout=2.0):
-            if reply.ok is not None:
-                chunks = split(reply.ok.key_expr)
-                if len(chunks) == 5:
-                    names.add(chunks[3])
+        with self._lock:  # what the watch saw, and what a query finds (either can miss a token: see _open)
+            names = {self.segment, *(seg for seg, sessions in self._claims.items() if sessions)}
+        for token in zenoh_claim.tokens(self.session, self.keys.alive()):
+            chunks = split(token)
+            if len(chunks) == 5:
+                names.add(chunks[3])
         return sorted(names)
 
     def _close(self) -> None:

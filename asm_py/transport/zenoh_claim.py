@@ -51,10 +51,15 @@ CLAIM_WAIT = 3.0
 """Seconds a session whose rivals all have greater IDs waits for them to give way before it gives way itself."""
 
 
+def tokens(session: zenoh.Session, key: str) -> set[str]:
+    """The keys of the liveliness tokens matching ``key`` now: a query of the network."""
+    replies = session.liveliness().get(key, timeout=CLAIM_QUERY_TIMEOUT)
+    return {str(reply.ok.key_expr) for reply in replies if reply.ok is not None}
+
+
 def sessions_holding(session: zenoh.Session, key: str) -> set[str]:
     """The session IDs (the last chunk) of the liveliness tokens matching ``key`` now: a query of the network."""
-    replies = session.liveliness().get(key, timeout=CLAIM_QUERY_TIMEOUT)
-    return {last(reply.ok.key_expr) for reply in replies if reply.ok is not None}
+    return {last(token) for token in tokens(session, key)}
 
 
 def claimants(session: zenoh.Session, alive: str, claim: str | None = None) -> set[str]:
@@ -91,9 +96,10 @@ def verdict(
     """The rule of the module docstring for one look: the verdict, and the rival that decides it ("" if none).
 
     ``previous``: what the look before this one saw. A rival it saw that this look misses is looked for once more
-    before the name is kept: under load one look through a router answered at once without a holder's token, and a
-    newcomer kept the name beside the holder (tests/transport/test_name_claims.py, 3 of 8 runs beside two busy
-    processes)."""
+    before the name is kept: under load a look through a router answered without a holder's token, and a newcomer
+    kept the name beside the holder (tests/transport/test_name_claims.py, 3 of 8 runs beside two busy processes).
+    The cause, found later: the session's own liveliness subscriber with history (its watch), which a node now
+    declares only once its name is kept (asm_py.transport.zenoh._open; bench/liveliness_looks.py)."""
     others = claimants - {own}
     if not others:
         gone = previous - {own}

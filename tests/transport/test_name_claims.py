@@ -6,7 +6,6 @@ had not reached it yet."""
 from __future__ import annotations
 
 import itertools
-import json
 import logging
 import threading
 import time
@@ -31,9 +30,9 @@ from asm_py.transport.zenoh_claim import (
 from asm_py.transport.zenoh_config import make_config
 
 from ..helpers import wait_until
+from .claims import GREATER, LESSER, blind_first_look, config_with_id
 
 pytestmark = pytest.mark.timeout(60)
-GREATER, LESSER = "f0f0", "1f1f"
 
 
 class Taken(Exception):
@@ -90,12 +89,6 @@ def test_a_greater_rival_that_stays_is_waited_for_no_longer_than_the_claim_wait(
     assert CLAIM_WAIT <= time.monotonic() - began < CLAIM_WAIT + 5
 
 
-def config_with_id(tmp_path: Path, zid: str) -> str:
-    path = tmp_path / f"{zid}.json5"
-    path.write_text(json.dumps({"id": zid}))
-    return str(path)
-
-
 @pytest.fixture
 def session_with_id(router: str, tmp_path: Path) -> Iterator[Callable[[str], zenoh.Session]]:
     """Open client sessions of the router with the Zenoh IDs given; every one is closed at the end."""
@@ -114,21 +107,6 @@ def session_with_id(router: str, tmp_path: Path) -> Iterator[Callable[[str], zen
 def replies(session: zenoh.Session, key: str, timeout: float = 1.0) -> list[zenoh.Reply]:
     """The good replies to one query of ``key``."""
     return [reply for reply in session.get(key, timeout=timeout) if reply.ok is not None]
-
-
-def blind_first_look(monkeypatch: pytest.MonkeyPatch, cls: type, method: str, victim: Callable[[object], bool]) -> None:
-    """``cls.method`` answers "nobody" to the first look of the session ``victim`` picks: its rival's token had
-    not reached it yet."""
-    real = getattr(cls, method)
-    blinded: set[int] = set()
-
-    def look(self: object, *args: object, **options: object) -> set[str]:
-        if victim(self) and id(self) not in blinded:
-            blinded.add(id(self))
-            return set()
-        return real(self, *args, **options)
-
-    monkeypatch.setattr(cls, method, look)
 
 
 def test_a_late_claim_meets_a_session_that_kept_the_name_and_gives_way(
