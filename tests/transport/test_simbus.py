@@ -80,12 +80,15 @@ def test_pushed_buses_get_their_frames_in_order_from_one_thread_and_the_thread_e
             bus.set_filters([{"can_id": k << 8, "can_mask": 0xF00, "extended": True}])
             bus.push_to(lambda frame, k=k: (got[k].append(frame.arbitration_id), threads.add(threading.get_ident())))
         assert len(_dispatchers()) == before + 1
-        frames = [(k % 3) << 8 | 0x1000000 | k for k in range(300)]  # priority bits set: normal frames
+        # priority bits set (normal frames), the bus in bits 8-11, the frame's number above them: every frame is one
+        # bus's (the number once reached into bits 8-11: 1 frame in 10 matched no filter and the wait ran 10 s out)
+        frames = [0x1000000 | k << 12 | (k % 3) << 8 for k in range(300)]
         for arbitration_id in frames:
             sender.send(can.Message(arbitration_id=arbitration_id, is_extended_id=True, data=b"x"))
         deadline = time.monotonic() + 10
         while sum(map(len, got.values())) < 300 and time.monotonic() < deadline:
             time.sleep(0.01)
+        assert sum(map(len, got.values())) == 300
         for k in range(3):
             assert got[k] == [f for f in frames if (f >> 8) & 0xF == k]  # exactly its frames, in the order sent
         assert len(threads) == 1 and threading.get_ident() not in threads
