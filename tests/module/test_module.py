@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import signal
 import subprocess
 import sys
 
@@ -216,14 +217,14 @@ def test_asm_module_command_starts_and_stops_cleanly_on_sigterm():
     channel = fresh_name("asm-cli")
     # python-can's virtual bus is per process: the command runs in this process's interpreter via runpy.
     code = (
-        "import sys, threading, runpy; from server import module; "
-        "threading.Timer(8.0, lambda: __import__('os').kill(__import__('os').getpid(), 15)).start(); "
+        "import sys; from server import module; "
         f"sys.exit(module.main(['--can', 'virtual:{channel}', '--node-id', '7']))"
     )
     proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
     try:
         assert proc.stdout is not None
         assert proc.stdout.readline().strip() == "READY m7"
+        proc.send_signal(signal.SIGTERM)  # once ready (the command once sent it to itself 8 s after its start)
         assert proc.wait(timeout=30) == 0
     finally:
         if proc.poll() is None:
