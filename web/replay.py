@@ -124,6 +124,8 @@ class ReplaySource:
         self.latest: PoseFrame | None = recording.frame_at(0.0)
         self._times = recording.frame_times
         self._now_t = 0.0
+        self._now_playing = False
+        """Whether the clock played when ``_now_t`` was shown: the page reads the two together (:meth:`shown`)."""
         self._lock = threading.Lock()
         self._requests: queue.Queue[tuple[str, Any] | None] = queue.Queue()
         self._changed = threading.Event()
@@ -140,6 +142,13 @@ class ReplaySource:
     def time(self) -> float:
         """The replay time shown now (set by the loop)."""
         return self._now_t
+
+    def shown(self) -> tuple[float, bool]:
+        """The replay time shown now and whether it was shown playing, read together: the clock's own state changes
+        before the loop shows its time, and a page that read them apart said "paused" beside the time before the
+        pause (a fresh-clone run's page test read 2.22 s paused, then 2.23)."""
+        with self._lock:
+            return self._now_t, self._now_playing
 
     @property
     def playing(self) -> bool:
@@ -197,9 +206,10 @@ class ReplaySource:
 
     def _show(self, t: float) -> None:
         frame = self.recording.frame_at(t)
+        playing = self.clock.playing
         with self._lock:
-            moved = frame is not self.latest or t != self._now_t
-            self.latest, self._now_t = frame, t
+            moved = frame is not self.latest or t != self._now_t or playing != self._now_playing
+            self.latest, self._now_t, self._now_playing = frame, t, playing
         if moved:
             self._changed.set()
 

@@ -268,7 +268,7 @@ class ReplayPanel:
         source = self.source
         if source is None:
             return
-        recording, t = source.recording, source.time()
+        recording, (t, playing) = source.recording, source.shown()
         with self.page.programmatic():
             shown = round(t, 2)
             if abs(self.timeline.value - shown) >= 0.005:
@@ -278,7 +278,7 @@ class ReplayPanel:
             self._plotted = (t, keys)
             labels, data = plot_data(recording, keys, t, PLOT_WINDOW)
             self.plot.show(labels, data, t, PLOT_WINDOW)  # seconds before the replay time, as the live plots
-        state = "▶ playing" if source.playing else ("■ ended" if t >= source.clock.duration else "paused")
+        state = "▶ playing" if playing else ("■ ended" if t >= source.clock.duration else "paused")
         events = "  \n".join(f"{'●' if e.time <= t else '○'} {e.time:7.2f} s · {plain(e.text)}"
                               for e in recording.events[:40])  # fmt: skip
         more = f"  \n… and {len(recording.events) - 40} more" if len(recording.events) > 40 else ""

@@ -3,11 +3,14 @@ between recorded frames."""
 
 from __future__ import annotations
 
+import threading
+from pathlib import Path
+
 import pytest
 
 from web.replay import SPEEDS, ReplayClock, step_time
 
-from ..helpers import FakeTime
+from ..helpers import FakeTime, wait_until
 
 pytestmark = pytest.mark.timeout(120)
 
@@ -87,3 +90,44 @@ def test_stepping_goes_to_the_neighbouring_recorded_frame() -> None:
     assert step_time(times, 0.3, -1) == 0.25
     assert step_time(times, 0.4, 1) == 0.4  # the last: stays
     assert step_time(times, 0.0, -1) == 0.0
+
+
+def test_the_page_reads_the_replay_time_and_state_shown_together(tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
+    """A fresh-clone run's page test read "t = 2.22 s · paused", then 2.23: the loop had paused the clock at 2.23 and
+    not yet shown that time, and the page read the time shown before beside the clock's new state. The pair the
+    page reads (``shown()``) is the time shown and the state it was shown in."""
+    from web.recording import open_recording
+    from web.replay import ReplaySource
+
+    from .test_replay import write_recording
+
+    path = tmp_path / "run.mcap"
+    write_recording(path)
+    real_show = ReplaySource._show  # pyright: ignore[reportPrivateUsage]
+    armed, held, gate = threading.Event(), threading.Event(), threading.Event()
+
+    def show(self: ReplaySource, t: float) -> None:
+        if armed.is_set():  # the loop has handled a request and is about to show its time: held here
+            held.set()
+            gate.wait(10)
+        real_show(self, t)
+
+    monkeypatch.setattr(ReplaySource, "_show", show)
+    monkeypatch.setattr(ReplaySource, "_until_next_frame", lambda self: 30.0)  # the loop wakes for requests only
+    wall = FakeTime()
+    source = ReplaySource(open_recording(path), wall)
+    try:
+        source.request("play")
+        assert wait_until(lambda: source.shown() == (0.0, True), 10)
+        wall.now += 1.0
+        armed.set()
+        source.request("pause")  # the clock pauses at 1.0; its showing is held
+        assert held.wait(10)
+        t, playing = source.shown()
+        assert playing or t == 1.0, (t, playing)  # never "paused" beside a time before the pause
+        armed.clear()
+        gate.set()
+        assert wait_until(lambda: source.shown() == (1.0, False), 10)
+    finally:
+        gate.set()
+        source.close()
