@@ -142,6 +142,9 @@ class Lease:
                 log.warning("renewing the deploy lease failed: %s", exc)
                 if self.lost is not None:
                     return
+            except RuntimeError as exc:  # the node closed under the lease (its studio closed mid-stage): it lapses
+                log.info("the deploy lease is no longer renewed: %s", exc)
+                return
 
     def release(self) -> None:
         """Release the lease (best effort: a lease also expires by itself)."""

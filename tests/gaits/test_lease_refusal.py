@@ -59,3 +59,37 @@ def test_a_locked_reply_whose_text_ends_in_a_colon_is_passed_on_as_it_is() -> No
         Lease(calls, [1], "me", 1).take()  # type: ignore[arg-type]
     assert calls.gets == []
     assert "held by" not in str(caught.value)
+
+
+class _ClosingCalls:
+    """A node that grants the lease, then closes (a studio closed while its staged deployment held the robot)."""
+
+    def __init__(self) -> None:
+        self.names = {1: "m1"}
+        self.closed = False
+
+    def set(self, module: int, name: str, value: Any, step: str) -> None:
+        if self.closed:
+            raise RuntimeError("zenoh transport is not open")  # what a closed ZenohTransport says
+
+
+def test_a_lease_whose_node_closed_stops_renewing_without_an_exception_in_its_thread(monkeypatch) -> None:
+    """A fresh-clone run: "Exception in thread asm-lease: RuntimeError: zenoh transport is not open" after the
+    studio that staged closed; the lease lapses by itself on the modules."""
+    import threading
+
+    from gaits import lease as lease_module
+
+    from ..helpers import wait_until
+
+    monkeypatch.setattr(lease_module, "RENEW_EVERY", 0.01)
+    raised: list[BaseException | None] = []
+    monkeypatch.setattr(threading, "excepthook", lambda args: raised.append(args.exc_value))
+    calls = _ClosingCalls()
+    lease = Lease(calls, [1], "me", 1)  # type: ignore[arg-type]
+    lease.take()
+    calls.closed = True
+    renewer = lease._renewer  # pyright: ignore[reportPrivateUsage]
+    assert renewer is not None
+    assert wait_until(lambda: not renewer.is_alive(), 10)
+    assert raised == []
