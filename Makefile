@@ -45,12 +45,13 @@ format: $(STAMP)
 	$(PY) -m ruff format .
 	$(PY) -m ruff check --fix .
 
-# Two workers (pytest-xdist) on two cores: the browser tests are one xdist group (tests/studio/browser.py), run by one
-# worker from the start, one Chromium at a time, while the other runs the rest. Three workers took 550-586 s against
-# two's 758-821 s, but 5 of 6 fresh-clone runs with three failed a timing-bound test under the load, among them two
-# sessions claiming one name both starting (docs/benchmarks.md, "The suite's time"). TEST_WORKERS=N to choose;
-# `make test-serial` runs the same tests in one process.
-TEST_WORKERS ?= 2
+# Four workers (pytest-xdist) on two cores: the suite waits more than it computes (processes, emulated boards, paced
+# simulations, timeouts). The browser tests are two xdist groups (tests/studio/browser.py), each run by one worker from
+# the start, two Chromiums at a time, while the other two run the rest. Fresh-clone runs at stop 46: two workers
+# 650-669 s, three 503 s (the one browser group alone took 485 s of it), four with two browser groups 433 s
+# (docs/benchmarks.md, "The suite's time"). TEST_WORKERS=N to choose; `make test-serial` runs the same tests in one
+# process.
+TEST_WORKERS ?= 4
 PYTEST := PLAYWRIGHT_SKIP_BROWSER_DOWNLOAD=1 $(PY) -m pytest -m "not slow"
 test: lint $(CHROMIUM) $(ARM_GCC)
 	$(PYTEST) -n $(TEST_WORKERS) --dist loadgroup $(PYTEST_ARGS)

@@ -144,7 +144,11 @@ def test_an_object_outside_the_profile_is_looked_up_and_its_first_publications_k
             for k in range(1, 41):
                 speed.set({"x": k / 4, "ok": k % 2 == 0})
                 angle.set(float(k))
-            assert wait_until(lambda: min(recorder.counts["/mod/speed"], recorder.counts["/mod/joint.angle"]) >= 40, 20)
+            kept = lambda: min(recorder.counts["/mod/speed"], recorder.counts["/mod/joint.angle"])  # noqa: E731
+            assert wait_until(lambda: kept() >= 40, 20), (
+                f"kept {dict(recorder.counts)}, dropped {recorder.dropped}, missed {recorder.missed}, "
+                f"views seen beside it {len(views)}"
+            )
         finally:
             recorder.close()
             watch.undeclare()

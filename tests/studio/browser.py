@@ -1,12 +1,13 @@
 """What the browser tests share: Debian's Chromium (never one a tool downloads), the page opened the way a user
 opens it, and readers of what it shows (pixels of a drawn line, the robot in the 3D view, a number in a text).
 
-All browser test modules are one xdist group, ``browser``: one worker runs them one after another from the start of
-`make test` (a group is scheduled before single tests), at most one Chromium at a time, while the other workers run
-the rest of the suite beside it. Spread over the workers (a group per module; or no group at all, as under pytest
-9.2, whose test IDs pytest-xdist 3.8's groups cannot rename), the browser tests ran last, all workers on Chromiums
-at once and CPU-bound, after the rest of the suite had left a core idle waiting on processes (docs/benchmarks.md,
-"The suite's time")."""
+The browser test modules are two xdist groups, ``browser-a`` and ``browser-b`` (:data:`SECOND_CHROMIUM`): two of
+`make test`'s four workers run them one after another from the start (a group is scheduled before single tests), at
+most two Chromiums at a time, while the other workers run the rest of the suite beside them. Spread over the workers
+(a group per module; or no group at all, as under pytest 9.2, whose test IDs pytest-xdist 3.8's groups cannot
+rename), the browser tests ran last, all workers on Chromiums at once and CPU-bound, after the rest of the suite had
+left a core idle waiting on processes; in one group, on one worker, they were the suite's longest pole (485 s of
+three workers' 503 s; docs/benchmarks.md, "The suite's time")."""
 
 from __future__ import annotations
 
@@ -23,12 +24,26 @@ from ..helpers import ARTIFACTS, wait_until
 CHROMIUM = "/usr/bin/chromium"
 
 
+SECOND_CHROMIUM = frozenset({
+    "test_drive_e2e", "test_estop_reach_e2e", "test_numbering_page", "test_page_frames", "test_record_page",
+    "test_replay_export_page", "test_rough_edges_page", "test_tune_e2e",
+})  # fmt: skip
+"""The browser test modules of group ``browser-b``; every other one is in ``browser-a``. Chosen by their times in a
+three-worker run (longest first, each to the group with less so far): 240 s here, 245 s in the other. A new module
+joins ``browser-a`` unless named here."""
+
+
+def browser_group(module: str) -> str:
+    """The xdist group of the browser test module ``module`` (its dotted name)."""
+    return "browser-b" if module.rsplit(".", 1)[-1] in SECOND_CHROMIUM else "browser-a"
+
+
 def marks(module: str) -> list[pytest.MarkDecorator]:
-    """What every browser test module sets as ``pytestmark`` (``marks(__name__)``): the browser tests' one xdist
-    group, a generous timeout. (``module`` names the caller; the group no longer depends on it.)"""
+    """What every browser test module sets as ``pytestmark`` (``marks(__name__)``): its browser group, a generous
+    timeout."""
     return [
         pytest.mark.timeout(240),
-        pytest.mark.xdist_group("browser"),
+        pytest.mark.xdist_group(browser_group(module)),
         pytest.mark.skipif(not os.path.exists(CHROMIUM), reason="needs Debian's chromium (make test installs it)"),
     ]
 

@@ -217,7 +217,11 @@ def test_a_late_robot_meets_a_robot_of_its_name_and_gives_way(
             feeds.append(RobotFeed(sessions[LESSER], RobotStatus("z", "real", 0)))
         # the newcomer's claim never made the holder give way, though the newcomer's ID is the lesser
         assert feeds[0].lost is None and lost == []
-        assert sessions_holding(sessions[GREATER], RobotKeys("z").robot_alive()) == {GREATER}
+        # looked at from a session of its own: the holder's session watches these tokens with history, and Zenoh
+        # 1.10.2 leaves live tokens out of such a session's liveliness answers under load (bench/liveliness_looks.py;
+        # a fresh-clone run with three workers read set() here)
+        outside = session_with_id("7007")
+        assert sessions_holding(outside, RobotKeys("z").robot_alive()) == {GREATER}
     finally:
         for feed in feeds:
             feed.close()
