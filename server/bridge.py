@@ -444,14 +444,16 @@ class CanZenohBridge:
         for entity in self._keep:  # no new work from Zenoh first
             entity.undeclare()
         self._keep.clear()
-        for node in list(self._mirrors):
-            self._unmirror(node)
         self._stop.set()
         for query in self.clients.clear():
             query.drop()
         self._work.put(None)
         for thread in self._threads:
             thread.join(5)
+        # the mirrors are the work loop's: withdrawn once it has ended (withdrawn from here while it settled a
+        # claim, the loop withdrew the claim's token a second time and died with "Undeclared LivelinessToken")
+        for node in list(self._mirrors):
+            self._unmirror(node)
         self.node.close()
         for query in self.clients.clear():
             query.drop()

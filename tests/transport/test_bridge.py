@@ -169,3 +169,44 @@ def test_heap_trimmer_returns_memory_on_this_c_library() -> None:
     MALLOC_TRIM()
     trimmer = HeapTrimmer(lambda: 0, trim=None)
     assert not trimmer.tick()
+
+
+def test_closing_while_a_mirror_s_claim_settles_raises_nothing_in_the_bridge_s_thread(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """close() withdrew the mirrors from the caller's thread while the bridge's own thread was settling one's claim:
+    that thread then withdrew the claim token a second time and died with ``ZError: Undeclared LivelinessToken``
+    (seen in test_safety's query-cap test, 1 run in ~20). Here the settling is held at the moment it has decided to
+    keep the name, while close() runs."""
+    from server import bridge as bridge_module
+
+    deciding, release = threading.Event(), threading.Event()
+    real = bridge_module.verdict
+
+    def held_verdict(*args, **kwargs):
+        decided = real(*args, **kwargs)
+        if decided[0] is bridge_module.Verdict.KEEP and not deciding.is_set():
+            deciding.set()
+            release.wait(5)
+        return decided
+
+    monkeypatch.setattr(bridge_module, "verdict", held_verdict)
+    died: list[BaseException] = []
+    monkeypatch.setattr(threading, "excepthook", lambda args: died.append(args.exc_value))
+    channel = fresh_name("asm-bridge-close")
+    can_options = {"interface": "virtual", "channel": channel, **FAST_BEATS}
+    module = Node("m1", CanTransport(1, **can_options))
+    try:
+        bridge = CanZenohBridge(can_options, network=ZenohOptions(listen=(f"tcp/127.0.0.1:{free_port()}",)))
+        try:
+            assert deciding.wait(10), "the bridge never settled m1's claim"
+        finally:
+            closing = threading.Thread(target=bridge.close)
+            closing.start()
+            closing.join(0.3)  # close() under way while the claim is held
+            release.set()
+            closing.join(10)
+        assert not closing.is_alive()
+    finally:
+        module.close()
+    assert died == []
