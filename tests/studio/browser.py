@@ -74,6 +74,13 @@ def page_until(predicate: Callable[[], object], timeout: float = 5.0, interval: 
     return wait_until(predicate, timeout, interval=interval)
 
 
+def plot(page, title: str):
+    """The plot titled ``title`` (a uPlot). The studio replaces a plot whose series change by adding the new one
+    before removing the old (web/monitor.py), so for a moment the page holds both, and a locator of the title alone
+    broke Playwright's strictness (test_record_page, 1 run of 2): the last one is the newest."""
+    return page.locator(".uplot", has_text=title).last
+
+
 def open_page(pw, url: str):
     """Chromium on the studio's page, once the page is up (its E-STOP shows)."""
     from playwright.sync_api import expect

@@ -6,7 +6,7 @@ from __future__ import annotations
 import time
 
 from ..helpers import ARTIFACTS
-from .browser import LINE_COLOR, choose, deploy_and_start, marks, open_page, pixels
+from .browser import LINE_COLOR, choose, deploy_and_start, marks, open_page, pixels, plot
 
 pytestmark = marks(__name__)
 
@@ -107,9 +107,9 @@ def test_live_plots_share_one_time_base_and_never_go_blank(studio_process):
         _plot_into(page, "m7", "Live plot 2")
         _watch(page, 30.0, 4.0)
         page.get_by_role("tab", name="Plots").click()
-        second = page.locator(".uplot", has_text="Live 2").locator("canvas").first
+        second = plot(page, "Live 2").locator("canvas").first
         second.scroll_into_view_if_needed()
-        expect(page.locator(".uplot", has_text="Live 2")).to_contain_text("m7 joint.angle", timeout=15_000)
+        expect(plot(page, "Live 2")).to_contain_text("m7 joint.angle", timeout=15_000)
         assert pixels(second.screenshot(), LINE_COLOR) > 50, "no line in Live plot 2"
         page.screenshot(path=str(ARTIFACTS / "rough-plots-one-time-base.png"))
         browser.close()

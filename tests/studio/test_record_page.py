@@ -12,7 +12,7 @@ from pathlib import Path
 from mcap.reader import make_reader
 
 from ..helpers import ARTIFACTS
-from .browser import deploy_and_start, marks, open_page
+from .browser import deploy_and_start, marks, open_page, plot
 
 pytestmark = marks(__name__)
 
@@ -51,7 +51,7 @@ def test_record_the_robot_from_the_page_and_read_the_file_back(start_studio, tmp
         saved.value.save_as(str(layout_file))
         layout = json.loads(layout_file.read_text())
         page.get_by_role("button", name="Live plot 1").nth(2).click()  # Clear (after Export CSV and Export MCAP)
-        live1 = page.locator(".uplot", has_text="Live 1")
+        live1 = plot(page, "Live 1")
         expect(live1).not_to_contain_text("joint.angle", timeout=15_000)
         with page.expect_file_chooser() as chooser:
             page.get_by_role("button", name="Load layout (.json)").click()
@@ -60,7 +60,7 @@ def test_record_the_robot_from_the_page_and_read_the_file_back(start_studio, tmp
             expect(live1).to_contain_text(key.replace("/", " "), timeout=15_000)
         page.reload()  # the layout is the studio's: a reload shows it again
         page.get_by_role("tab", name="Plots").click()
-        expect(page.locator(".uplot", has_text="Live 1")).to_contain_text("m1 joint.angle", timeout=60_000)
+        expect(plot(page, "Live 1")).to_contain_text("m1 joint.angle", timeout=60_000)
         page.screenshot(path=str(ARTIFACTS / "layout-loaded.png"))
         browser.close()
     assert layout["plots"]["Live plot 1"][:1] == ["m1/joint.angle"], layout  # the deploy plotted the angles

@@ -10,7 +10,7 @@ import re
 from pathlib import Path
 
 from ..helpers import ARTIFACTS
-from .browser import LINE_COLOR, choose, fresh_screenshot, marks, number, open_page, page_until, pixels
+from .browser import LINE_COLOR, choose, fresh_screenshot, marks, number, open_page, page_until, pixels, plot
 from .test_replay_page import VIEW, _slider_box, simulated_recording, violet
 
 pytestmark = marks(__name__)
@@ -64,8 +64,8 @@ def test_the_replay_tab_refuses_a_time_out_of_range_and_clears_a_robot_it_has_no
     with sync_playwright() as pw:
         browser, page = open_page(pw, url)
         for title in ("Live 1", "Live 2"):  # nothing plotted yet: no line
-            expect(page.locator(".uplot", has_text=title).locator("canvas").first).to_be_attached(timeout=15_000)
-            shot = fresh_screenshot(lambda title=title: page.locator(".uplot", has_text=title).locator("canvas").first)
+            expect(plot(page, title).locator("canvas").first).to_be_attached(timeout=15_000)
+            shot = fresh_screenshot(lambda title=title: plot(page, title).locator("canvas").first)
             assert pixels(shot, LINE_COLOR) == 0, f"{title} draws a line with nothing plotted"
         page.get_by_role("tab", name="Replay").click()
         open_recording(page, "run.mcap")

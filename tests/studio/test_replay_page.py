@@ -15,7 +15,7 @@ import time
 from pathlib import Path
 
 from ..helpers import ARTIFACTS
-from .browser import choose, marks, number, open_page, page_until, pixels
+from .browser import choose, marks, number, open_page, page_until, pixels, plot
 
 pytestmark = marks(__name__)
 
@@ -147,11 +147,11 @@ def test_open_a_recording_play_pause_scrub_and_leave(start_studio, tmp_path):
         moved = page.screenshot(clip=VIEW)
         assert violet(moved) > 500
         assert moved != still, "the replayed robot did not move"
-        plot = page.locator(".uplot", has_text="Replay: recorded values")
-        expect(plot).to_contain_text("m1 joint.angle", timeout=15_000)
-        if not page_until(lambda: lines(plot.locator("canvas").first.screenshot()) > 200, 20, 0.5):
+        replayed = plot(page, "Replay: recorded values")
+        expect(replayed).to_contain_text("m1 joint.angle", timeout=15_000)
+        if not page_until(lambda: lines(replayed.locator("canvas").first.screenshot()) > 200, 20, 0.5):
             page.screenshot(path=str(ARTIFACTS / "replay-no-line.png"))
-            plot.screenshot(path=str(ARTIFACTS / "replay-no-line-plot.png"))
+            replayed.screenshot(path=str(ARTIFACTS / "replay-no-line-replayed.png"))
             raise AssertionError("no line in the replay plot")
         expect(page.get_by_text(re.compile(r"m8\s*joint\.angle = ")).first).to_be_visible()  # the values listed
         page.screenshot(path=str(ARTIFACTS / "replay-paused.png"))
@@ -159,7 +159,7 @@ def test_open_a_recording_play_pause_scrub_and_leave(start_studio, tmp_path):
         # crawling robot can be drawn to the pixel as it was: a fresh-clone CI scrubbed from 2.0x s to 1 s)
         target = round(paused - 0.5, 2)
         box = _slider_box(page, "Replay time (s)")
-        plot_before = plot.locator("canvas").first.screenshot()
+        plot_before = replayed.locator("canvas").first.screenshot()
         for _ in range(3):  # a loaded page can lose the typed number before Enter commits it: type it again
             box.click()
             box.press("Control+a")
@@ -170,7 +170,7 @@ def test_open_a_recording_play_pause_scrub_and_leave(start_studio, tmp_path):
                 break
         assert abs(replay_time(page) - target) < 0.02, replay_time(page)
         assert page_until(lambda: page.screenshot(clip=VIEW) != moved, 20, 0.5), "the scrub did not move the robot"
-        assert page_until(lambda: plot.locator("canvas").first.screenshot() != plot_before, 20, 0.5)
+        assert page_until(lambda: replayed.locator("canvas").first.screenshot() != plot_before, 20, 0.5)
         # play on from the scrubbed point (not from the end) at 0.25x, then at 4x to the end
         choose(page, "Replay speed", "0.25x")
         expect(page.get_by_text("· 0.25x", exact=False).first).to_be_visible(timeout=10_000)

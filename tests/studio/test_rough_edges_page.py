@@ -12,7 +12,7 @@ import time
 import numpy as np
 
 from ..helpers import ARTIFACTS
-from .browser import choose, marks, open_page, page_until
+from .browser import choose, marks, open_page, page_until, plot
 
 pytestmark = marks(__name__)
 
@@ -221,7 +221,7 @@ def test_the_layout_comes_back_after_the_studio_restarts(tmp_path):
             expect(page.get_by_label("Window (s)")).to_have_value("60", timeout=30_000)
             expect(page.get_by_text("the last one restored", exact=False).first).to_be_visible(timeout=60_000)
             page.get_by_role("tab", name="Plots").click()
-            second = page.locator(".uplot", has_text="Live 2")
+            second = plot(page, "Live 2")
             second.scroll_into_view_if_needed()
             expect(second).to_contain_text("m3 joint.angle", timeout=30_000)
             page.screenshot(path=str(ARTIFACTS / "rough-layout-after-restart.png"))

@@ -22,6 +22,7 @@ from .browser import (
     open_page,
     page_until,
     pixels,
+    plot,
     press_start,
     robot_point,
     text_input,
@@ -94,13 +95,13 @@ def test_edit_preview_deploy_watch_and_estop(studio_process):
             page.get_by_role("tab", name="Monitor").click()
             expect(page.get_by_text(re.compile(r"m8\s*live")).first).to_be_visible(timeout=15_000)
             expect(page.get_by_text("gait running", exact=False).first).to_be_visible(timeout=15_000)
-            plot = page.locator(".uplot", has_text="Live 1").locator("canvas").first  # the first live plot
-            if not page_until(lambda: pixels(plot.screenshot(), LINE_COLOR) > 50, timeout=15):
+            live_canvas = plot(page, "Live 1").locator("canvas").first  # the first live plot
+            if not page_until(lambda: pixels(live_canvas.screenshot(), LINE_COLOR) > 50, timeout=15):
                 page.screenshot(path=str(ARTIFACTS / "studio-monitor-no-line.png"))
                 raise AssertionError("no line drawn in the live plot:\n" + "".join(log[-30:]))
-            before = plot.screenshot()
+            before = live_canvas.screenshot()
             time.sleep(1.0)
-            assert plot.screenshot() != before, "the live plot did not change"
+            assert live_canvas.screenshot() != before, "the live plot did not change"
             choose(page, "Window (s)", "60")
             expect(page.get_by_label("Window (s)")).to_have_value("60", timeout=15_000)
             page.screenshot(path=str(ARTIFACTS / "studio-monitor.png"))
@@ -202,17 +203,17 @@ def test_upload_grid_history_robot_size_and_attribute_browser(studio_process, tm
             page.get_by_role("tab", name="Plots").click()
             # the plot is drawn anew with its new series: wait for that before scrolling to it (the canvas found
             # before was detached under the scroll once)
-            expect(page.locator(".uplot", has_text="Live 2")).to_contain_text("m2 joint.torque", timeout=15_000)
+            expect(plot(page, "Live 2")).to_contain_text("m2 joint.torque", timeout=15_000)
             # and drawn again once its first sample is in (a series without one is shown "(no samples yet)")
-            expect(page.locator(".uplot", has_text="Live 2")).not_to_contain_text("no samples yet", timeout=15_000)
+            expect(plot(page, "Live 2")).not_to_contain_text("no samples yet", timeout=15_000)
 
             def torque_drawn() -> bool:  # found anew each try: under the suite's load the plot was re-drawn (its
                 # canvas detached) between finding it and scrolling to it, in 1 of 3 fresh-clone runs
-                shot = fresh_screenshot(lambda: page.locator(".uplot", has_text="Live 2").locator("canvas").first)
+                shot = fresh_screenshot(lambda: plot(page, "Live 2").locator("canvas").first)
                 return pixels(shot, LINE_COLOR) > 50
 
             assert page_until(torque_drawn, timeout=30), "no torque line"
-            first = page.locator(".uplot", has_text="Live 1")
+            first = plot(page, "Live 1")
             expect(first).to_contain_text("joint.angle", timeout=15_000)  # the first still plots the angles
             page.screenshot(path=str(ARTIFACTS / "studio-two-plots.png"))
             # out of range is refused, never clamped: an int8 of 300 is not sent to the module
