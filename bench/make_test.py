@@ -41,8 +41,9 @@ def main() -> None:
         make.append("PYTEST_ARGS=--durations=15")
     lint_s, _, _ = _timed(["make", "--no-print-directory", "lint"])
     total_s, output, code = _timed(make)
-    summary = next((line for line in reversed(output.splitlines()) if re.search(r"\d+ (passed|failed)", line)), "")
-    print(f"make lint: {lint_s:.1f} s; make test: {total_s:.1f} s, exit {code}: {summary.strip('= ')}")
+    # one summary line per pytest run of `make test` (the parallel part, then the realtime tests)
+    summary = "; ".join(line.strip("= ") for line in output.splitlines() if re.search(r"\d+ (passed|failed)", line))
+    print(f"make lint: {lint_s:.1f} s; make test: {total_s:.1f} s, exit {code}: {summary}")
     for line in output.splitlines():
         if line.startswith("FAILED "):
             print(line)

@@ -224,6 +224,7 @@ class _Recording(FakeDriver):
         super().command(degrees)
 
 
+@pytest.mark.realtime  # its modules run on the wall clock: `make test` runs it after the rest
 def test_preview_equals_deployment_for_c_and_python_modules_alike() -> None:
     """The caterpillar with modules 1, 3, 5, 7 in C and the rest in Python on one virtual bus: at every tick each
     module commands what the preview's module commanded at that time since the start, within one control tick."""

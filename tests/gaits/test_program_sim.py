@@ -16,7 +16,7 @@ from tests.transports import FAST_BEATS, fresh_name
 
 from .preview import SIGNALLED
 
-pytestmark = pytest.mark.timeout(180)
+pytestmark = [pytest.mark.timeout(180), pytest.mark.realtime]  # paced: `make test` runs them after the rest
 TICK = 1 / 50
 
 

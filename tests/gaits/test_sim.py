@@ -158,6 +158,7 @@ class StampingClock(WallClock):
         return now
 
 
+@pytest.mark.realtime  # its modules run on the wall clock: `make test` runs it after the rest
 def test_preview_equals_deployment_over_virtual_can():
     """The same gait on module runtimes talking over a virtual CAN bus in real time commands, at every tick, what
     the simulation commanded at that time since the start, within one control tick."""
