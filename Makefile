@@ -51,11 +51,11 @@ format: $(STAMP)
 # 650-669 s, three 503 s (the one browser group alone took 485 s of it), four with two browser groups 433 s
 # (docs/benchmarks.md, "The suite's time"). TEST_WORKERS=N to choose; `make test-serial` runs the same tests in one
 # process.
-# The `realtime` tests (a deployment judged against the preview tick by tick, paced in real time like the robot
-# process) run after the others, three at a time (~0.2 of a core each), on a machine otherwise quiet as a robot
-# process's is: beside four workers a bus frame sometimes came a 20 ms tick late (fresh-clone runs of 74c3fc0 and
-# 21b4d0c; they passed 42 of 42 beside three busy loops). Exit code 5 (nothing selected, e.g. PYTEST_ARGS names a
-# file without such tests) is not a failure.
+# The `realtime` tests (judged against the wall clock while a simulation runs in real time: a deployment against the
+# preview tick by tick, a wiggled joint in the robot's physics) run after the others, three at a time, on a machine
+# otherwise quiet as a robot process's is: beside four workers a bus frame sometimes came a 20 ms tick late (fresh-
+# clone runs of 21b4d0c and c968e87; they passed 42 of 42 beside three busy loops), and a wiggle's physics fell behind.
+# Exit code 5 (nothing selected, e.g. PYTEST_ARGS names a file without such tests) is not a failure.
 TEST_WORKERS ?= 4
 PYTEST := PLAYWRIGHT_SKIP_BROWSER_DOWNLOAD=1 $(PY) -m pytest
 test: lint $(CHROMIUM) $(ARM_GCC)

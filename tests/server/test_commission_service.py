@@ -104,6 +104,8 @@ def _info(client: Node, name: str) -> dict | None:
         return None
 
 
+@pytest.mark.realtime  # the wiggled joint moves in the robot's real-time physics, judged on the wall clock: beside
+# four workers the physics fell behind and the joint's last degrees came slower than SETTLED (12.5° of 15°, twice)
 def test_fresh_boards_are_found_wiggled_numbered_along_the_chain_and_kept_across_a_restart(
     tmp_path, caplog: pytest.LogCaptureFixture
 ) -> None:
