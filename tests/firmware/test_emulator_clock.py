@@ -64,6 +64,7 @@ def test_the_clock_stops_the_core_where_systick_and_the_watchdog_are_due() -> No
     assert clock.state.cycles == 4, "reset as the block that runs out the watchdog begins"
 
 
+@pytest.mark.realtime  # counts another thread's wakes on the wall clock: beside four workers it counted 4 (> 3)
 def test_a_run_keeps_the_interpreter_lock_so_no_other_thread_cuts_in_between_its_callbacks() -> None:
     """cortex_clock.emu_start holds the GIL over a run (the binding's emu_start releases it): a thread ready to run
     cannot while a core runs a loop of twenty million instructions (the binding's call lets it)."""
