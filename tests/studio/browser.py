@@ -1,9 +1,10 @@
 """What the browser tests share: Debian's Chromium (never one a tool downloads), the page opened the way a user
 opens it, and readers of what it shows (pixels of a drawn line, the robot in the 3D view, a number in a text).
 
-The browser test modules are two xdist groups, ``browser-a`` and ``browser-b`` (:data:`SECOND_CHROMIUM`): two of
-`make test`'s four workers run them one after another from the start (a group is scheduled before single tests), at
-most two Chromiums at a time, while the other workers run the rest of the suite beside them. Spread over the workers
+The browser test modules are one xdist group, ``browser``, under `make test`'s two workers, and two, ``browser-a``
+and ``browser-b`` (:data:`SECOND_CHROMIUM`), from four workers on: one worker per group runs them one after another
+from the start (a group is scheduled before single tests), one Chromium per group at a time, while the other workers
+run the rest of the suite beside them. Spread over the workers
 (a group per module; or no group at all, as under pytest 9.2, whose test IDs pytest-xdist 3.8's groups cannot
 rename), the browser tests ran last, all workers on Chromiums at once and CPU-bound, after the rest of the suite had
 left a core idle waiting on processes; in one group, on one worker, they were the suite's longest pole (485 s of
@@ -33,8 +34,14 @@ three-worker run (longest first, each to the group with less so far): 240 s here
 joins ``browser-a`` unless named here."""
 
 
-def browser_group(module: str) -> str:
-    """The xdist group of the browser test module ``module`` (its dotted name)."""
+def browser_group(module: str, workers: int | None = None) -> str:
+    """The xdist group of the browser test module ``module`` (its dotted name) when ``workers`` run the suite (by
+    default pytest-xdist's count in this worker): two groups from four workers on, else one (two Chromiums beside
+    two workers left no worker for the rest)."""
+    if workers is None:
+        workers = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT") or 0)
+    if workers < 4:
+        return "browser"
     return "browser-b" if module.rsplit(".", 1)[-1] in SECOND_CHROMIUM else "browser-a"
 
 

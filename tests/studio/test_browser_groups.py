@@ -31,7 +31,8 @@ def test_every_module_named_for_the_second_chromium_is_a_browser_test_module() -
 def test_the_browser_modules_are_split_between_two_groups() -> None:
     modules = _browser_modules()
     assert len(modules) >= 16 and "test_browser_groups" not in modules, sorted(modules)
-    assert {_group(module) for module in modules} == {"browser-a", "browser-b"}
     assert all(_group(module) == browser_group(f"tests.studio.{module}") for module in modules)
-    assert browser_group("tests.studio.test_drive_e2e") == "browser-b"
-    assert browser_group("tests.studio.test_studio_e2e") == "browser-a"
+    assert {browser_group(f"tests.studio.{module}", 4) for module in modules} == {"browser-a", "browser-b"}
+    assert {browser_group(f"tests.studio.{module}", 2) for module in modules} == {"browser"}
+    assert browser_group("tests.studio.test_drive_e2e", 4) == "browser-b"
+    assert browser_group("tests.studio.test_studio_e2e", 4) == "browser-a"
