@@ -52,9 +52,16 @@ format: $(STAMP)
 # workers, two browser groups"). TEST_WORKERS=4 to try; `make test-serial` runs the same tests in one process.
 TEST_WORKERS ?= 2
 PYTEST := PLAYWRIGHT_SKIP_BROWSER_DOWNLOAD=1 $(PY) -m pytest
+# The `realtime` tests (judged on the wall clock while a simulation runs in real time) failed beside four workers'
+# load, so with four or more they run after the rest, three at a time; two workers run them with the rest, as a
+# separate part cost 62 s there (stop 46's landing run) and they passed inside it before (stop 45).
 test: lint $(CHROMIUM) $(ARM_GCC)
-	$(PYTEST) -m "not slow and not realtime" -n $(TEST_WORKERS) --dist loadgroup $(PYTEST_ARGS) || [ $$? -eq 5 ]
-	$(PYTEST) -m "realtime and not slow" -n 3 $(PYTEST_ARGS) || [ $$? -eq 5 ]
+	if [ $(TEST_WORKERS) -ge 4 ]; then \
+	  $(PYTEST) -m "not slow and not realtime" -n $(TEST_WORKERS) --dist loadgroup $(PYTEST_ARGS) || [ $$? -eq 5 ] || exit 1; \
+	  $(PYTEST) -m "realtime and not slow" -n 3 $(PYTEST_ARGS) || [ $$? -eq 5 ]; \
+	else \
+	  $(PYTEST) -m "not slow" -n $(TEST_WORKERS) --dist loadgroup $(PYTEST_ARGS) || [ $$? -eq 5 ]; \
+	fi
 
 test-serial: lint $(CHROMIUM) $(ARM_GCC)
 	$(PYTEST) -m "not slow" $(PYTEST_ARGS)
