@@ -17,6 +17,7 @@ import itertools
 import json
 import math
 import struct
+from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
 from .attribute import Attribute, PublishPolicy
@@ -60,7 +61,6 @@ class Publisher:
         self.node = node
         self.entry = entry
         self.policy = policy
-        self.published = 0
         self._counter = itertools.count()  # next() on it is atomic: concurrent setters get distinct numbers
         self._timed = policy.rate is not None or policy.limit is not None
         self._gap = 1.0 / policy.limit if policy.limit is not None else 0.0
@@ -80,20 +80,50 @@ class Publisher:
         fixed = entry.codec.plain_struct()
         self._pack_number = None if fixed is None else struct.Struct("<4B" + fixed.format.lstrip("<")).pack
         """A number's whole message, header and value, in one pack (every set of a published number; issue 31)."""
-        self._send = node.transport.publish
+        self._send = node.transport.publication_sender(entry.name)
         attribute = entry.obj
         assert isinstance(attribute, Attribute)
         self._attribute = attribute
         self._unlisten = None
         if policy.rate is None or policy.deadband is not None:
             every_set = policy.deadband is None and not self._gap  # every set publishes: no check in between
-            self._unlisten = attribute.on_change(self.publish if every_set else self._on_change)
+            if not every_set:
+                listener = self._on_change
+            elif self._pack_number is not None and not self._timed:
+                listener = self._every_set_number(self._pack_number)
+            else:
+                listener = self.publish
+            self._unlisten = attribute.on_change(listener)
         self._timer: TimerHandle | None = None
         if policy.rate is not None:
             self._period = 1.0 / policy.rate
             self._origin = self.clock.now()
             self._tick = 1
             self._timer = timers_of(self.clock).call_at(self._origin + self._period, self._refresh)
+
+    @property
+    def published(self) -> int:
+        """How many publications were sent: the next sequence number before it wraps (every publication takes one
+        from ``_counter``, whose repr is ``count(N)``: read without taking one, and no count kept per publication)."""
+        return int(repr(self._counter)[6:-1])
+
+    def _every_set_number(self, pack: Callable[..., bytes]) -> Callable[[Any], None]:
+        """``publish`` for a number published on every set, as one closure over what it needs: no attribute looked
+        up and no state written per set, where ``publish`` also keeps what a deadband, a limit or a rate needs
+        (a published joint is set at every control tick; issue 31's publish_rate_vs_raw_zenoh)."""
+        next_seq, send, view = self._counter.__next__, self._send, self._view
+        head0, class_id, object_id = self._head0, self._class_id, self._object_id
+
+        def publish(value: Any) -> None:
+            seq = next_seq() & MAX_TXN
+            send(pack(head0, seq, class_id, object_id, value), lambda: view(seq, value))
+
+        return publish
+
+    def _view(self, seq: int, value: Any) -> str:
+        """The publication's JSON view (formatted only when someone watches it)."""
+        now = self.clock.now()
+        return f'{self._json_prefix}"seq":{seq},"t":{now!r},"value":{json.dumps(to_json(value))}}}'
 
     def close(self) -> None:
         """Publish nothing more (a refresh running on the timers' thread finishes first)."""
@@ -153,15 +183,9 @@ class Publisher:
             self._last_time = self.clock.now()
             if self._gap:
                 self._not_before = self._last_time + self._gap
-        self.published += 1
         pack = self._pack_number
         if pack is not None:
             data = pack(self._head0, seq, self._class_id, self._object_id, value)
         else:
             data = bytes((self._head0, seq, self._class_id, self._object_id)) + self._encode(value)
-
-        def view() -> str:
-            now = self.clock.now()
-            return f'{self._json_prefix}"seq":{seq},"t":{now!r},"value":{json.dumps(to_json(value))}}}'
-
-        self._send(self._name, data, view)
+        self._send(data, lambda: self._view(seq, value))

@@ -11,6 +11,7 @@ message sent to it is the broadcast of the paper.
 
 from __future__ import annotations
 
+import functools
 import logging
 import threading
 from abc import ABC, abstractmethod
@@ -31,11 +32,13 @@ with None, a reply is sent with ``send(source, …)``."""
 PeerHandler = Callable[[str, bool], None]
 """Called with (node name, alive) when a node appears or disappears."""
 PublicationHandler = Callable[[bytes], None]
+PublicationSender = Callable[[bytes, Callable[[], str] | None], None]
+"""Sends one publication of one object of this node: ``sender(data, json_text)``, as :meth:`Transport.publish`."""
 EstopHandler = Callable[[str, str], None]
 """Called with (source node name, reason) when an emergency stop arrives."""
 
 BROADCAST = "all"
-__all__ = ["BROADCAST", "ESTOP_REASON_MAX", "Responder", "Transport", "check_name", "short_reason"]
+__all__ = ["BROADCAST", "ESTOP_REASON_MAX", "PublicationSender", "Responder", "Transport", "check_name", "short_reason"]
 
 
 def short_reason(reason: str) -> str:
@@ -189,6 +192,11 @@ class Transport(ABC):
         ``json_text`` makes the JSON view of the publication; a transport with a JSON view calls it only when
         someone watches that view, so an unwatched view costs nothing.
         """
+
+    def publication_sender(self, object_name: str) -> PublicationSender:
+        """``publish`` for one object, its route resolved once: a published attribute sends through this on every
+        set, so a transport that can (Zenoh: the declared publisher) leaves out the lookup per publication."""
+        return functools.partial(self.publish, object_name)
 
     @abstractmethod
     def subscribe(

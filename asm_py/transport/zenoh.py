@@ -36,7 +36,7 @@ from ..keys import (
 )
 from ..protocol import HEADER_SIZE, Kind, decode_timeout, has_timeout, kind_of
 from . import zenoh_claim
-from .base import ESTOP_REASON_MAX, PublicationHandler, Transport
+from .base import ESTOP_REASON_MAX, PublicationHandler, PublicationSender, Transport
 from .zenoh_claim import Holding, claimants, gives_way, refuse_if_claimed, settle_claim
 from .zenoh_config import (  # noqa: F401  (re-exported: the configuration is part of this transport's interface)
     MAX_LINK_MESSAGE,
@@ -113,7 +113,7 @@ class ZenohTransport(Transport):
         self.max_queriers = 1024
         """Queriers kept (one per destination and deadline: 8 deadlines of 128 modules fit)."""
         self._routes: dict[str, _Route] = {}
-        self._pub_objects: dict[str, tuple[zenoh.Publisher, str]] = {}  # object -> its publisher, JSON view key
+        self._senders: dict[str, PublicationSender] = {}  # published object -> its sender (publication_sender)
         self._views: dict[str, WatchedPublisher] = {}  # JSON view key -> its publisher, and whether it is watched
         self._claims: dict[str, set[str]] = {}  # segment -> sessions whose liveliness token claims it
         self._pub_lock = threading.Lock()
@@ -309,7 +309,6 @@ class ZenohTransport(Transport):
             publisher = self._publishers.get(key)
             if publisher is None:
                 if len(self._publishers) > 1024:  # bounded: forget the oldest declared publishers
-                    self._pub_objects.clear()  # it holds some of them
                     for old in list(self._publishers)[:256]:
                         self._publishers.pop(old).undeclare()
                 congestion = zenoh.CongestionControl.BLOCK if reliable else zenoh.CongestionControl.DROP
@@ -389,20 +388,33 @@ class ZenohTransport(Transport):
         self._publisher(self.keys.group(group, self.segment), reliable=True).put(data, attachment=self._attachment)
 
     def publish(self, object_name: str, data: bytes, json_text: Callable[[], str] | None = None) -> None:
-        declared = self._pub_objects.get(object_name)  # the hot path: one lookup, lock-free once declared
-        if declared is None:
+        sender = self._senders.get(object_name)
+        if sender is None:
+            sender = self.publication_sender(object_name)
+        sender(data, json_text)
+
+    def publication_sender(self, object_name: str) -> PublicationSender:
+        """A put on the object's declared publisher, and its JSON view's put when someone watches the view. The
+        publisher is not one of ``_publisher``'s bounded set: there is one per published object of this node."""
+        known = self._senders.get(object_name)
+        if known is not None:
+            return known
+        view = self._watch(self.keys.json_view(self.segment, object_name))
+        with self._pub_lock:
+            known = self._senders.get(object_name)
+            if known is not None:
+                return known
             binary = self.keys.publication(self.segment, object_name)
-            declared = (self._publisher(binary, reliable=False, express=False),
-                        self.keys.json_view(self.segment, object_name))  # fmt: skip
-            self._pub_objects[object_name] = declared
-        publisher, view = declared
-        publisher.put(data)
-        if json_text is not None:
-            watched = self._views.get(view)
-            if watched is None:
-                watched = self._watch(view)
-            if watched.watched:
-                watched.put(json_text())
+            drop = zenoh.CongestionControl.DROP
+            put = self.session.declare_publisher(binary, congestion_control=drop, express=False).put
+
+            def sender(data: bytes, json_text: Callable[[], str] | None = None) -> None:
+                put(data)
+                if json_text is not None and view.watched:
+                    view.put(json_text())
+
+            self._senders[object_name] = sender
+            return sender
 
     def _watch(self, key: str) -> WatchedPublisher:
         """The JSON view ``key``'s publisher, following whether anyone subscribes: nobody watching costs no
@@ -460,7 +472,7 @@ class ZenohTransport(Transport):
             except Exception:  # already gone with its session
                 log.debug("undeclare failed during close", exc_info=True)
         self._views.clear()
-        self._pub_objects.clear()
+        self._senders.clear()
         self._publishers.clear()
         self._queriers.clear()
         session.close()

@@ -100,3 +100,28 @@ def test_closing_a_watched_publisher_while_another_thread_puts_on_it_never_raise
                 putter.join(5)
     finally:
         session.close()
+
+
+def test_a_published_attribute_goes_on_publishing_after_the_transport_forgets_old_request_publishers() -> None:
+    """A node's publications go through one sender per object, its publisher declared once (issue 31: no lookup
+    per publication); the transport's bounded set of request publishers, whose oldest it undeclares past 1,024
+    destinations, must not hold it, or the sender would put on an undeclared publisher."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    transport = ZenohTransport(listen=[endpoint], role="module")
+    node = Node("module", transport)
+    listener = ZenohTransport(connect=[endpoint])
+    reader = Node("reader", listener)
+    try:
+        angle = Attribute("joint.angle", 0.0, codec="float32")
+        node.register(angle)
+        angle.publish()
+        copy = Attribute("copy", codec="float32")
+        copy.subscribe(reader.lookup("module", "joint.angle", timeout=10))
+        assert wait_until(lambda: (angle.set(1.0), copy.peek())[1] == 1.0, timeout=10)
+        for k in range(1100):  # a message to each of 1,100 destinations: a publisher each, the oldest forgotten
+            transport.send(f"nobody-{k}", b"\x3f\x00\x01\x01")
+        angle.set(2.0)
+        assert wait_until(lambda: copy.peek() == 2.0, timeout=10), "the publication after the forgetting arrived"
+    finally:
+        reader.close()
+        node.close()
