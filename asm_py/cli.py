@@ -86,6 +86,14 @@ def can_channel(spec: str) -> dict[str, Any]:
     return {"interface": interface, "channel": channel}
 
 
+def add_bus_arguments(cli: argparse.ArgumentParser) -> None:
+    """The options of a process that bridges a CAN bus beside ``--can`` (``asm-bridge``, ``asm-robot``): its bit
+    rate, FD, the bridge's node ID — one place, as python-can's ``add_bus_arguments`` gives its tools one."""
+    cli.add_argument("--bitrate", type=bitrate)
+    cli.add_argument("--fd", action="store_true", help="a CAN FD bus (with --can)")
+    cli.add_argument("--node-id", type=node_id, default=254, help="the bridge's own CAN node ID (default 254)")
+
+
 def input_file(text: str) -> Path:
     """An existing, readable file."""
     path = Path(text)

@@ -35,7 +35,7 @@ import zenoh
 
 from asm_py.canbus.fragments import frame_count
 from asm_py.canbus.ids import Dest
-from asm_py.cli import bitrate, can_channel, close_and_exit, name, node_id, run, stop_requested, summary
+from asm_py.cli import add_bus_arguments, can_channel, close_and_exit, name, run, stop_requested, summary
 from asm_py.keys import DEFAULT_ROBOT, RobotKeys, concrete, lab_estop, last, split
 from asm_py.node import Node
 from asm_py.protocol import (
@@ -161,22 +161,27 @@ class CanZenohBridge:
                 item = self._work.get_nowait() if wait <= 0 else self._work.get(timeout=wait)
             except queue.Empty:
                 item = ""
-            while item is not None:
+            while item is not None and not self._stop.is_set():
                 self._handle(item)
                 try:
                     item = self._work.get_nowait()
                 except queue.Empty:
                     break
-            if item is None:
+            if item is None or self._stop.is_set():
                 return
-            self._retry_taken()
-            self._settle_claims()
-            for _ in range(64):  # back to back, but never long without looking at nodes that came or went
-                if not self._read_a_table() or not self._work.empty():
-                    break
-            for query in self.clients.expire():
-                query.drop()
-            self.heap.tick()
+            try:
+                self._retry_taken()
+                self._settle_claims()
+                for _ in range(64):  # back to back, but never long without looking at nodes that came or went
+                    if not self._read_a_table() or not self._work.empty():
+                        break
+                for query in self.clients.expire():
+                    query.drop()
+                self.heap.tick()
+            except Exception:
+                if self._stop.is_set():  # closed under it (the session gone): nothing left to keep
+                    return
+                log.exception("the bridge's housekeeping failed; it goes on")
 
     def _alive_from_zenoh(self, sample: zenoh.Sample) -> None:
         """Another session kept the name of a node mirrored here (their claims missed each other's tokens): the
@@ -214,6 +219,8 @@ class CanZenohBridge:
         mirror looks once; one that must give way is withdrawn (and tried again every TAKEN_RETRY seconds)."""
         now = time.monotonic()
         for mirror in [m for m in list(self._mirrors.values()) if not m.holding.kept and m.claim_due <= now]:
+            if self._stop.is_set():  # a look may take 2 x CLAIM_QUERY_TIMEOUT: close() waits for none
+                return
             seen = self._claimants(mirror.name)
             decided, rival = verdict(self._zid, seen, waited_enough=now >= mirror.claim_deadline,
                                      previous=mirror.last_look)  # fmt: skip
@@ -450,21 +457,15 @@ class CanZenohBridge:
         self._work.put(None)
         for thread in self._threads:
             thread.join(5)
-        # the mirrors are the work loop's: withdrawn once it has ended (withdrawn from here while it settled a
-        # claim, the loop withdrew the claim's token a second time and died with "Undeclared LivelinessToken")
-        for node in list(self._mirrors):
-            self._unmirror(node)
+        # the mirrors are the work loop's: withdrawn once it has ended (withdrawn from here while it settled a claim,
+        # it died with "Undeclared LivelinessToken"); a loop still looking keeps them, the session's close ends them
+        if all(not thread.is_alive() for thread in self._threads):
+            for node in list(self._mirrors):
+                self._unmirror(node)
         self.node.close()
         for query in self.clients.clear():
             query.drop()
         self.session.close()
-
-
-def add_bus_arguments(cli: argparse.ArgumentParser) -> None:
-    """The options of a process that bridges a CAN bus beside ``--can``: its bit rate, FD, the bridge's node ID."""
-    cli.add_argument("--bitrate", type=bitrate)
-    cli.add_argument("--fd", action="store_true", help="a CAN FD bus (with --can)")
-    cli.add_argument("--node-id", type=node_id, default=254, help="the bridge's own CAN node ID (default 254)")
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -33,7 +33,17 @@ from typing import Any
 from asm_module.board_batch import BoardBatch
 from asm_module.feed import PoseFrame, RobotStatus, encode_poses
 from asm_module.names import module_name
-from asm_py.cli import can_channel, close_and_exit, input_file, module_selection, name, run, stop_requested, summary
+from asm_py.cli import (
+    add_bus_arguments,
+    can_channel,
+    close_and_exit,
+    input_file,
+    module_selection,
+    name,
+    run,
+    stop_requested,
+    summary,
+)
 from asm_py.keys import DEFAULT_ROBOT
 from asm_py.node import Node
 from asm_py.transport.can import CanTransport
@@ -42,7 +52,7 @@ from gaits.sim import Simulation, select_modules
 from gaits.terrain import FLAT, Terrain
 from gaits.terrain import argument as terrain_argument
 
-from .bridge import CanZenohBridge, add_bus_arguments
+from .bridge import CanZenohBridge
 from .commission_service import CommissionService
 from .foxglove_live import FoxgloveLive
 from .realtime import prefer_latency

@@ -388,14 +388,22 @@ class ZenohTransport(Transport):
         self._publisher(self.keys.group(group, self.segment), reliable=True).put(data, attachment=self._attachment)
 
     def publish(self, object_name: str, data: bytes, json_text: Callable[[], str] | None = None) -> None:
+        """Through the object's sender when a published attribute made one; any other name goes through the bounded
+        set of publishers (``publish`` takes any name, so it must not declare one publisher per name for good)."""
         sender = self._senders.get(object_name)
-        if sender is None:
-            sender = self.publication_sender(object_name)
-        sender(data, json_text)
+        if sender is not None:
+            sender(data, json_text)
+            return
+        self._publisher(self.keys.publication(self.segment, object_name), reliable=False, express=False).put(data)
+        if json_text is not None:
+            view = self._views.get(key := self.keys.json_view(self.segment, object_name)) or self._watch(key)
+            if view.watched:
+                view.put(json_text())
 
     def publication_sender(self, object_name: str) -> PublicationSender:
         """A put on the object's declared publisher, and its JSON view's put when someone watches the view. The
-        publisher is not one of ``_publisher``'s bounded set: there is one per published object of this node."""
+        publisher is not one of ``_publisher``'s bounded set: a published attribute of this node asks for it, one per
+        object of its registry."""
         known = self._senders.get(object_name)
         if known is not None:
             return known
