@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 
 from gaits.model import load
-from web.scene_view import GRID_CELL
 from tests.helpers import wait_until
+from web.scene_view import GRID_CELL
 
 pytestmark = pytest.mark.timeout(120)
 
