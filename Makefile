@@ -55,15 +55,20 @@ PYTEST := PLAYWRIGHT_SKIP_BROWSER_DOWNLOAD=1 $(PY) -m pytest
 # The `realtime` tests (judged on the wall clock while a simulation runs in real time) failed beside four workers'
 # load, so with four or more they run after the rest, three at a time; two workers run them with the rest, as a
 # separate part cost 62 s there (stop 46's landing run) and they passed inside it before (stop 45).
-# (TEST_WORKERS may be pytest-xdist's `auto` or `logical`: counted as this machine's cores. In two parts, either may
-# select nothing — pytest's exit status 5 — and the other still runs tests; in one, nothing selected fails.)
+# (TEST_WORKERS may be `auto` or `logical`, as for pytest-xdist: here one worker per core this process may run on. In
+# two parts, one may select nothing — pytest's exit status 5 — while the other runs tests; nothing selected in both,
+# or in the one part of fewer workers, fails.)
 test: lint $(CHROMIUM) $(ARM_GCC)
-	workers='$(TEST_WORKERS)'; case "$$workers" in auto|logical) workers=$$(nproc);; esac; \
+	workers='$(TEST_WORKERS)'; \
+	case "$$workers" in auto|logical) workers=$$($(PY) -c 'import os; print(len(os.sched_getaffinity(0)))');; esac; \
 	if [ "$$workers" -ge 4 ]; then \
-	  $(PYTEST) -m "not slow and not realtime" -n $(TEST_WORKERS) --dist loadgroup $(PYTEST_ARGS) || [ $$? -eq 5 ] || exit 1; \
-	  $(PYTEST) -m "realtime and not slow" -n 3 $(PYTEST_ARGS) || [ $$? -eq 5 ]; \
+	  $(PYTEST) -m "not slow and not realtime" -n $$workers --dist loadgroup $(PYTEST_ARGS); first=$$?; \
+	  if [ $$first -ne 0 ] && [ $$first -ne 5 ]; then exit $$first; fi; \
+	  $(PYTEST) -m "realtime and not slow" -n 3 $(PYTEST_ARGS); second=$$?; \
+	  if [ $$second -ne 0 ] && [ $$second -ne 5 ]; then exit $$second; fi; \
+	  if [ $$first -eq 5 ] && [ $$second -eq 5 ]; then echo "no test selected"; exit 5; fi; \
 	else \
-	  $(PYTEST) -m "not slow" -n $(TEST_WORKERS) --dist loadgroup $(PYTEST_ARGS); \
+	  $(PYTEST) -m "not slow" -n $$workers --dist loadgroup $(PYTEST_ARGS); \
 	fi
 
 test-serial: lint $(CHROMIUM) $(ARM_GCC)

@@ -181,7 +181,9 @@ class CanZenohBridge:
             except Exception:
                 if self._stop.is_set():  # closed under it (the session gone): nothing left to keep
                     return
-                log.exception("the bridge's housekeeping failed; it goes on")
+                log.exception("the bridge's housekeeping failed; it goes on in a second")
+                if self._stop.wait(1.0):  # an error that comes back every time is logged once a second, no more
+                    return
 
     def _alive_from_zenoh(self, sample: zenoh.Sample) -> None:
         """Another session kept the name of a node mirrored here (their claims missed each other's tokens): the
@@ -203,7 +205,8 @@ class CanZenohBridge:
             elif item:
                 self._mirror(item)
         except Exception:
-            log.exception("bridging %s failed", item)
+            if not self._stop.is_set():  # (closed under it: the session gone)
+                log.exception("bridging %s failed", item)
 
     def _claimants(self, name: str, *, claiming: bool = True) -> set[str]:
         return claimants(self.session, self.keys.alive(name), self.keys.claim(name) if claiming else None)
@@ -301,6 +304,7 @@ class CanZenohBridge:
         object_id = len(mirror.objects) + 1
         try:
             reply = self.node.port(mirror.name).call(Method.LOOKUP, 0, object_id, timeout=TABLE_LOOKUP_TIMEOUT)
+            client = make_client(self.node.port(mirror.name), reply.data)  # (a description it cannot read: a retry)
         except LookupError:  # past the last object: the table is complete
             mirror.table_read = True
             log.info("read the table of %s: %d objects (%d retries)", mirror.name, len(mirror.objects),
@@ -312,7 +316,7 @@ class CanZenohBridge:
             mirror.backoff = min(TABLE_BACKOFF[1], mirror.backoff * 2)
             log.debug("reading the table of %s (object %d): %s", mirror.name, object_id, exc)
             return True
-        mirror.objects[object_id] = make_client(self.node.port(mirror.name), reply.data)
+        mirror.objects[object_id] = client
         mirror.backoff = TABLE_BACKOFF[0]
         return True
 

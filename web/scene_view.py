@@ -4,6 +4,7 @@ touch viser, and this never touches their simulations (as in mjviser)."""
 
 from __future__ import annotations
 
+import math
 import threading
 from collections.abc import Callable
 from typing import Any
@@ -19,27 +20,26 @@ from .trail import Trail
 
 GRID_CELL = 0.25
 """Metres between the ground grid's lines (0.1 until stop 47: 82 lines drew no faster than viser's grid)."""
-GRID_SIZE = 4.0
-"""The ground grid's width and depth, in metres (a whole number of metres: a darker line every metre)."""
+GRID_SIZE = 5.0
+"""The ground grid's width and depth, in metres: it moves under the robot by up to a metre (see ``_draw``)."""
 GRID_COLOR, GRID_SECTION_COLOR = (200, 200, 200), (140, 140, 140)
-"""Its lines' colours, and every metre's (viser's grid's)."""
+"""Its lines' colours, and the colour of the lines on whole metres (viser's grid's)."""
 
 
 def grid_lines(size: float = GRID_SIZE, cell: float = GRID_CELL) -> tuple[np.ndarray, np.ndarray]:
-    """The ground grid as line segments on z = 0, centred on the origin: (segments, 2, 3) points and their colours.
+    """The ground grid as line segments on z = 0: a line every ``cell`` metres from the origin, within ``size / 2``
+    of it both ways, darker on whole metres; returns (segments, 2, 3) points and their colours.
 
     Line segments, not viser's grid: that grid is a shader run for every pixel of its plane, which covers most of
     the view, and with WebGL in software it cost a sixth of each frame (bench/studio.py, 32 modules, of 60 frames a
     second: 0.80-0.87 with it, 0.98-1.00 with no grid). Lines cost the pixels they cover: 34 of them (a cell of
     0.25 m) drew 0.97 and 0.97, 82 (0.1 m) 0.77 and 0.89."""
-    count = round(size / cell)
-    offsets = (np.arange(count + 1) - count / 2) * cell
-    half = size / 2
+    half, tolerance = size / 2, 1e-9
+    offsets = cell * np.arange(math.ceil(-half / cell - tolerance), math.floor(half / cell + tolerance) + 1)
     along_x = [((-half, o, 0.0), (half, o, 0.0)) for o in offsets]
     along_y = [((o, -half, 0.0), (o, half, 0.0)) for o in offsets]
     points = np.array(along_x + along_y, dtype=np.float32)
-    per_metre = round(1.0 / cell)
-    section = np.tile(np.arange(count + 1) % per_metre == (count // 2) % per_metre, 2)
+    section = np.tile(np.isclose(offsets, np.round(offsets), atol=1e-6), 2)
     colors = np.where(section[:, None, None], np.array(GRID_SECTION_COLOR), np.array(GRID_COLOR))
     return points, np.broadcast_to(colors, points.shape).astype(np.uint8)
 
@@ -254,7 +254,8 @@ class SceneView:
             for handle, pos, wxyz in placed:
                 handle.batched_positions = (pos - shift).astype(np.float32)
                 handle.batched_wxyzs = wxyz.astype(np.float32)
-            self._ground.position = (-(shift[0] % GRID_CELL), -(shift[1] % GRID_CELL), 0.0)
+            # modulo a metre, not a cell: the darker lines stay on whole metres of the floor as it moves
+            self._ground.position = (-(shift[0] % 1.0), -(shift[1] % 1.0), 0.0)
             self._terrain.move(shift)
             self.trail.add(middle, shift, float(getattr(self._drawn, "time", 0.0)))  # a preview frame's time
             if self._labels and self._draws % LABEL_EVERY == 0:

@@ -54,6 +54,9 @@ FOREVER_QUERY = 86_400.0
 """Seconds a query for a request that may block forever stays open on the client (Zenoh needs a number)."""
 QUERY_MARGIN = 5.0
 ROLES = ("module", "tool")
+MAX_VIEWS = 1024
+"""JSON views ``publish`` keeps declared under names no published attribute has (past it, the oldest are
+forgotten)."""
 
 
 class NameTaken(RuntimeError):
@@ -115,6 +118,7 @@ class ZenohTransport(Transport):
         self._routes: dict[str, _Route] = {}
         self._senders: dict[str, PublicationSender] = {}  # published object -> its sender (publication_sender)
         self._views: dict[str, WatchedPublisher] = {}  # JSON view key -> its publisher, and whether it is watched
+        self._kept_views: set[str] = set()  # the views of published attributes' senders: never forgotten
         self._claims: dict[str, set[str]] = {}  # segment -> sessions whose liveliness token claims it
         self._pub_lock = threading.Lock()
         self._reply_keys: dict[str, zenoh.KeyExpr] = {}  # request source -> the key its replies carry
@@ -407,7 +411,7 @@ class ZenohTransport(Transport):
         known = self._senders.get(object_name)
         if known is not None:
             return known
-        view = self._watch(self.keys.json_view(self.segment, object_name))
+        view = self._watch(self.keys.json_view(self.segment, object_name), keep=True)
         with self._pub_lock:
             known = self._senders.get(object_name)
             if known is not None:
@@ -424,15 +428,21 @@ class ZenohTransport(Transport):
             self._senders[object_name] = sender
             return sender
 
-    def _watch(self, key: str) -> WatchedPublisher:
+    def _watch(self, key: str, *, keep: bool = False) -> WatchedPublisher:
         """The JSON view ``key``'s publisher, following whether anyone subscribes: nobody watching costs no
-        formatting. One per object of this node (bounded by its registry)."""
+        formatting. ``keep``: a published attribute's (one per object of this node's registry); the others, made
+        by ``publish`` under any name, are bounded: past 1,024 views the oldest quarter of them is forgotten."""
         with self._pub_lock:
             watched = self._views.get(key)
             if watched is None:
+                if len(self._views) >= MAX_VIEWS:
+                    for old in [k for k in self._views if k not in self._kept_views][: MAX_VIEWS // 4]:
+                        self._views.pop(old).close()
                 drop = zenoh.CongestionControl.DROP
                 publisher = self.session.declare_publisher(key, congestion_control=drop, express=False)
                 watched = self._views[key] = WatchedPublisher(publisher)
+            if keep:
+                self._kept_views.add(key)
             return watched
 
     def subscribe(
@@ -480,6 +490,7 @@ class ZenohTransport(Transport):
             except Exception:  # already gone with its session
                 log.debug("undeclare failed during close", exc_info=True)
         self._views.clear()
+        self._kept_views.clear()
         self._senders.clear()
         self._publishers.clear()
         self._queriers.clear()

@@ -25,11 +25,25 @@ def test_the_grid_is_every_cell_line_both_ways_on_the_floor_with_every_metre_dar
     assert {tuple(c) for c in colors[:, 0]} == {GRID_COLOR, GRID_SECTION_COLOR}
 
 
-@pytest.mark.parametrize(("size", "cell"), [(2.0, 0.1), (4.0, 0.5), (1.0, 0.25)])
-def test_the_darker_lines_are_at_whole_metres_from_the_origin_whatever_the_size(size: float, cell: float) -> None:
+@pytest.mark.parametrize(
+    ("size", "cell", "lines", "darker"),
+    [
+        (2.0, 0.1, 21, [-1.0, 0.0, 1.0]),
+        (4.0, 0.5, 9, [-2.0, -1.0, 0.0, 1.0, 2.0]),
+        (1.0, 0.25, 5, [0.0]),
+        (2.2, 0.25, 9, [-1.0, 0.0, 1.0]),  # (a review: a size not a whole number of cells put them off the metres)
+        (4.0, 0.3, 13, [0.0]),  # a cell that divides no metre: a line at the origin, the only one on a metre
+        (4.0, 0.4, 11, [-2.0, 0.0, 2.0]),
+        (4.0, 2.0, 3, [-2.0, 0.0, 2.0]),  # (it raised ZeroDivisionError)
+    ],
+)
+def test_lines_are_cells_from_the_origin_and_the_darker_ones_on_whole_metres(
+    size: float, cell: float, lines: int, darker: list[float]
+) -> None:
     points, colors = grid_lines(size, cell)
-    lines = round(size / cell) + 1
-    sections = [float(o) for o, c in zip(points[:lines, 0, 1], colors[:lines, 0], strict=True)
-                if tuple(c) == GRID_SECTION_COLOR]  # fmt: skip
-    half = int(size / 2)
-    assert sections == pytest.approx([float(m) for m in range(-half, half + 1)])
+    assert len(points) == 2 * lines
+    offsets = points[:lines, 0, 1]
+    assert np.allclose(offsets / cell, np.round(offsets / cell), atol=1e-5) and np.any(np.isclose(offsets, 0.0))
+    assert np.abs(offsets).max() <= size / 2 + 1e-6 and np.abs(offsets).max() > size / 2 - cell
+    sections = [float(o) for o, c in zip(offsets, colors[:lines, 0], strict=True) if tuple(c) == GRID_SECTION_COLOR]
+    assert sections == pytest.approx(darker)

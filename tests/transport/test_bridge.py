@@ -3,14 +3,17 @@
 from __future__ import annotations
 
 import itertools
+import logging
 import os
 import threading
+import time
 from collections.abc import Iterator
 
 import pytest
 
 from asm_py import Attribute, Event, Service
 from asm_py.node import Node
+from asm_py.protocol import ProtocolError
 from asm_py.transport.can import CanTransport
 from asm_py.transport.zenoh import ZenohTransport
 from server.bridge import CanZenohBridge
@@ -214,3 +217,58 @@ def test_closing_while_a_mirror_s_claim_settles_raises_nothing_in_the_bridge_s_t
     finally:
         module.close()
     assert died == []
+
+
+def test_a_table_entry_the_bridge_cannot_read_is_asked_again_with_backoff_not_in_a_spin(
+    monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+) -> None:
+    """A review of stop 47: a LOOKUP reply the bridge could not read (firmware with a codec this side does not know)
+    raised outside the lookup's retry, and the work loop went round again at once: 2,704 errors logged in a second,
+    a LOOKUP sent on the bus each time. Now it is a failed attempt, asked again after the table's backoff."""
+    from server import bridge as bridge_module
+
+    reads: list[float] = []
+
+    def unreadable(*_args: object, **_kwargs: object) -> object:
+        reads.append(time.monotonic())
+        raise ProtocolError("a description this side cannot read")
+
+    monkeypatch.setattr(bridge_module, "make_client", unreadable)
+    caplog.set_level(logging.DEBUG, logger="server.bridge")
+    can_options = {"interface": "virtual", "channel": fresh_name("asm-bridge-unreadable"), **FAST_BEATS}
+    module = Node("m1", CanTransport(1, **can_options))
+    module.register(Attribute("joint.angle", 0.0, codec="float32"))
+    bridge = CanZenohBridge(can_options, network=ZenohOptions(listen=(f"tcp/127.0.0.1:{free_port()}",)))
+    try:
+        assert wait_until(lambda: len(reads) >= 2, timeout=10), "the entry was asked for again"
+        time.sleep(1.5)
+        assert len(reads) <= 12, f"{len(reads)} reads of one entry in ~1.5 s: no backoff"
+        assert bridge.unread_tables == ["m1"]
+        assert not [r for r in caplog.records if r.levelno >= logging.ERROR]
+    finally:
+        bridge.close()
+        module.close()
+
+
+def test_a_housekeeping_error_that_comes_back_is_logged_once_a_second_and_the_bridge_goes_on(
+    monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+) -> None:
+    caplog.set_level(logging.ERROR, logger="server.bridge")
+    can_options = {"interface": "virtual", "channel": fresh_name("asm-bridge-housekeeping"), **FAST_BEATS}
+    bridge = CanZenohBridge(can_options, network=ZenohOptions(listen=(f"tcp/127.0.0.1:{free_port()}",)))
+    module: Node | None = None
+    try:
+
+        def broken() -> None:
+            raise RuntimeError("a housekeeping step that always fails")
+
+        monkeypatch.setattr(bridge, "_retry_taken", broken)
+        time.sleep(2.5)
+        failures = [r for r in caplog.records if "housekeeping failed" in r.getMessage()]
+        assert 1 <= len(failures) <= 4, len(failures)
+        module = Node("m1", CanTransport(1, **can_options))  # nodes that come are still bridged
+        assert wait_until(lambda: "m1" in bridge.bridged, timeout=10)
+    finally:
+        bridge.close()
+        if module is not None:
+            module.close()

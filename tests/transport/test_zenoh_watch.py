@@ -133,10 +133,16 @@ def test_publishing_under_any_number_of_names_declares_a_bounded_number_of_publi
     transport = ZenohTransport(listen=[f"tcp/127.0.0.1:{free_port()}"], role="module")
     node = Node("module", transport)
     try:
+        angle = Attribute("joint.angle", 0.0, codec="float32")
+        node.register(angle)
+        angle.publish()  # its sender and view are kept whatever else is published
         for k in range(1500):
             transport.publish(f"obj{k}", b"\x1f\x00\x01\x01")
-        assert len(transport._senders) == 0 and len(transport._views) == 0
-        assert len(transport._publishers) <= 1025
+            transport.publish(f"viewed{k}", b"\x1f\x00\x01\x01", lambda: "{}")  # a JSON view each (a review)
+        assert list(transport._senders) == ["joint.angle"]
+        assert len(transport._views) <= 1025 and len(transport._publishers) <= 1025
+        assert "asm/robot/module/json/joint.angle" in transport._views
+        angle.set(1.0)  # its kept sender and view still work
     finally:
         node.close()
 
