@@ -60,7 +60,7 @@ class SceneView:
 
     With ``follow`` (the default) the robot stays in the middle of the view and the ground moves under it: a gait
     crawls out of a fixed camera's view in seconds. The ground grid is shifted by the robot's position modulo one
-    grid cell, so its lines move exactly as the floor would."""
+    metre, so its lines, the darker ones on whole metres too, move exactly as the floor would."""
 
     def __init__(self, server: viser.ViserServer, loop: PreviewLoop, live: Any = None, *, rich: bool = False) -> None:
         self.server = server
