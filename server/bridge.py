@@ -58,7 +58,7 @@ from asm_py.transport.can import CanTransport, group_id, message_priority
 from asm_py.transport.zenoh_claim import CLAIM_SETTLE, Verdict, claimants, gives_way, verdict
 
 from .bridge_clients import DEFAULT_FRAME_RATE, ClientTable, Pacer, Refusal
-from .bridge_mirror import TABLE_BACKOFF, Mirror
+from .bridge_mirror import Mirror
 from .bridge_outlets import Outlet, direct
 from .heap import HeapTrimmer
 from .realtime import prefer_latency
@@ -304,20 +304,20 @@ class CanZenohBridge:
         object_id = len(mirror.objects) + 1
         try:
             reply = self.node.port(mirror.name).call(Method.LOOKUP, 0, object_id, timeout=TABLE_LOOKUP_TIMEOUT)
-            client = make_client(self.node.port(mirror.name), reply.data)  # (a description it cannot read: a retry)
         except LookupError:  # past the last object: the table is complete
             mirror.table_read = True
             log.info("read the table of %s: %d objects (%d retries)", mirror.name, len(mirror.objects),
                      mirror.attempts)  # fmt: skip
             return True
         except Exception as exc:  # a lost frame, a busy module: try again a little later
-            mirror.attempts += 1
-            mirror.next_attempt = now + mirror.backoff
-            mirror.backoff = min(TABLE_BACKOFF[1], mirror.backoff * 2)
-            log.debug("reading the table of %s (object %d): %s", mirror.name, object_id, exc)
+            mirror.lookup_failed(object_id, exc, now, unreadable=False)
             return True
-        mirror.objects[object_id] = client
-        mirror.backoff = TABLE_BACKOFF[0]
+        try:
+            client = make_client(self.node.port(mirror.name), reply.data)
+        except Exception as exc:  # a description this side cannot read
+            mirror.lookup_failed(object_id, exc, now, unreadable=True)
+            return True
+        mirror.object_read(object_id, client)
         return True
 
     @property

@@ -3,6 +3,7 @@ far it has read the node's object table, and how its claim of the node's name st
 
 from __future__ import annotations
 
+import logging
 import time
 from typing import Any
 
@@ -10,6 +11,8 @@ from asm_py.remote import RemoteObject
 from asm_py.transport.zenoh_claim import CLAIM_SETTLE, CLAIM_WAIT, Holding
 
 from .bridge_outlets import Outlet
+
+log = logging.getLogger("server.bridge")
 
 TABLE_BACKOFF = (0.05, 2.0)
 """First and longest pause between attempts to read a table (doubling)."""
@@ -36,3 +39,23 @@ class Mirror:
         self.claim_deadline = time.monotonic() + CLAIM_WAIT
         self.last_look: set[str] = set()
         """The claimants its last look saw (a rival it saw and the next look misses is looked for again)."""
+        self.unreadable: set[int] = set()
+        """Objects whose description the bridge could not read (each said once at WARNING)."""
+
+    def object_read(self, object_id: int, client: RemoteObject) -> None:
+        self.objects[object_id] = client
+        self.backoff = TABLE_BACKOFF[0]
+
+    def lookup_failed(self, object_id: int, exc: Exception, now: float, *, unreadable: bool) -> None:
+        """A table lookup failed: asked again after the backoff (doubling). A lost frame or a busy module is
+        usual (DEBUG); a description this side cannot read is not (a firmware's codec unknown here): the user is
+        told once, as this object and every later one reach no Zenoh subscriber until it reads."""
+        self.attempts += 1
+        self.next_attempt = now + self.backoff
+        self.backoff = min(TABLE_BACKOFF[1], self.backoff * 2)
+        if unreadable and object_id not in self.unreadable:
+            self.unreadable.add(object_id)
+            log.warning("cannot read object %d of %s's table (%s): it and the objects after it are not bridged; "
+                        "asked again every %g s", object_id, self.name, exc, TABLE_BACKOFF[1])  # fmt: skip
+        else:
+            log.debug("reading the table of %s (object %d): %s", self.name, object_id, exc)

@@ -21,9 +21,17 @@ from .trail import Trail
 GRID_CELL = 0.25
 """Metres between the ground grid's lines (0.1 until stop 47: 82 lines drew no faster than viser's grid)."""
 GRID_SIZE = 5.0
-"""The ground grid's width and depth, in metres: it moves under the robot by up to a metre (see ``_draw``)."""
+"""The ground grid's width and depth, in metres: it moves under the robot by up to half a metre either way
+(``ground_offset``)."""
 GRID_COLOR, GRID_SECTION_COLOR = (200, 200, 200), (140, 140, 140)
 """Its lines' colours, and the colour of the lines on whole metres (viser's grid's)."""
+
+
+def ground_offset(shift: float) -> float:
+    """Where the grid goes when the view is shifted by ``shift`` metres to keep the robot in the middle: minus the
+    shift's part past its nearest whole metre (within half a metre either way), so the darker lines stay on whole
+    metres of the floor and the grid's edges stay at least GRID_SIZE / 2 - 0.5 m from the robot."""
+    return -(shift - round(shift))
 
 
 def grid_lines(size: float = GRID_SIZE, cell: float = GRID_CELL) -> tuple[np.ndarray, np.ndarray]:
@@ -254,8 +262,7 @@ class SceneView:
             for handle, pos, wxyz in placed:
                 handle.batched_positions = (pos - shift).astype(np.float32)
                 handle.batched_wxyzs = wxyz.astype(np.float32)
-            # modulo a metre, not a cell: the darker lines stay on whole metres of the floor as it moves
-            self._ground.position = (-(shift[0] % 1.0), -(shift[1] % 1.0), 0.0)
+            self._ground.position = (ground_offset(shift[0]), ground_offset(shift[1]), 0.0)
             self._terrain.move(shift)
             self.trail.add(middle, shift, float(getattr(self._drawn, "time", 0.0)))  # a preview frame's time
             if self._labels and self._draws % LABEL_EVERY == 0:

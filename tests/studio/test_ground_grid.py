@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from web.scene_view import GRID_CELL, GRID_COLOR, GRID_SECTION_COLOR, GRID_SIZE, grid_lines
+from web.scene_view import GRID_CELL, GRID_COLOR, GRID_SECTION_COLOR, GRID_SIZE, grid_lines, ground_offset
 
 
 def test_the_grid_is_every_cell_line_both_ways_on_the_floor_with_every_metre_darker() -> None:
@@ -47,3 +47,19 @@ def test_lines_are_cells_from_the_origin_and_the_darker_ones_on_whole_metres(
     assert np.abs(offsets).max() <= size / 2 + 1e-6 and np.abs(offsets).max() > size / 2 - cell
     sections = [float(o) for o, c in zip(offsets, colors[:lines, 0], strict=True) if tuple(c) == GRID_SECTION_COLOR]
     assert sections == pytest.approx(darker)
+
+
+def test_the_moved_grid_keeps_its_darker_lines_on_whole_metres_and_its_edges_two_metres_round_the_robot() -> None:
+    """A review of stop 47: moved modulo a metre, the 5 m grid's edge came within 1.5 m of the robot (it was 1.75 m
+    with the 4 m grid moved modulo its 0.1 m cell); moved by the shift's part past the nearest whole metre, 2 m."""
+    points, colors = grid_lines()
+    lines = len(points) // 2  # the first half along x: their offsets are their y
+    darker = points[:lines][(colors[:lines, 0] == GRID_SECTION_COLOR).all(axis=1)][:, 0, 1]
+    assert len(darker) == 5
+    half = np.abs(points[:, :, :2]).max()
+    for shift in np.linspace(-3.0, 3.0, 6001):  # the robot's position: the view is shifted by it
+        offset = ground_offset(float(shift))
+        assert abs(offset) <= 0.5 + 1e-9
+        floor = darker + offset + shift  # where the darker lines lie on the floor
+        assert np.allclose(floor, np.round(floor), atol=1e-6)  # (the points are float32)
+        assert half - abs(offset) >= GRID_SIZE / 2 - 0.5 - 1e-9 >= 2.0 - 1e-9

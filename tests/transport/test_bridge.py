@@ -245,6 +245,8 @@ def test_a_table_entry_the_bridge_cannot_read_is_asked_again_with_backoff_not_in
         assert len(reads) <= 12, f"{len(reads)} reads of one entry in ~1.5 s: no backoff"
         assert bridge.unread_tables == ["m1"]
         assert not [r for r in caplog.records if r.levelno >= logging.ERROR]
+        told = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]  # (a third review: silent)
+        assert len(told) == 1 and "cannot read object 1 of m1's table" in told[0], told
     finally:
         bridge.close()
         module.close()

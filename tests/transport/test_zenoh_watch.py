@@ -10,7 +10,7 @@ import zenoh
 
 from asm_py import Attribute
 from asm_py.node import Node
-from asm_py.transport.zenoh import ZenohTransport, make_config
+from asm_py.transport.zenoh import MAX_VIEWS, ZenohTransport, make_config
 from asm_py.transport.zenoh_watch import WatchedPublisher
 
 from ..helpers import wait_until
@@ -164,5 +164,29 @@ def test_concurrent_first_publications_of_one_object_declare_one_sender() -> Non
         for thread in threads:
             thread.join()
         assert len({id(s) for s in got}) == 1 and len(transport._senders) == 1 and len(transport._views) == 1
+    finally:
+        node.close()
+
+
+def test_a_view_forgotten_while_publish_formats_it_drops_that_sample_and_raises_nothing() -> None:
+    """A review of stop 47: ``publish`` under an arbitrary name formats its JSON view while another thread's
+    publications past MAX_VIEWS forget (undeclare) that view; the put raised ``ZError: Undeclared publisher`` into
+    the caller. The sample is dropped, as a congested one would be."""
+    transport = ZenohTransport(listen=[f"tcp/127.0.0.1:{free_port()}"], role="module")
+    node = Node("module", transport)
+    try:
+        key = transport.keys.json_view(transport.segment, "first")
+        transport.publish("first", b"\x1f\x00\x01\x01", lambda: "{}")  # the oldest view
+        subscriber = transport.session.declare_subscriber(key, lambda sample: None)
+        assert wait_until(lambda: transport._views[key].watched, timeout=10)
+
+        def meanwhile() -> str:  # another thread's publications under new names, while this one formats its view
+            for k in range(MAX_VIEWS):
+                transport.publish(f"other{k}", b"\x1f\x00\x01\x01", lambda: "{}")
+            return "{}"
+
+        transport.publish("first", b"\x1f\x00\x01\x01", meanwhile)
+        assert key not in transport._views
+        subscriber.undeclare()
     finally:
         node.close()
