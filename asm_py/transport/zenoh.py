@@ -46,7 +46,7 @@ from .zenoh_config import (  # noqa: F401  (re-exported: the configuration is pa
     make_config,
     security_problems,
 )
-from .zenoh_watch import WatchedPublisher
+from .zenoh_watch import MAX_VIEWS, WatchedPublisher
 
 log = logging.getLogger("asm_py.transport.zenoh")
 
@@ -54,9 +54,6 @@ FOREVER_QUERY = 86_400.0
 """Seconds a query for a request that may block forever stays open on the client (Zenoh needs a number)."""
 QUERY_MARGIN = 5.0
 ROLES = ("module", "tool")
-MAX_VIEWS = 1024
-"""JSON views ``publish`` keeps declared under names no published attribute has (past it, the oldest are
-forgotten)."""
 
 
 class NameTaken(RuntimeError):
@@ -399,9 +396,8 @@ class ZenohTransport(Transport):
             sender(data, json_text)
             return
         publisher = self._publisher(self.keys.publication(self.segment, object_name), reliable=False, express=False)
-        view = None
-        if json_text is not None:
-            view = self._views.get(key := self.keys.json_view(self.segment, object_name)) or self._watch(key)
+        key = self.keys.json_view(self.segment, object_name)
+        view = (self._views.get(key) or self._watch(key)) if json_text is not None else None
         try:
             publisher.put(data)
             if view is not None and json_text is not None and view.watched:

@@ -23,6 +23,11 @@ def direct(callback: Callable[[Any], None]) -> zenoh.handlers.Callback[Any]:
     return zenoh.handlers.Callback(callback, indirect=False)
 
 
+MAX_VIEWS = 1024
+"""JSON views a node's transport keeps declared under names no published attribute has (past it, the oldest are
+forgotten: asm_py/transport/zenoh.py's ``publish`` takes any name)."""
+
+
 class WatchedPublisher:
     """A declared publisher and whether a subscriber matches it now (``watched``); ``close`` undeclares both."""
 
