@@ -89,7 +89,7 @@ class Publisher:
             every_set = policy.deadband is None and not self._gap  # every set publishes: no check in between
             if not every_set:
                 listener = self._on_change
-            elif self._pack_number is not None and not self._timed:
+            elif self._pack_number is not None:  # (every set publishes only with no rate and no limit: untimed)
                 listener = self._every_set_number(self._pack_number)
             else:
                 listener = self.publish

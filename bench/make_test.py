@@ -41,7 +41,7 @@ def main() -> None:
         make.append("PYTEST_ARGS=--durations=15")
     lint_s, _, _ = _timed(["make", "--no-print-directory", "lint"])
     total_s, output, code = _timed(make)
-    # one summary line per pytest run of `make test` (the parallel part, then the realtime tests)
+    # one summary line per pytest run of `make test` (from four workers on, two: the rest, then the realtime tests)
     summary = "; ".join(line.strip("= ") for line in output.splitlines() if re.search(r"\d+ (passed|failed)", line))
     print(f"make lint: {lint_s:.1f} s; make test: {total_s:.1f} s, exit {code}: {summary}")
     for line in output.splitlines():

@@ -31,7 +31,7 @@ from server.bridge import CanZenohBridge
 from server.bridge_clients import MAX_BLOCK, REPLY_MARGIN
 from server.zenoh_args import ZenohOptions
 
-from ..helpers import VECTORS, wait_until
+from ..helpers import VECTORS, until_answered, wait_until
 from ..transports import free_port, fresh_name
 
 CATERPILLAR = load(LIBRARY / "caterpillar.toml")
@@ -308,13 +308,10 @@ def test_the_bridge_caps_queries_that_are_never_answered(robot: Robot) -> None:
                 else:
                     errors.append(str(reply.err.payload.to_string()) if reply.err is not None else "?")
 
-        # a query this fresh session makes at once can go nowhere: in 1 run of ~30 under load the first of the 60
-        # below never reached the bridge's queryable (logged at its callback), the 59 after it did. Zenoh ends a get
-        # at once with no reply when its routing table does not know the queryable yet (eclipse-zenoh/zenoh#2516,
-        # #2767, open). So m1 is asked until it answers first
+        # this fresh session's first query can go nowhere (in 1 loaded run of ~30 the first of the 60 below never
+        # reached the bridge's queryable): m1 is asked until it answers first
         lookup = encode(Message(Kind.REQUEST_REPLY, Method.LOOKUP, data=b"never"))
-        assert wait_until(lambda: any(r.ok is not None for r in session.get("asm/robot/m1/req/hog", payload=lookup,
-                                                                           timeout=1.0)), 10)  # fmt: skip
+        assert until_answered(session, "asm/robot/m1/req/hog", payload=lookup)
         for txn in range(60):  # "wait forever" (0xFF): the bridge caps it and keeps at most 4 for this client
             wait = encode(Message(Kind.REQUEST_REPLY, Method.WAIT, txn, blocker_class(robot), object_id, timeout=0xFF))
             # the refusals' deadline is generous: a fresh-clone run with four test workers had some come after 1 s

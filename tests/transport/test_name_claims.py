@@ -29,7 +29,7 @@ from asm_py.transport.zenoh_claim import (
 )
 from asm_py.transport.zenoh_config import make_config
 
-from ..helpers import wait_until
+from ..helpers import until_answered, wait_until
 from .claims import GREATER, LESSER, blind_first_look, config_with_id
 
 pytestmark = pytest.mark.timeout(60)
@@ -256,10 +256,8 @@ def test_two_robot_processes_that_both_kept_a_name_settle_it_once_their_tokens_m
         )
         try:
             # this session's first query of a queryable can go nowhere under load (a fresh-clone run with four
-            # workers got no answer to one of the five; tests/server/test_safety.py's query cap lost its first of
-            # 60): Zenoh ends a get at once with no reply while its routing table does not know the queryable yet
-            # (eclipse-zenoh/zenoh#2516, #2767, open). Asked until the status answers first, then counted
-            assert wait_until(lambda: replies(tool, keys.robot_key("status"), timeout=2) != [], timeout=10)
+            # workers got no answer to one of the five): asked until the status answers first, then counted
+            assert until_answered(tool, keys.robot_key("status"))
             for _ in range(5):  # one robot answers the status, and only the lesser publishes it
                 assert len(replies(tool, keys.robot_key("status"), timeout=2)) == 1
                 greater.publish_status()
