@@ -46,6 +46,7 @@ from .zenoh_config import (  # noqa: F401  (re-exported: the configuration is pa
     make_config,
     security_problems,
 )
+from .zenoh_subscription import deliver_publications
 from .zenoh_watch import MAX_VIEWS, WatchedPublisher
 
 log = logging.getLogger("asm_py.transport.zenoh")
@@ -450,16 +451,12 @@ class ZenohTransport(Transport):
     def subscribe(
         self, node: str, object_name: str, callback: PublicationHandler, *, object_id: int | None = None
     ) -> Callable[[], None]:
+        """Delivered on the subscription's own thread, through a ring that never blocks Zenoh's receive task (a hung
+        listener drops its oldest publications, not the session's replies and e-stops): zenoh_subscription."""
         check_name(object_name, "object name")
         route = self._route(node)
-
-        def on_sample(sample: zenoh.Sample) -> None:
-            try:
-                callback(sample.payload.to_bytes())
-            except Exception:
-                log.exception("subscriber of %s/%s failed", node, object_name)
-
-        subscriber = self.session.declare_subscriber(route.keys.publication(route.segment, object_name), on_sample)
+        key = route.keys.publication(route.segment, object_name)
+        subscriber = deliver_publications(self.session, key, callback, f"{node}/{object_name}")
 
         def remove() -> None:
             if self._session is not None:

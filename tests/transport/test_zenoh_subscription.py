@@ -1,0 +1,78 @@
+"""A Zenoh subscription's delivery: a listener that hangs must not stop its whole session, and a burst arrives whole
+and in order. (zenoh-python's default callback hands each sample to a Python thread through a 256-sample channel;
+when that thread is stuck, the session's receive task blocks on the full channel, and with it every reply and
+every e-stop on the link.)"""
+
+from __future__ import annotations
+
+import threading
+
+from asm_py import Attribute
+from asm_py.node import Node
+from asm_py.transport.zenoh import ZenohTransport
+from asm_py.transport.zenoh_subscription import PUBLICATION_BACKLOG
+
+from ..helpers import wait_until
+from ..transports import free_port
+
+
+def test_a_hung_change_listener_does_not_stop_its_session_hearing_replies_or_the_estop() -> None:
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    module = Node("module", ZenohTransport(listen=[endpoint], role="module"))
+    tool = Node("tool", ZenohTransport(connect=[endpoint]))
+    release = threading.Event()
+    entered = threading.Event()
+    stops: list[str] = []
+    copy = Attribute("copy", codec="float32")
+    try:
+        stream = Attribute("stream", 0.0, codec="float32")
+        module.register(stream)
+        module.register(Attribute("joint.angle", 0.75, codec="float32"))
+        stream.publish()
+        assert wait_until(lambda: "module" in tool.discover(), timeout=10)
+        remote_stream = tool.lookup("module", "stream", timeout=5)
+        angle = tool.lookup("module", "joint.angle", timeout=5)
+        tool.on_estop(lambda source, reason: stops.append(reason))
+
+        def hang(_: object) -> None:  # a user's listener that never returns (until the test ends)
+            entered.set()
+            release.wait(30)
+
+        copy.on_change(hang)
+        copy.subscribe(remote_stream)
+        assert wait_until(lambda: (stream.set(1.0), entered.is_set())[1], timeout=10)
+        for i in range(3 * PUBLICATION_BACKLOG):  # far past any channel between Zenoh and the listener's thread
+            stream.set(float(i))
+        assert angle.get(timeout=5) == 0.75  # the tool's session still hears replies
+        module.estop("hung")  # a reason of one CAN frame
+        assert wait_until(lambda: "hung" in stops, timeout=5)  # and the e-stop
+    finally:
+        release.set()
+        copy.unsubscribe()
+        tool.close()
+        module.close()
+
+
+def test_a_burst_of_publications_arrives_whole_and_in_order() -> None:
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    module = Node("module", ZenohTransport(listen=[endpoint], role="module"))
+    tool = Node("tool", ZenohTransport(connect=[endpoint]))
+    seen: list[int] = []
+    copy = Attribute("copy", codec="int32")
+    try:
+        counter = Attribute("counter", 0, codec="int32")
+        module.register(counter)
+        counter.publish()
+        assert wait_until(lambda: "module" in tool.discover(), timeout=10)
+        copy.on_change(seen.append)
+        copy.subscribe(tool.lookup("module", "counter", timeout=5))
+        assert wait_until(lambda: (counter.set(-1), seen)[1], timeout=10)
+        for i in range(PUBLICATION_BACKLOG // 2):  # within the backlog: nothing may be dropped
+            counter.set(i)
+        assert wait_until(lambda: seen[-1] == PUBLICATION_BACKLOG // 2 - 1, timeout=10)
+        burst = [v for v in seen if v >= 0]
+        assert burst == list(range(PUBLICATION_BACKLOG // 2))
+    finally:
+        copy.unsubscribe()
+        tool.close()
+        module.close()
