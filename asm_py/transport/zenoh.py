@@ -46,7 +46,7 @@ from .zenoh_config import (  # noqa: F401  (re-exported: the configuration is pa
     make_config,
     security_problems,
 )
-from .zenoh_subscription import deliver_publications
+from .zenoh_drain import IGNORE_REPLIES, drained
 from .zenoh_watch import MAX_VIEWS, WatchedPublisher
 
 log = logging.getLogger("asm_py.transport.zenoh")
@@ -59,10 +59,6 @@ ROLES = ("module", "tool")
 
 class NameTaken(RuntimeError):
     """Another session already claims this node's name in its robot."""
-
-
-def _ignore(reply: zenoh.Reply) -> None:
-    """The (absent) reply to a request that wants none."""
 
 
 class _Route:
@@ -150,15 +146,16 @@ class ZenohTransport(Transport):
         self._attachment = self._zid.encode()
         try:
             refuse_if_claimed(self._zid, lambda: self.claimants(self.segment), self._name_taken)
-            keys = self.keys
+            keys, remote = self.keys, zenoh.Locality.REMOTE
             claiming = session.liveliness().declare_token(keys.claim(self.segment, self._zid))
             self._keep += [
                 claiming,
-                session.declare_queryable(keys.requests(self.segment), self._on_query),
-                session.declare_subscriber(keys.messages(self.segment), self._on_sample),
+                # each on a thread of its own, through a ring that never blocks Zenoh's receive task (zenoh_drain)
+                drained(session.declare_queryable, keys.requests(self.segment), self._on_query),
+                drained(session.declare_subscriber, keys.messages(self.segment), self._on_sample),
                 # every e-stop from elsewhere, whatever its sender's name (this node's own runs its handlers directly)
-                session.declare_subscriber(keys.estop(), self._on_estop, allowed_origin=zenoh.Locality.REMOTE),
-                session.declare_subscriber(lab_estop(), self._on_estop, allowed_origin=zenoh.Locality.REMOTE),
+                drained(session.declare_subscriber, keys.estop(), self._on_estop, allowed_origin=remote),
+                drained(session.declare_subscriber, lab_estop(), self._on_estop, allowed_origin=remote),
             ]
             settle_claim(self._zid, self._rivals, self._name_taken)
             # kept: the node's @alive token (discovery sees it from now on), then the claim withdrawn
@@ -176,7 +173,9 @@ class ZenohTransport(Transport):
         # claim's looks missed the holder and a newcomer kept its name; bench/liveliness_looks.py). Its history
         # brings any rival that kept the name too to _rival_kept, as a later token would.
         try:
-            self._keep.append(session.liveliness().declare_subscriber(keys.alive(), self._on_alive, history=True))
+            self._keep.append(
+                drained(session.liveliness().declare_subscriber, keys.alive(), self._on_alive, history=True)
+            )
         except BaseException:
             self._close()
             raise
@@ -201,7 +200,7 @@ class ZenohTransport(Transport):
                          f"(session {rival}): choose another name")  # fmt: skip
 
     def _join(self, group: str) -> None:
-        self._keep.append(self.session.declare_subscriber(self.keys.group(group), self._on_sample))
+        self._keep.append(drained(self.session.declare_subscriber, self.keys.group(group), self._on_sample))
 
     # -- receiving ------------------------------------------------------------------------------------------------
 
@@ -213,8 +212,8 @@ class ZenohTransport(Transport):
             self._deliver(source, sample.payload.to_bytes())
 
     def _on_query(self, query: zenoh.Query) -> None:
-        """On zenoh-python's Python thread for this queryable, not on Zenoh's own: a handler may block (a set's
-        change callback calling another node) without holding Zenoh's network thread. Running it there instead
+        """On the queryable's drain thread, not on Zenoh's own: a handler may block (a set's change callback calling
+        another node) without holding Zenoh's network thread, or its e-stops (zenoh_drain). Zenoh's own thread
         (zenoh-python's direct callback) was measured no faster (issue 31, docs/benchmarks.md)."""
         if not self._holding.kept and self._holding.hold(lambda: self._on_query(query), query.drop):
             return
@@ -326,7 +325,7 @@ class ZenohTransport(Transport):
             # Zenoh may hand a put and a query to the node on two threads, so a set followed by a get of the same
             # attribute could be served get first (119 times in 3,000). One path keeps a client's requests to a
             # node in the order it sent them, as a local call and a CAN bus do.
-            self._querier(dest, QUERY_MARGIN).get(_ignore, payload=data, attachment=self._attachment)
+            self._querier(dest, QUERY_MARGIN).get(IGNORE_REPLIES, payload=data, attachment=self._attachment)
         else:
             route = self._route(dest)
             self._publisher(route.keys.messages(route.segment, self.segment), reliable=True).put(
@@ -452,11 +451,11 @@ class ZenohTransport(Transport):
         self, node: str, object_name: str, callback: PublicationHandler, *, object_id: int | None = None
     ) -> Callable[[], None]:
         """Delivered on the subscription's own thread, through a ring that never blocks Zenoh's receive task (a hung
-        listener drops its oldest publications, not the session's replies and e-stops): zenoh_subscription."""
+        listener drops its oldest publications, not the session's replies and e-stops): zenoh_drain."""
         check_name(object_name, "object name")
         route = self._route(node)
         key = route.keys.publication(route.segment, object_name)
-        subscriber = deliver_publications(self.session, key, callback, f"{node}/{object_name}")
+        subscriber = drained(self.session.declare_subscriber, key, callback, payload=True)
 
         def remove() -> None:
             if self._session is not None:

@@ -10,7 +10,7 @@ import threading
 from asm_py import Attribute
 from asm_py.node import Node
 from asm_py.transport.zenoh import ZenohTransport
-from asm_py.transport.zenoh_subscription import PUBLICATION_BACKLOG
+from asm_py.transport.zenoh_drain import BACKLOG
 
 from ..helpers import wait_until
 from ..transports import free_port
@@ -41,7 +41,7 @@ def test_a_hung_change_listener_does_not_stop_its_session_hearing_replies_or_the
         copy.on_change(hang)
         copy.subscribe(remote_stream)
         assert wait_until(lambda: (stream.set(1.0), entered.is_set())[1], timeout=10)
-        for i in range(3 * PUBLICATION_BACKLOG):  # far past any channel between Zenoh and the listener's thread
+        for i in range(3 * BACKLOG):  # far past any channel between Zenoh and the listener's thread
             stream.set(float(i))
         assert angle.get(timeout=5) == 0.75  # the tool's session still hears replies
         module.estop("hung")  # a reason of one CAN frame
@@ -67,12 +67,41 @@ def test_a_burst_of_publications_arrives_whole_and_in_order() -> None:
         copy.on_change(seen.append)
         copy.subscribe(tool.lookup("module", "counter", timeout=5))
         assert wait_until(lambda: (counter.set(-1), seen)[1], timeout=10)
-        for i in range(PUBLICATION_BACKLOG // 2):  # within the backlog: nothing may be dropped
+        for i in range(BACKLOG // 2):  # within the backlog: nothing may be dropped
             counter.set(i)
-        assert wait_until(lambda: seen[-1] == PUBLICATION_BACKLOG // 2 - 1, timeout=10)
+        assert wait_until(lambda: seen[-1] == BACKLOG // 2 - 1, timeout=10)
         burst = [v for v in seen if v >= 0]
-        assert burst == list(range(PUBLICATION_BACKLOG // 2))
+        assert burst == list(range(BACKLOG // 2))
     finally:
         copy.unsubscribe()
+        tool.close()
+        module.close()
+
+
+def test_a_hung_set_listener_on_a_module_does_not_stop_it_hearing_the_estop() -> None:
+    """A module whose set handler hangs (a change callback waiting on something) while a tool keeps setting: the
+    requests pile up behind it, and the module must still hear the e-stop; a get queued past them fails at once
+    or answers, never stalls the session."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    module = Node("module", ZenohTransport(listen=[endpoint], role="module"))
+    tool = Node("tool", ZenohTransport(connect=[endpoint]))
+    release = threading.Event()
+    stops: list[str] = []
+    try:
+        goal = Attribute("goal", 0.0, codec="float32")
+        goal.on_change(lambda _: release.wait(30))
+        module.register(goal)
+        module.on_estop(lambda source, reason: stops.append(reason))
+        assert wait_until(lambda: "module" in tool.discover(), timeout=10)
+        remote_goal = tool.lookup("module", "goal", timeout=5)
+        threads = threading.active_count()
+        for i in range(3 * BACKLOG):  # sets without a reply, far past any channel in the module
+            remote_goal.set(float(i), wait=False)
+        # each set is a query left open by the hung module: none of them may hold a thread of the tool's
+        assert threading.active_count() - threads < 10
+        tool.estop("hung")
+        assert wait_until(lambda: "hung" in stops, timeout=5)
+    finally:
+        release.set()
         tool.close()
         module.close()
