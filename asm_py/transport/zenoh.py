@@ -150,12 +150,11 @@ class ZenohTransport(Transport):
             claiming = session.liveliness().declare_token(keys.claim(self.segment, self._zid))
             self._keep += [
                 claiming,
-                # each on a thread of its own, through a ring that never blocks Zenoh's receive task (zenoh_drain)
-                drained(session.declare_queryable, keys.requests(self.segment), self._on_query),
-                drained(session.declare_subscriber, keys.messages(self.segment), self._on_sample),
+                session.declare_queryable(keys.requests(self.segment), self._on_query),
+                session.declare_subscriber(keys.messages(self.segment), self._on_sample),
                 # every e-stop from elsewhere, whatever its sender's name (this node's own runs its handlers directly)
-                drained(session.declare_subscriber, keys.estop(), self._on_estop, allowed_origin=remote),
-                drained(session.declare_subscriber, lab_estop(), self._on_estop, allowed_origin=remote),
+                session.declare_subscriber(keys.estop(), self._on_estop, allowed_origin=remote),
+                session.declare_subscriber(lab_estop(), self._on_estop, allowed_origin=remote),
             ]
             settle_claim(self._zid, self._rivals, self._name_taken)
             # kept: the node's @alive token (discovery sees it from now on), then the claim withdrawn
@@ -173,9 +172,7 @@ class ZenohTransport(Transport):
         # claim's looks missed the holder and a newcomer kept its name; bench/liveliness_looks.py). Its history
         # brings any rival that kept the name too to _rival_kept, as a later token would.
         try:
-            self._keep.append(
-                drained(session.liveliness().declare_subscriber, keys.alive(), self._on_alive, history=True)
-            )
+            self._keep.append(session.liveliness().declare_subscriber(keys.alive(), self._on_alive, history=True))
         except BaseException:
             self._close()
             raise
@@ -200,7 +197,7 @@ class ZenohTransport(Transport):
                          f"(session {rival}): choose another name")  # fmt: skip
 
     def _join(self, group: str) -> None:
-        self._keep.append(drained(self.session.declare_subscriber, self.keys.group(group), self._on_sample))
+        self._keep.append(self.session.declare_subscriber(self.keys.group(group), self._on_sample))
 
     # -- receiving ------------------------------------------------------------------------------------------------
 
@@ -212,8 +209,8 @@ class ZenohTransport(Transport):
             self._deliver(source, sample.payload.to_bytes())
 
     def _on_query(self, query: zenoh.Query) -> None:
-        """On the queryable's drain thread, not on Zenoh's own: a handler may block (a set's change callback calling
-        another node) without holding Zenoh's network thread, or its e-stops (zenoh_drain). Zenoh's own thread
+        """On zenoh-python's Python thread for this queryable, not on Zenoh's own: a handler may block (a set's
+        change callback calling another node) without holding Zenoh's network thread. Running it there instead
         (zenoh-python's direct callback) was measured no faster (issue 31, docs/benchmarks.md)."""
         if not self._holding.kept and self._holding.hold(lambda: self._on_query(query), query.drop):
             return
@@ -455,7 +452,7 @@ class ZenohTransport(Transport):
         check_name(object_name, "object name")
         route = self._route(node)
         key = route.keys.publication(route.segment, object_name)
-        subscriber = drained(self.session.declare_subscriber, key, callback, payload=True)
+        subscriber = drained(self.session.declare_subscriber, key, callback)
 
         def remove() -> None:
             if self._session is not None:

@@ -147,7 +147,8 @@ def test_an_object_outside_the_profile_is_looked_up_and_its_first_publications_k
             kept = lambda: min(recorder.counts["/mod/speed"], recorder.counts["/mod/joint.angle"])  # noqa: E731
             assert wait_until(lambda: kept() >= 40, 20), (
                 f"kept {dict(recorder.counts)}, dropped {recorder.dropped}, missed {recorder.missed}, "
-                f"views seen beside it {len(views)}"
+                f"views seen beside it {len(views)}, publications received {recorder._received}, objects "
+                f"{ {key: type(entry).__name__ for key, entry in recorder.objects._known.items()} }"
             )
         finally:
             recorder.close()
