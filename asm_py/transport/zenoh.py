@@ -146,15 +146,15 @@ class ZenohTransport(Transport):
         self._attachment = self._zid.encode()
         try:
             refuse_if_claimed(self._zid, lambda: self.claimants(self.segment), self._name_taken)
-            keys, remote = self.keys, zenoh.Locality.REMOTE
+            keys = self.keys
             claiming = session.liveliness().declare_token(keys.claim(self.segment, self._zid))
             self._keep += [
                 claiming,
                 session.declare_queryable(keys.requests(self.segment), self._on_query),
                 session.declare_subscriber(keys.messages(self.segment), self._on_sample),
                 # every e-stop from elsewhere, whatever its sender's name (this node's own runs its handlers directly)
-                session.declare_subscriber(keys.estop(), self._on_estop, allowed_origin=remote),
-                session.declare_subscriber(lab_estop(), self._on_estop, allowed_origin=remote),
+                session.declare_subscriber(keys.estop(), self._on_estop, allowed_origin=zenoh.Locality.REMOTE),
+                session.declare_subscriber(lab_estop(), self._on_estop, allowed_origin=zenoh.Locality.REMOTE),
             ]
             settle_claim(self._zid, self._rivals, self._name_taken)
             # kept: the node's @alive token (discovery sees it from now on), then the claim withdrawn

@@ -1,4 +1,5 @@
-"""How a publication subscription hands what arrives to Python: a ring of samples, drained by a thread of its own.
+"""Where zenoh-python's default handler costs too much: a publication subscription's ring of samples, drained by a
+thread of its own, and the handler of replies nobody reads (``IGNORE_REPLIES``).
 
 zenoh-python's default for a Python callback hands every sample to a thread of its own through a channel of 256 that
 blocks when full. Two things follow, both measured:

@@ -7,6 +7,9 @@ from __future__ import annotations
 
 import gc
 import threading
+from collections.abc import Iterator
+
+import pytest
 
 from asm_py import Attribute
 from asm_py.node import Node
@@ -17,10 +20,22 @@ from ..helpers import wait_until
 from ..transports import free_port
 
 
-def test_a_hung_change_listener_does_not_stop_its_session_hearing_replies_or_the_estop() -> None:
+@pytest.fixture
+def pair() -> Iterator[tuple[Node, Node]]:
+    """A module and a tool on one Zenoh link, the tool seeing the module; both closed after the test."""
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     module = Node("module", ZenohTransport(listen=[endpoint], role="module"))
     tool = Node("tool", ZenohTransport(connect=[endpoint]))
+    try:
+        assert wait_until(lambda: "module" in tool.discover(), timeout=10)
+        yield module, tool
+    finally:
+        tool.close()
+        module.close()
+
+
+def test_a_hung_change_listener_does_not_stop_its_session_hearing_replies_or_the_estop(pair: tuple[Node, Node]) -> None:
+    module, tool = pair
     release = threading.Event()
     entered = threading.Event()
     stops: list[str] = []
@@ -30,7 +45,6 @@ def test_a_hung_change_listener_does_not_stop_its_session_hearing_replies_or_the
         module.register(stream)
         module.register(Attribute("joint.angle", 0.75, codec="float32"))
         stream.publish()
-        assert wait_until(lambda: "module" in tool.discover(), timeout=10)
         remote_stream = tool.lookup("module", "stream", timeout=5)
         angle = tool.lookup("module", "joint.angle", timeout=5)
         tool.on_estop(lambda source, reason: stops.append(reason))
@@ -50,21 +64,16 @@ def test_a_hung_change_listener_does_not_stop_its_session_hearing_replies_or_the
     finally:
         release.set()
         copy.unsubscribe()
-        tool.close()
-        module.close()
 
 
-def test_a_burst_of_publications_arrives_whole_and_in_order() -> None:
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
-    module = Node("module", ZenohTransport(listen=[endpoint], role="module"))
-    tool = Node("tool", ZenohTransport(connect=[endpoint]))
+def test_a_burst_of_publications_arrives_whole_and_in_order(pair: tuple[Node, Node]) -> None:
+    module, tool = pair
     seen: list[int] = []
     copy = Attribute("copy", codec="int32")
     try:
         counter = Attribute("counter", 0, codec="int32")
         module.register(counter)
         counter.publish()
-        assert wait_until(lambda: "module" in tool.discover(), timeout=10)
         copy.on_change(seen.append)
         copy.subscribe(tool.lookup("module", "counter", timeout=5))
         assert wait_until(lambda: (counter.set(-1), seen)[1], timeout=10)
@@ -75,22 +84,17 @@ def test_a_burst_of_publications_arrives_whole_and_in_order() -> None:
         assert burst == list(range(BACKLOG // 2))
     finally:
         copy.unsubscribe()
-        tool.close()
-        module.close()
 
 
-def test_sets_without_a_reply_to_a_module_that_does_not_answer_hold_no_thread_each() -> None:
+def test_sets_without_a_reply_to_a_module_that_does_not_answer_hold_no_thread_each(pair: tuple[Node, Node]) -> None:
     """Each set without a reply is a get the module never answers; zenoh-python started a Python thread for each
     one's plain callback, alive until its query ended (200 sets: 200 threads)."""
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
-    module = Node("module", ZenohTransport(listen=[endpoint], role="module"))
-    tool = Node("tool", ZenohTransport(connect=[endpoint]))
+    module, tool = pair
     release = threading.Event()
     try:
         goal = Attribute("goal", 0.0, codec="float32")
         goal.on_change(lambda _: release.wait(30))  # the module takes the first set, then answers nothing
         module.register(goal)
-        assert wait_until(lambda: "module" in tool.discover(), timeout=10)
         remote_goal = tool.lookup("module", "goal", timeout=5)
         threads = threading.active_count()
         for i in range(200):  # within the module's channel of 256: none of them blocks the tool
@@ -98,14 +102,12 @@ def test_sets_without_a_reply_to_a_module_that_does_not_answer_hold_no_thread_ea
         assert threading.active_count() - threads < 10
     finally:
         release.set()
-        tool.close()
-        module.close()
 
 
-def test_a_subscription_whose_remover_is_dropped_goes_on_delivering_and_survives_a_failing_listener() -> None:
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
-    module = Node("module", ZenohTransport(listen=[endpoint], role="module"))
-    tool = Node("tool", ZenohTransport(connect=[endpoint]))
+def test_a_subscription_whose_remover_is_dropped_goes_on_delivering_and_survives_a_failing_listener(
+    pair: tuple[Node, Node],
+) -> None:
+    module, tool = pair
     seen: list[float] = []
 
     def listener(value: float) -> None:
@@ -113,14 +115,9 @@ def test_a_subscription_whose_remover_is_dropped_goes_on_delivering_and_survives
         if len(seen) == 1:
             raise SystemExit("a listener that exits once")
 
-    try:
-        stream = Attribute("stream", 0.0, codec="float32")
-        module.register(stream)
-        stream.publish()
-        assert wait_until(lambda: "module" in tool.discover(), timeout=10)
-        tool.lookup("module", "stream", timeout=5).on_change(listener)  # its remover dropped at once
-        gc.collect()
-        assert wait_until(lambda: (stream.set(1.0), len(seen) >= 3)[1], timeout=10)
-    finally:
-        tool.close()
-        module.close()
+    stream = Attribute("stream", 0.0, codec="float32")
+    module.register(stream)
+    stream.publish()
+    tool.lookup("module", "stream", timeout=5).on_change(listener)  # its remover dropped at once
+    gc.collect()
+    assert wait_until(lambda: (stream.set(1.0), len(seen) >= 3)[1], timeout=10)
