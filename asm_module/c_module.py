@@ -92,6 +92,9 @@ class CModule(FirmwareCalls):
     On its own it ticks every 1/``control_rate`` s of the wall clock. Given a ``clock`` and a ``tick`` event (a
     simulation's), it reads time from that clock and runs its control tick at every firing, in the firing thread,
     as a Python module runtime with ``inline=True`` does: the same ticks, so a deployed C module and a preview agree.
+    Ticked so, on a bus that hands frames over itself (``asm_sim``'s ``push_to``), it has no thread of its own: the
+    channel's dispatch thread gives it its frames, as it does the Python modules of a simulated robot (issue 31), and
+    a simulation's ``settle`` waits for them.
 
     Given a ``hub`` instead of a bus (a preview: modules of one process without a bus), its frames go nowhere but
     the two the hub carries — its ``gait.state`` publications and the signals it broadcasts — and what the hub says
@@ -142,8 +145,12 @@ class CModule(FirmwareCalls):
         self._stop = threading.Event()
         self._unlisten = tick.on_change(lambda _: self.tick()) if tick is not None else None
         self._thread = threading.Thread(target=self._run, name=f"c-module:{name}", daemon=True)
+        push_to = getattr(self.bus, "push_to", None) if tick is not None else None
+        self._pushed = push_to is not None
         if hub is not None:
             self._listening = hub.listen(self._heard_signal)
+        elif push_to is not None:  # ticked by the simulation: the channel's dispatch thread hands it its frames
+            push_to(self._on_frame)
         else:
             self._thread.start()
 
@@ -243,14 +250,19 @@ class CModule(FirmwareCalls):
         assert bus is not None, "a module on a hub has no receive thread"
         while not self._stop.is_set():
             frame = bus.recv(timeout=max(0.0, next_tick - time.monotonic()) if ticking else 0.1)
-            if frame is not None and frame.is_extended_id and not frame.is_error_frame:
-                with self._call_lock:
-                    self._lib.asm_host_frame(self._memory, frame.arbitration_id, bytes(frame.data), frame.dlc,
-                                             self._now_ms())  # fmt: skip
-                    self._refilter()
+            if frame is not None:
+                self._on_frame(frame)
             if ticking and time.monotonic() >= next_tick:
                 next_tick += self.period
                 self.tick()
+
+    def _on_frame(self, frame: can.Message) -> None:
+        """A frame from the bus: to the firmware, as its CAN controller's interrupt would hand it over."""
+        if frame.is_extended_id and not frame.is_error_frame and not self._stop.is_set():
+            with self._call_lock:
+                self._lib.asm_host_frame(self._memory, frame.arbitration_id, bytes(frame.data), frame.dlc,
+                                         self._now_ms())  # fmt: skip
+                self._refilter()
 
     def done(self) -> int:
         """gait.done's last firing (1 finished, 2 a state timed out with stop), 0 if it never fired."""
@@ -299,6 +311,10 @@ class CModule(FirmwareCalls):
         for remove in [*self._watching, *([self._listening] if self._listening else [])]:
             remove()
         self._stop.set()
+        if self._pushed:
+            push_to = getattr(self.bus, "push_to", None)
+            if push_to is not None:
+                push_to(None)
         if self._thread.is_alive():
             self._thread.join(5)
         with self._call_lock:

@@ -215,6 +215,7 @@ class Simulation:
         """A chain's first and last bodies: its heading is the line between them."""
         self._started = False
         channel = str((bus_options or {}).get("channel", ""))
+        self._sim_channel = channel if (bus_options or {}).get("interface") == "asm_sim" else None
         self._burst: Callable[[], AbstractContextManager[None]] = (
             partial(SimBus.holding, channel) if (bus_options or {}).get("interface") == "asm_sim" else nullcontext
         )
@@ -279,6 +280,21 @@ class Simulation:
             module.start_gait()
         self.clock.settle()
         self._started = True
+
+    def settle(self) -> None:
+        """Wait until nothing the modules sent is in flight: every frame on an ``asm_sim`` bus handed to the modules
+        it is for (``SimBus.flush``), every service thread back at its wait, and what those sent in turn, until the
+        bus stays quiet. Stepping ticks with this between them, a deployment on the bus commands what the preview
+        does whatever the machine's load (tests/gaits/test_program_sim.py), where pacing the ticks on the wall clock
+        only hoped the frames had arrived. Frames read by a thread of their own (a ``virtual`` bus, an emulated
+        board) are not waited for."""
+        handed = -1
+        while True:
+            now = SimBus.flush(self._sim_channel) if self._sim_channel is not None else 0
+            self.clock.settle()
+            if now == handed:
+                return
+            handed = now
 
     def drive(self, gait: str, direction: int = 1) -> None:
         """Switch every module to program gait ``gait`` (``direction`` -1: backwards) at the next cycle boundary,

@@ -27,6 +27,10 @@ pushed bus of the channel waits behind them.
 A thread that sends bursts (a simulated robot's control tick: every module's publications at once) may hold its
 frames back for the burst: ``with SimBus.holding(channel): ...`` — they go out together at its end, in order, so
 the receivers wake once for the burst (see ``holding``).
+
+A loop that drives every node of a channel (a simulation stepping its modules) can wait until nothing is in flight
+with ``SimBus.flush(channel)`` (see there) instead of sleeping for the frames to arrive: the deployment then commands
+what the preview does, tick for tick, however loaded the machine is.
 """
 
 from __future__ import annotations
@@ -88,14 +92,23 @@ class _Receivers:
 FrameCallback = Callable[[can.Message], None]
 
 
+class _Mark:
+    """Where ``SimBus.flush`` waits in a dispatcher's queue; the count of frames handed on when it was reached."""
+
+    def __init__(self) -> None:
+        self.reached = threading.Event()
+        self.handed = 0
+
+
 class _Dispatcher:
     """The thread that hands a channel's frames to its pushed buses (see the module docstring); it runs while the
     channel has pushed buses and ends with the last."""
 
     def __init__(self, channel: str) -> None:
         self._urgent: queue.SimpleQueue[tuple[SimBus, can.Message] | None] = queue.SimpleQueue()
-        self._normal: queue.SimpleQueue[tuple[SimBus, can.Message] | None] = queue.SimpleQueue()
+        self._normal: queue.SimpleQueue[tuple[SimBus, can.Message] | _Mark | None] = queue.SimpleQueue()
         self._ready: queue.SimpleQueue[None] = queue.SimpleQueue()  # one token per frame: see SimBus._ready
+        self._handed = 0  # frames handed to a pushed bus's callback so far
         self._thread = threading.Thread(target=self._run, name=f"asm-can-dispatch:{channel}", daemon=True)
         self._thread.start()
 
@@ -108,6 +121,13 @@ class _Dispatcher:
         self._normal.put(None)
         self._ready.put(None)
 
+    def mark(self) -> _Mark:
+        """A mark reached once every frame queued before it has been handed on (urgent ones go first anyway)."""
+        mark = _Mark()
+        self._normal.put(mark)
+        self._ready.put(None)
+        return mark
+
     def _run(self) -> None:
         while True:
             self._ready.get()
@@ -117,6 +137,10 @@ class _Dispatcher:
                 item = self._normal.get_nowait()
             if item is None:
                 return
+            if isinstance(item, _Mark):
+                item.handed = self._handed
+                item.reached.set()
+                continue
             bus, message = item
             callback = bus._push
             if callback is None or not bus._open:
@@ -125,6 +149,7 @@ class _Dispatcher:
                 callback(message)
             except Exception:
                 log.exception("a pushed frame's handler failed: %s", message)
+            self._handed += 1
 
 
 class SimBus(can.BusABC):
@@ -220,6 +245,26 @@ class SimBus(can.BusABC):
             with cls._lock:
                 del cls._held[channel]
                 cls._release(channel, held[1])
+
+    @classmethod
+    def flush(cls, channel: str, timeout: float = 10.0) -> int:
+        """Block until every frame sent on ``channel`` so far has been handed to its pushed buses' callbacks and they
+        returned; return how many frames the channel's dispatch thread had handed on by then (0 without pushed
+        buses). A caller that drives every node of the channel (a simulation stepping its modules in lockstep) calls
+        it until the count stops growing: then nothing is in flight, whatever the machine's load — frames a callback
+        sent meanwhile are queued behind the mark and counted by the next call. Frames read by ``recv`` are not
+        waited for. ``TimeoutError`` after ``timeout`` real seconds (a callback blocked)."""
+        with cls._lock:
+            dispatcher = cls._dispatchers.get(channel)
+            held = cls._held.get(channel)
+            if held is not None and held[0] == threading.get_ident():
+                raise RuntimeError(f"asm_sim channel {channel!r} is held by this thread: its frames wait for the end")
+            if dispatcher is None:
+                return 0
+            mark = dispatcher.mark()
+        if not mark.reached.wait(timeout):
+            raise TimeoutError(f"asm_sim channel {channel!r}: frames still in flight after {timeout} s")
+        return mark.handed
 
     @classmethod
     def _release(cls, channel: str, frames: list[tuple[SimBus, can.Message]]) -> None:

@@ -351,3 +351,37 @@ def test_a_programs_objects_refuse_what_the_python_module_refuses() -> None:
         runtime.close()
         python_node.close()
         c_module.close()
+
+
+def test_a_c_module_ticked_by_a_simulation_on_asm_sim_has_no_thread_of_its_own_and_still_answers() -> None:
+    """Issue 31: on a bus that hands frames over itself (``asm_sim``), a C module ticked by a simulation's clock is
+    given its frames by the channel's dispatch thread, as the Python modules are, and a simulation's ``settle``
+    waits for them; it starts no ``c-module`` thread, answers a tool, and leaves the channel on close."""
+    import threading
+
+    from asm_py import Event
+    from asm_py.canbus.simbus import SimBus
+    from asm_py.clock import SimClock
+
+    channel = fresh_name("c-module-pushed")
+    clock = SimClock()
+    tick = Event("gait.tick", codec="float64", clock=clock)
+    before = {t.name for t in threading.enumerate()}
+    module = CModule("c7", 7, clock=clock, tick=tick, interface="asm_sim", channel=channel)
+    tool = Node("tool", CanTransport(100, interface="asm_sim", channel=channel, heartbeat_period=0.1))
+    try:
+        assert not [t.name for t in threading.enumerate() if t.name.startswith("c-module") and t.name not in before]
+
+        def ticked_and_heard() -> bool:  # it beats from its control tick: the simulation's, a second a call here
+            clock.advance_to(clock.now() + 1.0)
+            tick.set(clock.now())
+            return "c7" in tool.discover()
+
+        assert wait_until(ticked_and_heard, timeout=10, interval=0.05)
+        goal = tool.lookup("c7", "joint.goal", timeout=5)
+        goal.set(12.5, wait=True)
+        assert goal.get(timeout=5) == 12.5 and module.goal == 12.5
+    finally:
+        tool.close()
+        module.close()
+    assert SimBus.flush(channel) == 0, "no pushed bus left on the channel: its dispatch thread ended"

@@ -13,6 +13,7 @@ import pytest
 
 from asm_py.canbus.simbus import SimBus
 
+from ..helpers import wait_until
 from ..transports import fresh_name
 
 pytestmark = pytest.mark.timeout(120)
@@ -236,3 +237,60 @@ def test_recv_reads_the_urgent_fifo_first_and_logs_as_python_can_does(caplog: py
     finally:
         sender.shutdown()
         receiver.shutdown()
+
+
+def test_flush_returns_once_every_frame_sent_before_it_was_handled_and_counts_the_replies_sent_meanwhile() -> None:
+    """``SimBus.flush``: what a simulation waits on between ticks (gaits.sim.Simulation.settle) instead of sleeping.
+    A slow handler holds the dispatch thread; flush returns only after it, and the reply that handler sent (queued
+    behind flush's mark) is counted by the next call, so a caller flushing until the count stops knows the bus is
+    quiet."""
+    channel = fresh_name("simbus-flush")
+    assert SimBus.flush(channel) == 0  # no pushed bus: nothing to wait for
+    tool, module = SimBus(channel=channel), SimBus(channel=channel)
+    module.set_filters([{"can_id": 0x100, "can_mask": 0xF00, "extended": True}])
+    tool.set_filters([{"can_id": 0x200, "can_mask": 0xF00, "extended": True}])
+    heard: list[int] = []
+    gate = threading.Event()
+
+    def answer(frame: can.Message) -> None:
+        gate.wait(10)  # the first request holds the dispatch thread until flush's mark is queued behind the others
+        heard.append(frame.arbitration_id)
+        module.send(can.Message(arbitration_id=0x10000200 | frame.arbitration_id & 0xFF, is_extended_id=True))
+
+    module.push_to(answer)
+    tool.push_to(lambda frame: heard.append(frame.arbitration_id))
+    flushed: list[int] = []
+    flusher = threading.Thread(target=lambda: flushed.append(SimBus.flush(channel)))
+    try:
+        for k in range(3):
+            tool.send(can.Message(arbitration_id=0x10000100 | k, is_extended_id=True))
+        queued = SimBus._dispatchers[channel]._normal
+        assert wait_until(lambda: queued.qsize() == 2)  # the first request is being handled, two wait
+        flusher.start()
+        assert wait_until(lambda: queued.qsize() == 3) and not flushed  # the mark waits behind them
+        gate.set()
+        flusher.join(10)
+        requests = [0x10000100, 0x10000101, 0x10000102]
+        assert heard[:3] == requests and flushed == [3]  # every request handled when flush returned, no reply
+        assert SimBus.flush(channel) == 6 and heard == [*requests, *(r + 0x100 for r in requests)]  # the next: all
+        assert SimBus.flush(channel) == 6  # then quiet: the count stops
+        with SimBus.holding(channel), pytest.raises(RuntimeError, match="held by this thread"):
+            SimBus.flush(channel)  # its own held frames would wait for the block's end: never flushed
+    finally:
+        module.shutdown()
+        tool.shutdown()
+
+
+def test_flush_times_out_when_a_handler_blocks() -> None:
+    channel = fresh_name("simbus-flush")
+    sender, receiver = SimBus(channel=channel), SimBus(channel=channel)
+    gate = threading.Event()
+    receiver.push_to(lambda frame: gate.wait(10))
+    try:
+        sender.send(can.Message(arbitration_id=0x10000001, is_extended_id=True))
+        with pytest.raises(TimeoutError, match="in flight"):
+            SimBus.flush(channel, timeout=0.2)
+    finally:
+        gate.set()
+        receiver.shutdown()
+        sender.shutdown()
