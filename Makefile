@@ -45,15 +45,17 @@ format: $(STAMP)
 	$(PY) -m ruff format .
 	$(PY) -m ruff check --fix .
 
-# Two workers (pytest-xdist) on two cores: the browser tests are one xdist group (tests/studio/browser.py), run by one
-# worker from the start, while the other runs the rest. Four workers, the browser tests then in two groups, took
-# 429-521 s against two's 650-669 s, but of nine four-worker runs at stop 46 two passed; the seven others each failed
-# one to three tests judged against the wall clock under that load, seven different ones (docs/benchmarks.md, "Four
-# workers, two browser groups"). TEST_WORKERS=4 to try; `make test-serial` runs the same tests in one process.
-TEST_WORKERS ?= 2
+# Three workers (pytest-xdist) on two cores: the browser tests are one xdist group (tests/studio/browser.py), run by
+# one worker from the start while the two others run the rest (the suite waits on processes and simulated robots more
+# than it computes: 484 s against two workers' 620-670 s at stop 49, docs/benchmarks.md, "The suite's time"). Four
+# workers, the browser tests then in two groups, took 429-521 s, but of nine four-worker runs at stop 46 two passed;
+# the seven others each failed one to three tests judged against the wall clock under that load, seven different ones
+# (docs/benchmarks.md, "Four workers, two browser groups"). TEST_WORKERS=N to change; `make test-serial` runs the
+# same tests in one process.
+TEST_WORKERS ?= 3
 PYTEST := PLAYWRIGHT_SKIP_BROWSER_DOWNLOAD=1 $(PY) -m pytest
 # The `realtime` tests (judged on the wall clock while a simulation runs in real time) failed beside four workers'
-# load, so with four or more they run after the rest, three at a time; two workers run them with the rest, as a
+# load, so with four or more they run after the rest, three at a time; fewer workers run them with the rest, as a
 # separate part cost 62 s there (stop 46's landing run) and they passed inside it before (stop 45).
 # (TEST_WORKERS may be `auto` or `logical`, as for pytest-xdist: here one worker per core this process may run on. In
 # two parts, one may select nothing — pytest's exit status 5 — while the other runs tests; nothing selected in both,
