@@ -258,8 +258,10 @@ class CModule(FirmwareCalls):
 
     def _on_frame(self, frame: can.Message) -> None:
         """A frame from the bus: to the firmware, as its CAN controller's interrupt would hand it over."""
-        if frame.is_extended_id and not frame.is_error_frame and not self._stop.is_set():
+        if frame.is_extended_id and not frame.is_error_frame:
             with self._call_lock:
+                if self._stop.is_set():  # under the lock: close() may have left the bus while this call waited for it
+                    return
                 self._lib.asm_host_frame(self._memory, frame.arbitration_id, bytes(frame.data), frame.dlc,
                                          self._now_ms())  # fmt: skip
                 self._refilter()

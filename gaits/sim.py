@@ -29,7 +29,7 @@ from asm_module.board_batch import BoardBatch
 from asm_module.c_module import CModule
 from asm_module.module import Module
 from asm_module.names import module_name
-from asm_py import Event, Node
+from asm_py import Event, Node, SimulationStalled
 from asm_py.canbus.simbus import SimBus
 from asm_py.clock import SimClock
 
@@ -214,10 +214,11 @@ class Simulation:
         self._ends = [mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_BODY, name) for name in ends]
         """A chain's first and last bodies: its heading is the line between them."""
         self._started = False
-        channel = str((bus_options or {}).get("channel", ""))
-        self._sim_channel = channel if (bus_options or {}).get("interface") == "asm_sim" else None
+        on_sim_bus = (bus_options or {}).get("interface") == "asm_sim"
+        # the channel the modules' buses open (SimBus's own default when none is given)
+        self._sim_channel = str((bus_options or {}).get("channel") or "asm_sim") if on_sim_bus else None
         self._burst: Callable[[], AbstractContextManager[None]] = (
-            partial(SimBus.holding, channel) if (bus_options or {}).get("interface") == "asm_sim" else nullcontext
+            partial(SimBus.holding, self._sim_channel) if self._sim_channel is not None else nullcontext
         )
         hub = LocalNeighbours() if node_of is None else None  # without a bus, neighbours are heard in-process
         self._states = {a.id: 0 for a in gait.modules}
@@ -282,18 +283,21 @@ class Simulation:
         self._started = True
 
     def settle(self) -> None:
-        """Wait until nothing the modules sent is in flight: every frame on an ``asm_sim`` bus handed to the modules
-        it is for (``SimBus.flush``), every service thread back at its wait, and what those sent in turn, until the
-        bus stays quiet. Stepping ticks with this between them, a deployment on the bus commands what the preview
-        does whatever the machine's load (tests/gaits/test_program_sim.py), where pacing the ticks on the wall clock
-        only hoped the frames had arrived. Frames read by a thread of their own (a ``virtual`` bus, an emulated
-        board) are not waited for."""
-        handed = -1
+        """Wait until nothing the modules sent is in flight (every frame on an ``asm_sim`` bus handed on, every
+        service thread back at its wait, and what those sent in turn): ticks stepped so make a deployment command
+        what the preview does whatever the load (tests/gaits/test_program_sim.py), where pacing them on the wall
+        clock hoped the frames had arrived. Frames read by threads of their own (``virtual``, an emulated board) are
+        not waited for. ``SimulationStalled`` when still busy after the clock's ``settle_timeout`` (modules answering
+        each other for ever); ``TimeoutError`` when a frame's handler blocks."""
+        handed, deadline = -1, time.monotonic() + self.clock.settle_timeout
         while True:
             now = SimBus.flush(self._sim_channel) if self._sim_channel is not None else 0
             self.clock.settle()
             if now == handed:
                 return
+            if time.monotonic() > deadline:
+                raise SimulationStalled(f"the bus of the simulation at t={self.clock.now()} was not quiet after "
+                                        f"{self.clock.settle_timeout}s of real time ({now} frames handed)")  # fmt: skip
             handed = now
 
     def drive(self, gait: str, direction: int = 1) -> None:

@@ -92,6 +92,12 @@ class _Receivers:
 FrameCallback = Callable[[can.Message], None]
 
 
+_Item = tuple["SimBus", can.Message, "FrameCallback | None"]
+"""A frame for the dispatch thread: the bus it is for, the frame, and the callback the bus had when it was sent (a
+bus unhooked and hooked again meanwhile does not get it: the old dispatch thread, still draining, would hand it to
+the new callback beside the new thread)."""
+
+
 class _Mark:
     """Where ``SimBus.flush`` waits in a dispatcher's queue; the count of frames handed on when it was reached."""
 
@@ -105,15 +111,15 @@ class _Dispatcher:
     channel has pushed buses and ends with the last."""
 
     def __init__(self, channel: str) -> None:
-        self._urgent: queue.SimpleQueue[tuple[SimBus, can.Message] | None] = queue.SimpleQueue()
-        self._normal: queue.SimpleQueue[tuple[SimBus, can.Message] | _Mark | None] = queue.SimpleQueue()
+        self._urgent: queue.SimpleQueue[_Item | None] = queue.SimpleQueue()
+        self._normal: queue.SimpleQueue[_Item | _Mark | None] = queue.SimpleQueue()
         self._ready: queue.SimpleQueue[None] = queue.SimpleQueue()  # one token per frame: see SimBus._ready
         self._handed = 0  # frames handed to a pushed bus's callback so far
         self._thread = threading.Thread(target=self._run, name=f"asm-can-dispatch:{channel}", daemon=True)
         self._thread.start()
 
     def put(self, bus: SimBus, message: can.Message, urgent: bool) -> None:
-        (self._urgent if urgent else self._normal).put((bus, message))
+        (self._urgent if urgent else self._normal).put((bus, message, bus._push))
         self._ready.put(None)
 
     def close(self) -> None:
@@ -141,9 +147,8 @@ class _Dispatcher:
                 item.handed = self._handed
                 item.reached.set()
                 continue
-            bus, message = item
-            callback = bus._push
-            if callback is None or not bus._open:
+            bus, message, callback = item
+            if callback is None or callback is not bus._push or not bus._open:  # unhooked since, or hooked again
                 continue
             try:
                 callback(message)
@@ -252,8 +257,11 @@ class SimBus(can.BusABC):
         returned; return how many frames the channel's dispatch thread had handed on by then (0 without pushed
         buses). A caller that drives every node of the channel (a simulation stepping its modules in lockstep) calls
         it until the count stops growing: then nothing is in flight, whatever the machine's load — frames a callback
-        sent meanwhile are queued behind the mark and counted by the next call. Frames read by ``recv`` are not
-        waited for. ``TimeoutError`` after ``timeout`` real seconds (a callback blocked)."""
+        sent meanwhile are queued behind the mark and counted by the next call. Not waited for: frames read by
+        ``recv``, and frames another thread holds (``holding``: they are sent at its block's end). The count is the
+        dispatch thread's: it starts again when the channel's last pushed bus leaves and another joins.
+        ``TimeoutError`` after ``timeout`` real seconds (a callback blocked); ``RuntimeError`` from the thread that
+        holds the channel or from a callback (both would wait for themselves)."""
         with cls._lock:
             dispatcher = cls._dispatchers.get(channel)
             held = cls._held.get(channel)
@@ -261,6 +269,8 @@ class SimBus(can.BusABC):
                 raise RuntimeError(f"asm_sim channel {channel!r} is held by this thread: its frames wait for the end")
             if dispatcher is None:
                 return 0
+            if threading.current_thread() is dispatcher._thread:
+                raise RuntimeError(f"asm_sim channel {channel!r}: a flush from a frame's callback waits for itself")
             mark = dispatcher.mark()
         if not mark.reached.wait(timeout):
             raise TimeoutError(f"asm_sim channel {channel!r}: frames still in flight after {timeout} s")

@@ -385,3 +385,88 @@ def test_a_c_module_ticked_by_a_simulation_on_asm_sim_has_no_thread_of_its_own_a
         tool.close()
         module.close()
     assert SimBus.flush(channel) == 0, "no pushed bus left on the channel: its dispatch thread ended"
+
+
+class _Calls:
+    """The firmware library, each call noted (name, thread) before it is made."""
+
+    def __init__(self, lib) -> None:
+        self._lib, self.calls = lib, []
+
+    def __getattr__(self, name: str):
+        import threading
+
+        call = getattr(self._lib, name)
+
+        def noted(*args):
+            self.calls.append((name, threading.current_thread().name))
+            return call(*args)
+
+        return noted
+
+
+class _LastComeFirstServed:
+    """A lock that goes to the thread that asked for it last: what lets a test decide who of two waiters runs
+    first."""
+
+    def __init__(self) -> None:
+        import threading
+
+        self._cond = threading.Condition()
+        self._held = False
+        self.waiting: list[object] = []
+
+    def __enter__(self) -> None:
+        me = object()
+        with self._cond:
+            self.waiting.append(me)
+            while self._held or self.waiting[-1] is not me:
+                self._cond.wait()
+            self.waiting.pop()
+            self._held = True
+
+    def __exit__(self, *exc: object) -> None:
+        with self._cond:
+            self._held = False
+            self._cond.notify_all()
+
+
+def test_a_closed_c_module_on_asm_sim_takes_no_frame_after_it_left_and_a_given_bus_is_unhooked() -> None:
+    """A review found a frame handed over by the dispatch thread reaching the firmware after close(): it had passed
+    the stop check and waited for the firmware's lock while close() took it and left the bus. Here that order is
+    forced (the lock goes to its last asker: close() after the frame); the frame must not reach the firmware after
+    asm_host_leave. A bus given to the module is the caller's: close() leaves it open, the module's callback off."""
+    import threading
+
+    from asm_py import Event
+    from asm_py.canbus.ids import CanId, Dest, FrameType, Priority, SystemCode
+    from asm_py.canbus.simbus import SimBus
+    from asm_py.clock import SimClock
+
+    channel = fresh_name("c-module-close")
+    clock = SimClock()
+    tick = Event("gait.tick", codec="float64", clock=clock)
+    given = SimBus(channel=channel)
+    sender = SimBus(channel=channel)
+    module = CModule("c9", 9, clock=clock, tick=tick, bus=given)
+    calls, lock = _Calls(module._lib), _LastComeFirstServed()
+    module._lib, module._call_lock = calls, lock
+    try:
+        with lock:  # the dispatch thread's frame waits here, then close() behind it
+            estop = CanId(Priority.ESTOP, Dest.SYSTEM, SystemCode.ESTOP, 100, FrameType.SINGLE).pack()
+            sender.send(can.Message(arbitration_id=estop, is_extended_id=True, data=b"stop"))
+            assert wait_until(lambda: len(lock.waiting) == 1, timeout=5)
+            closer = threading.Thread(target=module.close)
+            closer.start()
+            assert wait_until(lambda: len(lock.waiting) == 2, timeout=5)
+        closer.join(10)
+        dispatch = f"asm-can-dispatch:{channel}"  # it ends with the channel's last pushed bus, after the frame
+        assert wait_until(lambda: not [t for t in threading.enumerate() if t.name == dispatch], timeout=5)
+        names = [name for name, _ in calls.calls]
+        assert "asm_host_leave" in names
+        assert "asm_host_frame" not in names[names.index("asm_host_leave") :], calls.calls
+        assert given._push is None and given._open, "the given bus: unhooked, still open"
+    finally:
+        module.close()
+        sender.shutdown()
+        given.shutdown()

@@ -294,3 +294,39 @@ def test_flush_times_out_when_a_handler_blocks() -> None:
         gate.set()
         receiver.shutdown()
         sender.shutdown()
+
+
+def test_flush_from_a_callback_is_refused_and_a_bus_hooked_again_gets_no_frame_meant_for_its_old_callback() -> None:
+    """A callback that flushed would wait for itself (it used to stall the channel for the whole timeout). A bus
+    unhooked while frames waited for it and hooked again does not get them: the old dispatch thread, still draining,
+    would hand them to the new callback beside the new thread, out of order."""
+    channel = fresh_name("simbus-flush")
+    sender, receiver = SimBus(channel=channel), SimBus(channel=channel)
+    refused: list[str] = []
+
+    def flushing(frame: can.Message) -> None:
+        try:
+            SimBus.flush(channel, timeout=5)
+        except RuntimeError as exc:
+            refused.append(str(exc))
+
+    receiver.push_to(flushing)
+    try:
+        sender.send(can.Message(arbitration_id=0x10000001, is_extended_id=True))
+        assert SimBus.flush(channel) == 1 and refused and "waits for itself" in refused[0]
+        gate, inside, old, new = threading.Event(), threading.Event(), [], []
+        receiver.push_to(lambda frame: (inside.set(), gate.wait(10), old.append(frame.arbitration_id)))
+        for k in range(2, 5):
+            sender.send(can.Message(arbitration_id=0x10000000 | k, is_extended_id=True))
+        assert inside.wait(5)  # the old callback holds the first; two wait behind it
+        receiver.push_to(None)  # the old dispatch thread ends after what it holds
+        receiver.push_to(lambda frame: new.append(frame.arbitration_id))
+        sender.send(can.Message(arbitration_id=0x10000009, is_extended_id=True))
+        gate.set()
+        assert wait_until(lambda: new == [0x10000009], timeout=5)
+        time.sleep(0.1)
+        assert new == [0x10000009] and old == [0x10000002]  # the frames queued for the old callback: not handed on
+    finally:
+        gate.set()
+        receiver.shutdown()
+        sender.shutdown()
