@@ -10,18 +10,7 @@ import re
 from pathlib import Path
 
 from ..helpers import ARTIFACTS
-from .browser import (
-    LINE_COLOR,
-    choose,
-    click_until_shown,
-    fresh_screenshot,
-    marks,
-    number,
-    open_page,
-    page_until,
-    pixels,
-    plot,
-)
+from .browser import LINE_COLOR, choose, fresh_screenshot, marks, number, open_page, page_until, pixels, plot
 from .test_replay_page import VIEW, _slider_box, simulated_recording, violet
 
 pytestmark = marks(__name__)
@@ -113,6 +102,8 @@ def test_the_replay_tab_refuses_a_time_out_of_range_and_clears_a_robot_it_has_no
             raise AssertionError("the robot of the recording before is still drawn")
         # the long node's values listed as the replay runs; under a loaded suite the click on Play was once lost (t
         # stayed 0.00 for 30 s beside three workers and a busy loop, stop 49): a user clicks again
+        from .browser import click_until_shown
+
         click_until_shown(page, page.get_by_role("button", name="▶ Play"),
                           page.get_by_text("■ ended", exact=False).first, timeout_ms=60_000)  # fmt: skip
         expect(page.get_by_text("record.type_yyyy", exact=False).first).to_be_visible()
