@@ -145,12 +145,13 @@ class CModule(FirmwareCalls):
         self._stop = threading.Event()
         self._unlisten = tick.on_change(lambda _: self.tick()) if tick is not None else None
         self._thread = threading.Thread(target=self._run, name=f"c-module:{name}", daemon=True)
-        push_to = getattr(self.bus, "push_to", None) if tick is not None else None
-        self._pushed = push_to is not None
+        self._push_to: Callable[[Callable[[can.Message], None] | None], None] | None = (
+            getattr(self.bus, "push_to", None) if tick is not None and hub is None else None
+        )  # ticked by the simulation on asm_sim: the channel's dispatch thread hands it its frames
         if hub is not None:
             self._listening = hub.listen(self._heard_signal)
-        elif push_to is not None:  # ticked by the simulation: the channel's dispatch thread hands it its frames
-            push_to(self._on_frame)
+        elif self._push_to is not None:
+            self._push_to(self._on_frame)
         else:
             self._thread.start()
 
@@ -313,10 +314,8 @@ class CModule(FirmwareCalls):
         for remove in [*self._watching, *([self._listening] if self._listening else [])]:
             remove()
         self._stop.set()
-        if self._pushed:
-            push_to = getattr(self.bus, "push_to", None)
-            if push_to is not None:
-                push_to(None)
+        if self._push_to is not None:
+            self._push_to(None)
         if self._thread.is_alive():
             self._thread.join(5)
         with self._call_lock:

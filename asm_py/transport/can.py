@@ -153,7 +153,8 @@ class CanTransport(FrameSender, Transport):
         """The identifier of this node's one-frame publications, once one was sent."""
         self._timer: TimerHandle | None = None
         self._next_beat = 0.0
-        self._pushed = False
+        self._push_to: Callable[[Callable[[can.Message], None] | None], None] | None = None
+        """The bus's ``push_to`` once it hands this transport its frames (``receive_thread=False``)."""
         self.frames_sent = 0
         self.frames_received = 0
         self.send_errors = 0
@@ -183,7 +184,7 @@ class CanTransport(FrameSender, Transport):
         push_to = getattr(self._bus, "push_to", None)
         if not self.receive_thread and push_to is not None:
             push_to(self._on_pushed)
-            self._pushed = True
+            self._push_to = push_to
         else:
             self._reader = BusReader(self._bus, self.on_frame, self._stop)
             self._reader.start(f"asm-can:{name}")
@@ -227,11 +228,9 @@ class CanTransport(FrameSender, Transport):
         if self._timer is not None:
             self._timer.cancel()
             self._timer = None
-        if self._pushed:
-            push_to = getattr(self._bus, "push_to", None)
-            if push_to is not None:
-                push_to(None)
-            self._pushed = False
+        if self._push_to is not None:
+            self._push_to(None)
+            self._push_to = None
         if self._reader is not None:
             self._reader.join(5)
             self._reader = None
