@@ -112,11 +112,14 @@ class SceneView:
         self._built = None
 
     def set_source(self, source: str) -> None:
-        """Show the "preview", the "live" robot or a "replay" of a recording (rebuilt at the next draw)."""
+        """Show the "preview", the "live" robot or a "replay" of a recording (rebuilt at the next draw, which comes at
+        once: a source with nothing new, a paused replay, would otherwise wait for its next frame under the meshes of
+        the one before)."""
         if source not in ("preview", "live", "replay") or (source != "preview" and getattr(self, source) is None):
             raise ValueError(f"no {source!r} source to show")
         self.source = source
         self._built = None
+        self._redraw.set()
 
     def redraw(self) -> None:
         """Draw the newest frame again at the next draw (a browser connected after frames went undrawn)."""
@@ -201,10 +204,10 @@ class SceneView:
                          .startswith("m"))  # fmt: skip
             self.on_pick(min(max(int(body[1:]), 1), max(joints, 1)))
 
-    def _poses(self) -> tuple[object, np.ndarray, np.ndarray] | None:
-        """(what is drawn, body positions, body orientations) of the shown source, bodies 1.. of its model."""
-        if self.source in ("live", "replay"):
-            frame = getattr(self, self.source).latest
+    def _poses(self, source: str) -> tuple[object, np.ndarray, np.ndarray] | None:
+        """(what is drawn, body positions, body orientations) of ``source``, bodies 1.. of its model."""
+        if source in ("live", "replay"):
+            frame = getattr(self, source).latest
             model = self._model
             if frame is None or model is None or len(frame.positions) != model.nbody - 1:
                 return None
@@ -249,7 +252,9 @@ class SceneView:
                                 else "LIVE — the robot" if key[0] == "live"
                                 else f"REPLAY — {self.replay.recording.name}" if key[0] == "replay"
                                 else "PREVIEW — simulation of the edited gait")  # fmt: skip
-        poses, built = self._poses(), self._model
+        # the source this draw built for, not self.source read again: set_source on another thread between the two
+        # drew a replay's frame on the preview's meshes, and that frame then counted as drawn (test_replay, stop 49)
+        poses, built = self._poses(key[0]), self._model
         if poses is None or built is None or poses[0] is self._drawn:
             return False
         self._drawn, xpos, xquat = poses

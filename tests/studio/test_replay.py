@@ -402,6 +402,35 @@ def test_the_replay_tab_shows_a_recording_in_the_3d_view_and_leaves_it_for_the_l
     assert not source._thread.is_alive()
 
 
+def test_a_source_switched_during_a_draw_is_drawn_on_its_own_meshes(studio, tmp_path: Path):
+    """A fresh-clone run (stop 49) caught the replay's first frame counted as drawn while the meshes built were the
+    preview's: draw() looked at the shown source twice, once for what to build and once for what to draw, and the
+    user's switch came between the two. The switch is put exactly there; the frame drawn must be the source built."""
+    app = studio.app
+    panel, view = app.replay, app.view
+    path = tmp_path / "run.mcap"
+    write_recording(path)
+    panel.open_path(path)
+    assert wait_until(lambda: view.source == "replay" and panel.source is not None, 20)
+    first = panel.source.recording.frames[0]
+    assert wait_until(lambda: view._drawn is first and view._built is not None and view._built[0] == "replay", 20)
+    view.set_source("preview")
+    assert wait_until(lambda: view._built is not None and view._built[0] == "preview" and view._drawn is not None
+                      and view._drawn is not first, 20)  # fmt: skip
+    looked = view._wanted
+
+    def switched_after_the_look():  # this draw's look says preview; then the user shows the replay again
+        wanted = looked()
+        view._wanted = looked
+        view.set_source("replay")
+        return wanted
+
+    view._wanted = switched_after_the_look
+    view.redraw()
+    assert wait_until(lambda: view._drawn is first, 20)
+    assert view._built is not None and view._built[0] == "replay", view._built
+
+
 HOSTILE = '<a href="http://example.com/x">click</a><img src=x onerror=alert(1)>'
 
 
