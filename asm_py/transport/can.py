@@ -256,7 +256,7 @@ class CanTransport(FrameSender, Transport):
         return self._names.get(node_id) or f"{ALIAS_PREFIX}{node_id}"
 
     def peers(self) -> list[str]:
-        return sorted({self.name, *(self.name_of(i) for i in self._alive)})
+        return sorted({self.name, *(self.name_of(i) for i in self._alive.copy())})  # copied at once: the reader adds
 
     def last_heard(self, name: str) -> float | None:
         """``time.monotonic()`` when node ``name`` was last heard (any frame), or None if never."""

@@ -386,3 +386,36 @@ def test_a_quiet_module_hears_only_what_it_must_act_on() -> None:
     finally:
         for node in (tool, quiet, talker):
             node.close()
+
+
+def test_peers_read_while_the_receive_thread_adds_and_drops_nodes() -> None:
+    """A fresh-clone run (stop 49): peers() iterated the set of live node IDs while the receive thread added one,
+    and raised "Set changed size during iteration". Here another thread adds and drops nodes as fast as it can."""
+    import threading
+
+    transport = CanTransport(7, interface="virtual", channel=fresh_name("peers"), **FAST_BEATS)
+    transport.attach("seven", lambda source, data, respond=None: None)
+    stop, failures = threading.Event(), []
+
+    def churn() -> None:
+        k = 0
+        while not stop.is_set():
+            transport._alive.add(10 + k % 200)
+            transport._alive.discard(10 + (k + 100) % 200)
+            k += 1
+
+    thread = threading.Thread(target=churn)
+    thread.start()
+    try:
+        deadline = time.monotonic() + 3.0
+        while time.monotonic() < deadline:
+            try:
+                transport.peers()
+            except RuntimeError as exc:
+                failures.append(exc)
+                break
+    finally:
+        stop.set()
+        thread.join(5)
+        transport.close()
+    assert not failures, failures
