@@ -6,6 +6,7 @@ as long as the suite (this is the one bench past two minutes: the figure *is* th
 
     .venv/bin/python bench/make_test.py            # the figure
     .venv/bin/python bench/make_test.py --slowest  # and the 15 slowest tests
+    .venv/bin/python bench/make_test.py --cpu      # and the suite's CPU by kind of process (bench/_cpu.py)
 """
 
 from __future__ import annotations
@@ -17,6 +18,10 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+from bench._cpu import CpuSampler, report
 
 ROOT = Path(__file__).resolve().parent.parent
 BUDGET = 300.0
@@ -30,9 +35,17 @@ def _timed(command: list[str]) -> tuple[float, str, int]:
     return time.monotonic() - began, done.stdout + done.stderr, done.returncode
 
 
+def _busy() -> float:
+    """CPU seconds the whole machine has spent busy since boot (/proc/stat: all but idle and I/O wait)."""
+    # user nice system idle iowait irq softirq steal (guest time, after these, is already counted in user)
+    fields = [int(x) for x in Path("/proc/stat").read_text().split("\n", 1)[0].split()[1:9]]
+    return (sum(fields) - fields[3] - fields[4]) / os.sysconf("SC_CLK_TCK")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--slowest", action="store_true", help="also list the 15 slowest tests")
+    parser.add_argument("--cpu", action="store_true", help="also sum the CPU of every process by kind during the suite")
     args = parser.parse_args()
     if not (ROOT / ".venv" / ".installed").exists():
         sys.exit("install first: make .venv/.installed (this figure is the time after installation)")
@@ -40,7 +53,12 @@ def main() -> None:
     if args.slowest:
         make.append("PYTEST_ARGS=--durations=15")
     lint_s, _, _ = _timed(["make", "--no-print-directory", "lint"])
+    sampler = CpuSampler().start() if args.cpu else None
+    busy_before = _busy()
     total_s, output, code = _timed(make)
+    busy = _busy() - busy_before
+    if sampler is not None:
+        sampler.stop()
     # one summary line per pytest run of `make test` (from four workers on, two: the rest, then the realtime tests)
     summary = "; ".join(line.strip("= ") for line in output.splitlines() if re.search(r"\d+ (passed|failed)", line))
     print(f"make lint: {lint_s:.1f} s; make test: {total_s:.1f} s, exit {code}: {summary}")
@@ -50,6 +68,10 @@ def main() -> None:
     if args.slowest:
         block = output.split("slowest 15 durations", 1)[-1].splitlines()[1:17]
         print("\n".join(block))
+    cores = os.cpu_count() or 1
+    print(f"{cores} cores {busy / (cores * total_s):.0%} busy during make test ({busy:.0f} CPU-s of the machine)")
+    if sampler is not None:
+        print(report(*sampler.totals()))
     print(f"ratio make_test_seconds_vs_300 {total_s / BUDGET:.2f} (target <= 1)")
     if code:
         sys.exit(code)

@@ -1,0 +1,116 @@
+"""Where a run's CPU goes, by kind of process: bench/make_test.py --cpu samples every process on the machine while
+the suite runs and sums their CPU by what they are (Chromium, pytest's workers, robot children, studios, ...).
+
+Issue 27's suite is CPU-bound on two cores (stop 50: 84 % of both busy for the whole run), so its time follows the
+CPU of whatever the tests start; this says which of those to cut. Linux only (it reads /proc)."""
+
+from __future__ import annotations
+
+import os
+import threading
+from collections import Counter
+from pathlib import Path
+
+PROC = Path("/proc")
+TICKS = os.sysconf("SC_CLK_TCK") if hasattr(os, "sysconf") else 100
+
+
+def kind(command: list[str]) -> str:
+    """What a process is, from its command line (argv): the label its CPU is summed under."""
+    if not command:
+        return "?"
+    program = os.path.basename(command[0])
+    if "chromium" in program or "chrome" in program:
+        return "chromium"
+    if program == "node" or program.startswith("node "):
+        return "playwright driver" if any("playwright" in arg for arg in command) else "node"
+    if "python" not in program:
+        return program
+    args = command[1:]
+    for i, arg in enumerate(args):
+        if arg == "-m" and i + 1 < len(args):
+            module = args[i + 1]
+            if module == "pytest":
+                return "pytest"
+            if module in ("basedpyright", "ruff"):
+                return module
+            return f"python -m {module}"
+        if arg == "-c":
+            code = args[i + 1] if i + 1 < len(args) else ""
+            # pytest-xdist's workers are started by execnet with code read from stdin
+            return "pytest worker" if "sys.stdin" in code or "execnet" in code else "python -c"
+        if not arg.startswith("-"):
+            name = os.path.basename(arg)
+            return f"python {name}" if not name.startswith("asm-") else name
+    return "python"
+
+
+def _sample() -> dict[tuple[int, int], tuple[float, list[str]]]:
+    """Every readable process: (pid, start time) -> (CPU seconds so far, argv)."""
+    seen: dict[tuple[int, int], tuple[float, list[str]]] = {}
+    for entry in PROC.iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            stat = (entry / "stat").read_text()
+            command = (entry / "cmdline").read_bytes().split(b"\0")
+        except OSError:  # gone meanwhile, or not ours to read
+            continue
+        fields = stat[stat.rfind(")") + 2 :].split()
+        cpu = (int(fields[11]) + int(fields[12])) / TICKS  # utime + stime
+        argv = [part.decode(errors="replace") for part in command if part]
+        seen[(int(entry.name), int(fields[19]))] = (cpu, argv)
+    return seen
+
+
+class CpuSampler:
+    """Samples every process every ``interval`` seconds from start() to stop(); totals() then gives the CPU seconds
+    each kind of process used meanwhile (a process seen only between two samples is missed: the interval bounds
+    what is lost, and the suite's processes live for seconds)."""
+
+    def __init__(self, interval: float = 0.5) -> None:
+        self.interval = interval
+        self._before: dict[tuple[int, int], float] = {}
+        self._last: dict[tuple[int, int], tuple[float, list[str]]] = {}
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="cpu sampler", daemon=True)
+
+    def start(self) -> CpuSampler:
+        self._before = {key: cpu for key, (cpu, _) in _sample().items()}
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join()
+        self._update()
+
+    def _run(self) -> None:
+        while not self._stop.wait(self.interval):
+            self._update()
+
+    def _update(self) -> None:
+        for key, (cpu, argv) in _sample().items():
+            known = self._last.get(key)
+            # a process that has exited but not been waited for (a zombie) has no command line left: keep the one
+            # it had, with its CPU, which stays readable
+            self._last[key] = (cpu, argv or (known[1] if known else argv))
+
+    def totals(self) -> tuple[Counter[str], Counter[str]]:
+        """(CPU seconds, processes) per kind, counting only CPU used after start()."""
+        cpu: Counter[str] = Counter()
+        count: Counter[str] = Counter()
+        for key, (seconds, argv) in self._last.items():
+            if key[0] == os.getpid():
+                continue
+            label = kind(argv)
+            cpu[label] += seconds - self._before.get(key, 0.0)
+            count[label] += 1
+        return cpu, count
+
+
+def report(cpu: Counter[str], count: Counter[str], top: int = 12) -> str:
+    """The kinds that used the most CPU, one line each, and the total."""
+    lines = [f"{seconds:8.1f} CPU-s  {count[label]:5d} processes  {label}" for label, seconds in cpu.most_common(top)]
+    lines.append(f"{sum(cpu.values()):8.1f} CPU-s in all")
+    return "\n".join(lines)
