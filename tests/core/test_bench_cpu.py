@@ -5,10 +5,14 @@ from __future__ import annotations
 
 import subprocess
 import sys
+import time
+from pathlib import Path
 
 import pytest
 
-from bench._cpu import CpuSampler, kind, report
+from bench._cpu import XDIST_WORKER, CpuSampler, kind
+
+from ..helpers import wait_until
 
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
 
@@ -17,7 +21,10 @@ pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="re
     ("argv", "label"),
     [
         (["/usr/lib/chromium/chromium", "--type=gpu-process"], "chromium"),
-        (["/work/.venv/bin/python", "-c", "import sys;exec(eval(sys.stdin.readline()))"], "pytest worker"),
+        (["/work/.venv/bin/python", "-u", "-c", XDIST_WORKER], "pytest worker"),
+        (["/work/.venv/bin/python", "-c", "import sys; sys.stdin.read()"], "python -c"),
+        (["/usr/lib/chromium/chromium --type=renderer --user-data-dir=/tmp/profile-abc --lang=en"], "chromium"),
+        (["[kthreadd]"], "[kthreadd]"),
         (["/work/.venv/bin/python", "-m", "pytest", "-n", "3"], "pytest"),
         (["/work/.venv/bin/python", "-m", "server.robot", "--modules", "8"], "python -m server.robot"),
         (["/work/.venv/bin/python", "-u", "-m", "server.studio", "--port", "1"], "python -m server.studio"),
@@ -34,29 +41,34 @@ def test_each_kind_of_process_is_named_apart(argv, label):
     assert kind(argv) == label
 
 
-def test_a_child_busy_while_sampled_is_counted_and_cpu_from_before_the_start_is_not():
+BURN = "import time\nend = time.process_time() + {seconds}\nwhile time.process_time() < end: pass\n"
+
+
+def _state(pid: int) -> str:
+    stat = Path(f"/proc/{pid}/stat").read_text()
+    return stat[stat.rfind(")") + 2]
+
+
+def test_a_child_busy_while_sampled_is_counted():
     sampler = CpuSampler(interval=0.05).start()
-    busy = subprocess.run(
-        [sys.executable, "-c", "import time\nend = time.process_time() + 0.6\nwhile time.process_time() < end: pass"],
-        timeout=60,
-        check=True,
-    )
-    assert busy.returncode == 0
-    # the child has exited: what the sampler saw of it last stands (its last 0.05 s may be missed)
+    child = subprocess.Popen([sys.executable, "-c", BURN.format(seconds=0.6)])
+    try:
+        child.wait(60)
+    finally:
+        child.kill()
     sampler.stop()
-    cpu, count = sampler.totals()
-    assert 0.3 <= cpu["python -c"] <= 1.5, report(cpu, count)
-    assert count["python -c"] >= 1
+    seconds, label = sampler.entries()[child.pid]
+    assert label == "python -c"
+    assert 0.3 <= seconds <= 1.5  # its last 0.05 s before it was reaped may be missed
 
 
 def test_cpu_a_process_used_before_the_start_is_not_counted():
-    burn_then_wait = "import sys, time\nend = time.process_time() + 0.6\nwhile time.process_time() < end: pass\n"
-    burn_then_wait += "print('ready', flush=True)\nsys.stdin.read()"
-    child = subprocess.Popen([sys.executable, "-c", burn_then_wait], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-                             text=True)  # fmt: skip
+    code = BURN.format(seconds=0.6) + "print('ready', flush=True)\nimport sys\nsys.stdin.readline()"
+    child = subprocess.Popen([sys.executable, "-c", code], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
     try:
         assert child.stdout is not None and child.stdout.readline().strip() == "ready"
         sampler = CpuSampler(interval=0.05).start()
+        time.sleep(0.3)  # sampled alive several times after the start
         assert child.stdin is not None
         child.stdin.close()
         child.wait(30)
@@ -64,5 +76,22 @@ def test_cpu_a_process_used_before_the_start_is_not_counted():
     finally:
         child.kill()
         child.wait(30)
-    cpu, count = sampler.totals()
-    assert cpu["python -c"] < 0.2, report(cpu, count)
+    seconds, label = sampler.entries()[child.pid]
+    assert label == "python -c"
+    assert seconds < 0.2  # it used 0.6 CPU-s, all before the start
+
+
+def test_a_child_that_exited_unreaped_keeps_its_kind_and_cpu():
+    """A zombie has no command line left in /proc, only its CPU: it is still counted under what it was."""
+    sampler = CpuSampler(interval=0.05).start()
+    child = subprocess.Popen([sys.executable, "-c", BURN.format(seconds=0.3) + "time.sleep(0.3)"])
+    try:
+        assert wait_until(lambda: _state(child.pid) == "Z", timeout=30)  # exited, not yet waited for
+        assert Path(f"/proc/{child.pid}/cmdline").read_bytes() == b""
+        sampler.stop()  # its last look sees only the zombie
+    finally:
+        child.kill()
+        child.wait(30)
+    seconds, label = sampler.entries()[child.pid]
+    assert label == "python -c"
+    assert seconds >= 0.2
