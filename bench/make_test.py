@@ -21,7 +21,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from bench._cpu import CpuSampler, report
+from bench._cpu import CpuSampler, machine_busy, report
 
 ROOT = Path(__file__).resolve().parent.parent
 BUDGET = 300.0
@@ -33,13 +33,6 @@ def _timed(command: list[str]) -> tuple[float, str, int]:
         command, cwd=ROOT, capture_output=True, text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"}
     )
     return time.monotonic() - began, done.stdout + done.stderr, done.returncode
-
-
-def _busy() -> float:
-    """CPU seconds the whole machine has spent busy since boot (/proc/stat: all but idle and I/O wait)."""
-    # user nice system idle iowait irq softirq steal (guest time, after these, is already counted in user)
-    fields = [int(x) for x in Path("/proc/stat").read_text().split("\n", 1)[0].split()[1:9]]
-    return (sum(fields) - fields[3] - fields[4]) / os.sysconf("SC_CLK_TCK")
 
 
 def main() -> None:
@@ -54,9 +47,9 @@ def main() -> None:
         make.append("PYTEST_ARGS=--durations=15")
     lint_s, _, _ = _timed(["make", "--no-print-directory", "lint"])
     sampler = CpuSampler().start() if args.cpu else None
-    busy_before = _busy()
+    busy_before = machine_busy()
     total_s, output, code = _timed(make)
-    busy = _busy() - busy_before
+    busy = machine_busy() - busy_before
     if sampler is not None:
         sampler.stop()
     # one summary line per pytest run of `make test` (from four workers on, two: the rest, then the realtime tests)
