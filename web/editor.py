@@ -86,7 +86,8 @@ class GaitEditor:
             self.module_automaton = gui.add_dropdown("Runs", ["-"])
             self.module_problem = gui.add_markdown("")
         with gui.add_folder("Program", expand_by_default=False):
-            self.program = ProgramPanel(gui, self.doc, edited=self.after_edit, safe=safe, syncing=lambda: page.syncing)
+            self.program = ProgramPanel(gui, self.doc, edited=self.after_edit, safe=safe, syncing=lambda: page.syncing,
+                                        on_edit=page.on_edit)  # fmt: skip
         with gui.add_folder("Robot"):
             self.modules = number(gui, "Modules", initial_value=8, step=1, hint=f"1..{MODULE_IDS[-1]}")
             self.shape = gui.add_dropdown("Shape", SHAPES)
@@ -109,33 +110,32 @@ class GaitEditor:
                                           title="Expanded table: commanded angle per module", aspect=2.2,
                                           **seconds_axes("degrees"))  # fmt: skip
 
-        def field(setter: Callable[[Any], None]) -> Callable[[Any], None]:
-            def callback(event: Any) -> None:
-                if not page.syncing:
-                    setter(event.target.value)
-                    self.after_edit()
+        def field(control: Any, setter: Callable[[Any], None]) -> None:
+            def apply(value: Any) -> None:
+                setter(value)
+                self.after_edit()
 
-            return safe(callback)
+            page.on_edit(control, apply)  # the value as typed, even if a resync of another edit ran in between
 
-        def state_field(name: str, convert: Callable[[Any], Any]) -> Callable[[Any], None]:
-            return field(lambda v: self.doc.set_state(self.automaton.value, int(self.state_index.value) - 1, name,
-                                                      convert(v)))  # fmt: skip
+        def state_field(control: Any, name: str, convert: Callable[[Any], Any]) -> None:
+            field(control, lambda v: self.doc.set_state(self.automaton.value, int(self.state_index.value) - 1, name,
+                                                        convert(v)))  # fmt: skip
 
-        def module_field(name: str, convert: Callable[[Any], Any]) -> Callable[[Any], None]:
-            return field(lambda v: self.doc.set_module(int(self.module_index.value), name, convert(v),
-                                                       self.program.gait()))  # fmt: skip
+        def module_field(control: Any, name: str, convert: Callable[[Any], Any]) -> None:
+            field(control, lambda v: self.doc.set_module(int(self.module_index.value), name, convert(v),
+                                                         self.program.gait()))  # fmt: skip
 
-        self.angle.on_update(state_field("angle", float))
-        self.duration.on_update(state_field("duration", float))
-        self.interp.on_update(state_field("interpolation", str))
-        self.phase.on_update(module_field("phase", float))
-        self.direction.on_update(module_field("direction", int))
-        self.module_automaton.on_update(module_field("automaton", str))
+        state_field(self.angle, "angle", float)
+        state_field(self.duration, "duration", float)
+        state_field(self.interp, "interpolation", str)
+        module_field(self.phase, "phase", float)
+        module_field(self.direction, "direction", int)
+        module_field(self.module_automaton, "automaton", str)
         robot_fields = ((self.modules, "modules", lambda v: whole(v, "Modules")), (self.shape, "shape", str),
                         (self.axes, "axes", str), (self.legs, "legs", lambda v: whole(v, "Legs")),
                         (self.module_size, "module_size", float), (self.friction, "friction", float))  # fmt: skip
         for control, name, convert in robot_fields:
-            control.on_update(field(lambda v, name=name, convert=convert: self.doc.set_robot(name, convert(v))))
+            field(control, lambda v, name=name, convert=convert: self.doc.set_robot(name, convert(v)))
         for control in (self.automaton, self.state_index, self.module_index):
             control.on_update(safe(lambda _: None if page.syncing else self.sync()))
         states.on_click(safe(self._on_states))

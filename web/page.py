@@ -13,6 +13,7 @@ takes the document's lock or queues a request to the preview loop, because viser
 
 from __future__ import annotations
 
+import collections
 import contextlib
 import functools
 import logging
@@ -193,6 +194,34 @@ class Page:
                 self._acting.client = None
 
         return wrapped
+
+    def on_edit(self, handle: Any, apply: Callable[[Any], None], *, click: bool = False) -> None:
+        """Call ``apply`` with each value a user gives ``handle``, as it arrived, one at a time in arrival order (and
+        with a value set from the server outside :meth:`programmatic`, as the page's own actions and tests do).
+
+        viser sets a control's value on its event loop and runs its callbacks later on a thread pool, so a callback
+        reading ``handle.value`` may read what another callback's resync put there in between: "Add (copy of
+        forward)" resynced the Sequence field to the document's empty sequence after the sequence typed next had
+        arrived, and that sequence was lost. A coroutine callback runs on the loop right after viser sets the value,
+        so the value is kept there, and the pool's callback applies what was kept."""
+        arrived: collections.deque[Any] = collections.deque()
+        order = threading.Lock()
+
+        async def keep(event: Any) -> None:
+            if event.client_id is not None:
+                arrived.append(event.target.value)
+
+        def run(event: Any) -> None:
+            if event.client_id is None:  # set from the server, synchronously in the setting thread
+                if not self.syncing:
+                    apply(event.target.value)
+                return
+            with order:
+                apply(arrived.popleft())
+
+        register = handle.on_click if click else handle.on_update
+        register(keep)
+        register(self.safe(run))
 
     def notify(self, title: str, body: str, *, error: bool = False) -> None:
         """Say it in the status line, and as a toast unless the same toast went out less than TOAST_SECONDS ago

@@ -142,25 +142,24 @@ class ProgramPanel:
     """The program: its gaits, which one the Module folder edits, and its sequence (a folder of the Gait tab)."""
 
     def __init__(self, gui: Any, doc: GaitDocument, *, edited: Callable[[], None], safe: Callable[..., Any],
-                 syncing: Callable[[], bool]) -> None:  # fmt: skip
+                 syncing: Callable[[], bool], on_edit: Callable[..., None]) -> None:  # fmt: skip
         self.doc = doc
         self.editing = gui.add_dropdown("Edit modules of", [FORWARD],
                                         hint="which gait of the program the Module folder edits")  # fmt: skip
         self.name = gui.add_text("New gait", initial_value="left", hint="e.g. left, right, turn_left")
-        actions = gui.add_button_group("Program gaits", ["Add (copy of forward)", "Remove edited"])
+        self.actions = gui.add_button_group("Program gaits", ["Add (copy of forward)", "Remove edited"])
         self.sequence = gui.add_text("Sequence", initial_value="",
                                      hint="run by itself: 'forward 5, left 5, forward' (cycles each)")  # fmt: skip
         self.problem = gui.add_markdown("")
 
         self._edited = edited
-        self._syncing = syncing
-        actions.on_click(safe(self.on_action))
-        self.sequence.on_update(safe(self._on_sequence))
+        on_edit(self.actions, self.on_action, click=True)  # (the page's: each with the value it arrived with)
+        on_edit(self.sequence, self._on_sequence)
         self.editing.on_update(safe(lambda _: None if syncing() else edited()))
 
-    def on_action(self, event: Any) -> None:
+    def on_action(self, clicked: str) -> None:
         """The Program gaits buttons: add a copy of forward under the typed name, or remove the edited gait."""
-        if event.target.value.startswith("Add"):
+        if clicked.startswith("Add"):
             name = self.name.value.strip()
             self.doc.add_program_gait(name)
             self._edited()
@@ -172,10 +171,9 @@ class ProgramPanel:
             self.editing.value = FORWARD
         self._edited()
 
-    def _on_sequence(self, event: Any) -> None:
-        if not self._syncing():
-            self.doc.set_sequence(parse_sequence(event.target.value))
-            self._edited()
+    def _on_sequence(self, text: str) -> None:
+        self.doc.set_sequence(parse_sequence(text))
+        self._edited()
 
     def gait(self) -> str:
         """The gait of the program the Module folder edits."""

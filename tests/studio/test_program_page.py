@@ -3,7 +3,9 @@ runs the same callbacks a user's edit does (test_drive_e2e.py drives the page in
 
 from __future__ import annotations
 
+import asyncio
 from types import SimpleNamespace
+from typing import Any
 
 import pytest
 
@@ -12,10 +14,6 @@ from tests.helpers import wait_until
 from web.program_editor import TIME, parse_sequence
 
 pytestmark = pytest.mark.timeout(120)
-
-
-def _click(value: str) -> SimpleNamespace:
-    return SimpleNamespace(target=SimpleNamespace(value=value), client=None)
 
 
 def _select(app, automaton: str, state: int) -> None:
@@ -56,7 +54,7 @@ def test_gaits_of_the_program_and_its_sequence_are_edited_in_the_page(studio) ->
     app = studio.app
     program = app.editor.program
     program.name.value = "left"
-    program.on_action(_click("Add (copy of forward)"))
+    program.on_action("Add (copy of forward)")
     assert "left" in app.doc.data()["gaits"] and program.editing.value == "left"
     app.editor.module_index.value = 3
     app.editor.phase.value = 0.5  # edits module 3 in the gait being edited: left
@@ -71,7 +69,7 @@ def test_gaits_of_the_program_and_its_sequence_are_edited_in_the_page(studio) ->
     program.sequence.value = "forward 2, left 3, forward"
     app.editor.modules.value = 10  # the robot grows: every gait of the program grows with it
     assert len(app.doc.data()["gaits"]["left"]["modules"]) == 10 and not app.doc.problems
-    program.on_action(_click("Remove edited"))
+    program.on_action("Remove edited")
     assert "gaits" not in app.doc.data() and app.doc.gait().sequence == [("forward", 2), ("forward", 0)]
 
 
@@ -133,3 +131,66 @@ def test_a_clicked_state_is_selected_and_anything_else_the_page_sends_is_refused
         assert (editor.automaton.value, editor.state_index.value) == ("lead", 8)
     editor.clicked.value = "lead:2:6"  # as the page sets it: through the field's callback
     assert wait_until(lambda: editor.state_index.value == 3, timeout=10)
+
+
+class _HeldPool:
+    """Stands in for viser's thread pool: keeps what the page's messages submit, to run in an order the test picks."""
+
+    def __init__(self) -> None:
+        self.held: list[tuple[Any, tuple[Any, ...]]] = []
+
+    def submit(self, fn: Any, *args: Any) -> Any:
+        self.held.append((fn, args))
+        return SimpleNamespace(add_done_callback=lambda _: None)
+
+
+def _arrives(app, handle, value: Any, client_id: int = 7) -> None:
+    """A browser tab's edit of ``handle`` as viser's event loop handles it (the value is set there, then the
+    callbacks are handed to the pool)."""
+    from viser import _messages
+
+    gui = app.server.gui
+    message = _messages.GuiUpdateMessage(handle._impl.uuid, {"value": value})
+    asyncio.run_coroutine_threadsafe(gui._handle_gui_updates(client_id, message), gui._event_loop).result(10)
+
+
+def test_a_sequence_typed_right_after_add_is_kept_when_the_add_runs_first(studio, monkeypatch) -> None:
+    """Found by test_drive_e2e under load: "Add (copy of forward)" clicked, then a sequence typed. viser set the
+    field's value on its event loop, then the Add's callback resynced the editor from the document (an empty
+    sequence) and the sequence's callback, run next on the pool, read "" from the field: the typed sequence was
+    lost. The pool's worst order is replayed here: both messages arrive, then the callbacks run in that order."""
+    app = studio.app
+    program = app.editor.program
+    pool = _HeldPool()
+    monkeypatch.setattr(app.server.gui, "_thread_executor", pool)
+    monkeypatch.setitem(app.server._connected_clients, 7, SimpleNamespace(client_id=7))
+    program.name.value = "wiggle"
+    _arrives(app, program.actions, "Add (copy of forward)")
+    _arrives(app, program.sequence, "forward 2, wiggle 3, forward")
+    assert len(pool.held) == 2
+    for fn, args in pool.held:
+        fn(*args)
+    assert "wiggle" in app.doc.data()["gaits"]
+    assert app.doc.gait().sequence == [("forward", 2), ("wiggle", 3), ("forward", 0)]
+    assert program.sequence.value == "forward 2, wiggle 3, forward"
+
+
+def test_each_edit_is_applied_with_the_value_it_arrived_with_in_arrival_order(studio, monkeypatch) -> None:
+    """The page's on_edit, alone: two values typed into a field, a resync setting it in between, the pool running
+    the callbacks late; a value set by the server inside ``programmatic`` is not an edit, one set outside it is."""
+    app = studio.app
+    pool = _HeldPool()
+    monkeypatch.setattr(app.server.gui, "_thread_executor", pool)
+    monkeypatch.setitem(app.server._connected_clients, 7, SimpleNamespace(client_id=7))
+    field = app.server.gui.add_text("on_edit probe", initial_value="")
+    applied: list[str] = []
+    app.page.on_edit(field, applied.append)
+    _arrives(app, field, "first")
+    _arrives(app, field, "second")
+    with app.page.programmatic():
+        field.value = "resynced"
+    for fn, args in pool.held:
+        fn(*args)
+    assert applied == ["first", "second"]
+    field.value = "set by the page's own action"
+    assert applied == ["first", "second", "set by the page's own action"]
