@@ -56,7 +56,7 @@ def main() -> None:
     summary = "; ".join(line.strip("= ") for line in output.splitlines() if re.search(r"\d+ (passed|failed)", line))
     print(f"make lint: {lint_s:.1f} s; make test: {total_s:.1f} s, exit {code}: {summary}")
     for line in output.splitlines():
-        if line.startswith("FAILED "):
+        if line.startswith(("FAILED ", "ERROR ")):
             print(line)
     if args.slowest:
         block = output.split("slowest 15 durations", 1)[-1].splitlines()[1:17]

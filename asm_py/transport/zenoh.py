@@ -47,6 +47,7 @@ from .zenoh_config import (  # noqa: F401  (re-exported: the configuration is pa
     security_problems,
 )
 from .zenoh_drain import IGNORE_REPLIES, drained
+from .zenoh_requests import ReplyKeys, RequestQueue, refuse_busy
 from .zenoh_watch import MAX_VIEWS, WatchedPublisher
 
 log = logging.getLogger("asm_py.transport.zenoh")
@@ -115,8 +116,10 @@ class ZenohTransport(Transport):
         self._kept_views: set[str] = set()  # the views of published attributes' senders: never forgotten
         self._claims: dict[str, set[str]] = {}  # segment -> sessions whose liveliness token claims it
         self._pub_lock = threading.Lock()
-        self._reply_keys: dict[str, zenoh.KeyExpr] = {}  # request source -> the key its replies carry
+        self._reply_key = ReplyKeys(lambda source: self.keys.requests(self.segment, concrete(source)))
         self._holding = Holding()
+        self._requests: RequestQueue[zenoh.Query] | None = None
+        self._messages: RequestQueue[zenoh.Sample] | None = None
         self._token: Any = None
         self.name_lost = ""
         """The session this one gave its name to after keeping it ("" while it keeps it): see _rival_kept."""
@@ -142,6 +145,8 @@ class ZenohTransport(Transport):
         self.segment = segment(name, tool=self.role == "tool")
         session = self._session = zenoh.open(self._config)
         self._holding = Holding()  # requests and messages for the name, held until it is this session's
+        self._requests = RequestQueue(self._on_query, self._refuse_query, name, discard=zenoh.Query.drop)
+        self._messages = RequestQueue(self._on_sample, None, f"{name} messages")  # a message refused: no reply
         self._zid = str(session.info.zid())
         self._attachment = self._zid.encode()
         try:
@@ -150,8 +155,8 @@ class ZenohTransport(Transport):
             claiming = session.liveliness().declare_token(keys.claim(self.segment, self._zid))
             self._keep += [
                 claiming,
-                session.declare_queryable(keys.requests(self.segment), self._on_query),
-                session.declare_subscriber(keys.messages(self.segment), self._on_sample),
+                session.declare_queryable(keys.requests(self.segment), self._requests.callback()),
+                session.declare_subscriber(keys.messages(self.segment), self._messages.callback()),
                 # every e-stop from elsewhere, whatever its sender's name (this node's own runs its handlers directly)
                 session.declare_subscriber(keys.estop(), self._on_estop, allowed_origin=zenoh.Locality.REMOTE),
                 session.declare_subscriber(lab_estop(), self._on_estop, allowed_origin=zenoh.Locality.REMOTE),
@@ -197,7 +202,8 @@ class ZenohTransport(Transport):
                          f"(session {rival}): choose another name")  # fmt: skip
 
     def _join(self, group: str) -> None:
-        self._keep.append(self.session.declare_subscriber(self.keys.group(group), self._on_sample))
+        assert self._messages is not None  # opened
+        self._keep.append(self.session.declare_subscriber(self.keys.group(group), self._messages.callback()))
 
     # -- receiving ------------------------------------------------------------------------------------------------
 
@@ -209,18 +215,12 @@ class ZenohTransport(Transport):
             self._deliver(source, sample.payload.to_bytes())
 
     def _on_query(self, query: zenoh.Query) -> None:
-        """On zenoh-python's Python thread for this queryable, not on Zenoh's own: a handler may block (a set's
-        change callback calling another node) without holding Zenoh's network thread. Running it there instead
-        (zenoh-python's direct callback) was measured no faster (issue 31, docs/benchmarks.md)."""
+        """On the node's request thread (zenoh_requests), not on Zenoh's own: a handler may block (a set's change
+        callback calling another node) without holding Zenoh's network thread."""
         if not self._holding.kept and self._holding.hold(lambda: self._on_query(query), query.drop):
             return
         source = last(query.key_expr)
-        key = self._reply_keys.get(source)
-        if key is None:  # a reply carries the replier's own, concrete key
-            if len(self._reply_keys) > 4096:  # bounded: sources come from the network
-                self._reply_keys.clear()
-            # a zenoh.KeyExpr made once: a reply given a str key has it parsed and checked again (7-10 µs each)
-            key = self._reply_keys[source] = zenoh.KeyExpr(self.keys.requests(self.segment, concrete(source)))
+        key = self._reply_key(source)
         data = query.payload.to_bytes() if query.payload is not None else b""
         answered = False
 
@@ -236,6 +236,10 @@ class ZenohTransport(Transport):
         self._deliver(source, data, respond)
         if not answered and not self._expects_reply(data):
             query.drop()
+
+    def _refuse_query(self, query: zenoh.Query) -> None:
+        """A request the queue cannot hold (zenoh_requests): BUSY at once to one that wants a reply."""
+        refuse_busy(query, self._reply_key(last(query.key_expr)), self.segment)
 
     @staticmethod
     def _expects_reply(data: bytes) -> bool:
@@ -479,6 +483,9 @@ class ZenohTransport(Transport):
             except Exception:  # already gone with its session
                 log.debug("undeclare failed during close", exc_info=True)
         self._keep.clear()
+        for handoff in (self._requests, self._messages):
+            if handoff is not None:
+                handoff.close()
         for watched in self._views.values():
             try:
                 watched.close()

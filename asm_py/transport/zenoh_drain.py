@@ -16,10 +16,11 @@ A ``RingChannel`` never blocks Zenoh's task: past ``BACKLOG`` samples not yet ta
 publication already allows (it is sent best-effort, and an attribute's newest value wins over an unread one). The
 drain takes what is queued without releasing the interpreter lock between samples.
 
-Only publications: a node's requests, messages, e-stops and liveliness keep zenoh-python's blocking channel, since
-a request or a node leaving must not be dropped (a set lost without its sender knowing, a blocking call left waiting
-for a reply that will never come: a review measured both when they were drained this way). So a request handler
-that hangs under a flood of requests still stops its session, e-stops included: not fixed.
+Only publications: a request or a node leaving must not be dropped (a set lost without its sender knowing, a
+blocking call left waiting for a reply that will never come: a review measured both when they were drained this
+way). A node's requests go through a queue of its own that refuses with BUSY what it cannot hold
+(asm_py/transport/zenoh_requests.py), so a request handler that hangs under a flood no longer stops its session;
+messages, e-stops and liveliness keep zenoh-python's channel, their handlers never block.
 """
 
 from __future__ import annotations

@@ -7,14 +7,18 @@ from __future__ import annotations
 
 import gc
 import threading
+import time
 from collections.abc import Iterator
 
 import pytest
 
 from asm_py import Attribute
+from asm_py.errors import RemoteError
 from asm_py.node import Node
+from asm_py.protocol import Status
 from asm_py.transport.zenoh import ZenohTransport
 from asm_py.transport.zenoh_drain import BACKLOG
+from asm_py.transport.zenoh_requests import REQUEST_BACKLOG
 
 from ..helpers import wait_until
 from ..transports import free_port
@@ -121,3 +125,76 @@ def test_a_subscription_whose_remover_is_dropped_goes_on_delivering_and_survives
     tool.lookup("module", "stream", timeout=5).on_change(listener)  # its remover dropped at once
     gc.collect()
     assert wait_until(lambda: (stream.set(1.0), len(seen) >= 3)[1], timeout=10)
+
+
+def test_a_hung_request_handler_under_a_flood_keeps_the_estop_and_refuses_what_it_cannot_hold(
+    pair: tuple[Node, Node],
+) -> None:
+    """A set whose change listener hangs holds the module's requests behind it. zenoh-python handed them to that
+    thread through a channel of 256 that blocks when full: past 256 the module's whole session stopped, the e-stop
+    sent to it included. Now they wait in a queue of REQUEST_BACKLOG, and one past it is refused as BUSY at once."""
+    module, tool = pair
+    release = threading.Event()
+    entered = threading.Event()
+    stops: list[str] = []
+    try:
+        goal = Attribute("goal", 0.0, codec="float32")
+
+        def hang(_: object) -> None:
+            entered.set()
+            release.wait(60)
+
+        goal.on_change(hang)
+        module.register(goal)
+        module.register(Attribute("joint.angle", 0.75, codec="float32"))
+        module.on_estop(lambda source, reason: stops.append(reason))
+        remote_goal = tool.lookup("module", "goal", timeout=5)
+        remote_angle = tool.lookup("module", "joint.angle", timeout=5)
+        remote_goal.set(1.0, wait=False)
+        assert entered.wait(10)
+        for i in range(REQUEST_BACKLOG + 100):  # far past zenoh-python's channel of 256, and past the backlog
+            remote_goal.set(float(i), wait=False)
+        tool.estop("flood")
+        assert wait_until(lambda: "flood" in stops, timeout=10)  # the module's session still hears the e-stop
+        began = time.monotonic()
+        with pytest.raises(RemoteError, match=f"holds {REQUEST_BACKLOG} requests behind one") as refused:
+            remote_angle.get(timeout=20)
+        assert refused.value.status == Status.BUSY and time.monotonic() - began < 10  # at once, not at the timeout
+    finally:
+        release.set()
+
+    def serves() -> bool:  # BUSY while the queue still holds what waited behind the hung set
+        try:
+            return remote_angle.get(timeout=5) == 0.75
+        except RemoteError as exc:
+            assert exc.status == Status.BUSY
+            return False
+
+    assert wait_until(serves, timeout=30)  # and serves again once it is free
+
+
+def test_a_hung_group_set_under_a_flood_of_group_messages_keeps_the_estop(pair: tuple[Node, Node]) -> None:
+    """The same for a group's messages (a set to every node with an object of a class): they came through
+    zenoh-python's channel of 256 too, and a group set whose listener hung stopped the session past 256 more."""
+    module, tool = pair
+    release = threading.Event()
+    entered = threading.Event()
+    stops: list[str] = []
+    try:
+        signal = Attribute("gait.signal", 0, codec="uint8")
+
+        def hang(_: object) -> None:
+            entered.set()
+            release.wait(60)
+
+        signal.on_change(hang)
+        module.register(signal)
+        module.on_estop(lambda source, reason: stops.append(reason))
+        group = tool.group().attribute("gait.signal", "uint8")
+        assert wait_until(lambda: (group.set(1), entered.is_set())[1], timeout=10)
+        for i in range(REQUEST_BACKLOG + 100):
+            group.set(2 + i % 200)
+        tool.estop("groups")
+        assert wait_until(lambda: "groups" in stops, timeout=10)
+    finally:
+        release.set()
