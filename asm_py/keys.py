@@ -180,3 +180,13 @@ ANY_SOURCE = "any"
 def concrete(chunk: str) -> str:
     """``chunk``, or ANY_SOURCE when it is a wildcard: a reply always carries a concrete key (its replier's own)."""
     return ANY_SOURCE if "*" in chunk or "$" in chunk else chunk
+
+
+class Route:
+    """Where messages to one address go: its robot's keys and its segment (resolved once per address)."""
+
+    __slots__ = ("keys", "segment")
+
+    def __init__(self, keys: RobotKeys, segment: str) -> None:
+        self.keys = keys
+        self.segment = segment

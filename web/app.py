@@ -285,4 +285,5 @@ class Dashboard:
         self.replay.close()
         self.link.close()
         self.loop.close()
+        self.page.close()
         self.server.stop()

@@ -110,20 +110,22 @@ class GaitEditor:
                                           title="Expanded table: commanded angle per module", aspect=2.2,
                                           **seconds_axes("degrees"))  # fmt: skip
 
-        def field(control: Any, setter: Callable[[Any], None]) -> None:
-            def apply(value: Any) -> None:
-                setter(value)
+        def field(control: Any, setter: Callable[..., None], context: Callable[[], Any] | None = None) -> None:
+            def apply(value: Any, *where: Any) -> None:
+                setter(value, *where)
                 self.after_edit()
 
-            page.on_edit(control, apply)  # the value as typed, even if a resync of another edit ran in between
+            # the value as typed, and the state or module selected when it came (a resync of another edit, or a
+            # selection made after it, may run in between)
+            page.on_edit(control, apply, context=context)
 
         def state_field(control: Any, name: str, convert: Callable[[Any], Any]) -> None:
-            field(control, lambda v: self.doc.set_state(self.automaton.value, int(self.state_index.value) - 1, name,
-                                                        convert(v)))  # fmt: skip
+            field(control, lambda v, at: self.doc.set_state(at[0], at[1], name, convert(v)),
+                  context=lambda: (self.automaton.value, int(self.state_index.value) - 1))  # fmt: skip
 
         def module_field(control: Any, name: str, convert: Callable[[Any], Any]) -> None:
-            field(control, lambda v: self.doc.set_module(int(self.module_index.value), name, convert(v),
-                                                         self.program.gait()))  # fmt: skip
+            field(control, lambda v, at: self.doc.set_module(at[0], name, convert(v), at[1]),
+                  context=lambda: (int(self.module_index.value), self.program.gait()))  # fmt: skip
 
         state_field(self.angle, "angle", float)
         state_field(self.duration, "duration", float)

@@ -21,6 +21,7 @@ import threading
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any, Literal, Protocol
 
 import viser
@@ -120,6 +121,8 @@ class Page:
         self._sync_lock = threading.RLock()
         self._last_toast: tuple[tuple[str, str], float] | None = None
         self._acting = threading.local()
+        self._kept: list[tuple[Any, Callable[..., Any]]] = []
+        """The controls whose edits :meth:`on_edit` keeps, and its keeping callback (see :meth:`close`)."""
         self.last_editor: int | None = None
         """The client (browser tab) whose edit of the gait came last."""
         self.toasts = 0
@@ -195,33 +198,57 @@ class Page:
 
         return wrapped
 
-    def on_edit(self, handle: Any, apply: Callable[[Any], None], *, click: bool = False) -> None:
+    def on_edit(
+        self,
+        handle: Any,
+        apply: Callable[..., None],
+        *,
+        click: bool = False,
+        context: Callable[[], Any] | None = None,
+    ) -> None:
         """Call ``apply`` with each value a user gives ``handle``, as it arrived, one at a time in arrival order (and
-        with a value set from the server outside :meth:`programmatic`, as the page's own actions and tests do).
+        with a value set from the server outside :meth:`programmatic`, as the page's own actions and tests do);
+        ``context`` (read as the value arrives, passed after it): what the value is of, e.g. the selected state.
 
         viser sets a control's value on its event loop and runs its callbacks later on a thread pool, so a callback
         reading ``handle.value`` may read what another callback's resync put there in between: "Add (copy of
         forward)" resynced the Sequence field to the document's empty sequence after the sequence typed next had
         arrived, and that sequence was lost. A coroutine callback runs on the loop right after viser sets the value,
-        so the value is kept there, and the pool's callback applies what was kept."""
-        arrived: collections.deque[Any] = collections.deque()
+        so the value (with its tab and its context) is kept there, and the pool's callback applies what was kept."""
+        arrived: collections.deque[tuple[Any, Any, tuple[Any, ...]]] = collections.deque()
         order = threading.Lock()
+
+        def with_context() -> tuple[Any, ...]:
+            return () if context is None else (context(),)
 
         async def keep(event: Any) -> None:
             if event.client_id is not None:
-                arrived.append(event.target.value)
+                arrived.append((event.client, event.target.value, with_context()))
 
         def run(event: Any) -> None:
             if event.client_id is None:  # set from the server, synchronously in the setting thread
                 if not self.syncing:
-                    apply(event.target.value)
+                    self.safe(lambda _: apply(event.target.value, *with_context()))(event)
                 return
             with order:
-                apply(arrived.popleft())
+                client, value, kept = arrived.popleft()
+                self.safe(lambda _: apply(value, *kept))(SimpleNamespace(client=client))  # as that tab's edit
 
-        register = handle.on_click if click else handle.on_update
-        register(keep)
-        register(self.safe(run))
+        if click:
+            handle.on_click(keep)
+            handle.on_click(run)
+        else:
+            handle.on_update(keep)
+            handle.on_update(run)
+            self._kept.append((handle, keep))
+
+    def close(self) -> None:
+        """Take back the callbacks that keep values on viser's loop: once the server stops, a value set from here
+        would have viser schedule one on a closed loop (RuntimeError out of the setter). A button group has no
+        public remover, and the server never sets one."""
+        for handle, keep in self._kept:
+            handle.remove_update_callback(keep)
+        self._kept.clear()
 
     def notify(self, title: str, body: str, *, error: bool = False) -> None:
         """Say it in the status line, and as a toast unless the same toast went out less than TOAST_SECONDS ago

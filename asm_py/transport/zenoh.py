@@ -26,6 +26,7 @@ from ..keys import (
     DEFAULT_ROBOT,
     Address,
     RobotKeys,
+    Route,
     check_name,
     concrete,
     lab_estop,
@@ -60,16 +61,6 @@ ROLES = ("module", "tool")
 
 class NameTaken(RuntimeError):
     """Another session already claims this node's name in its robot."""
-
-
-class _Route:
-    """Where messages to one address go: its robot's keys and its segment (resolved once per address)."""
-
-    __slots__ = ("keys", "segment")
-
-    def __init__(self, keys: RobotKeys, segment: str) -> None:
-        self.keys = keys
-        self.segment = segment
 
 
 class ZenohTransport(Transport):
@@ -110,7 +101,7 @@ class ZenohTransport(Transport):
         self._queriers: dict[tuple[str, float], zenoh.Querier] = {}
         self.max_queriers = 1024
         """Queriers kept (one per destination and deadline: 8 deadlines of 128 modules fit)."""
-        self._routes: dict[str, _Route] = {}
+        self._routes: dict[str, Route] = {}
         self._senders: dict[str, PublicationSender] = {}  # published object -> its sender (publication_sender)
         self._views: dict[str, WatchedPublisher] = {}  # JSON view key -> its publisher, and whether it is watched
         self._kept_views: set[str] = set()  # the views of published attributes' senders: never forgotten
@@ -118,8 +109,7 @@ class ZenohTransport(Transport):
         self._pub_lock = threading.Lock()
         self._reply_key = ReplyKeys(lambda source: self.keys.requests(self.segment, concrete(source)))
         self._holding = Holding()
-        self._requests: RequestQueue[zenoh.Query] | None = None
-        self._messages: RequestQueue[zenoh.Sample] | None = None
+        self._handoffs: list[RequestQueue[Any]] = []  # the requests', then one per subscription (zenoh_requests)
         self._token: Any = None
         self.name_lost = ""
         """The session this one gave its name to after keeping it ("" while it keeps it): see _rival_kept."""
@@ -145,8 +135,6 @@ class ZenohTransport(Transport):
         self.segment = segment(name, tool=self.role == "tool")
         session = self._session = zenoh.open(self._config)
         self._holding = Holding()  # requests and messages for the name, held until it is this session's
-        self._requests = RequestQueue(self._on_query, self._refuse_query, name, discard=zenoh.Query.drop)
-        self._messages = RequestQueue(self._on_sample, None, f"{name} messages")  # a message refused: no reply
         self._zid = str(session.info.zid())
         self._attachment = self._zid.encode()
         try:
@@ -155,8 +143,8 @@ class ZenohTransport(Transport):
             claiming = session.liveliness().declare_token(keys.claim(self.segment, self._zid))
             self._keep += [
                 claiming,
-                session.declare_queryable(keys.requests(self.segment), self._requests.callback()),
-                session.declare_subscriber(keys.messages(self.segment), self._messages.callback()),
+                session.declare_queryable(keys.requests(self.segment), self._handoff("requests", self._on_query, True)),
+                session.declare_subscriber(keys.messages(self.segment), self._handoff("messages", self._on_sample)),
                 # every e-stop from elsewhere, whatever its sender's name (this node's own runs its handlers directly)
                 session.declare_subscriber(keys.estop(), self._on_estop, allowed_origin=zenoh.Locality.REMOTE),
                 session.declare_subscriber(lab_estop(), self._on_estop, allowed_origin=zenoh.Locality.REMOTE),
@@ -202,8 +190,15 @@ class ZenohTransport(Transport):
                          f"(session {rival}): choose another name")  # fmt: skip
 
     def _join(self, group: str) -> None:
-        assert self._messages is not None  # opened
-        self._keep.append(self.session.declare_subscriber(self.keys.group(group), self._messages.callback()))
+        handler = self._handoff(group, self._on_sample)
+        self._keep.append(self.session.declare_subscriber(self.keys.group(group), handler))
+
+    def _handoff(self, what: str, serve: Callable[[Any], None], queries: bool = False) -> Any:
+        """An entity's handler, a queue and a thread of its own (zenoh_requests): a query refused is answered BUSY if
+        it wants a reply, and one left at close is dropped; a message refused is dropped."""
+        refuse, discard = (self._refuse_query, zenoh.Query.drop) if queries else (None, lambda _: None)
+        self._handoffs.append(RequestQueue(serve, refuse, f"{self._name} {what}", discard=discard))
+        return self._handoffs[-1].callback()
 
     # -- receiving ------------------------------------------------------------------------------------------------
 
@@ -237,9 +232,13 @@ class ZenohTransport(Transport):
         if not answered and not self._expects_reply(data):
             query.drop()
 
-    def _refuse_query(self, query: zenoh.Query) -> None:
-        """A request the queue cannot hold (zenoh_requests): BUSY at once to one that wants a reply."""
-        refuse_busy(query, self._reply_key(last(query.key_expr)), self.segment)
+    def _refuse_query(self, query: zenoh.Query, closed: bool) -> None:
+        """A request the queue cannot hold (zenoh_requests): BUSY at once to one that wants a reply, unless this
+        session is closing or does not keep the name (a claim refused: the holder answers, never this one)."""
+        if closed or not self._holding.kept:
+            query.drop()
+        else:
+            refuse_busy(query, self._reply_key(last(query.key_expr)), self.segment)
 
     @staticmethod
     def _expects_reply(data: bytes) -> bool:
@@ -290,12 +289,12 @@ class ZenohTransport(Transport):
 
     # -- addresses ------------------------------------------------------------------------------------------------
 
-    def _route(self, dest: str) -> _Route:
+    def _route(self, dest: str) -> Route:
         route = self._routes.get(dest)  # the hot path: one dictionary lookup per message
         if route is None:
             address: Address = parse_address(dest)
             keys = self.keys if address.robot in (None, self.robot) else RobotKeys(address.robot)
-            route = _Route(keys, address.segment)
+            route = Route(keys, address.segment)
             if len(self._routes) > 4096:  # bounded: addresses come from callers, possibly many
                 self._routes.clear()
             self._routes[dest] = route
@@ -483,9 +482,9 @@ class ZenohTransport(Transport):
             except Exception:  # already gone with its session
                 log.debug("undeclare failed during close", exc_info=True)
         self._keep.clear()
-        for handoff in (self._requests, self._messages):
-            if handoff is not None:
-                handoff.close()
+        for handoff in self._handoffs:
+            handoff.close()
+        self._handoffs.clear()
         for watched in self._views.values():
             try:
                 watched.close()

@@ -18,9 +18,9 @@ drain takes what is queued without releasing the interpreter lock between sample
 
 Only publications: a request or a node leaving must not be dropped (a set lost without its sender knowing, a
 blocking call left waiting for a reply that will never come: a review measured both when they were drained this
-way). A node's requests go through a queue of its own that refuses with BUSY what it cannot hold
-(asm_py/transport/zenoh_requests.py), so a request handler that hangs under a flood no longer stops its session;
-messages, e-stops and liveliness keep zenoh-python's channel, their handlers never block.
+way). A node's requests, messages and group messages go through queues of their own that refuse (BUSY, for a request
+that wants a reply) what they cannot hold (asm_py/transport/zenoh_requests.py), so a handler that hangs under a flood
+no longer stops its session; e-stops and liveliness keep zenoh-python's channel, their handlers never block.
 """
 
 from __future__ import annotations

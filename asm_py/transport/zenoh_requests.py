@@ -36,58 +36,75 @@ REQUEST_BACKLOG = 1024
 
 class RequestQueue(Generic[Item]):
     """The hand-off: ``put`` on zenoh-python's thread, ``serve`` on the node's request thread, in arrival order.
-    An item is a query (a request) or a sample (a message to the node or its groups: a group's set or call)."""
+    An item is a query (a request) or a sample (a message to the node or one of its groups: a group's set or call);
+    each subscription has a queue and a thread of its own, as zenoh-python gave each one a thread (a group set
+    whose listener waits for a set sent to another group of the node must not wait behind itself)."""
 
     def __init__(
         self,
         serve: Callable[[Item], None],
-        refuse: Callable[[Item], None] | None,
+        refuse: Callable[[Item, bool], None] | None,
         name: str,
         *,
         discard: Callable[[Item], None] = lambda _: None,
     ) -> None:
         self._serve = serve
         self._refuse = refuse
+        """Told of an item refused, and whether because the queue is closed (else: full)."""
         self._discard = discard
         """What ends an item still waiting at close (a query is dropped: its caller's timeout tells it)."""
+        self.name = name
         # a C queue: a Condition over a deque (pure Python) made a remote get's round trip ~60 µs longer here
         self._queue: queue.SimpleQueue[Item | None] = queue.SimpleQueue()
+        self._lock = threading.Lock()  # the bound and the close: a check and its put as one
         self._closed = False
+        self._serving = False
         self.refused = 0
-        """Requests refused because the queue was full."""
+        """Items refused because the queue was full or closed (each also logged: see :meth:`_said`)."""
+        self._said = 0
         self._last_said = 0.0
-        self._thread = threading.Thread(target=self._run, name=f"asm-zenoh requests {name}", daemon=True)
+        self._thread = threading.Thread(target=self._run, name=f"asm-zenoh {name}", daemon=True)
         self._thread.start()
 
     def callback(self) -> Callable[[Item], None]:
-        """The queryable's handler: ``put``, on zenoh-python's thread for the queryable (its channel of 256 never
-        stays full, since ``put`` never blocks). Run on Zenoh's own thread instead (a direct callback), a remote get
-        took 60-100 µs longer here than with zenoh-python's channel, against 30-40 µs for this hand-off."""
+        """The entity's handler: ``put``, on zenoh-python's thread for the entity (its channel of 256 never stays
+        full, since ``put`` never blocks). Run on Zenoh's own thread instead (a direct callback), a remote get took
+        60-100 µs longer here than with zenoh-python's channel, against 5-30 µs for this hand-off."""
         return self.put
 
     def put(self, item: Item) -> None:
-        if not self._closed and self._queue.qsize() < REQUEST_BACKLOG:
-            self._queue.put(item)
-            return
-        self.refused += 1
-        now = time.monotonic()
-        if now - self._last_said >= 1.0:
-            self._last_said = now
-            log.warning("%d requests refused: %d wait for a request handler that has not returned",
-                        self.refused, REQUEST_BACKLOG)  # fmt: skip
+        with self._lock:
+            closed = self._closed
+            if not closed and self._queue.qsize() < REQUEST_BACKLOG:
+                self._queue.put(item)
+                return
+            self.refused += 1
+        self._tell(closed)
         try:
             if self._refuse is not None:
-                self._refuse(item)
-        except Exception:  # nothing may escape into zenoh-python's thread
-            log.exception("refusing a request failed")
+                self._refuse(item, closed)
+        except BaseException:  # nothing may escape into zenoh-python's thread
+            log.exception("refusing %s failed", self.name)
+
+    def _tell(self, closed: bool, *, last: bool = False) -> None:
+        """A warning with the count refused so far: at the first refusal, then at most once a second, and at close."""
+        now = time.monotonic()
+        if self.refused > self._said and (last or now - self._last_said >= 1.0):
+            self._last_said, self._said = now, self.refused
+            why = "the node is closing" if closed else f"{REQUEST_BACKLOG} wait for a handler that has not returned"
+            log.warning("%s: %d refused so far (%s)", self.name, self.refused, why)
 
     def _run(self) -> None:
         get = self._queue.get
         while (item := get()) is not None:
+            self._serving = True
             try:
                 self._serve(item)
-            except Exception:
-                log.exception("a request failed")
+            except BaseException:  # SystemExit too: one failing handler must not end the node's serving
+                log.exception("%s: a handler failed", self.name)
+            self._serving = False
+            if self._closed:  # close() found this thread in a handler and did not wait for it
+                break
         self._drop_waiting()
 
     def _drop_waiting(self) -> None:
@@ -100,12 +117,16 @@ class RequestQueue(Generic[Item]):
                 self._discard(item)
 
     def close(self) -> None:
-        """Refuse what arrives from now on, drop what still waits, and end the thread (unless called on it)."""
-        self._closed = True
-        self._drop_waiting()
-        self._queue.put(None)
-        if threading.current_thread() is not self._thread:
+        """Refuse what arrives from now on, drop what still waits, and end the thread: at once if it is idle; one
+        inside a handler that has not returned ends when it returns (a daemon: not waited for, as zenoh-python's
+        own thread was not)."""
+        with self._lock:
+            self._closed = True
+            self._queue.put(None)
+        if not self._serving and threading.current_thread() is not self._thread:
             self._thread.join(timeout=5)
+        self._drop_waiting()
+        self._tell(True, last=True)
 
 
 def refuse_busy(query: zenoh.Query, key: zenoh.KeyExpr, node: str) -> None:

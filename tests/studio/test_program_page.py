@@ -194,3 +194,48 @@ def test_each_edit_is_applied_with_the_value_it_arrived_with_in_arrival_order(st
     assert applied == ["first", "second"]
     field.value = "set by the page's own action"
     assert applied == ["first", "second", "set by the page's own action"]
+
+
+def _tab(client_id: int) -> SimpleNamespace:
+    return SimpleNamespace(client_id=client_id, add_notification=lambda *a, **k: None)
+
+
+def test_an_edit_lands_on_the_state_selected_when_it_came_and_is_credited_to_its_own_tab(studio, monkeypatch) -> None:
+    """An angle typed for S1, then S2 selected, the pool running both late: the angle is S1's (it was read from
+    the selection when the callback ran: S2's). Two tabs' sequences, the pool running them in reverse: the last to
+    arrive wins and the page credits the tab that typed it."""
+    app = studio.app
+    editor = app.editor
+    automaton = next(iter(app.doc.data()["automata"]))
+    with app.page.programmatic():
+        editor.automaton.value = automaton
+        editor.state_index.value = 1
+    editor.sync()
+    before = [s["angle"] for s in app.doc.data()["automata"][automaton]["states"][:2]]
+    pool = _HeldPool()
+    monkeypatch.setattr(app.server.gui, "_thread_executor", pool)
+    for client_id in (7, 8):
+        monkeypatch.setitem(app.server._connected_clients, client_id, _tab(client_id))
+    _arrives(app, editor.angle, 33.0)
+    _arrives(app, editor.state_index, 2.0)
+    for fn, args in pool.held:
+        fn(*args)
+    states = app.doc.data()["automata"][automaton]["states"]
+    assert [states[0]["angle"], states[1]["angle"]] == [33.0, before[1]]
+    pool.held.clear()
+    program = editor.program
+    _arrives(app, program.sequence, "forward 3", client_id=7)
+    _arrives(app, program.sequence, "forward 2", client_id=8)
+    for fn, args in reversed(pool.held):
+        fn(*args)
+    assert app.doc.gait().sequence == [("forward", 2)] and app.page.last_editor == 8
+
+
+def test_a_control_set_after_the_page_closed_is_still_set(studio) -> None:
+    """on_edit's coroutine callback, scheduled on viser's loop by every value set from the server: after the server
+    stopped, viser raised RuntimeError (the loop closed) out of the setter, and the edit was lost."""
+    app = studio.app
+    app.page.close()
+    app.server.stop()
+    app.editor.program.sequence.value = "forward 4"
+    assert app.doc.gait().sequence == [("forward", 4)]
