@@ -71,6 +71,9 @@ class ReplayPanel:
         gui = page.gui
         self.source: ReplaySource | None = None
         self._plotted: tuple[float, list[tuple[str, str]]] | None = None
+        self._plotting = threading.Lock()
+        """One refresh's plot at a time: the page's refresh thread marked a time plotted before its plot was shown,
+        and a refresh from elsewhere that found it marked returned with the plot not yet there (test_replay)."""
         """The replay time and attributes last plotted."""
         self._opening: queue.Queue[tuple[str, Any] | None] = queue.Queue()
         self.file = gui.add_dropdown("Recording", [NO_FILE], hint="an MCAP file of the recordings folder")
@@ -274,10 +277,11 @@ class ReplayPanel:
             if abs(self.timeline.value - shown) >= 0.005:
                 self.timeline.value = shown
         keys = self.keys()
-        if (t, keys) != self._plotted:  # paused: the plot is not sent again 20 times a second
-            self._plotted = (t, keys)
-            labels, data = plot_data(recording, keys, t, PLOT_WINDOW)
-            self.plot.show(labels, data, t, PLOT_WINDOW)  # seconds before the replay time, as the live plots
+        with self._plotting:
+            if (t, keys) != self._plotted:  # paused: the plot is not sent again 20 times a second
+                labels, data = plot_data(recording, keys, t, PLOT_WINDOW)
+                self.plot.show(labels, data, t, PLOT_WINDOW)  # seconds before the replay time, as the live plots
+                self._plotted = (t, keys)
         state = "▶ playing" if playing else ("■ ended" if t >= source.clock.duration else "paused")
         events = "  \n".join(f"{'●' if e.time <= t else '○'} {e.time:7.2f} s · {plain(e.text)}"
                               for e in recording.events[:40])  # fmt: skip

@@ -514,3 +514,47 @@ def test_an_event_with_a_huge_name_is_shown_short(tmp_path: Path) -> None:
     group_event, estop_event = open_recording(path).events
     assert len(group_event.text) < 200 and "X" * 79 + "…" in group_event.text
     assert len(estop_event.text) < 200 and estop_event.text.startswith("E-STOP (lab) by s: RRR")
+
+
+def test_a_refresh_returns_with_its_plot_shown_even_while_another_refresh_draws_it(studio, tmp_path: Path) -> None:
+    """The page's refresh thread marked the replay time plotted, then drew the plot; a refresh from elsewhere that
+    came in between found it marked and returned with no plot yet (the test above read no labels, once in CI)."""
+    import threading
+
+    from web import monitor
+
+    app = studio.app
+    panel = app.replay
+    path = tmp_path / "run.mcap"
+    write_recording(path)
+    panel.open_path(path)
+    assert wait_until(lambda: panel.source is not None and "120 poses" in panel.line.content, 20)
+    inside, release = threading.Event(), threading.Event()
+    show = monitor.SeriesPlot.show
+
+    def slow_show(self, *args, **kwargs):
+        if threading.current_thread().name == "first-refresh":
+            inside.set()
+            release.wait(20)
+        return show(self, *args, **kwargs)
+
+    panel.timeline.value = 1.25  # a time no refresh has plotted yet
+    assert wait_until(lambda: abs(panel.source.time() - 1.25) < 1e-9, 20)
+    original = monitor.SeriesPlot.show
+    monitor.SeriesPlot.show = slow_show  # type: ignore[method-assign]
+    try:
+        panel._plotted = None
+        first = threading.Thread(target=panel.refresh, name="first-refresh")
+        first.start()
+        assert inside.wait(20)
+        second = threading.Thread(target=panel.refresh, name="second-refresh")
+        second.start()
+        second.join(0.5)
+        assert second.is_alive()  # it waits for the plot the first is drawing
+        release.set()
+        second.join(20)
+        assert panel.plot.labels == ["m1 joint.angle", "m2 joint.angle", "m3 joint.angle"]
+    finally:
+        release.set()
+        monitor.SeriesPlot.show = original  # type: ignore[method-assign]
+        first.join(20)
