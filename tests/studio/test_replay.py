@@ -533,28 +533,27 @@ def test_a_refresh_returns_with_its_plot_shown_even_while_another_refresh_draws_
     show = monitor.SeriesPlot.show
 
     def slow_show(self, *args, **kwargs):
-        if threading.current_thread().name == "first-refresh":
+        if threading.current_thread().name != "second-refresh":  # the page's refresh thread, or the first here
             inside.set()
             release.wait(20)
         return show(self, *args, **kwargs)
 
     panel.timeline.value = 1.25  # a time no refresh has plotted yet
     assert wait_until(lambda: abs(panel.source.time() - 1.25) < 1e-9, 20)
-    original = monitor.SeriesPlot.show
     monitor.SeriesPlot.show = slow_show  # type: ignore[method-assign]
+    first = threading.Thread(target=panel.refresh, name="first-refresh")
     try:
-        panel._plotted = None
-        first = threading.Thread(target=panel.refresh, name="first-refresh")
+        panel._plotted = None  # the next refresh draws: the page's own (20 a second) or the first here
         first.start()
         assert inside.wait(20)
         second = threading.Thread(target=panel.refresh, name="second-refresh")
         second.start()
         second.join(0.5)
-        assert second.is_alive()  # it waits for the plot the first is drawing
+        assert second.is_alive()  # it waits for the plot being drawn
         release.set()
         second.join(20)
         assert panel.plot.labels == ["m1 joint.angle", "m2 joint.angle", "m3 joint.angle"]
     finally:
         release.set()
-        monitor.SeriesPlot.show = original  # type: ignore[method-assign]
+        monitor.SeriesPlot.show = show  # type: ignore[method-assign]
         first.join(20)
