@@ -45,10 +45,9 @@ format: $(STAMP)
 	$(PY) -m ruff format .
 	$(PY) -m ruff check --fix .
 
-# Three workers (pytest-xdist) on two cores: the browser tests are a long xdist group and a short one
-# (tests/studio/browser.py), each run by one worker from the start while the others run the rest; the short one's
-# worker then joins them (stop 50: 598 s against 636-695 s with one group, the long group then as long as the rest;
-# 484 s against two workers' 620-670 s at stop 49 on another host; docs/benchmarks.md, "The suite's time"). Four
+# Three workers (pytest-xdist) on two cores: the browser tests are one xdist group (tests/studio/browser.py), run by
+# one worker from the start while the two others run the rest (the suite waits on processes and simulated robots more
+# than it computes: 484 s against two workers' 620-670 s at stop 49, docs/benchmarks.md, "The suite's time"). Four
 # workers, the browser tests then in two groups, took 429-521 s, but of nine four-worker runs at stop 46 two passed;
 # the seven others each failed one to three tests judged against the wall clock under that load, seven different ones
 # (docs/benchmarks.md, "Four workers, two browser groups"). TEST_WORKERS=N to change; `make test-serial` runs the

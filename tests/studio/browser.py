@@ -1,11 +1,10 @@
 """What the browser tests share: Debian's Chromium (never one a tool downloads), the page opened the way a user
 opens it, and readers of what it shows (pixels of a drawn line, the robot in the 3D view, a number in a text).
 
-Under `make test`'s three workers the browser test modules are a long xdist group, ``browser``, and a short one,
-``browser-side`` (:data:`SIDE_CHROMIUM`); from four workers on, two, ``browser-a`` and ``browser-b``
-(:data:`SECOND_CHROMIUM`); under fewer, one. One worker per group runs them one after another from the start (a group
-is scheduled before single tests), one Chromium per group at a time, while the other workers run the rest of the
-suite beside them. Spread over the workers
+The browser test modules are one xdist group, ``browser``, under `make test`'s three workers, and two, ``browser-a``
+and ``browser-b`` (:data:`SECOND_CHROMIUM`), from four workers on: one worker per group runs them one after another
+from the start (a group is scheduled before single tests), one Chromium per group at a time, while the other workers
+run the rest of the suite beside them. Spread over the workers
 (a group per module; or no group at all, as under pytest 9.2, whose test IDs pytest-xdist 3.8's groups cannot
 rename), the browser tests ran last, all workers on Chromiums at once and CPU-bound, after the rest of the suite had
 left a core idle waiting on processes; in one group, on one worker, they were the suite's longest pole (485 s of
@@ -35,27 +34,15 @@ three-worker run (longest first, each to the group with less so far): 240 s here
 joins ``browser-a`` unless named here."""
 
 
-SIDE_CHROMIUM = frozenset({
-    "test_numbering_page", "test_record_page", "test_modules_update_page", "test_replay_export_page",
-})  # fmt: skip
-"""Under three workers, the browser test modules of a short second group, ``browser-side`` (~90 s of the ~680 s all
-take one after another): one worker takes it at the start, then the rest of the suite, so the group of the others,
-``browser``, is no longer the suite's longest pole (stop 50: 682 s of a 695 s run, against 548 s for the rest on
-the two other workers)."""
-
-
 def browser_group(module: str, workers: int | None = None) -> str:
     """The xdist group of the browser test module ``module`` (its dotted name) when ``workers`` run the suite (by
-    default pytest-xdist's count in this worker): two groups from four workers on; under three, one long group and a
-    short one (:data:`SIDE_CHROMIUM`); else one (two Chromiums beside two workers left no worker for the rest)."""
+    default pytest-xdist's count in this worker): two groups from four workers on, else one (two Chromiums beside
+    two workers left no worker for the rest)."""
     if workers is None:
         workers = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT") or 0)
-    name = module.rsplit(".", 1)[-1]
-    if workers == 3:
-        return "browser-side" if name in SIDE_CHROMIUM else "browser"
     if workers < 4:
         return "browser"
-    return "browser-b" if name in SECOND_CHROMIUM else "browser-a"
+    return "browser-b" if module.rsplit(".", 1)[-1] in SECOND_CHROMIUM else "browser-a"
 
 
 def marks(module: str) -> list[pytest.MarkDecorator]:

@@ -6,7 +6,7 @@ from __future__ import annotations
 import importlib
 from pathlib import Path
 
-from .browser import SECOND_CHROMIUM, SIDE_CHROMIUM, browser_group
+from .browser import SECOND_CHROMIUM, browser_group
 
 HERE = Path(__file__).parent
 
@@ -26,7 +26,6 @@ def _browser_modules() -> set[str]:
 def test_every_module_named_for_the_second_chromium_is_a_browser_test_module() -> None:
     modules = _browser_modules()
     assert not SECOND_CHROMIUM - modules, sorted(SECOND_CHROMIUM - modules)
-    assert not SIDE_CHROMIUM - modules, sorted(SIDE_CHROMIUM - modules)
 
 
 def test_the_browser_modules_are_split_between_two_groups() -> None:
@@ -35,8 +34,5 @@ def test_the_browser_modules_are_split_between_two_groups() -> None:
     assert all(_group(module) == browser_group(f"tests.studio.{module}") for module in modules)
     assert {browser_group(f"tests.studio.{module}", 4) for module in modules} == {"browser-a", "browser-b"}
     assert {browser_group(f"tests.studio.{module}", 2) for module in modules} == {"browser"}
-    side = {module for module in modules if browser_group(f"tests.studio.{module}", 3) == "browser-side"}
-    assert side == SIDE_CHROMIUM and len(side) < len(modules) / 3  # a short side group beside the long one
-    assert {browser_group(f"tests.studio.{module}", 3) for module in modules} == {"browser", "browser-side"}
     assert browser_group("tests.studio.test_drive_e2e", 4) == "browser-b"
     assert browser_group("tests.studio.test_studio_e2e", 4) == "browser-a"
