@@ -9,6 +9,7 @@ reference the runtime turns into ``joint.goal``.
 from __future__ import annotations
 
 import bisect
+import contextlib
 import math
 import threading
 from collections import Counter
@@ -17,7 +18,7 @@ from typing import TYPE_CHECKING, Any
 from asm_py.attribute import Attribute, CheckedAttribute
 from asm_py.automaton import PhaseAutomaton, reference_at, state_starts
 from asm_py.codec import FLOAT32, FLOAT64, INT8, UINT8, UINT32, record
-from asm_py.errors import EstopLatched, ServiceError
+from asm_py.errors import AsmTimeout, EstopLatched, ServiceError
 from asm_py.event import Event
 
 from .program import SWITCH_BLEND, Mode, ModeState, Program
@@ -121,6 +122,10 @@ class ModuleGait(PhaseAutomaton):
             raise EstopLatched("the module is in emergency stop; set estop to false before starting the gait")
         self._runtime._begin_ramp()
         super().start(float(self._runtime.phase.peek()))
+        if self._runtime.latched:  # latched since the check above: its request_stop may have found nothing started
+            with contextlib.suppress(AsmTimeout):
+                self.stop(timeout=1.0)
+            raise EstopLatched("the module's emergency stop latched while the gait started")
 
     def initialize(self, phase: float) -> None:
         now = self.clock.now()

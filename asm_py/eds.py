@@ -164,6 +164,8 @@ class EventDrivenService(Service):
         run, and a tick handled in between would run a half-initialised service."""
         with self._handling:
             super().start(*params, wait=wait)
+            if self.inline:  # a stop asked meanwhile could not take _handling (held here): it takes effect now
+                self._end_if_asked()
 
     def _starting(self, *params: Any) -> None:
         self._pending.clear()

@@ -143,6 +143,28 @@ def test_firings_after_stop_are_not_handled(services, inline: bool) -> None:
 
 
 @pytest.mark.parametrize("inline", [False, True])
+def test_a_stop_asked_from_another_thread_during_the_start_ends_it(services, inline: bool) -> None:
+    """request_stop from another thread while on_start runs (a module's e-stop racing an activation): an inline
+    service, whose start holds the handling lock, stayed started until a firing came to end it."""
+    clock = SimClock()
+    event = Event("e", clock=clock)
+
+    class Interrupted(Recorder):
+        def on_start(self, *params: object) -> None:
+            stopper = threading.Thread(target=self.request_stop)
+            stopper.start()
+            stopper.join(5)
+
+    service = Interrupted(event, inline=inline)
+    services.append(service)
+    service.start()
+    assert wait_until(lambda: not service.started, timeout=5)
+    event.set(1)
+    clock.settle()
+    assert service.values == [] and not service.started
+
+
+@pytest.mark.parametrize("inline", [False, True])
 def test_a_failing_handler_stops_the_service(inline: bool) -> None:
     event = Event("e")
 

@@ -171,6 +171,61 @@ def test_a_tick_racing_a_gait_start_waits_for_the_start_to_finish():
         runtime.close()
 
 
+@pytest.mark.parametrize("inline", [False, True], ids=["threaded", "inline"])
+@pytest.mark.parametrize("at", ["before_marked_started", "while_initialising"])
+def test_an_estop_arriving_while_a_gait_starts_leaves_it_stopped(inline: bool, at: str) -> None:
+    """An activation starts the gait on the bus's thread while the e-stop latches on another: a latch between the
+    start's own latched check and the service counting as started found nothing to stop, and the gait ran again
+    the moment the e-stop was released (test_faults' release-after-an-estop-during-a-start, once in CI)."""
+    import threading
+
+    from asm_py import Event
+
+    clock = SimClock()
+    tick = Event("gait.tick", codec="float64", clock=clock)
+    runtime = ModuleRuntime(FakeDriver(clock=clock), clock=clock, tick=tick, inline=inline, ramp=0.0)
+    gait = runtime.gait
+    latched = threading.Event()
+
+    def estop_on_another_thread() -> None:
+        stopper = threading.Thread(target=runtime.emergency_stop, args=("stop",))
+        stopper.start()
+        stopper.join(5)
+        latched.set()
+
+    if at == "before_marked_started":
+        original_ramp = runtime._begin_ramp
+
+        def begin_ramp() -> None:
+            estop_on_another_thread()
+            original_ramp()
+
+        runtime._begin_ramp = begin_ramp  # type: ignore[method-assign]
+    else:
+        original_initialize = gait.initialize
+
+        def initialize(phase: float) -> None:
+            estop_on_another_thread()
+            original_initialize(phase)
+
+        gait.initialize = initialize  # type: ignore[method-assign]
+    try:
+        runtime.table.set(encode_table([PhaseState(40.0, 0.5, "step"), PhaseState(-40.0, 0.5, "step")]))
+        with pytest.raises(EstopLatched):
+            gait.start()
+        assert latched.is_set() and runtime.latched
+        assert wait_until(lambda: not gait.started, timeout=5), "the e-stop that came during the start stops it"
+        runtime.estop.set(False)  # released
+        goal = runtime.goal.peek()
+        for _ in range(10):
+            tick.set(clock.now())
+            clock.advance(0.1)
+            clock.settle()
+        assert not gait.started and runtime.goal.peek() == goal, "nothing moves until someone starts it again"
+    finally:
+        runtime.close()
+
+
 def test_table_wire_format_round_trips_and_rejects_damage():
     data = encode_table(WAVE)
     assert decode_table(data) == WAVE
