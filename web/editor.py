@@ -60,9 +60,10 @@ class GaitEditor:
         gui.add_button("Download .toml").on_click(safe(lambda e: e.client.send_file_download(
             f"{self.doc.gait().name}.toml", self.doc.text().encode(), save_immediately=True)))  # fmt: skip
         self.problems = gui.add_markdown("")
-        self.tools = GaitTools(gui, self.doc, edited=self.after_edit, safe=safe, syncing=lambda: page.syncing)
+        self.tools = GaitTools(gui, self.doc, edited=self.after_edit, safe=safe, syncing=lambda: page.syncing,
+                               on_edit=page.on_edit)  # fmt: skip
         grid_folder = gui.add_folder("States")
-        self.grid = StateGrid(page.server, grid_folder, on_edit=self._on_grid, syncing=lambda: page.syncing, safe=safe)
+        self.grid = StateGrid(page.server, grid_folder, edited=self._on_grid, on_edit=page.on_edit)
         with grid_folder:  # hidden by the page's script, which writes a clicked state into it (web/page_script.py)
             self.clicked = gui.add_text(CLICKED_FIELD, "")
         self.clicked.on_update(safe(lambda e: None if page.syncing else self.select_clicked(str(e.target.value))))
@@ -75,10 +76,9 @@ class GaitEditor:
             self.duration = number(gui, "Duration (s)", initial_value=0.1, step=0.005)
             self.interp = gui.add_dropdown("Interpolation", ["linear", "step"])
             selected = lambda: (self.automaton.value, int(self.state_index.value) - 1)  # noqa: E731  (a one-line reader)
-            self.events = EventControls(gui, self.doc, edited=self.after_edit, safe=safe, syncing=lambda: page.syncing,
-                                        selected=selected)  # fmt: skip
+            self.events = EventControls(gui, self.doc, edited=self.after_edit, on_edit=page.on_edit, selected=selected)
             self.state_problem = gui.add_markdown("")
-            states = gui.add_button_group("Edit states", ["Insert after", "Remove"])
+            self.state_actions = gui.add_button_group("Edit states", ["Insert after", "Remove"])
         with gui.add_folder("Module"):
             self.module_index = slider(gui, "Module", min=1, max=2, initial_value=1)
             self.phase = number(gui, "Phase", initial_value=0.0, step=0.01, hint="phase delay in [0, 1)")
@@ -140,7 +140,7 @@ class GaitEditor:
             field(control, lambda v, name=name, convert=convert: self.doc.set_robot(name, convert(v)))
         for control in (self.automaton, self.state_index, self.module_index):
             control.on_update(safe(lambda _: None if page.syncing else self.sync()))
-        states.on_click(safe(self._on_states))
+        page.on_edit(self.state_actions, self._on_states, click=True, context=selected)  # the state shown at the click
         page.on("pick", self.pick)
 
     # -- actions --------------------------------------------------------------------------------------------------
@@ -189,12 +189,12 @@ class GaitEditor:
             self.page.notify("History", f"{kind} took back an edit made in another tab")
         self.after_edit()
 
-    def _on_states(self, event: Any) -> None:
-        index = int(self.state_index.value) - 1
-        if event.target.value == "Insert after":
-            self.doc.add_state(self.automaton.value, index)
+    def _on_states(self, clicked: str, at: tuple[str, int]) -> None:
+        automaton, index = at
+        if clicked == "Insert after":
+            self.doc.add_state(automaton, index)
         else:
-            self.doc.remove_state(self.automaton.value, index)
+            self.doc.remove_state(automaton, index)
         self.after_edit()
 
     def _on_grid(self, automaton: str, index: int, changes: dict[str, float]) -> None:

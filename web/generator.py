@@ -31,15 +31,15 @@ class GaitTools:
     """The controls; ``edited`` is the editor's after-edit (show, validate, re-preview)."""
 
     def __init__(self, gui: viser.GuiApi, doc: GaitDocument, *, edited: Callable[[], None], safe: Safe,
-                 syncing: Callable[[], bool]) -> None:  # fmt: skip
+                 syncing: Callable[[], bool], on_edit: Callable[..., Any]) -> None:  # fmt: skip
         self.doc = doc
         self._edited = edited
         self._syncing = syncing
         self.name = gui.add_text("Name", initial_value="")
         self.description = gui.add_text("Description", initial_value="")
         for handle, field in ((self.name, "name"), (self.description, "description")):
-            handle.on_update(safe(lambda e, field=field: None if syncing() else self._edit(
-                lambda: doc.set_meta(field, e.target.value))))  # fmt: skip
+            # the text as it came (the page's on_edit): a resync from another edit may replace it before this runs
+            on_edit(handle, lambda text, field=field: self._edit(lambda: doc.set_meta(field, text)))
         with gui.add_folder("Make a gait", expand_by_default=False):
             self.family = gui.add_dropdown("Family", [LABELS[f] for f in FAMILIES])
             self.modules = number(gui, "Module count", initial_value=12, step=1, hint="2..254 (a loop: 4 or more)")

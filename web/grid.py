@@ -36,20 +36,18 @@ class StateGrid:
         server: viser.ViserServer,
         parent: viser.GuiFolderHandle,
         *,
-        on_edit: Callable[[str, int, dict[str, float]], None],
-        syncing: Callable[[], bool],
-        safe: Callable[[Callable[[Any], None]], Callable[[Any], None]] = lambda fn: fn,
+        edited: Callable[[str, int, dict[str, float]], None],
+        on_edit: Callable[..., Callable[[], None]],
     ) -> None:
         self.server = server
         self.parent = parent
-        self._on_edit = on_edit
+        self._edited = edited
         """Called with (automaton, state index, {field: value}) for what the user changed."""
-        self._syncing = syncing
-        """True while the server itself is setting inputs (their callbacks must not edit the document)."""
-        self._safe = safe
-        """Wraps each input's callback (the dashboard's: an error becomes a notification)."""
+        self._on_edit = on_edit
+        """The page's (web/page.py): each row's value as it came, with the value shown then, applied in order."""
         self._shape: tuple[tuple[str, tuple[str, ...]], ...] = ()
         self._folders: list[Any] = []
+        self._forget: list[Callable[[], None]] = []
         self.rows: dict[tuple[str, int], Any] = {}
         """(automaton, state index) → its row's input handle."""
         self._shown: dict[tuple[str, int], tuple[float, float]] = {}
@@ -74,7 +72,9 @@ class StateGrid:
     def _rebuild(self, automata: dict[str, Any], selected: str) -> None:
         for folder in self._folders:
             folder.remove()
-        self._folders, self.rows, self._shown = [], {}, {}
+        for forget in self._forget:
+            forget()
+        self._folders, self.rows, self._shown, self._forget = [], {}, {}, []
         gui = self.server.gui
         with self.parent:
             for name, automaton in automata.items():
@@ -87,24 +87,29 @@ class StateGrid:
                         row = precise(gui.add_vector2(_label(name, k, state), value, step=STEP,
                                                       hint="target angle in degrees, duration in seconds (with an "
                                                            "event: its timeout, 0 for none)"))  # fmt: skip
-                        row.on_update(self._safe(self._callback(name, k)))
-                        self.rows[(name, k)] = row
+                        key = (name, k)
+                        self._forget.append(self._on_edit(row, self._callback(name, k),
+                                                          context=lambda key=key: self._shown.get(key)))  # fmt: skip
+                        self.rows[key] = row
                         self._shown[(name, k)] = value
 
-    def _callback(self, name: str, index: int) -> Callable[[Any], None]:
-        def update(event: Any) -> None:
-            if self._syncing():
-                return
-            angle, duration = (float(v) for v in event.target.value)
-            shown_angle, shown_duration = self._shown.get((name, index), (None, None))
+    def _callback(self, name: str, index: int) -> Callable[[Any, Any], None]:
+        def update(value: Any, shown: tuple[float, float] | None) -> None:
+            """``value`` and the row as ``shown``, both as the value came: a component still as shown is one the
+            user did not change (another edit's resync may have changed it since; that stays)."""
+            angle, duration = (float(v) for v in value)
+            shown_angle, shown_duration = shown if shown is not None else (None, None)
             changes: dict[str, float] = {}
             if shown_angle is None or abs(angle - shown_angle) >= UNCHANGED:
                 changes["angle"] = angle
             if shown_duration is None or abs(duration - shown_duration) >= UNCHANGED:
                 changes["duration"] = duration
-            self._shown[(name, index)] = (angle, duration)
+            self._shown[(name, index)] = (
+                angle,
+                duration,
+            )  # what the page shows now: the resync sends only what differs
             if changes:
-                self._on_edit(name, index, changes)
+                self._edited(name, index, changes)
 
         return update
 

@@ -121,7 +121,7 @@ class Page:
         self._sync_lock = threading.RLock()
         self._last_toast: tuple[tuple[str, str], float] | None = None
         self._acting = threading.local()
-        self._kept: list[tuple[Any, Callable[..., Any]]] = []
+        self._kept: dict[int, tuple[Any, Callable[..., Any]]] = {}  # id(keep callback) → (handle, keep callback)
         """The controls whose edits :meth:`on_edit` keeps, and its keeping callback (see :meth:`close`)."""
         self.last_editor: int | None = None
         """The client (browser tab) whose edit of the gait came last."""
@@ -205,10 +205,11 @@ class Page:
         *,
         click: bool = False,
         context: Callable[[], Any] | None = None,
-    ) -> None:
+    ) -> Callable[[], None]:
         """Call ``apply`` with each value a user gives ``handle``, as it arrived, one at a time in arrival order (and
         with a value set from the server outside :meth:`programmatic`, as the page's own actions and tests do);
         ``context`` (read as the value arrives, passed after it): what the value is of, e.g. the selected state.
+        Returns what forgets ``handle`` (for a control removed from the page before the page closes).
 
         viser sets a control's value on its event loop and runs its callbacks later on a thread pool, so a callback
         reading ``handle.value`` may read what another callback's resync put there in between: "Add (copy of
@@ -237,16 +238,21 @@ class Page:
         if click:
             handle.on_click(keep)
             handle.on_click(run)
-        else:
-            handle.on_update(keep)
-            handle.on_update(run)
-            self._kept.append((handle, keep))
+            return lambda: None
+        handle.on_update(keep)
+        handle.on_update(run)
+        self._kept[id(keep)] = (handle, keep)
+
+        def forget() -> None:
+            self._kept.pop(id(keep), None)
+
+        return forget
 
     def close(self) -> None:
         """Take back the callbacks that keep values on viser's loop: once the server stops, a value set from here
         would have viser schedule one on a closed loop (RuntimeError out of the setter). A button group has no
         public remover, and the server never sets one."""
-        for handle, keep in self._kept:
+        for handle, keep in self._kept.values():
             handle.remove_update_callback(keep)
         self._kept.clear()
 

@@ -39,6 +39,10 @@ def format_sequence(steps: list[dict[str, Any]]) -> str:
     return ", ".join(f"{s.get('gait', '?')}" + (f" {s['cycles']}" if "cycles" in s else "") for s in steps)
 
 
+_EVENT_FIELDS = ("until", "value", "neighbour", "state", "signal", "on_timeout")
+"""The EventControls fields that together say what ends a state (written as one)."""
+
+
 class EventControls:
     """What ends the selected state, and whether its automaton is one-shot (inside the Selected state folder)."""
 
@@ -49,8 +53,7 @@ class EventControls:
         *,
         selected: Callable[[], tuple[str, int]],
         edited: Callable[[], None],
-        safe: Callable[..., Any],
-        syncing: Callable[[], bool],
+        on_edit: Callable[..., Any],
     ) -> None:
         self.doc = doc
         self._selected = selected
@@ -71,45 +74,46 @@ class EventControls:
         self.one_shot = gui.add_checkbox("One-shot automaton", initial_value=False,
                                          hint="the gait ends after the last state instead of repeating")  # fmt: skip
 
-        def changed(_: Any) -> None:
-            if not syncing():
-                self._write()
-                edited()
+        def shown() -> tuple[tuple[str, int], dict[str, Any]]:
+            # read on viser's loop as a value comes (the page's on_edit): the state selected and every field as the
+            # user saw them; a resync for another state may have replaced both before the callback runs
+            return self._selected(), {name: getattr(self, name).value for name in _EVENT_FIELDS}
 
-        for control in (self.until, self.value, self.neighbour, self.state, self.signal, self.on_timeout):
-            control.on_update(safe(changed))
+        def write(_: Any, seen: tuple[tuple[str, int], dict[str, Any]]) -> None:
+            self._write(*seen)
+            edited()
 
-        def emit(event: Any) -> None:
-            if not syncing():
-                automaton, index = self._selected()
-                self.doc.set_emit(automaton, index, whole(event.target.value, "Emits signal"))
-                edited()
+        for name in _EVENT_FIELDS:
+            on_edit(getattr(self, name), write, context=shown)
 
-        self.emit.on_update(safe(emit))
+        def emit(value: Any, seen: tuple[tuple[str, int], dict[str, Any]]) -> None:
+            self.doc.set_emit(*seen[0], whole(value, "Emits signal"))
+            edited()
 
-        def one_shot(event: Any) -> None:
-            if not syncing():
-                self.doc.set_one_shot(self._selected()[0], bool(event.target.value))
-                edited()
+        def one_shot(value: Any, seen: tuple[tuple[str, int], dict[str, Any]]) -> None:
+            self.doc.set_one_shot(seen[0][0], bool(value))
+            edited()
 
-        self.one_shot.on_update(safe(one_shot))
+        on_edit(self.emit, emit, context=shown)
+        on_edit(self.one_shot, one_shot, context=shown)
 
-    def _write(self) -> None:
-        automaton, index = self._selected()
-        until = None if self.until.value == TIME else self.until.value
+    def _write(self, at: tuple[str, int], shown: dict[str, Any]) -> None:
+        """What ends the state ``at``, from the fields as ``shown`` together (see ``shown`` above)."""
+        automaton, index = at
+        until = None if shown["until"] == TIME else shown["until"]
         fields: dict[str, Any] = {}
         if until == "at_goal":
-            fields["tolerance"] = float(self.value.value)
+            fields["tolerance"] = float(shown["value"])
         elif until == "torque":
-            fields["threshold"] = float(self.value.value)
+            fields["threshold"] = float(shown["value"])
         elif until == "signal":
-            fields["signal"] = whole(self.signal.value, "Signal")
+            fields["signal"] = whole(shown["signal"], "Signal")
         elif until == "neighbour":
-            text = self.state.value.strip()
-            fields["neighbour"] = whole(self.neighbour.value, "Neighbour")
+            text = str(shown["state"]).strip()
+            fields["neighbour"] = whole(shown["neighbour"], "Neighbour")
             fields["state"] = int(text) if text.isdigit() else text
         state = self.doc.data()["automata"][automaton]["states"][index]
-        if until is not None and "duration" in state and self.on_timeout.value == "stop":
+        if until is not None and "duration" in state and shown["on_timeout"] == "stop":
             fields["on_timeout"] = "stop"
         self.doc.set_event(automaton, index, until, **fields)
 
@@ -142,7 +146,7 @@ class ProgramPanel:
     """The program: its gaits, which one the Module folder edits, and its sequence (a folder of the Gait tab)."""
 
     def __init__(self, gui: Any, doc: GaitDocument, *, edited: Callable[[], None], safe: Callable[..., Any],
-                 syncing: Callable[[], bool], on_edit: Callable[..., None]) -> None:  # fmt: skip
+                 syncing: Callable[[], bool], on_edit: Callable[..., Any]) -> None:  # fmt: skip
         self.doc = doc
         self.editing = gui.add_dropdown("Edit modules of", [FORWARD],
                                         hint="which gait of the program the Module folder edits")  # fmt: skip

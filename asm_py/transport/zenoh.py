@@ -141,9 +141,10 @@ class ZenohTransport(Transport):
             refuse_if_claimed(self._zid, lambda: self.claimants(self.segment), self._name_taken)
             keys = self.keys
             claiming = session.liveliness().declare_token(keys.claim(self.segment, self._zid))
+            requests = self._handoff("requests", self._on_query, self._refuse_query, zenoh.Query.drop)
             self._keep += [
                 claiming,
-                session.declare_queryable(keys.requests(self.segment), self._handoff("requests", self._on_query, True)),
+                session.declare_queryable(keys.requests(self.segment), requests),
                 session.declare_subscriber(keys.messages(self.segment), self._handoff("messages", self._on_sample)),
                 # every e-stop from elsewhere, whatever its sender's name (this node's own runs its handlers directly)
                 session.declare_subscriber(keys.estop(), self._on_estop, allowed_origin=zenoh.Locality.REMOTE),
@@ -193,11 +194,10 @@ class ZenohTransport(Transport):
         handler = self._handoff(group, self._on_sample)
         self._keep.append(self.session.declare_subscriber(self.keys.group(group), handler))
 
-    def _handoff(self, what: str, serve: Callable[[Any], None], queries: bool = False) -> Any:
-        """An entity's handler, a queue and a thread of its own (zenoh_requests): a query refused is answered BUSY if
-        it wants a reply, and one left at close is dropped; a message refused is dropped."""
-        refuse, discard = (self._refuse_query, zenoh.Query.drop) if queries else (None, lambda _: None)
-        self._handoffs.append(RequestQueue(serve, refuse, f"{self._name} {what}", discard=discard))
+    def _handoff(self, what: str, serve: Callable[[Any], None], refuse: Any = None, discard: Any = None) -> Any:
+        """An entity's handler, a queue and a thread of its own (zenoh_requests). The requests' queue answers one it
+        cannot hold BUSY (_refuse_query) and drops one left at close; a message refused or left is dropped."""
+        self._handoffs.append(RequestQueue(serve, refuse, f"{self._name} {what}", discard=discard or (lambda _: None)))
         return self._handoffs[-1].callback()
 
     # -- receiving ------------------------------------------------------------------------------------------------

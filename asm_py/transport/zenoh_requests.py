@@ -60,7 +60,7 @@ class RequestQueue(Generic[Item]):
         self._closed = False
         self._serving = False
         self.refused = 0
-        """Items refused because the queue was full or closed (each also logged: see :meth:`_said`)."""
+        """Items refused because the queue was full or closed (each also logged: see :meth:`_tell`)."""
         self._said = 0
         self._last_said = 0.0
         self._thread = threading.Thread(target=self._run, name=f"asm-zenoh {name}", daemon=True)
@@ -69,7 +69,9 @@ class RequestQueue(Generic[Item]):
     def callback(self) -> Callable[[Item], None]:
         """The entity's handler: ``put``, on zenoh-python's thread for the entity (its channel of 256 never stays
         full, since ``put`` never blocks). Run on Zenoh's own thread instead (a direct callback), a remote get took
-        60-100 µs longer here than with zenoh-python's channel, against 5-30 µs for this hand-off."""
+        60-100 µs longer here than with zenoh-python's channel. What this hand-off costs is not settled: 0-40 µs
+        measured interleaved against the handler it replaced, +0.2-0.3 of bench/remote.py's ratio
+        (docs/benchmarks.md)."""
         return self.put
 
     def put(self, item: Item) -> None:

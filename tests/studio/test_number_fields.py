@@ -103,6 +103,13 @@ class Gui:
         return self._add(label, initial_value)
 
 
+def _on_edit(handle: Control, apply: Any, *, context: Any = None) -> Any:
+    """The page's on_edit for these hand-called controls: the value and its context as the value comes (here, at
+    once: no pool runs callbacks late), an error raised to the test instead of shown as a toast."""
+    handle.on_update(lambda event: apply(event.target.value, *(() if context is None else (context(),))))
+    return lambda: None
+
+
 def test_the_attribute_browser_refuses_a_fraction_for_an_integer_attribute_and_writes_nothing() -> None:
     network = MemoryNetwork()
     module = Node("m2", MemoryTransport(network))
@@ -132,8 +139,7 @@ def test_the_event_fields_refuse_a_fraction_by_name_and_leave_the_gait_as_it_was
     automaton = next(iter(doc.data()["automata"]))
     gui = Gui()
     edits: list[str] = []
-    EventControls(gui, doc, selected=lambda: (automaton, 0), edited=lambda: edits.append("edited"),
-                  safe=lambda fn: fn, syncing=lambda: False)  # fmt: skip
+    EventControls(gui, doc, selected=lambda: (automaton, 0), edited=lambda: edits.append("edited"), on_edit=_on_edit)
     before = doc.text()
     with pytest.raises(ValueError, match=r"^Emits signal must be a whole number, not 2\.5$"):
         gui.controls["Emits signal"].typed(2.5)

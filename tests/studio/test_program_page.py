@@ -231,6 +231,68 @@ def test_an_edit_lands_on_the_state_selected_when_it_came_and_is_credited_to_its
     assert app.doc.gait().sequence == [("forward", 2)] and app.page.last_editor == 8
 
 
+@pytest.mark.parametrize("order", ["arrival", "reversed"])
+def test_what_ends_a_state_lands_on_the_state_selected_when_it_came_with_the_fields_it_came_with(
+    studio, monkeypatch, order: str
+) -> None:
+    """What ends a state is written from several fields at once (event, tolerance, neighbour, ...), read from the
+    handles when the callback ran: with S2 selected in between (its fields resynced), an "at_goal" chosen for S1
+    landed on S2, and S1 kept its old ending. The emitted signal and one-shot were read from the selection late
+    too. Each is now applied to the state, and with the fields, shown when it came."""
+    app = studio.app
+    editor = app.editor
+    editor.open_file(LIBRARY / "contact_inchworm.toml")
+    _select(app, "lead", 8)  # "land": until contact
+    before = app.doc.data()["automata"]["lead"]["states"]
+    s8, s9 = dict(before[7]), dict(before[8])
+    events = editor.events
+    pool = _HeldPool()
+    monkeypatch.setattr(app.server.gui, "_thread_executor", pool)
+    monkeypatch.setitem(app.server._connected_clients, 7, _tab(7))
+    _arrives(app, events.until, "at_goal")
+    _arrives(app, events.emit, 5.0)
+    _arrives(app, editor.state_index, 9.0)
+    for fn, args in pool.held if order == "arrival" else reversed(pool.held):
+        fn(*args)
+    states = app.doc.data()["automata"]["lead"]["states"]
+    assert states[7] == {**s8, "until": "at_goal", "tolerance": 2.0, "emit": 5}, states[7]
+    assert states[8] == s9, "the state selected after the edits came is untouched"
+    assert int(editor.state_index.value) == 9
+
+
+def test_a_grid_row_a_name_and_a_state_removal_keep_what_they_came_with(studio, monkeypatch) -> None:
+    """The same race in the grid, the gait's name and the state buttons. A grid row typed, then resynced by another
+    edit before its callback ran: the row read back the resynced value, equal to what was shown, and the typed
+    angle was lost. A name typed, then resynced: the same. "Remove" clicked on S4, then S6 selected: S6 went."""
+    app = studio.app
+    editor = app.editor
+    doc = app.doc
+
+    def rows() -> list[tuple[float, float]]:
+        return [(s["angle"], s["duration"]) for s in doc.data()["automata"]["wave"]["states"]]
+
+    before = rows()
+    angle, duration = before[2]
+    with app.page.programmatic():
+        editor.automaton.value = "wave"
+        editor.state_index.value = 4
+    editor.sync()
+    pool = _HeldPool()
+    monkeypatch.setattr(app.server.gui, "_thread_executor", pool)
+    monkeypatch.setitem(app.server._connected_clients, 7, _tab(7))
+    _arrives(app, editor.grid.rows[("wave", 2)], (angle + 7.5, duration))
+    _arrives(app, editor.tools.name, "my caterpillar")
+    _arrives(app, editor.state_actions, "Remove")
+    _arrives(app, editor.state_index, 6.0)
+    doc.update_state("wave", 2, {"duration": duration + 0.25})  # another tab's edit, resynced before the pool ran
+    editor.after_edit()
+    for fn, args in pool.held:
+        fn(*args)
+    assert doc.data()["name"] == "my caterpillar"
+    expected = [*before[:2], (angle + 7.5, duration + 0.25), *before[4:]]  # S3 edited by both, S4 removed
+    assert rows() == expected
+
+
 def test_a_control_set_after_the_page_closed_is_still_set(studio) -> None:
     """on_edit's coroutine callback, scheduled on viser's loop by every value set from the server: after the server
     stopped, viser raised RuntimeError (the loop closed) out of the setter, and the edit was lost."""

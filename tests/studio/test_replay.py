@@ -516,7 +516,9 @@ def test_an_event_with_a_huge_name_is_shown_short(tmp_path: Path) -> None:
     assert len(estop_event.text) < 200 and estop_event.text.startswith("E-STOP (lab) by s: RRR")
 
 
-def test_a_refresh_returns_with_its_plot_shown_even_while_another_refresh_draws_it(studio, tmp_path: Path) -> None:
+def test_a_refresh_returns_with_its_plot_shown_even_while_another_refresh_draws_it(
+    studio, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     """The page's refresh thread marked the replay time plotted, then drew the plot; a refresh from elsewhere that
     came in between found it marked and returned with no plot yet (the test above read no labels, once in CI)."""
     import threading
@@ -540,7 +542,7 @@ def test_a_refresh_returns_with_its_plot_shown_even_while_another_refresh_draws_
 
     panel.timeline.value = 1.25  # a time no refresh has plotted yet
     assert wait_until(lambda: abs(panel.source.time() - 1.25) < 1e-9, 20)
-    monitor.SeriesPlot.show = slow_show  # type: ignore[method-assign]
+    monkeypatch.setattr(monitor.SeriesPlot, "show", slow_show)
     first = threading.Thread(target=panel.refresh, name="first-refresh")
     try:
         panel._plotted = None  # the next refresh draws: the page's own (20 a second) or the first here
@@ -555,5 +557,4 @@ def test_a_refresh_returns_with_its_plot_shown_even_while_another_refresh_draws_
         assert panel.plot.labels == ["m1 joint.angle", "m2 joint.angle", "m3 joint.angle"]
     finally:
         release.set()
-        monitor.SeriesPlot.show = show  # type: ignore[method-assign]
         first.join(20)

@@ -24,6 +24,28 @@ from ..helpers import wait_until
 from ..transports import free_port
 
 
+class Hang:
+    """A user's listener that never returns until the test lets it: ``entered`` once it is called."""
+
+    def __init__(self) -> None:
+        self.entered = threading.Event()
+        self.released = threading.Event()
+
+    def __call__(self, _: object) -> None:
+        self.entered.set()
+        self.released.wait(60)
+
+
+@pytest.fixture
+def hang() -> Iterator[Hang]:
+    """A hung listener, released after the test (before its nodes close) whatever the outcome."""
+    listener = Hang()
+    try:
+        yield listener
+    finally:
+        listener.released.set()
+
+
 @pytest.fixture
 def pair() -> Iterator[tuple[Node, Node]]:
     """A module and a tool on one Zenoh link, the tool seeing the module; both closed after the test."""
@@ -38,10 +60,10 @@ def pair() -> Iterator[tuple[Node, Node]]:
         module.close()
 
 
-def test_a_hung_change_listener_does_not_stop_its_session_hearing_replies_or_the_estop(pair: tuple[Node, Node]) -> None:
+def test_a_hung_change_listener_does_not_stop_its_session_hearing_replies_or_the_estop(
+    pair: tuple[Node, Node], hang: Hang
+) -> None:
     module, tool = pair
-    release = threading.Event()
-    entered = threading.Event()
     stops: list[str] = []
     copy = Attribute("copy", codec="float32")
     try:
@@ -52,21 +74,16 @@ def test_a_hung_change_listener_does_not_stop_its_session_hearing_replies_or_the
         remote_stream = tool.lookup("module", "stream", timeout=5)
         angle = tool.lookup("module", "joint.angle", timeout=5)
         tool.on_estop(lambda source, reason: stops.append(reason))
-
-        def hang(_: object) -> None:  # a user's listener that never returns (until the test ends)
-            entered.set()
-            release.wait(30)
-
         copy.on_change(hang)
         copy.subscribe(remote_stream)
-        assert wait_until(lambda: (stream.set(1.0), entered.is_set())[1], timeout=10)
+        assert wait_until(lambda: (stream.set(1.0), hang.entered.is_set())[1], timeout=10)
         for i in range(3 * BACKLOG):  # far past any channel between Zenoh and the listener's thread
             stream.set(float(i))
         assert angle.get(timeout=5) == 0.75  # the tool's session still hears replies
         module.estop("hung")  # a reason of one CAN frame
         assert wait_until(lambda: "hung" in stops, timeout=5)  # and the e-stop
     finally:
-        release.set()
+        hang.released.set()
         copy.unsubscribe()
 
 
@@ -128,22 +145,15 @@ def test_a_subscription_whose_remover_is_dropped_goes_on_delivering_and_survives
 
 
 def test_a_hung_request_handler_under_a_flood_keeps_the_estop_and_refuses_what_it_cannot_hold(
-    pair: tuple[Node, Node],
+    pair: tuple[Node, Node], hang: Hang
 ) -> None:
     """A set whose change listener hangs holds the module's requests behind it. zenoh-python handed them to that
     thread through a channel of 256 that blocks when full: past 256 the module's whole session stopped, the e-stop
     sent to it included. Now they wait in a queue of REQUEST_BACKLOG, and one past it is refused as BUSY at once."""
     module, tool = pair
-    release = threading.Event()
-    entered = threading.Event()
     stops: list[str] = []
     try:
         goal = Attribute("goal", 0.0, codec="float32")
-
-        def hang(_: object) -> None:
-            entered.set()
-            release.wait(60)
-
         goal.on_change(hang)
         module.register(goal)
         module.register(Attribute("joint.angle", 0.75, codec="float32"))
@@ -151,7 +161,7 @@ def test_a_hung_request_handler_under_a_flood_keeps_the_estop_and_refuses_what_i
         remote_goal = tool.lookup("module", "goal", timeout=5)
         remote_angle = tool.lookup("module", "joint.angle", timeout=5)
         remote_goal.set(1.0, wait=False)
-        assert entered.wait(10)
+        assert hang.entered.wait(10)
         for i in range(REQUEST_BACKLOG + 100):  # far past zenoh-python's channel of 256, and past the backlog
             remote_goal.set(float(i), wait=False)
         tool.estop("flood")
@@ -161,7 +171,7 @@ def test_a_hung_request_handler_under_a_flood_keeps_the_estop_and_refuses_what_i
             remote_angle.get(timeout=20)
         assert refused.value.status == Status.BUSY and time.monotonic() - began < 10  # at once, not at the timeout
     finally:
-        release.set()
+        hang.released.set()
 
     def serves() -> bool:  # BUSY while the queue still holds what waited behind the hung set
         try:
@@ -173,28 +183,18 @@ def test_a_hung_request_handler_under_a_flood_keeps_the_estop_and_refuses_what_i
     assert wait_until(serves, timeout=30)  # and serves again once it is free
 
 
-def test_a_hung_group_set_under_a_flood_of_group_messages_keeps_the_estop(pair: tuple[Node, Node]) -> None:
+def test_a_hung_group_set_under_a_flood_of_group_messages_keeps_the_estop(pair: tuple[Node, Node], hang: Hang) -> None:
     """The same for a group's messages (a set to every node with an object of a class): they came through
     zenoh-python's channel of 256 too, and a group set whose listener hung stopped the session past 256 more."""
     module, tool = pair
-    release = threading.Event()
-    entered = threading.Event()
     stops: list[str] = []
-    try:
-        signal = Attribute("gait.signal", 0, codec="uint8")
-
-        def hang(_: object) -> None:
-            entered.set()
-            release.wait(60)
-
-        signal.on_change(hang)
-        module.register(signal)
-        module.on_estop(lambda source, reason: stops.append(reason))
-        group = tool.group().attribute("gait.signal", "uint8")
-        assert wait_until(lambda: (group.set(1), entered.is_set())[1], timeout=10)
-        for i in range(REQUEST_BACKLOG + 100):
-            group.set(2 + i % 200)
-        tool.estop("groups")
-        assert wait_until(lambda: "groups" in stops, timeout=10)
-    finally:
-        release.set()
+    signal = Attribute("gait.signal", 0, codec="uint8")
+    signal.on_change(hang)
+    module.register(signal)
+    module.on_estop(lambda source, reason: stops.append(reason))
+    group = tool.group().attribute("gait.signal", "uint8")
+    assert wait_until(lambda: (group.set(1), hang.entered.is_set())[1], timeout=10)
+    for i in range(REQUEST_BACKLOG + 100):
+        group.set(2 + i % 200)
+    tool.estop("groups")
+    assert wait_until(lambda: "groups" in stops, timeout=10)
