@@ -9,7 +9,6 @@ reference the runtime turns into ``joint.goal``.
 from __future__ import annotations
 
 import bisect
-import contextlib
 import math
 import threading
 from collections import Counter
@@ -18,7 +17,7 @@ from typing import TYPE_CHECKING, Any
 from asm_py.attribute import Attribute, CheckedAttribute
 from asm_py.automaton import PhaseAutomaton, reference_at, state_starts
 from asm_py.codec import FLOAT32, FLOAT64, INT8, UINT8, UINT32, record
-from asm_py.errors import AsmTimeout, EstopLatched, ServiceError
+from asm_py.errors import EstopLatched, ServiceError
 from asm_py.event import Event
 
 from .program import SWITCH_BLEND, Mode, ModeState, Program
@@ -112,19 +111,22 @@ class ModuleGait(PhaseAutomaton):
 
     # -- starting -----------------------------------------------------------------------------------------------
 
-    def start(self, *params: Any, wait: bool = True) -> None:  # pyright: ignore[reportIncompatibleMethodOverride]  # the module's START: no parameters, phase and direction are attributes
+    def start(self, *params: Any, wait: bool = True, since: int | None = None) -> None:  # pyright: ignore[reportIncompatibleMethodOverride]  # the module's START: no parameters, phase and direction are attributes
         """Start at the module's gait.phase and gait.direction. A START carries no parameters (docs/protocol.md
-        §9): a phase and a direction are set first, each checked by its own attribute."""
+        §9): a phase and a direction are set first, each checked by its own attribute. Refused if an e-stop
+        latched since the runtime's ``latches`` read ``since`` (now, if not given), looked at again once started:
+        a latch during the start found nothing to stop."""
         if params:
             raise ValueError(f"gait.service starts without parameters (set gait.phase and gait.direction first), "
                              f"not {list(params)!r}"[:200])  # fmt: skip
-        if self._runtime.latched:
+        runtime = self._runtime
+        since = runtime.latches if since is None else since
+        if not runtime.unlatched_since(since):
             raise EstopLatched("the module is in emergency stop; set estop to false before starting the gait")
-        self._runtime._begin_ramp()
-        super().start(float(self._runtime.phase.peek()))
-        if self._runtime.latched:  # latched since the check above: its request_stop may have found nothing started
-            with contextlib.suppress(AsmTimeout):
-                self.stop(timeout=1.0)
+        runtime._begin_ramp()
+        super().start(float(runtime.phase.peek()))
+        if not runtime.unlatched_since(since):
+            self.request_stop()  # not stop(): the caller may be a bus's receive thread; no tick runs it meanwhile
             raise EstopLatched("the module's emergency stop latched while the gait started")
 
     def initialize(self, phase: float) -> None:

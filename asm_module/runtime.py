@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import logging
 import math
+import threading
 from collections.abc import Callable
 from typing import Any, Literal
 
@@ -136,6 +137,11 @@ class ModuleRuntime:
         self.ramp = ramp
         self.latched = False
         """The e-stop is latched (set first: a racing tick's goal is never commanded after it)."""
+        self.latches = 0
+        """Counted at each latch's start and end (odd while one latches). A start reads it before it looks at
+        ``latched`` and again once started (:meth:`unlatched_since`): an e-stop and its release both landing in
+        between left ``latched`` false, and the gait started before the stop ran after the release."""
+        self._counting = threading.Lock()  # the count's own, for nanoseconds: nothing a gait or a service holds
         self._held_at: float | None = None
         """The angle the e-stop holds (joint.goal reads it from the next tick on)."""
         self.calibration = CheckedAttribute("joint.calibration", initial.as_record(),
@@ -350,16 +356,22 @@ class ModuleRuntime:
 
             self._watching.append(self.neighbours.watch(self.module_id + offset, heard))
 
-    def switch_gait(self, table: bytes, phase: float, direction: int) -> None:
-        """Stop the gait, make ``table``/``phase``/``direction`` the module's gait and start it (an activation)."""
-        if self.latched:
+    def unlatched_since(self, since: int) -> bool:
+        """No e-stop latched, or latching, since ``latches`` read ``since`` (read it before looking at ``latched``)."""
+        return not self.latched and self.latches == since and since % 2 == 0
+
+    def switch_gait(self, table: bytes, phase: float, direction: int, *, since: int | None = None) -> None:
+        """Stop the gait, make ``table``/``phase``/``direction`` the module's gait and start it (an activation),
+        unless an e-stop latched since ``latches`` read ``since`` (now, if not given): see ``latches``."""
+        since = self.latches if since is None else since
+        if not self.unlatched_since(since):
             raise EstopLatched("the module's emergency stop is latched")
         self.check_table(table)
         self.gait.stop(timeout=1.0)
         self.table.set(table)
         self.phase.set(phase)
         self.gait.direction.set(direction)
-        self.gait.start()
+        self.gait.start(since=since)
 
     def _follow(self, reference: float) -> None:
         """The automaton's reference becomes the goal, ramped in from the goal held when the gait started."""
@@ -397,6 +409,8 @@ class ModuleRuntime:
         it. The gait service is asked to stop (its thread ends by itself, no tick handles anything meanwhile), and
         joint.goal reads the held angle (a tick that raced the latch and wrote its own goal is corrected by the
         next tick)."""
+        with self._counting:
+            self.latches += 1
         self.latched = True
         if self.servo.running:
             self._held_at = self.joint.hold()
@@ -404,6 +418,8 @@ class ModuleRuntime:
         self.staging.discard()  # no deployment begun before the stop may start after it
         if self._held_at is not None:
             self.goal.set(self._held_at)  # the goal's own lock, for microseconds: it commands nothing while latched
+        with self._counting:
+            self.latches += 1
 
     def _unlatch(self) -> None:
         """Released: commands reach the joint again, which stays where it holds until a new goal or gait."""

@@ -106,10 +106,11 @@ class Staging:
 
     def _activate(self, deploy_id: int) -> int:
         runtime = self._runtime
+        since = runtime.latches  # before the staged record is read: an e-stop from here on refuses the switch
         if deploy_id == self.activate.peek():
             return deploy_id  # a resent activation: done once, never a restart (an e-stop may have stopped it)
         staged = self._record
         if staged is None or staged.deploy_id != deploy_id:
             raise ValueError(f"no gait is staged with deploy ID {deploy_id:#010x}")
-        runtime.switch_gait(staged.table, staged.phase, staged.direction)
+        runtime.switch_gait(staged.table, staged.phase, staged.direction, since=since)
         return deploy_id

@@ -99,6 +99,10 @@ class Service:
             self._starting(*params)
             self.on_start(*params)
         except BaseException:
+            try:
+                self._stopped()  # undoes _starting (an event-driven service's listener: kept, it handled firings twice)
+            except Exception:
+                log.exception("undoing the failed start of service %r failed", self._name)
             with mon:
                 self._started = self._running = False
                 self._thread = None

@@ -165,6 +165,34 @@ def test_a_stop_asked_from_another_thread_during_the_start_ends_it(services, inl
 
 
 @pytest.mark.parametrize("inline", [False, True])
+def test_a_start_whose_on_start_fails_leaves_no_listener_behind(services, inline: bool) -> None:
+    """Found by an adversarial review: a start whose on_start raised was undone but kept listening to its event, and
+    after the next start every firing was handled twice."""
+    clock = SimClock()
+    event = Event("e", clock=clock)
+    failures = [RuntimeError("on_start failed")]
+
+    class FailsOnce(Recorder):
+        def on_start(self, *params: object) -> None:
+            if failures:
+                raise failures.pop()
+
+    service = FailsOnce(event, inline=inline)
+    services.append(service)
+    with pytest.raises(RuntimeError):
+        service.start()
+    assert not service.started
+    service.start()
+    event.set(1)
+    clock.settle()
+    assert wait_until(lambda: service.values == [1], timeout=5)
+    service.stop(timeout=5)
+    event.set(2)
+    clock.settle()
+    assert service.values == [1]
+
+
+@pytest.mark.parametrize("inline", [False, True])
 def test_a_failing_handler_stops_the_service(inline: bool) -> None:
     event = Event("e")
 

@@ -6,6 +6,7 @@ import math
 import signal
 import subprocess
 import sys
+from typing import Any
 
 import pytest
 
@@ -222,6 +223,70 @@ def test_an_estop_arriving_while_a_gait_starts_leaves_it_stopped(inline: bool, a
             clock.advance(0.1)
             clock.settle()
         assert not gait.started and runtime.goal.peek() == goal, "nothing moves until someone starts it again"
+    finally:
+        runtime.close()
+
+
+def _on_another_thread(call: Any, *args: Any) -> None:
+    import threading
+
+    thread = threading.Thread(target=call, args=args)
+    thread.start()
+    thread.join(5)
+
+
+@pytest.mark.parametrize("inline", [False, True], ids=["threaded", "inline"])
+@pytest.mark.parametrize("at", ["start", "switch_gait", "activation"])
+def test_an_estop_and_its_release_both_during_a_start_leave_the_gait_stopped(inline: bool, at: str) -> None:
+    """Found by an adversarial review of the fix above: an e-stop and its release both landing while a start is on
+    its way (before the service counts as started, or in an activation between its stop and its start). The
+    latch's stop found nothing started, the release cleared the flag, and the start's second look saw nothing
+    latched: a gait started before the e-stop ran after its release, an activation with what the e-stop
+    discarded."""
+    from asm_module.wire import Staged, encode_staged
+    from asm_py import Event
+
+    clock = SimClock()
+    tick = Event("gait.tick", codec="float64", clock=clock)
+    runtime = ModuleRuntime(FakeDriver(clock=clock), clock=clock, tick=tick, inline=inline, ramp=0.0)
+    table = encode_table([PhaseState(40.0, 0.5, "step"), PhaseState(-40.0, 0.5, "step")])
+    fired: list[bool] = []
+
+    def stop_and_release() -> None:
+        if not fired:
+            fired.append(True)
+            _on_another_thread(runtime.emergency_stop, "operator")
+            _on_another_thread(runtime.estop.set, False)
+
+    try:
+        if at == "start":
+            runtime.table.set(table)
+            ramp = runtime._begin_ramp
+            runtime._begin_ramp = lambda: (stop_and_release(), ramp())[1]  # type: ignore[method-assign]
+            with pytest.raises(EstopLatched):
+                runtime.gait.start()
+        else:
+            check = runtime.gait.direction._check
+            runtime.gait.direction._check = lambda v: (stop_and_release(), check(v))[1]  # type: ignore[attr-defined]
+            if at == "switch_gait":
+                with pytest.raises(EstopLatched):
+                    runtime.switch_gait(table, 0.0, 1)
+            else:
+                runtime.staging.staged.set(encode_staged(Staged(7, 0.0, 1, table)))
+                with pytest.raises(EstopLatched):
+                    runtime.staging.activate.set(7)
+                assert runtime.staging.activate.peek() != 7 and runtime.staging.staged.peek() == b""
+        assert fired and not runtime.latched
+        goal = runtime.goal.peek()
+        for _ in range(10):
+            tick.set(clock.now())
+            clock.advance(0.1)
+            clock.settle()
+        assert wait_until(lambda: not runtime.gait.started, timeout=5)
+        assert runtime.goal.peek() == goal, "nothing moves until someone starts it after the release"
+        runtime.table.set(table)
+        runtime.gait.start()  # and a start after the release starts
+        assert runtime.gait.started
     finally:
         runtime.close()
 
