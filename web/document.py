@@ -50,6 +50,11 @@ class GaitDocument:
         self._valid: Gait | None = gait
         self.problems: list[Problem] = []
         self.version = 0
+        self.layout = 0
+        """Changes whenever a state's index may have changed (a state inserted or removed, another gait opened, undo,
+        redo). An edit addressed by index may name the layout it was made in; made in another, it is refused: the
+        page applies an edit a moment after it arrived, and another tab's Remove in between moved every state after
+        it (an angle typed for S5 landed on the old S6)."""
         self._spare: dict[int, dict[str, Any]] = {}
         """Assignments of modules removed by shrinking the robot, given back if it grows again: a module count
         typed as 1 then 12 passes through one module on the way."""
@@ -119,11 +124,11 @@ class GaitDocument:
         self.load_text(content, source=name[:100], path=beside)
         return beside.parent if beside is not None else None
 
-    def set_state(self, automaton: str, index: int, field: str, value: Any) -> None:
+    def set_state(self, automaton: str, index: int, field: str, value: Any, *, layout: int | None = None) -> None:
         """Set ``angle``, ``duration`` or ``interpolation`` of one state of an automaton."""
-        self.update_state(automaton, index, {field: value})
+        self.update_state(automaton, index, {field: value}, layout=layout)
 
-    def update_state(self, automaton: str, index: int, changes: dict[str, Any]) -> None:
+    def update_state(self, automaton: str, index: int, changes: dict[str, Any], *, layout: int | None = None) -> None:
         """Set several fields of one state as one undoable step (a grid row sends angle and duration together)."""
         wrong = set(changes) - {"angle", "duration", "interpolation"}
         if wrong:
@@ -132,15 +137,15 @@ class GaitDocument:
         def edit(data: dict[str, Any]) -> None:
             data["automata"][automaton]["states"][index].update(changes)
 
-        self._apply(edit, field=("state", automaton, index, tuple(sorted(changes))))
+        self._apply(edit, field=("state", automaton, index, tuple(sorted(changes))), layout=layout)
 
-    def add_state(self, automaton: str, index: int) -> None:
+    def add_state(self, automaton: str, index: int, *, layout: int | None = None) -> None:
         """Duplicate state ``index`` right after it."""
         self._apply(lambda d: d["automata"][automaton]["states"].insert(
-            index + 1, dict(d["automata"][automaton]["states"][index])))  # fmt: skip
+            index + 1, dict(d["automata"][automaton]["states"][index])), layout=layout, reshapes=True)  # fmt: skip
 
-    def remove_state(self, automaton: str, index: int) -> None:
-        self._apply(lambda d: d["automata"][automaton]["states"].pop(index))
+    def remove_state(self, automaton: str, index: int, *, layout: int | None = None) -> None:
+        self._apply(lambda d: d["automata"][automaton]["states"].pop(index), layout=layout, reshapes=True)
 
     def set_module(self, module_id: int, field: str, value: Any, gait: str = FORWARD) -> None:
         """Set ``phase``, ``direction`` or ``automaton`` of one module's assignment in one gait of the program."""
@@ -152,7 +157,8 @@ class GaitDocument:
 
         self._apply(edit, field=("module", gait, module_id, field))
 
-    def set_event(self, automaton: str, index: int, until: str | None, **fields: Any) -> None:
+    def set_event(self, automaton: str, index: int, until: str | None, *, layout: int | None = None,
+                  **fields: Any) -> None:  # fmt: skip
         """What ends one state: its duration alone (``until`` None) or an event with its fields (``tolerance``,
         ``threshold``, ``neighbour``, ``state``, ``on_timeout``), as one undo step. Fields of other events go, since
         the loader refuses them (a tolerance on a contact state)."""
@@ -168,9 +174,9 @@ class GaitDocument:
                 state["until"] = until
                 state.update({k: v for k, v in fields.items() if v is not None})
 
-        self._apply(edit, field=("event", automaton, index))
+        self._apply(edit, field=("event", automaton, index), layout=layout)
 
-    def set_emit(self, automaton: str, index: int, signal: int) -> None:
+    def set_emit(self, automaton: str, index: int, signal: int, *, layout: int | None = None) -> None:
         """The broadcast signal a state sends on entry (0: none); a value outside 1..255 is kept for the loader to
         refuse at the field, not altered."""
 
@@ -181,7 +187,7 @@ class GaitDocument:
             else:
                 state.pop("emit", None)
 
-        self._apply(edit, field=("emit", automaton, index))
+        self._apply(edit, field=("emit", automaton, index), layout=layout)
 
     def set_one_shot(self, automaton: str, one_shot: bool) -> None:
         """Make an automaton one-shot (it ends after its last state) or periodic."""
@@ -291,6 +297,11 @@ class GaitDocument:
 
         self._apply(edit)
 
+    def check_layout(self, layout: int | None) -> None:
+        """ValueError unless ``layout`` is None or the present one (see ``layout``)."""
+        if layout is not None and layout != self.layout:
+            raise ValueError(STALE_EDIT)
+
     def undo(self) -> bool:
         return self._travel(self._undo, self._redo)
 
@@ -304,17 +315,21 @@ class GaitDocument:
                 return False
             target.append((self._data, self._source, self._path))
             self._data, self._source, self._path = source.pop()
+            self.layout += 1
             self._last_edit = None
             self._revalidate()
             return True
 
-    def _apply(self, edit: Any, *, field: Any = None, opened: tuple[str | None, Path | None] | None = None) -> None:
+    def _apply(self, edit: Any, *, field: Any = None, opened: tuple[str | None, Path | None] | None = None,
+               layout: int | None = None, reshapes: bool = False) -> None:  # fmt: skip
         """Apply one edit as an undo step. Edits of the same ``field`` less than TYPING seconds apart are one step:
         the page sends a number as it is typed ("4", then "45"), and Undo should give back the value before "45",
         not "4". An edit of the field whose value was refused (the document invalid) joins that step however late,
         so the refused value is never an undo step of its own. Anything else in between (another field, undo, redo)
-        ends the step."""
+        ends the step. ``layout``: refused unless it is the present one (see ``layout``); ``reshapes``: it moves
+        states' indices."""
         with self._lock:
+            self.check_layout(layout)
             now = self._clock()
             # a refused value (the document invalid after it) is replaced by its field's next value: Undo never
             # gives back a value the page refused
@@ -325,6 +340,8 @@ class GaitDocument:
             edit(self._data)
             if opened is not None:  # a gait opened in place of this one: its own file's text and path (or none)
                 self._source, self._path = opened
+            if reshapes or opened is not None:
+                self.layout += 1
             if not typing:
                 self._undo.append(before)
                 del self._undo[:-HISTORY]
@@ -340,6 +357,12 @@ class GaitDocument:
             self._valid = None
             self.problems = list(exc.problems)
         self.version += 1
+
+
+STALE_EDIT = (
+    "the gait's states changed while this edit was on its way (a state inserted or removed, here or in "
+    "another tab, or undo): it was not applied; make it again"
+)
 
 
 def _resize_module(data: dict[str, Any], size: Any) -> None:

@@ -63,7 +63,8 @@ class GaitEditor:
         self.tools = GaitTools(gui, self.doc, edited=self.after_edit, safe=safe, syncing=lambda: page.syncing,
                                on_edit=page.on_edit)  # fmt: skip
         grid_folder = gui.add_folder("States")
-        self.grid = StateGrid(page.server, grid_folder, edited=self._on_grid, on_edit=page.on_edit)
+        self.grid = StateGrid(page.server, grid_folder, edited=self._on_grid, on_edit=page.on_edit,
+                              layout=lambda: self.doc.layout)  # fmt: skip
         with grid_folder:  # hidden by the page's script, which writes a clicked state into it (web/page_script.py)
             self.clicked = gui.add_text(CLICKED_FIELD, "")
         self.clicked.on_update(safe(lambda e: None if page.syncing else self.select_clicked(str(e.target.value))))
@@ -75,7 +76,9 @@ class GaitEditor:
             # 0.999999); the document takes what was typed and the loader's problem shows at the field instead
             self.duration = number(gui, "Duration (s)", initial_value=0.1, step=0.005)
             self.interp = gui.add_dropdown("Interpolation", ["linear", "step"])
-            selected = lambda: (self.automaton.value, int(self.state_index.value) - 1)  # noqa: E731  (a one-line reader)
+            # the state selected, and the layout its index is of (an edit that comes before another's Remove is
+            # applied after it is refused, not moved onto the next state: GaitDocument.layout)
+            selected = lambda: (self.automaton.value, int(self.state_index.value) - 1, self.doc.layout)  # noqa: E731
             self.events = EventControls(gui, self.doc, edited=self.after_edit, on_edit=page.on_edit, selected=selected)
             self.state_problem = gui.add_markdown("")
             self.state_actions = gui.add_button_group("Edit states", ["Insert after", "Remove"])
@@ -120,8 +123,8 @@ class GaitEditor:
             page.on_edit(control, apply, context=context)
 
         def state_field(control: Any, name: str, convert: Callable[[Any], Any]) -> None:
-            field(control, lambda v, at: self.doc.set_state(at[0], at[1], name, convert(v)),
-                  context=lambda: (self.automaton.value, int(self.state_index.value) - 1))  # fmt: skip
+            field(control, lambda v, at: self.doc.set_state(at[0], at[1], name, convert(v), layout=at[2]),
+                  context=selected)  # fmt: skip
 
         def module_field(control: Any, name: str, convert: Callable[[Any], Any]) -> None:
             field(control, lambda v, at: self.doc.set_module(at[0], name, convert(v), at[1]),
@@ -189,18 +192,19 @@ class GaitEditor:
             self.page.notify("History", f"{kind} took back an edit made in another tab")
         self.after_edit()
 
-    def _on_states(self, clicked: str, at: tuple[str, int]) -> None:
-        automaton, index = at
+    def _on_states(self, clicked: str, at: tuple[str, int, int]) -> None:
+        automaton, index, layout = at
         if clicked == "Insert after":
-            self.doc.add_state(automaton, index)
+            self.doc.add_state(automaton, index, layout=layout)
         else:
-            self.doc.remove_state(automaton, index)
+            self.doc.remove_state(automaton, index, layout=layout)
         self.after_edit()
 
-    def _on_grid(self, automaton: str, index: int, changes: dict[str, float]) -> None:
-        """A grid row changed: select that state in the cell editor too, and apply the change."""
+    def _on_grid(self, automaton: str, index: int, changes: dict[str, float], layout: int | None) -> None:
+        """A grid row changed: apply the change (refused if states moved since: GaitDocument.layout), and select
+        that state in the cell editor too."""
+        self.doc.update_state(automaton, index, changes, layout=layout)
         self._select(automaton, index)
-        self.doc.update_state(automaton, index, changes)
         self.after_edit()
 
     def _select(self, automaton: str, index: int) -> None:

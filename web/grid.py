@@ -36,13 +36,16 @@ class StateGrid:
         server: viser.ViserServer,
         parent: viser.GuiFolderHandle,
         *,
-        edited: Callable[[str, int, dict[str, float]], None],
+        edited: Callable[[str, int, dict[str, float], int | None], None],
         on_edit: Callable[..., Callable[[], None]],
+        layout: Callable[[], int | None] = lambda: None,
     ) -> None:
         self.server = server
         self.parent = parent
         self._edited = edited
-        """Called with (automaton, state index, {field: value}) for what the user changed."""
+        """Called with (automaton, state index, {field: value}, layout) for what the user changed."""
+        self._layout = layout
+        """The document's layout (GaitDocument.layout): read as a row's value comes, the index it was typed at."""
         self._on_edit = on_edit
         """The page's (web/page.py): each row's value as it came, with the value shown then, applied in order."""
         self._shape: tuple[tuple[str, tuple[str, ...]], ...] = ()
@@ -89,15 +92,17 @@ class StateGrid:
                                                            "event: its timeout, 0 for none)"))  # fmt: skip
                         key = (name, k)
                         self._forget.append(self._on_edit(row, self._callback(name, k),
-                                                          context=lambda key=key: self._shown.get(key)))  # fmt: skip
+                                                          context=lambda key=key: (self._shown.get(key),
+                                                                                   self._layout())))  # fmt: skip
                         self.rows[key] = row
                         self._shown[(name, k)] = value
 
     def _callback(self, name: str, index: int) -> Callable[[Any, Any], None]:
-        def update(value: Any, shown: tuple[float, float] | None) -> None:
+        def update(value: Any, seen: tuple[tuple[float, float] | None, int | None]) -> None:
             """``value`` and the row as ``shown``, both as the value came: a component still as shown is one the
             user did not change (another edit's resync may have changed it since; that stays)."""
             angle, duration = (float(v) for v in value)
+            shown, layout = seen
             shown_angle, shown_duration = shown if shown is not None else (None, None)
             changes: dict[str, float] = {}
             if shown_angle is None or abs(angle - shown_angle) >= UNCHANGED:
@@ -109,7 +114,7 @@ class StateGrid:
                 duration,
             )  # what the page shows now: the resync sends only what differs
             if changes:
-                self._edited(name, index, changes)
+                self._edited(name, index, changes, layout)
 
         return update
 

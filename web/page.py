@@ -121,6 +121,9 @@ class Page:
         self._sync_lock = threading.RLock()
         self._last_toast: tuple[tuple[str, str], float] | None = None
         self._acting = threading.local()
+        self._arrived: collections.deque[tuple[Callable[..., None], Any, Any, Any]] = collections.deque()
+        """Edits kept by :meth:`on_edit` on viser's loop and not applied yet: (apply, tab, value, context or error)."""
+        self._applying = threading.Lock()
         self._kept: dict[int, tuple[Any, Callable[..., Any]]] = {}  # id(keep callback) → (handle, keep callback)
         """The controls whose edits :meth:`on_edit` keeps, and its keeping callback (see :meth:`close`)."""
         self.last_editor: int | None = None
@@ -206,34 +209,34 @@ class Page:
         click: bool = False,
         context: Callable[[], Any] | None = None,
     ) -> Callable[[], None]:
-        """Call ``apply`` with each value a user gives ``handle``, as it arrived, one at a time in arrival order (and
-        with a value set from the server outside :meth:`programmatic`, as the page's own actions and tests do);
-        ``context`` (read as the value arrives, passed after it): what the value is of, e.g. the selected state.
-        Returns what forgets ``handle`` (for a control removed from the page before the page closes).
+        """Call ``apply`` with each value a user gives ``handle``, as it arrived, one at a time in the order the page's
+        edits arrived, whichever control they are of (and with a value set from the server outside
+        :meth:`programmatic`, as the page's own actions and tests do); ``context`` (read as the value arrives,
+        passed after it): what the value is of, e.g. the selected state. Returns what forgets ``handle`` (for a
+        control removed from the page before the page closes).
 
         viser sets a control's value on its event loop and runs its callbacks later on a thread pool, so a callback
         reading ``handle.value`` may read what another callback's resync put there in between: "Add (copy of
         forward)" resynced the Sequence field to the document's empty sequence after the sequence typed next had
         arrived, and that sequence was lost. A coroutine callback runs on the loop right after viser sets the value,
-        so the value (with its tab and its context) is kept there, and the pool's callback applies what was kept."""
-        arrived: collections.deque[tuple[Any, Any, tuple[Any, ...]]] = collections.deque()
-        order = threading.Lock()
-
-        def with_context() -> tuple[Any, ...]:
-            return () if context is None else (context(),)
+        so the value (with its tab and its context) is kept there, and the pool's callback applies what was kept:
+        everything kept so far, in arrival order, since the pool may run a later edit's callback first (a neighbour
+        typed, then its state: the state's callback, run first, was undone by the neighbour's older view)."""
 
         async def keep(event: Any) -> None:
             if event.client_id is not None:
-                arrived.append((event.client, event.target.value, with_context()))
+                try:
+                    kept: tuple[Any, ...] | BaseException = () if context is None else (context(),)
+                except Exception as exc:  # told to that tab when applied, not lost on viser's loop
+                    kept = exc
+                self._arrived.append((apply, event.client, event.target.value, kept))
 
         def run(event: Any) -> None:
             if event.client_id is None:  # set from the server, synchronously in the setting thread
                 if not self.syncing:
-                    self.safe(lambda _: apply(event.target.value, *with_context()))(event)
+                    self.safe(lambda _: apply(event.target.value, *(() if context is None else (context(),))))(event)
                 return
-            with order:
-                client, value, kept = arrived.popleft()
-                self.safe(lambda _: apply(value, *kept))(SimpleNamespace(client=client))  # as that tab's edit
+            self._apply_arrived()
 
         if click:
             handle.on_click(keep)
@@ -247,6 +250,19 @@ class Page:
             self._kept.pop(id(keep), None)
 
         return forget
+
+    def _apply_arrived(self) -> None:
+        """Apply every edit kept so far, oldest first, each as its own tab's (see :meth:`on_edit`)."""
+        with self._applying:
+            while self._arrived:
+                apply, client, value, kept = self._arrived.popleft()
+
+                def applied(_: Any, apply: Any = apply, value: Any = value, kept: Any = kept) -> None:
+                    if isinstance(kept, BaseException):
+                        raise kept
+                    apply(value, *kept)
+
+                self.safe(applied)(SimpleNamespace(client=client))
 
     def close(self) -> None:
         """Take back the callbacks that keep values on viser's loop: once the server stops, a value set from here

@@ -51,7 +51,7 @@ class EventControls:
         gui: Any,
         doc: GaitDocument,
         *,
-        selected: Callable[[], tuple[str, int]],
+        selected: Callable[[], tuple[str, int, int | None]],
         edited: Callable[[], None],
         on_edit: Callable[..., Any],
     ) -> None:
@@ -74,32 +74,34 @@ class EventControls:
         self.one_shot = gui.add_checkbox("One-shot automaton", initial_value=False,
                                          hint="the gait ends after the last state instead of repeating")  # fmt: skip
 
-        def shown() -> tuple[tuple[str, int], dict[str, Any]]:
+        def shown() -> tuple[tuple[str, int, int | None], dict[str, Any]]:
             # read on viser's loop as a value comes (the page's on_edit): the state selected and every field as the
             # user saw them; a resync for another state may have replaced both before the callback runs
             return self._selected(), {name: getattr(self, name).value for name in _EVENT_FIELDS}
 
-        def write(_: Any, seen: tuple[tuple[str, int], dict[str, Any]]) -> None:
+        def write(_: Any, seen: tuple[tuple[str, int, int | None], dict[str, Any]]) -> None:
             self._write(*seen)
             edited()
 
         for name in _EVENT_FIELDS:
             on_edit(getattr(self, name), write, context=shown)
 
-        def emit(value: Any, seen: tuple[tuple[str, int], dict[str, Any]]) -> None:
-            self.doc.set_emit(*seen[0], whole(value, "Emits signal"))
+        def emit(value: Any, seen: tuple[tuple[str, int, int | None], dict[str, Any]]) -> None:
+            automaton, index, layout = seen[0]
+            self.doc.set_emit(automaton, index, whole(value, "Emits signal"), layout=layout)
             edited()
 
-        def one_shot(value: Any, seen: tuple[tuple[str, int], dict[str, Any]]) -> None:
+        def one_shot(value: Any, seen: tuple[tuple[str, int, int | None], dict[str, Any]]) -> None:
             self.doc.set_one_shot(seen[0][0], bool(value))
             edited()
 
         on_edit(self.emit, emit, context=shown)
         on_edit(self.one_shot, one_shot, context=shown)
 
-    def _write(self, at: tuple[str, int], shown: dict[str, Any]) -> None:
+    def _write(self, at: tuple[str, int, int | None], shown: dict[str, Any]) -> None:
         """What ends the state ``at``, from the fields as ``shown`` together (see ``shown`` above)."""
-        automaton, index = at
+        automaton, index, layout = at
+        self.doc.check_layout(layout)  # before the state is read: its index may name another state, or none
         until = None if shown["until"] == TIME else shown["until"]
         fields: dict[str, Any] = {}
         if until == "at_goal":
@@ -115,7 +117,7 @@ class EventControls:
         state = self.doc.data()["automata"][automaton]["states"][index]
         if until is not None and "duration" in state and shown["on_timeout"] == "stop":
             fields["on_timeout"] = "stop"
-        self.doc.set_event(automaton, index, until, **fields)
+        self.doc.set_event(automaton, index, until, layout=layout, **fields)
 
     def sync(self, data: dict[str, Any], automaton: str, index: int) -> None:
         """Show the selected state's event (called inside the dashboard's programmatic block)."""

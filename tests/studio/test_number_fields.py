@@ -139,7 +139,9 @@ def test_the_event_fields_refuse_a_fraction_by_name_and_leave_the_gait_as_it_was
     automaton = next(iter(doc.data()["automata"]))
     gui = Gui()
     edits: list[str] = []
-    EventControls(gui, doc, selected=lambda: (automaton, 0), edited=lambda: edits.append("edited"), on_edit=_on_edit)
+    EventControls(
+        gui, doc, selected=lambda: (automaton, 0, None), edited=lambda: edits.append("edited"), on_edit=_on_edit
+    )
     before = doc.text()
     with pytest.raises(ValueError, match=r"^Emits signal must be a whole number, not 2\.5$"):
         gui.controls["Emits signal"].typed(2.5)
@@ -153,3 +155,31 @@ def test_the_event_fields_refuse_a_fraction_by_name_and_leave_the_gait_as_it_was
     assert doc.text() == before and not edits
     gui.controls["Emits signal"].typed(2.0)  # a whole number: taken, as an int
     assert doc.data()["automata"][automaton]["states"][0]["emit"] == 2 and edits == ["edited"]
+
+
+def test_an_edit_by_index_names_the_layout_it_was_made_in_and_one_made_in_another_changes_nothing() -> None:
+    """GaitDocument.layout moves whenever a state's index may have: an insert, a removal, another gait, undo, redo;
+    an edit of a value does not move it."""
+    doc = GaitDocument(load(LIBRARY / "caterpillar.toml"))
+    automaton = next(iter(doc.data()["automata"]))
+    seen = doc.layout
+    doc.set_state(automaton, 2, "angle", 12.0, layout=seen)
+    doc.set_emit(automaton, 2, 3, layout=seen)
+    assert doc.layout == seen
+    moves = [lambda: doc.add_state(automaton, 0), lambda: doc.remove_state(automaton, 0), doc.undo, doc.redo,
+             lambda: doc.replace(load(LIBRARY / "caterpillar.toml"))]  # fmt: skip
+    for move in moves:
+        before, text = doc.layout, doc.text()
+        move()
+        assert doc.layout != before
+        text = doc.text()
+        stale_edits = ((doc.set_state, (automaton, 2, "angle", 30.0), {}),
+                       (doc.update_state, (automaton, 2, {"duration": 0.5}), {}),
+                       (doc.set_event, (automaton, 2, "at_goal"), {"tolerance": 1.0}),
+                       (doc.set_emit, (automaton, 2, 4), {}),
+                       (doc.add_state, (automaton, 2), {}),
+                       (doc.remove_state, (automaton, 2), {}))  # fmt: skip
+        for edit, args, fields in stale_edits:
+            with pytest.raises(ValueError, match="make it again"):
+                edit(*args, layout=before, **fields)
+            assert doc.text() == text

@@ -196,6 +196,24 @@ def test_each_edit_is_applied_with_the_value_it_arrived_with_in_arrival_order(st
     assert applied == ["first", "second", "set by the page's own action"]
 
 
+def _wave_rows(app) -> list[tuple[float, float]]:
+    """The caterpillar's states as (angle, duration), as the document has them."""
+    return [(s["angle"], s["duration"]) for s in app.doc.data()["automata"]["wave"]["states"]]
+
+
+def _wave_state_selected(app, monkeypatch, state: int, *tabs: int) -> _HeldPool:
+    """The caterpillar's S``state`` selected, viser's pool held, and browser ``tabs`` connected."""
+    with app.page.programmatic():
+        app.editor.automaton.value = "wave"
+        app.editor.state_index.value = state
+    app.editor.sync()
+    pool = _HeldPool()
+    monkeypatch.setattr(app.server.gui, "_thread_executor", pool)
+    for client_id in tabs:
+        monkeypatch.setitem(app.server._connected_clients, client_id, _tab(client_id))
+    return pool
+
+
 def _tab(client_id: int) -> SimpleNamespace:
     return SimpleNamespace(client_id=client_id, add_notification=lambda *a, **k: None)
 
@@ -267,19 +285,10 @@ def test_a_grid_row_a_name_and_a_state_removal_keep_what_they_came_with(studio, 
     app = studio.app
     editor = app.editor
     doc = app.doc
-
-    def rows() -> list[tuple[float, float]]:
-        return [(s["angle"], s["duration"]) for s in doc.data()["automata"]["wave"]["states"]]
-
+    rows = lambda: _wave_rows(app)  # noqa: E731
     before = rows()
     angle, duration = before[2]
-    with app.page.programmatic():
-        editor.automaton.value = "wave"
-        editor.state_index.value = 4
-    editor.sync()
-    pool = _HeldPool()
-    monkeypatch.setattr(app.server.gui, "_thread_executor", pool)
-    monkeypatch.setitem(app.server._connected_clients, 7, _tab(7))
+    pool = _wave_state_selected(app, monkeypatch, 4, 7)
     _arrives(app, editor.grid.rows[("wave", 2)], (angle + 7.5, duration))
     _arrives(app, editor.tools.name, "my caterpillar")
     _arrives(app, editor.state_actions, "Remove")
@@ -291,6 +300,86 @@ def test_a_grid_row_a_name_and_a_state_removal_keep_what_they_came_with(studio, 
     assert doc.data()["name"] == "my caterpillar"
     expected = [*before[:2], (angle + 7.5, duration + 0.25), *before[4:]]  # S3 edited by both, S4 removed
     assert rows() == expected
+
+
+def test_edits_of_different_fields_apply_in_the_order_they_came_whichever_callback_runs_first(
+    studio, monkeypatch
+) -> None:
+    """Found by an adversarial review: the order was kept per control only. A neighbour typed, then its state; the
+    pool ran the state's callback first, and the neighbour's, applied next with the fields as they were when it
+    came, put the old state back. Every kept edit of the page is now applied oldest first, by whichever callback
+    runs first."""
+    app = studio.app
+    editor = app.editor
+    editor.open_file(LIBRARY / "contact_inchworm.toml")
+    _select(app, "lead", 8)
+    events = editor.events
+    events.until.value = "neighbour"  # set from here outside programmatic: applied at once, as an edit
+    events.state.value = "h9"
+    pool = _HeldPool()
+    monkeypatch.setattr(app.server.gui, "_thread_executor", pool)
+    monkeypatch.setitem(app.server._connected_clients, 7, _tab(7))
+    _arrives(app, events.neighbour, 1.0)
+    _arrives(app, events.state, "h2")
+    for fn, args in reversed(pool.held):
+        fn(*args)
+    state = app.doc.data()["automata"]["lead"]["states"][7]
+    assert (state["neighbour"], state["state"]) == (1, "h2")
+
+
+@pytest.mark.parametrize("order", ["arrival", "reversed"])
+def test_an_edit_by_index_that_states_moved_under_is_refused_not_moved_onto_another_state(
+    studio, monkeypatch, order: str
+) -> None:
+    """Found by an adversarial review: tab 8 removes S3 and tab 7's edit of S5 comes after it, made on the grid
+    tab 7 saw before the removal: applied by index, it landed on the old S6 (on the last row: "list index out of
+    range"). An edit made before a removal is applied before it; one whose states moved in between is refused."""
+    app = studio.app
+    editor = app.editor
+    doc = app.doc
+    rows = lambda: _wave_rows(app)  # noqa: E731
+    before = rows()
+    pool = _wave_state_selected(app, monkeypatch, 3, 7, 8)
+    angle, duration = before[4]
+    if order == "reversed":  # S5's edit came first: applied first, then the removal, whatever the pool's order
+        _arrives(app, editor.grid.rows[("wave", 4)], (angle + 7.5, duration), client_id=7)
+        _arrives(app, editor.state_actions, "Remove", client_id=8)
+        for fn, args in reversed(pool.held):
+            fn(*args)
+        assert rows() == [*before[:2], before[3], (angle + 7.5, duration), *before[5:]]
+        return
+    _arrives(app, editor.state_actions, "Remove", client_id=8)
+    _arrives(app, editor.grid.rows[("wave", 4)], (angle + 7.5, duration), client_id=7)
+    _arrives(app, editor.events.emit, 9.0, client_id=7)  # by the selection: refused as well
+    for fn, args in pool.held:
+        fn(*args)
+    assert rows() == [*before[:2], *before[3:]], "the removal only"
+    assert all("emit" not in s for s in doc.data()["automata"]["wave"]["states"])
+    assert "make it again" in app.page.status.content
+
+
+def test_an_edit_whose_context_fails_is_told_to_its_tab_not_lost(studio, monkeypatch) -> None:
+    """A context function that raised did so on viser's loop, where nobody heard it: the edit was lost silently."""
+    app = studio.app
+    pool = _HeldPool()
+    monkeypatch.setattr(app.server.gui, "_thread_executor", pool)
+    monkeypatch.setitem(app.server._connected_clients, 7, _tab(7))
+    field = app.server.gui.add_text("context probe", initial_value="")
+    applied: list[tuple[str, str]] = []
+    failures = [RuntimeError("the selection could not be read")]
+
+    def context() -> str:
+        if failures:
+            raise failures.pop()
+        return "read"
+
+    app.page.on_edit(field, lambda value, where: applied.append((value, where)), context=context)
+    _arrives(app, field, "one")
+    _arrives(app, field, "two")
+    for fn, args in pool.held:
+        fn(*args)
+    assert applied == [("two", "read")]
+    assert "the selection could not be read" in app.page.status.content
 
 
 def test_a_control_set_after_the_page_closed_is_still_set(studio) -> None:
