@@ -48,7 +48,7 @@ from .zenoh_config import (  # noqa: F401  (re-exported: the configuration is pa
     security_problems,
 )
 from .zenoh_drain import IGNORE_REPLIES, drained
-from .zenoh_requests import ReplyKeys, RequestQueue, plain_get, refuse_busy
+from .zenoh_requests import ReplyKeys, RequestQueue, refuse_busy
 from .zenoh_watch import MAX_VIEWS, WatchedPublisher
 
 log = logging.getLogger("asm_py.transport.zenoh")
@@ -141,8 +141,7 @@ class ZenohTransport(Transport):
             refuse_if_claimed(self._zid, lambda: self.claimants(self.segment), self._name_taken)
             keys = self.keys
             claiming = session.liveliness().declare_token(keys.claim(self.segment, self._zid))
-            requests = self._handoff("requests", self._on_query, refuse=self._refuse_query, discard=zenoh.Query.drop,
-                                     at_once=plain_get)  # fmt: skip
+            requests = self._handoff("requests", self._on_query, self._refuse_query, zenoh.Query.drop)
             self._keep += [
                 claiming,
                 session.declare_queryable(keys.requests(self.segment), requests),
@@ -195,10 +194,10 @@ class ZenohTransport(Transport):
         handler = self._handoff(group, self._on_sample)
         self._keep.append(self.session.declare_subscriber(self.keys.group(group), handler))
 
-    def _handoff(self, what: str, serve: Callable[[Any], None], **options: Any) -> Any:
+    def _handoff(self, what: str, serve: Callable[[Any], None], refuse: Any = None, discard: Any = None) -> Any:
         """An entity's handler, a queue and a thread of its own (zenoh_requests). The requests' queue answers one it
-        cannot hold BUSY (_refuse_query), drops one left at close, and serves a plain get at once when idle."""
-        self._handoffs.append(RequestQueue(serve, f"{self._name} {what}", **options))
+        cannot hold BUSY (_refuse_query) and drops one left at close; a message refused or left is dropped."""
+        self._handoffs.append(RequestQueue(serve, refuse, f"{self._name} {what}", discard=discard or (lambda _: None)))
         return self._handoffs[-1].callback()
 
     # -- receiving ------------------------------------------------------------------------------------------------

@@ -24,7 +24,7 @@ from typing import Generic, TypeVar
 
 import zenoh
 
-from ..protocol import HEADER_SIZE, Kind, Method, Status, first_byte, kind_of, reply_head
+from ..protocol import HEADER_SIZE, Kind, Status, kind_of, reply_head
 
 log = logging.getLogger("asm_py.transport.zenoh")
 
@@ -43,16 +43,12 @@ class RequestQueue(Generic[Item]):
     def __init__(
         self,
         serve: Callable[[Item], None],
+        refuse: Callable[[Item, bool], None] | None,
         name: str,
         *,
-        refuse: Callable[[Item, bool], None] | None = None,
         discard: Callable[[Item], None] = lambda _: None,
-        at_once: Callable[[Item], bool] | None = None,
     ) -> None:
         self._serve = serve
-        self._at_once = at_once
-        """Items that cannot block (a plain get), served on zenoh-python's thread when nothing waits or is being
-        served: in arrival order still, and without the second thread hop (see :meth:`put`)."""
         self._refuse = refuse
         """Told of an item refused, and whether because the queue is closed (else: full)."""
         self._discard = discard
@@ -63,9 +59,6 @@ class RequestQueue(Generic[Item]):
         self._lock = threading.Lock()  # the bound and the close: a check and its put as one
         self._closed = False
         self._serving = False
-        self._unfinished = 0  # put and not yet served (under _lock): 0 means the request thread is idle
-        self.served_at_once = 0
-        """Items served on zenoh-python's thread (at_once)."""
         self.refused = 0
         """Items refused because the queue was full or closed (each also logged: see :meth:`_tell`)."""
         self._said = 0
@@ -77,31 +70,17 @@ class RequestQueue(Generic[Item]):
         """The entity's handler: ``put``, on zenoh-python's thread for the entity (its channel of 256 never stays
         full, since ``put`` never blocks). Run on Zenoh's own thread instead (a direct callback), a remote get took
         60-100 µs longer here than with zenoh-python's channel. What this hand-off costs is not settled: 0-40 µs
-        measured interleaved against the handler it replaced, +0.2-0.3 of bench/remote.py's ratio; a get that
-        skips it (``at_once``) came back 50-80 µs sooner in the median (docs/benchmarks.md, stop 52)."""
+        measured interleaved against the handler it replaced, +0.2-0.3 of bench/remote.py's ratio
+        (docs/benchmarks.md)."""
         return self.put
 
     def put(self, item: Item) -> None:
-        """Queue ``item``, or refuse it; or serve it here, on zenoh-python's thread, if ``at_once`` says it cannot
-        block and nothing is queued or being served. That keeps arrival order: one zenoh-python thread puts every
-        item of an entity, so nothing is put while this one is served, and nothing put before it is unserved. It
-        saves a remote get the hand-off to the request thread (a thread wake-up on each side)."""
-        at_once = self._at_once
         with self._lock:
             closed = self._closed
-            if not closed and self._unfinished == 0 and at_once is not None and at_once(item):
-                self._unfinished = 1
-            elif not closed and self._queue.qsize() < REQUEST_BACKLOG:
-                self._unfinished += 1
+            if not closed and self._queue.qsize() < REQUEST_BACKLOG:
                 self._queue.put(item)
                 return
-            else:
-                self.refused += 1
-                at_once = None
-        if at_once is not None:
-            self.served_at_once += 1
-            self._serve_one(item)
-            return
+            self.refused += 1
         self._tell(closed)
         try:
             if self._refuse is not None:
@@ -121,19 +100,14 @@ class RequestQueue(Generic[Item]):
         get = self._queue.get
         while (item := get()) is not None:
             self._serving = True
-            self._serve_one(item)
+            try:
+                self._serve(item)
+            except BaseException:  # SystemExit too: one failing handler must not end the node's serving
+                log.exception("%s: a handler failed", self.name)
             self._serving = False
             if self._closed:  # close() found this thread in a handler and did not wait for it
                 break
         self._drop_waiting()
-
-    def _serve_one(self, item: Item) -> None:
-        try:
-            self._serve(item)
-        except BaseException:  # SystemExit too: one failing handler must not end the node's serving
-            log.exception("%s: a handler failed", self.name)
-        with self._lock:
-            self._unfinished -= 1
 
     def _drop_waiting(self) -> None:
         while True:
@@ -155,16 +129,6 @@ class RequestQueue(Generic[Item]):
             self._thread.join(timeout=5)
         self._drop_waiting()
         self._tell(True, last=True)
-
-
-_PLAIN_GET_BYTE = bytes((first_byte(Kind.REQUEST_REPLY, Method.GET),))
-
-
-def plain_get(query: zenoh.Query) -> bool:
-    """A get that wants its reply: it cannot block (asm_py.server answers one on a sync_get attribute with no valid
-    value from a daemon of its own), so it may be served on zenoh-python's thread (RequestQueue ``at_once``)."""
-    payload = query.payload
-    return payload is not None and payload.to_bytes()[:1] == _PLAIN_GET_BYTE
 
 
 def refuse_busy(query: zenoh.Query, key: zenoh.KeyExpr, node: str) -> None:

@@ -31,7 +31,7 @@ def test_requests_are_served_in_arrival_order_on_one_thread() -> None:
         threads.add(threading.current_thread().name)
         served.append(query.n)
 
-    queue = RequestQueue(serve, "m1 requests")
+    queue = RequestQueue(serve, None, "m1 requests")
     try:
         for n in range(500):
             queue.put(_Query(n))
@@ -55,7 +55,7 @@ def test_a_full_queue_refuses_at_once_and_close_drops_what_waits(monkeypatch) ->
         if query.n == 10:
             raise RuntimeError("a refusal that fails must not reach Zenoh's thread")
 
-    queue = RequestQueue(serve, "m2 requests", refuse=refuse, discard=_Query.drop)
+    queue = RequestQueue(serve, refuse, "m2 requests", discard=_Query.drop)
     first = _Query(0)
     queue.put(first)
     assert entered.wait(10)  # the handler hangs on the first
@@ -84,7 +84,7 @@ def test_close_drops_the_requests_still_waiting() -> None:
         entered.set()
         release.wait(30)
 
-    queue = RequestQueue(serve, "m3 requests", discard=_Query.drop)
+    queue = RequestQueue(serve, None, "m3 requests", discard=_Query.drop)
     queue.put(_Query(0))
     assert entered.wait(10)
     waiting = [_Query(n) for n in range(1, 4)]
@@ -107,7 +107,7 @@ def test_a_handler_may_close_its_own_queue() -> None:
         holder[0].close()  # a request that ends the node: no join of its own thread
         closed.set()
 
-    holder.append(RequestQueue(serve, "m4 requests"))
+    holder.append(RequestQueue(serve, None, "m4 requests"))
     holder[0].put(_Query(0))
     assert closed.wait(10)
     assert wait_until(lambda: not any(t.name == "asm-zenoh m4 requests" for t in threading.enumerate()), timeout=10)
@@ -123,7 +123,7 @@ def test_a_handler_that_raises_even_systemexit_does_not_end_the_serving() -> Non
         if query.n == 1:
             raise KeyboardInterrupt
 
-    queue = RequestQueue(serve, "m5 requests")
+    queue = RequestQueue(serve, None, "m5 requests")
     try:
         for n in range(3):
             queue.put(_Query(n))
@@ -135,7 +135,7 @@ def test_a_handler_that_raises_even_systemexit_does_not_end_the_serving() -> Non
 def test_puts_from_many_threads_never_pass_the_bound(monkeypatch) -> None:
     monkeypatch.setattr(zenoh_requests, "REQUEST_BACKLOG", 16)
     release, entered = threading.Event(), threading.Event()
-    queue = RequestQueue(lambda q: (entered.set(), release.wait(30)), "m6 messages")
+    queue = RequestQueue(lambda q: (entered.set(), release.wait(30)), None, "m6 messages")
     try:
         queue.put(_Query(-1))
         assert entered.wait(10)
@@ -145,44 +145,6 @@ def test_puts_from_many_threads_never_pass_the_bound(monkeypatch) -> None:
         for thread in threads:
             thread.join(10)
         assert queue._queue.qsize() == 16 and queue.refused == 4 * 200 - 16
-    finally:
-        release.set()
-        queue.close()
-
-
-def test_a_request_that_cannot_block_is_served_at_once_only_when_nothing_waits_before_it() -> None:
-    """``at_once`` (a plain get): served on the putting thread (zenoh-python's) when the request thread is idle; queued
-    behind anything put before it, so a get never overtakes a set sent earlier; a failing one leaves the queue
-    serving."""
-    served: list[tuple[int, str]] = []
-    entered, release = threading.Event(), threading.Event()
-
-    def serve(query: Any) -> None:
-        served.append((query.n, threading.current_thread().name))
-        if query.n == 1:  # a set whose listener takes a while
-            entered.set()
-            release.wait(30)
-        if query.n == 5:
-            raise SystemExit("a get that fails")
-
-    queue = RequestQueue(serve, "m7 requests", at_once=lambda query: query.n != 1)
-    here = threading.current_thread().name
-    try:
-        queue.put(_Query(0))  # a get, nothing before it: served here, before put returns
-        assert served == [(0, here)] and queue.served_at_once == 1
-        queue.put(_Query(1))  # a set: to the request thread
-        assert entered.wait(10)
-        queue.put(_Query(2))  # gets behind the set being served: queued, in order
-        queue.put(_Query(3))
-        release.set()
-        assert wait_until(lambda: len(served) == 4, timeout=10)
-        assert [n for n, _ in served] == [0, 1, 2, 3]
-        assert {name for _, name in served[1:]} == {"asm-zenoh m7 requests"} and queue.served_at_once == 1
-        assert wait_until(lambda: queue._unfinished == 0, timeout=10)
-        queue.put(_Query(4))  # idle again: at once
-        queue.put(_Query(5))  # at once, and fails: logged, not raised into zenoh-python's thread
-        queue.put(_Query(6))
-        assert served[4:] == [(4, here), (5, here), (6, here)] and queue.served_at_once == 4
     finally:
         release.set()
         queue.close()
