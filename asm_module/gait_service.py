@@ -11,6 +11,7 @@ from __future__ import annotations
 import bisect
 import math
 import threading
+import time
 from collections import Counter
 from typing import TYPE_CHECKING, Any
 
@@ -123,13 +124,20 @@ class ModuleGait(PhaseAutomaton):
         since = runtime.latches if since is None else since
         if not runtime.unlatched_since(since):
             raise EstopLatched("the module is in emergency stop; set estop to false before starting the gait")
+        runtime.gait_since = since  # its references reach the goal only while no e-stop latched since (_follow)
         runtime._begin_ramp()
         super().start(float(runtime.phase.peek()))
         if not runtime.unlatched_since(since):
-            self.request_stop()  # not stop(): the caller may be a bus's receive thread; no tick runs it meanwhile
+            self.request_stop()  # no tick runs it meanwhile; waited for briefly, so a start right after may start
+            ends = time.monotonic() + 0.5  # wall time, on any clock (the caller may be a bus's receive thread)
+            while self.started and time.monotonic() < ends:
+                time.sleep(0.001)
             raise EstopLatched("the module's emergency stop latched while the gait started")
 
     def initialize(self, phase: float) -> None:
+        runtime = self._runtime
+        if not runtime.unlatched_since(runtime.gait_since):  # latched since the start looked: no state, no signal
+            raise EstopLatched("the module's emergency stop latched while the gait started")
         now = self.clock.now()
         self.ended = Counter()
         self._finished = False
@@ -181,7 +189,8 @@ class ModuleGait(PhaseAutomaton):
     # -- each tick ----------------------------------------------------------------------------------------------
 
     def handle(self, value: Any) -> None:
-        if self._finished or self._runtime.latched:  # latched: a tick racing the e-stop does nothing
+        runtime = self._runtime
+        if self._finished or not runtime.unlatched_since(runtime.gait_since):  # a tick racing an e-stop: nothing
             return
         now = self.clock.now()
         if self._current.timed:

@@ -138,10 +138,14 @@ class ModuleRuntime:
         self.latched = False
         """The e-stop is latched (set first: a racing tick's goal is never commanded after it)."""
         self.latches = 0
-        """Counted at each latch's start and end (odd while one latches). A start reads it before it looks at
-        ``latched`` and again once started (:meth:`unlatched_since`): an e-stop and its release both landing in
-        between left ``latched`` false, and the gait started before the stop ran after the release."""
-        self._counting = threading.Lock()  # the count's own, for nanoseconds: nothing a gait or a service holds
+        """Latches begun, ever. A start reads it before it looks at ``latched`` and again once started
+        (:meth:`unlatched_since`): an e-stop and its release both landing in between left ``latched`` false, and
+        the gait started before the stop ran after the release."""
+        self._latching = 0  # latches begun and not ended: two e-stops on two threads may latch at once
+        self._counting = threading.Lock()  # the counts' own, for nanoseconds: nothing a gait or a service holds
+        self.gait_since = 0
+        """``latches`` as the running gait's start read it: its references reach the goal only while no e-stop
+        latched since (a latch and release during the start, before its second look, moved the joint)."""
         self._held_at: float | None = None
         """The angle the e-stop holds (joint.goal reads it from the next tick on)."""
         self.calibration = CheckedAttribute("joint.calibration", initial.as_record(),
@@ -358,7 +362,7 @@ class ModuleRuntime:
 
     def unlatched_since(self, since: int) -> bool:
         """No e-stop latched, or latching, since ``latches`` read ``since`` (read it before looking at ``latched``)."""
-        return not self.latched and self.latches == since and since % 2 == 0
+        return not self.latched and self._latching == 0 and self.latches == since
 
     def switch_gait(self, table: bytes, phase: float, direction: int, *, since: int | None = None) -> None:
         """Stop the gait, make ``table``/``phase``/``direction`` the module's gait and start it (an activation),
@@ -375,8 +379,8 @@ class ModuleRuntime:
 
     def _follow(self, reference: float) -> None:
         """The automaton's reference becomes the goal, ramped in from the goal held when the gait started."""
-        if self.latched:
-            return  # a tick that raced the e-stop: the hold wins (and the driver ignores what slips through)
+        if not self.unlatched_since(self.gait_since):
+            return  # a tick that raced the e-stop, or a gait whose start one raced: the hold wins
         s = 1.0 if self.ramp <= 0 else min(1.0, (self.clock.now() - self._ramp_start) / self.ramp)
         self.goal.set(self._ramp_from + s * (reference - self._ramp_from))
 
@@ -411,15 +415,18 @@ class ModuleRuntime:
         next tick)."""
         with self._counting:
             self.latches += 1
+            self._latching += 1
         self.latched = True
-        if self.servo.running:
-            self._held_at = self.joint.hold()
-        self.gait.request_stop()
-        self.staging.discard()  # no deployment begun before the stop may start after it
-        if self._held_at is not None:
-            self.goal.set(self._held_at)  # the goal's own lock, for microseconds: it commands nothing while latched
-        with self._counting:
-            self.latches += 1
+        try:
+            if self.servo.running:
+                self._held_at = self.joint.hold()
+            self.gait.request_stop()
+            self.staging.discard()  # no deployment begun before the stop may start after it
+            if self._held_at is not None:
+                self.goal.set(self._held_at)  # the goal's own lock, for microseconds: nothing commanded while latched
+        finally:  # a hold that failed must not leave every later start refused
+            with self._counting:
+                self._latching -= 1
 
     def _unlatch(self) -> None:
         """Released: commands reach the joint again, which stays where it holds until a new goal or gait."""
@@ -434,6 +441,8 @@ class ModuleRuntime:
         """Stop the gait and hold the joint where it is; latched until ``estop`` is set to false (see _latch)."""
         self._latch()
         Attribute.set(self.estop, True)  # the value only: _latch has done what a set would
+        if not self.latched and self.estop.peek():  # a release came between the two: the value says latched
+            self._latch()
 
     # -- the in-process interface every module has (asm_module.module.Module) -----------------------------------
 

@@ -51,10 +51,10 @@ class GaitDocument:
         self.problems: list[Problem] = []
         self.version = 0
         self.layout = 0
-        """Changes whenever a state's index may have changed (a state inserted or removed, another gait opened, undo,
-        redo). An edit addressed by index may name the layout it was made in; made in another, it is refused: the
-        page applies an edit a moment after it arrived, and another tab's Remove in between moved every state after
-        it (an angle typed for S5 landed on the old S6)."""
+        """Changes whenever a state's index may have changed (a state inserted or removed, another gait opened, an
+        undo or redo of one of those). An edit addressed by index may name the layout it was made in; made in
+        another, it is refused: the page applies an edit a moment after it arrived, and another tab's Remove in
+        between moved every state after it (an angle typed for S5 landed on the old S6)."""
         self._spare: dict[int, dict[str, Any]] = {}
         """Assignments of modules removed by shrinking the robot, given back if it grows again: a module count
         typed as 1 then 12 passes through one module on the way."""
@@ -153,7 +153,10 @@ class GaitDocument:
             raise ValueError(f"a module assignment has no editable field {field!r}")
 
         def edit(data: dict[str, Any]) -> None:
-            next(m for m in assignments(data, gait) if m["id"] == module_id)[field] = value
+            module = next((m for m in assignments(data, gait) if m["id"] == module_id), None)
+            if module is None:  # the robot shrank while this edit was on its way
+                raise ValueError(f"the gait has no module {module_id} (any more)")
+            module[field] = value
 
         self._apply(edit, field=("module", gait, module_id, field))
 
@@ -314,8 +317,10 @@ class GaitDocument:
             if not source:
                 return False
             target.append((self._data, self._source, self._path))
+            shape = _states_shape(self._data)
             self._data, self._source, self._path = source.pop()
-            self.layout += 1
+            if _states_shape(self._data) != shape:  # an undone insert or removal, another gait: states moved
+                self.layout += 1
             self._last_edit = None
             self._revalidate()
             return True
@@ -363,6 +368,11 @@ STALE_EDIT = (
     "the gait's states changed while this edit was on its way (a state inserted or removed, here or in "
     "another tab, or undo): it was not applied; make it again"
 )
+
+
+def _states_shape(data: dict[str, Any]) -> tuple[tuple[str, int], ...]:
+    """Each automaton's name and number of states: what an index addresses."""
+    return tuple((name, len(automaton["states"])) for name, automaton in data["automata"].items())
 
 
 def _resize_module(data: dict[str, Any], size: Any) -> None:

@@ -48,6 +48,7 @@ class GaitEditor:
         self.doc = page.doc
         gui = page.gui
         safe = page.safe
+        on_edit = self._on_edit  # the page's, the editor resynced when an edit is refused (it shows the document)
         names = sorted(p.stem for p in LIBRARY.glob("*.toml"))
         self.library = gui.add_dropdown("Library", names, initial_value=initial if initial in names else names[0])
         gui.add_button("Open from library").on_click(
@@ -55,15 +56,15 @@ class GaitEditor:
         )
         self.upload = gui.add_upload_button("Upload gait file", mime_type=".toml")
         self.upload.on_upload(safe(self._on_upload))
-        history = gui.add_button_group("History", ["Undo", "Redo"])
-        history.on_click(safe(self._on_history))
+        self.history_actions = gui.add_button_group("History", ["Undo", "Redo"])
+        on_edit(self.history_actions, self.history, click=True)  # in order with the edits that came before it
         gui.add_button("Download .toml").on_click(safe(lambda e: e.client.send_file_download(
             f"{self.doc.gait().name}.toml", self.doc.text().encode(), save_immediately=True)))  # fmt: skip
         self.problems = gui.add_markdown("")
         self.tools = GaitTools(gui, self.doc, edited=self.after_edit, safe=safe, syncing=lambda: page.syncing,
-                               on_edit=page.on_edit)  # fmt: skip
+                               on_edit=on_edit)  # fmt: skip
         grid_folder = gui.add_folder("States")
-        self.grid = StateGrid(page.server, grid_folder, edited=self._on_grid, on_edit=page.on_edit,
+        self.grid = StateGrid(page.server, grid_folder, edited=self._on_grid, on_edit=on_edit,
                               layout=lambda: self.doc.layout)  # fmt: skip
         with grid_folder:  # hidden by the page's script, which writes a clicked state into it (web/page_script.py)
             self.clicked = gui.add_text(CLICKED_FIELD, "")
@@ -79,7 +80,7 @@ class GaitEditor:
             # the state selected, and the layout its index is of (an edit that comes before another's Remove is
             # applied after it is refused, not moved onto the next state: GaitDocument.layout)
             selected = lambda: (self.automaton.value, int(self.state_index.value) - 1, self.doc.layout)  # noqa: E731
-            self.events = EventControls(gui, self.doc, edited=self.after_edit, on_edit=page.on_edit, selected=selected)
+            self.events = EventControls(gui, self.doc, edited=self.after_edit, on_edit=on_edit, selected=selected)
             self.state_problem = gui.add_markdown("")
             self.state_actions = gui.add_button_group("Edit states", ["Insert after", "Remove"])
         with gui.add_folder("Module"):
@@ -90,7 +91,7 @@ class GaitEditor:
             self.module_problem = gui.add_markdown("")
         with gui.add_folder("Program", expand_by_default=False):
             self.program = ProgramPanel(gui, self.doc, edited=self.after_edit, safe=safe, syncing=lambda: page.syncing,
-                                        on_edit=page.on_edit)  # fmt: skip
+                                        on_edit=on_edit)  # fmt: skip
         with gui.add_folder("Robot"):
             self.modules = number(gui, "Modules", initial_value=8, step=1, hint=f"1..{MODULE_IDS[-1]}")
             self.shape = gui.add_dropdown("Shape", SHAPES)
@@ -120,7 +121,7 @@ class GaitEditor:
 
             # the value as typed, and the state or module selected when it came (a resync of another edit, or a
             # selection made after it, may run in between)
-            page.on_edit(control, apply, context=context)
+            on_edit(control, apply, context=context)
 
         def state_field(control: Any, name: str, convert: Callable[[Any], Any]) -> None:
             field(control, lambda v, at: self.doc.set_state(at[0], at[1], name, convert(v), layout=at[2]),
@@ -143,7 +144,7 @@ class GaitEditor:
             field(control, lambda v, name=name, convert=convert: self.doc.set_robot(name, convert(v)))
         for control in (self.automaton, self.state_index, self.module_index):
             control.on_update(safe(lambda _: None if page.syncing else self.sync()))
-        page.on_edit(self.state_actions, self._on_states, click=True, context=selected)  # the state shown at the click
+        on_edit(self.state_actions, self._on_states, click=True, context=selected)  # the state shown at the click
         page.on("pick", self.pick)
 
     # -- actions --------------------------------------------------------------------------------------------------
@@ -179,8 +180,18 @@ class GaitEditor:
         self.page.notify("Opened", file.name + (f", its modules described by {robot_file} in {folder}"
                                                 if robot_file and folder else ""))  # fmt: skip
 
-    def _on_history(self, event: Any) -> None:
-        self.history(event.target.value)
+    def _on_edit(self, handle: Any, apply: Callable[..., None], **options: Any) -> Callable[[], None]:
+        """``page.on_edit``, and a refused edit resyncs the page: a field, a grid row, kept showing the value the
+        document refused, and typing it again sent nothing (the page's value had not changed)."""
+
+        def applied(*args: Any) -> None:
+            try:
+                apply(*args)
+            except Exception:
+                self.sync()
+                raise
+
+        return self.page.on_edit(handle, applied, **options)
 
     def history(self, kind: str) -> None:
         """``Undo`` or ``Redo`` one step (the History buttons and Ctrl+Z / Ctrl+Shift+Z)."""

@@ -56,8 +56,10 @@ class GaitTools:
                                  hint="Shift: cycles added to every phase. Scale: the factor.")  # fmt: skip
             self.whole = gui.add_button_group("Apply", ["Spread phases", "Shift phases", "Scale amplitude"])
         self.family.on_update(safe(lambda _: None if syncing() else self._family_chosen()))
-        self.make.on_click(safe(lambda _: self._edit(lambda: self.doc.replace(generate(self.spec())))))
-        self.whole.on_click(safe(self._on_whole))
+        # in order with the edits that came before them, with the fields as they were when clicked (the page's on_edit)
+        on_edit(self.make, lambda _, spec: self._edit(lambda: self.doc.replace(generate(spec))), click=True,
+                context=self.spec)  # fmt: skip
+        on_edit(self.whole, self._on_whole, click=True, context=lambda: float(self.amount.value))
 
     def spec(self) -> WaveSpec:
         """The generator's fields as a WaveSpec (generate() checks every number)."""
@@ -79,14 +81,13 @@ class GaitTools:
         self.amplitude.value = DEFAULTS[family]["amplitude"]
         self.wavelength.value = DEFAULTS[family]["wavelength"]
 
-    def _on_whole(self, event: Any) -> None:
-        action = event.target.value
+    def _on_whole(self, action: str, amount: float) -> None:
         if action == "Spread phases":
             self._edit(self.doc.spread_phases)
         elif action == "Shift phases":
-            self._edit(lambda: self.doc.shift_phases(float(self.amount.value)))
+            self._edit(lambda: self.doc.shift_phases(amount))
         else:
-            self._edit(lambda: self.doc.scale_amplitude(float(self.amount.value)))
+            self._edit(lambda: self.doc.scale_amplitude(amount))
 
     def _edit(self, change: Callable[[], None]) -> None:
         change()

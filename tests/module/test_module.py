@@ -6,13 +6,15 @@ import math
 import signal
 import subprocess
 import sys
+import threading
+from collections.abc import Callable
 from typing import Any
 
 import pytest
 
 from asm_module import FakeDriver, ModuleRuntime
 from asm_module.wire import checksum, decode_table, encode_table
-from asm_py import Node
+from asm_py import Event, Node
 from asm_py.automaton import PhaseState
 from asm_py.clock import SimClock
 from asm_py.errors import EstopLatched, RemoteError, ServiceError
@@ -228,11 +230,25 @@ def test_an_estop_arriving_while_a_gait_starts_leaves_it_stopped(inline: bool, a
 
 
 def _on_another_thread(call: Any, *args: Any) -> None:
-    import threading
-
     thread = threading.Thread(target=call, args=args)
     thread.start()
     thread.join(5)
+
+
+def _estop_and_release_once(runtime: ModuleRuntime) -> Callable[[], bool]:
+    """An operator's e-stop and release, each on a thread of its own, the first time it is called (then nothing);
+    returns whether this call made them."""
+    fired: list[bool] = []
+
+    def stop_and_release() -> bool:
+        if fired:
+            return False
+        fired.append(True)
+        _on_another_thread(runtime.emergency_stop, "operator")
+        _on_another_thread(runtime.estop.set, False)
+        return True
+
+    return stop_and_release
 
 
 @pytest.mark.parametrize("inline", [False, True], ids=["threaded", "inline"])
@@ -250,14 +266,7 @@ def test_an_estop_and_its_release_both_during_a_start_leave_the_gait_stopped(inl
     tick = Event("gait.tick", codec="float64", clock=clock)
     runtime = ModuleRuntime(FakeDriver(clock=clock), clock=clock, tick=tick, inline=inline, ramp=0.0)
     table = encode_table([PhaseState(40.0, 0.5, "step"), PhaseState(-40.0, 0.5, "step")])
-    fired: list[bool] = []
-
-    def stop_and_release() -> None:
-        if not fired:
-            fired.append(True)
-            _on_another_thread(runtime.emergency_stop, "operator")
-            _on_another_thread(runtime.estop.set, False)
-
+    stop_and_release = _estop_and_release_once(runtime)
     try:
         if at == "start":
             runtime.table.set(table)
@@ -276,7 +285,7 @@ def test_an_estop_and_its_release_both_during_a_start_leave_the_gait_stopped(inl
                 with pytest.raises(EstopLatched):
                     runtime.staging.activate.set(7)
                 assert runtime.staging.activate.peek() != 7 and runtime.staging.staged.peek() == b""
-        assert fired and not runtime.latched
+        assert not stop_and_release() and not runtime.latched  # it fired during the start
         goal = runtime.goal.peek()
         for _ in range(10):
             tick.set(clock.now())
@@ -287,6 +296,135 @@ def test_an_estop_and_its_release_both_during_a_start_leave_the_gait_stopped(inl
         runtime.table.set(table)
         runtime.gait.start()  # and a start after the release starts
         assert runtime.gait.started
+    finally:
+        runtime.close()
+
+
+class _Latching:
+    """Stands in for a runtime's ``_counting`` lock: holds each e-stop's thread inside its latch (after its first
+    use of the lock) until ``go``, to put two latches in flight at once."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self.go = threading.Event()
+        self._uses: dict[int, int] = {}
+
+    def __enter__(self) -> None:
+        self._lock.acquire()
+
+    def __exit__(self, *_: object) -> None:
+        self._lock.release()
+        me = threading.get_ident()
+        self._uses[me] = self._uses.get(me, 0) + 1
+        if self._uses[me] == 1:
+            self.go.wait(10)
+
+
+@pytest.mark.parametrize("inline", [False, True], ids=["threaded", "inline"])
+def test_a_start_while_two_estops_latch_at_once_is_refused(inline: bool) -> None:
+    """Found by a second review: latches counted at their start and end, two at once made the count even, and a
+    start begun then ran after the release. The count of latches in flight says so now."""
+    clock = SimClock()
+    tick = Event("gait.tick", codec="float64", clock=clock)
+    runtime = ModuleRuntime(FakeDriver(clock=clock), clock=clock, tick=tick, inline=inline, ramp=0.0)
+    latching = _Latching()
+    runtime._counting = latching  # type: ignore[assignment]
+    stops = [threading.Thread(target=runtime.emergency_stop, args=(why,)) for why in ("bus", "remote")]
+    try:
+        runtime.table.set(encode_table([PhaseState(40.0, 0.5, "step"), PhaseState(-40.0, 0.5, "step")]))
+        for stop in stops:
+            stop.start()
+        assert wait_until(lambda: runtime.latches == 2, timeout=5)
+        with pytest.raises(EstopLatched):
+            runtime.gait.start()
+        latching.go.set()
+        for stop in stops:
+            stop.join(5)
+        runtime.estop.set(False)
+        assert not runtime.gait.started and not runtime.latched
+    finally:
+        latching.go.set()
+        runtime.close()
+
+
+def test_a_latch_whose_hold_fails_does_not_refuse_every_later_start() -> None:
+    """Found by a second review: a hold that raised (a servo that did not answer) left the count of a latch in
+    flight for good, and no start was ever taken again, e-stop released or not."""
+
+    failures = [OSError("no answer from the servo")]
+
+    class Flaky(FakeDriver):
+        def hold(self) -> float:
+            if failures:
+                raise failures.pop()
+            return super().hold()
+
+    clock = SimClock()
+    runtime = ModuleRuntime(Flaky(clock=clock), clock=clock)
+    try:
+        runtime.table.set(encode_table([PhaseState(40.0, 0.5, "step")]))
+        with pytest.raises(OSError):
+            runtime.estop.set(True)
+        assert runtime.latched
+        runtime.estop.set(False)
+        runtime.gait.start()
+        assert runtime.gait.started
+    finally:
+        runtime.close()
+
+
+@pytest.mark.parametrize("inline", [False, True], ids=["threaded", "inline"])
+def test_a_start_refused_by_an_estop_during_it_commands_nothing_and_a_start_after_it_starts(inline: bool) -> None:
+    """Found by a second review: the refused start had already set the joint's goal to its first state (it set it
+    before looking again), and a start right after it was refused as "already started" while the first one's
+    thread was still ending."""
+    clock = SimClock()
+    tick = Event("gait.tick", codec="float64", clock=clock)
+    runtime = ModuleRuntime(FakeDriver(clock=clock), clock=clock, tick=tick, inline=inline, ramp=0.0)
+    commanded: list[float] = []
+    command = runtime.joint.command
+    runtime.joint.command = lambda goal: (commanded.append(goal), command(goal))[1]  # type: ignore[method-assign]
+    ramp = runtime._begin_ramp
+    stop_and_release = _estop_and_release_once(runtime)
+
+    def estop_and_release_then_ramp() -> None:
+        if stop_and_release():
+            commanded.clear()
+        ramp()
+
+    runtime._begin_ramp = estop_and_release_then_ramp  # type: ignore[method-assign]
+    try:
+        runtime.table.set(encode_table([PhaseState(40.0, 0.5, "step"), PhaseState(-40.0, 0.5, "step")]))
+        goal = runtime.goal.peek()
+        with pytest.raises(EstopLatched):
+            runtime.gait.start()
+        assert runtime.goal.peek() == goal and commanded == []
+        runtime.gait.start()
+        assert runtime.gait.started and runtime.goal.peek() == 40.0
+    finally:
+        runtime.close()
+
+
+def test_a_release_between_an_estops_latch_and_its_value_leaves_them_agreeing() -> None:
+    """Found by a second review: a release landing between emergency_stop's latch and its set of ``estop`` left
+    the value true and the module unlatched, and a gait then started while estop read true."""
+    clock = SimClock()
+    runtime = ModuleRuntime(FakeDriver(clock=clock), clock=clock)
+    latch = runtime._latch
+    releases = [True]
+
+    def latch_then_release() -> None:
+        latch()
+        if releases:
+            releases.pop()
+            runtime.estop.set(False)
+
+    runtime._latch = latch_then_release  # type: ignore[method-assign]
+    try:
+        runtime.emergency_stop("bus")
+        assert runtime.estop.peek() is True and runtime.latched
+        with pytest.raises(EstopLatched):
+            runtime.gait.start()
     finally:
         runtime.close()
 

@@ -18,11 +18,6 @@ from tests.helpers import wait_until
 pytestmark = pytest.mark.timeout(120)
 
 
-def _click(value: str) -> SimpleNamespace:
-    """What viser hands a button group's callback when the button ``value`` is clicked."""
-    return SimpleNamespace(target=SimpleNamespace(value=value), client=None)
-
-
 def test_a_grid_row_edits_its_state_selects_it_and_re_previews(studio):
     app = studio.app
     grid = app.editor.grid
@@ -39,7 +34,7 @@ def test_a_grid_row_edits_its_state_selects_it_and_re_previews(studio):
     grid.rows[("wave", 0)].value = (95.0, 0.0625)
     assert "outside the joint limits" in app.editor.state_problem.content
     assert "Problems" in app.editor.problems.content
-    app.editor._on_history(_click("Undo"))
+    app.editor.history("Undo")
     assert grid.rows[("wave", 0)].value[0] == pytest.approx(19.134)
     assert not app.doc.problems
 
@@ -350,7 +345,6 @@ def test_the_studio_deploys_to_and_estops_a_robot_whose_odd_modules_run_in_c() -
 def test_a_second_deploy_while_start_waits_replaces_the_first_instead_of_blaming_the_page(studio):
     """Found by an adversarial run: Deploy, then Deploy again while "Start it now?" waits — the page refused itself,
     naming its own lease as another deployer's."""
-    from types import SimpleNamespace
 
     app = studio.app
     app.deployer.on_deploy()

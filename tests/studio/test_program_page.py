@@ -382,6 +382,57 @@ def test_an_edit_whose_context_fails_is_told_to_its_tab_not_lost(studio, monkeyp
     assert "the selection could not be read" in app.page.status.content
 
 
+def test_an_undo_generate_and_a_refusal_keep_their_place_among_the_edits(studio, monkeypatch) -> None:
+    """Found by a second review. An Undo that moved no state refused the edit typed after it (every undo moved the
+    layout). A field whose edit was refused kept showing the refused value, so typing it again sent nothing. Generate
+    ran ahead of the edits that came before it. A phase typed for a module the robot had just lost said only
+    "Error"."""
+    from gaits.generate import generate
+
+    app = studio.app
+    editor = app.editor
+    doc = app.doc
+    described = doc.data().get("description", "")
+    doc.set_meta("description", "a step to undo")
+    pool = _wave_state_selected(app, monkeypatch, 3, 7)
+    angle = _wave_rows(app)[2][0]
+    _arrives(app, editor.history_actions, "Undo")
+    _arrives(app, editor.angle, angle + 5.0)
+    for fn, args in reversed(pool.held):
+        fn(*args)
+    assert doc.data().get("description", "") == described and _wave_rows(app)[2][0] == angle + 5.0
+    pool.held.clear()
+    _arrives(app, editor.angle, angle + 9.0)
+    doc.add_state("wave", 10)  # another tab's insert, applied first: S3's number may have changed
+    editor.after_edit()
+    for fn, args in pool.held:
+        fn(*args)
+    assert _wave_rows(app)[2][0] == angle + 5.0 and "make it again" in app.page.status.content
+    assert editor.angle.value == angle + 5.0, "the field shows the document again: typing the value again is an edit"
+    pool.held.clear()
+    with app.page.programmatic():
+        editor.module_index.value = 3
+    editor.sync()
+    _arrives(app, editor.phase, 0.5)
+    _arrives(app, editor.tools.make, None)
+    expected = generate(editor.tools.spec())
+    for fn, args in reversed(pool.held):
+        fn(*args)
+    assert doc.data()["name"] == expected.name
+    assert next(m["phase"] for m in doc.data()["modules"] if m["id"] == 3) == next(
+        m.phase for m in expected.modules if m.id == 3
+    ), "the phase came before Generate: applied first, then replaced by the generated gait"
+    pool.held.clear()
+    with app.page.programmatic():
+        editor.module_index.value = 10
+    editor.sync()
+    _arrives(app, editor.modules, 4.0)
+    _arrives(app, editor.phase, 0.25)
+    for fn, args in pool.held:
+        fn(*args)
+    assert "no module 10" in app.page.status.content
+
+
 def test_a_control_set_after_the_page_closed_is_still_set(studio) -> None:
     """on_edit's coroutine callback, scheduled on viser's loop by every value set from the server: after the server
     stopped, viser raised RuntimeError (the loop closed) out of the setter, and the edit was lost."""
