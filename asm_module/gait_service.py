@@ -59,6 +59,7 @@ class ModuleGait(PhaseAutomaton):
         self._neighbour_states: dict[int, tuple[int, float]] = {}  # relative ID → (state, clock time when heard)
         self._switch_request: tuple[int, int, float] | None = None
         self._lock = threading.Lock()
+        self._since = threading.local()  # the latch count a start read, for its _starting (same thread)
         self._finished = False
         self._current = program.modes[program.first]
         self._index = 0
@@ -124,15 +125,26 @@ class ModuleGait(PhaseAutomaton):
         since = runtime.latches if since is None else since
         if not runtime.unlatched_since(since):
             raise EstopLatched("the module is in emergency stop; set estop to false before starting the gait")
-        runtime.gait_since = since  # its references reach the goal only while no e-stop latched since (_follow)
+        if self.started and self.stop_requested:  # an e-stop's stop, its thread still ending: wait for it
+            self._wait_stopped()
+        self._since.value = since  # for _starting, in this thread: gait_since is the start's that goes ahead
         runtime._begin_ramp()
         super().start(float(runtime.phase.peek()))
         if not runtime.unlatched_since(since):
             self.request_stop()  # no tick runs it meanwhile; waited for briefly, so a start right after may start
-            ends = time.monotonic() + 0.5  # wall time, on any clock (the caller may be a bus's receive thread)
-            while self.started and time.monotonic() < ends:
-                time.sleep(0.001)
+            self._wait_stopped()
             raise EstopLatched("the module's emergency stop latched while the gait started")
+
+    def _starting(self, phase: float = 0.0, direction: int | None = None) -> None:
+        # after the already-started check: a start refused as started, or still waiting, never moves gait_since
+        self._runtime.gait_since = self._since.value
+        super()._starting(phase, direction)
+
+    def _wait_stopped(self) -> None:
+        """Up to 0.5 s of wall time, on any clock (the caller may be a bus's receive thread), for a stop asked."""
+        ends = time.monotonic() + 0.5
+        while self.started and time.monotonic() < ends:
+            time.sleep(0.001)
 
     def initialize(self, phase: float) -> None:
         runtime = self._runtime

@@ -97,6 +97,21 @@ class _Servo(EventDrivenService):
         self._runtime.joint.relax()
 
 
+class _Estop(CheckedAttribute):
+    """``estop``: a set's latch or release and the value it stores, as one (emergency_stop stores its value under
+    the same lock): a release storing false after an e-stop re-latched left the module latched with estop false."""
+
+    __slots__ = ("setting",)
+
+    def __init__(self, *args: Any, **options: Any) -> None:
+        super().__init__(*args, **options)
+        self.setting = threading.RLock()
+
+    def set(self, value: Any, timeout: float | None = None, *, wait: bool = True) -> None:
+        with self.setting:
+            super().set(value, timeout, wait=wait)
+
+
 class ModuleRuntime:
     """One module's objects and behaviour; see the module docstring. ``close`` stops everything it started."""
 
@@ -138,14 +153,11 @@ class ModuleRuntime:
         self.latched = False
         """The e-stop is latched (set first: a racing tick's goal is never commanded after it)."""
         self.latches = 0
-        """Latches begun, ever. A start reads it before it looks at ``latched`` and again once started
-        (:meth:`unlatched_since`): an e-stop and its release both landing in between left ``latched`` false, and
-        the gait started before the stop ran after the release."""
+        """Latches begun, ever: a start reads it before it looks at ``latched``, and again once started
+        (:meth:`unlatched_since`), so an e-stop and its release both landing in between are seen."""
         self._latching = 0  # latches begun and not ended: two e-stops on two threads may latch at once
         self._counting = threading.Lock()  # the counts' own, for nanoseconds: nothing a gait or a service holds
-        self.gait_since = 0
-        """``latches`` as the running gait's start read it: its references reach the goal only while no e-stop
-        latched since (a latch and release during the start, before its second look, moved the joint)."""
+        self.gait_since = 0  # ``latches`` as the running gait's start read it: _follow, GaitService._starting
         self._held_at: float | None = None
         """The angle the e-stop holds (joint.goal reads it from the next tick on)."""
         self.calibration = CheckedAttribute("joint.calibration", initial.as_record(),
@@ -167,8 +179,8 @@ class ModuleRuntime:
         self.angle = Attribute("joint.angle", 0.0, codec=FLOAT32, clock=self.clock)
         self.torque = Attribute("joint.torque", 0.0, codec=FLOAT32, clock=self.clock)
         self.contact = Attribute("sensor.contact", False, codec=BOOL, clock=self.clock)
-        self.estop = CheckedAttribute("estop", False, codec=BOOL, check=self._check_estop, reset=self._refuse_reset,
-                                      clock=self.clock)  # fmt: skip
+        self.estop = _Estop("estop", False, codec=BOOL, check=self._check_estop, reset=self._refuse_reset,
+                            clock=self.clock)  # fmt: skip
         self.phase = CheckedAttribute("gait.phase", 0.0, codec=FLOAT32, check=self._check_phase, clock=self.clock)
         self._own_timer: TimerTrigger | None = None
         if tick is None:
@@ -420,13 +432,15 @@ class ModuleRuntime:
         try:
             if self.servo.running:
                 self._held_at = self.joint.hold()
-            self.gait.request_stop()
-            self.staging.discard()  # no deployment begun before the stop may start after it
-            if self._held_at is not None:
-                self.goal.set(self._held_at)  # the goal's own lock, for microseconds: nothing commanded while latched
-        finally:  # a hold that failed must not leave every later start refused
-            with self._counting:
-                self._latching -= 1
+        finally:  # a hold that failed still stops the gait and drops the staged one (and leaves starts possible)
+            try:
+                self.gait.request_stop()
+                self.staging.discard()  # no deployment begun before the stop may start after it
+                if self._held_at is not None:
+                    self.goal.set(self._held_at)  # the goal's own lock, for microseconds: commands nothing latched
+            finally:
+                with self._counting:
+                    self._latching -= 1
 
     def _unlatch(self) -> None:
         """Released: commands reach the joint again, which stays where it holds until a new goal or gait."""
@@ -439,10 +453,11 @@ class ModuleRuntime:
 
     def emergency_stop(self, reason: str = "") -> None:
         """Stop the gait and hold the joint where it is; latched until ``estop`` is set to false (see _latch)."""
-        self._latch()
-        Attribute.set(self.estop, True)  # the value only: _latch has done what a set would
-        if not self.latched and self.estop.peek():  # a release came between the two: the value says latched
-            self._latch()
+        self._latch()  # at once: nothing a set of estop holds
+        with self.estop.setting:  # then the value, with no release between it and the latch it says
+            Attribute.set(self.estop, True)  # the value only: _latch has done what a set would
+            if not self.latched:  # a release came between the two: the value says latched, so it is again
+                self._latch()
 
     # -- the in-process interface every module has (asm_module.module.Module) -----------------------------------
 

@@ -167,8 +167,10 @@ class Dashboard:
             ("Play / pause the preview", "space", None, lambda: self.loop.request("play", not self.loop.playing)),
             ("Step the preview back", "arrowleft", "shift", lambda: self.loop.request("step", -1)),
             ("Step the preview forward", "arrowright", "shift", lambda: self.loop.request("step", 1)),
-            ("Undo the last edit", "Z", "cmd/ctrl", lambda: self.editor.history("Undo")),
-            ("Redo", "Z", "cmd/ctrl+shift", lambda: self.editor.history("Redo")),
+        )
+        history: tuple[tuple[str, HotkeyKey, KeyModifier, str], ...] = (
+            ("Undo the last edit", "Z", "cmd/ctrl", "Undo"),
+            ("Redo", "Z", "cmd/ctrl+shift", "Redo"),
         )
 
         def add(label: str, key: HotkeyKey, action: Any, modifier: KeyModifier | None = None) -> None:
@@ -177,6 +179,9 @@ class Dashboard:
 
         for label, key, modifier, action in keys:
             add(label, key, action, modifier)
+        for label, key, modifier, kind in history:  # in their place among the edits that came before them
+            command = self.server.gui.add_command(label, hotkey=key, modifier=modifier)
+            self.page.on_command(command, lambda kind=kind: self.editor.history(kind))
         self.drive.bind_keys(add)  # the arrow keys drive
 
     def adopt(self, gait: Any, text: str) -> None:

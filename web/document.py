@@ -303,7 +303,7 @@ class GaitDocument:
     def check_layout(self, layout: int | None) -> None:
         """ValueError unless ``layout`` is None or the present one (see ``layout``)."""
         if layout is not None and layout != self.layout:
-            raise ValueError(STALE_EDIT)
+            raise StaleEdit(STALE_EDIT)
 
     def undo(self) -> bool:
         return self._travel(self._undo, self._redo)
@@ -368,6 +368,10 @@ STALE_EDIT = (
     "the gait's states changed while this edit was on its way (a state inserted or removed, here or in "
     "another tab, or undo): it was not applied; make it again"
 )
+
+
+class StaleEdit(ValueError):
+    """An edit by index made in another layout than the document's (GaitDocument.layout): nothing was changed."""
 
 
 def _states_shape(data: dict[str, Any]) -> tuple[tuple[str, int], ...]:

@@ -26,7 +26,7 @@ from gaits.table import expand
 
 from .control_table import SAMPLES as CONTROL_SAMPLES
 from .control_table import control_table
-from .document import assignments
+from .document import StaleEdit, assignments
 from .generator import GaitTools
 from .grid import StateGrid
 from .inputs import number, slider, whole
@@ -181,13 +181,14 @@ class GaitEditor:
                                                 if robot_file and folder else ""))  # fmt: skip
 
     def _on_edit(self, handle: Any, apply: Callable[..., None], **options: Any) -> Callable[[], None]:
-        """``page.on_edit``, and a refused edit resyncs the page: a field, a grid row, kept showing the value the
-        document refused, and typing it again sent nothing (the page's value had not changed)."""
+        """``page.on_edit``, and an edit refused because states moved under it resyncs the page: the field or grid
+        row kept showing it, so typing it again sent nothing (the page's value had not changed). A value refused for
+        itself stays shown, beside its problem."""
 
         def applied(*args: Any) -> None:
             try:
                 apply(*args)
-            except Exception:
+            except StaleEdit:
                 self.sync()
                 raise
 

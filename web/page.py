@@ -251,6 +251,17 @@ class Page:
 
         return forget
 
+    def on_command(self, command: Any, apply: Callable[[], None]) -> None:
+        """Run ``apply`` when a command palette hotkey fires, in its place among the page's edits (see
+        :meth:`on_edit`): Ctrl+Z ran on the pool at once, and took back the edit before the one typed just before
+        it, whose callback had not run yet."""
+
+        async def keep(event: Any) -> None:
+            self._arrived.append((lambda _: apply(), event.client, None, ()))
+
+        command.on_trigger(keep)
+        command.on_trigger(lambda _: self._apply_arrived())
+
     def _apply_arrived(self) -> None:
         """Apply every edit kept so far, oldest first, each as its own tab's (see :meth:`on_edit`)."""
         with self._applying:

@@ -347,32 +347,6 @@ def test_a_start_while_two_estops_latch_at_once_is_refused(inline: bool) -> None
         runtime.close()
 
 
-def test_a_latch_whose_hold_fails_does_not_refuse_every_later_start() -> None:
-    """Found by a second review: a hold that raised (a servo that did not answer) left the count of a latch in
-    flight for good, and no start was ever taken again, e-stop released or not."""
-
-    failures = [OSError("no answer from the servo")]
-
-    class Flaky(FakeDriver):
-        def hold(self) -> float:
-            if failures:
-                raise failures.pop()
-            return super().hold()
-
-    clock = SimClock()
-    runtime = ModuleRuntime(Flaky(clock=clock), clock=clock)
-    try:
-        runtime.table.set(encode_table([PhaseState(40.0, 0.5, "step")]))
-        with pytest.raises(OSError):
-            runtime.estop.set(True)
-        assert runtime.latched
-        runtime.estop.set(False)
-        runtime.gait.start()
-        assert runtime.gait.started
-    finally:
-        runtime.close()
-
-
 @pytest.mark.parametrize("inline", [False, True], ids=["threaded", "inline"])
 def test_a_start_refused_by_an_estop_during_it_commands_nothing_and_a_start_after_it_starts(inline: bool) -> None:
     """Found by a second review: the refused start had already set the joint's goal to its first state (it set it

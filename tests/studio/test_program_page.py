@@ -433,6 +433,36 @@ def test_an_undo_generate_and_a_refusal_keep_their_place_among_the_edits(studio,
     assert "no module 10" in app.page.status.content
 
 
+def _hotkey(app, label: str, client_id: int = 7) -> None:
+    """A command palette hotkey pressed in a tab, as viser's event loop handles it."""
+    from viser import _messages
+
+    gui = app.server.gui
+    handle = next(h for h in gui._command_handle_from_uuid.values() if h._impl.props.label == label)
+    message = _messages.CommandTriggerMessage(handle._impl.uuid)
+    asyncio.run_coroutine_threadsafe(gui._handle_command_trigger(client_id, message), gui._event_loop).result(10)
+
+
+@pytest.mark.parametrize("how", ["button", "Ctrl+Z"])
+def test_an_undo_takes_back_the_edit_typed_just_before_it(studio, monkeypatch, how: str) -> None:
+    """Found by a third review: Ctrl+Z ran at once on viser's pool, ahead of the angle typed just before it, and took
+    back the edit before that one (the description), leaving the angle."""
+    app = studio.app
+    editor = app.editor
+    doc = app.doc
+    doc.set_meta("description", "a step to undo")
+    pool = _wave_state_selected(app, monkeypatch, 3, 7)
+    angle = _wave_rows(app)[2][0]
+    _arrives(app, editor.angle, angle + 5.0)
+    if how == "button":
+        _arrives(app, editor.history_actions, "Undo")
+    else:
+        _hotkey(app, "Undo the last edit")
+    for fn, args in reversed(pool.held):
+        fn(*args)
+    assert _wave_rows(app)[2][0] == angle and doc.data().get("description") == "a step to undo"
+
+
 def test_a_control_set_after_the_page_closed_is_still_set(studio) -> None:
     """on_edit's coroutine callback, scheduled on viser's loop by every value set from the server: after the server
     stopped, viser raised RuntimeError (the loop closed) out of the setter, and the edit was lost."""
