@@ -351,6 +351,9 @@ class CommissionService:
                 goal.set(home, wait=True, timeout=ASM_TIMEOUT)
         deadline = time.monotonic() + MOVE_TIMEOUT  # back before the answer: the next wiggle starts from rest
         while abs(float(angle.get(timeout=ASM_TIMEOUT)) - start) > 1.0 and time.monotonic() < deadline:
+            if self._heard is not None:  # on its way back: it holds where the latch caught it, and the answer says so
+                raise Refused(f"stopped: an e-stop was heard during the wiggle of {name} (on its way back; it holds "
+                              "there)")  # fmt: skip
             time.sleep(0.05)
         if moved < degrees / 2:
             raise TimeoutError(f"{name}'s joint moved {moved:.1f}° of {degrees:g}° in {MOVE_TIMEOUT:g} s "
