@@ -88,16 +88,22 @@ def plot(page, title: str):
     return page.locator(".uplot", has_text=title).last
 
 
-def open_page(pw, url: str):
-    """Chromium on the studio's page, once the page is up (its E-STOP shows)."""
+VIEWPORT = {"width": 1400, "height": 900}
+"""The page's size in the browser tests unless a test chooses one."""
+
+
+def open_page(chromium, url: str, viewport: dict[str, int] | None = None):
+    """The studio's page in a browser context of its own on ``chromium`` (the ``chromium`` fixture), once the page is
+    up (its E-STOP shows): (context, page). The context is what the test closes; a second tab of the same user is
+    ``context.new_page()``."""
     from playwright.sync_api import expect
 
-    browser = pw.chromium.launch(executable_path=CHROMIUM, args=["--no-sandbox"])
-    page = browser.new_page(viewport={"width": 1400, "height": 900})
+    context = chromium.new_context(viewport=viewport or VIEWPORT)
+    page = context.new_page()
     page.goto(f"{url}/{PAGE_QUERY}")
     # generous: the suite's other worker may hold a core while Chromium builds the page in software WebGL
     expect(page.get_by_role("button", name=re.compile(r"^E-STOP"))).to_be_visible(timeout=60_000)
-    return browser, page
+    return context, page
 
 
 FOCUS_3D = (650, 200)

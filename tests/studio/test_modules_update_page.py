@@ -30,8 +30,8 @@ def _upload(page, path) -> None:
     chooser.value.set_files(str(path))
 
 
-def test_the_modules_tab_updates_the_emulated_boards_firmware_from_an_uploaded_image(start_studio, tmp_path):
-    from playwright.sync_api import expect, sync_playwright
+def test_the_modules_tab_updates_the_emulated_boards_firmware_from_an_uploaded_image(start_studio, tmp_path, chromium):
+    from playwright.sync_api import expect
 
     from asm_module.emulated import versioned_image
     from asm_module.firmware_image import image_bytes
@@ -41,28 +41,25 @@ def test_the_modules_tab_updates_the_emulated_boards_firmware_from_an_uploaded_i
     bogus = tmp_path / "bogus.img"
     bogus.write_bytes(b"not an image" * 20)
     url, _, log = start_studio("--emulated-modules", "2", "--board-flash", "none")  # flashed as m2
-    with sync_playwright() as pw:
-        browser, page = open_page(pw, url)
-        page.get_by_role("tab", name="Modules").click()
-        board = page.locator("td", has_text=re.compile(r"^C 0\.1\.0"))
-        deadline = time.monotonic() + 180  # the robot child and its emulated board come up after the page
-        while True:
-            page.get_by_role("button", name="Read modules").click()
-            try:
-                expect(page.get_by_text(re.compile(r"Read 8 modules: 8 said their firmware"))).to_be_visible(
-                    timeout=15_000
-                )
-                expect(board).to_have_count(1, timeout=5_000)
-                break
-            except AssertionError:
-                if time.monotonic() > deadline:
-                    raise
-        _upload(page, bogus)
-        expect(page.get_by_text(re.compile(r"⚠ .*(header|image)"))).to_be_visible(timeout=30_000)
-        _upload(page, image)
-        expect(page.get_by_text("m2: updated (0.1.0 -> 0.2.0)")).to_be_visible(timeout=300_000)
-        expect(page.get_by_text(re.compile(r"m1: skipped"))).to_be_visible(timeout=5_000)
-        expect(page.locator("td", has_text=re.compile(r"^C 0\.2\.0"))).to_have_count(1, timeout=30_000)
-        page.screenshot(path=str(ARTIFACTS / "modules-update.png"))
-        browser.close()
+    browser, page = open_page(chromium, url)
+    page.get_by_role("tab", name="Modules").click()
+    board = page.locator("td", has_text=re.compile(r"^C 0\.1\.0"))
+    deadline = time.monotonic() + 180  # the robot child and its emulated board come up after the page
+    while True:
+        page.get_by_role("button", name="Read modules").click()
+        try:
+            expect(page.get_by_text(re.compile(r"Read 8 modules: 8 said their firmware"))).to_be_visible(timeout=15_000)
+            expect(board).to_have_count(1, timeout=5_000)
+            break
+        except AssertionError:
+            if time.monotonic() > deadline:
+                raise
+    _upload(page, bogus)
+    expect(page.get_by_text(re.compile(r"⚠ .*(header|image)"))).to_be_visible(timeout=30_000)
+    _upload(page, image)
+    expect(page.get_by_text("m2: updated (0.1.0 -> 0.2.0)")).to_be_visible(timeout=300_000)
+    expect(page.get_by_text(re.compile(r"m1: skipped"))).to_be_visible(timeout=5_000)
+    expect(page.locator("td", has_text=re.compile(r"^C 0\.2\.0"))).to_have_count(1, timeout=30_000)
+    page.screenshot(path=str(ARTIFACTS / "modules-update.png"))
+    browser.close()
     assert not any("Traceback" in line for line in log), "".join(log[-40:])

@@ -84,33 +84,32 @@ def _watch(page, window: float, seconds: float) -> list[dict[str, dict]]:
     return seen
 
 
-def test_live_plots_share_one_time_base_and_never_go_blank(studio_process):
+def test_live_plots_share_one_time_base_and_never_go_blank(studio_process, chromium):
     """m2's then m7's joint.angle into Live plot 2 beside the deploy's angles in Live plot 1: both plots keep the
     same window ending at now, through re-targeting, a Clear, a window change and a redeploy."""
-    from playwright.sync_api import expect, sync_playwright
+    from playwright.sync_api import expect
 
     url, _, log = studio_process
-    with sync_playwright() as pw:
-        browser, page = open_page(pw, url)
-        deploy_and_start(page, 8)
-        page.get_by_role("tab", name="Monitor").click()
-        _plot_into(page, "m2", "Live plot 2")
-        _watch(page, 10.0, 4.0)
-        _plot_into(page, "m7", "Live plot 2")  # re-targeted: a new series on the same plot
-        _watch(page, 10.0, 6.0)
-        page.get_by_role("button", name="Live plot 2", exact=True).last.click()  # Clear
-        _plot_into(page, "m7", "Live plot 2")
-        _choose_window(page, "30")
-        _watch(page, 30.0, 4.0)
-        deploy_and_start(page, 8)  # deployed again: the plots go on on the same clock
-        page.get_by_role("tab", name="Monitor").click()
-        _plot_into(page, "m7", "Live plot 2")
-        _watch(page, 30.0, 4.0)
-        page.get_by_role("tab", name="Plots").click()
-        second = plot(page, "Live 2").locator("canvas").first
-        second.scroll_into_view_if_needed()
-        expect(plot(page, "Live 2")).to_contain_text("m7 joint.angle", timeout=15_000)
-        assert pixels(second.screenshot(), LINE_COLOR) > 50, "no line in Live plot 2"
-        page.screenshot(path=str(ARTIFACTS / "rough-plots-one-time-base.png"))
-        browser.close()
+    browser, page = open_page(chromium, url)
+    deploy_and_start(page, 8)
+    page.get_by_role("tab", name="Monitor").click()
+    _plot_into(page, "m2", "Live plot 2")
+    _watch(page, 10.0, 4.0)
+    _plot_into(page, "m7", "Live plot 2")  # re-targeted: a new series on the same plot
+    _watch(page, 10.0, 6.0)
+    page.get_by_role("button", name="Live plot 2", exact=True).last.click()  # Clear
+    _plot_into(page, "m7", "Live plot 2")
+    _choose_window(page, "30")
+    _watch(page, 30.0, 4.0)
+    deploy_and_start(page, 8)  # deployed again: the plots go on on the same clock
+    page.get_by_role("tab", name="Monitor").click()
+    _plot_into(page, "m7", "Live plot 2")
+    _watch(page, 30.0, 4.0)
+    page.get_by_role("tab", name="Plots").click()
+    second = plot(page, "Live 2").locator("canvas").first
+    second.scroll_into_view_if_needed()
+    expect(plot(page, "Live 2")).to_contain_text("m7 joint.angle", timeout=15_000)
+    assert pixels(second.screenshot(), LINE_COLOR) > 50, "no line in Live plot 2"
+    page.screenshot(path=str(ARTIFACTS / "rough-plots-one-time-base.png"))
+    browser.close()
     assert not any("Traceback" in line for line in log), "".join(log[-40:])

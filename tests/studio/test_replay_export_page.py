@@ -20,8 +20,8 @@ from .test_replay_page import _slider_box, simulated_recording
 pytestmark = marks(__name__)
 
 
-def test_the_replay_plot_exports_the_recorded_samples_it_shows(start_studio, tmp_path):
-    from playwright.sync_api import expect, sync_playwright
+def test_the_replay_plot_exports_the_recorded_samples_it_shows(start_studio, tmp_path, chromium):
+    from playwright.sync_api import expect
 
     from web.recording import open_recording
 
@@ -32,38 +32,35 @@ def test_the_replay_plot_exports_the_recorded_samples_it_shows(start_studio, tmp
     def replay_time(page) -> float:
         return number(page.get_by_text(re.compile(r"t = [\d.]+ s of")).first.inner_text(), r"t = ([\d.]+) s of")
 
-    with sync_playwright() as pw:
-        browser, page = open_page(pw, url)
-        page.get_by_role("tab", name="Replay").click()
-        page.get_by_role("button", name="Export CSV", exact=True).click()  # nothing open: refused, said
-        expect(page.get_by_text("no recording open: open one, then export its plot").first).to_be_visible(
-            timeout=15_000
-        )
-        page.get_by_role("button", name="List files").click()
-        choose(page, "Recording", "run.mcap")
-        page.get_by_role("button", name="Open", exact=True).click()
-        expect(page.get_by_text(re.compile(r"run\.mcap: 2\.98 s")).first).to_be_visible(timeout=30_000)
-        box = _slider_box(page, "Replay time (s)")
-        for _ in range(3):  # a loaded page can lose the typed number before Enter commits it: type it again
-            box.click()
-            box.press("Control+a")
-            box.press_sequentially(f"{target:g}")
-            box.press("Enter")
-            if page_until(lambda: replay_time(page) == target, 15, 0.2):
-                break
-        assert replay_time(page) == target
-        with page.expect_download() as csv_download:
-            page.get_by_role("button", name="Export CSV", exact=True).click()
-        with page.expect_download() as mcap_download:
-            page.get_by_role("button", name="Export MCAP", exact=True).click()
-        page.screenshot(path=str(ARTIFACTS / "replay-exported.png"))
-        rows = list(csv.reader(Path(csv_download.value.path()).read_text().splitlines()))
-        exported = Path(mcap_download.value.path()).read_bytes()  # the browser's downloads go with it
-        assert (csv_download.value.suggested_filename, mcap_download.value.suggested_filename) == (
-            "replay-plot.csv",
-            "replay-plot.mcap",
-        )
-        browser.close()
+    browser, page = open_page(chromium, url)
+    page.get_by_role("tab", name="Replay").click()
+    page.get_by_role("button", name="Export CSV", exact=True).click()  # nothing open: refused, said
+    expect(page.get_by_text("no recording open: open one, then export its plot").first).to_be_visible(timeout=15_000)
+    page.get_by_role("button", name="List files").click()
+    choose(page, "Recording", "run.mcap")
+    page.get_by_role("button", name="Open", exact=True).click()
+    expect(page.get_by_text(re.compile(r"run\.mcap: 2\.98 s")).first).to_be_visible(timeout=30_000)
+    box = _slider_box(page, "Replay time (s)")
+    for _ in range(3):  # a loaded page can lose the typed number before Enter commits it: type it again
+        box.click()
+        box.press("Control+a")
+        box.press_sequentially(f"{target:g}")
+        box.press("Enter")
+        if page_until(lambda: replay_time(page) == target, 15, 0.2):
+            break
+    assert replay_time(page) == target
+    with page.expect_download() as csv_download:
+        page.get_by_role("button", name="Export CSV", exact=True).click()
+    with page.expect_download() as mcap_download:
+        page.get_by_role("button", name="Export MCAP", exact=True).click()
+    page.screenshot(path=str(ARTIFACTS / "replay-exported.png"))
+    rows = list(csv.reader(Path(csv_download.value.path()).read_text().splitlines()))
+    exported = Path(mcap_download.value.path()).read_bytes()  # the browser's downloads go with it
+    assert (csv_download.value.suggested_filename, mcap_download.value.suggested_filename) == (
+        "replay-plot.csv",
+        "replay-plot.mcap",
+    )
+    browser.close()
     recording = open_recording(tmp_path / "run.mcap")
     recorded = {f"{node} {obj}": [(t, v) for t, v in zip(s.times, s.values, strict=True) if t <= target]
                 for (node, obj), s in recording.series.items()}  # fmt: skip

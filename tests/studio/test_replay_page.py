@@ -89,8 +89,8 @@ def _slider_box(page, label: str):
     return row.locator("input.mantine-NumberInput-input")
 
 
-def test_open_a_recording_play_pause_scrub_and_leave(start_studio, tmp_path):
-    from playwright.sync_api import expect, sync_playwright
+def test_open_a_recording_play_pause_scrub_and_leave(start_studio, tmp_path, chromium):
+    from playwright.sync_api import expect
 
     simulated_recording(tmp_path / "caterpillar-run.mcap")
     (tmp_path / "not-a-recording.mcap").write_text("a text file named .mcap\n")
@@ -103,90 +103,87 @@ def test_open_a_recording_play_pause_scrub_and_leave(start_studio, tmp_path):
     def replay_time(page) -> float:
         return number(page.get_by_text(re.compile(r"t = [\d.]+ s of")).first.inner_text(), r"t = ([\d.]+) s of")
 
-    with sync_playwright() as pw:
-        browser, page = open_page(pw, url)
-        assert violet(page.screenshot(clip=VIEW)) < 50  # the preview: a tan robot
-        page.get_by_role("tab", name="Replay").click()
-        page.get_by_role("button", name="List files").click()
-        # hostile first: a file that is not MCAP is refused with a line, nothing else changes
-        choose(page, "Recording", "not-a-recording.mcap")
-        page.get_by_role("button", name="Open", exact=True).click()
-        refused = page.get_by_text("Not opened: not-a-recording.mcap is not an MCAP file", exact=False)
-        expect(refused.first).to_be_visible(timeout=20_000)
-        with page.expect_file_chooser() as chooser:  # uploaded: read tolerantly, up to its last whole chunk
-            page.get_by_role("button", name="Upload an MCAP file").click()
-        chooser.value.set_files(str(upload))
-        expect(page.get_by_text("replayed up to its last whole chunk", exact=False).first).to_be_visible(timeout=30_000)
-        expect(page.get_by_text("Showing: Replay of killed.mcap", exact=False).first).to_be_visible(timeout=15_000)
-        choose(page, "Recording", "caterpillar-run.mcap")
-        page.get_by_role("button", name="Open", exact=True).click()
-        expect(page.get_by_text(re.compile(r"caterpillar-run\.mcap: 7\.\d\d s, 480 poses")).first).to_be_visible(
-            timeout=30_000
-        )
-        expect(page.get_by_text("Showing: Replay of caterpillar-run.mcap", exact=False).first).to_be_visible(
-            timeout=15_000
-        )
-        expect(page.get_by_text("group message to all from studio", exact=False).first).to_be_visible()
-        expect(page.get_by_text("E-STOP (robot) by studio: test", exact=False).first).to_be_visible()
-        marks = page.locator(".mantine-Slider-markLabel")  # the events on the timeline: G at 1 s, E at 5 s
-        expect(marks.filter(has_text=re.compile(r"^E$"))).to_have_count(1, timeout=15_000)
-        expect(marks.filter(has_text=re.compile(r"^G$"))).to_have_count(1)
-        # the robot is drawn (violet), at t = 0, paused
-        if not page_until(lambda: violet(page.screenshot(clip=VIEW)) > 500, 60, 0.5):
-            page.screenshot(path=str(ARTIFACTS / "replay-no-robot.png"))
-            raise AssertionError("no robot drawn")
-        assert replay_time(page) == 0.0
-        still = page.screenshot(clip=VIEW)
-        page.get_by_role("button", name="▶ Play").click()
-        assert page_until(lambda: replay_time(page) > 2.0, 30, 0.2), replay_time(page)
-        page.get_by_role("button", name="Pause", exact=True).click()
-        expect(page.get_by_text("· paused ·", exact=False).first).to_be_visible(timeout=10_000)
-        paused = replay_time(page)
-        time.sleep(1.0)
-        assert replay_time(page) == paused  # paused: time stands
-        moved = page.screenshot(clip=VIEW)
-        assert violet(moved) > 500
-        assert moved != still, "the replayed robot did not move"
-        replayed = plot(page, "Replay: recorded values")
-        expect(replayed).to_contain_text("m1 joint.angle", timeout=15_000)
-        if not page_until(lambda: lines(replayed.locator("canvas").first.screenshot()) > 200, 20, 0.5):
-            page.screenshot(path=str(ARTIFACTS / "replay-no-line.png"))
-            replayed.screenshot(path=str(ARTIFACTS / "replay-no-line-replayed.png"))
-            raise AssertionError("no line in the replay plot")
-        expect(page.get_by_text(re.compile(r"m8\s*joint\.angle = ")).first).to_be_visible()  # the values listed
-        page.screenshot(path=str(ARTIFACTS / "replay-paused.png"))
-        # scrub back half a gait period (1 s): the time, the robot and the plot follow (a whole period back, the
-        # crawling robot can be drawn to the pixel as it was: a fresh-clone CI scrubbed from 2.0x s to 1 s)
-        target = round(paused - 0.5, 2)
-        box = _slider_box(page, "Replay time (s)")
-        plot_before = replayed.locator("canvas").first.screenshot()
-        for _ in range(3):  # a loaded page can lose the typed number before Enter commits it: type it again
-            box.click()
-            box.press("Control+a")
-            box.press_sequentially(f"{target:g}")
-            expect(box).to_have_value(f"{target:g}", timeout=10_000)
-            box.press("Enter")
-            if page_until(lambda: abs(replay_time(page) - target) < 0.02, 15, 0.2):
-                break
-        assert abs(replay_time(page) - target) < 0.02, replay_time(page)
-        assert page_until(lambda: page.screenshot(clip=VIEW) != moved, 20, 0.5), "the scrub did not move the robot"
-        assert page_until(lambda: replayed.locator("canvas").first.screenshot() != plot_before, 20, 0.5)
-        # play on from the scrubbed point (not from the end) at 0.25x, then at 4x to the end
-        choose(page, "Replay speed", "0.25x")
-        expect(page.get_by_text("· 0.25x", exact=False).first).to_be_visible(timeout=10_000)
-        page.get_by_role("button", name="▶ Play").click()
-        assert page_until(lambda: replay_time(page) > target + 0.05, 20, 0.2), replay_time(page)
-        slow = replay_time(page)
-        assert slow < target + 3.0, slow  # a quarter of the wall clock's pace, from the scrubbed point
-        choose(page, "Replay speed", "4x")
-        expect(page.get_by_text("■ ended", exact=False).first).to_be_visible(timeout=30_000)
-        assert replay_time(page) > 7.0
-        page.screenshot(path=str(ARTIFACTS / "replay-ended.png"))
-        page.get_by_role("button", name="Leave replay").click()
-        expect(page.get_by_text("Showing: Live", exact=False).first).to_be_visible(timeout=15_000)
-        expect(page.get_by_text("No recording open.").first).to_be_visible()
-        assert page_until(lambda: violet(page.screenshot(clip=VIEW)) < 50, 30, 0.5)  # no violet robot
-        browser.close()
+    browser, page = open_page(chromium, url)
+    assert violet(page.screenshot(clip=VIEW)) < 50  # the preview: a tan robot
+    page.get_by_role("tab", name="Replay").click()
+    page.get_by_role("button", name="List files").click()
+    # hostile first: a file that is not MCAP is refused with a line, nothing else changes
+    choose(page, "Recording", "not-a-recording.mcap")
+    page.get_by_role("button", name="Open", exact=True).click()
+    refused = page.get_by_text("Not opened: not-a-recording.mcap is not an MCAP file", exact=False)
+    expect(refused.first).to_be_visible(timeout=20_000)
+    with page.expect_file_chooser() as chooser:  # uploaded: read tolerantly, up to its last whole chunk
+        page.get_by_role("button", name="Upload an MCAP file").click()
+    chooser.value.set_files(str(upload))
+    expect(page.get_by_text("replayed up to its last whole chunk", exact=False).first).to_be_visible(timeout=30_000)
+    expect(page.get_by_text("Showing: Replay of killed.mcap", exact=False).first).to_be_visible(timeout=15_000)
+    choose(page, "Recording", "caterpillar-run.mcap")
+    page.get_by_role("button", name="Open", exact=True).click()
+    expect(page.get_by_text(re.compile(r"caterpillar-run\.mcap: 7\.\d\d s, 480 poses")).first).to_be_visible(
+        timeout=30_000
+    )
+    expect(page.get_by_text("Showing: Replay of caterpillar-run.mcap", exact=False).first).to_be_visible(timeout=15_000)
+    expect(page.get_by_text("group message to all from studio", exact=False).first).to_be_visible()
+    expect(page.get_by_text("E-STOP (robot) by studio: test", exact=False).first).to_be_visible()
+    marks = page.locator(".mantine-Slider-markLabel")  # the events on the timeline: G at 1 s, E at 5 s
+    expect(marks.filter(has_text=re.compile(r"^E$"))).to_have_count(1, timeout=15_000)
+    expect(marks.filter(has_text=re.compile(r"^G$"))).to_have_count(1)
+    # the robot is drawn (violet), at t = 0, paused
+    if not page_until(lambda: violet(page.screenshot(clip=VIEW)) > 500, 60, 0.5):
+        page.screenshot(path=str(ARTIFACTS / "replay-no-robot.png"))
+        raise AssertionError("no robot drawn")
+    assert replay_time(page) == 0.0
+    still = page.screenshot(clip=VIEW)
+    page.get_by_role("button", name="▶ Play").click()
+    assert page_until(lambda: replay_time(page) > 2.0, 30, 0.2), replay_time(page)
+    page.get_by_role("button", name="Pause", exact=True).click()
+    expect(page.get_by_text("· paused ·", exact=False).first).to_be_visible(timeout=10_000)
+    paused = replay_time(page)
+    time.sleep(1.0)
+    assert replay_time(page) == paused  # paused: time stands
+    moved = page.screenshot(clip=VIEW)
+    assert violet(moved) > 500
+    assert moved != still, "the replayed robot did not move"
+    replayed = plot(page, "Replay: recorded values")
+    expect(replayed).to_contain_text("m1 joint.angle", timeout=15_000)
+    if not page_until(lambda: lines(replayed.locator("canvas").first.screenshot()) > 200, 20, 0.5):
+        page.screenshot(path=str(ARTIFACTS / "replay-no-line.png"))
+        replayed.screenshot(path=str(ARTIFACTS / "replay-no-line-replayed.png"))
+        raise AssertionError("no line in the replay plot")
+    expect(page.get_by_text(re.compile(r"m8\s*joint\.angle = ")).first).to_be_visible()  # the values listed
+    page.screenshot(path=str(ARTIFACTS / "replay-paused.png"))
+    # scrub back half a gait period (1 s): the time, the robot and the plot follow (a whole period back, the
+    # crawling robot can be drawn to the pixel as it was: a fresh-clone CI scrubbed from 2.0x s to 1 s)
+    target = round(paused - 0.5, 2)
+    box = _slider_box(page, "Replay time (s)")
+    plot_before = replayed.locator("canvas").first.screenshot()
+    for _ in range(3):  # a loaded page can lose the typed number before Enter commits it: type it again
+        box.click()
+        box.press("Control+a")
+        box.press_sequentially(f"{target:g}")
+        expect(box).to_have_value(f"{target:g}", timeout=10_000)
+        box.press("Enter")
+        if page_until(lambda: abs(replay_time(page) - target) < 0.02, 15, 0.2):
+            break
+    assert abs(replay_time(page) - target) < 0.02, replay_time(page)
+    assert page_until(lambda: page.screenshot(clip=VIEW) != moved, 20, 0.5), "the scrub did not move the robot"
+    assert page_until(lambda: replayed.locator("canvas").first.screenshot() != plot_before, 20, 0.5)
+    # play on from the scrubbed point (not from the end) at 0.25x, then at 4x to the end
+    choose(page, "Replay speed", "0.25x")
+    expect(page.get_by_text("· 0.25x", exact=False).first).to_be_visible(timeout=10_000)
+    page.get_by_role("button", name="▶ Play").click()
+    assert page_until(lambda: replay_time(page) > target + 0.05, 20, 0.2), replay_time(page)
+    slow = replay_time(page)
+    assert slow < target + 3.0, slow  # a quarter of the wall clock's pace, from the scrubbed point
+    choose(page, "Replay speed", "4x")
+    expect(page.get_by_text("■ ended", exact=False).first).to_be_visible(timeout=30_000)
+    assert replay_time(page) > 7.0
+    page.screenshot(path=str(ARTIFACTS / "replay-ended.png"))
+    page.get_by_role("button", name="Leave replay").click()
+    expect(page.get_by_text("Showing: Live", exact=False).first).to_be_visible(timeout=15_000)
+    expect(page.get_by_text("No recording open.").first).to_be_visible()
+    assert page_until(lambda: violet(page.screenshot(clip=VIEW)) < 50, 30, 0.5)  # no violet robot
+    browser.close()
     assert not any("Traceback" in line for line in log), "".join(log[-40:])
 
 
