@@ -119,6 +119,15 @@ def test_the_attribute_browser_refuses_a_fraction_for_an_integer_attribute(studi
     assert not any("Traceback" in line for line in log), "".join(log[-40:])
 
 
+def _refused(page, box, text: str, pattern: str) -> None:
+    """``text`` committed into the number box ``box`` is refused under it, in words matching ``pattern``."""
+    from playwright.sync_api import expect
+
+    expect(box).to_be_visible(timeout=15_000)
+    _commit(box, text)
+    expect(page.locator("[data-asm-refused]").first).to_have_text(re.compile(pattern), timeout=5_000)
+
+
 def test_a_sliders_box_refuses_more_decimals_than_its_slider_takes(studio_process, chromium):
     """A slider's number box rounded what was typed to its step without a word: 2.5 into State picked state 2, 0.25
     into the preview's Speed ran at 0.3. Refused under the box now, the slider where it was."""
@@ -129,19 +138,13 @@ def test_a_sliders_box_refuses_more_decimals_than_its_slider_takes(studio_proces
     url, _, log = studio_process
     browser, page = open_page(chromium, url)
     page.get_by_role("tab", name="Gait").click()
-    state = _slider_box(page, "State")
-    expect(state).to_be_visible(timeout=15_000)
-    _commit(state, "2.5")
-    expect(page.locator("[data-asm-refused]").first).to_have_text(
-        re.compile(r"not sent: 2\.5 is not a whole number: State takes whole numbers"), timeout=5_000)  # fmt: skip
-    _commit(state, "2")  # a whole number goes through: the refusal goes
+    _refused(
+        page, _slider_box(page, "State"), "2.5", r"not sent: 2\.5 is not a whole number: State takes whole numbers"
+    )
+    _commit(_slider_box(page, "State"), "2")  # a whole number goes through: the refusal goes
     expect(page.locator("[data-asm-refused]")).to_have_count(0, timeout=5_000)
     page.get_by_role("tab", name="Preview").click()
-    speed = _slider_box(page, "Speed")
-    expect(speed).to_be_visible(timeout=15_000)
-    _commit(speed, "0.25")
-    expect(page.locator("[data-asm-refused]").first).to_have_text(
-        re.compile(r"0\.25 has more decimal places than Speed takes \(1\)"), timeout=5_000)  # fmt: skip
+    _refused(page, _slider_box(page, "Speed"), "0.25", r"0\.25 has more decimal places than Speed takes \(1\)")
     page.screenshot(path=str(ARTIFACTS / "precision-slider-boxes.png"))
     browser.close()
     assert not any("Traceback" in line for line in log), "".join(log[-40:])
