@@ -135,17 +135,21 @@ class GaitDocument:
             raise ValueError(f"a state has no editable field {sorted(wrong)[0]!r}")
 
         def edit(data: dict[str, Any]) -> None:
-            data["automata"][automaton]["states"][index].update(changes)
+            _state(data, automaton, index).update(changes)
 
         self._apply(edit, field=("state", automaton, index, tuple(sorted(changes))), layout=layout)
 
     def add_state(self, automaton: str, index: int, *, layout: int | None = None) -> None:
         """Duplicate state ``index`` right after it."""
         self._apply(lambda d: d["automata"][automaton]["states"].insert(
-            index + 1, dict(d["automata"][automaton]["states"][index])), layout=layout, reshapes=True)  # fmt: skip
+            index + 1, dict(_state(d, automaton, index))), layout=layout, reshapes=True)  # fmt: skip
 
     def remove_state(self, automaton: str, index: int, *, layout: int | None = None) -> None:
-        self._apply(lambda d: d["automata"][automaton]["states"].pop(index), layout=layout, reshapes=True)
+        def edit(data: dict[str, Any]) -> None:
+            _state(data, automaton, index)  # there (two alike states are two states: pop, not remove)
+            data["automata"][automaton]["states"].pop(index)
+
+        self._apply(edit, layout=layout, reshapes=True)
 
     def set_module(self, module_id: int, field: str, value: Any, gait: str = FORWARD) -> None:
         """Set ``phase``, ``direction`` or ``automaton`` of one module's assignment in one gait of the program."""
@@ -170,7 +174,7 @@ class GaitDocument:
             raise ValueError(f"a state's event has no field {sorted(wrong)[0]!r}")
 
         def edit(data: dict[str, Any]) -> None:
-            state = data["automata"][automaton]["states"][index]
+            state = _state(data, automaton, index)
             for key in ("until", *EVENT_FIELDS):
                 state.pop(key, None)
             if until is not None:
@@ -184,7 +188,7 @@ class GaitDocument:
         refuse at the field, not altered."""
 
         def edit(data: dict[str, Any]) -> None:
-            state = data["automata"][automaton]["states"][index]
+            state = _state(data, automaton, index)
             if signal:
                 state["emit"] = signal
             else:
@@ -449,3 +453,12 @@ def _reshape(data: dict[str, Any], shape: str) -> None:
             robot["legs"] = next((n for n in (4, 2, 3) if isinstance(modules, int) and modules % n == 0), 2)
     else:
         robot.pop("legs", None)
+
+
+def _state(data: dict[str, Any], automaton: str, index: int) -> dict[str, Any]:
+    """State ``index`` of ``automaton``; ValueError naming it when the gait has no such state (a state clicked in a
+    view of states since removed said only "list index out of range"; a negative index would have edited another)."""
+    states = data["automata"].get(automaton, {}).get("states", [])
+    if not 0 <= index < len(states):
+        raise ValueError(f"{automaton} has no state S{index + 1}")
+    return states[index]

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import html
 import re
+from collections import deque
 from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -68,7 +69,12 @@ class GaitEditor:
                               layout=lambda: self.doc.layout)  # fmt: skip
         with grid_folder:  # hidden by the page's script, which writes a clicked state into it (web/page_script.py)
             self.clicked = gui.add_text(CLICKED_FIELD, "")
-        self.clicked.on_update(safe(lambda e: None if page.syncing else self.select_clicked(str(e.target.value))))
+        self._clicks: deque[tuple[int, tuple[str, int]]] = deque()
+        """States clicked in the 3D view, not selected yet (the click's callback runs later on viser's pool), each
+        with the count of selection moves when it came: see :meth:`_selected_as_it_came`."""
+        self._moves = 0
+        """States selected with the Automaton and State controls by a user, counted on viser's loop as they come."""
+        on_edit(self.clicked, self._select_click, context=self._click_came)
         with gui.add_folder("Selected state"):
             self.automaton = gui.add_dropdown("Automaton", ["-"])
             self.state_index = slider(gui, "State", min=1, max=2, initial_value=1)
@@ -77,9 +83,7 @@ class GaitEditor:
             # 0.999999); the document takes what was typed and the loader's problem shows at the field instead
             self.duration = number(gui, "Duration (s)", initial_value=0.1, step=0.005)
             self.interp = gui.add_dropdown("Interpolation", ["linear", "step"])
-            # the state selected, and the layout its index is of (an edit that comes before another's Remove is
-            # applied after it is refused, not moved onto the next state: GaitDocument.layout)
-            selected = lambda: (self.automaton.value, int(self.state_index.value) - 1, self.doc.layout)  # noqa: E731
+            selected = self._selected_as_it_came
             self.events = EventControls(gui, self.doc, edited=self.after_edit, on_edit=on_edit, selected=selected)
             self.state_problem = gui.add_markdown("")
             self.state_actions = gui.add_button_group("Edit states", ["Insert after", "Remove"])
@@ -144,6 +148,8 @@ class GaitEditor:
             field(control, lambda v, name=name, convert=convert: self.doc.set_robot(name, convert(v)))
         for control in (self.automaton, self.state_index, self.module_index):
             control.on_update(safe(lambda _: None if page.syncing else self.sync()))
+        for control in (self.automaton, self.state_index):
+            control.on_update(self._moved)
         on_edit(self.state_actions, self._on_states, click=True, context=selected)  # the state shown at the click
         page.on("pick", self.pick)
 
@@ -224,6 +230,35 @@ class GaitEditor:
             self.automaton.value = automaton
             self.state_index.max = max(2, index + 1, int(self.state_index.max))
             self.state_index.value = index + 1
+
+    def _selected_as_it_came(self) -> tuple[str, int, int]:
+        """The state an edit arriving now is of (read on viser's event loop as it arrives, GaitDocument.layout's
+        index included: an edit that comes before another's Remove is refused when applied after it, not moved onto
+        the next state). The state the controls show, unless a state clicked in the 3D view since is not selected
+        yet: an angle typed right after a click landed on the state selected before it. The controls moved after
+        the click win."""
+        if self._clicks and self._clicks[-1][0] == self._moves:
+            return (*self._clicks[-1][1], self.doc.layout)
+        return (str(self.automaton.value), int(self.state_index.value) - 1, self.doc.layout)
+
+    async def _moved(self, event: Any) -> None:
+        if event.client_id is not None:
+            self._moves += 1
+
+    def _click_came(self) -> tuple[str, int]:
+        """A click's state, read on viser's event loop as it arrives (checked against the gait when applied)."""
+        parts = str(self.clicked.value).split(":")
+        if len(parts) != 3 or not parts[1].isdigit():
+            raise ValueError(f"not a state of the gait: {str(self.clicked.value)[:80]!r}")
+        clicked = (parts[0], int(parts[1]))
+        self._clicks.append((self._moves, clicked))
+        return clicked
+
+    def _select_click(self, text: str, _clicked: tuple[str, int]) -> None:
+        """Select a clicked state, unless the user selected another with the controls after the click."""
+        moves, _ = self._clicks.popleft()
+        if moves == self._moves:
+            self.select_clicked(str(text))
 
     def select_clicked(self, text: str) -> None:
         """A state clicked in the page (``automaton:index:count`` from the page's script): select it. Anything else

@@ -109,10 +109,8 @@ class StateGrid:
                 changes["angle"] = angle
             if shown_duration is None or abs(duration - shown_duration) >= UNCHANGED:
                 changes["duration"] = duration
-            self._shown[(name, index)] = (
-                angle,
-                duration,
-            )  # what the page shows now: the resync sends only what differs
+            # what the page shows now: the resync sends only what differs
+            self._shown[(name, index)] = (angle, duration)
             if changes:
                 self._edited(name, index, changes, layout)
 

@@ -223,10 +223,13 @@ class Page:
         everything kept so far, in arrival order, since the pool may run a later edit's callback first (a neighbour
         typed, then its state: the state's callback, run first, was undone by the neighbour's older view)."""
 
+        def read_context() -> tuple[Any, ...]:
+            return () if context is None else (context(),)
+
         async def keep(event: Any) -> None:
             if event.client_id is not None:
                 try:
-                    kept: tuple[Any, ...] | BaseException = () if context is None else (context(),)
+                    kept: tuple[Any, ...] | BaseException = read_context()
                 except Exception as exc:  # told to that tab when applied, not lost on viser's loop
                     kept = exc
                 self._arrived.append((apply, event.client, event.target.value, kept))
@@ -234,16 +237,15 @@ class Page:
         def run(event: Any) -> None:
             if event.client_id is None:  # set from the server, synchronously in the setting thread
                 if not self.syncing:
-                    self.safe(lambda _: apply(event.target.value, *(() if context is None else (context(),))))(event)
+                    self.safe(lambda _: apply(event.target.value, *read_context()))(event)
                 return
             self._apply_arrived()
 
+        register = handle.on_click if click else handle.on_update
+        register(keep)
+        register(run)
         if click:
-            handle.on_click(keep)
-            handle.on_click(run)
             return lambda: None
-        handle.on_update(keep)
-        handle.on_update(run)
         self._kept[id(keep)] = (handle, keep)
 
         def forget() -> None:

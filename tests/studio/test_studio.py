@@ -126,6 +126,24 @@ def test_a_grid_row_is_one_undoable_edit():
         doc.update_state("wave", 0, {"until": "contact"})
 
 
+@pytest.mark.parametrize("index", [-1, -16, 16, 99])
+def test_an_edit_of_a_state_the_gait_does_not_have_is_refused_by_name_and_changes_nothing(index: int) -> None:
+    """A state index from the page that the gait has no state for: -1 edited the last state (Python's indexing),
+    16 said only "list index out of range" (a state clicked in a view of states since removed)."""
+    doc = GaitDocument(load(CATERPILLAR))
+    before = doc.data()
+    edits = (lambda: doc.set_state("wave", index, "angle", 5.0),
+             lambda: doc.update_state("wave", index, {"duration": 0.2}),
+             lambda: doc.set_event("wave", index, None), lambda: doc.set_emit("wave", index, 3),
+             lambda: doc.add_state("wave", index), lambda: doc.remove_state("wave", index))  # fmt: skip
+    for edit in edits:
+        with pytest.raises(ValueError, match=rf"wave has no state S{index + 1}$"):
+            edit()
+    with pytest.raises(ValueError, match="nope has no state S1"):
+        doc.set_state("nope", 0, "angle", 5.0)
+    assert doc.data() == before and not doc.undo()
+
+
 def _no_lookup(*_: object, **__: object) -> object:
     """A plot's lookup in tests that fill its series by hand: never called."""
     raise AssertionError("no lookup: the series are filled by hand")
