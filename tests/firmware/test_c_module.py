@@ -7,7 +7,7 @@ from __future__ import annotations
 import random
 import shutil
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 
 import can
 import pytest
@@ -213,15 +213,32 @@ def test_a_request_longer_than_the_module_takes_is_answered_too_large_from_its_f
 
 
 class _Recording(FakeDriver):
-    """A servo model that notes every command (wall time, degrees)."""
+    """A servo model that notes every command (time, degrees): the wall time it came, or, once :meth:`ticked_by` a
+    C module, the time of the firmware tick that computed it."""
 
     def __init__(self) -> None:
         super().__init__()
         self.commands: list[tuple[float, float]] = []
+        self.tick_time: Callable[[], float] = time.monotonic
 
     def command(self, degrees: float) -> None:
-        self.commands.append((time.monotonic(), degrees))
+        self.commands.append((self.tick_time(), degrees))
         super().command(degrees)
+
+    def ticked_by(self, module: CModule) -> None:
+        """Note each command at the time the firmware computed it (the ``now_ms`` its tick was given, on the
+        module's clock), not when this callback ran: the firmware's ctypes call releases the GIL and the callback
+        waits to take it back, so under a loaded suite a command was noted late, off the preview by more than a tick
+        (module 7 at 1.92 s commanded 3.3°, the preview 14-25° around then; stop 53's CI-like run)."""
+        now_ms = module._now_ms
+        ticked = [0]
+
+        def noted() -> int:
+            ticked[0] = now_ms()
+            return ticked[0]
+
+        module._now_ms = noted  # the clock the firmware is given for its frames and ticks
+        self.tick_time = lambda: module._t0 + ticked[0] / 1000
 
 
 @pytest.mark.realtime  # its modules run on the wall clock: `make test` runs it after the rest
@@ -250,6 +267,7 @@ def test_preview_equals_deployment_for_c_and_python_modules_alike() -> None:
             if a.id % 2:
                 driver = _Recording()
                 c_modules[a.id] = CModule(f"m{a.id}", a.id, driver=driver, interface="virtual", channel=channel)
+                driver.ticked_by(c_modules[a.id])
                 records[a.id] = driver.commands
             else:
                 node = Node(f"m{a.id}", CanTransport(a.id, interface="virtual", channel=channel, **FAST_BEATS))
