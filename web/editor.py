@@ -16,6 +16,7 @@ import html
 import re
 from collections import deque
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -38,6 +39,18 @@ from .state_timeline import WINDOW_SECONDS, legend, state_timeline
 
 if TYPE_CHECKING:
     from .page import Page
+
+
+@dataclass(eq=False)
+class _Click:
+    """A state clicked in the 3D view, not selected yet: by which tab (None: set from the server), after how many
+    selection moves, the state (automaton, 0-based index) and the layout its index is of (GaitDocument.layout).
+    Compared by identity: two alike clicks are two."""
+
+    client: int | None
+    moves: int
+    state: tuple[str, int]
+    layout: int
 
 
 class GaitEditor:
@@ -69,9 +82,9 @@ class GaitEditor:
                               layout=lambda: self.doc.layout)  # fmt: skip
         with grid_folder:  # hidden by the page's script, which writes a clicked state into it (web/page_script.py)
             self.clicked = gui.add_text(CLICKED_FIELD, "")
-        self._clicks: deque[tuple[int, tuple[str, int]]] = deque()
-        """States clicked in the 3D view, not selected yet (the click's callback runs later on viser's pool), each
-        with the count of selection moves when it came: see :meth:`_selected_as_it_came`."""
+        self._clicks: deque[_Click] = deque()
+        """States clicked in the 3D view and not selected yet (a click's callback runs later on viser's pool): see
+        :meth:`_selected_as_it_came`."""
         self._moves = 0
         """States selected with the Automaton and State controls by a user, counted on viser's loop as they come."""
         on_edit(self.clicked, self._select_click, context=self._click_came)
@@ -149,7 +162,7 @@ class GaitEditor:
         for control in (self.automaton, self.state_index, self.module_index):
             control.on_update(safe(lambda _: None if page.syncing else self.sync()))
         for control in (self.automaton, self.state_index):
-            control.on_update(self._moved)
+            page.on_arrival(control, self._moved)
         on_edit(self.state_actions, self._on_states, click=True, context=selected)  # the state shown at the click
         page.on("pick", self.pick)
 
@@ -234,31 +247,38 @@ class GaitEditor:
     def _selected_as_it_came(self) -> tuple[str, int, int]:
         """The state an edit arriving now is of (read on viser's event loop as it arrives, GaitDocument.layout's
         index included: an edit that comes before another's Remove is refused when applied after it, not moved onto
-        the next state). The state the controls show, unless a state clicked in the 3D view since is not selected
-        yet: an angle typed right after a click landed on the state selected before it. The controls moved after
-        the click win."""
-        if self._clicks and self._clicks[-1][0] == self._moves:
-            return (*self._clicks[-1][1], self.doc.layout)
+        the next state). The state the controls show, unless this edit's tab clicked a state in the 3D view since
+        that is not selected yet: an angle typed right after a click landed on the state selected before it. A
+        selection made with the controls after the click wins; another tab's click is not this tab's selection
+        (its Remove took the clicked state, not the one its controls showed)."""
+        client = self.page.arriving_client()
+        for click in reversed(self._clicks):
+            if click.client == client and click.moves == self._moves:
+                return (*click.state, self.doc.layout)
         return (str(self.automaton.value), int(self.state_index.value) - 1, self.doc.layout)
 
-    async def _moved(self, event: Any) -> None:
-        if event.client_id is not None:
-            self._moves += 1
+    def _moved(self, _: Any) -> None:
+        self._moves += 1
 
-    def _click_came(self) -> tuple[str, int]:
+    def _click_came(self) -> _Click:
         """A click's state, read on viser's event loop as it arrives (checked against the gait when applied)."""
         parts = str(self.clicked.value).split(":")
         if len(parts) != 3 or not parts[1].isdigit():
             raise ValueError(f"not a state of the gait: {str(self.clicked.value)[:80]!r}")
-        clicked = (parts[0], int(parts[1]))
-        self._clicks.append((self._moves, clicked))
-        return clicked
+        click = _Click(self.page.arriving_client(), self._moves, (parts[0], int(parts[1])), self.doc.layout)
+        self._clicks.append(click)
+        return click
 
-    def _select_click(self, text: str, _clicked: tuple[str, int]) -> None:
-        """Select a clicked state, unless the user selected another with the controls after the click."""
-        moves, _ = self._clicks.popleft()
-        if moves == self._moves:
-            self.select_clicked(str(text))
+    def _select_click(self, text: str, click: _Click) -> None:
+        """Select a clicked state, unless a selection was made with the controls after the click, or its states
+        moved since (another tab's Remove: its index is another state's now, so the tab is asked to click again);
+        it stays pending until the controls show it, for the edits that arrive meanwhile."""
+        try:
+            if click.moves == self._moves:
+                self.doc.check_layout(click.layout)
+                self.select_clicked(str(text))
+        finally:
+            self._clicks.remove(click)
 
     def select_clicked(self, text: str) -> None:
         """A state clicked in the page (``automaton:index:count`` from the page's script): select it. Anything else

@@ -124,6 +124,7 @@ class Page:
         self._arrived: collections.deque[tuple[Callable[..., None], Any, Any, Any]] = collections.deque()
         """Edits kept by :meth:`on_edit` on viser's loop and not applied yet: (apply, tab, value, context or error)."""
         self._applying = threading.Lock()
+        self._arriving = threading.local()  # .client: the tab whose edit's context is read (see arriving_client)
         self._kept: dict[int, tuple[Any, Callable[..., Any]]] = {}  # id(keep callback) → (handle, keep callback)
         """The controls whose edits :meth:`on_edit` keeps, and its keeping callback (see :meth:`close`)."""
         self.last_editor: int | None = None
@@ -223,13 +224,19 @@ class Page:
         everything kept so far, in arrival order, since the pool may run a later edit's callback first (a neighbour
         typed, then its state: the state's callback, run first, was undone by the neighbour's older view)."""
 
-        def read_context() -> tuple[Any, ...]:
-            return () if context is None else (context(),)
+        def read_context(client_id: int | None) -> tuple[Any, ...]:
+            if context is None:
+                return ()
+            self._arriving.client = client_id
+            try:
+                return (context(),)
+            finally:
+                self._arriving.client = None
 
         async def keep(event: Any) -> None:
             if event.client_id is not None:
                 try:
-                    kept: tuple[Any, ...] | BaseException = read_context()
+                    kept: tuple[Any, ...] | BaseException = read_context(event.client_id)
                 except Exception as exc:  # told to that tab when applied, not lost on viser's loop
                     kept = exc
                 self._arrived.append((apply, event.client, event.target.value, kept))
@@ -237,7 +244,7 @@ class Page:
         def run(event: Any) -> None:
             if event.client_id is None:  # set from the server, synchronously in the setting thread
                 if not self.syncing:
-                    self.safe(lambda _: apply(event.target.value, *read_context()))(event)
+                    self.safe(lambda _: apply(event.target.value, *read_context(None)))(event)
                 return
             self._apply_arrived()
 
@@ -252,6 +259,23 @@ class Page:
             self._kept.pop(id(keep), None)
 
         return forget
+
+    def arriving_client(self) -> int | None:
+        """The tab whose edit is arriving, read inside an :meth:`on_edit` context (None there for a value set from
+        the server, and anywhere else): what a context is of may depend on what that tab did before it."""
+        return getattr(self._arriving, "client", None)
+
+    def on_arrival(self, handle: Any, note: Callable[[Any], None]) -> None:
+        """Call ``note`` with each user's event of ``handle`` on viser's loop as it arrives, before any callback
+        of it on the pool: for what an :meth:`on_edit` context must know in arrival order (the editor counts the
+        selection moves that come after a click). Taken back by :meth:`close`."""
+
+        async def keep(event: Any) -> None:
+            if event.client_id is not None:
+                note(event)
+
+        handle.on_update(keep)
+        self._kept[id(keep)] = (handle, keep)
 
     def on_command(self, command: Any, apply: Callable[[], None]) -> None:
         """Run ``apply`` when a command palette hotkey fires, in its place among the page's edits (see

@@ -4,6 +4,7 @@ runs the same callbacks a user's edit does (test_drive_e2e.py drives the page in
 from __future__ import annotations
 
 import asyncio
+import threading
 from types import SimpleNamespace
 from typing import Any
 
@@ -216,6 +217,83 @@ def _wave_state_selected(app, monkeypatch, state: int, *tabs: int) -> _HeldPool:
 
 def _tab(client_id: int) -> SimpleNamespace:
     return SimpleNamespace(client_id=client_id, add_notification=lambda *a, **k: None)
+
+
+def test_a_click_set_by_the_server_leaves_a_users_pending_click_to_itself(studio, monkeypatch) -> None:
+    """A review of stop 53's click: a user's click, then the user's slider (the click loses), then a click set by
+    the page's own action; the server's click took the user's pending entry and was judged by its count."""
+    app = studio.app
+    editor = app.editor
+    pool = _wave_state_selected(app, monkeypatch, 1, 7)
+    _arrives(app, editor.clicked, "wave:3:8")
+    _arrives(app, editor.state_index, 2.0)
+    editor.clicked.value = "wave:5:9"  # outside programmatic: applied at once, in this thread
+    assert int(editor.state_index.value) == 6
+    for fn, args in pool.held:
+        fn(*args)
+    assert int(editor.state_index.value) == 6
+
+
+def test_an_edit_arriving_while_its_click_is_being_selected_is_the_clicked_states(studio, monkeypatch) -> None:
+    """A review of stop 53's click: the click's entry went before the controls showed its state, so an angle that
+    arrived while the pool selected it (waiting for the page's sync lock, which the 20 Hz refresh holds) landed on
+    the state selected before."""
+    app = studio.app
+    editor = app.editor
+    pool = _wave_state_selected(app, monkeypatch, 1, 7)
+    before = _wave_rows(app)
+    _arrives(app, editor.clicked, "wave:3:8")
+    entered, release = threading.Event(), threading.Event()
+    select = editor._select
+
+    def held_select(*args: Any) -> None:
+        entered.set()
+        release.wait(10)
+        select(*args)
+
+    monkeypatch.setattr(editor, "_select", held_select)
+    ((fn, args),) = pool.held
+    pool.held.clear()
+    selecting = threading.Thread(target=fn, args=args)
+    selecting.start()
+    try:
+        assert entered.wait(10)
+        _arrives(app, editor.angle, 33.0)
+    finally:
+        release.set()
+        selecting.join(10)
+    for fn, args in pool.held:
+        fn(*args)
+    rows = _wave_rows(app)
+    assert rows[3][0] == 33.0 and rows[0] == before[0], rows
+
+
+def test_another_tabs_edit_is_of_what_its_controls_show_not_this_tabs_pending_click(studio, monkeypatch) -> None:
+    """A review of stop 53's click: tab 7 clicked S4 in the view, and tab 8, its controls still showing S1, clicked
+    Remove: S4 went. Only the clicking tab's edits follow its click."""
+    app = studio.app
+    editor = app.editor
+    pool = _wave_state_selected(app, monkeypatch, 1, 7, 8)
+    before = _wave_rows(app)
+    _arrives(app, editor.clicked, "wave:3:8", client_id=7)
+    _arrives(app, editor.state_actions, "Remove", client_id=8)
+    for fn, args in pool.held:
+        fn(*args)
+    assert _wave_rows(app) == before[1:]
+
+
+def test_a_click_whose_states_moved_before_it_was_selected_selects_nothing_and_asks_again(studio, monkeypatch) -> None:
+    """A click's index is of the states as its tab showed them: when they moved before it was selected (a gait
+    opened from the library, which is not an edit kept in arrival order), it would select another state."""
+    app = studio.app
+    editor = app.editor
+    pool = _wave_state_selected(app, monkeypatch, 2, 7)
+    _arrives(app, editor.clicked, "wave:3:8")
+    app.doc.remove_state("wave", 0)  # the states move under the pending click
+    for fn, args in pool.held:
+        fn(*args)
+    assert int(editor.state_index.value) == 2
+    assert "make it again" in app.page.status.content, app.page.status.content
 
 
 @pytest.mark.parametrize("order", ["arrival", "reversed"])
@@ -505,3 +583,6 @@ def test_a_control_set_after_the_page_closed_is_still_set(studio) -> None:
     app.server.stop()
     app.editor.program.sequence.value = "forward 4"
     assert app.doc.gait().sequence == [("forward", 4)]
+    app.editor.state_index.value = 3  # the selection's arrival counter (Page.on_arrival) is taken back too
+    app.editor.clicked.value = "wave:4:1"
+    assert app.editor.state_index.value == 5
