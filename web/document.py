@@ -304,6 +304,11 @@ class GaitDocument:
 
         self._apply(edit)
 
+    def check_state(self, automaton: str, index: int) -> None:
+        """ValueError naming it unless the gait has state ``index`` (0-based) of ``automaton``."""
+        with self._lock:
+            _state(self._data, automaton, index)
+
     def check_layout(self, layout: int | None) -> None:
         """ValueError unless ``layout`` is None or the present one (see ``layout``)."""
         if layout is not None and layout != self.layout:

@@ -53,6 +53,15 @@ class _Click:
     layout: int
 
 
+def _clicked_state(text: str) -> tuple[str, int]:
+    """(automaton, 0-based index) of ``automaton:index:count``, as the page's script writes a clicked state;
+    ValueError for anything else (the gait is asked whether it has that state when it is selected)."""
+    parts = text.split(":")
+    if len(parts) != 3 or not parts[1].isdigit():
+        raise ValueError(f"not a state of the gait: {text[:80]!r}")
+    return parts[0], int(parts[1])
+
+
 class GaitEditor:
     """The controls of the Gait tab of ``page``; the control table and the expanded table go into the page's
     floating panel (``table_tab``, ``expanded_tab``). See the module docstring."""
@@ -262,35 +271,30 @@ class GaitEditor:
 
     def _click_came(self) -> _Click:
         """A click's state, read on viser's event loop as it arrives (checked against the gait when applied)."""
-        parts = str(self.clicked.value).split(":")
-        if len(parts) != 3 or not parts[1].isdigit():
-            raise ValueError(f"not a state of the gait: {str(self.clicked.value)[:80]!r}")
-        click = _Click(self.page.arriving_client(), self._moves, (parts[0], int(parts[1])), self.doc.layout)
+        state = _clicked_state(str(self.clicked.value))
+        click = _Click(self.page.arriving_client(), self._moves, state, self.doc.layout)
         self._clicks.append(click)
         return click
 
-    def _select_click(self, text: str, click: _Click) -> None:
+    def _select_click(self, _text: str, click: _Click) -> None:
         """Select a clicked state, unless a selection was made with the controls after the click, or its states
         moved since (another tab's Remove: its index is another state's now, so the tab is asked to click again);
         it stays pending until the controls show it, for the edits that arrive meanwhile."""
         try:
             if click.moves == self._moves:
                 self.doc.check_layout(click.layout)
-                self.select_clicked(str(text))
+                self._select_state(*click.state)
         finally:
             self._clicks.remove(click)
 
     def select_clicked(self, text: str) -> None:
         """A state clicked in the page (``automaton:index:count`` from the page's script): select it. Anything else
         — not three parts, an automaton or state the gait does not have — is refused, nothing selected."""
-        parts = text.split(":")
-        automata = self.doc.data()["automata"]
-        if len(parts) != 3 or parts[0] not in automata or not parts[1].isdigit():
-            raise ValueError(f"not a state of the gait: {text[:80]!r}")
-        index = int(parts[1])
-        if index >= len(automata[parts[0]]["states"]):
-            raise ValueError(f"{parts[0]} has no state S{index + 1}")
-        self._select(parts[0], index)
+        self._select_state(*_clicked_state(text))
+
+    def _select_state(self, automaton: str, index: int) -> None:
+        self.doc.check_state(automaton, index)
+        self._select(automaton, index)
         self.sync()
 
     def after_edit(self) -> None:
