@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import subprocess
+import sys
 import threading
 import time
+from pathlib import Path
 
 import pytest
 from hypothesis import HealthCheck, settings
@@ -15,11 +18,36 @@ bytes that took 329 ms once under the suite's load and 0.13 ms when replayed (te
 its too_slow health check times the drawing of examples the same way. Timing is for bench/, as ratios."""
 
 
+CHECKOUT = Path(__file__).resolve().parents[1]
+NOT_SOURCE = frozenset({"build", "docs", "firmware", "recordings", "typings"})
+"""The checkout's folders of no module of ours (and any hidden one: the virtual environment, which pip compiled)."""
+
+
+def compile_checkout() -> int:
+    """Write the bytecode of the checkout's modules, once, before any test starts a process; compileall's status.
+
+    Where ``PYTHONDONTWRITEBYTECODE`` is set (it is on the machines the suite runs on) no process writes what it
+    compiles, so every studio, robot and tool the suite starts compiled ~150 of our modules from source: 0.2-0.3
+    CPU-s each, a few hundred processes a run (docs/benchmarks.md, "The suite's time", stop 54). ``compileall``
+    writes it whatever that variable says and skips what is current: ~0.2 s once it is there."""
+    folders = sorted(
+        str(p) for p in CHECKOUT.iterdir() if p.is_dir() and p.name[0] not in "._" and p.name not in NOT_SOURCE
+    )
+    run = subprocess.run(
+        [sys.executable, "-m", "compileall", "-q", "-j", "0", *folders], capture_output=True, timeout=300
+    )
+    return run.returncode
+
+
 def pytest_configure(config: pytest.Config) -> None:
-    """The folder the browser tests write their screenshots to (tests/helpers.py ARTIFACTS), there before any test:
-    a test run alone on a fresh clone found it missing when an earlier test had not made it."""
+    """Before any test (in the one process that starts pytest-xdist's workers, or the only one): the checkout's
+    bytecode written (:func:`compile_checkout`), and the folder the browser tests write their screenshots to
+    (tests/helpers.py ARTIFACTS): a test run alone on a fresh clone found it missing when an earlier test had not made
+    it."""
     from .helpers import ARTIFACTS
 
+    if not hasattr(config, "workerinput"):
+        compile_checkout()
     ARTIFACTS.mkdir(exist_ok=True)
 
 

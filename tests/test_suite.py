@@ -8,6 +8,7 @@ over the workers like any others. This test runs a small suite the way `make tes
 
 from __future__ import annotations
 
+import os
 import re
 import subprocess
 import sys
@@ -59,3 +60,35 @@ def test_hypothesis_judges_no_example_by_the_wall_clock() -> None:
         time.sleep(0.25)
 
     slow()
+
+
+COMPILES = """
+import importlib._bootstrap_external as external
+import sys
+
+compiled = []
+source_to_code = external.SourceLoader.source_to_code
+
+
+def noted(self, data, path, *, _optimize=-1):
+    compiled.append(path)
+    return source_to_code(self, data, path, _optimize=_optimize)
+
+
+external.SourceLoader.source_to_code = noted
+import server.robot, server.studio, web.app  # noqa: E401, F401
+print(sorted(path for path in compiled if path.startswith(sys.argv[1])))
+"""
+
+
+def test_a_studio_or_robot_the_suite_starts_compiles_none_of_our_modules_from_source() -> None:
+    """With ``PYTHONDONTWRITEBYTECODE`` set, as on the machines the suite runs on, every process compiled ~150 of our
+    modules from source (0.2-0.3 CPU-s each, a few hundred processes a run) until tests/conftest.py wrote their
+    bytecode before the tests (``pytest_configure``)."""
+    from .conftest import CHECKOUT
+
+    env = {**os.environ, "PYTHONDONTWRITEBYTECODE": "1"}
+    run = subprocess.run([sys.executable, "-c", COMPILES, str(CHECKOUT)], cwd=CHECKOUT, env=env, capture_output=True,
+                         text=True, timeout=120)  # fmt: skip
+    assert run.returncode == 0, run.stderr
+    assert run.stdout.strip() == "[]", f"compiled from source: {run.stdout}"
