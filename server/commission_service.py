@@ -56,10 +56,11 @@ MOVE_TIMEOUT = 5.0
 ARRIVED = 1.0
 """Degrees short of the wiggle a joint counts as there (the answer said 8° of a 15° wiggle: it stopped watching
 halfway, the joint still on its way)."""
-SETTLED = 1.0
+SETTLED = 2.0
 """Seconds without progress after which a joint past halfway counts as stopped short. (0.4 s read a joint still on
 its way as stopped at 12.5° of 15° when the emulated boards ran on a loaded machine: a fresh-clone run with four
-test workers.)"""
+test workers; 1 s read one as stopped at 13.27° in a three-worker run: the robot's real-time physics, starved of the
+CPU, held it still longer. A joint a limit holds short is answered a second later for it.)"""
 FULL_MOVE_TIMEOUT = 2 * MOVE_TIMEOUT
 """Seconds a wiggled joint past halfway and still moving is watched, at most, before what it moved is the answer."""
 ASM_TIMEOUT = 5.0
