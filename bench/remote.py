@@ -36,6 +36,9 @@ ROUNDS = 10
 GETS = 500
 BURST = 20000
 PAYLOAD = b"\x00\x00\xc0\x3f"
+RAW_GET_TIMEOUT = 5.0
+"""Seconds a raw get waits for the bench server (Zenoh's default is 10: with the server gone, a run's 5,000 raw gets
+waited 10 s each, and a stop-54 run hung for ten minutes instead of failing)."""
 FLOAT32 = struct.Struct("<f")
 
 
@@ -93,6 +96,15 @@ def serve(endpoint: str) -> None:
     sys.stdin.read()  # until the benchmark closes our stdin
     queryable.undeclare()
     node.close()
+
+
+def raw_get(session: zenoh.Session, timeout: float = RAW_GET_TIMEOUT) -> None:
+    """One raw Zenoh get of the bench server's queryable, its replies read to the end; no reply is an error."""
+    answered = False
+    for _ in session.get("bench/raw/get", timeout=timeout):
+        answered = True
+    if not answered:
+        raise RuntimeError(f"bench/raw/get: no reply in {timeout:g} s (is the bench server running?)")
 
 
 def timed_gets(get) -> float:
@@ -157,10 +169,6 @@ def main() -> None:
         stream = node.lookup("bench-server", "stream", timeout=5)
         burst = node.lookup("bench-server", "burst", timeout=5)
 
-        def raw_get() -> None:
-            for _ in session.get("bench/raw/get"):
-                pass
-
         def raw_subscribe(callback):
             unpack = FLOAT32.unpack
 
@@ -179,13 +187,13 @@ def main() -> None:
         def start(mode: str):
             return lambda: burst.start(BURST, mode, wait=True)
 
-        timed_gets(raw_get), timed_gets(angle.get)  # warm up both paths
+        timed_gets(lambda: raw_get(session)), timed_gets(angle.get)  # warm up both paths
         raw_rtt = asm_rtt = float("inf")
         raw_rate = asm_rate = 0.0
         raw_count = asm_count = 0
         raw_cpu = asm_cpu = math.inf
         for _ in range(ROUNDS):
-            raw_rtt = min(raw_rtt, timed_gets(raw_get))
+            raw_rtt = min(raw_rtt, timed_gets(lambda: raw_get(session)))
             asm_rtt = min(asm_rtt, timed_gets(angle.get))
         for _ in range(ROUNDS):
             rate, count, cpu = receive_rate(start("raw"), raw_subscribe)

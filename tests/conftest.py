@@ -26,7 +26,7 @@ NOT_SOURCE = frozenset({"build", "docs", "firmware", "recordings", "typings"})
 def compile_checkout() -> int:
     """Write the bytecode of the checkout's modules, once, before any test starts a process; compileall's status.
 
-    Where ``PYTHONDONTWRITEBYTECODE`` is set (it is on the machines the suite runs on) no process writes what it
+    Where ``PYTHONDONTWRITEBYTECODE`` is set (it is in this machine's environment) no process writes what it
     compiles, so every studio, robot and tool the suite starts compiled ~150 of our modules from source: 0.2-0.3
     CPU-s each, a few hundred processes a run (docs/benchmarks.md, "The suite's time", stop 54). ``compileall``
     writes it whatever that variable says and skips what is current: ~0.2 s once it is there."""

@@ -82,7 +82,7 @@ print(sorted(path for path in compiled if path.startswith(sys.argv[1])))
 
 
 def test_a_studio_or_robot_the_suite_starts_compiles_none_of_our_modules_from_source() -> None:
-    """With ``PYTHONDONTWRITEBYTECODE`` set, as on the machines the suite runs on, every process compiled ~150 of our
+    """With ``PYTHONDONTWRITEBYTECODE`` set, as in this machine's environment, every process compiled ~150 of our
     modules from source (0.2-0.3 CPU-s each, a few hundred processes a run) until tests/conftest.py wrote their
     bytecode before the tests (``pytest_configure``)."""
     from .conftest import CHECKOUT
