@@ -20,23 +20,26 @@ its too_slow health check times the drawing of examples the same way. Timing is 
 
 CHECKOUT = Path(__file__).resolve().parents[1]
 NOT_SOURCE = frozenset({"build", "docs", "firmware", "recordings", "typings"})
-"""The checkout's folders of no module of ours (and any hidden one: the virtual environment, which pip compiled)."""
+"""The checkout's folders of no module of ours; hidden ones and those starting with ``_`` are left out too (the
+virtual environment among them: pip compiled it)."""
 
 
-def compile_checkout() -> int:
-    """Write the bytecode of the checkout's modules, once, before any test starts a process; compileall's status.
+def source_folders(root: Path = CHECKOUT) -> list[Path]:
+    """The top-level folders of ``root`` whose modules the suite's processes import."""
+    return sorted(p for p in root.iterdir() if p.is_dir() and p.name[0] not in "._" and p.name not in NOT_SOURCE)
+
+
+def compile_checkout(root: Path = CHECKOUT) -> subprocess.CompletedProcess[str]:
+    """Write the bytecode of the checkout's modules, once, before any test starts a process.
 
     Where ``PYTHONDONTWRITEBYTECODE`` is set (it is in this machine's environment) no process writes what it
     compiles, so every studio, robot and tool the suite starts compiled ~150 of our modules from source: 0.2-0.3
     CPU-s each, a few hundred processes a run (docs/benchmarks.md, "The suite's time", stop 54). ``compileall``
-    writes it whatever that variable says and skips what is current: ~0.2 s once it is there."""
-    folders = sorted(
-        str(p) for p in CHECKOUT.iterdir() if p.is_dir() and p.name[0] not in "._" and p.name not in NOT_SOURCE
-    )
-    run = subprocess.run(
-        [sys.executable, "-m", "compileall", "-q", "-j", "0", *folders], capture_output=True, timeout=300
-    )
-    return run.returncode
+    writes it whatever that variable says and skips what is current: ~0.2 s once it is there. Timestamp bytecode
+    even when ``SOURCE_DATE_EPOCH`` is set: compileall sees hash-checked bytecode as stale and wrote it all again."""
+    folders = [str(p) for p in source_folders(root)]
+    command = [sys.executable, "-m", "compileall", "-q", "-j", "0", "--invalidation-mode", "timestamp", *folders]
+    return subprocess.run(command, capture_output=True, text=True, timeout=300)
 
 
 def pytest_configure(config: pytest.Config) -> None:
@@ -47,7 +50,10 @@ def pytest_configure(config: pytest.Config) -> None:
     from .helpers import ARTIFACTS
 
     if not hasattr(config, "workerinput"):
-        compile_checkout()
+        compiled = compile_checkout()
+        if compiled.returncode != 0:  # the suite runs on; its processes compile what was not written
+            said = (compiled.stdout + compiled.stderr).strip().splitlines()[-5:]
+            config.issue_config_time_warning(pytest.PytestWarning("compileall: " + " | ".join(said)), stacklevel=2)
     ARTIFACTS.mkdir(exist_ok=True)
 
 

@@ -8,6 +8,7 @@ over the workers like any others. This test runs a small suite the way `make tes
 
 from __future__ import annotations
 
+import ast
 import os
 import re
 import subprocess
@@ -64,7 +65,6 @@ def test_hypothesis_judges_no_example_by_the_wall_clock() -> None:
 
 COMPILES = """
 import importlib._bootstrap_external as external
-import sys
 
 compiled = []
 source_to_code = external.SourceLoader.source_to_code
@@ -76,19 +76,42 @@ def noted(self, data, path, *, _optimize=-1):
 
 
 external.SourceLoader.source_to_code = noted
-import server.robot, server.studio, web.app  # noqa: E401, F401
-print(sorted(path for path in compiled if path.startswith(sys.argv[1])))
+import {modules}  # noqa: E401, F401
+print(sorted(compiled))
 """
+
+
+def _compiled_from_source(root: Path, modules: str, folders: list[Path]) -> list[str]:
+    """What importing ``modules`` in a fresh process (from ``root``, ``PYTHONDONTWRITEBYTECODE`` set) compiles from
+    source among ``folders``."""
+    env = {**os.environ, "PYTHONDONTWRITEBYTECODE": "1"}
+    run = subprocess.run([sys.executable, "-c", COMPILES.format(modules=modules)], cwd=root, env=env,
+                         capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert run.returncode == 0, run.stderr
+    inside = tuple(f"{folder}{os.sep}" for folder in folders)
+    return [path for path in ast.literal_eval(run.stdout.strip()) if path.startswith(inside)]
 
 
 def test_a_studio_or_robot_the_suite_starts_compiles_none_of_our_modules_from_source() -> None:
     """With ``PYTHONDONTWRITEBYTECODE`` set, as in this machine's environment, every process compiled ~150 of our
     modules from source (0.2-0.3 CPU-s each, a few hundred processes a run) until tests/conftest.py wrote their
-    bytecode before the tests (``pytest_configure``)."""
-    from .conftest import CHECKOUT
+    bytecode before the tests (``pytest_configure``). On a checkout whose bytecode is current anyway this passes
+    without that hook; the next test is of the hook's own work."""
+    from .conftest import CHECKOUT, source_folders
 
-    env = {**os.environ, "PYTHONDONTWRITEBYTECODE": "1"}
-    run = subprocess.run([sys.executable, "-c", COMPILES, str(CHECKOUT)], cwd=CHECKOUT, env=env, capture_output=True,
-                         text=True, timeout=120)  # fmt: skip
-    assert run.returncode == 0, run.stderr
-    assert run.stdout.strip() == "[]", f"compiled from source: {run.stdout}"
+    compiled = _compiled_from_source(CHECKOUT, "server.robot, server.studio, web.app", source_folders())
+    assert compiled == [], f"compiled from source: {compiled}"
+
+
+def test_compile_checkout_writes_what_a_process_then_reads(tmp_path: Path) -> None:
+    from .conftest import compile_checkout, source_folders
+
+    for folder in ("pkg", "docs", ".hidden"):
+        (tmp_path / folder).mkdir()
+        (tmp_path / folder / "__init__.py").write_text("VALUE = 1\n", encoding="utf-8")
+    (tmp_path / "pkg" / "mod.py").write_text("from . import VALUE\n", encoding="utf-8")
+    assert [p.name for p in source_folders(tmp_path)] == ["pkg"]
+    assert _compiled_from_source(tmp_path, "pkg.mod", [tmp_path / "pkg"]) != [], "compiled before: nothing written"
+    assert compile_checkout(tmp_path).returncode == 0
+    assert _compiled_from_source(tmp_path, "pkg.mod", [tmp_path / "pkg"]) == []
+    assert not list((tmp_path / "docs").glob("__pycache__")), "a folder of no module is left alone"
