@@ -320,6 +320,7 @@ def test_a_board_takes_no_part_of_an_update_while_its_gait_runs_even_one_started
     group Start needs no lease) was under the update's reset. The board refuses image pieces and the install with
     LOCKED while its gait runs: the erase would stall its control loop, the reset drop its joint mid-step."""
     from asm_module.drivers import FakeDriver
+    from asm_module.halts import read_halts
     from asm_module.runtime import ModuleRuntime
     from asm_py.errors import Locked
     from gaits.deploy import BROADCAST, deploy, stop_all
@@ -333,10 +334,9 @@ def test_a_board_takes_no_part_of_an_update_while_its_gait_runs_even_one_started
     try:
         assert wait_until(lambda: {"m1", "m2"} <= set(tool.discover()), timeout=30)
         service = tool.lookup("m1", "gait.service", timeout=5)
-        services = [service, tool.lookup("m2", "gait.service", timeout=5)]
 
-        def stopped() -> bool:  # on both: the update looks at the whole robot (m2 stopped a moment late under load)
-            return not any(s.running for s in services)  # pyright: ignore[reportAttributeAccessIssue]
+        def stopped() -> bool:  # as the update reads the whole robot (m2 stopped a moment after m1 under load)
+            return not read_halts(tool, ["m1", "m2"], 5).walking
 
         deploy(tool, _two_module_caterpillar(), timeout=3.0)
         assert service.running  # pyright: ignore[reportAttributeAccessIssue]
