@@ -80,6 +80,14 @@ def group_id(group: str, table: Mapping[str, int] | None = None) -> int:
     return zlib.crc32(group.encode("utf-8")) & 0xFF
 
 
+def _next_on_grid(now: float, step: float) -> float:
+    """The first k·step after ``now``. Each transport of a process computes the same float for the same instant
+    (k·period is k·(period/4)·4 to the last bit), so their timers fall due together and one wake serves them all;
+    a sum of steps, or a quarter period counted from each node's own opening, drifted apart (issue 31)."""
+    wake = (now // step + 1) * step
+    return wake if wake > now else wake + step
+
+
 class CanTransport(FrameSender, Transport):
     """A node's attachment to a CAN bus; see the module docstring."""
 
@@ -453,9 +461,9 @@ class CanTransport(FrameSender, Transport):
         if self._stop.is_set():
             return None
         now = time.monotonic()
+        period = self.heartbeat_period
         if now >= self._next_beat:
-            period = self.heartbeat_period
-            self._next_beat += period * max(1, int((now - self._next_beat) / period) + 1)
+            self._next_beat = _next_on_grid(now, period)
             try:
                 self._send_heartbeat()
             except Exception:
@@ -467,5 +475,5 @@ class CanTransport(FrameSender, Transport):
             self.reassembler.expire(now)
             partial = self.reassembler.partials > 0
         if self._alive or partial:
-            return max(due + self.heartbeat_period / 4, now)
+            return _next_on_grid(now, period / 4)
         return max(self._next_beat, now)
