@@ -5,8 +5,11 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import signal
 import sys
+import threading
+import time
 from pathlib import Path
 from typing import TextIO
 
@@ -29,11 +32,34 @@ def _interrupt_once() -> list[int]:
     def interrupt(number: int, _: object) -> None:
         _ignore_signals()
         came.append(number)
+        _exit_by_deadline(143 if number == signal.SIGTERM else 130)
         raise KeyboardInterrupt
 
     signal.signal(signal.SIGINT, interrupt)
     signal.signal(signal.SIGTERM, interrupt)
     return came
+
+
+EXIT_DEADLINE = 30.0
+"""Seconds an interrupted command has to write its best gait and exit. Past them it ends at once, saying so: a CI run
+saw one not end within 60 s of a double Ctrl-C (once in ~40 runs, not reproduced since; read, not proved: an exit
+handler joining a pool thread that never ended). An interrupted search normally ends in 1-3 s."""
+
+
+def _exit_by_deadline(code: int) -> None:
+    """Start the clock of ``EXIT_DEADLINE`` on a daemon thread, which still runs while the interpreter's exit
+    handlers do (where the hang was), and which the exit does not wait for."""
+
+    def watch() -> None:
+        time.sleep(EXIT_DEADLINE)
+        try:
+            sys.stderr.write(f"gaits tune: did not exit within {EXIT_DEADLINE:g} s of the interruption: ending it "
+                             "now\n")  # fmt: skip
+            sys.stderr.flush()
+        finally:
+            os._exit(code)
+
+    threading.Thread(target=watch, name="gaits-tune-exit-deadline", daemon=True).start()
 
 
 def _ignore_signals() -> None:

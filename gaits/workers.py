@@ -55,7 +55,7 @@ def stop_pool(pool: Executor, grace: float = 5.0) -> None:
         time.sleep(0.005)
     _end(processes, grace)
     if manager is not None:
-        manager.join(60.0)
+        manager.join(10.0)  # bounded: `gaits tune` must write its best gait before its exit deadline (30 s)
 
 
 def _end(processes: list[Any], grace: float) -> None:

@@ -136,6 +136,47 @@ def test_a_second_ctrl_c_does_not_hang_the_command(tmp_path) -> None:
         assert workers and not alive, f"workers left running: {alive}"
 
 
+HUNG_EXIT = """
+import atexit, sys, time
+import gaits.tune_command
+gaits.tune_command.EXIT_DEADLINE = 3.0
+atexit.register(time.sleep, 3600)  # an exit handler that never returns, as a pool's thread stuck in its join would be
+from gaits.cli import main
+sys.exit(main(sys.argv[1:]))
+"""
+
+
+def test_an_interrupted_command_ends_by_its_deadline_whatever_hangs_its_exit(tmp_path) -> None:
+    """A CI run saw `gaits tune` not end within 60 s of a double Ctrl-C (once in ~40 runs, not reproduced since;
+    its cause is read, not proved: an exit handler joining a pool's thread that never ends). Whatever hangs the
+    exit of an interrupted search, the command writes its best gait and ends with 130 by ``EXIT_DEADLINE``; here an
+    exit handler sleeps an hour."""
+    import subprocess
+    import sys
+    import time
+
+    import psutil
+
+    from .searches import ROOT
+
+    out = tmp_path / "tuned.toml"
+    command = [sys.executable, "-c", HUNG_EXIT, "tune", str(LIBRARY / "caterpillar.toml"), "--free",
+               "amplitude=20:85", "--budget", "2000", "--seconds", "1", "--warmup", "0.5", "--workers", "2",
+               "--out", str(out)]  # fmt: skip
+    process = subprocess.Popen(command, stderr=subprocess.PIPE, stdout=subprocess.PIPE, text=True, cwd=ROOT)
+    with workers_of(process) as workers:
+        workers += interrupt(process, "generation 1:", [signal.SIGINT])
+        began = time.monotonic()
+        _, rest = process.communicate(timeout=60)
+        took = time.monotonic() - began
+        assert process.returncode == 130, rest
+        assert "interrupted" in out.read_text(encoding="utf-8"), rest
+        assert "did not exit within 3 s of the interruption: ending it now" in rest, rest
+        assert 2.5 < took < 30, took
+        _, alive = psutil.wait_procs(workers, timeout=30)
+        assert workers and not alive, f"workers left running: {alive}"
+
+
 def test_the_workers_end_when_the_command_is_killed(tmp_path) -> None:
     """kill -9 leaves the command no chance to end its workers: each notices its parent is gone and ends itself
     (they stayed, orphaned, for minutes)."""
