@@ -116,7 +116,9 @@ def _main(argv: list[str] | None) -> int:
     if args.command == "tune":
         from .tune_command import command  # cma and MuJoCo load only for this command
 
-        return run("gaits tune", lambda: command(args))
+        # the process is the command's own only when its arguments are (`gaits`, `python -m gaits.cli`): a caller
+        # of main(argv) in its own process (a test, a notebook) must not inherit its exit deadline
+        return run("gaits tune", lambda: command(args, own_process=argv is None))
     if args.command == "validate":
         return _validate(args.files)
     try:

@@ -22,17 +22,19 @@ from .terrain import FLAT
 from .tune import OBJECTIVES, STILL, Result, Setup, amount, source_of, tune, tuned_text
 
 
-def _interrupt_once() -> list[int]:
+def _interrupt_once(own_process: bool) -> list[int]:
     """Ctrl-C and SIGTERM raise KeyboardInterrupt in the main thread, once: the search stops, its workers end
     (killed outright, the parent would leave them orphaned) and the best so far is written. From then on both are
     ignored: a second Ctrl-C interrupted the wrap-up or the interpreter's exit, left a traceback and hung the command
-    on its pool half shut down. The list holds the signal that came (SIGTERM: exit 143, not 130)."""
+    on its pool half shut down. The list holds the signal that came (SIGTERM: exit 143, not 130). In the command's
+    own process the first also starts the clock of ``EXIT_DEADLINE``."""
     came: list[int] = []
 
     def interrupt(number: int, _: object) -> None:
         _ignore_signals()
         came.append(number)
-        _exit_by_deadline(143 if number == signal.SIGTERM else 130)
+        if own_process:
+            _exit_by_deadline(143 if number == signal.SIGTERM else 130)
         raise KeyboardInterrupt
 
     signal.signal(signal.SIGINT, interrupt)
@@ -91,9 +93,11 @@ class Bar:
         self.bar.close()
 
 
-def command(args: argparse.Namespace) -> int:
+def command(args: argparse.Namespace, *, own_process: bool = False) -> int:
     """``gaits tune``: parse, search, write the best gait (also after Ctrl-C); exit 1 when nothing met the
-    constraints, 130 after an interruption."""
+    constraints, 130 after an interruption. ``own_process``: the process is the command's, to end after an
+    interruption (by ``EXIT_DEADLINE``, the signals ignored meanwhile); else its caller's, which goes on after it
+    with its own signal handlers back."""
     try:
         gait = load(args.file)
     except (GaitError, OSError) as exc:
@@ -115,7 +119,7 @@ def command(args: argparse.Namespace) -> int:
     print(f"tuning {gait.name}: {len(frees)} free, {args.objective}, budget {args.budget}, seed {args.seed}",
           file=sys.stderr)  # fmt: skip
     handlers = signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)
-    came = _interrupt_once()  # a scheduler's SIGTERM or `timeout` ends it as Ctrl-C does
+    came = _interrupt_once(own_process)  # a scheduler's SIGTERM or `timeout` ends it as Ctrl-C does
     bar = Bar(args.budget, setup)
     try:
         try:
@@ -131,7 +135,7 @@ def command(args: argparse.Namespace) -> int:
         return _wrap_up(args, gait, frees, setup, result, out, 143 if signal.SIGTERM in came else 130)
     finally:
         bar.close()
-        if not came:  # interrupted, the process is ending: a signal now would only interrupt its exit
+        if not came or not own_process:  # interrupted, its own process is ending: a signal would only interrupt it
             signal.signal(signal.SIGINT, handlers[0])
             signal.signal(signal.SIGTERM, handlers[1])
 

@@ -85,7 +85,7 @@ def _next_on_grid(now: float, step: float) -> float:
     (k·period is k·(period/4)·4 to the last bit), so their timers fall due together and one wake serves them all;
     a sum of steps, or a quarter period counted from each node's own opening, drifted apart (issue 31)."""
     wake = (now // step + 1) * step
-    return wake if wake > now else wake + step
+    return wake if wake > now else (now // step + 2) * step  # a product too, not a sum: on the grid to the last bit
 
 
 class CanTransport(FrameSender, Transport):

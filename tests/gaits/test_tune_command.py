@@ -142,7 +142,7 @@ import gaits.tune_command
 gaits.tune_command.EXIT_DEADLINE = 3.0
 atexit.register(time.sleep, 3600)  # an exit handler that never returns, as a pool's thread stuck in its join would be
 from gaits.cli import main
-sys.exit(main(sys.argv[1:]))
+sys.exit(main())  # the command's own process: main() reads sys.argv, as `gaits` and `python -m gaits.cli` do
 """
 
 
@@ -175,6 +175,41 @@ def test_an_interrupted_command_ends_by_its_deadline_whatever_hangs_its_exit(tmp
         assert 2.5 < took < 30, took
         _, alive = psutil.wait_procs(workers, timeout=30)
         assert workers and not alive, f"workers left running: {alive}"
+
+
+IN_PROCESS = """
+import os, signal, sys, threading, time
+import gaits.tune_command as tc
+tc.EXIT_DEADLINE = 1.0
+said = tc.Bar.__call__
+def interrupted_at_the_first_generation(self, result, line):
+    said(self, result, line)
+    os.kill(os.getpid(), signal.SIGINT)
+tc.Bar.__call__ = interrupted_at_the_first_generation
+from gaits.cli import main
+code = main(sys.argv[1:])
+time.sleep(3)  # three times the deadline
+print(code, signal.getsignal(signal.SIGINT) is signal.default_int_handler, [t.name for t in threading.enumerate()])
+"""
+
+
+def test_a_caller_of_main_in_its_own_process_goes_on_after_an_interrupted_tune(tmp_path) -> None:
+    """The exit deadline is the command's own process's: a test or a notebook calling ``main(["tune", ...])`` is
+    neither ended 30 s after a Ctrl-C it passed on (the review of ``EXIT_DEADLINE``: it was) nor left with Ctrl-C
+    ignored."""
+    import subprocess
+    import sys
+
+    from .searches import ROOT
+
+    out = tmp_path / "tuned.toml"
+    command = [sys.executable, "-c", IN_PROCESS, "tune", str(LIBRARY / "caterpillar.toml"), "--free",
+               "amplitude=20:85", *QUICK, "--budget", "200", "--out", str(out)]  # fmt: skip
+    done = subprocess.run(command, capture_output=True, text=True, cwd=ROOT, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.splitlines()[-1].split(" ", 2)[:2] == ["130", "True"], done.stdout + done.stderr
+    assert "gaits-tune-exit-deadline" not in done.stdout and "did not exit" not in done.stderr, done.stdout
+    assert "interrupted" in out.read_text(encoding="utf-8")
 
 
 def test_the_workers_end_when_the_command_is_killed(tmp_path) -> None:
