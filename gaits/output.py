@@ -8,7 +8,9 @@ waits for ever), and a file that cannot be opened for writing (``/proc/self/x``,
 
 from __future__ import annotations
 
+import contextlib
 import os
+import tempfile
 from pathlib import Path
 
 from .model import Gait
@@ -40,3 +42,34 @@ def refused(out: Path, source: str | Path, gait: Gait) -> str | None:
     except (OSError, RuntimeError, ValueError) as exc:
         return f"cannot be written: {getattr(exc, 'strerror', None) or exc}"
     return None
+
+
+def write_whole(out: Path, text: str) -> None:
+    """Write ``text`` to ``out`` whole or not at all: into a new file beside it, then renamed over it. The result of
+    an hour's search must not be left half written over the file it replaces — by a full disk, a kill, or ``gaits
+    tune``'s exit deadline — and that file keeps its bytes until the new ones are all on disk. Through a symbolic
+    link its target is replaced, keeping the target's permissions (a new file gets the umask's, as ``open`` gives).
+    Where no file can be made beside it (a folder not writable, the file is), it is written in place, as before."""
+    target = out.resolve()
+    try:
+        handle, temporary = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".partial", dir=target.parent)
+    except OSError:
+        target.write_text(text, encoding="utf-8")
+        return
+    try:
+        with os.fdopen(handle, "w", encoding="utf-8") as file:
+            file.write(text)
+            file.flush()
+            os.fsync(file.fileno())
+        try:
+            mode = os.stat(target).st_mode & 0o7777
+        except FileNotFoundError:
+            umask = os.umask(0)
+            os.umask(umask)
+            mode = 0o666 & ~umask
+        os.chmod(temporary, mode)
+        os.replace(temporary, target)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(temporary)
+        raise

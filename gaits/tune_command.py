@@ -16,7 +16,7 @@ from typing import TextIO
 from tqdm import tqdm
 
 from .model import Gait, GaitError, load
-from .output import refused
+from .output import refused, write_whole
 from .params import Free, check, current
 from .terrain import FLAT
 from .tune import OBJECTIVES, STILL, Result, Setup, amount, source_of, tune, tuned_text
@@ -194,7 +194,7 @@ def _wrap_up(args: argparse.Namespace, gait: Gait, frees: list[Free], setup: Set
               f"{amount(result.verify_value, setup)}", file=sys.stderr)  # fmt: skip
     values = ", ".join(f"{f} = {v:g}" for f, v in zip(frees, result.values, strict=True))
     try:
-        out.write_text(text, encoding="utf-8")
+        write_whole(out, text)
     except OSError as exc:  # it could be written when the search began: the gait is not lost, it follows here
         print(f"gaits tune: error: --out {out} cannot be written now ({exc.strerror or exc}); the tuned gait "
               f"({values}) follows on stdout", file=sys.stderr)  # fmt: skip

@@ -63,16 +63,43 @@ def test_an_empty_out_is_no_file_name(capsys) -> None:
 def test_a_file_that_cannot_be_written_after_the_search_is_printed_not_lost(tmp_path, capsys, monkeypatch) -> None:
     out = tmp_path / "tuned.toml"
 
-    def full(self: Path, *args: object, **kwargs: object) -> int:
+    def full(*args: object, **kwargs: object) -> int:
         raise OSError(28, "No space left on device")
 
-    monkeypatch.setattr(Path, "write_text", full)
+    monkeypatch.setattr("gaits.tune_command.write_whole", full)
     assert main(["tune", str(LIBRARY / "caterpillar.toml"), "--free", "amplitude=20:80", *QUICK, "--out",
                  str(out)]) == 1  # fmt: skip
     captured = capsys.readouterr()
     assert "cannot be written now (No space left on device)" in captured.err and "amplitude=20:80 = " in captured.err
     assert captured.out.startswith("# Tuned by `gaits tune` from caterpillar.toml")
     assert "[automata.wave]" in captured.out
+
+
+def test_a_write_that_fails_halfway_leaves_the_file_it_would_replace_whole(tmp_path) -> None:
+    """A disk that fills during the write (here a file-size limit of 512 bytes, the tuned gait ~2 KB) left --out
+    cut short, its old bytes gone and the new ones half there; now the old file stays as it was, nothing is left
+    beside it, and the tuned gait follows on stdout (the review of the exit deadline, which could also cut a write)."""
+    import resource
+    import subprocess
+    import sys
+
+    from .searches import ROOT
+
+    out = tmp_path / "tuned.toml"
+    out.write_text("# an earlier search's gait\n", encoding="utf-8")
+
+    def limited() -> None:
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # past the limit a write fails (EFBIG) instead of a signal
+        resource.setrlimit(resource.RLIMIT_FSIZE, (512, 512))
+
+    command = [sys.executable, "-m", "gaits.cli", "tune", str(LIBRARY / "caterpillar.toml"), "--free",
+               "amplitude=20:80", *QUICK, "--out", str(out)]  # fmt: skip
+    done = subprocess.run(command, capture_output=True, text=True, cwd=ROOT, timeout=120, preexec_fn=limited)
+    assert done.returncode == 1, done.stderr
+    assert "cannot be written now (File too large)" in done.stderr, done.stderr
+    assert done.stdout.startswith("# Tuned by `gaits tune` from caterpillar.toml") and "[automata.wave]" in done.stdout
+    assert out.read_text(encoding="utf-8") == "# an earlier search's gait\n"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["tuned.toml"]
 
 
 def test_the_torque_limit_goes_as_high_as_a_stall_torque(tmp_path, capsys) -> None:
