@@ -10,7 +10,8 @@ from __future__ import annotations
 
 import contextlib
 import os
-import tempfile
+import secrets
+import stat
 from pathlib import Path
 
 from .model import Gait
@@ -37,8 +38,8 @@ def refused(out: Path, source: str | Path, gait: Gait) -> str | None:
             return "is not a regular file"
         with open(out, "a", encoding="utf-8"):  # appends nothing: an existing file keeps its bytes until written
             pass
-        if not existed:
-            out.unlink()
+        if not existed:  # made here: through a dangling link, the link's target (the link is kept)
+            Path(os.path.realpath(out)).unlink()
     except (OSError, RuntimeError, ValueError) as exc:
         return f"cannot be written: {getattr(exc, 'strerror', None) or exc}"
     return None
@@ -48,28 +49,59 @@ def write_whole(out: Path, text: str) -> None:
     """Write ``text`` to ``out`` whole or not at all: into a new file beside it, then renamed over it. The result of
     an hour's search must not be left half written over the file it replaces — by a full disk, a kill, or ``gaits
     tune``'s exit deadline — and that file keeps its bytes until the new ones are all on disk. Through a symbolic
-    link its target is replaced, keeping the target's permissions (a new file gets the umask's, as ``open`` gives).
-    Where no file can be made beside it (a folder not writable, the file is), it is written in place, as before."""
-    target = out.resolve()
+    link, its target is replaced. The new file has the permissions of the one it replaces (or the umask's).
+
+    Where a rename would change more than the bytes, the file is written in place as before: another user's file
+    (its owner, group and ACLs would become ours), a file with other hard links (they would keep the old bytes), one
+    this user may not write, and wherever the folder takes no new file or the rename is refused (a sticky folder).
+    A kill during the write can leave a ``.gaits-*.partial`` file beside it."""
+    target = Path(os.path.realpath(out))  # a link loop is no error here: the write below says it
+    if not _replaceable(target):
+        target.write_text(text, encoding="utf-8")
+        return
     try:
-        handle, temporary = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".partial", dir=target.parent)
+        temporary = _new_beside(target)
     except OSError:
         target.write_text(text, encoding="utf-8")
         return
     try:
-        with os.fdopen(handle, "w", encoding="utf-8") as file:
+        with open(temporary, "w", encoding="utf-8") as file:
             file.write(text)
             file.flush()
             os.fsync(file.fileno())
+        with contextlib.suppress(FileNotFoundError):
+            os.chmod(temporary, os.stat(target).st_mode & 0o777)
         try:
-            mode = os.stat(target).st_mode & 0o7777
-        except FileNotFoundError:
-            umask = os.umask(0)
-            os.umask(umask)
-            mode = 0o666 & ~umask
-        os.chmod(temporary, mode)
-        os.replace(temporary, target)
+            os.replace(temporary, target)
+        except PermissionError:  # a sticky folder: renamed over only by the folder's or the file's owner
+            os.unlink(temporary)
+            target.write_text(text, encoding="utf-8")
     except BaseException:
         with contextlib.suppress(OSError):
             os.unlink(temporary)
         raise
+
+
+def _replaceable(target: Path) -> bool:
+    """Whether renaming a new file over ``target`` changes nothing but its bytes (see ``write_whole``)."""
+    try:
+        info = os.stat(target)
+    except FileNotFoundError:
+        return True
+    except OSError:
+        return False
+    return (stat.S_ISREG(info.st_mode) and info.st_uid == os.geteuid() and info.st_nlink == 1
+            and os.access(target, os.W_OK))  # fmt: skip
+
+
+def _new_beside(target: Path) -> Path:
+    """A new, empty file in ``target``'s folder, with a short name (a long ``target`` name must not make it too
+    long) and the umask's permissions (``open`` applies it; ``mkstemp`` would give 0600)."""
+    for _ in range(100):
+        path = target.parent / f".gaits-{secrets.token_hex(4)}.partial"
+        try:
+            os.close(os.open(path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o666))
+        except FileExistsError:
+            continue
+        return path
+    raise FileExistsError(f"no new file name in {target.parent}")
