@@ -59,8 +59,9 @@ halfway, the joint still on its way)."""
 SETTLED = 2.0
 """Seconds without progress after which a joint past halfway counts as stopped short. (0.4 s read a joint still on
 its way as stopped at 12.5° of 15° when the emulated boards ran on a loaded machine: a fresh-clone run with four
-test workers; 1 s read one as stopped at 13.27° in a three-worker run: the robot's real-time physics, starved of the
-CPU, held it still longer. A joint a limit holds short is answered a second later for it.)"""
+test workers. 2 s since stop 54, for a physics starved of the CPU that holds a joint still longer; the 13.27° of 15°
+taken then for such a stall was measured at stop 55 to be a true answer: the joint overshot to 16.7° and sat at
+13.3° from its start, its chain moved by its neighbours' wiggles. A joint held short is answered a second later.)"""
 FULL_MOVE_TIMEOUT = 2 * MOVE_TIMEOUT
 """Seconds a wiggled joint past halfway and still moving is watched, at most, before what it moved is the answer."""
 ASM_TIMEOUT = 5.0

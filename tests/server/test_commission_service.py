@@ -22,6 +22,7 @@ from asm_py.node import Node
 from asm_py.remote import RemoteAttribute
 from asm_py.transport.zenoh import ZenohTransport
 from gaits.model import LIBRARY
+from server.commission_service import ARRIVED
 from server.robot import Robot, RobotOptions
 from server.zenoh_args import ZenohOptions
 
@@ -70,18 +71,19 @@ def bench(tmp_path) -> Iterator[Bench]:
         bench.close()
 
 
-def _wiggled_position(bench: Bench, request: dict) -> tuple[int, dict]:
+def _wiggled_position(bench: Bench, request: dict) -> tuple[int, dict, float]:
     """Wiggle as ``request`` says, sampling every joint meanwhile: the chain position whose joint moved most (the
     others moved less than two thirds as far: the chain shakes its neighbours a little), with the service's
-    answer."""
+    answer and how far that joint was held, as the physics has it: the median of its displacements while past
+    half its swing."""
     rest = {p: bench.angle(p) for p in range(1, 9)}
-    swing = dict.fromkeys(rest, 0.0)
+    trace: dict[int, list[float]] = {p: [] for p in rest}
     done = threading.Event()
 
     def sample() -> None:
         while not done.is_set():
             for p in rest:
-                swing[p] = max(swing[p], abs(bench.angle(p) - rest[p]))
+                trace[p].append(abs(bench.angle(p) - rest[p]))
             time.sleep(0.01)
 
     sampler = threading.Thread(target=sample, daemon=True)
@@ -91,9 +93,20 @@ def _wiggled_position(bench: Bench, request: dict) -> tuple[int, dict]:
     finally:
         done.set()
         sampler.join(5)
+    swing = {p: max(t, default=0.0) for p, t in trace.items()}
     most = max(swing, key=lambda p: swing[p])
     assert swing[most] > 7.5 and all(s < swing[most] / 1.5 for p, s in swing.items() if p != most), swing
-    return most, answer
+    away = sorted(v for v in trace[most] if v >= swing[most] / 2)
+    return most, answer, away[len(away) // 2]
+
+
+def _answered_its_travel(answer: dict, held: float) -> bool:
+    """The wiggle's answer says the joint got (nearly) there: within ARRIVED and half a degree of the 15° asked —
+    or, where the physics held the joint short, within a degree of where it was held. (A joint of the chain under
+    load sits short of its goal: the physics had one overshoot to 16.7° in 50 ms and settle at 12.7-13.3° from
+    where it started, after its neighbours' wiggles had moved the chain; the service reads it every 50 ms over
+    ASM, missed the overshoot and answered 13.27° after SETTLED, a true answer 13.5 refused, in two CI runs.)"""
+    return answer["moved"] >= min(15.0 - ARRIVED - 0.5, held - 1.0)
 
 
 def _info(client: Node, name: str) -> dict | None:
@@ -118,9 +131,12 @@ def test_fresh_boards_are_found_wiggled_numbered_along_the_chain_and_kept_across
         assert all(m["id"] == 0 for m in listed["modules"]) and listed["conflicts"] == {}
         numbered = {}
         for module in listed["modules"]:  # the serials' order, not the chain's: the wiggle says where each sits
-            position, answer = _wiggled_position(bench, {"op": "wiggle", "serial": module["serial"]})
+            position, answer, held = _wiggled_position(bench, {"op": "wiggle", "serial": module["serial"]})
             assert position == serials[module["serial"]]
-            assert answer["id"] == 0 and answer["temporary"] == 199 and answer["moved"] >= 13.5, answer
+            assert answer["id"] == 0 and answer["temporary"] == 199 and _answered_its_travel(answer, held), (
+                answer,
+                held,
+            )
             numbered[module["serial"]] = position
         assert all(m["id"] == 0 for m in bench.ask({"op": "list"})["modules"]), "a wiggle leaves no ID behind"
         for serial, position in numbered.items():
@@ -131,7 +147,7 @@ def test_fresh_boards_are_found_wiggled_numbered_along_the_chain_and_kept_across
         bench.ask({"op": "assign", "serial": third, "id": 3})
         assert wait_until(lambda: all((_info(bench.client, f"m{p}") or {}).get("language") == 1 for p in BOARDS),
                           timeout=120)  # fmt: skip
-        position, answer = _wiggled_position(bench, {"op": "wiggle", "id": 2})  # numbered: wiggled by its ID
+        position, answer, _ = _wiggled_position(bench, {"op": "wiggle", "id": 2})  # numbered: wiggled by its ID
         assert position == 2 and answer["temporary"] is None
     finally:
         bench.close()
