@@ -575,7 +575,7 @@ def test_an_undo_takes_back_the_edit_typed_just_before_it(studio, monkeypatch, h
     assert _wave_rows(app)[2][0] == angle and doc.data().get("description") == "a step to undo"
 
 
-@pytest.mark.filterwarnings("ignore:Queued a FrameMessage on a closed connection:UserWarning")  # stopped on purpose
+@pytest.mark.filterwarnings(r"ignore:Queued a \w+ on a closed connection:UserWarning")  # stopped on purpose
 def test_a_control_set_after_the_page_closed_is_still_set(studio) -> None:
     """on_edit's coroutine callback, scheduled on viser's loop by every value set from the server: after the server
     stopped, viser raised RuntimeError (the loop closed) out of the setter, and the edit was lost."""
