@@ -43,7 +43,7 @@ class DeployPanel:
         self.intro = gui.add_markdown("")
         self._describe_target()
         self.button = gui.add_button("Deploy")
-        self.button.on_click(page.safe(lambda _: self.on_deploy()))
+        self.button.on_click(page.safe(page.in_turn(lambda _: self.on_deploy())))  # the gait with every edit before
         self.confirm = InlineConfirm(gui, page.safe)
         self.lease_md = gui.add_markdown("")
         self.progress = gui.add_progress_bar(0.0)

@@ -81,8 +81,9 @@ class GaitEditor:
         self.upload.on_upload(safe(self._on_upload))
         self.history_actions = gui.add_button_group("History", ["Undo", "Redo"])
         on_edit(self.history_actions, self.history, click=True)  # in order with the edits that came before it
-        gui.add_button("Download .toml").on_click(safe(lambda e: e.client.send_file_download(
-            f"{self.doc.gait().name}.toml", self.doc.text().encode(), save_immediately=True)))  # fmt: skip
+        self.download = gui.add_button("Download .toml")
+        self.download.on_click(safe(page.in_turn(lambda e: e.client.send_file_download(
+            f"{self.doc.gait().name}.toml", self.doc.text().encode(), save_immediately=True))))  # fmt: skip
         self.problems = gui.add_markdown("")
         self.tools = GaitTools(gui, self.doc, edited=self.after_edit, safe=safe, syncing=lambda: page.syncing,
                                on_edit=on_edit)  # fmt: skip

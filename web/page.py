@@ -260,6 +260,17 @@ class Page:
 
         return forget
 
+    def in_turn(self, handler: Callable[[Any], None]) -> Callable[[Any], None]:
+        """``handler`` for a click that reads what the edits made (a download): the edits that arrived before the
+        click are applied first. viser's pool may run a click's callback before the callbacks of edits that came
+        earlier (a sequence typed, Enter, then Download: the file had no sequence, in a fresh-clone run)."""
+
+        def run(event: Any) -> None:
+            self._apply_arrived()
+            handler(event)
+
+        return run
+
     def arriving_client(self) -> int | None:
         """The tab whose edit is arriving, read inside an :meth:`on_edit` context (None there for a value set from
         the server, and anywhere else): what a context is of may depend on what that tab did before it."""

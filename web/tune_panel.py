@@ -75,7 +75,7 @@ class TunePanel:
                                       hint=f"candidates simulated at once (this machine has {cores} cores): fewer "
                                       "leave a core to the live robot and the page")  # fmt: skip
         self.control = gui.add_button_group("Tuning", ["Start tuning", "Stop tuning"])
-        self.control.on_click(page.safe(self._on_control))
+        self.control.on_click(page.safe(page.in_turn(self._on_control)))  # from the gait with every edit before
         self.progress = gui.add_progress_bar(0.0)
         self.status = gui.add_markdown("Not tuning.")
         self.curve = gui.add_uplot(data=empty_plot(2),

@@ -176,6 +176,49 @@ def test_a_sequence_typed_right_after_add_is_kept_when_the_add_runs_first(studio
     assert program.sequence.value == "forward 2, wiggle 3, forward"
 
 
+def test_a_download_clicked_right_after_an_edit_holds_the_edit_when_the_pool_runs_the_click_first(
+    studio, monkeypatch
+) -> None:
+    """Found by test_drive_e2e in a fresh-clone run: a sequence typed, Enter, then Download: the file had no
+    sequence. The click's callback ran on viser's pool before the sequence's, and read the document without it;
+    a download is now taken in its place among the page's edits."""
+    from gaits.model import loads
+
+    app = studio.app
+    pool = _HeldPool()
+    monkeypatch.setattr(app.server.gui, "_thread_executor", pool)
+    files: list[str] = []
+    tab = SimpleNamespace(client_id=7, send_file_download=lambda name, content, **_: files.append(content.decode()))
+    monkeypatch.setitem(app.server._connected_clients, 7, tab)
+    _arrives(app, app.editor.program.sequence, "forward 2, forward")
+    _arrives(app, app.editor.download, True)
+    for fn, args in reversed(pool.held):  # the pool's worst order: the click's callbacks first
+        fn(*args)
+    assert len(files) == 1 and loads(files[0]).sequence == [("forward", 2), ("forward", 0)], files
+
+
+def test_deploy_and_tuning_clicked_right_after_an_edit_take_the_edited_gait_when_the_click_runs_first(
+    studio, monkeypatch
+) -> None:
+    """As the download above: Deploy and Start tuning read the edited gait, so each takes its place among the
+    page's edits (the deploy's and the search's own work stubbed: what gait each would have read)."""
+    app = studio.app
+    pool = _HeldPool()
+    monkeypatch.setattr(app.server.gui, "_thread_executor", pool)
+    monkeypatch.setitem(app.server._connected_clients, 7, SimpleNamespace(client_id=7))
+    read: list[list] = []
+    monkeypatch.setattr(app.deployer, "on_deploy", lambda: read.append(app.doc.gait().sequence))
+    monkeypatch.setattr(app.tuner, "start", lambda: read.append(app.doc.gait().sequence))
+    for click, text in ((lambda: _arrives(app, app.deployer.button, True), "forward 2, forward"),
+                        (lambda: _arrives(app, app.tuner.control, "Start tuning"), "forward 3")):  # fmt: skip
+        pool.held.clear()
+        _arrives(app, app.editor.program.sequence, text)
+        click()
+        for fn, args in reversed(pool.held):  # the pool's worst order: the click's callbacks first
+            fn(*args)
+    assert read == [[("forward", 2), ("forward", 0)], [("forward", 3)]], read
+
+
 def test_each_edit_is_applied_with_the_value_it_arrived_with_in_arrival_order(studio, monkeypatch) -> None:
     """The page's on_edit, alone: two values typed into a field, a resync setting it in between, the pool running
     the callbacks late; a value set by the server inside ``programmatic`` is not an edit, one set outside it is."""
