@@ -50,7 +50,7 @@ class DeployPanel:
         self.log_html = gui.add_html("")
         self._lines: list[str] = []
         self.run_buttons = gui.add_button_group("Modules", ["Start all", "Stop all"])
-        self.run_buttons.on_click(page.safe(self.on_run))
+        self.run_buttons.on_click(page.safe(page.in_turn(self.on_run)))  # the modules of every edit before it
         self._staged: DeployReport | None = None
         self._staged_lock = threading.Lock()
         page.on("relinked", self.relink)

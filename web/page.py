@@ -191,6 +191,7 @@ class Page:
 
         @functools.wraps(fn)
         def wrapped(event: Any) -> None:
+            acting = getattr(self._acting, "client", None)  # a safe callback inside another (in_turn's edits)
             self._acting.client = getattr(event, "client", None)
             try:
                 fn(event)
@@ -198,7 +199,7 @@ class Page:
                 log.info("action failed: %s", exc)
                 self.notify("Error", str(exc), error=True)
             finally:
-                self._acting.client = None
+                self._acting.client = acting
 
         return wrapped
 
@@ -266,8 +267,9 @@ class Page:
         earlier (a sequence typed, Enter, then Download: the file had no sequence, in a fresh-clone run)."""
 
         def run(event: Any) -> None:
-            self._apply_arrived()
-            handler(event)
+            if getattr(event, "client_id", None) is not None:  # a user's click; one set by the server runs at once,
+                self._apply_arrived()  # in the setting thread, which may be applying an edit (the lock is not
+            handler(event)  # re-entrant)
 
         return run
 

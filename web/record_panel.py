@@ -21,7 +21,7 @@ class RecordPanel:
         self.page = page
         self.buttons = page.gui.add_button_group("Recording", ACTIONS,
                                                  hint="record the robot shown to MCAP (Foxglove opens it)")  # fmt: skip
-        self.buttons.on_click(page.safe(self._on_click))
+        self.buttons.on_click(page.safe(page.in_turn(self._on_click)))  # the gait with every edit before it
         self.line = page.gui.add_markdown("Not recording.")
 
     def _on_click(self, event: Any) -> None:

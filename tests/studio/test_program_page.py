@@ -205,18 +205,59 @@ def test_deploy_and_tuning_clicked_right_after_an_edit_take_the_edited_gait_when
     app = studio.app
     pool = _HeldPool()
     monkeypatch.setattr(app.server.gui, "_thread_executor", pool)
-    monkeypatch.setitem(app.server._connected_clients, 7, SimpleNamespace(client_id=7))
+    monkeypatch.setitem(app.server._connected_clients, 7, _tab(7))
+    from gaits.model import loads
+
     read: list[list] = []
     monkeypatch.setattr(app.deployer, "on_deploy", lambda: read.append(app.doc.gait().sequence))
     monkeypatch.setattr(app.tuner, "start", lambda: read.append(app.doc.gait().sequence))
-    for click, text in ((lambda: _arrives(app, app.deployer.button, True), "forward 2, forward"),
-                        (lambda: _arrives(app, app.tuner.control, "Start tuning"), "forward 3")):  # fmt: skip
+    recorded = lambda _, __, text, ___: read.append(loads(text).sequence)  # noqa: E731
+    monkeypatch.setattr(app.page.recorder, "start_recording", recorded)
+    monkeypatch.setattr(app.page.robot, "start_all", lambda names: read.append(app.doc.gait().sequence) or [])
+    clicks = [
+        (app.deployer.button, True, "forward 2, forward"),
+        (app.tuner.control, "Start tuning", "forward 3"),
+        (app.recording.buttons, "● Record", "forward 4"),
+        (app.deployer.run_buttons, "Start all", "forward 5"),
+    ]
+    for button, value, text in clicks:
         pool.held.clear()
         _arrives(app, app.editor.program.sequence, text)
-        click()
+        _arrives(app, button, value)
         for fn, args in reversed(pool.held):  # the pool's worst order: the click's callbacks first
             fn(*args)
-    assert read == [[("forward", 2), ("forward", 0)], [("forward", 3)]], read
+    assert read == [[("forward", 2), ("forward", 0)], [("forward", 3)], [("forward", 4)], [("forward", 5)]], read
+
+
+def test_a_click_in_turn_knows_its_tab_and_one_set_by_the_server_inside_an_edit_does_not_wait_for_itself(
+    studio, monkeypatch
+) -> None:
+    """The review of ``Page.in_turn``: the edits applied first reset the page's acting tab to none (the click was
+    then taken for the server's own action), and an edit whose apply set such a button from the server waited for
+    the edits' lock it held itself, for ever."""
+    app, page = studio.app, studio.app.page
+    pool = _HeldPool()
+    monkeypatch.setattr(app.server.gui, "_thread_executor", pool)
+    tab = SimpleNamespace(client_id=7, add_notification=lambda *a, **k: None)
+    monkeypatch.setitem(app.server._connected_clients, 7, tab)
+    seen: list[object] = []
+    button = app.server.gui.add_button("in_turn probe")
+    button.on_click(page.safe(page.in_turn(lambda _: seen.append(page._acting.client))))
+    field = app.server.gui.add_text("in_turn probe field", initial_value="")
+    page.on_edit(field, lambda value: button._impl.value and None)
+    _arrives(app, field, "an edit first")
+    _arrives(app, button, True)
+    for fn, args in reversed(pool.held):
+        fn(*args)
+    assert seen == [tab], seen
+    inner = page.in_turn(lambda _: seen.append("set by the server"))
+    page.on_edit(field, lambda value: inner(SimpleNamespace(client_id=None, client=None)))
+    pool.held.clear()
+    _arrives(app, field, "an edit that clicks")
+    done = threading.Thread(target=lambda: [fn(*args) for fn, args in pool.held], daemon=True)
+    done.start()
+    done.join(10)
+    assert not done.is_alive() and seen[-1] == "set by the server", seen
 
 
 def test_each_edit_is_applied_with_the_value_it_arrived_with_in_arrival_order(studio, monkeypatch) -> None:
