@@ -18,6 +18,7 @@ never holds viser's thread pool; it writes the roster and the line under the but
 
 from __future__ import annotations
 
+import contextlib
 import math
 import queue
 import threading
@@ -128,12 +129,7 @@ class ModulesPanel:
         self.read_button.on_click(page.safe(lambda _: self._jobs.put(("read", None))))
         self.apply_button.on_click(page.safe(lambda _: self._queue_apply()))
         self.zero_button.on_click(page.safe(lambda _: self._queue_module("zero")))
-        self._typed: set[int] = set()
-        """The calibration fields a user changed since the last module picked (ids, as their edits arrived)."""
-        self.module.on_update(self._pick_arrived)
-        for field in (self.zero, self.direction, self.low, self.high):
-            field.on_update(self._field_arrived)
-        self.module.on_update(page.safe(lambda _: self._show_selected(keep_typed=True)))
+        page.on_arrival(self.module, lambda _: self._show_selected(on_loop=True))  # a user's pick
         self.upload.on_upload(page.safe(lambda e: self._queue_update(bytes(e.target.value.content))))
         self._thread = threading.Thread(target=self._run, name="studio-modules", daemon=True)
         self._thread.start()
@@ -173,30 +169,21 @@ class ModulesPanel:
         self.update_md.content = f"Queued {self._pending_update} …"
         self._jobs.put(("update", image))
 
-    async def _pick_arrived(self, event: Any) -> None:
-        """On viser's loop, as a user's pick arrives: the fields typed before it are the last module's."""
-        if event.client_id is not None:
-            self._typed.clear()
-
-    async def _field_arrived(self, event: Any) -> None:
-        """On viser's loop, as a user's value arrives (before any callback on the pool)."""
-        if event.client_id is not None:
-            self._typed.add(id(event.target))
-
-    def _show_selected(self, *, keep_typed: bool = False) -> None:
-        """The picked module's calibration into the fields (as last read). ``keep_typed``: for a pick, whose
-        callback viser runs later on its pool — a field the user typed after the pick arrived keeps what was typed
-        (a zero typed right after picking m3 was put back to m3's 0° before Apply, in a fresh-clone run)."""
+    def _show_selected(self, *, on_loop: bool = False) -> None:
+        """The picked module's calibration into the fields (as last read). A user's pick fills them on viser's loop
+        as it arrives (``on_loop``), before any later message of that tab sets a field or clicks Apply: filled
+        later on viser's pool, the fill put back a zero typed right after the pick (m3 calibrated with zero 0°, a
+        fresh-clone run), and an Apply the pool ran first took the last module's direction and limits (its
+        review). On the loop no page lock is taken (none of these fields has a callback to silence)."""
         with self._lock:
             c = self._calibrations.get(str(self.module.value))
-        if c is None or self.page.syncing:
+        if c is None or (not on_loop and self.page.syncing):
             return
         shown = [(self.zero, float(c["zero"])), (self.direction, "+1" if int(c["direction"]) > 0 else "-1"),
                  (self.low, float(c["min"])), (self.high, float(c["max"]))]  # fmt: skip
-        with self.page.programmatic():
+        with contextlib.nullcontext() if on_loop else self.page.programmatic():
             for field, value in shown:
-                if not (keep_typed and id(field) in self._typed):
-                    field.value = value
+                field.value = value
 
     # -- the worker ---------------------------------------------------------------------------------------------------
 
