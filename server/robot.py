@@ -108,6 +108,8 @@ class RealTimeLoop:
         self.rest = Rest(sim)
         self.resting = False
         """The robot stands still and the physics steps only every REST_TICK (server.rest)."""
+        self.given_up = 0.0
+        """Simulated seconds given up so far to keep up with the wall clock (each time more than MAX_LAG behind)."""
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="asm-robot-physics", daemon=True)
         self._thread.start()
@@ -124,6 +126,7 @@ class RealTimeLoop:
             now = time.monotonic()
             target = sim0 + (now - wall0)
             if target - sim.data.time > MAX_LAG:  # cannot keep up: give the time up rather than spiral
+                self.given_up += target - sim.data.time
                 wall0, sim0 = now, sim.data.time
                 target = sim.data.time
                 self._behind(True)

@@ -462,8 +462,8 @@ class CanTransport(FrameSender, Transport):
             return None
         now = time.monotonic()
         period = self.heartbeat_period
-        if now >= self._next_beat:
-            self._next_beat = _next_on_grid(now, period)
+        if due >= self._next_beat:  # by the wake's due time, not the clock: a wake run late never takes the next
+            self._next_beat = _next_on_grid(due, period)  # beat ahead of the other transports' (a CI run's did)
             try:
                 self._send_heartbeat()
             except Exception:
@@ -475,5 +475,6 @@ class CanTransport(FrameSender, Transport):
             self.reassembler.expire(now)
             partial = self.reassembler.partials > 0
         if self._alive or partial:
-            return _next_on_grid(now, period / 4)
+            wake = _next_on_grid(due, period / 4)  # the next quarter after this one, run at once if late: every
+            return wake if now - wake <= period else _next_on_grid(now, period / 4)  # grid wake, unless long gone
         return max(self._next_beat, now)

@@ -47,11 +47,13 @@ def test_a_still_robot_rests_its_time_goes_on_and_a_command_wakes_it(robot) -> N
     assert wait_until(lambda: loop.resting, timeout=30), "the caterpillar lying still never came to rest"
     with viewer._lock:
         viewer.frames.clear()
-    began, sim_began = time.monotonic(), robot.sim.data.time
+    began, sim_began, given_up = time.monotonic(), robot.sim.data.time, loop.given_up
     time.sleep(2.0)
     wall, simulated = time.monotonic() - began, robot.sim.data.time - sim_began
     assert loop.resting
-    assert simulated == pytest.approx(wall, abs=0.3)  # its clock keeps the wall clock's pace without physics
+    # its clock keeps the wall clock's pace without physics, but for time it gave up, said (starved more than
+    # MAX_LAG, as beside the suite's other workers: 1.54 s in 2.0, twice); some of it is always kept
+    assert simulated + (loop.given_up - given_up) == pytest.approx(wall, abs=0.3) and simulated > 0.5
     assert 2 <= len(viewer.frames) <= 8  # a pose every REST_TICK, not 60 a second of the same pose
     assert client.lookup("m3", "joint.angle", timeout=5).get(timeout=5) == pytest.approx(0.0, abs=2.0)
     client.lookup("m3", "joint.goal", timeout=5).set(30.0, wait=True)  # a command: the physics wakes

@@ -59,7 +59,7 @@ def panel(monkeypatch) -> Iterator[tuple[ModulesPanel, threading.Event, list[byt
     monkeypatch.setattr(modules_panel, "update_robot", update_robot)
     robot = SimpleNamespace(alive_modules=lambda: [], node=None, lookup=None)
     page = SimpleNamespace(gui=Gui(), robot=robot, safe=lambda f: f, syncing=False,
-                           programmatic=contextlib.nullcontext)  # fmt: skip
+                           programmatic=contextlib.nullcontext, on_arrival=lambda handle, note: None)  # fmt: skip
     made = ModulesPanel(page)  # type: ignore[arg-type]
     try:
         yield made, release, sent
