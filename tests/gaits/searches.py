@@ -15,9 +15,10 @@ from gaits.model import LIBRARY
 ROOT = Path(__file__).resolve().parents[2]
 
 
-def long_search(out: Path) -> subprocess.Popen[str]:
-    """``gaits tune`` with two workers and a budget far beyond a test's patience: to be stopped by a signal."""
-    command = [sys.executable, "-m", "gaits.cli", "tune", str(LIBRARY / "caterpillar.toml"), "--free",
+def long_search(out: Path, entry: Sequence[str] = ("-m", "gaits.cli")) -> subprocess.Popen[str]:
+    """``gaits tune`` with two workers and a budget far beyond a test's patience: to be stopped by a signal.
+    ``entry``: how Python starts it (``-c`` and a script around the command, for a test that changes its process)."""
+    command = [sys.executable, *entry, "tune", str(LIBRARY / "caterpillar.toml"), "--free",
                "amplitude=20:85", "--budget", "2000", "--seconds", "1", "--warmup", "0.5", "--workers", "2",
                "--out", str(out)]  # fmt: skip
     return subprocess.Popen(command, stderr=subprocess.PIPE, stdout=subprocess.PIPE, text=True, cwd=ROOT)

@@ -178,19 +178,12 @@ def test_an_interrupted_command_ends_by_its_deadline_whatever_hangs_its_exit(tmp
     its cause is read, not proved: an exit handler joining a pool's thread that never ends). Whatever hangs the
     exit of an interrupted search, the command writes its best gait and ends with 130 by ``EXIT_DEADLINE``; here an
     exit handler sleeps an hour."""
-    import subprocess
-    import sys
     import time
 
     import psutil
 
-    from .searches import ROOT
-
     out = tmp_path / "tuned.toml"
-    command = [sys.executable, "-c", HUNG_EXIT, "tune", str(LIBRARY / "caterpillar.toml"), "--free",
-               "amplitude=20:85", "--budget", "2000", "--seconds", "1", "--warmup", "0.5", "--workers", "2",
-               "--out", str(out)]  # fmt: skip
-    process = subprocess.Popen(command, stderr=subprocess.PIPE, stdout=subprocess.PIPE, text=True, cwd=ROOT)
+    process = long_search(out, entry=("-c", HUNG_EXIT))
     with workers_of(process) as workers:
         workers += interrupt(process, "generation 1:", [signal.SIGINT])
         began = time.monotonic()
